@@ -1,0 +1,581 @@
+"""Everything that touches rosbag2 files (through ``rosbags``): open, stream, decode, write.
+
+Reading: :func:`open_bag` accepts a rosbag2 directory (with ``metadata.yaml``), a bare ``.mcap`` or ``.db3``
+file, or a directory without metadata that holds exactly one storage file. :meth:`Bag.records` streams the raw
+CDR records of the requested topics one by one (rosbags reads mcap chunk by chunk and sqlite3 through a
+cursor), so an hour-long bag is never held in memory. Messages are decoded with the ``ROS2_JAZZY`` typestore
+(types the store lacks are registered from the bag's own message definitions).
+
+Fast decoding: decoding dominates replay time, and a validation needs only a few numbers per message. For
+``sensor_msgs/msg/Imu``, ``sensor_msgs/msg/JointState`` and ``std_msgs/msg/Float64|Float32|Bool`` in
+little-endian CDR, :func:`fast_decoder` reads exactly the configured fields at their CDR offsets with
+``struct`` (XCDR1 alignment: relative to the end of the 4-byte encapsulation header, primitives aligned to their
+size). Anything unexpected (big-endian data, short buffers, a missing joint) falls back to full deserialisation,
+and replay checks the first messages of every topic against full deserialisation before trusting it.
+
+Writing: :func:`write_flight` writes a :class:`~gap_validation.core.simulation.SimulatedFlight` as a rosbag2
+(mcap with zstd chunk compression by default, or sqlite3).
+"""
+from __future__ import annotations
+
+import json
+import shutil
+import sqlite3
+import struct
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable, Iterator, Sequence
+
+import numpy as np
+from rosbags.rosbag2 import Reader, Writer
+from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
+from rosbags.rosbag2.errors import ReaderError, WriterError
+from rosbags.serde import SerdeError
+from rosbags.typesys import Stores, TypesysError, get_types_from_idl, get_types_from_msg, get_typestore
+
+from gap_validation.core.errors import ConfigError, DataError
+from gap_validation.ingest import FieldPath
+
+if TYPE_CHECKING:  # pragma: no cover
+    from gap_validation.core.simulation import SimulatedFlight, TopicSeries
+
+__all__ = ["Bag", "TopicInfo", "open_bag", "fast_decoder", "write_flight", "STORAGES", "BAG_SUFFIXES",
+           "FastDecodeError"]
+
+#: Storage plugins :func:`write_flight` can write.
+STORAGES = ("mcap", "sqlite3")
+#: Bare storage files :func:`open_bag` reads.
+BAG_SUFFIXES = (".mcap", ".db3")
+#: Typestore of the ROS distribution whose message definitions decode the bags.
+TYPESTORE = Stores.ROS2_JAZZY
+
+#: Errors rosbags and its storage backends raise on damaged files.
+_READ_ERRORS = (ReaderError, SerdeError, TypesysError, sqlite3.Error, struct.error, OSError, EOFError,
+                ValueError, KeyError, IndexError, AssertionError, TypeError, AttributeError)
+
+
+@dataclass(frozen=True)
+class TopicInfo:
+    """A topic of a bag: message type and number of messages."""
+
+    topic: str
+    msgtype: str | None
+    count: int
+
+
+class FastDecodeError(Exception):
+    """The fast decoder cannot read this record; decode it fully instead."""
+
+
+def _one_line(err: BaseException) -> str:
+    text = " ".join(str(err).split()) or type(err).__name__
+    return text.rstrip(".")
+
+
+# --------------------------------------------------------------------------------------------- reading
+def _storage_path(path: Path) -> Path:
+    """The path rosbags should open: the directory, the bare file, or the one file of a metadata-less dir."""
+    if not path.exists():
+        raise DataError(f"{path}: no such bag (file or directory not found)")
+    if path.is_dir():
+        if (path / "metadata.yaml").exists():
+            return path
+        files = sorted(p for p in path.iterdir() if p.suffix in BAG_SUFFIXES and p.is_file())
+        if len(files) == 1:
+            return files[0]
+        what = "no" if not files else f"{len(files)}"
+        raise DataError(f"{path}: not a rosbag2 directory (no metadata.yaml and {what} .mcap/.db3 files)")
+    if path.suffix not in BAG_SUFFIXES:
+        raise DataError(f"{path}: not a bag (expected a rosbag2 directory, a .mcap or a .db3 file)")
+    return path
+
+
+class Bag:
+    """An open bag (context manager): topics, message counts and a streaming record iterator.
+
+    Parameters
+    ----------
+    path : str or Path
+        rosbag2 directory, ``.mcap`` or ``.db3`` file.
+
+    Raises
+    ------
+    DataError
+        One line naming the file: not found, not a bag, or unreadable (corrupted, truncated).
+    """
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        self._storage = _storage_path(self.path)
+        self.typestore = get_typestore(TYPESTORE)
+        try:
+            self._reader = Reader(self._storage)
+            self._reader.open()
+        except Exception as err:  # noqa: BLE001 - any failure to open means "not a readable bag"
+            raise DataError(f"{self.path}: cannot read bag ({_one_line(err)})") from None
+        self._closed = False
+
+    def __enter__(self) -> "Bag":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Close the underlying reader (idempotent)."""
+        if not self._closed:
+            self._closed = True
+            try:
+                self._reader.close()
+            except _READ_ERRORS:  # pragma: no cover - closing a damaged file
+                pass
+
+    @property
+    def topics(self) -> dict[str, TopicInfo]:
+        """Topic -> :class:`TopicInfo` (type and message count from the bag's index or metadata)."""
+        out: dict[str, TopicInfo] = {}
+        for conn in self._reader.connections:
+            info = out.get(conn.topic)
+            if info is None:
+                out[conn.topic] = TopicInfo(conn.topic, conn.msgtype, int(conn.msgcount))
+            else:
+                msgtype = info.msgtype if info.msgtype == conn.msgtype else None
+                out[conn.topic] = TopicInfo(conn.topic, msgtype, info.count + int(conn.msgcount))
+        return out
+
+    @property
+    def start_time_s(self) -> float:
+        """Bag time of the first message [s]."""
+        return self._reader.start_time * 1e-9
+
+    @property
+    def duration_s(self) -> float:
+        """Bag duration [s]."""
+        return self._reader.duration * 1e-9
+
+    def message_count(self, topics: Sequence[str] | None = None) -> int:
+        """Messages in ``topics`` (all topics when None)."""
+        info = self.topics
+        names = info.keys() if topics is None else [t for t in topics if t in info]
+        return sum(info[t].count for t in names)
+
+    def _connections(self, topics: Sequence[str] | None):
+        wanted = None if topics is None else set(topics)
+        return [c for c in self._reader.connections if wanted is None or c.topic in wanted]
+
+    def ensure_type(self, msgtype: str) -> None:
+        """Make ``msgtype`` decodable: register it from the bag's definition if the typestore lacks it.
+
+        Raises
+        ------
+        DataError
+            When the type is unknown and the bag carries no usable definition.
+        """
+        if msgtype in self.typestore.fielddefs:
+            return
+        for conn in self._reader.connections:
+            if conn.msgtype != msgtype or not conn.msgdef.data:
+                continue
+            try:
+                fmt = getattr(conn.msgdef.format, "name", str(conn.msgdef.format)).upper()
+                types = (get_types_from_idl(conn.msgdef.data) if fmt == "IDL"
+                         else _types_from_msgdef(conn.msgdef.data, msgtype))
+                self.typestore.register(types)
+                return
+            except (TypesysError, ValueError, KeyError) as err:
+                raise DataError(f"{self.path}: cannot use the definition of {msgtype} in the bag "
+                                f"({_one_line(err)})") from None
+        raise DataError(f"{self.path}: unknown message type {msgtype} (not in the {TYPESTORE.name} typestore "
+                        "and no definition in the bag)")
+
+    def records(self, topics: Sequence[str] | None = None) -> Iterator[tuple[str, str, int, Any]]:
+        """Stream ``(topic, msgtype, bag_time_ns, raw_cdr)`` of ``topics`` in bag-time order.
+
+        Raises
+        ------
+        DataError
+            On a damaged file, naming the bag (already yielded records stay valid).
+        """
+        conns = self._connections(topics)
+        if not conns:
+            return
+        try:
+            for conn, timestamp, raw in self._reader.messages(connections=conns):
+                yield conn.topic, conn.msgtype, timestamp, raw
+        except Exception as err:  # noqa: BLE001 - rosbags, zstd, lz4 and sqlite3 raise many kinds on damage
+            if isinstance(err, DataError):
+                raise
+            raise DataError(f"{self.path}: corrupted or unreadable data ({_one_line(err)})") from None
+
+    def deserialize(self, raw: Any, msgtype: str, topic: str = "") -> Any:
+        """Fully decode one CDR record into a rosbags message object.
+
+        Raises
+        ------
+        DataError
+            Naming the bag and topic when the record does not decode as ``msgtype``.
+        """
+        try:
+            return self.typestore.deserialize_cdr(raw, msgtype)
+        except KeyError:
+            self.ensure_type(msgtype)
+            return self.deserialize(raw, msgtype, topic)
+        except (SerdeError, struct.error, ValueError, IndexError, AssertionError, TypeError,
+                UnicodeDecodeError) as err:
+            raise DataError(f"{self.path}: topic {topic}: message does not decode as {msgtype} "
+                            f"({_one_line(err)})") from None
+
+    def messages(self, topics: Sequence[str] | None = None) -> Iterator[tuple[str, Any, float]]:
+        """Stream ``(topic, message object, bag_time_s)`` (full deserialisation)."""
+        for topic, msgtype, t_ns, raw in self.records(topics):
+            yield topic, self.deserialize(raw, msgtype, topic), t_ns * 1e-9
+
+
+def _types_from_msgdef(text: str, msgtype: str) -> dict:
+    """Types of a concatenated ros2msg definition (main type, then ``MSG: pkg/Name`` sections)."""
+    sep = "=" * 80 + "\n"
+    sections = text.split(sep)
+    types = dict(get_types_from_msg(sections[0], msgtype))
+    for section in sections[1:]:
+        header, _, body = section.partition("\n")
+        name = header.replace("MSG:", "").strip()
+        if "/" in name and "/msg/" not in name:
+            pkg, _, base = name.partition("/")
+            name = f"{pkg}/msg/{base}"
+        types.update(get_types_from_msg(body, name))
+    return types
+
+
+def open_bag(path: str | Path) -> Bag:
+    """Open a rosbag2 directory, ``.mcap`` or ``.db3`` file for streaming (see :class:`Bag`)."""
+    return Bag(path)
+
+
+# --------------------------------------------------------------------------------------------- fast decoding
+_HEAD = struct.Struct("<iII")       # header.stamp.sec, header.stamp.nanosec, frame_id length
+_U32 = struct.Struct("<I")
+_F64 = struct.Struct("<d")
+_F32 = struct.Struct("<f")
+
+#: Offsets [bytes] of Imu doubles after the 8-aligned start of ``orientation``.
+_IMU_OFFSETS = {
+    ("orientation", "x"): 0, ("orientation", "y"): 8, ("orientation", "z"): 16, ("orientation", "w"): 24,
+    ("angular_velocity", "x"): 104, ("angular_velocity", "y"): 112, ("angular_velocity", "z"): 120,
+    ("linear_acceleration", "x"): 200, ("linear_acceleration", "y"): 208, ("linear_acceleration", "z"): 216,
+}
+_IMU_SIZE = 296  # 4 + 9 + 3 + 9 + 3 + 9 doubles
+
+
+def _check_le(raw) -> None:
+    if len(raw) < 8 or raw[0] != 0 or raw[1] != 1:
+        raise FastDecodeError("not little-endian CDR")
+
+
+def _stamp(sec: int, nanosec: int) -> float | None:
+    return None if sec == 0 and nanosec == 0 else sec + nanosec * 1e-9
+
+
+def _imu_decoder(paths: Sequence[FieldPath]) -> Callable | None:
+    keys = []
+    for path in paths:
+        if any(s.kind != "attr" for s in path.steps) or path.attributes not in _IMU_OFFSETS:
+            return None
+        keys.append(path.attributes)
+    offsets = sorted({_IMU_OFFSETS[k] for k in keys})
+    fmt, pos = "<", 0
+    for off in offsets:
+        fmt += (f"{off - pos}x" if off > pos else "") + "d"
+        pos = off + 8
+    reader = struct.Struct(fmt)
+    order = [offsets.index(_IMU_OFFSETS[k]) for k in keys]
+
+    def decode(raw):
+        _check_le(raw)
+        sec, nanosec, slen = _HEAD.unpack_from(raw, 4)
+        base = 4 + ((12 + slen + 7) & ~7)  # frame_id ends at 16 + slen; align 8 relative to offset 4
+        if len(raw) < base + _IMU_SIZE:
+            raise FastDecodeError("short Imu record")
+        got = reader.unpack_from(raw, base)
+        return _stamp(sec, nanosec), [got[i] for i in order]
+
+    return decode
+
+
+class _JointStateDecoder:
+    """``position|velocity|effort[name|index]`` of JointState records; the name table is cached while the
+    serialized names do not change."""
+
+    ARRAYS = ("position", "velocity", "effort")
+
+    def __init__(self, paths: Sequence[FieldPath]):
+        self.wants = []
+        for path in paths:
+            if len(path.steps) != 2 or path.steps[0].kind != "attr" or path.steps[0].value not in self.ARRAYS \
+                    or path.steps[1].kind not in ("key", "index"):
+                raise FastDecodeError("unsupported JointState path")
+            self.wants.append((self.ARRAYS.index(path.steps[0].value), path.steps[1].kind, path.steps[1].value))
+        self.last_arrays = max(a for a, _, _ in self.wants)
+        self.cached_block = b""
+        self.cached_names: dict[str, int] = {}
+        self.cached_end = 0
+
+    def _names(self, raw, start: int) -> tuple[dict[str, int], int]:
+        block = self.cached_block
+        if block and raw[start:start + len(block)] == block:
+            return self.cached_names, start + len(block)
+        (count,) = _U32.unpack_from(raw, start)
+        pos = start + 4
+        names: dict[str, int] = {}
+        for i in range(count):
+            (length,) = _U32.unpack_from(raw, pos)
+            name = bytes(raw[pos + 4:pos + 3 + length]).decode()
+            names.setdefault(name, i)
+            pos = 4 + ((pos + 4 + length - 4 + 3) & ~3)
+        self.cached_block = bytes(raw[start:pos])
+        self.cached_names = names
+        return names, pos
+
+    def __call__(self, raw):
+        _check_le(raw)
+        sec, nanosec, slen = _HEAD.unpack_from(raw, 4)
+        start = 4 + ((12 + slen + 3) & ~3)
+        names, pos = self._names(raw, start)
+        arrays = []
+        for _ in range(self.last_arrays + 1):
+            pos = 4 + ((pos - 4 + 3) & ~3)
+            (count,) = _U32.unpack_from(raw, pos)
+            pos += 4
+            if count:
+                pos = 4 + ((pos - 4 + 7) & ~7)
+            arrays.append((pos, count))
+            pos += 8 * count
+        if pos > len(raw):
+            raise FastDecodeError("short JointState record")
+        values = []
+        for array, kind, key in self.wants:
+            start_a, count = arrays[array]
+            i = names.get(key, -1) if kind == "key" else (key if key >= 0 else count + key)
+            if not 0 <= i < count:
+                raise FastDecodeError("missing joint or index")
+            values.append(_F64.unpack_from(raw, start_a + 8 * i)[0])
+        return _stamp(sec, nanosec), values
+
+
+def _scalar_decoder(paths: Sequence[FieldPath], kind: str) -> Callable | None:
+    if any(p.steps != FieldPath.parse("data").steps for p in paths):
+        return None
+    n = len(paths)
+    if kind == "Float64":
+        def decode(raw):
+            _check_le(raw)
+            if len(raw) < 12:
+                raise FastDecodeError("short Float64 record")
+            return None, [_F64.unpack_from(raw, 4)[0]] * n
+    elif kind == "Float32":
+        def decode(raw):
+            _check_le(raw)
+            return None, [_F32.unpack_from(raw, 4)[0]] * n
+    else:
+        def decode(raw):
+            if len(raw) < 5 or raw[0] != 0 or raw[1] not in (0, 1):
+                raise FastDecodeError("not CDR")
+            return None, [1.0 if raw[4] else 0.0] * n
+    return decode
+
+
+def fast_decoder(msgtype: str, paths: Sequence[FieldPath]) -> Callable | None:
+    """A function ``raw_cdr -> (stamp_s or None, [value per path])`` reading only the given fields, or None
+    when ``msgtype`` / the paths are not covered (then decode fully). The function raises
+    :class:`FastDecodeError` for records it cannot read (decode those fully)."""
+    try:
+        if msgtype == "sensor_msgs/msg/Imu":
+            return _imu_decoder(paths)
+        if msgtype == "sensor_msgs/msg/JointState":
+            return _JointStateDecoder(paths)
+        if msgtype in ("std_msgs/msg/Float64", "std_msgs/msg/Float32", "std_msgs/msg/Bool"):
+            return _scalar_decoder(paths, msgtype.rsplit("/", 1)[1])
+    except FastDecodeError:
+        return None
+    return None
+
+
+# --------------------------------------------------------------------------------------------- writing
+def _set_path(obj: Any, attributes: tuple[str, ...], value: float) -> None:
+    for name in attributes[:-1]:
+        obj = getattr(obj, name)
+    setattr(obj, attributes[-1], float(value))
+
+
+class _MessageBuilder:
+    """Builds rosbags message objects of one topic of a simulated flight."""
+
+    def __init__(self, typestore, series: "TopicSeries", frame_id: str):
+        self.ts = typestore
+        self.series = series
+        self.frame_id = frame_id
+        self.types = typestore.types
+        self.paths = {text: FieldPath.parse(text) for text in series.values}
+
+    def _header(self, stamp_ns: int):
+        sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+        return self.types["std_msgs/msg/Header"](stamp=self.types["builtin_interfaces/msg/Time"](
+            sec=sec, nanosec=nanosec), frame_id=self.frame_id)
+
+    def build(self, i: int, stamp_ns: int):
+        kind = self.series.msgtype
+        if kind == "sensor_msgs/msg/Imu":
+            return self._imu(i, stamp_ns)
+        if kind == "sensor_msgs/msg/JointState":
+            return self._joint_state(i, stamp_ns)
+        value = next(iter(self.series.values.values()))[i]
+        if kind == "std_msgs/msg/Bool":
+            return self.types[kind](data=bool(value))
+        return self.types[kind](data=float(value))
+
+    def _imu(self, i: int, stamp_ns: int):
+        vec, quat = self.types["geometry_msgs/msg/Vector3"], self.types["geometry_msgs/msg/Quaternion"]
+        cov = np.zeros(9)
+        orientation_cov = np.zeros(9)
+        orientation_cov[0] = -1.0  # REP 145: no orientation estimate
+        msg = self.types["sensor_msgs/msg/Imu"](
+            header=self._header(stamp_ns), orientation=quat(x=0.0, y=0.0, z=0.0, w=1.0),
+            orientation_covariance=orientation_cov, angular_velocity=vec(x=0.0, y=0.0, z=0.0),
+            angular_velocity_covariance=cov, linear_acceleration=vec(x=0.0, y=0.0, z=9.80665),
+            linear_acceleration_covariance=cov)
+        for text, values in self.series.values.items():
+            _set_path(msg, self.paths[text].attributes, values[i])
+        return msg
+
+    def _joint_state(self, i: int, stamp_ns: int):
+        names = list(self.series.joint_names)
+        arrays = {"position": np.zeros(len(names)), "velocity": None, "effort": None}
+        for text, values in self.series.values.items():
+            path = self.paths[text]
+            array = path.attributes[0]
+            if arrays[array] is None:
+                arrays[array] = np.zeros(len(names))
+            idx = names.index(path.key) if path.key is not None else path.index
+            arrays[array][idx] = values[i]
+        empty = np.zeros(0)
+        return self.types["sensor_msgs/msg/JointState"](
+            header=self._header(stamp_ns), name=names, position=arrays["position"],
+            velocity=arrays["velocity"] if arrays["velocity"] is not None else empty,
+            effort=arrays["effort"] if arrays["effort"] is not None else empty)
+
+
+def _target(out: Path, storage: str | None) -> tuple[Path, str, bool]:
+    """(directory to write, storage plugin, bare file wanted)."""
+    bare = out.suffix in BAG_SUFFIXES
+    if bare:
+        implied = "mcap" if out.suffix == ".mcap" else "sqlite3"
+        if storage is not None and storage != implied:
+            raise ConfigError(f"--out {out}: suffix {out.suffix} does not match --storage {storage}")
+        storage = implied
+    storage = storage or "mcap"
+    if storage not in STORAGES:
+        raise ConfigError(f"storage {storage!r}: expected one of {', '.join(STORAGES)}")
+    return out, storage, bare
+
+
+def write_flight(flight: "SimulatedFlight", out: str | Path, storage: str | None = None, *,
+                 compress: bool = True, frame_id: str = "base_link",
+                 custom_data: dict[str, str] | None = None) -> Path:
+    """Write a simulated flight as a rosbag2.
+
+    Parameters
+    ----------
+    flight : SimulatedFlight
+        From :func:`gap_validation.core.simulation.simulate_flight`.
+    out : str or Path
+        New rosbag2 directory, or a bare ``.mcap`` / ``.db3`` file path. Must not exist.
+    storage : {"mcap", "sqlite3"}, optional
+        Storage plugin (default mcap, or implied by the suffix of ``out``).
+    compress : bool
+        zstd chunk compression for mcap (sqlite3 is written uncompressed).
+    frame_id : str
+        ``header.frame_id`` of stamped messages.
+    custom_data : dict, optional
+        Extra ``custom_data`` entries of metadata.yaml (strings).
+
+    Returns
+    -------
+    Path
+        What was written (the directory or the bare file).
+
+    Raises
+    ------
+    ConfigError
+        ``out`` exists already or the storage is unknown.
+    """
+    out = Path(out)
+    out, storage, bare = _target(out, storage)
+    if out.exists():
+        raise ConfigError(f"{out} exists already (choose another --out or remove it)")
+    typestore = get_typestore(TYPESTORE)
+    if bare:
+        tmpdir = Path(tempfile.mkdtemp(prefix=".gap_sim_", dir=out.parent if out.parent.exists() else None))
+        try:
+            _write_dir(flight, tmpdir / out.stem, storage, compress, frame_id, custom_data, typestore)
+            written = next(p for p in (tmpdir / out.stem).iterdir() if p.suffix in BAG_SUFFIXES)
+            shutil.move(str(written), out)
+        finally:
+            shutil.rmtree(tmpdir, ignore_errors=True)
+        return out
+    _write_dir(flight, out, storage, compress, frame_id, custom_data, typestore)
+    return out
+
+
+def _flight_metadata(flight: "SimulatedFlight") -> dict[str, str]:
+    hidden = {ch: effects for ch, effects in flight.hidden.items() if effects}
+    return {
+        "gap_validation.simulated": "true",
+        "gap_validation.seed": str(flight.seed),
+        "gap_validation.hidden": json.dumps(hidden, sort_keys=True),
+    }
+
+
+def _write_dir(flight, out: Path, storage: str, compress: bool, frame_id: str,
+               custom_data: dict[str, str] | None, typestore) -> None:
+    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+    order, topic_index, sample_index, stamps_ns, receive_ns = _merge_order(flight)
+    names = list(flight.topics)
+    try:
+        writer = Writer(out, version=Writer.VERSION_LATEST, storage_plugin=plugin)
+        if compress and storage == "mcap":
+            writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+        for key, value in {**_flight_metadata(flight), **(custom_data or {})}.items():
+            writer.set_custom_data(key, str(value))
+        with writer:
+            conns = [writer.add_connection(t, flight.topics[t].msgtype, typestore=typestore) for t in names]
+            builders = [_MessageBuilder(typestore, flight.topics[t], frame_id) for t in names]
+            serialize = typestore.serialize_cdr
+            for k in order:
+                ti, si = topic_index[k], sample_index[k]
+                msg = builders[ti].build(si, stamps_ns[k])
+                writer.write(conns[ti], int(receive_ns[k]), serialize(msg, conns[ti].msgtype))
+    except WriterError as err:
+        raise ConfigError(f"{out}: cannot write bag ({_one_line(err)})") from None
+
+
+def _nanoseconds(t_s: np.ndarray, start_s: float) -> np.ndarray:
+    """Absolute times [s] as integer nanoseconds, exact to the nanosecond relative to ``start_s``."""
+    start_ns = int(round(start_s * 1e9))
+    return start_ns + np.round((np.asarray(t_s, dtype=float) - start_s) * 1e9).astype(np.int64)
+
+
+def _merge_order(flight):
+    """All messages of all topics, ordered by receive time (stable)."""
+    topic_index, sample_index, stamps, receive = [], [], [], []
+    for ti, series in enumerate(flight.topics.values()):
+        n = len(series)
+        topic_index.append(np.full(n, ti))
+        sample_index.append(np.arange(n))
+        stamps.append(_nanoseconds(series.stamp_s, flight.start_time_s))
+        receive.append(_nanoseconds(series.receive_s, flight.start_time_s))
+    topic_index = np.concatenate(topic_index)
+    sample_index = np.concatenate(sample_index)
+    stamps_ns = np.concatenate(stamps)
+    receive_ns = np.concatenate(receive)
+    order = np.argsort(receive_ns, kind="stable")
+    return order, topic_index.tolist(), sample_index.tolist(), stamps_ns.tolist(), receive_ns.tolist()

@@ -1,0 +1,1 @@
+"""One module per ``gap-validate`` subcommand: ``register(subparsers)`` and ``run(args) -> int``."""

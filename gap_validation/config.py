@@ -1,0 +1,46 @@
+"""Load and write validation configs (YAML). The schema lives in :mod:`gap_validation.core.config`."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import yaml
+
+from gap_validation.core.config import ValidationConfig, parse_config
+from gap_validation.core.errors import ConfigError
+
+__all__ = ["load_config", "dump_config", "ValidationConfig"]
+
+
+def load_config(path: str | os.PathLike) -> ValidationConfig:
+    """Read a validation config file.
+
+    Raises
+    ------
+    ConfigError
+        One line naming the file and the problem (missing file, YAML syntax with line number, bad key).
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: config file not found") from None
+    except OSError as err:
+        raise ConfigError(f"{path}: cannot read config ({err.strerror or err})") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        problem = getattr(err, "problem", None) or "invalid YAML"
+        raise ConfigError(f"{path}: YAML error{where}: {problem}") from None
+    return parse_config(data, str(path))
+
+
+def dump_config(config: ValidationConfig | dict, path: str | os.PathLike) -> None:
+    """Write a config (its raw mapping) as YAML, atomically (write to a temporary file, then rename)."""
+    data = config.raw if isinstance(config, ValidationConfig) else config
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(yaml.safe_dump(data, sort_keys=False, default_flow_style=None), encoding="utf-8")
+    os.replace(tmp, path)

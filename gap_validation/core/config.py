@@ -1,0 +1,237 @@
+"""Validation config: the schema of DESIGN.md as frozen dataclasses, with one-line errors.
+
+The CLI, the node and the library read the same file (YAML, loaded by :func:`gap_validation.config.load_config`);
+this module validates the already-loaded mapping, so it needs neither yaml nor ROS. Every error names the file,
+the key path and the offending value, e.g. ``cfg.yaml: channels.pitch.input.field: expected a string, got 3``.
+Unknown keys are errors (a typo must not silently fall back to a default).
+"""
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from gap_validation.core.errors import ConfigError
+from gap_validation.core.models import LinearModel
+
+#: Streams a channel has: the surface (input), the rate (output) and the optional sweep trigger.
+STREAMS = ("input", "output", "trigger")
+
+_TOP_KEYS = {"channels", "aircraft", "description"}
+_CHANNEL_KEYS = {"input", "output", "model", "frequencies", "coherence_threshold", "trigger", "estimator"}
+_SIGNAL_KEYS = {"topic", "field", "scale", "type"}
+_GRID_KEYS = {"min_rad_s", "max_rad_s", "count"}
+
+
+@dataclass(frozen=True)
+class SignalSpec:
+    """Where a signal comes from: ``topic``, ``field`` path into the message, ``scale`` to SI units, and the
+    message ``type`` (e.g. ``sensor_msgs/msg/Imu``; ``None``: discovered from the bag or the graph)."""
+
+    topic: str
+    field: str
+    scale: float = 1.0
+    type: str | None = None
+
+
+@dataclass(frozen=True)
+class FrequencyGrid:
+    """Log-spaced analysis frequencies of a channel [rad/s]."""
+
+    min_rad_s: float = 1.0
+    max_rad_s: float = 60.0
+    count: int = 40
+
+    def values(self) -> np.ndarray:
+        """The ``count`` log-spaced frequencies from ``min_rad_s`` to ``max_rad_s`` [rad/s]."""
+        return np.geomspace(self.min_rad_s, self.max_rad_s, self.count)
+
+
+@dataclass(frozen=True)
+class ChannelConfig:
+    """One input-output pair (e.g. elevator to pitch rate) with its model and analysis settings."""
+
+    name: str
+    input: SignalSpec
+    output: SignalSpec
+    model: LinearModel
+    model_spec: dict
+    frequencies: FrequencyGrid = field(default_factory=FrequencyGrid)
+    coherence_threshold: float = 0.6
+    trigger: SignalSpec | None = None
+    estimator: dict = field(default_factory=dict)
+
+    def signal(self, stream: str) -> SignalSpec | None:
+        """The :class:`SignalSpec` of ``stream`` (``input``, ``output`` or ``trigger``)."""
+        return {"input": self.input, "output": self.output, "trigger": self.trigger}[stream]
+
+
+@dataclass(frozen=True)
+class ValidationConfig:
+    """A whole validation config: channels by name, where it came from, and the raw mapping (for rewriting)."""
+
+    channels: dict[str, ChannelConfig]
+    source: str | None = None
+    raw: dict = field(default_factory=dict)
+
+    def topics(self) -> dict[str, list[tuple[str, str, SignalSpec]]]:
+        """Topic -> every ``(channel, stream, spec)`` it feeds, in config order."""
+        out: dict[str, list[tuple[str, str, SignalSpec]]] = {}
+        for name, channel in self.channels.items():
+            for stream in STREAMS:
+                spec = channel.signal(stream)
+                if spec is not None:
+                    out.setdefault(spec.topic, []).append((name, stream, spec))
+        return out
+
+    def with_channel_effects(self, channel: str, effects: list[dict]) -> "ValidationConfig":
+        """A copy with ``effects`` appended to ``channels.<channel>.model.effects`` (for --apply-diagnosis)."""
+        if channel not in self.channels:
+            raise ConfigError(f"{self.source or '<config>'}: no channel {channel!r}")
+        raw = copy.deepcopy(self.raw)
+        model = raw["channels"][channel]["model"]
+        model["effects"] = list(model.get("effects") or []) + [dict(e) for e in effects]
+        return parse_config(raw, self.source or "<config>")
+
+
+def _fail(source: str, path: str, message: str) -> ConfigError:
+    return ConfigError(f"{source}: {path}: {message}")
+
+
+def _mapping(value: Any, source: str, path: str, allowed: set[str] | None) -> dict:
+    if not isinstance(value, dict):
+        raise _fail(source, path, f"expected a mapping, got {value!r}")
+    if allowed is not None:
+        unknown = sorted(str(k) for k in value if k not in allowed)
+        if unknown:
+            raise _fail(source, f"{path}.{unknown[0]}",
+                        f"unknown key (allowed: {', '.join(sorted(allowed))})")
+    return value
+
+
+def _number(value: Any, source: str, path: str, *, low: float | None = None, high: float | None = None,
+            low_open: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise _fail(source, path, f"expected a finite number, got {value!r}")
+    value = float(value)
+    if low is not None and (value < low or (low_open and value == low)):
+        raise _fail(source, path, f"expected a number {'>' if low_open else '>='} {low:g}, got {value:g}")
+    if high is not None and value > high:
+        raise _fail(source, path, f"expected a number <= {high:g}, got {value:g}")
+    return value
+
+
+def _string(value: Any, source: str, path: str) -> str:
+    if not isinstance(value, str) or not value.strip():
+        raise _fail(source, path, f"expected a non-empty string, got {value!r}")
+    return value.strip()
+
+
+def _signal(value: Any, source: str, path: str) -> SignalSpec:
+    data = _mapping(value, source, path, _SIGNAL_KEYS)
+    for key in ("topic", "field"):
+        if key not in data:
+            raise _fail(source, f"{path}.{key}", "missing")
+    topic = _string(data["topic"], source, f"{path}.topic")
+    if not topic.startswith("/"):
+        topic = "/" + topic
+    spec_field = _string(data["field"], source, f"{path}.field")
+    from gap_validation.ingest import FieldPath  # syntax check only; ingest has no ROS imports
+
+    try:
+        FieldPath.parse(spec_field)
+    except ConfigError as err:
+        raise _fail(source, f"{path}.field", str(err)) from None
+    scale = _number(data.get("scale", 1.0), source, f"{path}.scale")
+    if scale == 0.0:
+        raise _fail(source, f"{path}.scale", "expected a nonzero number, got 0")
+    msg_type = data.get("type")
+    if msg_type is not None:
+        msg_type = _string(msg_type, source, f"{path}.type")
+        if msg_type.count("/") == 1:  # sensor_msgs/Imu -> sensor_msgs/msg/Imu
+            pkg, name = msg_type.split("/")
+            msg_type = f"{pkg}/msg/{name}"
+    return SignalSpec(topic=topic, field=spec_field, scale=scale, type=msg_type)
+
+
+def _grid(value: Any, source: str, path: str) -> FrequencyGrid:
+    data = _mapping(value, source, path, _GRID_KEYS)
+    default = FrequencyGrid()
+    low = _number(data.get("min_rad_s", default.min_rad_s), source, f"{path}.min_rad_s", low=0.0, low_open=True)
+    high = _number(data.get("max_rad_s", default.max_rad_s), source, f"{path}.max_rad_s", low=low,
+                   low_open=True)
+    count = data.get("count", default.count)
+    if isinstance(count, bool) or not isinstance(count, int) or not 2 <= count <= 1000:
+        raise _fail(source, f"{path}.count", f"expected an integer from 2 to 1000, got {count!r}")
+    return FrequencyGrid(low, high, count)
+
+
+def _channel(name: str, value: Any, source: str) -> ChannelConfig:
+    path = f"channels.{name}"
+    data = _mapping(value, source, path, _CHANNEL_KEYS)
+    for key in ("input", "output", "model"):
+        if key not in data:
+            raise _fail(source, f"{path}.{key}", "missing")
+    model_spec = _mapping(data["model"], source, f"{path}.model", None)
+    try:
+        model = LinearModel.from_spec(model_spec, where=f"{path}.model")
+    except ConfigError as err:
+        raise ConfigError(f"{source}: {err}") from None
+    estimator = _mapping(data.get("estimator", {}) or {}, source, f"{path}.estimator", None)
+    _check_estimator_options(estimator, source, f"{path}.estimator")
+    return ChannelConfig(
+        name=name,
+        input=_signal(data["input"], source, f"{path}.input"),
+        output=_signal(data["output"], source, f"{path}.output"),
+        model=model,
+        model_spec=copy.deepcopy(model_spec),
+        frequencies=_grid(data.get("frequencies", {}) or {}, source, f"{path}.frequencies"),
+        coherence_threshold=_number(data.get("coherence_threshold", 0.6), source,
+                                    f"{path}.coherence_threshold", low=0.0, high=0.999),
+        trigger=_signal(data["trigger"], source, f"{path}.trigger") if data.get("trigger") is not None else None,
+        estimator=dict(estimator),
+    )
+
+
+def _check_estimator_options(options: dict, source: str, path: str) -> None:
+    """Unknown estimator options are errors naming the key (the estimator lists what it accepts)."""
+    from gap_validation.core.estimator import FrequencyResponseEstimator
+
+    allowed = set(getattr(FrequencyResponseEstimator, "OPTIONS", ()) or ())
+    if allowed:
+        _mapping(options, source, path, allowed)
+    for key, value in options.items():
+        if not isinstance(value, (int, float, bool)) or (isinstance(value, float) and not math.isfinite(value)):
+            raise _fail(source, f"{path}.{key}", f"expected a finite number or boolean, got {value!r}")
+
+
+def parse_config(data: Any, source: str = "<config>") -> ValidationConfig:
+    """Validate a loaded config mapping and build the :class:`ValidationConfig`.
+
+    Parameters
+    ----------
+    data : mapping
+        The config as loaded from YAML (DESIGN.md, "Validation config").
+    source : str
+        Name of the file, used in error messages.
+
+    Raises
+    ------
+    ConfigError
+        One line naming ``source``, the key path and the value.
+    """
+    top = _mapping(data, source, "<top level>", _TOP_KEYS)
+    if "channels" not in top:
+        raise _fail(source, "channels", "missing (the config needs at least one channel)")
+    channels_raw = _mapping(top["channels"], source, "channels", None)
+    if not channels_raw:
+        raise _fail(source, "channels", "empty (the config needs at least one channel)")
+    channels = {}
+    for name, value in channels_raw.items():
+        if not isinstance(name, str) or not name.replace("_", "").replace("-", "").isalnum():
+            raise _fail(source, f"channels.{name}", "channel names are letters, digits, '_' or '-'")
+        channels[name] = _channel(name, value, source)
+    return ValidationConfig(channels=channels, source=source, raw=copy.deepcopy(dict(top)))

@@ -1,0 +1,80 @@
+"""Stability margins that a controller designed on the model needs, from epsilon (paper eqs. 15-17).
+
+If the measured (true) response lies in the epsilon disk around the model, ``P2 = P1 (1 + d1)/(1 - d2)`` with
+``|d1|, |d2| <= epsilon < 1`` (eq. 14), a controller with at least these classical margins on the model is
+guaranteed to stabilise the real aircraft. For epsilon >= 1 nothing is guaranteed: every margin is ``None``
+and no number is ever printed for it.
+"""
+
+import math
+from dataclasses import asdict, dataclass
+
+
+@dataclass(frozen=True)
+class Margins:
+    """Margins required of a controller, from the overbounding-disk radius epsilon.
+
+    Attributes
+    ----------
+    gain_margin_db : float or None
+        ``20 log10((1 + e)/(1 - e))`` [dB] (eq. 15).
+    phase_margin_deg : float or None
+        ``2 asin(e)`` [deg] (eq. 16).
+    disk_margin : float or None
+        ``2 e / (1 - e^2)`` (eq. 17), the radius of the epsilon disk of the relative perturbation.
+    lower_disk_marker : float or None
+        ``(1 - e)/(1 + e)``: where the disk crosses the real axis on the left (paper: 0.75).
+    upper_disk_marker : float or None
+        ``(1 + e)/(1 - e)``: where it crosses on the right (paper: 1.33).
+    epsilon : float or None
+        The epsilon the margins were computed from (None when not finite).
+
+    All are None when epsilon >= 1 or not finite: no guarantee.
+    """
+
+    gain_margin_db: float | None
+    phase_margin_deg: float | None
+    disk_margin: float | None
+    lower_disk_marker: float | None = None
+    upper_disk_marker: float | None = None
+    epsilon: float | None = None
+
+    @property
+    def guaranteed(self):
+        """True when margins exist (epsilon < 1)."""
+        return self.gain_margin_db is not None
+
+    def to_json_dict(self):
+        """JSON keys of DESIGN.md: ``gain_margin_db``, ``phase_margin_deg``, ``disk_margin`` (None -> null)."""
+        data = asdict(self)
+        return {key: data[key] for key in ("gain_margin_db", "phase_margin_deg", "disk_margin")}
+
+
+def margins_from_epsilon(eps):
+    """Gain, phase and disk margins guaranteed by an epsilon-disk validation (paper eqs. 15-17).
+
+    Parameters
+    ----------
+    eps : float
+        Overbounding-disk radius epsilon (sup over frequency of eq. 14's per-frequency radius).
+
+    Returns
+    -------
+    Margins
+        All fields None when ``eps`` is >= 1, negative, NaN or infinite (no guarantee). ``eps = 0.1404``
+        (paper example) gives 2.45 dB, 16.1 deg, disk margin 0.286, markers 0.754 and 1.33.
+    """
+    if eps is None:
+        return Margins(None, None, None)
+    eps = float(eps)
+    if not math.isfinite(eps) or eps < 0.0 or eps >= 1.0:
+        return Margins(None, None, None, epsilon=eps if math.isfinite(eps) else None)
+    upper = (1.0 + eps) / (1.0 - eps)
+    return Margins(
+        gain_margin_db=20.0 * math.log10(upper),
+        phase_margin_deg=math.degrees(2.0 * math.asin(eps)),
+        disk_margin=2.0 * eps / (1.0 - eps * eps),
+        lower_disk_marker=1.0 / upper,
+        upper_disk_marker=upper,
+        epsilon=eps,
+    )

@@ -1,0 +1,609 @@
+"""Distances between models and data: chordal distance, nu-gap, overbounding epsilon, Theil coefficient.
+
+Paper: "Validating Aircraft Models in the Gap Metric" (eqs. 1, 3, 13, 14); nu-gap after Vinnicombe.
+
+Each metric returns its value and the frequency where it peaks [rad/s]. For frequency-response *data* the sup
+is over the given points and the winding-number condition of the nu-gap is assumed (as the paper does). For
+two :class:`~gap_validation.core.models.LinearModel` the results are exact:
+
+* the winding-number condition is checked (algebraically from polynomial roots for rational models or equal
+  delays, numerically along the frequency axis when the delays differ), and the nu-gap is 1 when it fails;
+* the sup is located on a dense logarithmic grid (plus points around every lightly damped root and, with
+  delays, a linear grid resolving the delay's phase) and every promising local maximum is refined with a
+  bounded scalar optimisation to about 1e-8 relative in frequency; w = 0 and w -> infinity are checked too.
+
+Conventions: ``P1`` is the model, ``P2`` the measurement (or the second model), as in the paper.
+"""
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+_AXIS_RTOL = 1e-8  # roots closer than this (relative) to the imaginary axis are on it
+_CANCEL_RTOL = 1e-6  # numerator and denominator roots closer than this (relative) cancel
+_GRID_PER_DECADE = 300
+_REFINE_XATOL = 1e-10  # bounded refinement tolerance in ln(w)
+_MAX_CANDIDATES = 40
+_TIE_RTOL = 1e-9  # peaks equal to this (relative) are the same height: the lowest frequency is reported
+_HUGE_EPSILON = 1e10  # a refined epsilon peak above this is a crossing of P2 = -P1: reported as inf
+
+
+# ----------------------------------------------------------------------------------------------------------
+# per-frequency quantities and frequency data
+# ----------------------------------------------------------------------------------------------------------
+
+
+def chordal_distance(p1, p2):
+    """Chordal distance between two frequency responses (paper eq. 13, pointwise).
+
+    ``kappa = |P2 - P1| / sqrt((1 + |P1|^2) (1 + |P2|^2))``, between 0 and 1; an infinite response (a pole
+    on the imaginary axis) is the point at infinity of the Riemann sphere.
+
+    Parameters
+    ----------
+    p1, p2 : array_like of complex
+        Frequency responses at the same frequencies (broadcast).
+
+    Returns
+    -------
+    ndarray of float
+    """
+    p1 = np.asarray(p1, dtype=complex)
+    p2 = np.asarray(p2, dtype=complex)
+    p1, p2 = np.broadcast_arrays(p1, p2)
+    inf1, inf2 = ~np.isfinite(p1) & ~np.isnan(p1), ~np.isfinite(p2) & ~np.isnan(p2)
+    with np.errstate(invalid="ignore", over="ignore"):
+        a1, a2 = np.abs(p1), np.abs(p2)
+        kappa = np.abs(p2 - p1) / np.sqrt((1.0 + a1 * a1) * (1.0 + a2 * a2))
+        kappa = np.where(inf1 & ~inf2, 1.0 / np.sqrt(1.0 + a2 * a2), kappa)
+        kappa = np.where(inf2 & ~inf1, 1.0 / np.sqrt(1.0 + a1 * a1), kappa)
+    kappa = np.where(inf1 & inf2, 0.0, kappa)
+    return np.minimum(kappa, 1.0)
+
+
+def epsilon_per_frequency(p1, p2):
+    """Smallest overbounding-disk radius per frequency (paper eq. 14): ``|P2 - P1| / |P2 + P1|``.
+
+    The radius epsilon is the smallest with ``P2 = P1 (1 + d1)/(1 - d2)``, ``|d1|, |d2| <= epsilon``.
+    Conventions: 0 where P1 = P2 (including both zero); ``inf`` where P2 = -P1 != 0 (no disk of radius < 1
+    covers it). Any value >= 1 means that no stability margin is guaranteed.
+
+    Parameters
+    ----------
+    p1, p2 : array_like of complex
+
+    Returns
+    -------
+    ndarray of float
+    """
+    p1 = np.asarray(p1, dtype=complex)
+    p2 = np.asarray(p2, dtype=complex)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        diff = np.abs(p2 - p1)
+        total = np.abs(p2 + p1)
+        eps = diff / total
+    eps = np.where(diff == 0.0, 0.0, eps)
+    return np.where((total == 0.0) & (diff > 0.0), np.inf, eps)
+
+
+def _sup_over_points(w_rad_s, values):
+    w = np.asarray(w_rad_s, dtype=float).ravel()
+    values = np.asarray(values, dtype=float).ravel()
+    valid = ~np.isnan(values)
+    if not np.any(valid):
+        return math.nan, math.nan
+    index = int(np.flatnonzero(valid)[np.argmax(values[valid])])
+    return float(values[index]), float(w[index])
+
+
+def nugap_frequency_data(w_rad_s, p1, p2):
+    """nu-gap over frequency points: sup of the chordal distance (eq. 13), condition assumed.
+
+    Parameters
+    ----------
+    w_rad_s : array_like
+        Frequencies [rad/s].
+    p1, p2 : array_like of complex
+        Model and measured responses at ``w_rad_s``. NaN points are ignored.
+
+    Returns
+    -------
+    value : float
+        Largest chordal distance (nan when no valid point).
+    w_peak_rad_s : float
+        Frequency of that point.
+    """
+    return _sup_over_points(w_rad_s, chordal_distance(p1, p2))
+
+
+def epsilon_frequency_data(w_rad_s, p1, p2):
+    """epsilon over frequency points: sup of :func:`epsilon_per_frequency` (eq. 14).
+
+    Returns
+    -------
+    value : float
+        Largest epsilon (may be >= 1 or inf: no guarantee).
+    w_peak_rad_s : float
+        Frequency of that point.
+    """
+    return _sup_over_points(w_rad_s, epsilon_per_frequency(p1, p2))
+
+
+# ----------------------------------------------------------------------------------------------------------
+# polynomial helpers
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _strip(poly):
+    poly = np.atleast_1d(np.asarray(poly, dtype=float))
+    nonzero = np.flatnonzero(poly)
+    return poly[nonzero[0]:] if nonzero.size else np.array([0.0])
+
+
+def _mirror(poly):
+    """Coefficients of p(-s) from those of p(s) (descending powers)."""
+    poly = np.asarray(poly, dtype=float)
+    signs = (-1.0) ** np.arange(len(poly) - 1, -1, -1)
+    return poly * signs
+
+
+def _roots(poly):
+    poly = _strip(poly)
+    return np.roots(poly) if len(poly) > 1 and poly[0] != 0.0 else np.array([], dtype=complex)
+
+
+def _coprime(num, den):
+    """Cancel common roots of num and den (relative tolerance); P = 0 becomes 0/1."""
+    num, den = _strip(num), _strip(den)
+    if not np.any(num):
+        return np.array([0.0]), np.array([1.0])
+    zeros, poles = list(_roots(num)), list(_roots(den))
+    cancelled = False
+    for zero in list(zeros):
+        distances = [abs(zero - pole) for pole in poles]
+        if distances:
+            k = int(np.argmin(distances))
+            if distances[k] <= _CANCEL_RTOL * max(1.0, abs(poles[k])):
+                poles.pop(k)
+                zeros.remove(zero)
+                cancelled = True
+    if not cancelled:
+        return num, den / den[0]
+    gain = num[0] / den[0]
+    return gain * np.real(np.poly(zeros)) if zeros else np.array([gain]), \
+        np.real(np.poly(poles)) if poles else np.array([1.0])
+
+
+def _eval_nd(model, w):
+    """Numerator (delay included) and denominator of a model at s = j w, scaled per point.
+
+    The common positive scale keeps products finite at high frequency; ratios are unchanged.
+    """
+    s = 1j * w
+    n = np.polyval(model.num, s)
+    d = np.polyval(model.den, s)
+    if model.delay_s:
+        n = n * np.exp(-s * model.delay_s)
+    scale = np.maximum(np.abs(n), np.abs(d))
+    scale = np.where(scale > 0.0, scale, 1.0)
+    return n / scale, d / scale
+
+
+def _kappa_models(m1, m2, w):
+    n1, d1 = _eval_nd(m1, w)
+    n2, d2 = _eval_nd(m2, w)
+    num = np.abs(n2 * d1 - n1 * d2)
+    den = np.sqrt((np.abs(n1) ** 2 + np.abs(d1) ** 2) * (np.abs(n2) ** 2 + np.abs(d2) ** 2))
+    return np.minimum(num / den, 1.0)
+
+
+def _epsilon_models(m1, m2, w):
+    n1, d1 = _eval_nd(m1, w)
+    n2, d2 = _eval_nd(m2, w)
+    return epsilon_per_frequency(n1 * d2, n2 * d1)
+
+
+def _high_frequency_form(model):
+    """(k, m): P(s) ~ k s^-m exp(-s T) as s -> infinity (k = 0 for P = 0)."""
+    num, den = _strip(model.num), _strip(model.den)
+    if not np.any(num):
+        return 0.0, 0
+    return float(num[0] / den[0]), len(den) - len(num)
+
+
+def _kappa_at_infinity(m1, m2):
+    """lim sup of kappa as w -> infinity."""
+    (k1, r1), (k2, r2) = _high_frequency_form(m1), _high_frequency_form(m2)
+    c1 = k1 if r1 == 0 else 0.0
+    c2 = k2 if r2 == 0 else 0.0
+    norm = math.sqrt((1.0 + c1 * c1) * (1.0 + c2 * c2))
+    if c1 and c2 and m1.delay_s != m2.delay_s:
+        return (abs(c1) + abs(c2)) / norm
+    return abs(c2 - c1) / norm
+
+
+def _epsilon_at_infinity(m1, m2):
+    """lim sup of epsilon(w) as w -> infinity."""
+    (k1, r1), (k2, r2) = _high_frequency_form(m1), _high_frequency_form(m2)
+    if k1 == 0.0 and k2 == 0.0:
+        return 0.0
+    if k1 == 0.0 or k2 == 0.0 or r1 != r2:
+        return 1.0
+    ratio = k2 / k1
+    if m1.delay_s != m2.delay_s:
+        spread = abs(abs(ratio) - 1.0)
+        return math.inf if spread == 0.0 else (abs(ratio) + 1.0) / spread
+    return math.inf if ratio == -1.0 else abs(ratio - 1.0) / abs(ratio + 1.0)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# winding-number condition
+# ----------------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class WindingCheck:
+    """Outcome of the nu-gap winding-number condition for P1, P2.
+
+    Attributes
+    ----------
+    satisfied : bool
+        True when det(1 + P2~ P1)(jw) != 0 on the extended imaginary axis and its winding number (with the
+        pole counts) is zero, i.e. the nu-gap is the sup of the chordal distance.
+    frequency_rad_s : float
+        Where 1 + P2~ P1 vanishes when that is the failure (``inf`` at infinity), else nan.
+    reason : str
+        One-line explanation (empty when satisfied).
+    method : str
+        ``"algebraic"`` (polynomial roots) or ``"numerical"`` (phase along the axis, models with different
+        delays).
+    """
+
+    satisfied: bool
+    frequency_rad_s: float = math.nan
+    reason: str = ""
+    method: str = "algebraic"
+
+
+def winding_condition(m1, m2):
+    """Check Vinnicombe's winding-number condition of the nu-gap for two SISO models.
+
+    With coprime P_i = n_i/d_i (delays aside), the condition is that the normalised coprime factors satisfy
+    wno det(G2* G1) = 0 with G2* G1 nonsingular on the axis. On s = j w,
+    ``G2* G1 = rho(s) / (q2(-s) q1(s))`` with ``rho(s) = d2(-s) d1(s) + n2(-s) n1(s) exp(s (T2 - T1))`` and
+    q_i the Hurwitz spectral factors of ``d_i d_i~ + n_i n_i~`` (deg q_i = deg d_i). Since q1 contributes
+    deg d1 / 2 turns and q2(-s) -deg d2 / 2, the condition is: rho has no zero on the extended imaginary axis
+    and winds ``(deg d1 - deg d2) / 2`` times along it. This is equivalent to Vinnicombe's
+    ``wno(1 + P2~ P1) + eta(P1) - eta(P2) - eta0(P2) = 0`` and needs no indentation around poles on the axis.
+
+    For equal delays rho is a polynomial: the condition is that rho has full degree (1 + P2(inf) P1(inf) != 0),
+    no root on the imaginary axis, exactly deg d1 roots in the open left and deg d2 in the open right half
+    plane. With different delays the phase of rho is unwrapped on an adaptive grid over (0, w_hi), the tail
+    beyond w_hi (past every root and where |P1 P2| < 1) is added analytically, and conjugate symmetry gives
+    the whole axis.
+
+    Parameters
+    ----------
+    m1, m2 : LinearModel
+
+    Returns
+    -------
+    WindingCheck
+    """
+    n1, d1 = _coprime(m1.num, m1.den)
+    n2, d2 = _coprime(m2.num, m2.den)
+    delta_s = m2.delay_s - m1.delay_s
+    if delta_s == 0.0:
+        return _winding_algebraic(n1, d1, n2, d2)
+    return _winding_numerical(n1, d1, n2, d2, delta_s)
+
+
+def _winding_algebraic(n1, d1, n2, d2):
+    deg1, deg2 = len(d1) - 1, len(d2) - 1
+    d_term = np.polymul(_mirror(d2), d1)
+    n_term = np.polymul(_mirror(n2), n1)
+    rho = np.polyadd(d_term, n_term)
+    lead_scale = abs(d_term[0]) + (abs(n_term[0]) if len(n_term) == len(d_term) else 0.0)
+    if len(rho) < len(d_term) or abs(rho[-(deg1 + deg2 + 1)]) <= 1e-12 * lead_scale:
+        return WindingCheck(False, math.inf, "1 + P2~ P1 vanishes at infinity (P1(inf) P2(inf) = -1)")
+    roots = _roots(rho)
+    scale = max(1.0, float(np.max(np.abs(roots)))) if roots.size else 1.0
+    on_axis = np.abs(roots.real) <= _AXIS_RTOL * np.maximum(np.abs(roots), 1e-3 * scale)
+    if np.any(on_axis):
+        w = float(np.min(np.abs(roots[on_axis].imag)))
+        return WindingCheck(False, w, f"1 + P2~ P1 vanishes at w = {w:.6g} rad/s")
+    left = int(np.sum(roots.real < 0.0))
+    right = roots.size - left
+    if left == deg1 and right == deg2:
+        return WindingCheck(True)
+    return WindingCheck(False, math.nan, f"winding number {(left - right - deg1 + deg2) // 2} != 0 "
+                                         f"(unstable pole/zero counts do not match)")
+
+
+def _winding_numerical(n1, d1, n2, d2, delta_s):
+    deg1, deg2 = len(d1) - 1, len(d2) - 1
+    k1 = n1[0] / d1[0] if len(n1) == len(d1) else 0.0
+    k2 = n2[0] / d2[0] if len(n2) == len(d2) else 0.0
+    if abs(k1 * k2) >= 1.0:
+        return WindingCheck(False, math.inf, "|P1(inf) P2(inf)| >= 1 with different delays: the winding number "
+                                             "is not defined", "numerical")
+    d_a, d_b = _mirror(d2), d1  # rho = d_a d_b + n_a n_b exp(j w delta)
+    n_a, n_b = _mirror(n2), n1
+    roots = np.concatenate([_roots(p) for p in (d1, d2, n1, n2)])
+    w_top = max(1.0, float(np.max(np.abs(roots)))) if roots.size else 1.0
+    w_hi = 1e3 * w_top
+    limit = 0.5 * (1.0 + abs(k1 * k2))
+
+    def rho_x(w):
+        s = 1j * np.asarray(w, dtype=float)
+        dd = np.polyval(d_a, s) * np.polyval(d_b, s)
+        nn = np.polyval(n_a, s) * np.polyval(n_b, s) * np.exp(s * delta_s)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return dd + nn, nn / dd
+
+    for _ in range(60):
+        if abs(rho_x(w_hi)[1]) <= limit:
+            break
+        w_hi *= 2.0
+    rho0 = float(np.real(rho_x(0.0)[0]))
+    if rho0 == 0.0:
+        return WindingCheck(False, 0.0, "1 + P2~ P1 vanishes at w = 0", "numerical")
+    w_lo = 1e-6 * min([abs(r) for r in roots if abs(r) > 0] + [1.0])
+    grid = [np.array([0.0]), np.geomspace(w_lo, w_hi, int(_GRID_PER_DECADE * math.log10(w_hi / w_lo)) + 2)]
+    step = math.pi / (4.0 * abs(delta_s))
+    grid.append(np.linspace(0.0, w_hi, min(int(w_hi / step) + 2, 200_000)))
+    grid.append(_resonance_points(roots))
+    w = np.unique(np.concatenate(grid))
+    w = w[(w >= 0.0) & (w <= w_hi)]
+    phase = np.angle(rho_x(w)[0])
+    for _ in range(60):
+        jump = np.abs(_wrap(np.diff(phase)))
+        bad = np.flatnonzero(jump > math.pi / 3.0)
+        if bad.size == 0:
+            break
+        width = w[bad + 1] - w[bad]
+        if np.any(width <= 1e-13 * np.maximum(w[bad + 1], 1e-300)):
+            where = float(w[bad[np.argmin(width)]])
+            return WindingCheck(False, where, f"1 + P2~ P1 vanishes near w = {where:.6g} rad/s", "numerical")
+        mids = 0.5 * (w[bad] + w[bad + 1])
+        w = np.insert(w, bad + 1, mids)
+        phase = np.insert(phase, bad + 1, np.angle(rho_x(mids)[0]))
+    else:
+        return WindingCheck(False, math.nan, "phase of 1 + P2~ P1 could not be resolved", "numerical")
+    total = float(np.sum(_wrap(np.diff(phase))))
+    tail = sum(_wrap(math.pi / 2 - np.angle(1j * w_hi - a)) for a in _roots(d1))
+    tail += sum(_wrap(-math.pi / 2 - np.angle(-1j * w_hi - b)) for b in _roots(d2))
+    tail -= float(np.angle(1.0 + rho_x(w_hi)[1]))
+    half_turns = (total + tail) / math.pi  # winding of rho over the whole axis, in turns, times 2 ... / 2
+    if abs(half_turns - (deg1 - deg2) / 2.0) < 0.25:
+        return WindingCheck(True, method="numerical")
+    return WindingCheck(False, math.nan, "winding number of 1 + P2~ P1 does not match the unstable poles",
+                        "numerical")
+
+
+def _wrap(angle):
+    return (np.asarray(angle) + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def _resonance_points(roots):
+    """Frequencies around every complex root: |Im| +- a few multiples of |Re|."""
+    points = []
+    for root in roots:
+        if root.imag > 0.0 or (root.imag == 0.0 and root.real != 0.0):
+            centre = abs(root.imag) if root.imag > 0.0 else abs(root.real)
+            width = max(abs(root.real), 1e-9 * max(centre, 1.0))
+            points.append(centre + width * np.linspace(-6.0, 6.0, 49))
+            points.append(abs(root) * np.array([1.0]))
+    if not points:
+        return np.zeros(0)
+    points = np.concatenate(points)
+    return points[points > 0.0]
+
+
+# ----------------------------------------------------------------------------------------------------------
+# exact sup over frequency
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _analysis_grid(m1, m2, extra_roots=()):
+    roots = np.concatenate([m1.poles(), m1.zeros(), m2.poles(), m2.zeros(), np.asarray(extra_roots, complex)])
+    magnitudes = np.abs(roots)
+    magnitudes = magnitudes[magnitudes > 0.0]
+    w_min = float(magnitudes.min()) if magnitudes.size else 1.0
+    w_max = float(magnitudes.max()) if magnitudes.size else 1.0
+    delta_s = abs(m2.delay_s - m1.delay_s)
+    if delta_s > 0.0:
+        w_min = min(w_min, 1.0 / delta_s)
+        w_max = max(w_max, 1.0 / delta_s)
+    w_lo, w_hi = 1e-4 * w_min, 1e4 * w_max
+    parts = [np.geomspace(w_lo, w_hi, int(_GRID_PER_DECADE * math.log10(w_hi / w_lo)) + 2),
+             _resonance_points(roots)]
+    if delta_s > 0.0:
+        step = math.pi / (8.0 * delta_s)
+        parts.append(np.arange(1, min(int(w_hi / step), 100_000) + 1) * step)
+    w = np.unique(np.concatenate(parts))
+    return w[(w >= w_lo) & (w <= w_hi)]
+
+
+def _grid_peaks(fun, w):
+    """Values of fun on the grid and the indices of its local maxima (NaN counts as -inf)."""
+    values = fun(w)
+    values = np.where(np.isnan(values), -np.inf, values)
+    padded = np.concatenate([[-np.inf], values, [-np.inf]])
+    is_peak = (padded[1:-1] >= padded[:-2]) & (padded[1:-1] >= padded[2:]) & np.isfinite(padded[1:-1]) | \
+        (values == np.inf)
+    return values, np.flatnonzero(is_peak)
+
+
+def _refine(fun, w, values, k):
+    """Maximise fun between the grid neighbours of index k (bounded scalar search in ln w)."""
+    lo = w[max(k - 1, 0)]
+    hi = w[min(k + 1, w.size - 1)]
+    centre = w[k]
+    value, where = float(values[k]), float(centre)
+    if hi > lo and math.isfinite(value):
+        result = minimize_scalar(lambda x: -float(fun(np.array([centre * math.exp(x)]))[0]),
+                                 bounds=(math.log(lo / centre), math.log(hi / centre)), method="bounded",
+                                 options={"xatol": _REFINE_XATOL, "maxiter": 500})
+        if -result.fun >= value:
+            value, where = float(-result.fun), float(centre * math.exp(result.x))
+    return value, where
+
+
+def _refined_sup(fun, w):
+    """Sup of fun over the grid's range: local maxima refined by bounded scalar maximisation in ln(w).
+
+    The grid local maxima within 30 % of the highest are refined (the 40 highest and the 10 lowest in
+    frequency); among equal peaks (e.g. periodic in w because of a delay) the lowest frequency is reported.
+    """
+    values, peaks = _grid_peaks(fun, w)
+    if peaks.size == 0:
+        return -math.inf, math.nan
+    top = values[peaks].max()
+    if np.isinf(top):
+        return math.inf, float(w[peaks[values[peaks] == np.inf][0]])
+    close = peaks[values[peaks] >= top - 0.3 * abs(top) - 1e-12]
+    highest = close[np.argsort(values[close])[::-1]][:_MAX_CANDIDATES]
+    keep = np.union1d(highest, close[:10])  # also the lowest-frequency ones (equal periodic peaks)
+    results = [_refine(fun, w, values, k) for k in keep]
+    best_value = max(value for value, _ in results)
+    ties = [where for value, where in results if value >= best_value - _TIE_RTOL * max(1.0, abs(best_value))]
+    return best_value, min(ties)
+
+
+def _first_huge(fun, w, threshold):
+    """Lowest frequency where a refined local maximum of fun reaches ``threshold`` (nan if none)."""
+    values, peaks = _grid_peaks(fun, w)
+    for k in peaks[values[peaks] >= 1e3]:  # ascending frequency
+        value, where = _refine(fun, w, values, k)
+        if value >= threshold:
+            return where
+    return math.nan
+
+
+def _sup_with_ends(fun, at_infinity, w):
+    value, where = _refined_sup(fun, w)
+    at_zero = float(fun(np.array([0.0]))[0])
+    if not math.isnan(at_zero) and at_zero >= value - _TIE_RTOL * max(1.0, abs(value)):
+        value, where = max(at_zero, value), 0.0
+    if at_infinity > value + _TIE_RTOL * max(1.0, abs(value)):
+        value, where = at_infinity, math.inf
+    return value, where
+
+
+def nugap(m1, m2):
+    """Exact nu-gap of two LTI models (Vinnicombe; paper eq. 13 with the winding-number condition).
+
+    Parameters
+    ----------
+    m1, m2 : LinearModel
+        Model and second model (delays allowed).
+
+    Returns
+    -------
+    value : float
+        sup over w >= 0 (and w -> inf) of the chordal distance when :func:`winding_condition` holds, else 1.
+    w_peak_rad_s : float
+        Frequency of the sup [rad/s] (``inf`` for the limit at infinity); when the condition fails, where
+        1 + P2~ P1 vanishes, or nan when the failure is a winding-number mismatch.
+    """
+    check = winding_condition(m1, m2)
+    if not check.satisfied:
+        return 1.0, check.frequency_rad_s
+    w = _analysis_grid(m1, m2)
+    value, where = _sup_with_ends(lambda x: _kappa_models(m1, m2, x), _kappa_at_infinity(m1, m2), w)
+    return min(max(value, 0.0), 1.0), where
+
+
+def epsilon(m1, m2):
+    """Exact sup over frequency of the overbounding-disk radius ``|P2 - P1| / |P2 + P1|`` (eq. 14).
+
+    Parameters
+    ----------
+    m1, m2 : LinearModel
+
+    Returns
+    -------
+    value : float
+        sup over w >= 0 (and w -> inf); ``inf`` when P2 = -P1 at some frequency. Values >= 1 mean that
+        no stability margin is guaranteed.
+    w_peak_rad_s : float
+        Frequency of the sup [rad/s] (``inf`` for the limit at infinity).
+    """
+    extra = ()
+    if m1.delay_s == m2.delay_s:
+        total = np.polyadd(np.polymul(m2.num, m1.den), np.polymul(m1.num, m2.den))
+        extra = _roots(total)
+        on_axis = extra[np.abs(extra.real) <= _AXIS_RTOL * np.maximum(np.abs(extra), 1.0)]
+        if on_axis.size:
+            w = float(np.min(np.abs(on_axis.imag)))
+            if np.isinf(_epsilon_models(m1, m2, np.array([w]))[0]) or \
+                    _epsilon_models(m1, m2, np.array([w]))[0] > 1e6:
+                return math.inf, w
+    w = _analysis_grid(m1, m2, extra)
+    fun = lambda x: _epsilon_models(m1, m2, x)  # noqa: E731
+    value, where = _refined_sup(fun, w)
+    if value >= _HUGE_EPSILON:
+        first = _first_huge(fun, w, _HUGE_EPSILON)
+        return math.inf, where if math.isnan(first) else first
+    return _sup_with_ends(fun, _epsilon_at_infinity(m1, m2), w)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Theil inequality coefficient
+# ----------------------------------------------------------------------------------------------------------
+
+
+def tic(y1, y2):
+    """Theil inequality coefficient of two sampled time histories (paper eqs. 1-2).
+
+    ``TIC = sqrt(mean((y1 - y2)^2)) / (sqrt(mean(y1^2)) + sqrt(mean(y2^2)))``, between 0 (identical) and 1.
+    (The denominator is the sum of the two RMS values, equivalent to eq. 2; 0 when both are zero.)
+
+    Parameters
+    ----------
+    y1, y2 : array_like
+        Simulated and measured outputs at the same samples.
+
+    Returns
+    -------
+    float
+    """
+    y1 = np.asarray(y1, dtype=float).ravel()
+    y2 = np.asarray(y2, dtype=float).ravel()
+    if y1.shape != y2.shape:
+        raise ValueError(f"tic: y1 and y2 differ in length ({y1.size} != {y2.size})")
+    denominator = math.sqrt(np.mean(y1 * y1)) + math.sqrt(np.mean(y2 * y2))
+    if denominator == 0.0:
+        return 0.0
+    return float(math.sqrt(np.mean((y1 - y2) ** 2)) / denominator)
+
+
+def tic_input_augmented(y1, y2, u):
+    """TIC of the input-output pairs [u; y1] and [u; y2] (paper eq. 3).
+
+    ``||y1 - y2|| / (||[u; y1]|| + ||[u; y2]||)``: the common input only enlarges the denominator.
+
+    Parameters
+    ----------
+    y1, y2 : array_like
+        Simulated and measured outputs.
+    u : array_like
+        The input applied to both, same samples.
+
+    Returns
+    -------
+    float
+    """
+    y1 = np.asarray(y1, dtype=float).ravel()
+    y2 = np.asarray(y2, dtype=float).ravel()
+    u = np.asarray(u, dtype=float).ravel()
+    if not y1.shape == y2.shape == u.shape:
+        raise ValueError("tic_input_augmented: y1, y2 and u must have the same length")
+    uu = float(np.mean(u * u))
+    denominator = math.sqrt(uu + np.mean(y1 * y1)) + math.sqrt(uu + np.mean(y2 * y2))
+    if denominator == 0.0:
+        return 0.0
+    return float(math.sqrt(np.mean((y1 - y2) ** 2)) / denominator)

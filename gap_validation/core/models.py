@@ -1,0 +1,798 @@
+"""SISO linear models of one aircraft channel: airframe (transfer function, zeros-poles-gain or state space)
+with physical effects in series (:mod:`gap_validation.core.effects`) and an optional pure delay.
+
+A :class:`LinearModel` is ``P(s) = num(s)/den(s) * exp(-s T)``; ``num``/``den`` include the rational effects
+and ``T = delay_s`` sums the airframe delay and every ``time_delay`` effect. It gives the exact frequency
+response and simulates time histories (hour-long flights in a fraction of a second), applying the delay
+exactly by interpolating the delayed input rather than by a Pade approximation.
+
+The config ``model:`` mapping (DESIGN.md) takes one of three airframe forms::
+
+    numerator: [-133.7, -990.76]          # descending powers of s
+    denominator: [1.0, 23.37, 235.93]
+
+    zeros: []                             # numbers, [re, im] pairs or strings such as "-11.7+10j"
+    poles: ["-11.7+10j", "-11.7-10j"]
+    gain: -133.7                          # optional, default 1
+
+    state_space: {A: [[...]], B: [[...]], C: [[...]], D: [[...]], input: 0, output: [0, 1, 0, 0]}
+
+plus optional ``delay_s`` (airframe transport delay [s], default 0) and ``effects`` (a list, in series).
+``input``/``output`` select a column of B / a row of C by index, or weight them (``input: [1, -1, 0]`` is
+``B[:, 0] - B[:, 1]``, a symmetric aileron from left and right surfaces).
+"""
+
+import copy
+import math
+
+import numpy as np
+import scipy.linalg
+import scipy.signal
+
+from gap_validation.core.effects import as_number, effect_factor, validate_effect
+from gap_validation.core.errors import ConfigError
+
+_MODEL_KEYS = ("numerator", "denominator", "zeros", "poles", "gain", "state_space", "delay_s", "effects")
+_SS_KEYS = ("A", "B", "C", "D", "input", "output")
+_TRIM_RTOL = 1e-10  # leading numerator coefficients below this (frequency-scaled) are round-off of ss2tf
+_UNIFORM_RTOL = 1e-8  # steps equal to this relative tolerance are treated as one uniform grid
+_BLOCK = 256  # block length of the uniform-grid simulation
+
+
+# ----------------------------------------------------------------------------------------------------------
+# parsing helpers (one-line ConfigError naming the path, key and value)
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _number_list(value, where, allow_empty=False):
+    if not isinstance(value, (list, tuple, np.ndarray)) or isinstance(value, str):
+        raise ConfigError(f"{where}: expected a list of numbers, got {value!r}")
+    if len(value) == 0 and not allow_empty:
+        raise ConfigError(f"{where}: expected a non-empty list of numbers, got []")
+    return np.array([as_number(v, f"{where}[{i}]") for i, v in enumerate(value)], dtype=float)
+
+
+def _complex_value(value, where):
+    """A root given as a number, a ``[re, im]`` pair or a string like ``"-1+2j"`` (``i`` accepted too)."""
+    expected = "a number, [re, im] or a string like '-1+2j'"
+    if isinstance(value, (list, tuple)):
+        if len(value) != 2:
+            raise ConfigError(f"{where}: expected {expected}, got {value!r}")
+        return complex(as_number(value[0], f"{where}[0]"), as_number(value[1], f"{where}[1]"))
+    if isinstance(value, str):
+        text = value.strip().replace(" ", "").replace("i", "j")
+        try:
+            root = complex(text)
+        except ValueError:
+            raise ConfigError(f"{where}: expected {expected}, got {value!r}") from None
+        if not (math.isfinite(root.real) and math.isfinite(root.imag)):
+            raise ConfigError(f"{where}: expected {expected}, got {value!r}")
+        return root
+    return complex(as_number(value, where, expected), 0.0)
+
+
+def _roots(value, where):
+    if not isinstance(value, (list, tuple)):
+        raise ConfigError(f"{where}: expected a list of roots, got {value!r}")
+    roots = np.array([_complex_value(v, f"{where}[{i}]") for i, v in enumerate(value)], dtype=complex)
+    _check_conjugates(roots, where)
+    return roots
+
+
+def _check_conjugates(roots, where):
+    """Complex roots of a real model come in conjugate pairs; raise ConfigError naming the first lone one."""
+    scale = max(1.0, float(np.max(np.abs(roots)))) if roots.size else 1.0
+    tol = 1e-9 * scale
+    unused = [r for r in roots if abs(r.imag) > tol]
+    while unused:
+        root = unused.pop(0)
+        match = [i for i, other in enumerate(unused) if abs(other - np.conj(root)) <= 1e-6 * max(1.0, abs(root))]
+        if not match:
+            raise ConfigError(
+                f"{where}: complex root {_format_root(root)} has no conjugate {_format_root(np.conj(root))} "
+                "(a real model needs conjugate pairs)"
+            )
+        unused.pop(match[0])
+
+
+def _format_root(root):
+    return f"{root.real:g}{root.imag:+g}j"
+
+
+def _real_poly(roots):
+    return np.real(np.poly(roots)) if roots.size else np.array([1.0])
+
+
+def _matrix(value, where, rows=None, cols=None):
+    """A 2-D matrix from nested lists; a flat list is a row when ``rows == 1``, a column when ``cols == 1``."""
+    try:
+        array = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{where}: expected a matrix (list of lists of numbers), got {value!r}") from None
+    if array.ndim == 0:
+        array = array.reshape(1, 1)
+    elif array.ndim == 1:
+        array = array.reshape(1, -1) if rows == 1 or (cols is not None and array.size == cols and cols != 1) \
+            else array.reshape(-1, 1)
+    if array.ndim != 2 or array.size == 0:
+        raise ConfigError(f"{where}: expected a non-empty matrix (list of lists of numbers), got {value!r}")
+    if not np.all(np.isfinite(array)):
+        raise ConfigError(f"{where}: expected finite numbers, got {value!r}")
+    if rows is not None and array.shape[0] != rows:
+        raise ConfigError(f"{where}: expected {rows} rows, got shape {array.shape[0]}x{array.shape[1]}")
+    if cols is not None and array.shape[1] != cols:
+        raise ConfigError(f"{where}: expected {cols} columns, got shape {array.shape[0]}x{array.shape[1]}")
+    return array
+
+
+def _selector(value, count, where, what):
+    """Index or weight vector selecting one of ``count`` inputs/outputs."""
+    if value is None:
+        if count == 1:
+            return np.array([1.0])
+        raise ConfigError(f"{where}: missing key (the model has {count} {what}s: give an index or a weight list)")
+    if isinstance(value, (list, tuple)):
+        weights = _number_list(value, where)
+        if weights.size != count:
+            raise ConfigError(f"{where}: expected {count} weights (one per {what}), got {value!r}")
+        return weights
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 0 <= value < count:
+        raise ConfigError(f"{where}: expected an index 0..{count - 1} or a list of {count} weights, got {value!r}")
+    weights = np.zeros(count)
+    weights[int(value)] = 1.0
+    return weights
+
+
+def _strip(poly):
+    poly = np.atleast_1d(np.asarray(poly, dtype=float))
+    nonzero = np.flatnonzero(poly)
+    return poly[nonzero[0]:] if nonzero.size else np.array([0.0])
+
+
+def _trim_leading(num, den):
+    """Drop leading numerator coefficients that are round-off relative to the model's frequency scale."""
+    num = _strip(num)
+    roots = np.roots(den) if len(den) > 1 else np.array([])
+    w_c = max(1.0, float(np.max(np.abs(roots)))) if roots.size else 1.0
+    powers = w_c ** np.arange(len(num) - 1, -1, -1, dtype=float)
+    weighted = np.abs(num) * powers
+    top = weighted.max()
+    if top == 0.0:
+        return np.array([0.0])
+    first = int(np.flatnonzero(weighted > _TRIM_RTOL * top)[0])
+    return num[first:]
+
+
+def _series(first, second):
+    """State-space series connection: ``second`` driven by the output of ``first``."""
+    a1, b1, c1, d1 = first
+    a2, b2, c2, d2 = second
+    n1, n2 = a1.shape[0], a2.shape[0]
+    a = np.zeros((n1 + n2, n1 + n2))
+    a[:n1, :n1] = a1
+    a[n1:, n1:] = a2
+    a[n1:, :n1] = b2 @ c1
+    b = np.vstack([b1, b2 @ d1])
+    c = np.hstack([d2 @ c1, c2])
+    return a, b, c, d2 @ d1
+
+
+def _tf2ss(num, den):
+    """Real realization (A, B, C, D) of a proper num/den with 2-D arrays (also for static gains)."""
+    if len(den) == 1:
+        return np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), np.array([[num[-1] / den[0]]])
+    a, b, c, d = scipy.signal.tf2ss(num, den)
+    return a, b, c, np.atleast_2d(d)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# the model
+# ----------------------------------------------------------------------------------------------------------
+
+
+class LinearModel:
+    """A SISO linear model ``P(s) = num(s)/den(s) * exp(-s delay_s)``, immutable.
+
+    Parameters
+    ----------
+    num, den : array_like
+        Airframe numerator and denominator, descending powers of s (proper: ``deg num <= deg den``).
+    delay_s : float
+        Airframe transport delay [s], >= 0.
+    effects : sequence of dict
+        Effects in series (:mod:`gap_validation.core.effects`), validated here.
+
+    Attributes
+    ----------
+    num, den : ndarray
+        Rational part *including* the rational effects; ``den`` is monic.
+    delay_s : float
+        Total pure delay [s]: airframe delay plus every ``time_delay`` effect.
+    effects : tuple of dict
+        The validated effects.
+
+    Notes
+    -----
+    Build models from a config mapping with :meth:`from_spec`; :meth:`to_spec` gives it back.
+    """
+
+    __slots__ = ("_air_num", "_air_den", "_air_delay_s", "_air_ss", "_air_spec", "_effects", "_num", "_den",
+                 "_delay_s", "_realization")
+
+    def __init__(self, num, den, delay_s=0.0, effects=(), *, _airframe_spec=None, _airframe_ss=None):
+        num = _strip(np.asarray(num, dtype=float))
+        den = _strip(np.asarray(den, dtype=float))
+        if not (np.all(np.isfinite(num)) and np.all(np.isfinite(den))):
+            raise ConfigError(f"model: expected finite coefficients, got numerator {num.tolist()}, "
+                              f"denominator {den.tolist()}")
+        if den[0] == 0.0:
+            raise ConfigError(f"model.denominator: expected a nonzero polynomial, got {den.tolist()}")
+        if len(num) > len(den) and not (len(num) == 1 and num[0] == 0.0):
+            raise ConfigError(
+                f"model.numerator: improper model (numerator degree {len(num) - 1} > denominator degree "
+                f"{len(den) - 1}), got {num.tolist()}"
+            )
+        delay_s = as_number(delay_s, "model.delay_s", "a number >= 0")
+        if delay_s < 0.0:
+            raise ConfigError(f"model.delay_s: expected a number >= 0, got {delay_s!r}")
+        self._air_num = num / den[0]
+        self._air_den = den / den[0]
+        self._air_delay_s = delay_s
+        self._air_ss = _airframe_ss
+        self._air_spec = _airframe_spec
+        self._effects = tuple(validate_effect(e, f"model.effects[{i}]") for i, e in enumerate(effects))
+        total_num, total_den, total_delay = self._air_num, self._air_den, self._air_delay_s
+        for effect in self._effects:
+            e_num, e_den, e_delay = effect_factor(effect)
+            total_num = np.polymul(total_num, e_num)
+            total_den = np.polymul(total_den, e_den)
+            total_delay += e_delay
+        self._num, self._den, self._delay_s = total_num, total_den, total_delay
+        for array in (self._air_num, self._air_den, self._num, self._den):
+            array.setflags(write=False)
+        self._realization = None
+
+    # -- construction from / to the config mapping ----------------------------------------------------------
+
+    @classmethod
+    def from_spec(cls, spec, where="model"):
+        """Build a model from the config ``model:`` mapping (DESIGN.md).
+
+        Parameters
+        ----------
+        spec : mapping
+            One airframe form (``numerator``/``denominator``, ``zeros``/``poles``/``gain`` or
+            ``state_space``), optional ``delay_s`` [s] and optional ``effects`` list.
+        where : str
+            Path of the mapping in the config, for error messages.
+
+        Returns
+        -------
+        LinearModel
+
+        Raises
+        ------
+        ConfigError
+            One line naming the path, key and value: unknown keys, wrong types, empty lists, non-finite
+            numbers, unpaired complex roots, wrong matrix shapes, improper models, bad effects.
+        """
+        if not isinstance(spec, dict):
+            raise ConfigError(f"{where}: expected a mapping (numerator/denominator, zeros/poles/gain or "
+                              f"state_space), got {spec!r}")
+        unknown = [key for key in spec if key not in _MODEL_KEYS]
+        if unknown:
+            raise ConfigError(f"{where}.{unknown[0]}: unknown key (expected {', '.join(_MODEL_KEYS)}), "
+                              f"got {unknown[0]!r}: {spec[unknown[0]]!r}")
+        forms = [name for name, keys in (("transfer function", ("numerator", "denominator")),
+                                         ("zeros-poles-gain", ("zeros", "poles", "gain")),
+                                         ("state space", ("state_space",)))
+                 if any(key in spec for key in keys)]
+        if len(forms) != 1:
+            raise ConfigError(f"{where}: expected exactly one of numerator/denominator, zeros/poles/gain or "
+                              f"state_space, got keys {sorted(k for k in spec if k not in ('delay_s', 'effects'))}")
+        delay_s = 0.0
+        if "delay_s" in spec:
+            delay_s = as_number(spec["delay_s"], f"{where}.delay_s", "a number >= 0")
+            if delay_s < 0.0:
+                raise ConfigError(f"{where}.delay_s: expected a number >= 0, got {spec['delay_s']!r}")
+        effects = spec.get("effects", [])
+        if effects is None:
+            effects = []
+        if not isinstance(effects, (list, tuple)):
+            raise ConfigError(f"{where}.effects: expected a list of effects, got {effects!r}")
+        effects = [validate_effect(e, f"{where}.effects[{i}]") for i, e in enumerate(effects)]
+        if forms[0] == "transfer function":
+            num, den, air_spec, air_ss = _parse_tf(spec, where)
+        elif forms[0] == "zeros-poles-gain":
+            num, den, air_spec, air_ss = _parse_zpk(spec, where)
+        else:
+            num, den, air_spec, air_ss = _parse_ss(spec["state_space"], f"{where}.state_space")
+        _check_proper(num, den, where)
+        return cls(num, den, delay_s, effects, _airframe_spec=air_spec, _airframe_ss=air_ss)
+
+    @classmethod
+    def from_tf(cls, num, den, delay_s=0.0, effects=()):
+        """Model from numerator/denominator coefficients (descending powers of s) and a delay [s]."""
+        return cls(num, den, delay_s, effects)
+
+    def to_spec(self):
+        """Config ``model:`` mapping that :meth:`from_spec` turns back into this model.
+
+        Returns
+        -------
+        dict
+            The airframe in the user's original form (numerator/denominator when built from arrays), plus
+            ``delay_s`` when nonzero and ``effects`` when there are any. Plain lists and floats (YAML/JSON
+            friendly).
+        """
+        if self._air_spec is not None:
+            spec = copy.deepcopy(self._air_spec)
+        else:
+            spec = {"numerator": [float(v) for v in self._air_num], "denominator": [float(v) for v in self._air_den]}
+        if self._air_delay_s:
+            spec["delay_s"] = float(self._air_delay_s)
+        if self._effects:
+            spec["effects"] = [dict(e) for e in self._effects]
+        return spec
+
+    def with_effects(self, effects):
+        """A copy with ``effects`` appended in series (validated; ConfigError on problems)."""
+        effects = list(self._effects) + list(effects)
+        return LinearModel(self._air_num, self._air_den, self._air_delay_s, effects,
+                           _airframe_spec=self._air_spec, _airframe_ss=self._air_ss)
+
+    @property
+    def airframe(self):
+        """The model without its effects (airframe delay kept)."""
+        return LinearModel(self._air_num, self._air_den, self._air_delay_s, (),
+                           _airframe_spec=self._air_spec, _airframe_ss=self._air_ss)
+
+    # -- attributes -----------------------------------------------------------------------------------------
+
+    @property
+    def num(self):
+        """Numerator of the rational part incl. rational effects, descending powers of s."""
+        return self._num
+
+    @property
+    def den(self):
+        """Monic denominator of the rational part incl. rational effects, descending powers of s."""
+        return self._den
+
+    @property
+    def delay_s(self):
+        """Total pure delay [s] (airframe delay + ``time_delay`` effects)."""
+        return self._delay_s
+
+    @property
+    def effects(self):
+        """The validated effects, in series order."""
+        return self._effects
+
+    @property
+    def order(self):
+        """Number of poles of the rational part."""
+        return len(self._den) - 1
+
+    def poles(self):
+        """Poles of the rational part [rad/s] (common factors with the numerator are not cancelled)."""
+        return np.roots(self._den) if len(self._den) > 1 else np.array([], dtype=complex)
+
+    def zeros(self):
+        """Finite zeros of the rational part [rad/s]."""
+        return np.roots(self._num) if len(self._num) > 1 else np.array([], dtype=complex)
+
+    def dc_gain(self):
+        """P(0) (inf when a pole is at the origin)."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return float(self._num[-1] / self._den[-1]) if self._den[-1] != 0 else math.inf
+
+    def __repr__(self):
+        parts = [f"num={np.array2string(self._num, precision=6)}", f"den={np.array2string(self._den, precision=6)}"]
+        if self._delay_s:
+            parts.append(f"delay_s={self._delay_s:g}")
+        if self._effects:
+            parts.append(f"effects={[e['type'] for e in self._effects]}")
+        return f"LinearModel({', '.join(parts)})"
+
+    # -- frequency response ---------------------------------------------------------------------------------
+
+    def freqresp(self, w_rad_s):
+        """Complex frequency response P(j w), the delay included exactly as exp(-j w T).
+
+        Parameters
+        ----------
+        w_rad_s : array_like
+            Frequencies [rad/s] (>= 0 in practice; any real value works).
+
+        Returns
+        -------
+        ndarray of complex
+            Same shape as ``w_rad_s``; ``inf`` at a pole on the imaginary axis.
+        """
+        w = np.asarray(w_rad_s, dtype=float)
+        s = 1j * w
+        with np.errstate(divide="ignore", invalid="ignore"):
+            response = np.polyval(self._num, s) / np.polyval(self._den, s)
+        if self._delay_s:
+            response = response * np.exp(-s * self._delay_s)
+        return response
+
+    # -- time response --------------------------------------------------------------------------------------
+
+    def state_space(self):
+        """Real realization (A, B, C, D) of the rational part: airframe states, then each effect's states.
+
+        The airframe uses the config's own state-space matrices when it was given that way (reduced to the
+        selected input/output), else the controllable canonical form of num/den (``scipy.signal.tf2ss``).
+        This is the realization whose state ``x0`` of :meth:`simulate` refers to.
+        """
+        if self._realization is None:
+            system = self._air_ss if self._air_ss is not None else _tf2ss(self._air_num, self._air_den)
+            for effect in self._effects:
+                e_num, e_den, _ = effect_factor(effect)
+                if len(e_den) > 1 or e_num[0] != 1.0:
+                    system = _series(system, _tf2ss(e_num, e_den))
+            self._realization = tuple(np.array(m, dtype=float) for m in system)
+        return self._realization
+
+    def simulate(self, t_s, u, x0=None, hold="linear"):
+        """Output for input samples ``u`` at times ``t_s`` (possibly irregular), delay applied exactly.
+
+        The input between samples is linear (first-order hold, as ``scipy.signal.lsim``) or constant
+        (``hold="zero"``). The rational part is discretised exactly for that input (matrix exponential per
+        distinct step). The pure delay is applied exactly: the rational part is driven by u(t - T), obtained by
+        interpolating ``u`` at ``t_s - T`` (zero before the first sample), so a delayed ramp or sine is
+        reproduced to interpolation accuracy, not a Pade approximation.
+
+        Uniform grids (and uniform runs between dropouts) are simulated in blocks with matrix products
+        (10^6 samples of a 5th-order model in about 0.2 s). Irregular (jittered) steps are solved exactly in
+        modal coordinates, vectorised (10^6 samples in about 2 s); only when A is not diagonalisable
+        (repeated poles, e.g. two identical lags) a per-step recursion is used (tens of microseconds per
+        sample).
+
+        Parameters
+        ----------
+        t_s : array_like
+            Sample times [s], strictly increasing.
+        u : array_like
+            Input samples, same length.
+        x0 : array_like, optional
+            Initial state of the :meth:`state_space` realization (default zero).
+        hold : {"linear", "zero"}
+            Input interpolation between samples.
+
+        Returns
+        -------
+        ndarray
+            Output samples y(t_s).
+        """
+        t = np.asarray(t_s, dtype=float).ravel()
+        u = np.asarray(u, dtype=float).ravel()
+        if t.shape != u.shape:
+            raise ValueError(f"simulate: t_s and u differ in length ({t.size} != {u.size})")
+        if hold not in ("linear", "zero"):
+            raise ValueError(f"simulate: hold must be 'linear' or 'zero', got {hold!r}")
+        if t.size == 0:
+            return np.zeros(0)
+        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(u))):
+            raise ValueError("simulate: t_s and u must be finite")
+        steps = np.diff(t)
+        if np.any(steps <= 0.0):
+            raise ValueError("simulate: t_s must be strictly increasing")
+        if self._delay_s > 0.0:
+            u = delayed_input(t, u, self._delay_s, hold)
+        a, b, c, d = self.state_space()
+        n = a.shape[0]
+        x = np.zeros(n) if x0 is None else np.asarray(x0, dtype=float).ravel()
+        if x.size != n:
+            raise ValueError(f"simulate: x0 needs {n} states, got {x.size}")
+        if n == 0:
+            return d[0, 0] * u
+        y = np.empty_like(u)
+        for start, stop in _uniform_runs(steps):
+            x = _simulate_run(a, b, c, d, t[start:stop + 1], u[start:stop + 1], x, hold, y[start:stop + 1])
+        return y
+
+
+def delayed_input(t_s, u, delay_s, hold="linear"):
+    """Samples of u(t - T) at the times ``t_s``: interpolated input, zero before the first sample.
+
+    Parameters
+    ----------
+    t_s, u : ndarray
+        Sample times [s] (increasing) and input samples.
+    delay_s : float
+        Delay T [s].
+    hold : {"linear", "zero"}
+        Linear interpolation, or the last sample held.
+    """
+    shifted = t_s - delay_s
+    if hold == "linear":
+        return np.interp(shifted, t_s, u, left=0.0)
+    index = np.searchsorted(t_s, shifted, side="right") - 1
+    out = np.where(index >= 0, u[np.clip(index, 0, None)], 0.0)
+    return out
+
+
+# ----------------------------------------------------------------------------------------------------------
+# parsing of the airframe forms
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _parse_tf(spec, where):
+    for key in ("numerator", "denominator"):
+        if key not in spec:
+            raise ConfigError(f"{where}: missing key {key!r} (a transfer function needs numerator and denominator)")
+    num = _number_list(spec["numerator"], f"{where}.numerator")
+    den = _number_list(spec["denominator"], f"{where}.denominator")
+    if not np.any(den):
+        raise ConfigError(f"{where}.denominator: expected a nonzero polynomial, got {spec['denominator']!r}")
+    air_spec = {"numerator": num.tolist(), "denominator": den.tolist()}
+    return num, den, air_spec, None
+
+
+def _parse_zpk(spec, where):
+    if "poles" not in spec:
+        raise ConfigError(f"{where}: missing key 'poles' (zeros-poles-gain form; use [] for none)")
+    zeros = _roots(spec.get("zeros", []), f"{where}.zeros")
+    poles = _roots(spec["poles"], f"{where}.poles")
+    gain = as_number(spec.get("gain", 1.0), f"{where}.gain")
+    num = gain * _real_poly(zeros)
+    den = _real_poly(poles)
+    air_spec = {"zeros": [_root_spec(r) for r in zeros], "poles": [_root_spec(r) for r in poles], "gain": gain}
+    return num, den, air_spec, None
+
+
+def _root_spec(root):
+    return float(root.real) if root.imag == 0.0 else [float(root.real), float(root.imag)]
+
+
+def _parse_ss(spec, where):
+    if not isinstance(spec, dict):
+        raise ConfigError(f"{where}: expected a mapping with A, B, C (D, input, output optional), got {spec!r}")
+    unknown = [key for key in spec if key not in _SS_KEYS]
+    if unknown:
+        raise ConfigError(f"{where}.{unknown[0]}: unknown key (expected {', '.join(_SS_KEYS)}), got "
+                          f"{unknown[0]!r}")
+    for key in ("A", "B", "C"):
+        if key not in spec:
+            raise ConfigError(f"{where}: missing key {key!r}")
+    a = _matrix(spec["A"], f"{where}.A")
+    n = a.shape[0]
+    if a.shape != (n, n):
+        raise ConfigError(f"{where}.A: expected a square matrix, got shape {a.shape[0]}x{a.shape[1]}")
+    b = _matrix(spec["B"], f"{where}.B", rows=n)
+    c = _matrix(spec["C"], f"{where}.C", cols=n)
+    m, p = b.shape[1], c.shape[0]
+    d = np.zeros((p, m)) if spec.get("D") is None else _matrix(spec["D"], f"{where}.D", rows=p, cols=m)
+    w_in = _selector(spec.get("input"), m, f"{where}.input", "input")
+    w_out = _selector(spec.get("output"), p, f"{where}.output", "output")
+    b1 = (b @ w_in).reshape(n, 1)
+    c1 = (w_out @ c).reshape(1, n)
+    d1 = np.array([[float(w_out @ d @ w_in)]])
+    num, den = scipy.signal.ss2tf(a, b1, c1, d1)
+    num = _trim_leading(num[0], den)
+    air_spec = {"state_space": {key: _plain(spec[key]) for key in _SS_KEYS if spec.get(key) is not None}}
+    return num, den, air_spec, (a, b1, c1, d1)
+
+
+def _plain(value):
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    return copy.deepcopy(value)
+
+
+def _check_proper(num, den, where):
+    num, den = _strip(num), _strip(den)
+    if len(num) > len(den) and np.any(num):
+        raise ConfigError(f"{where}: improper model (numerator degree {len(num) - 1} > denominator degree "
+                          f"{len(den) - 1}), got numerator {num.tolist()}")
+
+
+# ----------------------------------------------------------------------------------------------------------
+# simulation
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _uniform_runs(steps, min_steps=32):
+    """Split samples into runs: (first, last) sample indices, consecutive runs sharing their end sample.
+
+    Runs of at least ``min_steps`` (nearly) equal steps are simulated in blocks; shorter irregular stretches
+    are merged into runs for the per-step recursion.
+    """
+    count = steps.size
+    if count == 0 or np.all(np.abs(steps - steps[0]) <= _UNIFORM_RTOL * steps[0]):
+        return [(0, count)]
+    change = np.flatnonzero(np.abs(np.diff(steps)) > _UNIFORM_RTOL * steps[1:]) + 1
+    edges = np.concatenate([[0], change, [count]])
+    runs = []
+    for first, last in zip(edges[:-1].tolist(), edges[1:].tolist()):
+        long_run = last - first >= min_steps
+        if runs and not long_run and not runs[-1][2]:
+            runs[-1][1] = last
+        else:
+            runs.append([first, last, long_run])
+    return [(first, last) for first, last, _ in runs]
+
+
+def _discretise(a, b, h, hold):
+    """Exact discretisation for input held (``zero``) or linear (``linear``) over a step h [s].
+
+    Returns Phi, Ga, Gb with x[k+1] = Phi x[k] + Ga u[k] + Gb u[k+1].
+    """
+    n = a.shape[0]
+    if hold == "zero":
+        block = np.zeros((n + 1, n + 1))
+        block[:n, :n] = a * h
+        block[:n, n:] = b * h
+        e = scipy.linalg.expm(block)
+        return e[:n, :n], e[:n, n], np.zeros(n)
+    block = np.zeros((n + 2, n + 2))
+    block[:n, :n] = a * h
+    block[:n, n] = b[:, 0] * h
+    block[n, n + 1] = 1.0
+    e = scipy.linalg.expm(block)
+    phi, gamma1, gamma2 = e[:n, :n], e[:n, n], e[:n, n + 1]
+    return phi, gamma1 - gamma2, gamma2
+
+
+def _simulate_run(a, b, c, d, t, u, x, hold, y_out):
+    """Simulate samples t[0..] starting from state x at t[0]; writes y_out, returns the state at t[-1]."""
+    count = t.size
+    if count == 1:
+        y_out[0] = c[0] @ x + d[0, 0] * u[0]
+        return x
+    steps = np.diff(t)
+    if count >= 32 and np.all(np.abs(steps - steps[0]) <= _UNIFORM_RTOL * steps[0]):
+        h = float(np.mean(steps))
+        return _simulate_uniform(a, b, c, d, h, u, x, hold, y_out)
+    x_end = _simulate_modal(a, b, c, d, t, u, x, hold, y_out)
+    if x_end is not None:
+        return x_end
+    return _simulate_steps(a, b, c, d, t, u, x, hold, y_out)
+
+
+def _simulate_steps(a, b, c, d, t, u, x, hold, y_out):
+    """Per-step recursion with exact matrices for each distinct step (any A; slow: tens of us per step)."""
+    count = t.size
+    steps = np.diff(t)
+    unique, inverse = np.unique(steps, return_inverse=True)
+    mats = [_discretise(a, b, float(h), hold) for h in unique]
+    c0, d0 = c[0], d[0, 0]
+    states = np.empty((count, x.size))
+    for k in range(count - 1):
+        states[k] = x
+        phi, ga, gb = mats[inverse[k]]
+        x = phi @ x + ga * u[k] + gb * u[k + 1]
+    states[-1] = x
+    y_out[:] = states @ c0 + d0 * u
+    return x
+
+
+def _phi_functions(z):
+    """phi1(z) = (e^z - 1)/z and phi2(z) = (e^z - 1 - z)/z^2 for complex arrays, accurate near z = 0."""
+    z = np.asarray(z, dtype=complex)
+    small = np.abs(z) < 0.1
+    with np.errstate(divide="ignore", invalid="ignore"):
+        phi1 = np.expm1(z) / z
+        phi2 = (phi1 - 1.0) / z
+    zs = z[small]
+    series1 = np.zeros_like(zs)
+    series2 = np.zeros_like(zs)
+    term = np.ones_like(zs)
+    for k in range(12):  # sum z^k/(k+1)! and z^k/(k+2)!
+        series1 += term / math.factorial(k + 1)
+        series2 += term / math.factorial(k + 2)
+        term = term * zs
+    phi1[small] = series1
+    phi2[small] = series2
+    return phi1, phi2
+
+
+def _simulate_modal(a, b, c, d, t, u, x, hold, y_out, max_condition=1e6):
+    """Irregular steps in modal coordinates, vectorised; None when A is not safely diagonalisable.
+
+    With A = V diag(lam) V^-1 every mode obeys z[k+1] = exp(lam h_k) z[k] + f_k (f from the phi functions
+    of lam h_k and the held/linear input), solved in blocks by cumulative sums of exp(-lam t) f.
+    """
+    lam, vec = np.linalg.eig(a)
+    if not np.all(np.isfinite(lam)) or np.linalg.cond(vec) > max_condition:
+        return None
+    inv = np.linalg.inv(vec)
+    b_modal = inv @ b[:, 0]
+    c_modal = c[0] @ vec
+    z0 = inv @ x
+    steps = np.diff(t)
+    y = d[0, 0] * u.astype(complex)
+    z_end = np.empty(lam.size, dtype=complex)
+    for i, root in enumerate(lam):
+        phi1, phi2 = _phi_functions(root * steps)
+        if hold == "zero":
+            forcing = steps * phi1 * b_modal[i] * u[:-1]
+        else:
+            forcing = steps * b_modal[i] * ((phi1 - phi2) * u[:-1] + phi2 * u[1:])
+        z = _scalar_scan(root, t, forcing, z0[i])
+        y += c_modal[i] * z
+        z_end[i] = z[-1]
+    y_out[:] = y.real
+    return (vec @ z_end).real
+
+
+def _scalar_scan(root, t, forcing, z0):
+    """z[0] = z0, z[k+1] = exp(root (t[k+1] - t[k])) z[k] + forcing[k], vectorised in blocks.
+
+    Within a block z = exp(root s) cumsum(exp(-root s) f), s the time from the block start; the block length
+    keeps |Re(root)| s below 500 (no overflow). Block start values follow a short scalar recursion.
+    """
+    count = forcing.size
+    h_max = float(np.max(np.diff(t)))
+    rate = abs(root.real) * h_max
+    length = 256 if rate * 256 <= 500.0 else max(1, int(500.0 / rate))
+    blocks = -(-count // length)
+    padded_t = np.concatenate([t, np.full(blocks * length + 1 - t.size, t[-1])])
+    padded_f = np.zeros(blocks * length, dtype=complex)
+    padded_f[:count] = forcing
+    starts = padded_t[:-1:length][:blocks]
+    rel = padded_t[1:].reshape(blocks, length) - starts[:, None]  # time from block start to each step's end
+    grow = np.exp(root * rel)
+    local = grow * np.cumsum(np.exp(-root * rel) * padded_f.reshape(blocks, length), axis=1)
+    end_grow, end_local = grow[:, -1].tolist(), local[:, -1].tolist()
+    carry = np.empty(blocks, dtype=complex)
+    state = complex(z0)
+    for k in range(blocks):
+        carry[k] = state
+        state = end_grow[k] * state + end_local[k]
+    z = (local + grow * carry[:, None]).ravel()[:count]
+    return np.concatenate([[z0], z])
+
+
+def _simulate_uniform(a, b, c, d, h, u, x0, hold, y_out):
+    """Uniform-step simulation in blocks of L samples with matrix products.
+
+    With w[k] = x[k] - Gb u[k] the discrete system is w[k+1] = Phi w[k] + Bd u[k], y[k] = C w[k] + Dd u[k].
+    Within each block the zero-state output is a Toeplitz product with the Markov parameters; block start
+    states follow a short sequential recursion over blocks.
+    """
+    phi, ga, gb = _discretise(a, b, h, hold)
+    cc = c[0]
+    bd = phi @ gb + ga
+    dd = d[0, 0] + cc @ gb
+    count = u.size
+    n = phi.shape[0]
+    length = min(_BLOCK, count)
+    # O[j] = C Phi^j and markov[j] = C Phi^(j-1) Bd (j >= 1), markov[0] = Dd; R[:, i] = Phi^(L-1-i) Bd.
+    observ = np.empty((length, n))
+    powers_b = np.empty((length, n))
+    row = cc.copy()
+    col = bd.copy()
+    for j in range(length):
+        observ[j] = row
+        powers_b[j] = col
+        row = row @ phi
+        col = phi @ col
+    phi_block = np.linalg.matrix_power(phi, length)
+    markov = np.concatenate([[dd], observ[:-1] @ bd])
+    index = np.arange(length)
+    lag = index[:, None] - index[None, :]
+    toeplitz = np.where(lag >= 0, markov[np.clip(lag, 0, None)], 0.0)  # y_local = toeplitz @ u_block
+    reach = powers_b[::-1].T  # n x L
+    blocks = -(-count // length)
+    padded = np.zeros(blocks * length)
+    padded[:count] = u
+    u_blocks = padded.reshape(blocks, length)
+    y_local = u_blocks @ toeplitz.T
+    drive = u_blocks @ reach.T  # blocks x n
+    starts = np.empty((blocks, n))
+    w = x0 - gb * u[0]
+    for k in range(blocks):
+        starts[k] = w
+        w = phi_block @ w + drive[k]
+    y = (y_local + starts @ observ.T).ravel()[:count]
+    y_out[:] = y
+    # state at the last sample: propagate from the start of the last block
+    last_block = (count - 1) // length
+    w = starts[last_block]
+    for k in range(last_block * length, count - 1):
+        w = phi @ w + bd * u[k]
+    return w + gb * u[-1]

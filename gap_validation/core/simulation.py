@@ -1,0 +1,579 @@
+"""Synthetic flights: time histories of a sweep flight, ROS-free (arrays only; :mod:`gap_validation.bagio` writes
+them as a rosbag2).
+
+The "true aircraft" of each channel is the config's model (with its effects) with *hidden* effects in series
+(:meth:`LinearModel.with_effects`), so a replay of the flight measures the truth and the validation sees how far
+the config's model is from it. The flight follows the paper's test card (Section V): frequency sweeps per axis
+(roll, pitch, yaw in turn, several rounds), a doublet after each sweep, pilot trim inputs throughout, gusts
+entering at the output as low-pass filtered (coloured) noise, gyro and surface sensor noise, and topics
+published at their own rates with timestamp jitter, dropped messages and a transport latency (bag time =
+``header.stamp`` + latency).
+
+Sweeps are exponential (log) chirps covering the channel's frequency grid band, so every analysis frequency
+receives the same time per octave; the instantaneous frequency is ``w(t) = w0 (w1/w0)^(t/T)``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy import signal
+
+from gap_validation.core.config import ChannelConfig, SignalSpec, ValidationConfig
+from gap_validation.core.effects import validate_effect
+from gap_validation.core.errors import ConfigError
+from gap_validation.ingest import FieldPath
+
+__all__ = [
+    "FlightOptions", "Segment", "TopicSeries", "SimulatedFlight", "parse_hidden", "hidden_effects",
+    "truth_models", "plan_topics", "simulate_flight", "log_sweep", "doublet", "SUPPORTED_TYPES",
+]
+
+IMU = "sensor_msgs/msg/Imu"
+JOINT_STATE = "sensor_msgs/msg/JointState"
+FLOAT64 = "std_msgs/msg/Float64"
+FLOAT32 = "std_msgs/msg/Float32"
+BOOL = "std_msgs/msg/Bool"
+
+#: Message types a simulated flight can publish -> the fields it can fill (``None``: see the type's rule).
+SUPPORTED_TYPES = {
+    IMU: {("orientation", c) for c in "xyzw"} | {("angular_velocity", c) for c in "xyz"}
+         | {("linear_acceleration", c) for c in "xyz"},
+    JOINT_STATE: {("position",), ("velocity",), ("effort",)},
+    FLOAT64: {("data",)},
+    FLOAT32: {("data",)},
+    BOOL: {("data",)},
+}
+
+
+@dataclass(frozen=True)
+class FlightOptions:
+    """How the synthetic flight is flown and measured.
+
+    Attributes
+    ----------
+    sweeps_per_channel : int
+        Rounds of the test card; each round sweeps every channel once (in config order) with a doublet after
+        each sweep.
+    sweep_duration_s : float
+        Length of one log sweep [s].
+    imu_rate_hz, surface_rate_hz : float
+        Publication rates of topics carrying outputs (IMU) and inputs or triggers (surfaces) [Hz].
+    sweep_amplitude_rad, doublet_amplitude_rad : float
+        Surface deflection amplitudes [rad].
+    doublet_half_period_s : float
+        Duration of each half of the doublet [s].
+    quiet_s : float
+        Quiet time (trim inputs, gusts) between manoeuvres [s].
+    band_margin : float
+        The sweep covers ``[min_rad_s / band_margin, max_rad_s * band_margin]`` of the channel's grid.
+    noise : float
+        Multiplies every noise and gust level below (0 gives a noise-free flight).
+    gyro_noise_rad_s, surface_noise_rad : float
+        Standard deviation of white sensor noise on rates [rad/s] and surface positions [rad].
+    gust_rms_rad_s, gust_bandwidth_rad_s : float
+        RMS and corner frequency of the gust disturbance added at each output: white noise through a
+        second-order low-pass (damping 0.7), so coherence falls at low frequency.
+    trim_step_rad : float
+        Size of the pilot's trim adjustments (slow ramps every 10 to 30 s, random sign) [rad].
+    trim_offset_rad : float
+        Largest constant trim deflection of a surface (the linearisation point; not fed to the model) [rad].
+    gyro_lsb_rad_s, surface_lsb_rad : float
+        Sensor resolution: measured rates and surface positions are rounded to multiples of these (a 16-bit
+        gyro at +-250 deg/s resolves about 2^-13 rad/s, a 12-bit surface encoder about 2^-12 rad); 0 keeps
+        full precision.
+    jitter_s : float
+        Standard deviation of the timestamp jitter [s] (clipped to a third of the sample period).
+    drop_probability : float
+        Probability that a message is lost.
+    latency_s, latency_jitter_s : float
+        Transport latency from ``header.stamp`` to the bag time: constant plus exponential part [s].
+    sim_rate_hz : float
+        Rate of the internal simulation grid [Hz] (raised to 4 times the fastest topic).
+    start_time_s : float
+        Absolute time of the flight start (epoch seconds) for stamps and bag times.
+    """
+
+    sweeps_per_channel: int = 3
+    sweep_duration_s: float = 60.0
+    imu_rate_hz: float = 100.0
+    surface_rate_hz: float = 50.0
+    sweep_amplitude_rad: float = 0.06
+    dwell_cycles: float = 0.0
+    doublet_amplitude_rad: float = 0.05
+    doublet_half_period_s: float = 0.5
+    quiet_s: float = 5.0
+    band_margin: float = 1.3
+    noise: float = 1.0
+    gyro_noise_rad_s: float = 0.004
+    surface_noise_rad: float = 0.001
+    gust_rms_rad_s: float = 0.03
+    gust_bandwidth_rad_s: float = 1.5
+    trim_step_rad: float = 0.004
+    trim_offset_rad: float = 0.03
+    gyro_lsb_rad_s: float = 2.0 ** -13
+    surface_lsb_rad: float = 2.0 ** -12
+    jitter_s: float = 0.0005
+    drop_probability: float = 0.003
+    latency_s: float = 0.002
+    latency_jitter_s: float = 0.0005
+    sim_rate_hz: float = 400.0
+    start_time_s: float = 1_700_000_000.0
+
+    def check(self) -> "FlightOptions":
+        """Raise :class:`ConfigError` naming the first option out of range; return self."""
+        positive = ("sweep_duration_s", "imu_rate_hz", "surface_rate_hz", "doublet_half_period_s",
+                    "gust_bandwidth_rad_s", "sim_rate_hz", "band_margin")
+        for name in positive:
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ConfigError(f"simulation option {name}: expected a number > 0, got {value!r}")
+        for name in ("sweep_amplitude_rad", "doublet_amplitude_rad", "quiet_s", "noise", "gyro_noise_rad_s",
+                     "surface_noise_rad", "gust_rms_rad_s", "trim_step_rad", "trim_offset_rad", "jitter_s",
+                     "gyro_lsb_rad_s", "surface_lsb_rad",
+                     "latency_s", "latency_jitter_s"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ConfigError(f"simulation option {name}: expected a number >= 0, got {value!r}")
+        if not isinstance(self.sweeps_per_channel, int) or self.sweeps_per_channel < 1:
+            raise ConfigError(f"simulation option sweeps_per_channel: expected an integer >= 1, "
+                              f"got {self.sweeps_per_channel!r}")
+        if not 0.0 <= self.drop_probability < 0.5:
+            raise ConfigError(f"simulation option drop_probability: expected a number in [0, 0.5), "
+                              f"got {self.drop_probability!r}")
+        return self
+
+
+@dataclass(frozen=True)
+class Segment:
+    """One manoeuvre of the test card: ``kind`` is ``sweep`` or ``doublet``; times from the flight start [s]."""
+
+    channel: str
+    kind: str
+    start_s: float
+    end_s: float
+    band_rad_s: tuple[float, float] | None = None
+
+
+@dataclass
+class TopicSeries:
+    """The messages of one topic: times and the value of every configured field (in message units).
+
+    Attributes
+    ----------
+    topic, msgtype : str
+        Topic name and ROS message type (e.g. ``sensor_msgs/msg/Imu``).
+    stamp_s : ndarray
+        ``header.stamp`` of each message, absolute [s].
+    receive_s : ndarray
+        Bag (receive) time of each message, absolute [s], non-decreasing.
+    values : dict
+        Field path text (as in the config) -> value per message, already divided by the signal's ``scale``.
+    joint_names : tuple of str
+        JointState ``name`` list (every message carries all of them).
+    """
+
+    topic: str
+    msgtype: str
+    stamp_s: np.ndarray
+    receive_s: np.ndarray
+    values: dict[str, np.ndarray] = field(default_factory=dict)
+    joint_names: tuple[str, ...] = ()
+
+    def __len__(self) -> int:
+        return int(self.stamp_s.size)
+
+
+@dataclass
+class SimulatedFlight:
+    """A synthetic flight.
+
+    Attributes
+    ----------
+    topics : dict
+        Topic -> :class:`TopicSeries` (what a bag of the flight contains).
+    segments : list of Segment
+        The manoeuvres, in time order.
+    truth : dict
+        Channel -> the true :class:`LinearModel` (config model + hidden effects).
+    hidden : dict
+        Channel -> the hidden effects (validated mappings).
+    t_s : ndarray
+        Internal uniform simulation grid, relative to the start [s].
+    inputs, outputs : dict
+        Channel -> surface deflection deviation [rad] and noise-free, gust-free response [rad/s] on ``t_s``.
+    duration_s, start_time_s : float
+        Flight length [s] and absolute start time [s].
+    seed : int
+        Seed of the random generator.
+    options : FlightOptions
+    """
+
+    topics: dict[str, TopicSeries]
+    segments: list[Segment]
+    truth: dict
+    hidden: dict[str, list[dict]]
+    t_s: np.ndarray
+    inputs: dict[str, np.ndarray]
+    outputs: dict[str, np.ndarray]
+    duration_s: float
+    start_time_s: float
+    seed: int
+    options: FlightOptions
+
+    @property
+    def message_count(self) -> int:
+        """Messages in all topics."""
+        return sum(len(s) for s in self.topics.values())
+
+    def sweeps(self, channel: str) -> list[Segment]:
+        """The sweep segments of ``channel``."""
+        return [s for s in self.segments if s.channel == channel and s.kind == "sweep"]
+
+
+# --------------------------------------------------------------------------------------------- hidden effects
+def _hidden_value(text: str, part: str, value: str) -> float:
+    try:
+        number = float(value)
+    except ValueError:
+        number = float("nan")
+    if not math.isfinite(number):
+        raise ConfigError(f"--hidden {text!r}: bad part {part!r} (value must be a finite number)")
+    return number
+
+
+def parse_hidden(text: str, channels: list[str] | tuple[str, ...] | None = None) -> tuple[str, dict]:
+    """Parse ``CHANNEL:EFFECT:key=value[,key=value]`` (e.g. ``pitch:time_delay:seconds=0.04``).
+
+    Parameters
+    ----------
+    text : str
+        The ``--hidden`` argument.
+    channels : sequence of str, optional
+        Channel names of the config; the channel must be one of them.
+
+    Returns
+    -------
+    channel : str
+    effect : dict
+        A validated effect mapping (DESIGN.md effects vocabulary).
+
+    Raises
+    ------
+    ConfigError
+        One line naming the bad part.
+    """
+    parts = text.split(":", 2)
+    if len(parts) < 2 or not parts[0].strip() or not parts[1].strip():
+        raise ConfigError(f"--hidden {text!r}: expected CHANNEL:EFFECT:key=value[,key=value], "
+                          "e.g. pitch:time_delay:seconds=0.04")
+    channel, kind = parts[0].strip(), parts[1].strip()
+    if channels is not None and channel not in channels:
+        raise ConfigError(f"--hidden {text!r}: bad part {channel!r}: no such channel in the config "
+                          f"(channels: {', '.join(channels)})")
+    effect: dict = {"type": kind}
+    params = parts[2] if len(parts) == 3 else ""
+    for part in (p.strip() for p in params.split(",")):
+        if not part:
+            continue
+        key, sep, value = part.partition("=")
+        if not sep or not key.strip():
+            raise ConfigError(f"--hidden {text!r}: bad part {part!r} (expected key=value)")
+        effect[key.strip()] = _hidden_value(text, part, value.strip())
+    return channel, validate_effect(effect, where=f"--hidden {text!r}")
+
+
+def hidden_effects(texts, config: ValidationConfig) -> dict[str, list[dict]]:
+    """Parse every ``--hidden`` text; channel -> effects in the order given."""
+    out: dict[str, list[dict]] = {}
+    for text in texts or ():
+        channel, effect = parse_hidden(text, tuple(config.channels))
+        out.setdefault(channel, []).append(effect)
+    return out
+
+
+def truth_models(config: ValidationConfig, hidden: dict[str, list[dict]] | None = None) -> dict:
+    """Channel -> the true model: the config's model (with its effects) and the hidden effects in series."""
+    hidden = hidden or {}
+    unknown = sorted(set(hidden) - set(config.channels))
+    if unknown:
+        raise ConfigError(f"hidden effect for unknown channel {unknown[0]!r} "
+                          f"(channels: {', '.join(config.channels)})")
+    return {name: ch.model.with_effects(list(hidden.get(name, []))) if hidden.get(name) else ch.model
+            for name, ch in config.channels.items()}
+
+
+# --------------------------------------------------------------------------------------------- topic layout
+@dataclass
+class _TopicPlan:
+    topic: str
+    msgtype: str
+    role: str                                    # "imu" or "surface"
+    entries: list[tuple[str, str, SignalSpec, FieldPath]]
+    joint_names: tuple[str, ...] = ()
+
+
+def _infer_type(spec: SignalSpec, path: FieldPath, stream: str) -> str | None:
+    if spec.type:
+        return spec.type
+    attrs = path.attributes
+    if not attrs:
+        return None
+    if stream == "trigger" and attrs == ("data",):
+        return BOOL
+    if attrs[0] in ("angular_velocity", "linear_acceleration", "orientation"):
+        return IMU
+    if attrs[0] in ("position", "velocity", "effort") and (path.key is not None or path.index is not None):
+        return JOINT_STATE
+    if attrs == ("data",):
+        return FLOAT64
+    return None
+
+
+def _check_field(plan_topic: str, msgtype: str, path: FieldPath) -> None:
+    allowed = SUPPORTED_TYPES[msgtype]
+    attrs = path.attributes
+    ok = attrs in allowed and all(s.kind == "attr" for s in path.steps)
+    if msgtype == JOINT_STATE:
+        ok = (len(path.steps) == 2 and attrs in allowed
+              and path.steps[1].kind in ("key", "index") and (path.index is None or path.index >= 0))
+    if not ok:
+        raise ConfigError(f"cannot simulate field {path.text!r} on topic {plan_topic} ({msgtype}); "
+                          f"supported: {_supported_text(msgtype)}")
+
+
+def _supported_text(msgtype: str) -> str:
+    if msgtype == JOINT_STATE:
+        return "position[name], velocity[name], effort[name] or [index]"
+    return ", ".join(sorted(".".join(a) for a in SUPPORTED_TYPES[msgtype]))
+
+
+def plan_topics(config: ValidationConfig) -> dict[str, _TopicPlan]:
+    """Topic -> message type, rate role and the fields to fill, from the config's signals.
+
+    The type is the signal's ``type`` when given, else inferred from the field: ``angular_velocity.*`` and
+    friends -> ``sensor_msgs/msg/Imu``, ``position[name]`` -> ``sensor_msgs/msg/JointState``, ``data`` ->
+    ``std_msgs/msg/Float64`` (``std_msgs/msg/Bool`` for a trigger).
+
+    Raises
+    ------
+    ConfigError
+        A topic whose type cannot be inferred or is not supported, or whose signals disagree on the type.
+    """
+    plans: dict[str, _TopicPlan] = {}
+    for topic, entries in config.topics().items():
+        parsed = [(ch, stream, spec, FieldPath.parse(spec.field)) for ch, stream, spec in entries]
+        types = {t for ch, stream, spec, path in parsed if (t := _infer_type(spec, path, stream)) is not None}
+        if not types:
+            raise ConfigError(f"cannot infer the message type of topic {topic} from field "
+                              f"{parsed[0][3].text!r}; set 'type' ({', '.join(SUPPORTED_TYPES)})")
+        if len(types) > 1:
+            raise ConfigError(f"topic {topic}: its signals need different message types "
+                              f"({', '.join(sorted(types))})")
+        msgtype = types.pop()
+        if msgtype not in SUPPORTED_TYPES:
+            raise ConfigError(f"cannot simulate topic {topic} of type {msgtype} "
+                              f"(supported: {', '.join(SUPPORTED_TYPES)})")
+        for _, _, _, path in parsed:
+            _check_field(topic, msgtype, path)
+        role = "imu" if any(stream == "output" for _, stream, _, _ in parsed) else "surface"
+        plans[topic] = _TopicPlan(topic, msgtype, role, parsed, _joint_names(parsed) if msgtype == JOINT_STATE
+                                  else ())
+    return plans
+
+
+def _joint_names(parsed) -> tuple[str, ...]:
+    names: list[str] = []
+    for _, _, _, path in parsed:
+        if path.key is not None and path.key not in names:
+            names.append(path.key)
+    needed = max([path.index + 1 for *_, path in parsed if path.index is not None] or [0])
+    k = 0
+    while len(names) < needed:
+        if f"joint{k}" not in names:
+            names.append(f"joint{k}")
+        k += 1
+    return tuple(names)
+
+
+# --------------------------------------------------------------------------------------------- excitation
+def log_sweep(t_s: np.ndarray, duration_s: float, w0_rad_s: float, w1_rad_s: float,
+              taper_s: float = 1.0, dwell_cycles: float = 0.0) -> np.ndarray:
+    """Exponential sweep on ``0 <= t <= T`` (zero outside) with half-cosine fade-in and fade-out.
+
+    The sweep first dwells ``dwell_cycles`` periods at ``w0`` (``T_d = 2 pi n / w0``; flight-test practice
+    starts a sweep with a couple of long-period cycles), then sweeps exponentially:
+    ``phi(t) = w0 T_d + w0 T_s / ln(k) (k^((t - T_d)/T_s) - 1)``, ``k = w1/w0``, ``T_s = T - T_d``, so the
+    instantaneous frequency is ``w0 k^((t - T_d)/T_s)`` and every octave gets the same time.
+    """
+    t = np.asarray(t_s, dtype=float)
+    inside = (t >= 0.0) & (t <= duration_s)
+    ratio = w1_rad_s / w0_rad_s
+    tau = np.clip(t, 0.0, duration_s)
+    dwell_s = min(2.0 * math.pi * dwell_cycles / w0_rad_s, 0.5 * duration_s)
+    sweep_s = duration_s - dwell_s
+    rel = np.clip(tau - dwell_s, 0.0, None)
+    phase = w0_rad_s * np.minimum(tau, dwell_s) + w0_rad_s * sweep_s / math.log(ratio) * (
+        np.power(ratio, rel / sweep_s) - 1.0)
+    taper_s = min(taper_s, duration_s / 4.0)
+    envelope = np.ones_like(t)
+    if taper_s > 0:
+        envelope = np.minimum(envelope, 0.5 - 0.5 * np.cos(np.pi * np.clip(tau / taper_s, 0.0, 1.0)))
+        envelope = np.minimum(envelope, 0.5 - 0.5 * np.cos(np.pi * np.clip((duration_s - tau) / taper_s, 0.0, 1.0)))
+    return np.where(inside, np.sin(phase) * envelope, 0.0)
+
+
+def doublet(t_s: np.ndarray, half_period_s: float) -> np.ndarray:
+    """Unit doublet: +1 for ``0 <= t < h``, -1 for ``h <= t < 2h``, zero elsewhere."""
+    t = np.asarray(t_s, dtype=float)
+    return np.where((t >= 0) & (t < half_period_s), 1.0, 0.0) - np.where(
+        (t >= half_period_s) & (t < 2 * half_period_s), 1.0, 0.0)
+
+
+def _test_card(config: ValidationConfig, opt: FlightOptions) -> tuple[list[Segment], float]:
+    segments: list[Segment] = []
+    t = opt.quiet_s
+    for _ in range(opt.sweeps_per_channel):
+        for name, ch in config.channels.items():
+            band = (ch.frequencies.min_rad_s / opt.band_margin, ch.frequencies.max_rad_s * opt.band_margin)
+            segments.append(Segment(name, "sweep", t, t + opt.sweep_duration_s, band))
+            t += opt.sweep_duration_s + opt.quiet_s
+            segments.append(Segment(name, "doublet", t, t + 2 * opt.doublet_half_period_s))
+            t += 2 * opt.doublet_half_period_s + opt.quiet_s
+    return segments, t
+
+
+def _pilot_trim(t_s: np.ndarray, duration_s: float, opt: FlightOptions, rng: np.random.Generator) -> np.ndarray:
+    """Pilot trim adjustments: ramps of 1-3 s to a new small offset every 10-30 s (a bounded random walk)."""
+    out = np.zeros_like(t_s)
+    level, t = 0.0, float(rng.uniform(2.0, 15.0))
+    while t < duration_s:
+        target = float(np.clip(level + rng.choice([-1.0, 1.0]) * opt.trim_step_rad,
+                               -3 * opt.trim_step_rad, 3 * opt.trim_step_rad))
+        ramp = float(rng.uniform(1.0, 3.0))
+        out += (target - level) * np.clip((t_s - t) / ramp, 0.0, 1.0)
+        level = target
+        t += float(rng.uniform(10.0, 30.0))
+    return out
+
+
+def _gust(n: int, fs_hz: float, opt: FlightOptions, rng: np.random.Generator) -> np.ndarray:
+    """Coloured disturbance: white noise through a 2nd-order Butterworth low-pass, scaled to the gust RMS."""
+    rms = opt.gust_rms_rad_s * opt.noise
+    white = rng.standard_normal(n + int(5 * fs_hz))
+    if rms == 0.0:
+        return np.zeros(n)
+    b, a = signal.butter(2, opt.gust_bandwidth_rad_s / (2 * math.pi), fs=fs_hz)
+    coloured = signal.lfilter(b, a, white)[-n:]
+    return coloured * (rms / max(float(np.std(coloured)), 1e-300))
+
+
+# --------------------------------------------------------------------------------------------- sampling
+def _sample_times(duration_s: float, rate_hz: float, opt: FlightOptions, rng: np.random.Generator):
+    """Nominal sample instants with jitter and drops, and receive times with latency (both relative) [s]."""
+    period = 1.0 / rate_hz
+    nominal = np.arange(float(rng.uniform(0.0, period)), duration_s, period)
+    jitter = np.clip(rng.standard_normal(nominal.size) * opt.jitter_s, -period / 3, period / 3)
+    stamps = nominal + jitter
+    keep = rng.random(nominal.size) >= opt.drop_probability
+    stamps = stamps[keep]
+    latency = opt.latency_s + rng.exponential(opt.latency_jitter_s, stamps.size) if opt.latency_jitter_s > 0 \
+        else np.full(stamps.size, opt.latency_s)
+    receive = np.maximum.accumulate(stamps + latency)
+    return stamps, receive
+
+
+# --------------------------------------------------------------------------------------------- flight
+def simulate_flight(config: ValidationConfig, hidden: dict[str, list[dict]] | None = None,
+                    options: FlightOptions | None = None, seed: int = 0) -> SimulatedFlight:
+    """Simulate a sweep flight of the aircraft whose truth is the config's models plus hidden effects.
+
+    Parameters
+    ----------
+    config : ValidationConfig
+        Channels (models, frequency grids) and the topics and fields to publish.
+    hidden : dict, optional
+        Channel -> effects added in series to the config's model to make the truth (see :func:`parse_hidden`).
+    options : FlightOptions, optional
+        Test card, rates and noise levels.
+    seed : int
+        Seed: the same seed gives the same flight.
+
+    Returns
+    -------
+    SimulatedFlight
+    """
+    opt = (options or FlightOptions()).check()
+    hidden = {k: [validate_effect(e, where=f"hidden.{k}") for e in v] for k, v in (hidden or {}).items()}
+    truth = truth_models(config, hidden)
+    plans = plan_topics(config)
+    rng = np.random.default_rng(seed)
+    segments, duration_s = _test_card(config, opt)
+    duration_s += opt.quiet_s
+    rates = [opt.imu_rate_hz if p.role == "imu" else opt.surface_rate_hz for p in plans.values()]
+    fs_hz = max(opt.sim_rate_hz, 4.0 * max(rates))
+    t_s = np.arange(0.0, duration_s + 2.0 / fs_hz, 1.0 / fs_hz)
+
+    inputs, trim0 = {}, {}
+    for name in config.channels:
+        inputs[name] = _channel_input(name, t_s, segments, duration_s, opt, rng)
+        trim0[name] = float(rng.uniform(-1.0, 1.0)) * opt.trim_offset_rad
+    outputs = {name: np.asarray(truth[name].simulate(t_s, inputs[name]), dtype=float).ravel()
+               for name in config.channels}
+    gusts = {name: _gust(t_s.size, fs_hz, opt, rng) for name in config.channels}
+    measured = {}
+    for name, ch in config.channels.items():
+        measured[(name, "input")] = (inputs[name] + trim0[name], opt.surface_noise_rad * opt.noise,
+                                     opt.surface_lsb_rad)
+        measured[(name, "output")] = (outputs[name] + gusts[name], opt.gyro_noise_rad_s * opt.noise,
+                                      opt.gyro_lsb_rad_s)
+        if ch.trigger is not None:
+            active = np.zeros_like(t_s)
+            for seg in segments:
+                if seg.channel == name and seg.kind == "sweep":
+                    active[(t_s >= seg.start_s) & (t_s <= seg.end_s)] = 1.0
+            measured[(name, "trigger")] = (active, 0.0, 0.0)
+
+    topics = {}
+    for topic, plan in plans.items():
+        rate = opt.imu_rate_hz if plan.role == "imu" else opt.surface_rate_hz
+        stamps, receive = _sample_times(duration_s, rate, opt, rng)
+        values = {}
+        for name, stream, spec, path in plan.entries:
+            series, noise_std, lsb = measured[(name, stream)]
+            if stream == "trigger":
+                sampled = np.interp(stamps, t_s, series) >= 0.5
+                values[spec.field] = sampled.astype(float) / spec.scale
+                continue
+            sampled = np.interp(stamps, t_s, series) + noise_std * rng.standard_normal(stamps.size)
+            if lsb > 0:
+                sampled = np.round(sampled / lsb) * lsb
+            values[spec.field] = sampled / spec.scale
+        topics[topic] = TopicSeries(topic, plan.msgtype, opt.start_time_s + stamps, opt.start_time_s + receive,
+                                    values, plan.joint_names)
+    return SimulatedFlight(topics=topics, segments=segments, truth=truth, hidden=hidden, t_s=t_s,
+                           inputs=inputs, outputs=outputs, duration_s=duration_s,
+                           start_time_s=opt.start_time_s, seed=seed, options=opt)
+
+
+def _channel_input(name: str, t_s: np.ndarray, segments: list[Segment], duration_s: float,
+                   opt: FlightOptions, rng: np.random.Generator) -> np.ndarray:
+    """Surface deflection deviation of one channel [rad]: its sweeps and doublets plus pilot trim inputs."""
+    u = _pilot_trim(t_s, duration_s, opt, rng)
+    for seg in segments:
+        if seg.channel != name:
+            continue
+        if seg.kind == "sweep":
+            w0, w1 = seg.band_rad_s
+            u += opt.sweep_amplitude_rad * log_sweep(t_s - seg.start_s, seg.end_s - seg.start_s, w0, w1,
+                                                     dwell_cycles=opt.dwell_cycles)
+        else:
+            u += opt.doublet_amplitude_rad * doublet(t_s - seg.start_s, opt.doublet_half_period_s)
+    return u
+
+
+def with_options(options: FlightOptions | None = None, **changes) -> FlightOptions:
+    """A copy of ``options`` (default options when None) with ``changes`` (None values are ignored)."""
+    base = options or FlightOptions()
+    return replace(base, **{k: v for k, v in changes.items() if v is not None})

@@ -1,0 +1,271 @@
+"""The online validator: the single data path shared by replay, the ROS 2 node and the library.
+
+Samples of each channel's input (surface), output (rate) and optional trigger arrive in time-ordered batches;
+each channel's :class:`~gap_validation.core.estimator.FrequencyResponseEstimator` turns them into spectra
+during sweeps. :meth:`OnlineValidator.results` compares the current models with the spectra gathered so far
+(nu-gap, epsilon averaged and raw, margins, eqs. 13-17) and asks the diagnosis where and why the model fails.
+Changing the model (:meth:`set_config`) keeps the spectra, so the error is recomputed without flying again.
+"""
+from __future__ import annotations
+
+import logging
+from collections import Counter
+from typing import Any
+
+import numpy as np
+
+from gap_validation.core import metrics
+from gap_validation.core.config import STREAMS, ChannelConfig, ValidationConfig
+from gap_validation.core.errors import ConfigError
+from gap_validation.core.estimator import FrequencyResponseEstimator, SpectralEstimate
+from gap_validation.core.margins import margins_from_epsilon
+from gap_validation.core.results import ChannelResult, SweepResult, ValidationResult
+
+log = logging.getLogger(__name__)
+
+STATE_VERSION = 1
+
+
+def _sup(w: np.ndarray, values: np.ndarray, mask: np.ndarray) -> tuple[float | None, float | None]:
+    """(max of ``values`` over ``mask``, frequency where it occurs), or (None, None) when the mask is empty."""
+    mask = mask & np.isfinite(values)
+    if not np.any(mask):
+        return None, None
+    idx = np.flatnonzero(mask)[np.argmax(values[mask])]
+    return float(values[idx]), float(w[idx])
+
+
+def _estimator_for(channel: ChannelConfig) -> FrequencyResponseEstimator:
+    return FrequencyResponseEstimator(channel.frequencies.values(), **channel.estimator)
+
+
+def _same_measurement(a: ChannelConfig, b: ChannelConfig) -> bool:
+    """True when spectra gathered for ``a`` stay valid for ``b`` (only the model may differ)."""
+    return (a.input == b.input and a.output == b.output and a.trigger == b.trigger
+            and a.frequencies == b.frequencies and a.estimator == b.estimator)
+
+
+class OnlineValidator:
+    """Gathers spectra per channel and validates the config's models against them.
+
+    Parameters
+    ----------
+    config : ValidationConfig
+        Channels, models and analysis settings.
+    diagnose : bool
+        Run the diagnosis (effect fitting) in :meth:`results` by default.
+    """
+
+    def __init__(self, config: ValidationConfig, *, diagnose: bool = True):
+        self._config = config
+        self._diagnose = diagnose
+        self._estimators = {name: _estimator_for(ch) for name, ch in config.channels.items()}
+        self._bad: dict[str, Counter] = {name: Counter() for name in config.channels}
+        self._previous: dict[str, float | None] = {}
+        self._versions: dict[str, int] = {name: 0 for name in config.channels}
+        self._diagnosis_cache: dict[str, tuple[Any, dict]] = {}
+        self.sources: list[str] = []
+
+    # ------------------------------------------------------------------ data in
+    @property
+    def config(self) -> ValidationConfig:
+        return self._config
+
+    def add_samples(self, channel: str, stream: str, t_s, values) -> None:
+        """Feed a time-ordered batch of samples of one stream of one channel.
+
+        Parameters
+        ----------
+        channel : str
+            Channel name from the config.
+        stream : {"input", "output", "trigger"}
+            Surface deflection [rad], body rate [rad/s], or the explicit sweep trigger (bool).
+        t_s, values : array_like
+            Sample times [s] and values (already scaled to SI units).
+        """
+        est = self._estimators.get(channel)
+        if est is None:
+            raise ConfigError(f"no channel {channel!r} in the config")
+        t_s = np.asarray(t_s, dtype=float)
+        if t_s.size == 0:
+            return
+        if stream == "input":
+            est.add_input(t_s, np.asarray(values, dtype=float))
+        elif stream == "output":
+            est.add_output(t_s, np.asarray(values, dtype=float))
+        elif stream == "trigger":
+            est.add_trigger(t_s, np.asarray(values, dtype=bool))
+        else:
+            raise ConfigError(f"unknown stream {stream!r} (expected one of {', '.join(STREAMS)})")
+        self._versions[channel] += 1
+
+    def count_bad(self, channel: str, stream: str, reason: str, count: int = 1) -> None:
+        """Count samples that could not be used (NaN, missing joint, wrong length ...), per reason."""
+        if channel in self._bad:
+            self._bad[channel][f"{stream}: {reason}"] += int(count)
+
+    def finish(self) -> None:
+        """End of data: close open sweeps."""
+        for name, est in self._estimators.items():
+            est.flush()
+            self._versions[name] += 1
+
+    def reset(self) -> None:
+        """Forget every spectrum gathered (keeps the models)."""
+        self._estimators = {name: _estimator_for(ch) for name, ch in self._config.channels.items()}
+        self._bad = {name: Counter() for name in self._config.channels}
+        self._previous = {}
+        self._versions = {name: v + 1 for name, v in self._versions.items()}
+        self._diagnosis_cache.clear()
+
+    def set_config(self, config: ValidationConfig) -> list[str]:
+        """Swap in new models (live model update); spectra are kept where the measurement is unchanged.
+
+        The epsilon of the old model becomes ``epsilon_previous`` in the next results. Returns the channels
+        whose spectra had to be restarted (their topics, fields, frequencies or estimator options changed).
+        """
+        old = self.results(diagnose=False)
+        restarted = []
+        estimators, bad = {}, {}
+        for name, ch in config.channels.items():
+            prev = self._config.channels.get(name)
+            if prev is not None and _same_measurement(prev, ch):
+                estimators[name] = self._estimators[name]
+                bad[name] = self._bad[name]
+            else:
+                estimators[name] = _estimator_for(ch)
+                bad[name] = Counter()
+                restarted.append(name)
+        self._previous = {name: old.channels[name].epsilon for name in config.channels if name in old.channels
+                          and name not in restarted}
+        self._config = config
+        self._estimators, self._bad = estimators, bad
+        self._versions = {name: self._versions.get(name, 0) + 1 for name in config.channels}
+        self._diagnosis_cache.clear()
+        return restarted
+
+    # ------------------------------------------------------------------ results
+    def estimate(self, channel: str) -> SpectralEstimate | None:
+        """The averaged spectral estimate of ``channel`` so far (None before the first sweep)."""
+        return self._estimators[channel].averaged()
+
+    def sweep_estimates(self, channel: str) -> list[SpectralEstimate]:
+        """The per-sweep (raw) estimates of ``channel`` kept so far."""
+        return list(self._estimators[channel].sweeps)
+
+    def results(self, diagnose: bool | None = None) -> ValidationResult:
+        """Validate every channel's model against the spectra gathered so far."""
+        diagnose = self._diagnose if diagnose is None else diagnose
+        channels = {name: self._channel_result(name, ch, diagnose) for name, ch in self._config.channels.items()}
+        return ValidationResult(channels=channels, config_source=self._config.source, sources=list(self.sources))
+
+    def _channel_result(self, name: str, channel: ChannelConfig, diagnose: bool) -> ChannelResult:
+        est = self._estimators[name]
+        sweeps = list(est.sweeps)
+        result = ChannelResult(name=name, sweeps=int(getattr(est, "n_sweeps", len(sweeps))),
+                               coherence_threshold=channel.coherence_threshold,
+                               bad_samples=dict(self._bad[name]), epsilon_previous=self._previous.get(name),
+                               model_description=_describe_model(channel))
+        avg = est.averaged()
+        if avg is None:
+            result.message = "no sweep yet"
+            return result
+        w = np.asarray(avg.w_rad_s, dtype=float)
+        p_model = channel.model.freqresp(w)
+        p_meas = np.asarray(avg.response, dtype=complex)
+        confident = (np.asarray(avg.coherence) >= channel.coherence_threshold) & np.isfinite(p_meas)
+        kappa = metrics.chordal_distance(p_model, p_meas)
+        eps_w = metrics.epsilon_per_frequency(p_model, p_meas)
+        result.frequency_rad_s, result.coherence = w, np.asarray(avg.coherence, dtype=float)
+        result.random_error = np.asarray(avg.random_error, dtype=float)
+        result.kappa, result.epsilon_per_frequency = kappa, eps_w
+        result.measured, result.model, result.confident = p_meas, p_model, confident
+        result.points_excluded = int(w.size - np.count_nonzero(confident))
+        result.nu_gap, result.nu_gap_frequency_rad_s = _sup(w, kappa, confident)
+        result.epsilon, result.worst_frequency_rad_s = _sup(w, eps_w, confident)
+        result.margins = margins_from_epsilon(result.epsilon if result.epsilon is not None else float("nan"))
+        result.sweep_results = [self._sweep_result(channel, s, p_model) for s in sweeps]
+        result.sweep_measured = [np.asarray(s.response, dtype=complex) for s in sweeps]
+        raw = [(s.epsilon, s.worst_frequency_rad_s) for s in result.sweep_results if s.epsilon is not None]
+        if raw:
+            result.epsilon_raw, result.epsilon_raw_frequency_rad_s = max(raw, key=lambda r: r[0])
+            result.margins_raw = margins_from_epsilon(result.epsilon_raw)
+        if result.epsilon is None:
+            result.message = (f"no frequency with coherence >= {channel.coherence_threshold:g} yet "
+                              f"({result.points_excluded} points excluded)")
+        self._apply_diagnosis(name, channel, avg, sweeps, result, diagnose)
+        return result
+
+    @staticmethod
+    def _sweep_result(channel: ChannelConfig, sweep: SpectralEstimate, p_model: np.ndarray) -> SweepResult:
+        w = np.asarray(sweep.w_rad_s, dtype=float)
+        p_meas = np.asarray(sweep.response, dtype=complex)
+        ok = (np.asarray(sweep.coherence) >= channel.coherence_threshold) & np.isfinite(p_meas)
+        eps, w_eps = _sup(w, metrics.epsilon_per_frequency(p_model, p_meas), ok)
+        return SweepResult(start_s=float(getattr(sweep, "start_s", np.nan)),
+                           end_s=float(getattr(sweep, "end_s", np.nan)), epsilon=eps,
+                           worst_frequency_rad_s=w_eps, points_used=int(np.count_nonzero(ok)))
+
+    def _apply_diagnosis(self, name: str, channel: ChannelConfig, avg: SpectralEstimate,
+                         sweeps: list[SpectralEstimate], result: ChannelResult, fit: bool) -> None:
+        try:
+            from gap_validation.core import diagnosis
+        except ImportError:  # pragma: no cover - diagnosis arrives with its own issue
+            return
+        key = (self._versions[name], repr(channel.model_spec), fit)
+        cached = self._diagnosis_cache.get(name)
+        if cached is not None and cached[0] == key:
+            found = cached[1]
+        else:
+            found = diagnosis.analyse_channel(channel.model, avg, sweeps, channel.coherence_threshold, fit=fit)
+            self._diagnosis_cache[name] = (key, found)
+        result.limited_by = found.limited_by
+        result.frequency_flags = list(found.frequency_flags)
+        result.bands = [dict(b) for b in found.bands]
+        result.diagnosis = [dict(c) for c in found.candidates]
+        if found.message:
+            result.message = found.message
+
+    # ------------------------------------------------------------------ checkpoint
+    def state_dict(self) -> dict:
+        """Everything gathered so far, as plain numbers and numpy arrays (size independent of flight length)."""
+        return {
+            "version": STATE_VERSION,
+            "channels": {name: est.state_dict() for name, est in self._estimators.items()},
+            "bad": {name: dict(c) for name, c in self._bad.items()},
+            "previous": dict(self._previous),
+            "measurement": {name: _measurement_key(ch) for name, ch in self._config.channels.items()},
+        }
+
+    @classmethod
+    def from_state(cls, config: ValidationConfig, state: dict, **kwargs) -> "OnlineValidator":
+        """A validator for ``config`` resuming from :meth:`state_dict`; channels whose measurement settings
+        changed since the checkpoint start empty."""
+        if not isinstance(state, dict) or state.get("version") != STATE_VERSION:
+            raise ConfigError(f"checkpoint state has version {state.get('version') if isinstance(state, dict) else None!r}, "
+                              f"expected {STATE_VERSION}")
+        self = cls(config, **kwargs)
+        for name, ch in config.channels.items():
+            saved = state["channels"].get(name)
+            if saved is not None and state.get("measurement", {}).get(name) == _measurement_key(ch):
+                self._estimators[name] = FrequencyResponseEstimator.from_state(saved)
+                self._bad[name] = Counter(state.get("bad", {}).get(name, {}))
+        self._previous = {k: v for k, v in state.get("previous", {}).items() if k in config.channels}
+        return self
+
+
+def _measurement_key(channel: ChannelConfig) -> str:
+    return repr((channel.input, channel.output, channel.trigger, channel.frequencies,
+                 sorted(channel.estimator.items())))
+
+
+def _describe_model(channel: ChannelConfig) -> str:
+    effects = channel.model.effects
+    if not effects:
+        return "airframe only"
+    try:
+        from gap_validation.core.effects import describe_effect
+
+        return "airframe + " + " + ".join(describe_effect(e) for e in effects)
+    except Exception:  # pragma: no cover - description is cosmetic
+        return f"airframe + {len(effects)} effect(s)"

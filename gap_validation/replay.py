@@ -1,0 +1,307 @@
+"""Replay recorded flights (rosbag2) into the online validator: the offline front end of the one data path.
+
+Every bag is streamed message by message (only the config's topics), each message goes through
+:class:`~gap_validation.ingest.MessageRouter` into :class:`~gap_validation.core.validator.OnlineValidator` --
+the same objects the ROS 2 node uses -- and the result is the validator's :class:`ValidationResult`.
+
+Several bags add up: sweeps from all of them count. Bags are replayed in order of their start time; when a
+bag's clock overlaps the data already replayed (e.g. two simulated flights that both start at the same epoch),
+its times are shifted to start :data:`BAG_GAP_S` after the last sample, so the estimator always sees
+increasing time.
+
+A bad input never discards what was computed: an unreadable bag, a topic of the wrong type or a damaged record
+is reported (one line naming the file and topic) and the other bags, topics and records are still validated.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+from gap_validation.bagio import Bag, fast_decoder, open_bag
+from gap_validation.core.config import ValidationConfig
+from gap_validation.core.errors import DataError
+from gap_validation.core.results import ValidationResult
+from gap_validation.core.validator import OnlineValidator
+from gap_validation.ingest import FieldError, MessageRouter, stamp_seconds
+
+log = logging.getLogger(__name__)
+
+__all__ = ["replay", "ReplayOutcome", "BagReport", "BAG_GAP_S", "VERIFY_MESSAGES"]
+
+#: Gap inserted between bags whose clocks overlap [s].
+BAG_GAP_S = 60.0
+#: Messages per topic decoded both ways (fast and full) before the fast decoder is trusted.
+VERIFY_MESSAGES = 8
+#: Messages between two progress callbacks.
+PROGRESS_EVERY = 4096
+
+ProgressCallback = Callable[[int, int], None]
+
+
+@dataclass
+class BagReport:
+    """What happened to one bag: messages routed, time shift applied, problems found."""
+
+    path: str
+    messages: int = 0
+    time_offset_s: float = 0.0
+    fast_topics: list[str] = field(default_factory=list)
+    errors: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return not self.errors
+
+
+@dataclass
+class ReplayOutcome:
+    """Result of a replay: the validation result (None when no bag could be read) and every problem.
+
+    ``errors`` make the CLI exit with status 1 (results, if any, are still printed and written).
+    """
+
+    result: ValidationResult | None
+    bags: list[BagReport]
+    errors: list[str]
+    warnings: list[str]
+    messages: int
+    elapsed_s: float
+    validator: OnlineValidator | None = None
+
+    @property
+    def ok(self) -> bool:
+        return not self.errors
+
+
+class _TopicState:
+    """Per-topic decoding state within one bag."""
+
+    __slots__ = ("routes", "decoder", "verify_left", "disabled", "msgtype")
+
+    def __init__(self, routes, msgtype: str, fast: bool):
+        self.routes = routes
+        self.msgtype = msgtype
+        self.decoder = fast_decoder(msgtype, [r.path for r in routes]) if fast else None
+        self.verify_left = VERIFY_MESSAGES
+        self.disabled = False
+
+
+def _check_topics(bag: Bag, router: MessageRouter, report: BagReport) -> dict[str, _TopicState]:
+    """Topics to read from ``bag``: warn per missing topic, error on type mismatches, DataError if none."""
+    info = bag.topics
+    wanted = router.topics
+    present = {}
+    for topic in wanted:
+        routes = router.routes[topic]
+        feeds = ", ".join(f"{r.channel}.{r.stream}" for r in routes)
+        if topic not in info:
+            report.warnings.append(f"{bag.path}: topic {topic} ({feeds}) is not in the bag")
+            continue
+        msgtype = info[topic].msgtype
+        expected = {r.spec.type for r in routes if r.spec is not None and r.spec.type}
+        if msgtype is None:
+            report.errors.append(f"{bag.path}: topic {topic} has several message types; skipped")
+            continue
+        if expected and msgtype not in expected:
+            report.errors.append(f"{bag.path}: topic {topic} has type {msgtype}, the config expects "
+                                 f"{', '.join(sorted(expected))}")
+            continue
+        if info[topic].count == 0:
+            report.warnings.append(f"{bag.path}: topic {topic} ({feeds}) has no messages")
+        present[topic] = msgtype
+    if not present and not report.errors:
+        have = ", ".join(sorted(info)) or "none"
+        raise DataError(f"{bag.path}: none of the configured topics ({', '.join(wanted)}) is in the bag "
+                        f"(it has: {have})")
+    return present
+
+
+def _same(fast_values, full_values) -> bool:
+    return all(a == b or (math.isnan(a) and math.isnan(b)) for a, b in zip(fast_values, full_values))
+
+
+class _BagReplay:
+    """Streams one bag into the router."""
+
+    def __init__(self, bag: Bag, router: MessageRouter, report: BagReport, fast: bool,
+                 progress: Callable[[int], None]):
+        self.bag = bag
+        self.router = router
+        self.report = report
+        self.fast = fast
+        self.progress = progress
+        self.states: dict[str, _TopicState] = {}
+        self.offset_set = False
+
+    def run(self) -> None:
+        present = _check_topics(self.bag, self.router, self.report)
+        for topic, msgtype in present.items():
+            self.states[topic] = _TopicState(self.router.routes[topic], msgtype, self.fast)
+        count = 0
+        try:
+            for topic, msgtype, t_ns, raw in self.bag.records(list(present)):
+                count += 1
+                if count % PROGRESS_EVERY == 0:
+                    self.progress(PROGRESS_EVERY)
+                state = self.states[topic]
+                if state.disabled:
+                    continue
+                self._route(topic, state, t_ns * 1e-9, raw)
+        finally:
+            self.progress(count % PROGRESS_EVERY)
+            self.report.messages = count
+            self.report.fast_topics = sorted(t for t, s in self.states.items()
+                                             if s.decoder is not None and not s.disabled)
+
+    def _set_offset(self, t_s: float) -> None:
+        latest = self.router.latest_time_s()
+        offset = 0.0
+        if math.isfinite(latest) and t_s < latest + BAG_GAP_S:
+            offset = latest + BAG_GAP_S - t_s
+        self.router.time_offset_s = offset
+        self.report.time_offset_s = offset
+        self.offset_set = True
+
+    def _route(self, topic: str, state: _TopicState, bag_time_s: float, raw: Any) -> None:
+        if state.decoder is not None:
+            try:
+                stamp, values = state.decoder(raw)
+            except Exception:  # noqa: BLE001 - any surprise in the fast path: decode this record fully
+                stamp, values = None, None
+            if values is not None and state.verify_left <= 0:
+                t_s = bag_time_s if stamp is None else stamp
+                if not self.offset_set:
+                    self._set_offset(t_s)
+                self.router.on_values(topic, t_s, values)
+                return
+            if values is not None:
+                state.verify_left -= 1
+                self._verify(topic, state, raw, stamp, values)
+        msg = self.bag.deserialize(raw, state.msgtype, topic)
+        if not self.offset_set:
+            stamp = stamp_seconds(msg)
+            self._set_offset(bag_time_s if stamp is None else stamp)
+        try:
+            self.router.on_message(topic, msg, bag_time_s)
+        except FieldError as err:
+            state.disabled = True
+            self.report.errors.append(f"{self.bag.path}: {err} ({state.msgtype}); topic skipped")
+
+    def _verify(self, topic: str, state: _TopicState, raw: Any, stamp, values) -> None:
+        """Compare the fast decoder with full deserialisation; on any difference stop using it."""
+        msg = self.bag.deserialize(raw, state.msgtype, topic)
+        try:
+            full = [r.path.extract(msg) for r in state.routes]
+        except FieldError:
+            full = None
+        if full is None or stamp != stamp_seconds(msg) or not _same(values, full):
+            log.debug("fast decoder of %s disagrees with rosbags; decoding fully", topic)
+            state.decoder = None
+
+
+def _open_all(paths: Sequence[str | Path], reports: list[BagReport]) -> list[tuple[Bag, BagReport]]:
+    opened = []
+    for path in paths:
+        report = BagReport(str(path))
+        reports.append(report)
+        try:
+            opened.append((open_bag(path), report))
+        except DataError as err:
+            report.errors.append(str(err))
+    opened.sort(key=lambda item: item[0].start_time_s)
+    return opened
+
+
+def _channel_checks(config: ValidationConfig, router: MessageRouter) -> tuple[list[str], list[str]]:
+    """Errors for streams that received messages but no usable sample; warnings for streams without data."""
+    errors, warnings = [], []
+    for name, channel in config.channels.items():
+        for stream in ("input", "output"):
+            spec = channel.signal(stream)
+            if router.samples(name, stream):
+                continue
+            bad = router.bad.get((name, stream), {})
+            where = f"channel {name}: {stream} {spec.topic} {spec.field!r}"
+            if bad:
+                first = router.first_error.get((name, stream))
+                reasons = ", ".join(f"{n} {reason}" for reason, n in sorted(bad.items()))
+                errors.append(f"{where}: no usable sample ({reasons})" + (f": {first}" if first else ""))
+            else:
+                warnings.append(f"{where}: no samples")
+    return errors, warnings
+
+
+def replay(bags: Sequence[str | Path], config: ValidationConfig, *, progress: ProgressCallback | None = None,
+           fast: bool = True, validator: OnlineValidator | None = None, diagnose: bool = True) -> ReplayOutcome:
+    """Validate the config's models against recorded flights.
+
+    Parameters
+    ----------
+    bags : sequence of path
+        rosbag2 directories, ``.mcap`` or ``.db3`` files; sweeps from all of them count.
+    config : ValidationConfig
+        Channels, models, topics and fields.
+    progress : callable, optional
+        ``progress(done, total)`` in messages of the configured topics, called every few thousand messages.
+    fast : bool
+        Use the fast CDR field decoders where they apply (verified against full deserialisation).
+    validator : OnlineValidator, optional
+        Continue an existing validator (default: a new one for ``config``).
+    diagnose : bool
+        Let the new validator run the diagnosis (effect fitting) in its results.
+
+    Returns
+    -------
+    ReplayOutcome
+        The validation result and every error and warning (one line each).
+
+    Raises
+    ------
+    DataError
+        When no bag could be read at all (the message names the first problem).
+    """
+    start = time.perf_counter()
+    validator = validator or OnlineValidator(config, diagnose=diagnose)
+    router = MessageRouter(config, validator)
+    reports: list[BagReport] = []
+    opened = _open_all(bags, reports)
+    total = sum(bag.message_count(router.topics) for bag, _ in opened)
+    done = [0]
+
+    def advance(n: int) -> None:
+        done[0] += n
+        if progress is not None and n:
+            progress(min(done[0], total), total)
+
+    for bag, report in opened:
+        try:
+            _BagReplay(bag, router, report, fast, advance).run()
+            if report.messages:
+                validator.sources.append(str(bag.path))
+        except DataError as err:
+            report.errors.append(str(err))
+        finally:
+            bag.close()
+        router.flush()
+    errors = [e for r in reports for e in r.errors]
+    warnings = [w for r in reports for w in r.warnings]
+    read = [r for r in reports if r.messages]
+    if not read:
+        raise DataError(errors[0] + (f" (and {len(errors) - 1} more problems)" if len(errors) > 1 else "")
+                        if errors else "no messages of the configured topics in " + ", ".join(map(str, bags)))
+    router.flush()
+    validator.finish()
+    channel_errors, channel_warnings = _channel_checks(config, router)
+    errors += channel_errors
+    warnings += channel_warnings
+    result = validator.results()
+    result.sources = [r.path for r in read]
+    result.notes = list(result.notes) + [f"error: {e}" for e in errors] + [f"warning: {w}" for w in warnings]
+    return ReplayOutcome(result=result, bags=reports, errors=errors, warnings=warnings,
+                         messages=sum(r.messages for r in reports), elapsed_s=time.perf_counter() - start,
+                         validator=validator)

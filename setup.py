@@ -1,0 +1,33 @@
+"""ament_python package gap_validation (also installable with plain pip)."""
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = "gap_validation"
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=find_packages(include=["gap_validation", "gap_validation.*"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
+        ("share/" + package_name, ["package.xml"]),
+        ("share/" + package_name + "/config", glob("config/*.yaml")),
+        ("share/" + package_name + "/launch", glob("launch/*.py")),
+    ],
+    python_requires=">=3.10",
+    install_requires=["numpy", "scipy", "PyYAML", "rosbags>=0.10", "matplotlib"],
+    extras_require={"test": ["pytest", "hypothesis"]},
+    zip_safe=True,
+    maintainer="gap_validation developers",
+    maintainer_email="dev@gap-validation.invalid",
+    description="Validate linear aircraft models against flight data in the nu-gap metric",
+    license="MIT",
+    tests_require=["pytest"],
+    entry_points={
+        "console_scripts": [
+            "gap-validate = gap_validation.cli:main",
+            "validator_node = gap_validation.node:main",
+        ],
+    },
+)

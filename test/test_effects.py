@@ -1,0 +1,99 @@
+"""Effects vocabulary: names, validation (one-line ConfigError naming the key), factors and descriptions."""
+
+import math
+
+import numpy as np
+import pytest
+
+from gap_validation.core.effects import EFFECT_TYPES, describe_effect, effect_factor, effect_response, validate_effect
+from gap_validation.core.errors import ConfigError
+
+W = np.geomspace(0.1, 300.0, 57)
+S = 1j * W
+
+
+def test_vocabulary_is_the_design_contract():
+    assert EFFECT_TYPES == {
+        "time_delay": ("seconds",),
+        "first_order_lag": ("bandwidth_rad_s",),
+        "second_order_lag": ("natural_frequency_rad_s", "damping"),
+        "gain": ("factor",),
+        "structural_mode": ("frequency_rad_s", "damping", "zero_frequency_rad_s", "zero_damping"),
+    }
+
+
+@pytest.mark.parametrize(
+    "spec, expected",
+    [
+        ({"type": "time_delay", "seconds": 0.045}, np.exp(-S * 0.045)),
+        ({"type": "first_order_lag", "bandwidth_rad_s": 37.7}, 37.7 / (S + 37.7)),
+        ({"type": "second_order_lag", "natural_frequency_rad_s": 30.0, "damping": 0.4},
+         900.0 / (S**2 + 2 * 0.4 * 30.0 * S + 900.0)),
+        ({"type": "gain", "factor": 1.25}, 1.25 * np.ones_like(S)),
+        ({"type": "structural_mode", "frequency_rad_s": 60.0, "damping": 0.02, "zero_frequency_rad_s": 55.0,
+          "zero_damping": 0.03},
+         (S**2 / 55.0**2 + 2 * 0.03 * S / 55.0 + 1) / (S**2 / 60.0**2 + 2 * 0.02 * S / 60.0 + 1)),
+    ],
+)
+def test_effect_response_matches_table_formula(spec, expected):
+    np.testing.assert_allclose(effect_response(spec, W), expected, rtol=1e-12, atol=1e-14)
+    num, den, delay_s = effect_factor(spec)
+    rational = np.polyval(num, S) / np.polyval(den, S) * np.exp(-S * delay_s)
+    np.testing.assert_allclose(rational, expected, rtol=1e-12, atol=1e-14)
+
+
+def test_validate_returns_normalised_floats_and_accepts_yaml_exponent_strings():
+    spec = validate_effect({"type": "time_delay", "seconds": "5e-2"})
+    assert spec == {"type": "time_delay", "seconds": 0.05}
+    assert validate_effect({"damping": 1, "type": "second_order_lag", "natural_frequency_rad_s": 3}) == {
+        "type": "second_order_lag", "natural_frequency_rad_s": 3.0, "damping": 1.0}
+
+
+@pytest.mark.parametrize(
+    "spec, fragment",
+    [
+        ({"type": "time_delay", "seconds": "abc"}, "model.effects[1].seconds: expected a number >= 0, got 'abc'"),
+        ({"type": "time_delay", "seconds": -0.1}, "model.effects[1].seconds: expected a number >= 0"),
+        ({"type": "time_delay", "seconds": True}, "model.effects[1].seconds"),
+        ({"type": "time_delay", "seconds": float("nan")}, "model.effects[1].seconds"),
+        ({"type": "time_delay"}, "missing parameter 'seconds'"),
+        ({"type": "time_delay", "seconds": 0.1, "sec": 2}, "model.effects[1].sec: unknown parameter"),
+        ({"type": "delay", "seconds": 0.1}, "model.effects[1].type: unknown effect type 'delay'"),
+        ({"seconds": 0.1}, "missing key 'type'"),
+        ({"type": "first_order_lag", "bandwidth_rad_s": 0.0}, "bandwidth_rad_s: expected a number > 0"),
+        ({"type": "second_order_lag", "natural_frequency_rad_s": 3.0, "damping": -0.1}, "damping: expected"),
+        ({"type": "gain", "factor": 0}, "factor: expected a nonzero number"),
+        ({"type": "gain", "factor": float("inf")}, "factor"),
+        ({"type": "structural_mode", "frequency_rad_s": 60.0, "damping": 0.02, "zero_frequency_rad_s": -55.0,
+          "zero_damping": 0.03}, "zero_frequency_rad_s: expected a number > 0"),
+        ("time_delay", "expected a mapping"),
+    ],
+)
+def test_bad_effects_raise_one_line_config_error_naming_the_key(spec, fragment):
+    with pytest.raises(ConfigError) as info:
+        validate_effect(spec, where="model.effects[1]")
+    message = str(info.value)
+    assert fragment in message
+    assert "\n" not in message
+
+
+@pytest.mark.parametrize(
+    "spec, text",
+    [
+        ({"type": "time_delay", "seconds": 0.045}, "time delay of 45 ms"),
+        ({"type": "time_delay", "seconds": 0.0025}, "time delay of 2.5 ms"),
+        ({"type": "first_order_lag", "bandwidth_rad_s": 37.7}, "first-order lag at 37.7 rad/s (6.0 Hz)"),
+        ({"type": "gain", "factor": 1.25}, "gain error x1.25"),
+        ({"type": "second_order_lag", "natural_frequency_rad_s": 2 * math.pi * 8, "damping": 0.7},
+         "second-order lag at 50.3 rad/s (8.0 Hz), damping 0.70"),
+    ],
+)
+def test_describe_effect(spec, text):
+    assert describe_effect(spec) == text
+
+
+def test_describe_structural_mode_names_both_frequencies():
+    text = describe_effect({"type": "structural_mode", "frequency_rad_s": 60.0, "damping": 0.02,
+                            "zero_frequency_rad_s": 55.0, "zero_damping": 0.03})
+    assert text.startswith("structural mode at 60.0 rad/s (9.5 Hz)")
+    assert "55.0 rad/s" in text

@@ -1,0 +1,285 @@
+"""Field paths and the message router (gap_validation.ingest) on rosbags and rclpy message objects."""
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from rosbags.typesys import Stores, get_typestore
+
+from gap_validation.core.config import ChannelConfig, SignalSpec, ValidationConfig
+from gap_validation.core.errors import ConfigError, DataError
+from gap_validation.core.models import LinearModel
+from gap_validation.ingest import FieldError, FieldPath, MessageRouter, stamp_seconds
+
+TS = get_typestore(Stores.ROS2_JAZZY)
+T = TS.types
+
+
+def header(sec=0, nanosec=0):
+    return T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec),
+                                    frame_id="imu")
+
+
+def imu(x=0.1, y=0.2, z=0.3, sec=10, nanosec=500_000_000):
+    vec, quat = T["geometry_msgs/msg/Vector3"], T["geometry_msgs/msg/Quaternion"]
+    return T["sensor_msgs/msg/Imu"](
+        header=header(sec, nanosec), orientation=quat(x=0.0, y=0.0, z=0.0, w=1.0),
+        orientation_covariance=np.zeros(9), angular_velocity=vec(x=x, y=y, z=z),
+        angular_velocity_covariance=np.zeros(9), linear_acceleration=vec(x=0.0, y=0.0, z=9.81),
+        linear_acceleration_covariance=np.zeros(9))
+
+
+def joints(names, positions, sec=10, nanosec=0):
+    return T["sensor_msgs/msg/JointState"](header=header(sec, nanosec), name=list(names),
+                                           position=np.asarray(positions, dtype=float),
+                                           velocity=np.zeros(0), effort=np.zeros(0))
+
+
+# ------------------------------------------------------------------------------------------- parsing
+@pytest.mark.parametrize("text, attrs, key, index", [
+    ("angular_velocity.y", ("angular_velocity", "y"), None, None),
+    ("data", ("data",), None, None),
+    ("position[elevator]", ("position",), "elevator", None),
+    ("position[2]", ("position",), None, 2),
+    ("[2]", (), None, 2),
+    ("position[-1]", ("position",), None, -1),
+    ("position['2']", ("position",), "2", None),
+    ("position[left aileron]", ("position",), "left aileron", None),
+    ("a.b[0].c", ("a", "b", "c"), None, 0),
+])
+def test_parse_valid_paths(text, attrs, key, index):
+    path = FieldPath.parse(text)
+    assert path.attributes == attrs and path.key == key and path.index == index
+    assert path.text == text
+
+
+@pytest.mark.parametrize("text, part", [
+    ("", None), ("angular_velocity..y", "''"), ("angular velocity.y", "angular velocity"),
+    ("1abc", "1abc"), ("position[]", "[]"), ("[elevator]", "[elevator]"), ("a.[2]", "[2]"),
+    ("position[elev", "position[elev"), ("a-b", "a-b"),
+])
+def test_parse_bad_paths_one_line_error(text, part):
+    with pytest.raises(ConfigError) as err:
+        FieldPath.parse(text)
+    message = str(err.value)
+    assert "\n" not in message and repr(text) in message
+    if part is not None:
+        assert part.strip("'") in message
+
+
+# ------------------------------------------------------------------------------------------- extraction
+def test_extract_rosbags_imu_and_stamp():
+    msg = imu(x=0.5, y=-0.25, z=2.0, sec=12, nanosec=250_000_000)
+    assert FieldPath.parse("angular_velocity.x").extract(msg) == 0.5
+    assert FieldPath.parse("angular_velocity.y").extract(msg) == -0.25
+    assert FieldPath.parse("angular_velocity.z").extract(msg) == 2.0
+    assert FieldPath.parse("orientation_covariance[8]").extract(msg) == 0.0
+    assert stamp_seconds(msg) == pytest.approx(12.25, abs=1e-12)
+
+
+def test_extract_joint_state_by_name_index_and_negative_index():
+    msg = joints(["aileron", "elevator", "rudder"], [0.1, -0.2, 0.3])
+    assert FieldPath.parse("position[elevator]").extract(msg) == -0.2
+    assert FieldPath.parse("position[2]").extract(msg) == 0.3
+    assert FieldPath.parse("position[-3]").extract(msg) == 0.1
+
+
+def test_name_lookup_follows_reordered_names():
+    path = FieldPath.parse("position[elevator]")
+    assert path.extract(joints(["aileron", "elevator"], [1.0, 2.0])) == 2.0
+    assert path.extract(joints(["elevator", "aileron"], [3.0, 4.0])) == 3.0  # cached index is re-checked
+    assert path.extract(joints(["rudder", "aileron", "elevator"], [5.0, 6.0, 7.0])) == 7.0
+
+
+def test_float64_and_bool_data():
+    assert FieldPath.parse("data").extract(T["std_msgs/msg/Float64"](data=-1.5)) == -1.5
+    assert FieldPath.parse("data").extract(T["std_msgs/msg/Bool"](data=True)) == 1.0
+
+
+def test_missing_joint_is_per_message_error_naming_the_joint():
+    with pytest.raises(FieldError) as err:
+        FieldPath.parse("position[elevator]").extract(joints(["aileron", "rudder"], [0.1, 0.2]))
+    assert isinstance(err.value, DataError)
+    assert "elevator" in str(err.value) and "aileron" in str(err.value)
+    assert err.value.reason == "missing joint" and not err.value.structural
+
+
+def test_short_position_array_and_index_out_of_range():
+    with pytest.raises(FieldError) as err:
+        FieldPath.parse("position[rudder]").extract(joints(["aileron", "rudder"], [0.1]))
+    assert err.value.reason == "wrong length" and not err.value.structural
+    with pytest.raises(FieldError) as err:
+        FieldPath.parse("position[5]").extract(joints(["aileron"], [0.1]))
+    assert err.value.reason == "index out of range"
+
+
+def test_missing_attribute_is_structural_and_named():
+    with pytest.raises(FieldError) as err:
+        FieldPath.parse("angular_velocity.w").extract(imu())
+    assert err.value.structural and "angular_velocity.w" in str(err.value)
+    with pytest.raises(FieldError) as err:
+        FieldPath.parse("position[elevator]").extract(imu())
+    assert err.value.structural
+
+
+def test_field_that_is_not_a_number():
+    with pytest.raises(FieldError) as err:
+        FieldPath.parse("angular_velocity").extract(imu())
+    assert err.value.reason == "not a number"
+
+
+def test_rclpy_messages_same_values():
+    """The node hands rclpy objects (array.array positions, numpy covariances) to the same extractor."""
+    pytest.importorskip("rclpy")
+    from sensor_msgs.msg import Imu, JointState
+    from std_msgs.msg import Float64
+
+    js = JointState()
+    js.name = ["aileron", "elevator", "rudder"]
+    js.position = [0.1, -0.2, 0.3]
+    js.header.stamp.sec, js.header.stamp.nanosec = 7, 5
+    assert FieldPath.parse("position[elevator]").extract(js) == -0.2
+    assert FieldPath.parse("position[0]").extract(js) == 0.1
+    assert stamp_seconds(js) == pytest.approx(7.000000005)
+    msg = Imu()
+    msg.angular_velocity.y = 0.75
+    assert FieldPath.parse("angular_velocity.y").extract(msg) == 0.75
+    assert FieldPath.parse("orientation_covariance[4]").extract(msg) == 0.0
+    assert stamp_seconds(msg) is None  # zero stamp: unset, use the receive time
+    assert FieldPath.parse("data").extract(Float64(data=2.5)) == 2.5
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.text(alphabet="abcdefghij_", min_size=1, max_size=6), min_size=1, max_size=6, unique=True),
+       st.data())
+def test_name_lookup_property(names, data):
+    """position[name] is the value at name's index, whatever the order of the names."""
+    order = data.draw(st.permutations(names))
+    values = data.draw(st.lists(st.floats(-1e3, 1e3, allow_nan=False), min_size=len(order),
+                                max_size=len(order)))
+    msg = joints(order, values)
+    for name in names:
+        path = FieldPath.parse(f"position[{name}]")
+        assert path.extract(msg) == values[order.index(name)]
+
+
+# ------------------------------------------------------------------------------------------- router
+class FakeValidator:
+    def __init__(self):
+        self.batches = []
+        self.bad = []
+
+    def add_samples(self, channel, stream, t_s, values):
+        self.batches.append((channel, stream, np.asarray(t_s), np.asarray(values)))
+
+    def count_bad(self, channel, stream, reason):
+        self.bad.append((channel, stream, reason))
+
+    def samples(self, channel, stream):
+        rows = [(t, v) for c, s, t, v in self.batches if (c, s) == (channel, stream)]
+        if not rows:
+            return np.zeros(0), np.zeros(0)
+        return np.concatenate([r[0] for r in rows]), np.concatenate([r[1] for r in rows])
+
+
+def make_config(input_field="position[elevator]", output_field="angular_velocity.y", output_scale=1.0,
+                trigger=False):
+    model = LinearModel.from_tf([1.0], [1.0, 1.0])
+    channel = ChannelConfig(
+        name="pitch", input=SignalSpec("/control_surfaces", input_field),
+        output=SignalSpec("/imu", output_field, scale=output_scale), model=model, model_spec={},
+        trigger=SignalSpec("/sweep", "data") if trigger else None)
+    return ValidationConfig(channels={"pitch": channel})
+
+
+def test_router_batches_scales_and_uses_header_stamp():
+    val = FakeValidator()
+    router = MessageRouter(make_config(output_scale=math.pi / 180), val, batch=3)
+    for k in range(7):
+        router.on_message("/imu", imu(y=10.0 * k, sec=100, nanosec=k * 10_000_000), receive_time_s=999.0 + k)
+        router.on_message("/control_surfaces", joints(["elevator"], [0.01 * k], sec=100, nanosec=k * 10_000_000),
+                          receive_time_s=999.0 + k)
+        router.on_message("/other", imu(), receive_time_s=0.0)  # not configured: ignored
+    assert len([b for b in val.batches if b[1] == "output"]) == 2  # two full batches of 3 pushed
+    router.flush()
+    t, y = val.samples("pitch", "output")
+    np.testing.assert_allclose(t, 100.0 + 0.01 * np.arange(7), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(y, np.radians(10.0 * np.arange(7)))
+    t, u = val.samples("pitch", "input")
+    np.testing.assert_allclose(u, 0.01 * np.arange(7))
+    assert router.samples("pitch", "output") == 7 and not val.bad
+
+
+def test_router_pushes_all_streams_at_least_every_max_batch_s():
+    """Input and output reach the validator interleaved in time (the estimator bounds their lag)."""
+    val = FakeValidator()
+    router = MessageRouter(make_config(), val, batch=10_000, max_batch_s=1.0)
+    for k in range(40):
+        t = 0.3 * k
+        router.on_message("/imu", imu(sec=10 + int(t), nanosec=int(round((t % 1) * 1e9))), 0.0)
+        router.on_message("/control_surfaces", joints(["elevator"], [0.0], sec=10 + int(t),
+                                                      nanosec=int(round((t % 1) * 1e9))), 0.0)
+    spans = [b[2][-1] - b[2][0] for b in val.batches]
+    assert len(val.batches) >= 2 * 8 and max(spans) <= 1.0 + 0.3 + 1e-9  # + one sample period
+    streams = [b[1] for b in val.batches]
+    assert streams.count("input") == streams.count("output")
+
+
+def test_router_receive_time_without_header_and_trigger_bool():
+    val = FakeValidator()
+    router = MessageRouter(make_config(input_field="data", trigger=True), val)
+    router.routes["/control_surfaces"]  # Float64 surface topic
+    for k in range(4):
+        router.on_message("/control_surfaces", T["std_msgs/msg/Float64"](data=0.5 * k), receive_time_s=5.0 + k)
+        router.on_message("/sweep", T["std_msgs/msg/Bool"](data=k % 2 == 1), receive_time_s=5.0 + k)
+    router.flush()
+    t, u = val.samples("pitch", "input")
+    np.testing.assert_allclose(t, [5.0, 6.0, 7.0, 8.0])
+    np.testing.assert_allclose(u, [0.0, 0.5, 1.0, 1.5])
+    t, trig = val.samples("pitch", "trigger")
+    assert trig.dtype == bool and trig.tolist() == [False, True, False, True]
+
+
+def test_router_counts_bad_samples_and_keeps_good_ones():
+    val = FakeValidator()
+    router = MessageRouter(make_config(), val)
+    router.on_message("/control_surfaces", joints(["elevator"], [0.1], sec=1), 0.0)
+    router.on_message("/control_surfaces", joints(["aileron"], [0.2], sec=2), 0.0)       # missing joint
+    router.on_message("/control_surfaces", joints(["elevator"], [float("nan")], sec=3), 0.0)
+    router.on_message("/control_surfaces", joints(["elevator"], [0.4], sec=3), 0.0)       # same time again
+    router.on_message("/control_surfaces", joints(["elevator"], [0.5], sec=2), 0.0)       # back in time
+    router.on_message("/control_surfaces", joints(["elevator"], [0.6], sec=4), 0.0)
+    router.flush()
+    t, u = val.samples("pitch", "input")
+    assert t.tolist() == [1.0, 3.0, 4.0] and u.tolist() == [0.1, 0.4, 0.6]
+    reasons = [r for _, _, r in val.bad]
+    assert reasons == ["missing joint", "not finite", "time not increasing"]
+    assert router.bad[("pitch", "input")]["missing joint"] == 1
+    assert "elevator" in router.first_error[("pitch", "input")]
+
+
+def test_router_structural_error_names_topic():
+    router = MessageRouter(make_config(output_field="angular_velocity.w"), FakeValidator())
+    with pytest.raises(FieldError) as err:
+        router.on_message("/imu", imu(), 0.0)
+    assert "/imu" in str(err.value) and "angular_velocity.w" in str(err.value) and err.value.structural
+
+
+def test_on_values_matches_on_message_with_time_offset():
+    val_a, val_b = FakeValidator(), FakeValidator()
+    a, b = MessageRouter(make_config(), val_a), MessageRouter(make_config(), val_b)
+    a.time_offset_s = b.time_offset_s = 50.0
+    for k in range(5):
+        msg = joints(["elevator"], [0.1 * k], sec=k + 1)
+        a.on_message("/control_surfaces", msg, 0.0)
+        b.on_values("/control_surfaces", stamp_seconds(msg), [FieldPath.parse("position[elevator]").extract(msg)])
+    a.flush()
+    b.flush()
+    for stream in ("input",):
+        ta, va = val_a.samples("pitch", stream)
+        tb, vb = val_b.samples("pitch", stream)
+        np.testing.assert_array_equal(ta, tb)
+        np.testing.assert_array_equal(va, vb)
+        assert ta[0] == 51.0
+    assert a.latest_time_s() == 55.0

@@ -1,0 +1,304 @@
+"""Metrics: chordal distance, exact nu-gap with the winding-number condition, epsilon, TIC.
+
+Pinned numbers: the paper's example (eqs. 18-19: nu-gap 0.0852, epsilon 0.1404 at 14.9 rad/s) and textbook
+nu-gaps (Vinnicombe: 100/(2s+1) vs 100/(2s-1) is 0.0200, vs 100/(s+1)^2 is 0.8988).
+"""
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
+from scipy.optimize import minimize_scalar
+
+from gap_validation.core.metrics import (chordal_distance, epsilon, epsilon_frequency_data, epsilon_per_frequency,
+                                         nugap, nugap_frequency_data, tic, tic_input_augmented, winding_condition)
+from gap_validation.core.models import LinearModel
+
+P1_PAPER = LinearModel.from_tf([18.75, 225.0], [1.0, 9.0, 225.0])  # eq. 18
+P2_PAPER = LinearModel.from_tf([18.75, 225.0], [1.0, 7.22, 246.5])  # eq. 19
+DENSE = np.concatenate([[0.0], np.geomspace(1e-5, 1e5, 400_001)])
+
+
+def kappa_of(m1, m2, w):
+    """Independent evaluation: eq. 13 on the models' frequency responses."""
+    p1, p2 = m1.freqresp(w), m2.freqresp(w)
+    return np.abs(p2 - p1) / np.sqrt((1 + np.abs(p1) ** 2) * (1 + np.abs(p2) ** 2))
+
+
+def dense_sup(m1, m2, w=DENSE):
+    with np.errstate(all="ignore"):
+        return nugap_frequency_data(w, m1.freqresp(w), m2.freqresp(w))
+
+
+# -- paper example ------------------------------------------------------------------------------------------
+
+
+def test_paper_example_nugap_and_epsilon():
+    gap, w_gap = nugap(P1_PAPER, P2_PAPER)
+    eps, w_eps = epsilon(P1_PAPER, P2_PAPER)
+    assert gap == pytest.approx(0.0852, abs=5e-4)
+    assert round(gap, 2) == 0.09  # "both metrics have the same value of 0.09"
+    assert eps == pytest.approx(0.1404, abs=5e-4)
+    assert w_eps == pytest.approx(14.9, abs=0.2)
+    assert w_gap == pytest.approx(14.9, abs=0.2)
+    assert winding_condition(P1_PAPER, P2_PAPER).satisfied
+
+
+@pytest.mark.parametrize("metric, per_point", [
+    (nugap, lambda w: kappa_of(P1_PAPER, P2_PAPER, w)),
+    (epsilon, lambda w: np.abs(P2_PAPER.freqresp(w) - P1_PAPER.freqresp(w))
+     / np.abs(P2_PAPER.freqresp(w) + P1_PAPER.freqresp(w))),
+])
+def test_peak_is_located_to_1e_6_relative(metric, per_point):
+    value, w_peak = metric(P1_PAPER, P2_PAPER)
+    grid = np.linspace(13.0, 17.0, 400_001)  # 1e-5 rad/s spacing
+    k = int(np.argmax(per_point(grid)))
+    result = minimize_scalar(lambda w: -per_point(np.array([w]))[0], bracket=(grid[k - 1], grid[k], grid[k + 1]),
+                             method="brent", tol=1e-12)
+    assert abs(w_peak - result.x) <= 1e-6 * result.x
+    assert value == pytest.approx(-result.fun, rel=1e-12)
+    assert value >= per_point(grid).max()
+
+
+# -- textbook values and the winding-number condition ---------------------------------------------------------
+
+
+def test_textbook_nugaps():
+    stable = LinearModel.from_tf([100.0], [2.0, 1.0])
+    assert nugap(stable, LinearModel.from_tf([100.0], [2.0, -1.0]))[0] == pytest.approx(0.0200, abs=1e-4)
+    value, w_peak = nugap(stable, LinearModel.from_tf([100.0], [1.0, 2.0, 1.0]))
+    assert value == pytest.approx(0.8988, abs=1e-4)
+    assert value == pytest.approx(dense_sup(stable, LinearModel.from_tf([100.0], [1.0, 2.0, 1.0]))[0], abs=1e-8)
+
+
+def test_symmetric_in_its_arguments():
+    a, b = LinearModel.from_tf([100.0], [2.0, 1.0]), LinearModel.from_tf([100.0], [1.0, 2.0, 1.0])
+    assert nugap(a, b)[0] == pytest.approx(nugap(b, a)[0], rel=1e-12)
+
+
+def test_winding_condition_failure_gives_one_although_kappa_stays_below_one():
+    # 1/(s+2) vs 1/(s-2): kappa(w) = 4/(w^2 + 5) <= 0.8 but the stable/unstable counts do not match.
+    # Sanity: the controller C = 0 stabilises 1/(s+2) with margin b = 1/sqrt(1 + 1/4) = 0.894 > 0.8, so if
+    # the nu-gap were 0.8 it would also stabilise 1/(s-2), which it does not: the nu-gap must be 1.
+    stable, unstable = LinearModel.from_tf([1.0], [1.0, 2.0]), LinearModel.from_tf([1.0], [1.0, -2.0])
+    assert dense_sup(stable, unstable)[0] == pytest.approx(0.8, abs=1e-6)
+    for pair in ((stable, unstable), (unstable, stable)):
+        check = winding_condition(*pair)
+        assert not check.satisfied and "winding" in check.reason
+        assert nugap(*pair)[0] == 1.0
+    # with a slower pole the counts match: 1/(s+0.5) vs 1/(s-0.5) is finite (kappa(0) = 0.8)
+    value, w_peak = nugap(LinearModel.from_tf([1.0], [1.0, 0.5]), LinearModel.from_tf([1.0], [1.0, -0.5]))
+    assert value == pytest.approx(0.8, abs=1e-12) and w_peak == 0.0
+
+
+def test_sign_flip_vanishes_on_the_axis():
+    p = LinearModel.from_tf([1.0], [1.0, 1.0])
+    check = winding_condition(p, LinearModel.from_tf([-1.0], [1.0, 1.0]))
+    assert not check.satisfied and check.frequency_rad_s == 0.0
+    assert nugap(p, LinearModel.from_tf([-1.0], [1.0, 1.0])) == (1.0, 0.0)
+
+
+@pytest.mark.parametrize("m1, m2", [
+    (LinearModel.from_tf([1.0], [1.0, 0.0]), LinearModel.from_tf([1.0], [1.0, 0.1])),          # integrator
+    (LinearModel.from_tf([1.0], [1.0, 1.0, 0.0]), LinearModel.from_tf([1.2], [1.0, 1.3, 0.0])),  # both
+    (LinearModel.from_tf([1.0], [1.0, 0.0, 1.0]), LinearModel.from_tf([1.0], [1.0, 0.2, 1.0])),  # oscillator
+    (LinearModel.from_tf([1.0], [1.0, -1.0]), LinearModel.from_tf([1.0], [1.0, -1.1])),          # unstable
+])
+def test_poles_on_the_axis_and_unstable_models_are_finite_and_equal_the_dense_sup(m1, m2):
+    value, w_peak = nugap(m1, m2)
+    grid_value, _ = dense_sup(m1, m2, np.concatenate([DENSE, [1.0]]))
+    assert winding_condition(m1, m2).satisfied
+    assert value < 1.0
+    assert value >= grid_value - 1e-12
+    assert value == pytest.approx(grid_value, abs=1e-6)
+
+
+def test_undamped_oscillator_against_the_analytic_chordal_distance():
+    # P1 = 1/(1 - w^2), P2 = 1/(1 - w^2 + 0.2 j w): kappa = 0.2 w / sqrt((1 + a^2)(1 + a^2 + 0.04 w^2)), a = 1 - w^2
+    value, w_peak = nugap(LinearModel.from_tf([1.0], [1.0, 0.0, 1.0]), LinearModel.from_tf([1.0], [1.0, 0.2, 1.0]))
+    w = np.linspace(0.5, 1.5, 1_000_001)
+    a = 1 - w**2
+    analytic = 0.2 * w / np.sqrt((1 + a**2) * (1 + a**2 + 0.04 * w**2))
+    assert value == pytest.approx(analytic.max(), rel=1e-9)
+    assert w_peak == pytest.approx(w[np.argmax(analytic)], abs=2e-6)
+
+
+def test_common_factors_are_cancelled_before_counting():
+    p = LinearModel.from_tf([1.0], [1.0, 1.0])
+    with_cancelled_unstable_mode = LinearModel.from_tf(np.polymul([1.0], [1.0, -3.0]), np.polymul([1.0, 1.0],
+                                                                                                 [1.0, -3.0]))
+    assert nugap(p, with_cancelled_unstable_mode)[0] == pytest.approx(0.0, abs=1e-9)
+
+
+# -- delays: numerical winding number and exact sup ----------------------------------------------------------
+
+
+def pade(model, order=8):
+    """Model with its delay replaced by a high-order Pade approximation (rational)."""
+    k = np.arange(order + 1)
+    c = np.array([math.factorial(2 * order - j) * math.factorial(order)
+                  / (math.factorial(2 * order) * math.factorial(j) * math.factorial(order - j)) for j in k])
+    num, den = (c * (-model.delay_s) ** k)[::-1], (c * model.delay_s ** k)[::-1]
+    return LinearModel.from_tf(np.polymul(model.num, num), np.polymul(model.den, den))
+
+
+@pytest.mark.parametrize("m1, m2, satisfied", [
+    (LinearModel.from_tf([1.0], [1.0, 1.0], 0.1), LinearModel.from_tf([1.0], [1.0, 1.0]), True),
+    (LinearModel.from_tf([1.0], [1.0, -1.0], 0.2), LinearModel.from_tf([1.0], [1.0, -1.0]), True),
+    (LinearModel.from_tf([1.0], [1.0, 2.0], 0.05), LinearModel.from_tf([1.0], [1.0, -2.0]), False),
+    (LinearModel.from_tf([18.75, 225.0], [1.0, 9.0, 225.0], 0.05), P2_PAPER, True),
+    (LinearModel.from_tf([1.0], [1.0, 0.0]), LinearModel.from_tf([1.0], [1.0, 0.0], 0.5), True),
+    (LinearModel.from_tf([0.5, 1.0], [1.0, 1.0], 0.2), LinearModel.from_tf([1.0], [1.0, 1.0]), True),
+])
+def test_delays_numerical_winding_agrees_with_pade_and_sup_with_dense_grid(m1, m2, satisfied):
+    check = winding_condition(m1, m2)
+    assert check.method == "numerical"
+    assert check.satisfied == satisfied
+    rational1 = pade(m1) if m1.delay_s else m1
+    rational2 = pade(m2) if m2.delay_s else m2
+    assert winding_condition(rational1, rational2).satisfied == satisfied
+    value, w_peak = nugap(m1, m2)
+    if satisfied:
+        grid_value, _ = dense_sup(m1, m2)
+        assert value >= grid_value - 1e-12
+        assert value == pytest.approx(grid_value, abs=1e-6)
+        assert value == pytest.approx(nugap(rational1, rational2)[0], abs=1e-6)
+    else:
+        assert value == 1.0
+
+
+def test_delay_only_mismatch():
+    p = LinearModel.from_tf([1.0], [1.0, 1.0])
+    delayed = LinearModel.from_tf([1.0], [1.0, 1.0], 0.1)
+    # P2 = -P1 at w T = pi: epsilon is infinite there
+    eps, w_eps = epsilon(delayed, p)
+    assert math.isinf(eps) and w_eps == pytest.approx(math.pi / 0.1, rel=1e-6)
+    # kappa = |P| |1 - exp(-j w T)| / (1 + |P|^2) peaks where the analytic derivative vanishes
+    value, w_peak = nugap(delayed, p)
+    w = np.linspace(0.01, 40.0, 400_001)
+    analytic = np.abs(1 - np.exp(-0.1j * w)) / np.sqrt(1 + w**2) / (1 + 1 / (1 + w**2))
+    assert value == pytest.approx(analytic.max(), abs=1e-9)
+    assert w_peak == pytest.approx(w[np.argmax(analytic)], abs=2e-4)
+
+
+def test_periodic_epsilon_reports_the_lowest_frequency():
+    # 2 exp(-s)/(s+1) vs 1/(s+1): epsilon(w) = |2 e^{-jw} - 1| / |2 e^{-jw} + 1|, max 3 at w = pi, 3 pi, ...
+    eps, w_eps = epsilon(LinearModel.from_tf([2.0], [1.0, 1.0], 1.0), LinearModel.from_tf([1.0], [1.0, 1.0]))
+    assert eps == pytest.approx(3.0, rel=1e-9)
+    assert w_eps == pytest.approx(math.pi, rel=1e-6)
+
+
+# -- frequency data ------------------------------------------------------------------------------------------
+
+
+def test_frequency_data_sup_and_nan_points_are_ignored():
+    w = np.array([1.0, 2.0, 3.0, 4.0])
+    p1 = np.array([1.0, 1.0j, 2.0, np.nan])
+    p2 = np.array([1.0, -1.0j, 2.5, 1.0])
+    kappa = chordal_distance(p1, p2)
+    assert kappa[0] == 0.0 and kappa[1] == pytest.approx(1.0)
+    assert nugap_frequency_data(w, p1, p2) == (pytest.approx(1.0), 2.0)
+    eps = epsilon_per_frequency(p1, p2)
+    assert eps[0] == 0.0 and math.isinf(eps[1]) and eps[2] == pytest.approx(0.5 / 4.5)
+    assert epsilon_frequency_data(w, p1, p2) == (math.inf, 2.0)
+    assert math.isnan(nugap_frequency_data(w[:1], [np.nan], [1.0])[0])
+
+
+def test_epsilon_conventions_for_zero_and_infinite_responses():
+    assert epsilon_per_frequency(0.0, 0.0) == 0.0
+    assert epsilon_per_frequency(0.0, 1.0) == 1.0
+    assert chordal_distance(np.inf, 0.0) == 1.0
+    assert chordal_distance(np.inf, 1.0) == pytest.approx(1 / math.sqrt(2))
+    assert chordal_distance(np.inf, np.inf) == 0.0
+
+
+# -- properties ----------------------------------------------------------------------------------------------
+
+finite = st.floats(-1e3, 1e3, allow_nan=False)
+complexes = st.builds(complex, finite, finite)
+
+
+@settings(max_examples=200, deadline=None)
+@given(complexes, complexes)
+def test_chordal_distance_properties(a, b):
+    kappa = float(chordal_distance(a, b))
+    assert 0.0 <= kappa <= 1.0
+    assert kappa == pytest.approx(float(chordal_distance(b, a)), abs=1e-15)
+    assert chordal_distance(a, a) == 0.0
+    assert kappa <= float(epsilon_per_frequency(a, b)) * (1 + 1e-12) + 1e-15
+
+
+def second_order(gain, wn, zeta, zero):
+    return LinearModel.from_tf(np.array([1.0 / zero, 1.0]) * gain * wn * wn if zero else [gain * wn * wn],
+                               [1.0, 2 * zeta * wn, wn * wn])
+
+
+models = st.builds(second_order, st.floats(0.2, 5.0), st.floats(0.5, 50.0), st.floats(0.1, 1.5),
+                   st.one_of(st.just(0.0), st.floats(1.0, 30.0)))
+
+
+@settings(max_examples=25, deadline=None)
+@given(models, models)
+def test_exact_nugap_of_stable_models_equals_dense_sup(m1, m2):
+    check = winding_condition(m1, m2)
+    assume(check.satisfied)
+    value, w_peak = nugap(m1, m2)
+    grid_value, _ = dense_sup(m1, m2)
+    assert value >= grid_value - 1e-12
+    assert value <= grid_value + 1e-6
+    if math.isfinite(w_peak):
+        assert float(kappa_of(m1, m2, np.array([w_peak]))[0]) == pytest.approx(value, abs=1e-12)
+
+
+def first_or_second_order(gain, pole, wn, zeta, sign, second):
+    if second:
+        return LinearModel.from_tf([gain * wn * wn], [1.0, sign * 2 * zeta * wn, wn * wn])
+    return LinearModel.from_tf([gain * abs(pole)], [1.0, sign * abs(pole)])
+
+
+any_models = st.builds(first_or_second_order, st.floats(-5.0, 5.0).filter(lambda g: abs(g) > 0.1),
+                       st.floats(0.1, 20.0), st.floats(0.5, 20.0), st.floats(0.1, 1.2), st.sampled_from([1.0, -1.0]),
+                       st.booleans())
+
+
+def vinnicombe_condition(m1, m2):
+    """Independent check: wno(1 + P2~ P1) + eta(P1) - eta(P2) - eta0(P2) = 0 (no axis poles here), the winding
+    number counted clockwise along w from -inf to inf (Nyquist-contour orientation), by phase unwrapping."""
+    w = np.concatenate([[0.0], np.geomspace(1e-5, 1e6, 300_001)])
+    f = 1 + np.conj(m2.freqresp(w)) * m1.freqresp(w)
+    if np.min(np.abs(f)) < 1e-9:
+        return False
+    turns_ccw = 2 * (np.unwrap(np.angle(f))[-1] - np.angle(f[0])) / (2 * math.pi)
+    wno = -round(turns_ccw)
+    eta1, eta2 = int(np.sum(m1.poles().real > 0)), int(np.sum(m2.poles().real > 0))
+    return wno + eta1 - eta2 == 0
+
+
+@settings(max_examples=40, deadline=None)
+@given(any_models, any_models)
+def test_winding_condition_matches_vinnicombes_formula(m1, m2):
+    assert winding_condition(m1, m2).satisfied == vinnicombe_condition(m1, m2)
+
+
+# -- Theil inequality coefficient ----------------------------------------------------------------------------
+
+
+def test_tic_eq1():
+    y = np.sin(np.linspace(0, 10, 500))
+    assert tic(y, y) == 0.0
+    assert tic(y, -y) == pytest.approx(1.0)
+    assert tic(y, np.zeros_like(y)) == pytest.approx(1.0)
+    assert tic(y, 2 * y) == pytest.approx(1 / 3)
+    assert tic(np.zeros(3), np.zeros(3)) == 0.0
+    with pytest.raises(ValueError):
+        tic([1.0, 2.0], [1.0])
+
+
+def test_tic_input_augmented_eq3():
+    y1, y2, u = np.array([1.0, 0.0]), np.array([0.0, 1.0]), np.array([1.0, 1.0])
+    # ||y1 - y2|| = sqrt(2); ||[u; y1]|| = ||[u; y2]|| = sqrt(3)
+    assert tic_input_augmented(y1, y2, u) == pytest.approx(math.sqrt(2) / (2 * math.sqrt(3)))
+    assert tic_input_augmented(y1, y2, np.zeros(2)) == pytest.approx(tic(y1, y2))
+    assert tic_input_augmented(y1, y2, u) < tic(y1, y2)

@@ -257,6 +257,7 @@ _HEAD = struct.Struct("<iII")       # header.stamp.sec, header.stamp.nanosec, fr
 _U32 = struct.Struct("<I")
 _F64 = struct.Struct("<d")
 _F32 = struct.Struct("<f")
+_STAMP = struct.Struct("<iI")
 
 #: Offsets [bytes] of Imu doubles after the 8-aligned start of ``orientation``.
 _IMU_OFFSETS = {
@@ -411,57 +412,115 @@ class _MessageBuilder:
     """Builds rosbags message objects of one topic of a simulated flight."""
 
     def __init__(self, typestore, series: "TopicSeries", frame_id: str):
-        self.ts = typestore
         self.series = series
+        self.msgtype = series.msgtype
         self.frame_id = frame_id
         self.types = typestore.types
         self.paths = {text: FieldPath.parse(text) for text in series.values}
+        self.stamped = self.msgtype in ("sensor_msgs/msg/Imu", "sensor_msgs/msg/JointState")
+
+    def values(self, i: int) -> dict[str, float]:
+        """Field text -> value of message ``i``."""
+        return {text: float(values[i]) for text, values in self.series.values.items()}
 
     def _header(self, stamp_ns: int):
         sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
         return self.types["std_msgs/msg/Header"](stamp=self.types["builtin_interfaces/msg/Time"](
             sec=sec, nanosec=nanosec), frame_id=self.frame_id)
 
-    def build(self, i: int, stamp_ns: int):
-        kind = self.series.msgtype
-        if kind == "sensor_msgs/msg/Imu":
-            return self._imu(i, stamp_ns)
-        if kind == "sensor_msgs/msg/JointState":
-            return self._joint_state(i, stamp_ns)
-        value = next(iter(self.series.values.values()))[i]
-        if kind == "std_msgs/msg/Bool":
-            return self.types[kind](data=bool(value))
-        return self.types[kind](data=float(value))
+    def build(self, values: dict[str, float], stamp_ns: int):
+        """A message with ``values`` (field text -> value) and ``header.stamp`` = ``stamp_ns``."""
+        if self.msgtype == "sensor_msgs/msg/Imu":
+            return self._imu(values, stamp_ns)
+        if self.msgtype == "sensor_msgs/msg/JointState":
+            return self._joint_state(values, stamp_ns)
+        value = next(iter(values.values()))
+        if self.msgtype == "std_msgs/msg/Bool":
+            return self.types[self.msgtype](data=bool(value))
+        return self.types[self.msgtype](data=float(value))
 
-    def _imu(self, i: int, stamp_ns: int):
+    def _imu(self, values: dict[str, float], stamp_ns: int):
         vec, quat = self.types["geometry_msgs/msg/Vector3"], self.types["geometry_msgs/msg/Quaternion"]
-        cov = np.zeros(9)
         orientation_cov = np.zeros(9)
         orientation_cov[0] = -1.0  # REP 145: no orientation estimate
         msg = self.types["sensor_msgs/msg/Imu"](
             header=self._header(stamp_ns), orientation=quat(x=0.0, y=0.0, z=0.0, w=1.0),
             orientation_covariance=orientation_cov, angular_velocity=vec(x=0.0, y=0.0, z=0.0),
-            angular_velocity_covariance=cov, linear_acceleration=vec(x=0.0, y=0.0, z=9.80665),
-            linear_acceleration_covariance=cov)
-        for text, values in self.series.values.items():
-            _set_path(msg, self.paths[text].attributes, values[i])
+            angular_velocity_covariance=np.zeros(9), linear_acceleration=vec(x=0.0, y=0.0, z=9.80665),
+            linear_acceleration_covariance=np.zeros(9))
+        for text, value in values.items():
+            _set_path(msg, self.paths[text].attributes, value)
         return msg
 
-    def _joint_state(self, i: int, stamp_ns: int):
+    def _joint_state(self, values: dict[str, float], stamp_ns: int):
         names = list(self.series.joint_names)
         arrays = {"position": np.zeros(len(names)), "velocity": None, "effort": None}
-        for text, values in self.series.values.items():
+        for text, value in values.items():
             path = self.paths[text]
             array = path.attributes[0]
             if arrays[array] is None:
                 arrays[array] = np.zeros(len(names))
             idx = names.index(path.key) if path.key is not None else path.index
-            arrays[array][idx] = values[i]
+            arrays[array][idx] = value
         empty = np.zeros(0)
         return self.types["sensor_msgs/msg/JointState"](
             header=self._header(stamp_ns), name=names, position=arrays["position"],
             velocity=arrays["velocity"] if arrays["velocity"] is not None else empty,
             effort=arrays["effort"] if arrays["effort"] is not None else empty)
+
+
+class _TopicSerializer:
+    """Serialises the messages of one topic: a CDR template with the stamp and the float64 fields patched in
+    place (found by probing the template with marker values), checked against full serialisation of the
+    first messages; types or layouts it cannot patch are serialised fully."""
+
+    _SEC_MARK, _NSEC_MARK = 0x1D2C3B4A, 0x0A1B2C3D
+    CHECKS = 3
+
+    def __init__(self, builder: _MessageBuilder, typestore):
+        self.builder = builder
+        self.serialize_full = lambda msg: bytes(typestore.serialize_cdr(msg, builder.msgtype, little_endian=True))
+        self.template: bytes | None = None
+        self.fields: list[tuple[int, str]] = []
+        self.stamp_offset: int | None = None
+        self.checks_left = self.CHECKS
+        if builder.msgtype in ("sensor_msgs/msg/Imu", "sensor_msgs/msg/JointState", "std_msgs/msg/Float64"):
+            self._probe()
+
+    def _probe(self) -> None:
+        keys = list(self.builder.series.values)
+        markers = {key: 1.0e6 + 0.1234567 * (j + 1) for j, key in enumerate(keys)}
+        stamp_ns = self._SEC_MARK * 1_000_000_000 + self._NSEC_MARK
+        raw = self.serialize_full(self.builder.build(markers, stamp_ns))
+        fields = []
+        for key, marker in markers.items():
+            packed = _F64.pack(marker)
+            if raw.count(packed) != 1:
+                return
+            fields.append((raw.index(packed), key))
+        if self.builder.stamped:
+            packed = struct.pack("<iI", self._SEC_MARK, self._NSEC_MARK)
+            if raw.count(packed) != 1:
+                return
+            self.stamp_offset = raw.index(packed)
+        self.template, self.fields = raw, fields
+
+    def __call__(self, i: int, stamp_ns: int) -> bytes:
+        if self.template is None:
+            return self.serialize_full(self.builder.build(self.builder.values(i), stamp_ns))
+        buf = bytearray(self.template)
+        if self.stamp_offset is not None:
+            _STAMP.pack_into(buf, self.stamp_offset, *divmod(int(stamp_ns), 1_000_000_000))
+        series = self.builder.series.values
+        for offset, key in self.fields:
+            _F64.pack_into(buf, offset, series[key][i])
+        if self.checks_left > 0:
+            self.checks_left -= 1
+            full = self.serialize_full(self.builder.build(self.builder.values(i), stamp_ns))
+            if full != bytes(buf):
+                self.template = None
+                return full
+        return bytes(buf)
 
 
 def _target(out: Path, storage: str | None) -> tuple[Path, str, bool]:
@@ -548,12 +607,11 @@ def _write_dir(flight, out: Path, storage: str, compress: bool, frame_id: str,
             writer.set_custom_data(key, str(value))
         with writer:
             conns = [writer.add_connection(t, flight.topics[t].msgtype, typestore=typestore) for t in names]
-            builders = [_MessageBuilder(typestore, flight.topics[t], frame_id) for t in names]
-            serialize = typestore.serialize_cdr
+            serializers = [_TopicSerializer(_MessageBuilder(typestore, flight.topics[t], frame_id), typestore)
+                           for t in names]
             for k in order:
-                ti, si = topic_index[k], sample_index[k]
-                msg = builders[ti].build(si, stamps_ns[k])
-                writer.write(conns[ti], int(receive_ns[k]), serialize(msg, conns[ti].msgtype))
+                ti = topic_index[k]
+                writer.write(conns[ti], receive_ns[k], serializers[ti](sample_index[k], stamps_ns[k]))
     except WriterError as err:
         raise ConfigError(f"{out}: cannot write bag ({_one_line(err)})") from None
 

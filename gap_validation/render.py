@@ -51,7 +51,8 @@ def channel_sentences(ch: ChannelResult) -> list[str]:
     if ch.diagnosis:
         top = ch.diagnosis[0]
         text = top.get("sentence") or f"missing: {top.get('effect')}"
-        out.append(text)
+        if text not in ch.message:
+            out.append(text)
     bad = sum(ch.bad_samples.values())
     if bad:
         reasons = ", ".join(f"{k} x{v}" for k, v in sorted(ch.bad_samples.items()))

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from gap_validation.core.errors import DataError
-from gap_validation.core.results import ChannelResult, ValidationResult
+from gap_validation.core.results import ChannelResult, ValidationResult, phase_deg
 from gap_validation.render import fmt
 
 _FLAG_COLOURS = {"ok": "tab:green", "model": "tab:red", "data": "tab:orange", "excluded": "0.7"}
@@ -39,10 +39,6 @@ def _db(x: np.ndarray) -> np.ndarray:
         return 20.0 * np.log10(np.abs(x))
 
 
-def _phase_deg(x: np.ndarray) -> np.ndarray:
-    return np.degrees(np.unwrap(np.angle(x)))
-
-
 def bode_figure(ch: ChannelResult, path: Path) -> None:
     """Model vs measurement with coherence (paper Fig. 4)."""
     plt = _pyplot()
@@ -51,11 +47,11 @@ def bode_figure(ch: ChannelResult, path: Path) -> None:
                                            gridspec_kw={"height_ratios": [2, 2, 1]})
     for raw in ch.sweep_measured:
         ax_m.semilogx(w, _db(raw), color="tab:blue", alpha=0.25, lw=0.8)
-        ax_p.semilogx(w, _phase_deg(raw), color="tab:blue", alpha=0.25, lw=0.8)
+        ax_p.semilogx(w, phase_deg(raw, ch.model), color="tab:blue", alpha=0.25, lw=0.8)
     ax_m.semilogx(w, _db(ch.measured), color="tab:blue", lw=2, label="flight data (average)")
-    ax_p.semilogx(w, _phase_deg(ch.measured), color="tab:blue", lw=2)
+    ax_p.semilogx(w, phase_deg(ch.measured, ch.model), color="tab:blue", lw=2)
     ax_m.semilogx(w, _db(ch.model), "k--", lw=1.5, label="model")
-    ax_p.semilogx(w, _phase_deg(ch.model), "k--", lw=1.5)
+    ax_p.semilogx(w, phase_deg(ch.model), "k--", lw=1.5)
     ax_c.semilogx(w, ch.coherence, color="tab:blue", lw=1.5)
     ax_c.axhline(ch.coherence_threshold, color="0.5", ls=":", label="threshold")
     ax_m.set_ylabel("magnitude [dB]")

@@ -190,6 +190,19 @@ def test_periodic_epsilon_reports_the_lowest_frequency():
     assert w_eps == pytest.approx(math.pi, rel=1e-6)
 
 
+def test_epsilon_limits_at_zero_frequency_with_poles_or_zeros_at_the_origin():
+    # P1 ~ 2 s, P2 ~ s/3 as s -> 0: epsilon -> |1/3 - 2| / |1/3 + 2| = 5/7 (0/0 at w = 0 itself)
+    m1, m2 = LinearModel.from_tf([2.0, 0.0], [1.0, 1.0]), LinearModel.from_tf([1.0, 0.0], [1.0, 3.0])
+    value, w_peak = epsilon(m1, m2)
+    w = np.geomspace(1e-6, 1e4, 200_001)
+    grid = np.abs(m2.freqresp(w) - m1.freqresp(w)) / np.abs(m2.freqresp(w) + m1.freqresp(w))
+    assert value == pytest.approx(5 / 7, rel=1e-12) and w_peak == 0.0
+    assert value >= grid.max() - 1e-12
+    # double and single integrator: epsilon -> 1 as w -> 0
+    assert epsilon(LinearModel.from_tf([1.0], [1.0, 0.0, 0.0]), LinearModel.from_tf([1.0], [1.0, 0.1, 0.0])) == \
+        (1.0, 0.0)
+
+
 # -- frequency data ------------------------------------------------------------------------------------------
 
 

@@ -31,7 +31,7 @@ from rclpy.context import Context  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
-from rclpy.serialization import deserialize_message  # noqa: E402
+from rclpy.serialization import deserialize_message, serialize_message  # noqa: E402
 from rclpy.task import Future  # noqa: E402
 from sensor_msgs.msg import Imu, JointState  # noqa: E402
 from std_msgs.msg import Float64  # noqa: E402
@@ -46,6 +46,8 @@ from gap_validation.replay import replay  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "config" / "ultrastick25e.yaml"
+#: Message types of the bundled flight (DESIGN.md defaults); a typed config subscribes without discovery.
+TYPES = {"/imu": "sensor_msgs/msg/Imu", "/control_surfaces": "sensor_msgs/msg/JointState"}
 #: The lab's servo lag (6 Hz) and delay: what the airframe-only model misses in the bundled flight.
 MISSING = [{"type": "first_order_lag", "bandwidth_rad_s": 37.7}, {"type": "time_delay", "seconds": 0.05}]
 LEVELS = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR, DiagnosticStatus.STALE)
@@ -174,6 +176,7 @@ class Flight:
             info = opened.topics
             self.records = [(topic, bytes(raw)) for topic, _, _, raw in opened.records(list(self.config.topics()))]
         self.types = {topic: info[topic].msgtype for topic in self.config.topics()}
+        assert self.types == TYPES
         self.classes = {topic: message_class(t) for topic, t in self.types.items()}
         self.hidden = _hidden_of(bag)
         started = time.perf_counter()
@@ -190,20 +193,35 @@ class Flight:
             yield topic, deserialize_message(raw, self.classes[topic])
 
     def feed(self, node: ValidatorNode, start: int = 0, stop: int | None = None) -> None:
-        """Hand the records to the node's subscription callback, in bag order."""
+        """Hand the records, deserialised, to the node's message callback, in bag order."""
         for topic, msg in self.messages(start, stop):
             node.on_message(topic, msg)
 
-    def typed_config(self, path: Path, effects: list[dict] | None = None) -> Path:
-        """The Ultra Stick config with the message types set (no graph discovery) and optional effects."""
-        data = yaml.safe_load(CONFIG.read_text())
-        for channel in data["channels"].values():
-            channel["input"]["type"] = self.types[channel["input"]["topic"]]
-            channel["output"]["type"] = self.types[channel["output"]["topic"]]
-            if effects is not None:
-                channel["model"]["effects"] = copy.deepcopy(effects)
-        path.write_text(yaml.safe_dump(data, sort_keys=False))
-        return path
+    def feed_raw(self, node: ValidatorNode, start: int = 0, stop: int | None = None) -> None:
+        """Hand the serialized records to the node's raw subscription callback (its default path)."""
+        assert set(node._raw) == set(self.types), "the node must have raw subscriptions"
+        for topic, raw in self.records[start:stop]:
+            node.on_raw(topic, raw)
+
+
+
+def write_typed(path: Path, effects: dict | None = None) -> Path:
+    """The Ultra Stick config with the message types set and, optionally, effects per channel."""
+    data = yaml.safe_load(CONFIG.read_text())
+    for name, channel in data["channels"].items():
+        for stream in ("input", "output"):
+            channel[stream]["type"] = TYPES[channel[stream]["topic"]]
+        if effects is not None:
+            channel["model"]["effects"] = copy.deepcopy(effects.get(name, []))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+@pytest.fixture(scope="module")
+def typed(tmp_path_factory) -> Path:
+    """The typed Ultra Stick config, named like the original (hardware_id ultrastick25e)."""
+    return write_typed(tmp_path_factory.mktemp("typed") / "ultrastick25e.yaml")
 
 
 @pytest.fixture(scope="module")
@@ -220,13 +238,14 @@ def flight(tmp_path_factory, ros_environment):
 
 
 @pytest.fixture(scope="module")
-def fed(flight, tmp_path_factory):
+def fed(flight, typed, tmp_path_factory):
     """The whole flight fed into a node; its results and checkpoint (other tests resume from it)."""
     session = Ros()
     try:
         state = tmp_path_factory.mktemp("fed") / "fed.npz"
-        node = session.validator(state_file=str(state))
-        flight.feed(node)
+        node = session.validator(typed, state_file=str(state))
+        flight.feed_raw(node)
+        assert all(raw.decoder is not None for raw in node._raw.values())  # fast decoding verified and used
         node.router.flush()
         result = node.validator.results(diagnose=False)
         array = node.publish_diagnostics()
@@ -249,10 +268,10 @@ def number(text: str) -> float | None:
     return None if text == "null" else float(text)
 
 
-def resume(ros: Ros, fed: dict, tmp_path: Path, **params) -> ValidatorNode:
+def resume(ros: Ros, fed: dict, tmp_path: Path, config: Path, **params) -> ValidatorNode:
     state = tmp_path / "state.npz"
     shutil.copy(fed["state"], state)
-    return ros.validator(state_file=str(state), **params)
+    return ros.validator(config, state_file=str(state), **params)
 
 
 # ------------------------------------------------------------------------------------------------ one data path
@@ -275,12 +294,13 @@ def test_flight_through_the_node_equals_replay(flight, fed):
         assert isinstance(status.level, bytes) and status.level in LEVELS
 
 
-def test_flight_over_dds_arrives_complete_and_gives_the_same_state(flight, ros, tmp_path):
-    """RELIABLE + deep queue, paced publishing: every message arrives; state identical to direct feeding."""
-    config = flight.typed_config(tmp_path / "typed.yaml")
-    over_dds = ros.validator(config, spin=True, diagnostic_period=1000.0)
-    direct = ros.validator(config, name="gap_validator_direct", diagnostic_period=1000.0)
-    assert set(over_dds._subs) == set(flight.types)  # typed config: subscribed at once, no discovery
+def test_flight_over_dds_arrives_complete_and_gives_the_same_state(flight, typed, ros):
+    """RELIABLE + deep queue, paced publishing: every message arrives, and the raw path over DDS gives the
+    same spectra as rclpy messages handed to the message callback."""
+    over_dds = ros.validator(typed, spin=True, diagnostic_period=1000.0)
+    direct = ros.validator(typed, name="gap_validator_direct", diagnostic_period=1000.0, raw_decoding=False)
+    assert set(over_dds._raw) == set(over_dds._subs) == set(flight.types)  # typed: subscribed at once
+    assert not direct._raw
     publisher = ros.plain("gap_test_publisher")
     qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE)
     pubs = {topic: publisher.create_publisher(cls, topic, qos) for topic, cls in flight.classes.items()}
@@ -316,10 +336,10 @@ def test_flight_over_dds_arrives_complete_and_gives_the_same_state(flight, ros, 
 
 
 # ------------------------------------------------------------------------------------------------ checkpoint
-def test_restart_from_checkpoint_reproduces_the_estimates(flight, fed, ros, tmp_path):
+def test_restart_from_checkpoint_reproduces_the_estimates(flight, typed, fed, ros, tmp_path):
     full = fed["result"]
     # resume from the checkpoint of the whole flight: identical numbers
-    node = resume(ros, fed, tmp_path)
+    node = resume(ros, fed, tmp_path, typed)
     again = node.validator.results(diagnose=False)
     for name, ch in full.channels.items():
         assert again.channels[name].sweeps == ch.sweeps
@@ -329,11 +349,11 @@ def test_restart_from_checkpoint_reproduces_the_estimates(flight, fed, ros, tmp_
     # interrupted flight: first half, checkpoint, a new node resumes and gets the second half
     state = tmp_path / "half.npz"
     half = len(flight.records) // 2
-    first = ros.validator(state_file=str(state))
-    flight.feed(first, 0, half)
+    first = ros.validator(typed, state_file=str(state), name="gap_validator_first")
+    flight.feed_raw(first, 0, half)
     ros.drop(first)  # writes the final checkpoint, as at shutdown
-    second = ros.validator(state_file=str(state))
-    flight.feed(second, half)
+    second = ros.validator(typed, state_file=str(state), name="gap_validator_second")
+    flight.feed_raw(second, half)
     second.router.flush()
     resumed = second.validator.results(diagnose=False)
     for name, ch in full.channels.items():
@@ -344,7 +364,8 @@ def test_restart_from_checkpoint_reproduces_the_estimates(flight, fed, ros, tmp_
 
 def test_checkpoint_timer_writes_atomically(flight, ros, tmp_path):
     state = tmp_path / "timer.npz"
-    node = ros.validator(spin=True, state_file=str(state), checkpoint_period=0.05, diagnostic_period=1000.0)
+    node = ros.validator(CONFIG, spin=True, state_file=str(state), checkpoint_period=0.05,
+                         diagnostic_period=1000.0)
     flight.feed(node, 0, 3000)
     ros.wait(lambda: state.exists())
     loaded = load_state(state)
@@ -355,7 +376,7 @@ def test_checkpoint_timer_writes_atomically(flight, ros, tmp_path):
 def test_corrupt_checkpoint_is_set_aside_and_the_node_starts_fresh(ros, tmp_path):
     state = tmp_path / "state.npz"
     state.write_bytes(b"this is not a checkpoint")
-    node = ros.validator(state_file=str(state))
+    node = ros.validator(CONFIG, state_file=str(state))
     assert not state.exists()
     assert (tmp_path / "state.npz.corrupt").read_bytes() == b"this is not a checkpoint"
     result = node.validator.results(diagnose=False)
@@ -369,12 +390,8 @@ def _model_update(node: ValidatorNode, flight: Flight, fed: dict, tmp_path: Path
     for name, ch in fed["result"].channels.items():
         assert number(before[name][1]["epsilon"]) == pytest.approx(ch.epsilon, abs=1e-12)
         assert before[name][1]["epsilon_previous"] == "null"
-    data = yaml.safe_load(CONFIG.read_text())
-    hidden = flight.hidden or {name: MISSING for name in data["channels"]}
-    for name, channel in data["channels"].items():
-        channel["model"]["effects"] = copy.deepcopy(hidden.get(name, []))
-    updated = tmp_path / "with_effects.yaml"
-    updated.write_text(yaml.safe_dump(data, sort_keys=False))
+    hidden = flight.hidden or {name: MISSING for name in flight.config.channels}
+    updated = write_typed(tmp_path / "with_effects.yaml", hidden)
     if via == "parameter":
         outcome = node.set_parameters([Parameter("config_file", value=str(updated))])[0]
         assert outcome.successful, outcome.reason
@@ -396,20 +413,20 @@ def _model_update(node: ValidatorNode, flight: Flight, fed: dict, tmp_path: Path
     return before, after
 
 
-def test_model_update_by_parameter_lowers_epsilon_and_keeps_the_previous(flight, fed, ros, tmp_path):
-    node = resume(ros, fed, tmp_path)
+def test_model_update_by_parameter_lowers_epsilon_and_keeps_the_previous(flight, typed, fed, ros, tmp_path):
+    node = resume(ros, fed, tmp_path, typed)
     _model_update(node, flight, fed, tmp_path, via="parameter")
 
 
-def test_bad_config_on_parameter_set_is_refused_and_the_old_model_kept(fed, ros, tmp_path):
-    node = resume(ros, fed, tmp_path)
+def test_bad_config_on_parameter_set_is_refused_and_the_old_model_kept(typed, fed, ros, tmp_path):
+    node = resume(ros, fed, tmp_path, typed)
     bad = tmp_path / "bad.yaml"
     bad.write_text("channels: {pitch: {input: {topic: /x, field: 'a..b'}}}\n")
     outcome = node.set_parameters([Parameter("config_file", value=str(bad))])[0]
     assert not outcome.successful
     assert "\n" not in outcome.reason and "bad.yaml" in outcome.reason
-    assert node.get_parameter("config_file").value == str(CONFIG)
-    assert node.config.source == str(CONFIG)
+    assert node.get_parameter("config_file").value == str(typed)
+    assert node.config.source == str(typed)
     after = statuses(node.publish_diagnostics())
     assert set(after) == {"roll", "pitch", "yaw"}
     assert after["pitch"][1]["epsilon_previous"] == "null"
@@ -431,8 +448,8 @@ def _fresh_messages(start_s: float, count: int, rate_hz: float = 100.0):
     return out
 
 
-def test_levels_are_byte_constants_and_inputs_stopping_make_stale(flight, fed, ros, tmp_path):
-    node = resume(ros, fed, tmp_path, stale_timeout=0.3, diagnostic_period=1000.0)
+def test_levels_are_byte_constants_and_inputs_stopping_make_stale(flight, typed, fed, ros, tmp_path):
+    node = resume(ros, fed, tmp_path, typed, stale_timeout=0.3, diagnostic_period=1000.0)
     # resumed, no data yet this session: STALE, waiting, the last numbers kept
     waiting = statuses(node.publish_diagnostics())
     for name, (status, values) in waiting.items():
@@ -473,7 +490,7 @@ def test_levels_are_byte_constants_and_inputs_stopping_make_stale(flight, fed, r
 
 
 def test_diagnostics_published_on_the_topic_before_any_data(ros):
-    node = ros.validator(spin=True, diagnostic_period=0.05, hardware_id="ultrastick-7")
+    node = ros.validator(CONFIG, spin=True, diagnostic_period=0.05, hardware_id="ultrastick-7")
     got = []
     ros.helper.create_subscription(DiagnosticArray, "/diagnostics", got.append, 10)
     ros.wait(lambda: len(got) >= 2)
@@ -527,11 +544,20 @@ def test_channel_status_levels_and_messages():
 
 
 # ------------------------------------------------------------------------------------------------ bad messages
-def test_bad_messages_are_counted_and_survived(ros):
-    node = ros.validator(diagnostic_period=1000.0)
-    good = _fresh_messages(1.7e9, 3)
-    for topic, msg in good:
-        node.on_message(topic, msg)
+@pytest.mark.parametrize("path", ["raw", "message"])
+def test_bad_messages_are_counted_and_survived(ros, typed, path):
+    """NaN rate, JointState without the joint, position array too short: counted per reason, never fatal."""
+    node = ros.validator(typed, diagnostic_period=1000.0, raw_decoding=(path == "raw"))
+    assert bool(node._raw) == (path == "raw")
+
+    def send(topic, msg):
+        if path == "raw":
+            node.on_raw(topic, serialize_message(msg))
+        else:
+            node.on_message(topic, msg)
+
+    for topic, msg in _fresh_messages(1.7e9, 3):
+        send(topic, msg)
     nan_imu = Imu()
     nan_imu.header.stamp.sec = 1_700_000_010
     nan_imu.angular_velocity.x = float("nan")
@@ -539,11 +565,14 @@ def test_bad_messages_are_counted_and_survived(ros):
     no_elevator.header.stamp.sec = 1_700_000_011
     short = JointState(name=["aileron", "elevator", "rudder"], position=[0.0, 0.0])
     short.header.stamp.sec = 1_700_000_012
-    node.on_message("/imu", nan_imu)
-    node.on_message("/control_surfaces", no_elevator)
-    node.on_message("/control_surfaces", short)
-    node.on_message("/imu", Float64(data=1.0))          # wrong message type on a topic: counted, logged
-    node.on_message("/unconfigured", Float64(data=1.0))  # ignored
+    send("/imu", nan_imu)
+    send("/control_surfaces", no_elevator)
+    send("/control_surfaces", short)
+    if path == "raw":
+        node.on_raw("/imu", b"\x00\x01\x00\x00garbage")        # undecodable bytes: skipped, logged
+    else:
+        node.on_message("/imu", Float64(data=1.0))          # wrong message type on a topic: counted, logged
+    node.on_message("/unconfigured", Float64(data=1.0))     # not configured: ignored
     values = {name: v for name, (_, v) in statuses(node.publish_diagnostics()).items()}
     roll = json.loads(values["roll"]["bad_samples_by_reason"])
     pitch = json.loads(values["pitch"]["bad_samples_by_reason"])
@@ -551,20 +580,21 @@ def test_bad_messages_are_counted_and_survived(ros):
     assert roll.get("output: not finite") == 1
     assert pitch.get("input: missing joint") == 1
     assert yaw.get("input: wrong length") == 1
-    assert any(k.startswith("output:") for k in pitch) and any(k.startswith("output:") for k in yaw)
+    if path == "message":
+        assert all(counts.get("output: missing field") == 1 for counts in (roll, pitch, yaw))
     for name in ("roll", "pitch", "yaw"):
         assert int(values[name]["bad_samples"]) == sum(json.loads(values[name]["bad_samples_by_reason"]).values())
     # still alive and still counting good samples
     before = node.router.samples("pitch", "output")
     for topic, msg in _fresh_messages(1_700_000_020.0, 2):
-        node.on_message(topic, msg)
+        send(topic, msg)
     assert node.router.samples("pitch", "output") == before + 2
 
 
 # ------------------------------------------------------------------------------------------------ services
-def test_services_reload_reset_save_results(flight, fed, ros, tmp_path):
+def test_services_reload_reset_save_results(flight, typed, fed, ros, tmp_path):
     config = tmp_path / "live.yaml"
-    shutil.copy(CONFIG, config)
+    shutil.copy(typed, config)
     results = tmp_path / "results"
     state = tmp_path / "state.npz"
     shutil.copy(fed["state"], state)
@@ -592,11 +622,7 @@ def test_services_reload_reset_save_results(flight, fed, ros, tmp_path):
         assert report.exists()
 
     # reload with a good file that adds the missing effects: epsilon falls, previous kept
-    data = yaml.safe_load(CONFIG.read_text())
-    hidden = flight.hidden or {name: MISSING for name in data["channels"]}
-    for name, channel in data["channels"].items():
-        channel["model"]["effects"] = copy.deepcopy(hidden.get(name, []))
-    config.write_text(yaml.safe_dump(data, sort_keys=False))
+    write_typed(config, flight.hidden or {name: MISSING for name in flight.config.channels})
     answer = ros.call(reload_, Trigger.Request())
     assert answer.success, answer.message
     result = node.validator.results(diagnose=False)
@@ -616,14 +642,14 @@ def test_services_reload_reset_save_results(flight, fed, ros, tmp_path):
     assert answer.success
     cleared = node.validator.results(diagnose=False)
     assert all(ch.sweeps == 0 and ch.epsilon is None for ch in cleared.channels.values())
-    resumed = ros.validator(config=CONFIG, name="gap_validator_resumed", state_file=str(state))
+    resumed = ros.validator(typed, name="gap_validator_resumed", state_file=str(state))
     assert all(ch.sweeps == 0 for ch in resumed.validator.results(diagnose=False).channels.values())
     # diagnostics still work after all that
     assert set(statuses(node.publish_diagnostics())) == {"roll", "pitch", "yaw"}
 
 
-def test_full_diagnosis_runs_in_the_background_and_fills_the_message(flight, fed, ros, tmp_path):
-    node = resume(ros, fed, tmp_path, diagnosis_period=0.0)
+def test_full_diagnosis_runs_in_the_background_and_fills_the_message(typed, fed, ros, tmp_path):
+    node = resume(ros, fed, tmp_path, typed, diagnosis_period=0.0)
     values = statuses(node.publish_diagnostics())
     assert all(v["diagnosis"] == "off" for _, v in values.values())
     node.set_parameters([Parameter("diagnosis_period", value=10.0)])
@@ -646,7 +672,7 @@ def test_full_diagnosis_runs_in_the_background_and_fills_the_message(flight, fed
 
 # ------------------------------------------------------------------------------------------------ discovery
 def test_topic_types_are_discovered_from_the_graph(ros):
-    node = ros.validator(spin=True, discovery_period=0.05, diagnostic_period=1000.0)  # config without types
+    node = ros.validator(CONFIG, spin=True, discovery_period=0.05, diagnostic_period=1000.0)  # no types
     assert set(node._pending) == {"/imu", "/control_surfaces"}
     publisher = ros.plain("gap_test_flight_stack")
     qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE)
@@ -657,6 +683,7 @@ def test_topic_types_are_discovered_from_the_graph(ros):
     for topic, msg in _fresh_messages(1.7e9, 3):
         (imu if topic == "/imu" else joints).publish(msg)
     ros.wait(lambda: node.router.messages["/imu"] == 3 and node.router.messages["/control_surfaces"] == 3)
+    assert set(node._raw) == {"/imu", "/control_surfaces"}  # raw subscriptions after discovery too
 
 
 # ------------------------------------------------------------------------------------------------ params file, main
@@ -699,3 +726,32 @@ def test_bad_startup_config_exits_2_with_one_line(tmp_path, case):
     expected = {"missing": "config file not found", "invalid": "bad.yaml", "unset": "config_file is not set",
                 "qos": "qos_reliability"}[case]
     assert expected in lines[0]
+
+
+def test_console_script_runs_publishes_answers_and_checkpoints_on_sigint(ros, typed, tmp_path):
+    """``main`` end to end in a child process (EventsExecutor): /diagnostics, a service, clean SIGINT."""
+    import signal
+
+    state = tmp_path / "state.npz"
+    env = dict(os.environ)
+    child = subprocess.Popen([sys.executable, "-m", "gap_validation.node", "--ros-args", "-p",
+                              f"config_file:={typed}", "-p", "diagnostic_period:=0.1", "-p",
+                              f"state_file:={state}", "-p", f"results_dir:={tmp_path}"],
+                             env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        got = []
+        ros.helper.create_subscription(DiagnosticArray, "/diagnostics", got.append, 10)
+        ros.wait(lambda: len(got) >= 2, timeout_s=30.0)
+        assert set(statuses(got[-1])) == {"roll", "pitch", "yaw"}
+        save = ros.helper.create_client(Trigger, "/gap_validator/save_results")
+        answer = ros.call(save, Trigger.Request())
+        assert answer.success and Path(answer.message).is_file()
+        child.send_signal(signal.SIGINT)
+        out, err = child.communicate(timeout=30)
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.communicate()
+    assert child.returncode == 0, err
+    assert "Traceback" not in err
+    assert load_state(state)["channels"]  # final checkpoint at shutdown

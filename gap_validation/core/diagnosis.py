@@ -3,31 +3,51 @@
 Where it fails
 --------------
 Per frequency the overbounding-disk distance ``epsilon(w) = |P2-P1|/|P2+P1|`` (paper eq. 14) between the model
-P1 and the measured response P2 is compared with what the estimate's random error can explain. If the averaged
-estimate is ``P2 = P0 (1 + d)`` with ``d`` complex, each component of standard deviation ``e_r`` (the normalised
-random error of |H|, Bendat & Piersol; the phase error is about ``e_r`` rad), then for data that equal the model
-``epsilon ~ |d| / |2 + d| ~ |d| / 2``: the noise-only epsilon has scale ``sigma = e_r / 2`` and ``epsilon / sigma``
-is Rayleigh distributed (probability ``exp(-k^2/2)`` of exceeding ``k``). Bands where ``epsilon(w)`` passes the
-threshold are **model-limited** when, with coherence above its threshold, epsilon exceeds ``k sigma`` there
-(default ``k = 4``: about 1 % false alarms over 40 frequencies), and **data-limited** otherwise (fly better
-sweeps there rather than change the model). ``e_r`` is the larger of the estimate's Bendat & Piersol error and
-the scatter between sweeps (when three or more sweeps are confident at a frequency).
+P1 and the averaged measured response P2 is compared with what the estimate's errors can explain. If the
+estimate is ``P2 = P0 (1 + d)`` with ``d`` complex, each component of standard deviation ``e`` (the normalised
+random error of |H|, Bendat & Piersol; the phase error is about ``e`` rad), then for data that equal the model
+``epsilon ~ |d| / |2 + d| ~ |d| / 2``: the noise-only epsilon has scale ``sigma = e / 2`` and ``epsilon / sigma``
+is Rayleigh distributed (probability ``exp(-k^2/2)`` of exceeding ``k``). With ``n_d`` averages the exact law of
+the H1 estimate's error (Goodman; Bendat & Piersol's confidence region of H) is an F(2, 2 n_d - 2) statistic;
+:func:`normalised_mismatch` turns ``epsilon / sigma`` into the equivalent Rayleigh ``k``.
+
+``e`` is the larger of the estimate's Bendat & Piersol error and the scatter between sweeps (where three or
+more sweeps are confident), combined with a small systematic floor :data:`BIAS_ERROR` (window resolution and
+leakage near resonances). A frequency is *confident* when its coherence passes the threshold (it counts for
+epsilon, as in the validator) and *usable* for the diagnosis when it also has enough averages for the coherence
+itself to mean something (:func:`minimum_averages`).
+
+Bands where ``epsilon(w)`` passes the threshold are **model-limited** when at a usable frequency of the band
+the mismatch exceeds ``k = SIGMA_FACTOR`` (4: about 1 % false alarms over 40 frequencies), and
+**data-limited** otherwise: low coherence, too few averages or random error comparable to the mismatch (fly
+better sweeps there rather than change the model).
 
 Which effect is missing
 -----------------------
 Each effect of the vocabulary (:mod:`gap_validation.core.effects`) is fitted in series with the current model to
 the averaged measured response with the CIFER cost (Tischler & Remple, *Aircraft and Rotorcraft System
-Identification*, 2nd ed., eq. 11.2)::
+Identification*, 2nd ed., ch. 11)::
 
     J = 20/n sum_w W_g [ (|T_m| - |T_c|)^2  +  0.01745 (angle T_m - angle T_c)^2 ],   W_g = [1.58 (1 - exp(-g^2))]^2
 
-(magnitudes in dB, phases in deg, ``g^2`` the coherence) over the confident frequencies: a coarse grid over
-physically sensible parameter ranges, then a bounded local refinement (:func:`scipy.optimize.least_squares`)
-from the best distinct grid points. Pairs of effects are fitted when no single effect explains the mismatch,
-and the model's own coefficients are refitted as ``parameter_error``. Candidates are ranked by the epsilon they
-would leave (averaged data, confident frequencies). Only candidates that bring epsilon down by clearly more than
-the random error explains are reported; if the current epsilon is already within the random error the diagnosis
-is empty. Among adequate explanations the simplest (fewest parameters) comes first.
+(magnitudes in dB, phases in deg, ``g^2`` the coherence) over the usable frequencies: a grid over physically
+sensible parameter ranges, then a bounded local refinement (:func:`scipy.optimize.least_squares`) from the best
+distinct grid points. Pairs of effects are fitted when no single effect explains the mismatch, and the model's
+own coefficients are refitted as ``parameter_error``.
+
+Candidates are ranked by the epsilon they would leave (averaged data, confident frequencies). A candidate is
+reported only when its improvement is real against the data's errors, at the usable frequencies:
+
+* the current mismatch is outside the errors (some usable frequency beyond ``k``), else the diagnosis is empty;
+* epsilon falls by at least :data:`MIN_RELATIVE_IMPROVEMENT` of its value;
+* it falls by more than :data:`IMPROVEMENT_SIGMA_FACTOR` sigma, or the candidate leaves a mismatch within
+  ``k`` where the model was beyond ``k + 1``;
+* it removes at least half of the excess chi-square ``sum |ln(P_fit/P_meas)|^2 / e^2 - 2 n`` (a fitted noise
+  spike lowers the sup of epsilon but not the aggregate);
+* a pair must be, by the same tests, clearly better than its best single member.
+
+Among the adequate candidates (those within the errors, or as good as the best one) the simplest (fewest
+parameters) comes first; the rest follow by epsilon.
 """
 from __future__ import annotations
 
@@ -40,24 +60,32 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from gap_validation.core import metrics
-from gap_validation.core.effects import EFFECT_TYPES, describe_effect, effect_response, validate_effect
+from gap_validation.core.effects import describe_effect, validate_effect
 from gap_validation.core.models import LinearModel
 
 __all__ = [
-    "ChannelDiagnosis", "analyse_channel", "cifer_weight", "cifer_cost", "bendat_piersol_random_error",
-    "effective_random_error", "epsilon_noise_scale", "frequency_flags", "find_bands", "fit_effects",
-    "SIGMA_FACTOR", "MAX_DELAY_S",
+    "ChannelDiagnosis", "analyse_channel", "fit_effects", "FittedCandidate", "cifer_weight", "cifer_cost",
+    "bendat_piersol_random_error", "effective_random_error", "epsilon_noise_scale", "minimum_averages",
+    "normalised_mismatch", "frequency_flags", "find_bands", "FAMILIES", "PAIRS", "SIGMA_FACTOR", "BIAS_ERROR",
+    "MAX_DELAY_S",
 ]
 
-#: Noise-only epsilon is Rayleigh with scale ``sigma = e_r/2``; ``P(eps > k sigma) = exp(-k^2/2)``: k = 4 gives
+#: Noise-only epsilon is Rayleigh with scale ``sigma = e/2``; ``P(eps > k sigma) = exp(-k^2/2)``: k = 4 gives
 #: 3.4e-4 per frequency, about 1 % over 40 frequencies.
 SIGMA_FACTOR = 4.0
-#: An improvement must exceed this many ``sigma`` (random-error scale of epsilon) at the frequencies involved.
+#: An improvement of the sup of epsilon must exceed this many sigma at the frequencies involved ...
 IMPROVEMENT_SIGMA_FACTOR = 3.0
 #: ... and remove at least this fraction of epsilon (a 10 % improvement is no explanation).
 MIN_RELATIVE_IMPROVEMENT = 0.25
-#: A pair must leave at most this fraction of its best single member's epsilon.
+#: A pair must remove at least this fraction of its best single member's epsilon.
 PAIR_RELATIVE_IMPROVEMENT = 0.25
+#: Systematic (bias) error floor of a measured response, relative (3 % of |H|, 1.7 deg): window resolution
+#: and leakage of the spectral estimate near resonances, stream interpolation. Random error alone would call
+#: these few-percent biases significant on long, clean flights.
+BIAS_ERROR = 0.03
+#: Probability that noise alone (zero true coherence) gives a coherence estimate above the threshold, used to
+#: set the minimum number of averages of a usable frequency (:func:`minimum_averages`).
+COHERENCE_FALSE_ALARM = 1e-3
 #: Largest delay the fit considers [s].
 MAX_DELAY_S = 0.5
 #: CIFER phase weight per deg^2 (1 dB ~ 7.6 deg).
@@ -65,7 +93,8 @@ _PHASE_WEIGHT = 0.01745
 _DB_PER_NEPER = 20.0 / math.log(10.0)
 _DEG_PER_RAD = 180.0 / math.pi
 _N_STARTS = 3          # local refinements per candidate, from distinct grid points
-_MIN_POINTS = 4        # fewer confident points: no fitting
+_MIN_POINTS = 4        # fewer usable points: no fitting
+_MAX_CANDIDATES = 6    # reported at most
 
 
 @dataclass
@@ -76,17 +105,21 @@ class ChannelDiagnosis:
     ----------
     limited_by : str
         ``"model"``, ``"data"`` or ``"none"`` (JSON ``limited_by``): the verdict of the band holding the worst
-        frequency (the one that sets epsilon); ``"none"`` when epsilon passes the threshold nowhere;
+        confident frequency (the one that sets epsilon); ``"none"`` when epsilon passes the threshold nowhere;
         ``"data"`` as well when no frequency has enough coherence.
     frequency_flags : list of str
-        Per frequency: ``"ok"``, ``"model"``, ``"data"`` or ``"excluded"`` (coherence below its threshold).
+        Per frequency: ``"ok"`` (epsilon within the threshold), ``"model"``, ``"data"`` or ``"excluded"``
+        (coherence below its threshold).
     bands : list of dict
-        Contiguous confident frequencies where epsilon passes the threshold: ``min_rad_s``, ``max_rad_s``,
-        ``peak_rad_s``, ``epsilon``, ``limited_by``, ``reason`` (plus ``coherence_min``, ``sigma_ratio``).
+        Runs of frequencies flagged ``model`` or ``data``: ``min_rad_s``, ``max_rad_s``, ``peak_rad_s``,
+        ``epsilon`` (at the peak), ``limited_by``, ``reason``, plus ``coherence_min``, ``mismatch_sigma`` (the
+        largest normalised mismatch k in the band) and ``min_averages``.
     candidates : list of dict
         JSON ``diagnosis``, best first: ``effect``, ``parameters``, ``effects``, ``epsilon``, ``nu_gap`` plus
         ``sentence``, ``improvement``, ``epsilon_before``, ``epsilon_raw``, ``worst_frequency_rad_s``,
-        ``complexity``, ``cost`` (CIFER J after) and ``cost_before``.
+        ``complexity`` (fitted parameters), ``cost`` and ``cost_before`` (CIFER J), ``explains`` (True when
+        the mismatch left is within the errors). ``parameter_error`` has empty ``effects`` and the refitted
+        ``model`` mapping (replace the model's airframe; nothing to append) with a ``note`` saying so.
     message : str
         One plain sentence for the terminal.
     """
@@ -102,12 +135,17 @@ class ChannelDiagnosis:
 
 
 def cifer_weight(coherence) -> np.ndarray:
-    """CIFER coherence weighting ``W_g = [1.58 (1 - exp(-g^2))]^2`` (Tischler & Remple, eq. 11.3).
+    """CIFER coherence weighting ``W_g = [1.58 (1 - exp(-g^2))]^2`` (Tischler & Remple, ch. 11).
 
     Parameters
     ----------
     coherence : array_like
         Squared coherence ``g^2`` in [0, 1].
+
+    Returns
+    -------
+    ndarray
+        Weights, 0 at zero coherence and 1.0 at ``g^2 = 1``.
     """
     g2 = np.clip(np.asarray(coherence, dtype=float), 0.0, 1.0)
     return (1.58 * (1.0 - np.exp(-g2))) ** 2
@@ -120,7 +158,7 @@ def _log_ratio(p_fit, p_meas) -> np.ndarray:
 
 
 def cifer_cost(p_fit, p_meas, coherence) -> float:
-    """CIFER cost ``J = 20/n sum W_g [dB error^2 + 0.01745 deg error^2]`` (Tischler & Remple, eq. 11.2).
+    """CIFER cost ``J = 20/n sum W_g [dB error^2 + 0.01745 deg error^2]`` (Tischler & Remple, ch. 11).
 
     Parameters
     ----------
@@ -141,9 +179,16 @@ def cifer_cost(p_fit, p_meas, coherence) -> float:
 
 
 def bendat_piersol_random_error(coherence, n_averages) -> np.ndarray:
-    """Normalised random error of |H|: ``e_r = sqrt(1 - g^2) / (|g| sqrt(2 n_d))`` (Bendat & Piersol, 9.90).
+    """Normalised random error of |H|: ``e_r = sqrt(1 - g^2) / (|g| sqrt(2 n_d))`` (Bendat & Piersol, ch. 9).
 
     The phase error is about ``e_r`` rad. Infinite where the coherence is zero.
+
+    Parameters
+    ----------
+    coherence : array_like
+        Squared coherence ``g^2``.
+    n_averages : array_like
+        Number of averaged segments ``n_d``.
     """
     g2 = np.clip(np.asarray(coherence, dtype=float), 0.0, 1.0)
     n = np.maximum(np.asarray(n_averages, dtype=float), 1.0)
@@ -152,11 +197,18 @@ def bendat_piersol_random_error(coherence, n_averages) -> np.ndarray:
     return np.where(g2 > 0.0, e_r, np.inf)
 
 
+def _n_averages(estimate) -> np.ndarray:
+    """Averages per frequency (inf when the estimate does not say)."""
+    shape = np.shape(estimate.coherence)
+    n = getattr(estimate, "n_averages", None)
+    if n is None:
+        return np.full(shape, np.inf)
+    return np.broadcast_to(np.asarray(n, dtype=float), shape).copy()
+
+
 def _random_error_of(estimate) -> np.ndarray:
-    """The estimate's random error, from Bendat & Piersol where it does not carry one (or it is not finite)."""
-    coherence = np.asarray(estimate.coherence, dtype=float)
-    n_avg = np.broadcast_to(np.asarray(getattr(estimate, "n_averages", 1.0), dtype=float), coherence.shape)
-    computed = bendat_piersol_random_error(coherence, n_avg)
+    """The estimate's random error; Bendat & Piersol's formula where it carries none (or a non-finite one)."""
+    computed = bendat_piersol_random_error(estimate.coherence, np.minimum(_n_averages(estimate), 1e12))
     given = getattr(estimate, "random_error", None)
     if given is None:
         return computed
@@ -178,17 +230,19 @@ def _sweep_scatter_error(estimate, sweeps: Sequence, coherence_threshold: float)
     h = np.array([np.asarray(s.response, dtype=complex) for s in usable])
     ok = np.array([np.asarray(s.coherence, dtype=float) >= coherence_threshold for s in usable]) & np.isfinite(h)
     m = ok.sum(axis=0)
-    h0 = np.where(ok, h, 0.0)
     with np.errstate(divide="ignore", invalid="ignore"):
-        mean = h0.sum(axis=0) / m
+        mean = np.where(ok, h, 0.0).sum(axis=0) / m
         var = (np.abs(np.where(ok, h - mean, 0.0)) ** 2).sum(axis=0) / (m - 1)
         e = np.sqrt(var / 2.0) / np.sqrt(m) / np.abs(np.asarray(estimate.response, dtype=complex))
-    return np.where(m >= 3, e, np.nan)
+    return np.where(m >= 3, e, out)
 
 
-def effective_random_error(estimate, sweeps: Sequence = (), coherence_threshold: float = 0.0) -> np.ndarray:
-    """Relative random error of the averaged response: the larger of the estimate's (Bendat & Piersol) error
-    and the scatter between sweeps (used where at least three sweeps are confident).
+def effective_random_error(estimate, sweeps: Sequence = (), coherence_threshold: float = 0.0,
+                           bias_error: float = 0.0) -> np.ndarray:
+    """Relative error of the averaged response the diagnosis allows for.
+
+    The larger of the estimate's random error (Bendat & Piersol) and the scatter between sweeps (where at
+    least three sweeps are confident), combined with a systematic floor as ``sqrt(e_r^2 + bias_error^2)``.
 
     Parameters
     ----------
@@ -198,80 +252,128 @@ def effective_random_error(estimate, sweeps: Sequence = (), coherence_threshold:
         Per-sweep estimates on the same frequencies.
     coherence_threshold : float
         Sweeps count at a frequency only where their coherence passes it.
+    bias_error : float
+        Relative systematic error of any spectral estimate (:data:`BIAS_ERROR` in :func:`analyse_channel`).
+
+    Returns
+    -------
+    ndarray
+        Relative error per frequency (magnitude fraction; phase in rad).
     """
     e_bp = _random_error_of(estimate)
     e_sc = _sweep_scatter_error(estimate, sweeps, coherence_threshold)
-    return np.where(np.isfinite(e_sc), np.maximum(e_bp, e_sc), e_bp)
+    e_r = np.where(np.isfinite(e_sc), np.maximum(e_bp, e_sc), e_bp)
+    return np.hypot(e_r, bias_error)
 
 
-def epsilon_noise_scale(random_error) -> np.ndarray:
-    """Scale ``sigma = e_r / 2`` of epsilon(w) between a model and noisy data that equal it.
+def epsilon_noise_scale(relative_error) -> np.ndarray:
+    """Scale ``sigma = e / 2`` of epsilon(w) between a model and noisy data that equal it.
 
-    With ``P2 = P1 (1 + d)``, ``d`` complex with components of standard deviation ``e_r``,
-    ``epsilon = |d| / |2 + d| ~ |d| / 2``: Rayleigh with scale ``e_r / 2``.
+    With ``P2 = P1 (1 + d)``, ``d`` complex with components of standard deviation ``e``,
+    ``epsilon = |d| / |2 + d| ~ |d| / 2`` (eq. 14): Rayleigh with scale ``e / 2``.
     """
-    return 0.5 * np.asarray(random_error, dtype=float)
+    return 0.5 * np.asarray(relative_error, dtype=float)
+
+
+def minimum_averages(coherence_threshold: float, false_alarm: float = COHERENCE_FALSE_ALARM) -> int:
+    """Fewest averages for which a coherence above the threshold is not plausibly noise.
+
+    With ``n_d`` averages and zero true coherence, ``P(g^2_est > c) = (1 - c)^(n_d - 1)`` (Bendat & Piersol,
+    ch. 9); the result is the smallest ``n_d`` making that at most ``false_alarm`` (9 for c = 0.6), within
+    [4, 16].
+    """
+    c = min(max(float(coherence_threshold), 1e-6), 0.999)
+    n = 1.0 + math.log(false_alarm) / math.log(1.0 - c)
+    return int(min(max(math.ceil(n), 4), 16))
+
+
+def normalised_mismatch(eps_w, sigma, n_averages=np.inf) -> np.ndarray:
+    """How many noise scales the mismatch is: the Rayleigh-equivalent ``k`` of ``epsilon / sigma``.
+
+    With ``n_d`` averages the H1 error follows ``F(2, 2 n_d - 2)`` (Goodman; Bendat & Piersol's confidence
+    region of H): ``P = (1 + r^2 / (2 n_d))^-(n_d - 1)`` for ``r = epsilon / sigma``, and
+    ``k = sqrt(-2 ln P) = sqrt(2 (n_d - 1) ln(1 + r^2 / (2 n_d)))``, which tends to ``r`` for many averages.
+
+    Parameters
+    ----------
+    eps_w, sigma : array_like
+        epsilon(w) and its noise scale.
+    n_averages : array_like
+        Averages per frequency (inf: the Rayleigh limit).
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.asarray(eps_w, float) / np.asarray(sigma, float)
+        n = np.maximum(np.asarray(n_averages, float), 2.0)
+        k = np.sqrt(2.0 * (n - 1.0) * np.log1p(r ** 2 / (2.0 * n)))
+        k = np.where(np.isfinite(n), k, r)
+    return np.where(np.isfinite(r), k, np.where(np.isnan(r), 0.0, np.inf))
 
 
 # ------------------------------------------------------------------------------------------------ where it fails
 
 
-def frequency_flags(eps_w, sigma, confident, epsilon_threshold: float,
+def frequency_flags(eps_w, mismatch, confident, usable, epsilon_threshold: float,
                     sigma_factor: float = SIGMA_FACTOR) -> list[str]:
-    """Per-frequency verdict: ``"excluded"`` (not confident), ``"ok"`` (epsilon <= threshold), ``"model"``
-    (epsilon > threshold and > ``sigma_factor`` sigma) or ``"data"`` (epsilon > threshold but within the
-    random error)."""
+    """Per-frequency verdict.
+
+    Returns ``"excluded"`` (not confident: coherence below the threshold), ``"ok"`` (epsilon within the
+    threshold), ``"model"`` (epsilon above it and the normalised mismatch beyond ``sigma_factor`` at a usable
+    frequency) or ``"data"`` (above it, but within the errors or with too few averages).
+    """
     flags = []
-    for e, s, c in zip(np.asarray(eps_w, float), np.asarray(sigma, float), np.asarray(confident, bool)):
+    for e, k, c, u in zip(np.asarray(eps_w, float), np.asarray(mismatch, float), np.asarray(confident, bool),
+                          np.asarray(usable, bool)):
         if not c or not np.isfinite(e):
             flags.append("excluded")
         elif e <= epsilon_threshold:
             flags.append("ok")
-        elif np.isfinite(s) and e > sigma_factor * s:
+        elif u and k > sigma_factor:
             flags.append("model")
         else:
             flags.append("data")
     return flags
 
 
-def find_bands(w_rad_s, eps_w, sigma, coherence, flags: Sequence[str], coherence_threshold: float,
-               sigma_factor: float = SIGMA_FACTOR) -> list[dict]:
-    """Contiguous runs of frequencies flagged ``model`` or ``data``, each with its verdict and reason.
+def find_bands(w_rad_s, eps_w, mismatch, coherence, n_averages, flags: Sequence[str], coherence_threshold: float,
+               min_averages: int = 0, sigma_factor: float = SIGMA_FACTOR) -> list[dict]:
+    """Runs of adjacent frequencies flagged ``model`` or ``data``, each with its verdict and reason.
 
-    A band is model-limited when at least one of its frequencies is (epsilon well outside the random error with
-    coherence OK); otherwise it is data-limited. Excluded frequencies end a band.
+    A band is model-limited when at least one of its frequencies is; otherwise data-limited. Excluded
+    frequencies end a band.
     """
-    w = np.asarray(w_rad_s, float)
     bands, start = [], None
     for i, flag in enumerate(list(flags) + ["ok"]):
         inside = flag in ("model", "data")
         if inside and start is None:
             start = i
         elif not inside and start is not None:
-            bands.append(_band(w, eps_w, sigma, coherence, flags, start, i, coherence_threshold, sigma_factor))
+            bands.append(_band(np.arange(start, i), w_rad_s, eps_w, mismatch, coherence, n_averages, flags,
+                               coherence_threshold, min_averages, sigma_factor))
             start = None
     return bands
 
 
-def _band(w, eps_w, sigma, coherence, flags, lo, hi, coherence_threshold, sigma_factor) -> dict:
-    idx = np.arange(lo, hi)
-    eps = np.asarray(eps_w, float)[idx]
-    sig = np.asarray(sigma, float)[idx]
-    peak = idx[int(np.argmax(eps))]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = np.max(eps / sig)
-    model = any(flags[i] == "model" for i in idx)
+def _band(idx, w_rad_s, eps_w, mismatch, coherence, n_averages, flags, coherence_threshold, min_averages,
+          sigma_factor) -> dict:
+    w, eps = np.asarray(w_rad_s, float), np.asarray(eps_w, float)
+    peak = idx[int(np.argmax(eps[idx]))]
+    k_max = float(np.max(np.asarray(mismatch, float)[idx]))
     coh_min = float(np.min(np.asarray(coherence, float)[idx]))
-    e_peak, s_peak = float(eps_w[peak]), float(sigma[peak])
+    n_min = float(np.min(np.asarray(n_averages, float)[idx]))
+    model = any(flags[i] == "model" for i in idx)
     if model:
-        reason = (f"confident data disagree with the model: epsilon {e_peak:.2f} is {ratio:.0f}x the random-error "
-                  f"scale {s_peak:.3f} (coherence >= {coherence_threshold:g})")
+        reason = (f"confident data disagree with the model: the mismatch is {k_max:.0f} noise scales "
+                  f"(coherence >= {coherence_threshold:g}, random error included)")
+    elif n_min < min_averages:
+        reason = (f"too few averages ({n_min:.0f} < {min_averages}) for the coherence to mean much; "
+                  f"fly longer sweeps there")
     else:
-        reason = (f"random error explains the mismatch: epsilon {e_peak:.2f} is within {sigma_factor:g}x the "
-                  f"random-error scale {s_peak:.3f} (coherence down to {coh_min:.2f}); fly better sweeps there")
-    return {"min_rad_s": float(w[lo]), "max_rad_s": float(w[hi - 1]), "peak_rad_s": float(w[peak]),
-            "epsilon": e_peak, "limited_by": "model" if model else "data", "reason": reason,
-            "coherence_min": coh_min, "sigma_ratio": float(ratio) if np.isfinite(ratio) else None}
+        reason = (f"the random error explains the mismatch (at most {k_max:.1f} noise scales, coherence down "
+                  f"to {coh_min:.2f}); fly better sweeps there")
+    return {"min_rad_s": float(w[idx[0]]), "max_rad_s": float(w[idx[-1]]), "peak_rad_s": float(w[peak]),
+            "epsilon": float(eps[peak]), "limited_by": "model" if model else "data", "reason": reason,
+            "coherence_min": coh_min, "mismatch_sigma": k_max if math.isfinite(k_max) else None,
+            "min_averages": n_min if math.isfinite(n_min) else None}
 
 
 # ------------------------------------------------------------------------------------------------ effect families
@@ -316,7 +418,8 @@ def _delay_response(x, w):
 
 
 def _lag1_bounds(x0, ctx):
-    return np.log([0.1 * ctx.w_lo]), np.log([30.0 * ctx.w_hi])
+    # a corner below the confident band is a gain and phase offset there, not an identifiable lag
+    return np.log([0.5 * ctx.w_lo]), np.log([30.0 * ctx.w_hi])
 
 
 def _lag1_grid(ctx, coarse):
@@ -333,7 +436,7 @@ _ZETA_RANGE = (0.02, 2.5)
 
 
 def _lag2_bounds(x0, ctx):
-    return (np.array([math.log(0.2 * ctx.w_lo), _ZETA_RANGE[0]]),
+    return (np.array([math.log(0.5 * ctx.w_lo), _ZETA_RANGE[0]]),
             np.array([math.log(10.0 * ctx.w_hi), _ZETA_RANGE[1]]))
 
 
@@ -367,16 +470,18 @@ _MODE_ZETA = (0.005, 1.0)
 
 
 def _mode_bounds(x0, ctx):
-    return (np.array([math.log(0.5 * ctx.w_lo), _MODE_ZETA[0], math.log(0.2 * ctx.w_lo), _MODE_ZETA[0]]),
-            np.array([math.log(1.5 * ctx.w_hi), _MODE_ZETA[1], math.log(5.0 * ctx.w_hi), _MODE_ZETA[1]]))
+    # the mode (poles) must lie inside the confident band: outside it a pole-zero pair is only a gain or a
+    # phase tilt there, which simpler effects explain
+    return (np.array([math.log(ctx.w_lo), _MODE_ZETA[0], math.log(0.5 * ctx.w_lo), _MODE_ZETA[0]]),
+            np.array([math.log(ctx.w_hi), _MODE_ZETA[1], math.log(2.0 * ctx.w_hi), _MODE_ZETA[1]]))
 
 
 def _mode_grid(ctx, coarse):
     if coarse:
-        wp = np.geomspace(0.8 * ctx.w_lo, 1.2 * ctx.w_hi, 8)
+        wp = np.geomspace(ctx.w_lo, ctx.w_hi, 8)
         axes = (np.log(wp), [0.05, 0.2], np.log([0.7, 0.9, 1.1, 1.4]), [0.05, 0.3])
     else:
-        wp = np.geomspace(0.8 * ctx.w_lo, 1.2 * ctx.w_hi, 18)
+        wp = np.geomspace(ctx.w_lo, ctx.w_hi, 18)
         axes = (np.log(wp), [0.02, 0.05, 0.1, 0.2, 0.4], np.log([0.5, 0.7, 0.8, 0.9, 1.1, 1.25, 1.4, 2.0]),
                 [0.02, 0.07, 0.2, 0.5])
     grid = _product(*axes)
@@ -553,213 +658,251 @@ def _coefficient_fit(model: LinearModel, data: _FitData) -> LinearModel | None:
     return LinearModel(num, den, air.delay_s, model.effects)
 
 
+# ------------------------------------------------------------------------------------------------ evidence
+
+
+@dataclass
+class _Evidence:
+    """The averaged estimate with the statistics the decisions need."""
+
+    w: np.ndarray
+    p_meas: np.ndarray
+    coherence: np.ndarray
+    n_averages: np.ndarray
+    confident: np.ndarray      # coherence passes the threshold: counts for epsilon (as in the validator)
+    usable: np.ndarray         # confident and enough averages: counts for the diagnosis
+    sigma: np.ndarray          # noise scale of epsilon(w)
+    sigma_factor: float
+
+    def mismatch(self, eps_w) -> np.ndarray:
+        """Normalised mismatch k per frequency (:func:`normalised_mismatch`)."""
+        return normalised_mismatch(eps_w, self.sigma, self.n_averages)
+
+    def fit(self, p_fit) -> "_Fit":
+        """epsilon(w) of a model response against the data, with its sups and statistics."""
+        eps_w = np.asarray(metrics.epsilon_per_frequency(p_fit, self.p_meas), float)
+        eps, worst = _sup(eps_w, self.confident)
+        eps_u, worst_u = _sup(eps_w, self.usable)
+        k = self.mismatch(eps_w)
+        k_max = float(np.max(np.where(self.usable, k, 0.0))) if self.usable.any() else 0.0
+        return _Fit(eps_w, eps, worst, eps_u, worst_u, k_max, self._chi2(p_fit))
+
+    def _chi2(self, p_fit) -> float:
+        """``sum |ln(P_fit / P_meas)|^2 / e^2`` over the usable frequencies (about 2 per frequency when the fit
+        equals the truth: chi-square with 2 n degrees of freedom)."""
+        u = self.usable
+        log_q = _log_ratio(np.asarray(p_fit, complex)[u], self.p_meas[u])
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            terms = np.abs(log_q) ** 2 / (2.0 * self.sigma[u]) ** 2
+        return float(np.sum(np.where(np.isfinite(terms), terms, 1e12)))
+
+
+def _sup(values: np.ndarray, mask: np.ndarray) -> tuple[float, int]:
+    masked = np.where(mask & np.isfinite(values), values, -np.inf)
+    if not np.any(np.isfinite(masked)):
+        return math.nan, -1
+    k = int(np.argmax(masked))
+    return float(values[k]), k
+
+
+@dataclass
+class _Fit:
+    eps_w: np.ndarray
+    eps: float             # sup over confident frequencies (what a replay reports)
+    worst: int
+    eps_u: float           # sup over usable frequencies (what the decisions use)
+    worst_u: int
+    k_max: float           # largest normalised mismatch at a usable frequency
+    chi2: float
+
+
+def _evidence(estimate, sweeps, coherence_threshold, bias_error, sigma_factor) -> _Evidence:
+    w = np.asarray(estimate.w_rad_s, float)
+    p_meas = np.asarray(estimate.response, complex)
+    coherence = np.asarray(estimate.coherence, float)
+    n_avg = _n_averages(estimate)
+    confident = (coherence >= coherence_threshold) & np.isfinite(p_meas) & (np.abs(p_meas) > 0)
+    usable = confident & (n_avg >= minimum_averages(coherence_threshold))
+    sigma = epsilon_noise_scale(effective_random_error(estimate, sweeps, coherence_threshold, bias_error))
+    return _Evidence(w, p_meas, coherence, n_avg, confident, usable, sigma, sigma_factor)
+
+
 # ------------------------------------------------------------------------------------------------ candidates
 
 
 @dataclass
-class _Scored:
-    """A fitted candidate with its epsilon on the averaged data."""
+class FittedCandidate:
+    """A fitted explanation: effects in series with the model (or a refitted model), scored on the data.
+
+    Attributes
+    ----------
+    name : str
+        Effect type, ``"a+b"`` for a pair (sorted names) or ``"parameter_error"``.
+    complexity : int
+        Number of fitted parameters.
+    effects : list of dict
+        Effects to append to the model (empty for ``parameter_error``).
+    model : LinearModel
+        The model with the candidate applied.
+    members : tuple of str
+        The two effect types of a pair (empty otherwise).
+    replacement : bool
+        True for ``parameter_error`` (the model's coefficients changed; nothing to append).
+    """
 
     name: str
     complexity: int
     effects: list[dict]
     model: LinearModel
-    eps: float
-    eps_w: np.ndarray
-    worst_idx: int
     members: tuple[str, ...] = ()
     replacement: bool = False
-    chi2: float = math.nan
+    score: _Fit | None = None
 
 
-def _score(name, complexity, effects, model, est_w, p_meas, confident, members=(), replacement=False):
-    eps_w = metrics.epsilon_per_frequency(model.freqresp(est_w), p_meas)
-    masked = np.where(confident & np.isfinite(eps_w), eps_w, -np.inf)
-    k = int(np.argmax(masked))
-    return _Scored(name, complexity, effects, model, float(eps_w[k]), eps_w, k, tuple(members), replacement)
+def _fit_data(model: LinearModel, ev: _Evidence) -> _FitData | None:
+    if np.count_nonzero(ev.usable) < _MIN_POINTS:
+        return None
+    u = ev.usable
+    wc = ev.w[u]
+    return _FitData(w=wc, p_meas=ev.p_meas[u], p_model=model.freqresp(wc),
+                    sqrt_w=np.sqrt(cifer_weight(ev.coherence[u])), coherence=ev.coherence[u],
+                    ctx=_Context(float(wc.min()), float(wc.max())))
 
 
-def fit_effects(model: LinearModel, w_rad_s, p_meas, coherence, confident, *, pairs: bool | None = None,
-                parameter_error: bool = True) -> list[_Scored]:
-    """Fit every effect family (and optionally pairs and the coefficient refit) to the measured response.
+def _fit_combo_candidate(combo: _Combo, model: LinearModel, data: _FitData) -> FittedCandidate:
+    effects = combo.specs(_fit_combo(combo, data))
+    members = tuple(f.name for f in combo.families)
+    return FittedCandidate(combo.name, combo.complexity, effects, model.with_effects(effects),
+                           members if len(members) > 1 else ())
+
+
+def _fit_parameter_error(model: LinearModel, data: _FitData) -> FittedCandidate | None:
+    refit = _coefficient_fit(model, data)
+    if refit is None:
+        return None
+    air = model.airframe
+    n_free = int(np.count_nonzero(air.num) + np.count_nonzero(air.den[1:]))
+    return FittedCandidate("parameter_error", n_free, [], refit, replacement=True)
+
+
+def fit_effects(model: LinearModel, estimate, coherence_threshold: float = 0.6, *, sweeps: Sequence = (),
+                pairs: bool = False, parameter_error: bool = True,
+                bias_error: float = BIAS_ERROR) -> list[FittedCandidate]:
+    """Fit every effect of the vocabulary (optionally all pairs, and the coefficient refit) to the data.
 
     Parameters
     ----------
     model : LinearModel
         Current model; effects are fitted in series with it.
-    w_rad_s, p_meas, coherence : array_like
-        Frequencies [rad/s], measured complex response and squared coherence.
-    confident : array_like of bool
-        Frequencies the fit uses.
+    estimate : SpectralEstimate
+        Averaged measured response (``w_rad_s``, ``response``, ``coherence``, ``n_averages``).
+    coherence_threshold : float
+        Only usable frequencies (coherence and averages, :func:`minimum_averages`) enter the fit.
+    sweeps : sequence of SpectralEstimate
+        Per-sweep estimates (random error from their scatter).
     pairs : bool
-        Fit all pairs too (``None``: no pairs here; :func:`analyse_channel` decides).
+        Fit every pair of effects too.
     parameter_error : bool
         Refit the model's own coefficients as well.
+    bias_error : float
+        Systematic error floor (scores only).
 
     Returns
     -------
-    list
-        Scored candidates (unsorted, unfiltered).
+    list of FittedCandidate
+        Unranked and unfiltered, each with its ``score`` on the data (empty with fewer than 4 usable points).
     """
-    w = np.asarray(w_rad_s, float)
-    p_meas = np.asarray(p_meas, complex)
-    confident = np.asarray(confident, bool) & np.isfinite(p_meas) & (np.abs(p_meas) > 0)
-    data = _fit_data(model, w, p_meas, coherence, confident)
+    ev = _evidence(estimate, sweeps, coherence_threshold, bias_error, SIGMA_FACTOR)
+    return _fit_all(model, ev, pairs=pairs, parameter_error=parameter_error)
+
+
+def _fit_all(model, ev: _Evidence, *, pairs: bool, parameter_error: bool, singles: bool = True):
+    data = _fit_data(model, ev)
     if data is None:
         return []
-    out = [_score_combo(_Combo((fam,)), model, data, w, p_meas, confident) for fam in FAMILIES.values()]
+    out = [_fit_combo_candidate(_Combo((fam,)), model, data) for fam in FAMILIES.values()] if singles else []
     if pairs:
-        out += [_score_combo(_Combo((FAMILIES[a], FAMILIES[b])), model, data, w, p_meas, confident)
-                for a, b in PAIRS]
+        out += [_fit_combo_candidate(_Combo((FAMILIES[a], FAMILIES[b])), model, data) for a, b in PAIRS]
     if parameter_error:
-        refit = _coefficient_fit(model, data)
+        refit = _fit_parameter_error(model, data)
         if refit is not None:
-            n_free = int(np.count_nonzero(model.airframe.num) + np.count_nonzero(model.airframe.den[1:]))
-            out.append(_score("parameter_error", n_free, [], refit, w, p_meas, confident, replacement=True))
+            out.append(refit)
+    for cand in out:
+        cand.score = ev.fit(cand.model.freqresp(ev.w))
     return out
 
 
-def _fit_data(model, w, p_meas, coherence, confident) -> _FitData | None:
-    if np.count_nonzero(confident) < _MIN_POINTS:
-        return None
-    wc = w[confident]
-    coh = np.asarray(coherence, float)[confident]
-    return _FitData(w=wc, p_meas=p_meas[confident], p_model=model.freqresp(wc), sqrt_w=np.sqrt(cifer_weight(coh)),
-                    coherence=coh, ctx=_Context(float(wc.min()), float(wc.max())))
-
-
-def _score_combo(combo: _Combo, model, data, w, p_meas, confident) -> _Scored:
-    x = _fit_combo(combo, data)
-    effects = combo.specs(x)
-    members = tuple(f.name for f in combo.families)
-    return _score(combo.name, combo.complexity, effects, model.with_effects(effects), w, p_meas, confident,
-                  members if len(members) > 1 else ())
-
-
-# ------------------------------------------------------------------------------------------------ analysis
-
-
-@dataclass
-class _Baseline:
-    w: np.ndarray
-    p_meas: np.ndarray
-    coherence: np.ndarray
-    confident: np.ndarray
-    eps_w: np.ndarray
-    sigma: np.ndarray
-    eps: float
-    worst_idx: int
-    chi2: float = math.nan
-
-
-def _chi2(p_fit, p_meas, sigma, confident) -> float:
-    """Normalised squared mismatch ``sum |ln(P_fit / P_meas)|^2 / e_r^2`` over the confident frequencies
-    (``e_r = 2 sigma``; about 2 per frequency when the fit equals the truth: chi-square with 2 n degrees of
-    freedom)."""
-    log_q = _log_ratio(np.asarray(p_fit, complex)[confident], np.asarray(p_meas, complex)[confident])
-    e_r = 2.0 * np.asarray(sigma, float)[confident]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        terms = np.abs(log_q) ** 2 / e_r ** 2
-    return float(np.sum(np.where(np.isfinite(terms), terms, 0.0)))
-
-
-def _significant(eps_w, sigma, confident, sigma_factor) -> bool:
-    """True when epsilon exceeds ``sigma_factor`` sigma at some confident frequency."""
-    return _max_ratio(eps_w, sigma, confident) > sigma_factor
-
-
-def _max_ratio(eps_w, sigma, confident) -> float:
-    """Largest ``epsilon(w) / sigma(w)`` over the confident frequencies (how many noise scales the worst
-    mismatch is)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = np.where(confident, eps_w / sigma, 0.0)
-    ratio = np.where(np.isnan(ratio), 0.0, ratio)
-    return float(np.max(ratio)) if ratio.size else 0.0
-
-
-def _chi2_improvement(before, after: _Scored, confident) -> bool:
-    """The aggregate test: ``after`` removes at least half of ``before``'s chi-square excess over its expected
-    value (2 per frequency) and more than a fitted noise spike could (``10 + 3 p`` for p extra parameters).
-
-    A noise spike fitted by a many-parameter effect lowers the sup of epsilon but barely the chi-square; a real
-    effect removes most of it.
-    """
-    if not (np.isfinite(before.chi2) and np.isfinite(after.chi2)):
-        return True
-    n = int(np.count_nonzero(confident))
-    extra = after.complexity - getattr(before, "complexity", 0)
+def _chi2_improvement(before: _Fit, after: _Fit, extra_parameters: int, n_usable: int) -> bool:
+    """``after`` removes at least half of ``before``'s chi-square excess over its expectation (2 per frequency)
+    and more than fitting noise with the extra parameters could (``10 + 3 p``)."""
     gain = before.chi2 - after.chi2
-    return gain >= max(0.5 * (before.chi2 - 2.0 * n), 10.0 + 3.0 * max(extra, 1))
+    return gain >= max(0.5 * (before.chi2 - 2.0 * n_usable), 10.0 + 3.0 * max(extra_parameters, 1))
 
 
-def _real_improvement(before: _Scored | _Baseline, after: _Scored, sigma, confident, sigma_factor,
-                      min_relative) -> bool:
-    """True when ``after`` leaves an epsilon clearly below ``before``'s, beyond what the random error explains.
-
-    Always: at least ``min_relative`` of epsilon removed. And either the sup falls by more than
-    IMPROVEMENT_SIGMA_FACTOR sigma (at both worst frequencies), or ``before`` is far outside the random error
-    (ratio > sigma_factor + 1) and ``after`` is within it (ratio <= sigma_factor): the candidate explains it.
-    """
-    e0, e1 = before.eps, after.eps
-    if not e1 <= (1.0 - min_relative) * e0:
+def _real_improvement(ev: _Evidence, before: _Fit, after: _Fit, extra_parameters: int,
+                      min_relative: float) -> bool:
+    """True when ``after`` leaves an epsilon clearly below ``before``'s, beyond what the errors explain."""
+    e0, e1 = before.eps_u, after.eps_u
+    if not (math.isfinite(e0) and math.isfinite(e1)) or e1 > (1.0 - min_relative) * e0:
         return False
-    if not _chi2_improvement(before, after, confident):
+    if not _chi2_improvement(before, after, extra_parameters, int(np.count_nonzero(ev.usable))):
         return False
-    s = max(sigma[before.worst_idx], sigma[after.worst_idx])
+    s = max(ev.sigma[before.worst_u], ev.sigma[after.worst_u])
     if e0 - e1 > IMPROVEMENT_SIGMA_FACTOR * s:
         return True
-    return (_max_ratio(before.eps_w, sigma, confident) > sigma_factor + 1.0
-            and _max_ratio(after.eps_w, sigma, confident) <= sigma_factor)
+    return before.k_max > ev.sigma_factor + 1.0 and after.k_max <= ev.sigma_factor
 
 
-def _select(base: _Baseline, fitted: list[_Scored], sigma_factor: float) -> list[_Scored]:
-    """Keep the candidates with a real improvement; pairs only when clearly better than their best member;
-    order: adequate explanations (simplest first), then the rest by epsilon."""
-    for cand in fitted:
-        cand.chi2 = _chi2(cand.model.freqresp(base.w), base.p_meas, base.sigma, base.confident)
-    singles = {c.name: c for c in fitted if not c.members}
+def _select(ev: _Evidence, base: _Fit, fitted: list[FittedCandidate]) -> list[FittedCandidate]:
+    """Keep the candidates with a real improvement (pairs only when clearly better than their best member);
+    order: adequate explanations, simplest first, then the rest by epsilon."""
+    singles = {c.name: c for c in fitted if not c.members and not c.replacement}
     kept = []
     for cand in fitted:
-        if not _real_improvement(base, cand, base.sigma, base.confident, sigma_factor, MIN_RELATIVE_IMPROVEMENT):
+        if not _real_improvement(ev, base, cand.score, cand.complexity, MIN_RELATIVE_IMPROVEMENT):
             continue
         if cand.members:
-            best = min((singles[m] for m in cand.members if m in singles), key=lambda c: c.eps, default=None)
-            if best is not None and not _real_improvement(best, cand, base.sigma, base.confident, sigma_factor,
+            best = min((singles[m] for m in cand.members if m in singles), key=lambda c: c.score.eps_u,
+                       default=None)
+            if best is not None and not _real_improvement(ev, best.score, cand.score,
+                                                          cand.complexity - best.complexity,
                                                           PAIR_RELATIVE_IMPROVEMENT):
                 continue
         kept.append(cand)
     if not kept:
         return []
-    best_eps = min(c.eps for c in kept)
+    best_eps = min(c.score.eps_u for c in kept)
 
-    def adequate(c: _Scored) -> bool:
-        if not _significant(c.eps_w, base.sigma, base.confident, sigma_factor):
+    def adequate(c: FittedCandidate) -> bool:
+        if c.score.k_max <= ev.sigma_factor:
             return True
-        tolerance = max(IMPROVEMENT_SIGMA_FACTOR * base.sigma[c.worst_idx], MIN_RELATIVE_IMPROVEMENT * best_eps)
-        return c.eps <= best_eps + tolerance
+        tolerance = max(IMPROVEMENT_SIGMA_FACTOR * ev.sigma[c.score.worst_u], MIN_RELATIVE_IMPROVEMENT * best_eps)
+        return c.score.eps_u <= best_eps + tolerance
 
-    return sorted(kept, key=lambda c: (0, c.complexity, c.eps) if adequate(c) else (1, 0, c.eps))
+    ranked = sorted(kept, key=lambda c: (0, c.complexity, c.score.eps_u) if adequate(c) else (1, 0, c.score.eps_u))
+    return ranked[:_MAX_CANDIDATES]
 
 
-def _candidate_dict(c: _Scored, base: _Baseline, model: LinearModel, sweeps: Sequence,
+def _candidate_dict(c: FittedCandidate, ev: _Evidence, base: _Fit, p_model: np.ndarray, sweeps: Sequence,
                     coherence_threshold: float) -> dict:
-    conf = base.confident
-    p_fit = c.model.freqresp(base.w)
-    nu_gap = float(np.max(metrics.chordal_distance(p_fit[conf], base.p_meas[conf])))
+    conf = ev.confident
+    p_fit = c.model.freqresp(ev.w)
+    score = c.score
     out = {
         "effect": c.name,
         "parameters": _parameters(c),
         "effects": [dict(e) for e in c.effects],
-        "epsilon": c.eps,
-        "nu_gap": nu_gap,
+        "epsilon": score.eps,
+        "nu_gap": float(np.max(metrics.chordal_distance(p_fit[conf], ev.p_meas[conf]))),
         "sentence": _sentence(c, base.eps),
-        "improvement": base.eps - c.eps,
+        "improvement": base.eps - score.eps,
         "epsilon_before": base.eps,
         "epsilon_raw": _raw_epsilon(c.model, sweeps, coherence_threshold),
-        "worst_frequency_rad_s": float(base.w[c.worst_idx]),
+        "worst_frequency_rad_s": float(ev.w[score.worst]),
         "complexity": c.complexity,
-        "cost": cifer_cost(p_fit[conf], base.p_meas[conf], base.coherence[conf]),
-        "cost_before": cifer_cost(model.freqresp(base.w)[conf], base.p_meas[conf], base.coherence[conf]),
+        "explains": bool(score.k_max <= ev.sigma_factor),
+        "cost": cifer_cost(p_fit[conf], ev.p_meas[conf], ev.coherence[conf]),
+        "cost_before": cifer_cost(p_model[conf], ev.p_meas[conf], ev.coherence[conf]),
     }
     if c.replacement:
         out["model"] = c.model.to_spec()
@@ -768,29 +911,22 @@ def _candidate_dict(c: _Scored, base: _Baseline, model: LinearModel, sweeps: Seq
     return out
 
 
-def _parameters(c: _Scored) -> dict:
+def _parameters(c: FittedCandidate) -> dict:
     if c.replacement:
         air = c.model.airframe
         return {"numerator": [float(v) for v in air.num], "denominator": [float(v) for v in air.den]}
-    if len(c.effects) == 1:
-        return {k: v for k, v in c.effects[0].items() if k != "type"}
-    merged: dict = {}
-    keys = [k for e in c.effects for k in e if k != "type"]
-    clash = len(keys) != len(set(keys))
-    for e in c.effects:
-        for k, v in e.items():
-            if k != "type":
-                merged[f"{e['type']}.{k}" if clash else k] = v
-    return merged
+    names = [k for e in c.effects for k in e if k != "type"]
+    clash = len(names) != len(set(names))
+    return {(f"{e['type']}.{k}" if clash else k): v for e in c.effects for k, v in e.items() if k != "type"}
 
 
-def _sentence(c: _Scored, before: float) -> str:
+def _sentence(c: FittedCandidate, before: float) -> str:
     if c.replacement:
         return (f"parameter error: refitting the model's coefficients (same structure) brings epsilon from "
-                f"{before:.2f} to {c.eps:.2f}")
+                f"{before:.2f} to {c.score.eps:.2f}")
     what = " and ".join(describe_effect(e) for e in c.effects)
     verb = "adding it" if len(c.effects) == 1 else "adding both"
-    return f"missing: {what}; {verb} brings epsilon from {before:.2f} to {c.eps:.2f}"
+    return f"missing: {what}; {verb} brings epsilon from {before:.2f} to {c.score.eps:.2f}"
 
 
 def _raw_epsilon(model: LinearModel, sweeps: Sequence, coherence_threshold: float) -> float | None:
@@ -806,23 +942,12 @@ def _raw_epsilon(model: LinearModel, sweeps: Sequence, coherence_threshold: floa
     return best
 
 
-def _baseline(model, estimate, sweeps, coherence_threshold) -> _Baseline:
-    w = np.asarray(estimate.w_rad_s, float)
-    p_meas = np.asarray(estimate.response, complex)
-    coherence = np.asarray(estimate.coherence, float)
-    confident = (coherence >= coherence_threshold) & np.isfinite(p_meas) & (np.abs(p_meas) > 0)
-    eps_w = metrics.epsilon_per_frequency(model.freqresp(w), p_meas)
-    confident &= np.isfinite(eps_w)
-    sigma = epsilon_noise_scale(effective_random_error(estimate, sweeps, coherence_threshold))
-    masked = np.where(confident, eps_w, -np.inf)
-    k = int(np.argmax(masked)) if np.any(confident) else -1
-    return _Baseline(w, p_meas, coherence, confident, eps_w, sigma, float(eps_w[k]) if k >= 0 else math.nan, k,
-                     _chi2(model.freqresp(w), p_meas, sigma, confident))
+# ------------------------------------------------------------------------------------------------ analysis
 
 
 def analyse_channel(model: LinearModel, estimate, sweeps: list, coherence_threshold: float, *, fit: bool = True,
                     epsilon_threshold: float = 0.15, sigma_factor: float = SIGMA_FACTOR,
-                    channel: str = "") -> ChannelDiagnosis:
+                    bias_error: float = BIAS_ERROR, channel: str = "") -> ChannelDiagnosis:
     """Where the model fails (model- or data-limited bands) and which effects would explain it.
 
     Parameters
@@ -841,8 +966,10 @@ def analyse_channel(model: LinearModel, estimate, sweeps: list, coherence_thresh
     epsilon_threshold : float
         epsilon(w) above it makes a band.
     sigma_factor : float
-        Multiple of the random-error scale ``sigma = e_r/2`` of epsilon beyond which a mismatch is
-        model-limited (and beyond which the current epsilon needs a diagnosis at all).
+        Normalised mismatch (noise scales, :func:`normalised_mismatch`) beyond which a frequency is
+        model-limited, and beyond which the current model needs a diagnosis at all.
+    bias_error : float
+        Systematic error floor of the estimate, relative (:data:`BIAS_ERROR`).
     channel : str
         Channel name to start the message with (optional).
 
@@ -850,28 +977,34 @@ def analyse_channel(model: LinearModel, estimate, sweeps: list, coherence_thresh
     -------
     ChannelDiagnosis
     """
-    base = _baseline(model, estimate, sweeps, coherence_threshold)
-    flags = frequency_flags(base.eps_w, base.sigma, base.confident, epsilon_threshold, sigma_factor)
-    bands = find_bands(base.w, base.eps_w, base.sigma, base.coherence, flags, coherence_threshold, sigma_factor)
-    result = ChannelDiagnosis(limited_by=_limited_by(base, bands), frequency_flags=flags, bands=bands)
-    if fit and base.worst_idx >= 0 and _significant(base.eps_w, base.sigma, base.confident, sigma_factor):
-        fitted = fit_effects(model, base.w, base.p_meas, base.coherence, base.confident, pairs=False)
-        singles_ok = [c for c in fitted if not c.replacement
-                      and not _significant(c.eps_w, base.sigma, base.confident, sigma_factor)]
-        if not singles_ok:  # no single effect explains the mismatch: try pairs
-            data = _fit_data(model, base.w, base.p_meas, base.coherence, base.confident)
-            fitted += [_score_combo(_Combo((FAMILIES[a], FAMILIES[b])), model, data, base.w, base.p_meas,
-                                    base.confident) for a, b in PAIRS]
-        chosen = _select(base, fitted, sigma_factor)
-        result.candidates = [_candidate_dict(c, base, model, sweeps, coherence_threshold) for c in chosen]
-    result.message = _message(base, result, coherence_threshold, epsilon_threshold, channel)
+    ev = _evidence(estimate, sweeps, coherence_threshold, bias_error, sigma_factor)
+    p_model = model.freqresp(ev.w)
+    base = ev.fit(p_model)
+    mismatch = ev.mismatch(base.eps_w)
+    flags = frequency_flags(base.eps_w, mismatch, ev.confident, ev.usable, epsilon_threshold, sigma_factor)
+    bands = find_bands(ev.w, base.eps_w, mismatch, ev.coherence, ev.n_averages, flags, coherence_threshold,
+                       minimum_averages(coherence_threshold), sigma_factor)
+    result = ChannelDiagnosis(limited_by=_limited_by(ev, base, bands), frequency_flags=flags, bands=bands)
+    if fit and base.worst_u >= 0 and base.k_max > sigma_factor:
+        chosen = _select(ev, base, _diagnose(model, ev))
+        result.candidates = [_candidate_dict(c, ev, base, p_model, sweeps, coherence_threshold) for c in chosen]
+    result.message = _message(ev, base, result, coherence_threshold, epsilon_threshold, channel)
     return result
 
 
-def _limited_by(base: _Baseline, bands: list[dict]) -> str:
-    if base.worst_idx < 0:
+def _diagnose(model: LinearModel, ev: _Evidence) -> list[FittedCandidate]:
+    """Singles and the coefficient refit; pairs too when no single effect leaves a mismatch within the errors."""
+    fitted = _fit_all(model, ev, pairs=False, parameter_error=True)
+    explained = any(c.score.k_max <= ev.sigma_factor for c in fitted if not c.replacement)
+    if fitted and not explained:
+        fitted += _fit_all(model, ev, pairs=True, parameter_error=False, singles=False)
+    return fitted
+
+
+def _limited_by(ev: _Evidence, base: _Fit, bands: list[dict]) -> str:
+    if base.worst < 0:
         return "data"
-    w_worst = base.w[base.worst_idx]
+    w_worst = ev.w[base.worst]
     for band in bands:
         if band["min_rad_s"] <= w_worst <= band["max_rad_s"]:
             return band["limited_by"]
@@ -882,31 +1015,31 @@ def _range(lo: float, hi: float) -> str:
     return f"{lo:.3g} rad/s" if lo == hi else f"{lo:.3g}-{hi:.3g} rad/s"
 
 
-def _message(base: _Baseline, result: ChannelDiagnosis, coherence_threshold: float, epsilon_threshold: float,
-             channel: str) -> str:
+def _message(ev: _Evidence, base: _Fit, result: ChannelDiagnosis, coherence_threshold: float,
+             epsilon_threshold: float, channel: str) -> str:
     prefix = f"{channel}: " if channel else ""
-    if base.worst_idx < 0:
+    if base.worst < 0:
         return (f"{prefix}data-limited: no frequency with coherence >= {coherence_threshold:g}; "
                 f"fly sweeps with more excitation")
-    w_worst = base.w[base.worst_idx]
+    w_worst = ev.w[base.worst]
     band = next((b for b in result.bands if b["min_rad_s"] <= w_worst <= b["max_rad_s"]), None)
+    where = f"epsilon {base.eps:.2f} at {w_worst:.3g} rad/s"
     if band is None:
-        text = (f"{prefix}model fits: epsilon {base.eps:.2f} at {w_worst:.3g} rad/s, below {epsilon_threshold:g} "
-                f"at every confident frequency")
+        text = f"{prefix}model fits: {where}, within {epsilon_threshold:g} at every confident frequency"
     elif band["limited_by"] == "model":
-        text = (f"{prefix}model-limited at {_range(band['min_rad_s'], band['max_rad_s'])}: epsilon {base.eps:.2f} "
-                f"at {w_worst:.3g} rad/s is well outside the random error")
+        text = (f"{prefix}model-limited at {_range(band['min_rad_s'], band['max_rad_s'])}: {where} is well "
+                f"outside the random error")
     else:
-        text = (f"{prefix}data-limited at {_range(band['min_rad_s'], band['max_rad_s'])}: epsilon {base.eps:.2f} "
-                f"at {w_worst:.3g} rad/s is within the random error; fly better sweeps there")
+        text = (f"{prefix}data-limited at {_range(band['min_rad_s'], band['max_rad_s'])}: {where}; "
+                f"{band['reason']}")
     others = [b for b in result.bands if b is not band]
     if others:
         text += "; also " + ", ".join(f"{b['limited_by']}-limited at {_range(b['min_rad_s'], b['max_rad_s'])}"
                                       for b in others)
     if result.candidates:
-        top = result.candidates[0]
-        text += f"; {top['sentence']}"
-    excluded = int(np.count_nonzero(~base.confident))
+        text += ("; " if band is not None else "; the data still resolve a difference: ") + \
+            result.candidates[0]["sentence"]
+    excluded = int(np.count_nonzero(~ev.confident))
     if excluded:
-        text += f" ({excluded} of {base.w.size} frequencies excluded: coherence < {coherence_threshold:g})"
+        text += f" ({excluded} of {ev.w.size} frequencies excluded: coherence < {coherence_threshold:g})"
     return text

@@ -224,6 +224,26 @@ def _kappa_at_infinity(m1, m2):
     return abs(c2 - c1) / norm
 
 
+def _low_frequency_form(model):
+    """(k, m): P(s) ~ k s^-m as s -> 0 (m > 0: poles at the origin; k = 0 for P = 0)."""
+    num, den = _strip(model.num), _strip(model.den)
+    if not np.any(num):
+        return 0.0, 0
+    num_zeros = len(num) - 1 - int(np.flatnonzero(num)[-1])
+    den_zeros = len(den) - 1 - int(np.flatnonzero(den)[-1])
+    return float(num[len(num) - 1 - num_zeros] / den[len(den) - 1 - den_zeros]), den_zeros - num_zeros
+
+
+def _epsilon_at_zero(m1, m2):
+    """lim of epsilon(w) as w -> 0 (defined also when both models have poles or zeros at the origin)."""
+    (k1, r1), (k2, r2) = _low_frequency_form(m1), _low_frequency_form(m2)
+    if k1 == 0.0 and k2 == 0.0:
+        return 0.0
+    if k1 == 0.0 or k2 == 0.0 or r1 != r2:
+        return 1.0
+    return math.inf if k2 == -k1 else abs(k2 - k1) / abs(k2 + k1)
+
+
 def _epsilon_at_infinity(m1, m2):
     """lim sup of epsilon(w) as w -> infinity."""
     (k1, r1), (k2, r2) = _high_frequency_form(m1), _high_frequency_form(m2)
@@ -483,9 +503,8 @@ def _first_huge(fun, w, threshold):
     return math.nan
 
 
-def _sup_with_ends(fun, at_infinity, w):
+def _sup_with_ends(fun, at_zero, at_infinity, w):
     value, where = _refined_sup(fun, w)
-    at_zero = float(fun(np.array([0.0]))[0])
     if not math.isnan(at_zero) and at_zero >= value - _TIE_RTOL * max(1.0, abs(value)):
         value, where = max(at_zero, value), 0.0
     if at_infinity > value + _TIE_RTOL * max(1.0, abs(value)):
@@ -513,7 +532,8 @@ def nugap(m1, m2):
     if not check.satisfied:
         return 1.0, check.frequency_rad_s
     w = _analysis_grid(m1, m2)
-    value, where = _sup_with_ends(lambda x: _kappa_models(m1, m2, x), _kappa_at_infinity(m1, m2), w)
+    fun = lambda x: _kappa_models(m1, m2, x)  # noqa: E731
+    value, where = _sup_with_ends(fun, float(fun(np.array([0.0]))[0]), _kappa_at_infinity(m1, m2), w)
     return min(max(value, 0.0), 1.0), where
 
 
@@ -548,7 +568,7 @@ def epsilon(m1, m2):
     if value >= _HUGE_EPSILON:
         first = _first_huge(fun, w, _HUGE_EPSILON)
         return math.inf, where if math.isnan(first) else first
-    return _sup_with_ends(fun, _epsilon_at_infinity(m1, m2), w)
+    return _sup_with_ends(fun, _epsilon_at_zero(m1, m2), _epsilon_at_infinity(m1, m2), w)
 
 
 # ----------------------------------------------------------------------------------------------------------

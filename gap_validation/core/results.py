@@ -30,13 +30,25 @@ def _list(values: Any) -> list:
     return [_num(v) for v in np.asarray(values, dtype=float).ravel()] if values is not None else []
 
 
-def _mag_phase(response: np.ndarray | None) -> dict:
+def phase_deg(response: np.ndarray, reference: np.ndarray | None = None) -> np.ndarray:
+    """Unwrapped phase [deg]; with ``reference``, on the same branch as the reference's unwrapped phase
+    (phase of the reference plus the unwrapped phase of response/reference), so that curves overlay."""
+    response = np.asarray(response, dtype=complex)
+    if reference is None:
+        return np.degrees(np.unwrap(np.angle(response)))
+    reference = np.asarray(reference, dtype=complex)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        relative = np.unwrap(np.angle(response / reference))
+    return np.degrees(np.unwrap(np.angle(reference)) + relative)
+
+
+def _mag_phase(response: np.ndarray | None, reference: np.ndarray | None = None) -> dict:
     if response is None or len(response) == 0:
         return {"magnitude_db": [], "phase_deg": []}
     response = np.asarray(response, dtype=complex)
     with np.errstate(divide="ignore"):
         mag = 20.0 * np.log10(np.abs(response))
-    return {"magnitude_db": _list(mag), "phase_deg": _list(np.degrees(np.unwrap(np.angle(response))))}
+    return {"magnitude_db": _list(mag), "phase_deg": _list(phase_deg(response, reference))}
 
 
 @dataclass
@@ -107,7 +119,7 @@ class ChannelResult:
             "coherence": _list(self.coherence),
             "kappa": _list(self.kappa),
             "epsilon_per_frequency": _list(self.epsilon_per_frequency),
-            "measured": _mag_phase(self.measured),
+            "measured": _mag_phase(self.measured, self.model),
             "model": _mag_phase(self.model),
             "diagnosis": list(self.diagnosis),
             # extensions

@@ -27,7 +27,7 @@ from gap_validation.ingest import FieldPath
 
 __all__ = [
     "FlightOptions", "Segment", "TopicSeries", "SimulatedFlight", "parse_hidden", "hidden_effects",
-    "truth_models", "plan_topics", "simulate_flight", "log_sweep", "doublet", "SUPPORTED_TYPES",
+    "truth_models", "plan_topics", "simulate_flight", "log_sweep", "doublet", "with_options", "SUPPORTED_TYPES",
 ]
 
 IMU = "sensor_msgs/msg/Imu"
@@ -66,8 +66,10 @@ class FlightOptions:
         Duration of each half of the doublet [s].
     quiet_s : float
         Quiet time (trim inputs, gusts) between manoeuvres [s].
-    band_margin : float
-        The sweep covers ``[min_rad_s / band_margin, max_rad_s * band_margin]`` of the channel's grid.
+    band_low_factor, band_high_factor : float
+        The sweep covers ``[band_low_factor * min_rad_s, band_high_factor * max_rad_s]`` of the channel's
+        grid. Starting an octave below the grid puts the grid's lowest frequencies inside whole analysis
+        windows of the estimator (windows are anchored at the sweep start).
     noise : float
         Multiplies every noise and gust level below (0 gives a noise-free flight).
     gyro_noise_rad_s, surface_noise_rad : float
@@ -76,9 +78,13 @@ class FlightOptions:
         RMS and corner frequency of the gust disturbance added at each output: white noise through a
         second-order low-pass (damping 0.7), so coherence falls at low frequency.
     trim_step_rad : float
-        Size of the pilot's trim adjustments (slow ramps every 10 to 30 s, random sign) [rad].
+        Size of the pilot's re-trims (slow ramps in about half of the quiet gaps, random sign) [rad]. Trim
+        moves the equilibrium, so it is in the surface measurement but not in the model's input.
     trim_offset_rad : float
         Largest constant trim deflection of a surface (the linearisation point; not fed to the model) [rad].
+    dwell_cycles : float
+        Periods at the lowest frequency before each sweep starts rising (flight-test practice: start with
+        long-period cycles); 0 gives a pure exponential sweep.
     gyro_lsb_rad_s, surface_lsb_rad : float
         Sensor resolution: measured rates and surface positions are rounded to multiples of these (a 16-bit
         gyro at +-250 deg/s resolves about 2^-13 rad/s, a 12-bit surface encoder about 2^-12 rad); 0 keeps
@@ -96,7 +102,7 @@ class FlightOptions:
     """
 
     sweeps_per_channel: int = 3
-    sweep_duration_s: float = 60.0
+    sweep_duration_s: float = 120.0
     imu_rate_hz: float = 100.0
     surface_rate_hz: float = 50.0
     sweep_amplitude_rad: float = 0.06
@@ -104,7 +110,8 @@ class FlightOptions:
     doublet_amplitude_rad: float = 0.05
     doublet_half_period_s: float = 0.5
     quiet_s: float = 5.0
-    band_margin: float = 1.3
+    band_low_factor: float = 0.5
+    band_high_factor: float = 1.3
     noise: float = 1.0
     gyro_noise_rad_s: float = 0.004
     surface_noise_rad: float = 0.001
@@ -124,7 +131,8 @@ class FlightOptions:
     def check(self) -> "FlightOptions":
         """Raise :class:`ConfigError` naming the first option out of range; return self."""
         positive = ("sweep_duration_s", "imu_rate_hz", "surface_rate_hz", "doublet_half_period_s",
-                    "gust_bandwidth_rad_s", "sim_rate_hz", "band_margin")
+                    "gust_bandwidth_rad_s", "sim_rate_hz", "band_low_factor",
+                    "band_high_factor")
         for name in positive:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
@@ -139,6 +147,9 @@ class FlightOptions:
         if not isinstance(self.sweeps_per_channel, int) or self.sweeps_per_channel < 1:
             raise ConfigError(f"simulation option sweeps_per_channel: expected an integer >= 1, "
                               f"got {self.sweeps_per_channel!r}")
+        if self.band_low_factor >= self.band_high_factor:
+            raise ConfigError(f"simulation options band_low_factor {self.band_low_factor!r} must be below "
+                              f"band_high_factor {self.band_high_factor!r}")
         if not 0.0 <= self.drop_probability < 0.5:
             raise ConfigError(f"simulation option drop_probability: expected a number in [0, 0.5), "
                               f"got {self.drop_probability!r}")
@@ -436,7 +447,8 @@ def _test_card(config: ValidationConfig, opt: FlightOptions) -> tuple[list[Segme
     t = opt.quiet_s
     for _ in range(opt.sweeps_per_channel):
         for name, ch in config.channels.items():
-            band = (ch.frequencies.min_rad_s / opt.band_margin, ch.frequencies.max_rad_s * opt.band_margin)
+            band = (ch.frequencies.min_rad_s * opt.band_low_factor,
+                    ch.frequencies.max_rad_s * opt.band_high_factor)
             segments.append(Segment(name, "sweep", t, t + opt.sweep_duration_s, band))
             t += opt.sweep_duration_s + opt.quiet_s
             segments.append(Segment(name, "doublet", t, t + 2 * opt.doublet_half_period_s))
@@ -444,17 +456,28 @@ def _test_card(config: ValidationConfig, opt: FlightOptions) -> tuple[list[Segme
     return segments, t
 
 
-def _pilot_trim(t_s: np.ndarray, duration_s: float, opt: FlightOptions, rng: np.random.Generator) -> np.ndarray:
-    """Pilot trim adjustments: ramps of 1-3 s to a new small offset every 10-30 s (a bounded random walk)."""
-    out = np.zeros_like(t_s)
-    level, t = 0.0, float(rng.uniform(2.0, 15.0))
-    while t < duration_s:
+def _pilot_trim(t_s: np.ndarray, segments: list[Segment], duration_s: float, opt: FlightOptions,
+                rng: np.random.Generator) -> np.ndarray:
+    """Trim deflection of one surface [rad]: a constant trim plus the pilot's re-trims between manoeuvres.
+
+    In about half of the quiet gaps between manoeuvres the pilot ramps the trim (over 1-3 s) by
+    ``trim_step_rad`` up or down (a bounded random walk). A re-trim moves the equilibrium the linear model is
+    taken about, so it appears in the surface measurement but not in the model's input (an airframe-only
+    model with a spiral mode would otherwise drift for minutes after every trim change).
+    """
+    out = np.full_like(t_s, float(rng.uniform(-1.0, 1.0)) * opt.trim_offset_rad)
+    edges = [0.0] + [x for seg in segments for x in (seg.start_s, seg.end_s)] + [duration_s]
+    level = 0.0
+    for start, end in zip(edges[0::2], edges[1::2]):
+        ramp = float(rng.uniform(1.0, 3.0))
+        go = rng.random() < 0.5
         target = float(np.clip(level + rng.choice([-1.0, 1.0]) * opt.trim_step_rad,
                                -3 * opt.trim_step_rad, 3 * opt.trim_step_rad))
-        ramp = float(rng.uniform(1.0, 3.0))
-        out += (target - level) * np.clip((t_s - t) / ramp, 0.0, 1.0)
+        if not go or end - start < ramp + 2.0:
+            continue
+        t0 = start + 1.0
+        out += (target - level) * np.clip((t_s - t0) / ramp, 0.0, 1.0)
         level = target
-        t += float(rng.uniform(10.0, 30.0))
     return out
 
 
@@ -515,16 +538,16 @@ def simulate_flight(config: ValidationConfig, hidden: dict[str, list[dict]] | No
     fs_hz = max(opt.sim_rate_hz, 4.0 * max(rates))
     t_s = np.arange(0.0, duration_s + 2.0 / fs_hz, 1.0 / fs_hz)
 
-    inputs, trim0 = {}, {}
+    inputs, trim = {}, {}
     for name in config.channels:
-        inputs[name] = _channel_input(name, t_s, segments, duration_s, opt, rng)
-        trim0[name] = float(rng.uniform(-1.0, 1.0)) * opt.trim_offset_rad
+        inputs[name] = _channel_input(name, t_s, segments, opt)
+        trim[name] = _pilot_trim(t_s, segments, duration_s, opt, rng)
     outputs = {name: np.asarray(truth[name].simulate(t_s, inputs[name]), dtype=float).ravel()
                for name in config.channels}
     gusts = {name: _gust(t_s.size, fs_hz, opt, rng) for name in config.channels}
     measured = {}
     for name, ch in config.channels.items():
-        measured[(name, "input")] = (inputs[name] + trim0[name], opt.surface_noise_rad * opt.noise,
+        measured[(name, "input")] = (inputs[name] + trim[name], opt.surface_noise_rad * opt.noise,
                                      opt.surface_lsb_rad)
         measured[(name, "output")] = (outputs[name] + gusts[name], opt.gyro_noise_rad_s * opt.noise,
                                       opt.gyro_lsb_rad_s)
@@ -557,10 +580,9 @@ def simulate_flight(config: ValidationConfig, hidden: dict[str, list[dict]] | No
                            start_time_s=opt.start_time_s, seed=seed, options=opt)
 
 
-def _channel_input(name: str, t_s: np.ndarray, segments: list[Segment], duration_s: float,
-                   opt: FlightOptions, rng: np.random.Generator) -> np.ndarray:
-    """Surface deflection deviation of one channel [rad]: its sweeps and doublets plus pilot trim inputs."""
-    u = _pilot_trim(t_s, duration_s, opt, rng)
+def _channel_input(name: str, t_s: np.ndarray, segments: list[Segment], opt: FlightOptions) -> np.ndarray:
+    """Surface deflection deviation of one channel from trim [rad]: its sweeps and doublets."""
+    u = np.zeros_like(t_s)
     for seg in segments:
         if seg.channel != name:
             continue

@@ -99,6 +99,19 @@ class OnlineValidator:
             raise ConfigError(f"unknown stream {stream!r} (expected one of {', '.join(STREAMS)})")
         self._versions[channel] += 1
 
+    def add_time_histories(self, channel: str, t_input_s, u, t_output_s, y) -> None:
+        """Feed whole recorded time histories of one channel at once (library use: arrays already in memory).
+
+        Equivalent to feeding both streams interleaved in time order; the streams may have different,
+        irregular sample times.
+        """
+        est = self._estimators.get(channel)
+        if est is None:
+            raise ConfigError(f"no channel {channel!r} in the config")
+        est.add_time_histories(np.asarray(t_input_s, float), np.asarray(u, float),
+                               np.asarray(t_output_s, float), np.asarray(y, float))
+        self._versions[channel] += 1
+
     def count_bad(self, channel: str, stream: str, reason: str, count: int = 1) -> None:
         """Count samples that could not be used (NaN, missing joint, wrong length ...), per reason."""
         if channel in self._bad:

@@ -72,7 +72,8 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         bag = args.bag
         if bag is None:
-            card_s = len(config.channels) * (60.0 + 5.0 + 1.0 + 5.0)
+            d = FlightOptions()
+            card_s = len(config.channels) * (d.sweep_duration_s + 2 * d.quiet_s + 2 * d.doublet_half_period_s)
             sweeps = max(1, round(args.minutes * 60.0 / card_s))
             flight = simulate_flight(config, options=FlightOptions(sweeps_per_channel=sweeps), seed=1)
             bag = write_flight(flight, Path(tmp) / "bench", args.storage)

@@ -29,7 +29,7 @@ import numpy as np
 from gap_validation.core.errors import ConfigError, DataError
 
 if TYPE_CHECKING:  # pragma: no cover
-    from gap_validation.core.config import SignalSpec, ValidationConfig
+    from gap_validation.core.config import ValidationConfig
     from gap_validation.core.validator import OnlineValidator
 
 __all__ = ["FieldError", "FieldPath", "MessageRouter", "Route", "stamp_seconds"]
@@ -305,16 +305,25 @@ class Route:
     spec: Any = None
 
 
-class _Buffer:
-    """Pending samples of one (channel, stream), time-ordered."""
+class _TopicBuffer:
+    """Pending messages of one topic: times and one raw value per route (NaN where extraction failed)."""
 
-    __slots__ = ("t", "v", "last_t", "good")
+    __slots__ = ("t", "rows")
 
     def __init__(self):
         self.t: list[float] = []
-        self.v: list[float] = []
+        self.rows: list = []
+
+
+class _StreamState:
+    """Per (channel, stream): last accepted time, samples pushed, NaNs already counted as bad."""
+
+    __slots__ = ("last_t", "good", "precounted")
+
+    def __init__(self):
         self.last_t = -math.inf
         self.good = 0
+        self.precounted = 0
 
 
 class MessageRouter:
@@ -327,8 +336,7 @@ class MessageRouter:
     validator : OnlineValidator
         Receives ``add_samples(channel, stream, t_s, values)`` batches and ``count_bad`` calls.
     batch : int
-        Samples per (channel, stream) held before pushing (larger batches amortise the estimator's
-        vectorised update).
+        Messages per topic held before pushing (larger batches amortise the estimator's vectorised update).
     max_batch_s : float
         Longest time span [s] samples are held: then every stream is pushed, so input and output reach the
         estimator interleaved (it lets one stream run ahead of the other only by ``max_lag_s``).
@@ -339,6 +347,7 @@ class MessageRouter:
     :attr:`time_offset_s` (replay of several bags whose clocks overlap). Samples that are not finite, lack
     their joint, or do not advance in time are dropped and counted with ``validator.count_bad``. A field the
     *message type* does not have raises :class:`FieldError` (``structural``): every message would fail.
+    Per message only the raw values are queued; scaling and the checks run vectorised when a batch is pushed.
     """
 
     def __init__(self, config: "ValidationConfig", validator: "OnlineValidator", batch: int = 2048,
@@ -347,17 +356,16 @@ class MessageRouter:
         self.validator = validator
         self.batch = max(1, int(batch))
         self.max_batch_s = float(max_batch_s)
-        self._flush_t: float | None = None
         self.time_offset_s = 0.0
         self.routes: dict[str, tuple[Route, ...]] = {
             topic: tuple(Route(channel, stream, FieldPath.parse(spec.field), float(spec.scale), spec)
                          for channel, stream, spec in entries)
             for topic, entries in config.topics().items()
         }
-        self._buffers: dict[tuple[str, str], _Buffer] = {}
-        for routes in self.routes.values():
-            for route in routes:
-                self._buffers.setdefault((route.channel, route.stream), _Buffer())
+        self._pending = {topic: _TopicBuffer() for topic in self.routes}
+        self._flush_order = sorted(self.routes, key=lambda t: not any(r.stream == "trigger" for r in self.routes[t]))
+        self._streams = {(r.channel, r.stream): _StreamState() for routes in self.routes.values() for r in routes}
+        self._flush_t: float | None = None
         self.bad: dict[tuple[str, str], dict[str, int]] = {}
         self.first_error: dict[tuple[str, str], str] = {}
         self.messages: dict[str, int] = {topic: 0 for topic in self.routes}
@@ -389,18 +397,19 @@ class MessageRouter:
         if routes is None:
             return
         stamp = stamp_seconds(msg)
-        t_s = (receive_time_s if stamp is None else stamp) + self.time_offset_s
-        self.messages[topic] += 1
+        values = []
         for route in routes:
             try:
-                value = route.path.extract(msg)
+                values.append(route.path.extract(msg))
             except FieldError as err:
                 if err.structural:
                     raise FieldError(f"topic {topic}: {err}", err.reason, structural=True) from None
-                self.first_error.setdefault((route.channel, route.stream), f"topic {topic}: {err}")
+                key = (route.channel, route.stream)
+                self.first_error.setdefault(key, f"topic {topic}: {err}")
                 self._count_bad(route, err.reason)
-                continue
-            self._push(route, t_s, value * route.scale)
+                self._streams[key].precounted += 1
+                values.append(math.nan)
+        self._queue(topic, receive_time_s if stamp is None else stamp, values)
 
     def on_values(self, topic: str, t_s: float, values: Any) -> None:
         """Queue already extracted raw values (one per route of ``topic``, in :attr:`routes` order).
@@ -408,60 +417,75 @@ class MessageRouter:
         The fast decoders of :mod:`gap_validation.bagio` use this entry; ``t_s`` is the message time (stamp
         or receive time) before :attr:`time_offset_s`, values are before ``scale``.
         """
-        routes = self.routes.get(topic)
-        if routes is None:
-            return
+        if topic in self.routes:
+            self._queue(topic, t_s, values)
+
+    def _queue(self, topic: str, t_s: float, values) -> None:
         t_s += self.time_offset_s
         self.messages[topic] += 1
-        for route, value in zip(routes, values):
-            self._push(route, t_s, value * route.scale)
-
-    def _push(self, route: Route, t_s: float, value: float) -> None:
-        if not math.isfinite(value):
-            self._count_bad(route, "not finite")
-            return
-        buf = self._buffers[(route.channel, route.stream)]
-        if not t_s > buf.last_t:
-            self._count_bad(route, "time not increasing")
-            return
-        buf.last_t = t_s
+        buf = self._pending[topic]
         buf.t.append(t_s)
-        buf.v.append(value)
+        buf.rows.append(values)
         if self._flush_t is None:
             self._flush_t = t_s
         if len(buf.t) >= self.batch or t_s - self._flush_t >= self.max_batch_s:
             self.flush()
             self._flush_t = t_s
 
-    def _count_bad(self, route: Route, reason: str) -> None:
-        counts = self.bad.setdefault((route.channel, route.stream), {})
-        counts[reason] = counts.get(reason, 0) + 1
-        self.validator.count_bad(route.channel, route.stream, reason)
-
-    def _send(self, channel: str, stream: str, buf: _Buffer) -> None:
-        if not buf.t:
+    def _count_bad(self, route: Route, reason: str, count: int = 1) -> None:
+        if count <= 0:
             return
-        t_s = np.asarray(buf.t, dtype=float)
-        values = np.asarray(buf.v, dtype=float)
-        if stream == "trigger":
-            values = values != 0.0
-        buf.good += len(buf.t)
-        buf.t = []
-        buf.v = []
-        self.last_time_s = max(self.last_time_s, float(t_s[-1]))
-        self.validator.add_samples(channel, stream, t_s, values)
+        counts = self.bad.setdefault((route.channel, route.stream), {})
+        counts[reason] = counts.get(reason, 0) + count
+        if count == 1:
+            self.validator.count_bad(route.channel, route.stream, reason)
+        else:
+            self.validator.count_bad(route.channel, route.stream, reason, count)
+
+    def _send_topic(self, topic: str, buf: _TopicBuffer) -> None:
+        t_all = np.asarray(buf.t, dtype=float)
+        raw = np.asarray(buf.rows, dtype=float).reshape(t_all.size, -1)
+        buf.t, buf.rows = [], []
+        for j, route in enumerate(self.routes[topic]):
+            state = self._streams[(route.channel, route.stream)]
+            values = raw[:, j] * route.scale
+            finite = np.isfinite(values) & np.isfinite(t_all)
+            n_bad = int(finite.size - np.count_nonzero(finite))
+            precounted, state.precounted = state.precounted, 0
+            self._count_bad(route, "not finite", n_bad - precounted)
+            t, values = t_all[finite], values[finite]
+            if t.size == 0:
+                continue
+            previous = np.maximum.accumulate(np.concatenate(([state.last_t], t[:-1])))
+            increasing = t > previous
+            self._count_bad(route, "time not increasing", int(t.size - np.count_nonzero(increasing)))
+            t, values = t[increasing], values[increasing]
+            if t.size == 0:
+                continue
+            state.last_t = float(t[-1])
+            state.good += int(t.size)
+            self.last_time_s = max(self.last_time_s, state.last_t)
+            self.validator.add_samples(route.channel, route.stream, t,
+                                       values != 0.0 if route.stream == "trigger" else values)
 
     def flush(self) -> None:
-        """Push every pending batch to the validator."""
-        for (channel, stream), buf in self._buffers.items():
-            self._send(channel, stream, buf)
+        """Push every pending batch to the validator (trigger topics first: a sweep edge must reach the
+        estimator before the samples of the same instant)."""
+        for topic in self._flush_order:
+            buf = self._pending[topic]
+            if buf.t:
+                self._send_topic(topic, buf)
 
     def samples(self, channel: str, stream: str) -> int:
-        """Good samples of ``(channel, stream)`` so far (pushed and pending)."""
-        buf = self._buffers.get((channel, stream))
-        return 0 if buf is None else buf.good + len(buf.t)
+        """Samples of ``(channel, stream)`` pushed so far plus the messages still pending for it."""
+        state = self._streams.get((channel, stream))
+        if state is None:
+            return 0
+        pending = sum(len(self._pending[topic].t) for topic, routes in self.routes.items()
+                      if any((r.channel, r.stream) == (channel, stream) for r in routes))
+        return state.good + pending
 
     def latest_time_s(self) -> float:
-        """Latest sample time [s] queued on any stream (``-inf`` before the first sample)."""
-        pending = [buf.last_t for buf in self._buffers.values()]
+        """Latest sample time [s] queued on any topic (``-inf`` before the first sample)."""
+        pending = [buf.t[-1] for buf in self._pending.values() if buf.t]
         return max([self.last_time_s, *pending])

@@ -1,8 +1,9 @@
 """ROS 2 node ``gap_validator``: live model validation beside the flight stack.
 
 A thin shell (docs/ARCHITECTURE.md, "one data path"): every subscribed message goes to
-:class:`gap_validation.ingest.MessageRouter`, exactly as :mod:`gap_validation.replay` feeds a bag, and the router
-feeds :class:`gap_validation.core.validator.OnlineValidator`. The node owns no estimation or metrics code; it
+:class:`gap_validation.ingest.MessageRouter`, exactly as :mod:`gap_validation.replay` feeds a bag (serialized
+messages through the same fast field decoders and ``MessageRouter.on_values``; others deserialised and
+``MessageRouter.on_message``), and the router feeds :class:`gap_validation.core.validator.OnlineValidator`. The node owns no estimation or metrics code; it
 wires topics, timers, parameters and services to the validator and renders its results as
 ``diagnostic_msgs/msg/DiagnosticArray`` on ``/diagnostics``.
 
@@ -48,7 +49,9 @@ raw_decoding : bool, true
     deserialisation on the first messages of each topic); other types are deserialised (read-only).
 executor : {"events", "single_threaded"}, "events"
     Executor of the console script: rclpy's EventsExecutor where available (the SingleThreadedExecutor
-    when ``use_sim_time`` is set, whose /clock-driven timers the EventsExecutor of Jazzy gets wrong).
+    when ``use_sim_time`` is set, whose /clock-driven timers the EventsExecutor of Jazzy gets wrong). The
+    console script drives either with ``spin_once`` in a loop (``EventsExecutor.spin()`` of rclpy 7.1 runs no
+    timers and ignores SIGINT).
 
 CPU
 ---
@@ -569,7 +572,7 @@ class ValidatorNode(Node):
         path = self._param("state_file")
         if not path:
             return None
-        self.router.flush()
+        self._flush()
         try:
             save_state(self.validator.state_dict(), path,
                        meta={"node": self.get_fully_qualified_name(), "config_file": self.config.source,
@@ -791,8 +794,8 @@ class ValidatorNode(Node):
     def publish_diagnostics(self) -> "DiagnosticArray":
         """Timer callback: flush, compute the cheap results, schedule a diagnosis, publish /diagnostics."""
         now_s = self._now_s()
+        self._flush()
         try:
-            self.router.flush()
             self._update_seen(now_s)
             self._harvest_diagnosis()
             result = self.validator.results(diagnose=False)
@@ -800,10 +803,17 @@ class ValidatorNode(Node):
             self._schedule_diagnosis(result)
             array = self.diagnostic_array(self.statuses(result, now_s))
         except Exception as err:  # noqa: BLE001 - keep publishing next time
-            self.get_logger().error(f"diagnostics failed: {_one_line(err)}")
+            self._log_once(f"diagnostics:{type(err).__name__}", "error", f"diagnostics failed: {_one_line(err)}")
             return None
         self._diag_pub.publish(array)
         return array
+
+    def _flush(self) -> None:
+        """Push the router's pending samples to the validator; a failing batch is dropped and logged."""
+        try:
+            self.router.flush()
+        except Exception as err:  # noqa: BLE001 - the estimator refused a batch: keep going without it
+            self._log_once(f"flush:{type(err).__name__}", "error", f"samples dropped: {_one_line(err)}")
 
     # ---------------------------------------------------------------- full diagnosis (worker thread)
     def _results_key(self, result: ValidationResult) -> tuple:
@@ -879,7 +889,7 @@ class ValidatorNode(Node):
             text = f"reload failed (the model of {self.config.source} stays): {_one_line(err)}"
             self.get_logger().error(text)
             return False, text
-        self.router.flush()
+        self._flush()
         try:
             restarted = self.validator.set_config(config)
         except Exception as err:  # noqa: BLE001
@@ -917,7 +927,7 @@ class ValidatorNode(Node):
 
         Runs the full diagnosis synchronously (message callbacks wait meanwhile; the deep queue holds them).
         """
-        self.router.flush()
+        self._flush()
         result = self.validator.results(diagnose=True)
         self._take_diagnosis(result)
         out_dir = Path(self._param("results_dir") or ".")
@@ -1057,7 +1067,8 @@ def main(args: list[str] | None = None) -> int:
     executor = _executor(node)
     executor.add_node(node)
     try:
-        executor.spin()
+        while rclpy.ok():  # spin_once loop: EventsExecutor.spin() of Jazzy neither runs timers nor stops
+            executor.spin_once(timeout_sec=0.5)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

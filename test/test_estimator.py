@@ -129,8 +129,8 @@ def direct_spectra(x, y, dt, w_rad_s, window_n, hop_n, start, stop, detrend):
     return out
 
 
-@pytest.mark.parametrize("detrend", [True, False])
-def test_recursive_transform_equals_direct_dft(detrend):
+@pytest.mark.parametrize("detrend, overlap", [(True, 0.5), (False, 0.5), (True, 0.0), (True, 0.75)])
+def test_recursive_transform_equals_direct_dft(detrend, overlap):
     fs = 100.0
     rng = np.random.default_rng(2)
     k = np.arange(9000)
@@ -138,7 +138,7 @@ def test_recursive_transform_equals_direct_dft(detrend):
     x = rng.normal(size=k.size) + 0.3 + 0.01 * t
     y = np.convolve(x, [0.4, 0.3, -0.2, 0.1], "same") + 0.2 * rng.normal(size=k.size) - 1.0
     w = np.logspace(np.log10(0.7), np.log10(55.0), 17)
-    est = FrequencyResponseEstimator(w, detrend=detrend, detect_sweeps=False)
+    est = FrequencyResponseEstimator(w, detrend=detrend, overlap=overlap, detect_sweeps=False)
     est.add_trigger([3.0, 81.23], [True, False])                # a sweep over samples 300 .. 8122
     for a in range(0, k.size, 777):
         est.add_input(t[a:a + 777], x[a:a + 777])
@@ -213,6 +213,16 @@ def _short_flight():
     t = np.arange(0.0, 100.0, 1.0 / FINE_HZ)
     u = -0.02 + log_sweep(t - 25.0, 0.2, 12.0, 60.0, 0.05)
     return measure(t, u, simulate(u), 50.0, 200.0, seed=4, noise_out=0.05, jitter_s=0.001)
+
+
+def test_ros_epoch_timestamps_keep_precision():
+    """Stamps near 1.7e9 s (float64 resolution 0.24 us) give the same estimate as stamps near 0."""
+    ti, ui, to, yo = _short_flight()
+    near_zero = estimate(ti, ui, to, yo).averaged()
+    epoch = 1.7e9
+    far = estimate(ti + epoch, ui, to + epoch, yo).averaged()
+    assert far.start_s - epoch == pytest.approx(near_zero.start_s, abs=0.01)
+    np.testing.assert_allclose(far.response, near_zero.response, rtol=1e-4)
 
 
 # ---------------------------------------------------------------------------------------------- accuracy

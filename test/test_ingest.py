@@ -173,8 +173,8 @@ class FakeValidator:
     def add_samples(self, channel, stream, t_s, values):
         self.batches.append((channel, stream, np.asarray(t_s), np.asarray(values)))
 
-    def count_bad(self, channel, stream, reason):
-        self.bad.append((channel, stream, reason))
+    def count_bad(self, channel, stream, reason, count=1):
+        self.bad.extend([(channel, stream, reason)] * count)
 
     def samples(self, channel, stream):
         rows = [(t, v) for c, s, t, v in self.batches if (c, s) == (channel, stream)]
@@ -283,3 +283,19 @@ def test_on_values_matches_on_message_with_time_offset():
         np.testing.assert_array_equal(va, vb)
         assert ta[0] == 51.0
     assert a.latest_time_s() == 55.0
+
+
+def test_router_pushes_trigger_topics_first():
+    """A sweep edge must reach the estimator before the samples of the same instant."""
+    val = FakeValidator()
+    router = MessageRouter(make_config(trigger=True), val, batch=10_000, max_batch_s=1.0)
+    for k in range(12):
+        t = 0.25 * k
+        stamp = dict(sec=10 + int(t), nanosec=int(round((t % 1) * 1e9)))
+        router.on_message("/imu", imu(**stamp), 0.0)
+        router.on_message("/control_surfaces", joints(["elevator"], [0.0], **stamp), 0.0)
+        router.on_message("/sweep", T["std_msgs/msg/Bool"](data=True), receive_time_s=10.0 + t)
+    router.flush()
+    streams = [b[1] for b in val.batches]
+    pushes = [streams[i:i + 3] for i in range(0, len(streams), 3)]
+    assert len(pushes) >= 3 and all(p[0] == "trigger" for p in pushes)

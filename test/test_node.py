@@ -728,15 +728,19 @@ def test_bad_startup_config_exits_2_with_one_line(tmp_path, case):
     assert expected in lines[0]
 
 
-def test_console_script_runs_publishes_answers_and_checkpoints_on_sigint(ros, typed, tmp_path):
-    """``main`` end to end in a child process (EventsExecutor): /diagnostics, a service, clean SIGINT."""
+@pytest.mark.parametrize("executor", ["events", "single_threaded"])
+def test_console_script_runs_publishes_answers_and_checkpoints_on_sigint(ros, typed, tmp_path, executor):
+    """``main`` end to end in a child process: /diagnostics, parameters, a service, clean SIGINT."""
     import signal
+
+    from rcl_interfaces.srv import SetParameters
 
     state = tmp_path / "state.npz"
     env = dict(os.environ)
     child = subprocess.Popen([sys.executable, "-m", "gap_validation.node", "--ros-args", "-p",
                               f"config_file:={typed}", "-p", "diagnostic_period:=0.1", "-p",
-                              f"state_file:={state}", "-p", f"results_dir:={tmp_path}"],
+                              f"state_file:={state}", "-p", f"results_dir:={tmp_path}", "-p",
+                              f"executor:={executor}"],
                              env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         got = []
@@ -746,6 +750,10 @@ def test_console_script_runs_publishes_answers_and_checkpoints_on_sigint(ros, ty
         save = ros.helper.create_client(Trigger, "/gap_validator/save_results")
         answer = ros.call(save, Trigger.Request())
         assert answer.success and Path(answer.message).is_file()
+        setter = ros.helper.create_client(SetParameters, "/gap_validator/set_parameters")
+        request = SetParameters.Request(parameters=[Parameter("hardware_id", value="uav-3").to_parameter_msg()])
+        assert ros.call(setter, request).results[0].successful
+        ros.wait(lambda: statuses(got[-1])["pitch"][0].hardware_id == "uav-3", timeout_s=30.0)
         child.send_signal(signal.SIGINT)
         out, err = child.communicate(timeout=30)
     finally:

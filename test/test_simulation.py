@@ -77,8 +77,10 @@ def test_log_sweep_instantaneous_frequency(w0, ratio, duration):
     fs = 2000.0
     t = np.arange(0.0, duration, 1.0 / fs)
     x = log_sweep(t, duration, w0, w1, taper_s=0.0)
-    sign = np.signbit(x[1:-1])
-    crossings = t[1:-1][np.flatnonzero(sign[1:] != sign[:-1]) + 1]
+    sign = np.signbit(x)
+    i = np.flatnonzero(sign[1:] != sign[:-1])
+    i = i[(i > 0) & (i < x.size - 2)]
+    crossings = t[i] + (t[i + 1] - t[i]) * x[i] / (x[i] - x[i + 1])  # linear interpolation between samples
     mid = 0.5 * (crossings[1:] + crossings[:-1])
     w_measured = math.pi / np.diff(crossings)
     w_expected = w0 * ratio ** (mid / duration)

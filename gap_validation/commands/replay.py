@@ -11,8 +11,12 @@ import importlib.util
 import sys
 import time
 
-from gap_validation.config import load_config
-from gap_validation.core.errors import ConfigError
+from pathlib import Path
+
+from gap_validation.config import dump_config, load_config
+from gap_validation.core.errors import ConfigError, DataError
+from gap_validation.history import (append_history, default_history_path, format_trend, load_history,
+                                    model_hash, previous_epsilon)
 from gap_validation.render import format_table, write_json
 from gap_validation.replay import replay
 
@@ -24,6 +28,12 @@ def register(sub) -> None:
     p.add_argument("--config", required=True, metavar="CFG", help="validation config (YAML)")
     p.add_argument("--json", metavar="OUT", help="write the results as JSON")
     p.add_argument("--report", metavar="DIR", help="write the HTML report with figures into DIR")
+    p.add_argument("--apply-diagnosis", metavar="OUT_YAML",
+                   help="write the config with each channel's top diagnosis candidate added (review it, keep it)")
+    p.add_argument("--history", metavar="FILE",
+                   help="validation history to append to (default: the config's 'history' key, else "
+                        "<config stem>.history.jsonl beside the config)")
+    p.add_argument("--no-history", action="store_true", help="do not read or append the validation history")
     p.add_argument("--no-progress", action="store_true", help="no progress bar (default: on a terminal)")
     p.add_argument("--full-decode", action="store_true",
                    help="deserialise every message fully (default: read only the needed fields where possible)")
@@ -82,11 +92,91 @@ def run(args) -> int:
             bar.close()
     for warning in outcome.warnings:
         print(f"gap-validate: warning: {warning}", file=sys.stderr)
-    print(format_table(outcome.result))
+    result = outcome.result
+    history = None if args.no_history else _history_path(args, config)
+    records = _load_history(history) if history is not None else None
+    if records is not None:
+        _set_previous(result, config, records)
+    print(format_table(result))
     if args.json:
-        write_json(outcome.result.to_json_dict(), args.json)
+        write_json(result.to_json_dict(), args.json)
     if write_report is not None:
-        write_report(outcome.result, args.report)
+        write_report(result, args.report)
+    if records is not None and any(ch.sweeps for ch in result.channels.values()):
+        record = append_history(history, result, config, args.bags)
+        for line in _trends(records + [record], result):
+            print(line)
+    if args.apply_diagnosis:
+        _apply_diagnosis(config, result, args.apply_diagnosis, history)
     for error in outcome.errors:
         print(f"gap-validate: error: {error}", file=sys.stderr)
     return 1 if outcome.errors else 0
+
+
+def _history_path(args, config) -> Path:
+    """--history, else the config's ``history`` key (relative to the config file), else beside the config."""
+    if args.history:
+        return Path(args.history)
+    configured = config.raw.get("history")
+    if configured:
+        path = Path(configured)
+        return path if path.is_absolute() else Path(args.config).resolve().parent / path
+    return default_history_path(args.config)
+
+
+def _load_history(path: Path) -> list[dict] | None:
+    """The history records, or None (with a one-line warning) when the file is unreadable: results come first."""
+    try:
+        return load_history(path)
+    except DataError as err:
+        print(f"gap-validate: warning: {err}; the history is neither shown nor appended", file=sys.stderr)
+        return None
+
+
+def _set_previous(result, config, records: list[dict]) -> None:
+    """Show the epsilon of the previous model version next to the new one."""
+    for name, ch in result.channels.items():
+        if ch.epsilon_previous is None and name in config.channels:
+            current = model_hash(config.channels[name].model.to_spec())
+            ch.epsilon_previous = previous_epsilon(records, name, exclude_model_hash=current)
+
+
+def _trends(records: list[dict], result) -> list[str]:
+    """Trend lines for channels validated with more than one model version."""
+    lines = []
+    for name in result.channels:
+        hashes = {r["channels"].get(name, {}).get("model_hash") for r in records if name in r.get("channels", {})}
+        if len(hashes) > 1:
+            lines.append("  " + format_trend(records, name))
+    return lines
+
+
+def _apply_diagnosis(config, result, out_path: str, history: Path | None) -> None:
+    """Write the config with every channel's top candidate added (effects appended, or a refitted model)."""
+    import copy
+
+    raw = copy.deepcopy(config.raw)
+    applied = []
+    for name, ch in result.channels.items():
+        if not ch.diagnosis:
+            continue
+        top = ch.diagnosis[0]
+        model = raw["channels"][name]["model"]
+        if top.get("model"):  # parameter error: the refitted model replaces the old one (effects kept in it)
+            raw["channels"][name]["model"] = copy.deepcopy(top["model"])
+        else:
+            model["effects"] = list(model.get("effects") or []) + [dict(e) for e in top["effects"]]
+        applied.append(f"{name}: {top.get('sentence') or top['effect']}")
+    if history is not None:
+        raw["history"] = str(history.resolve())
+    if not applied:
+        print(f"gap-validate: --apply-diagnosis: no channel has a candidate; {out_path} not written",
+              file=sys.stderr)
+        return
+    from gap_validation.core.config import parse_config
+
+    parse_config(raw, out_path)  # never write a config that would not load
+    dump_config(raw, out_path)
+    print(f"wrote {out_path} (review it, then replay with it):")
+    for line in applied:
+        print(f"  {line}")

@@ -20,7 +20,7 @@ from gap_validation.core.models import LinearModel
 #: Streams a channel has: the surface (input), the rate (output) and the optional sweep trigger.
 STREAMS = ("input", "output", "trigger")
 
-_TOP_KEYS = {"channels", "aircraft", "description"}
+_TOP_KEYS = {"channels", "aircraft", "description", "history"}
 _CHANNEL_KEYS = {"input", "output", "model", "frequencies", "coherence_threshold", "trigger", "estimator"}
 _SIGNAL_KEYS = {"topic", "field", "scale", "type"}
 _GRID_KEYS = {"min_rad_s", "max_rad_s", "count"}
@@ -229,6 +229,8 @@ def parse_config(data: Any, source: str = "<config>") -> ValidationConfig:
     channels_raw = _mapping(top["channels"], source, "channels", None)
     if not channels_raw:
         raise _fail(source, "channels", "empty (the config needs at least one channel)")
+    if "history" in top and top["history"] is not None:
+        _string(top["history"], source, "history")
     channels = {}
     for name, value in channels_raw.items():
         if not isinstance(name, str) or not name.replace("_", "").replace("-", "").isalnum():

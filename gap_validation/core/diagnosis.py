@@ -104,9 +104,10 @@ class ChannelDiagnosis:
     Attributes
     ----------
     limited_by : str
-        ``"model"``, ``"data"`` or ``"none"`` (JSON ``limited_by``): the verdict of the band holding the worst
-        confident frequency (the one that sets epsilon); ``"none"`` when epsilon passes the threshold nowhere;
-        ``"data"`` as well when no frequency has enough coherence.
+        ``"model"``, ``"data"`` or ``"none"`` (JSON ``limited_by``): ``"model"`` when any band is
+        model-limited (the model must change there, whatever better data would show elsewhere), else
+        ``"data"`` when any band is data-limited or no frequency has enough coherence, else ``"none"``
+        (epsilon within the threshold everywhere).
     frequency_flags : list of str
         Per frequency: ``"ok"`` (epsilon within the threshold), ``"model"``, ``"data"`` or ``"excluded"``
         (coherence below its threshold).
@@ -118,8 +119,10 @@ class ChannelDiagnosis:
         JSON ``diagnosis``, best first: ``effect``, ``parameters``, ``effects``, ``epsilon``, ``nu_gap`` plus
         ``sentence``, ``improvement``, ``epsilon_before``, ``epsilon_raw``, ``worst_frequency_rad_s``,
         ``complexity`` (fitted parameters), ``cost`` and ``cost_before`` (CIFER J), ``explains`` (True when
-        the mismatch left is within the errors). ``parameter_error`` has empty ``effects`` and the refitted
-        ``model`` mapping (replace the model's airframe; nothing to append) with a ``note`` saying so.
+        the mismatch left is within the errors), ``epsilon_usable`` and ``epsilon_usable_before`` (sups over
+        the frequencies with enough averages, which the decisions use). ``parameter_error`` has empty
+        ``effects`` and the refitted ``model`` mapping (replace the model's airframe; nothing to append) with a
+        ``note`` saying so.
     message : str
         One plain sentence for the terminal.
     """
@@ -381,7 +384,7 @@ def _band(idx, w_rad_s, eps_w, mismatch, coherence, n_averages, flags, coherence
 
 @dataclass(frozen=True)
 class _Context:
-    """Confident frequency range the fit sees [rad/s]."""
+    """Range of the usable frequencies the fit sees [rad/s]."""
 
     w_lo: float
     w_hi: float
@@ -531,7 +534,7 @@ PAIRS: tuple[tuple[str, str], ...] = tuple(itertools.combinations(sorted(FAMILIE
 
 @dataclass
 class _FitData:
-    """Confident points of the averaged estimate, ready for the CIFER residuals."""
+    """Usable points of the averaged estimate, ready for the CIFER residuals."""
 
     w: np.ndarray
     p_meas: np.ndarray
@@ -894,11 +897,13 @@ def _candidate_dict(c: FittedCandidate, ev: _Evidence, base: _Fit, p_model: np.n
         "effects": [dict(e) for e in c.effects],
         "epsilon": score.eps,
         "nu_gap": float(np.max(metrics.chordal_distance(p_fit[conf], ev.p_meas[conf]))),
-        "sentence": _sentence(c, base.eps),
+        "sentence": _sentence(c, base, ev),
         "improvement": base.eps - score.eps,
         "epsilon_before": base.eps,
         "epsilon_raw": _raw_epsilon(c.model, sweeps, coherence_threshold),
         "worst_frequency_rad_s": float(ev.w[score.worst]),
+        "epsilon_usable": score.eps_u,
+        "epsilon_usable_before": base.eps_u,
         "complexity": c.complexity,
         "explains": bool(score.k_max <= ev.sigma_factor),
         "cost": cifer_cost(p_fit[conf], ev.p_meas[conf], ev.coherence[conf]),
@@ -920,13 +925,19 @@ def _parameters(c: FittedCandidate) -> dict:
     return {(f"{e['type']}.{k}" if clash else k): v for e in c.effects for k, v in e.items() if k != "type"}
 
 
-def _sentence(c: FittedCandidate, before: float) -> str:
+def _sentence(c: FittedCandidate, base: _Fit, ev: _Evidence) -> str:
+    after = c.score
     if c.replacement:
-        return (f"parameter error: refitting the model's coefficients (same structure) brings epsilon from "
-                f"{before:.2f} to {c.score.eps:.2f}")
-    what = " and ".join(describe_effect(e) for e in c.effects)
-    verb = "adding it" if len(c.effects) == 1 else "adding both"
-    return f"missing: {what}; {verb} brings epsilon from {before:.2f} to {c.score.eps:.2f}"
+        text = (f"parameter error: refitting the model's coefficients (same structure) brings epsilon from "
+                f"{base.eps:.2f} to {after.eps:.2f}")
+    else:
+        what = " and ".join(describe_effect(e) for e in c.effects)
+        verb = "adding it" if len(c.effects) == 1 else "adding both"
+        text = f"missing: {what}; {verb} brings epsilon from {base.eps:.2f} to {after.eps:.2f}"
+    if after.worst >= 0 and not ev.usable[after.worst] and after.eps - after.eps_u > max(0.01, 0.25 * after.eps_u):
+        text += (f" ({base.eps_u:.2f} to {after.eps_u:.2f} where the data have enough averages; "
+                 f"{ev.w[after.worst]:.3g} rad/s has too few)")
+    return text
 
 
 def _raw_epsilon(model: LinearModel, sweeps: Sequence, coherence_threshold: float) -> float | None:
@@ -1002,13 +1013,18 @@ def _diagnose(model: LinearModel, ev: _Evidence) -> list[FittedCandidate]:
 
 
 def _limited_by(ev: _Evidence, base: _Fit, bands: list[dict]) -> str:
+    """``model`` when any band is model-limited (the model must change there whatever else the data say),
+    else ``data`` when any band is data-limited or nothing is confident, else ``none``."""
     if base.worst < 0:
         return "data"
-    w_worst = ev.w[base.worst]
-    for band in bands:
-        if band["min_rad_s"] <= w_worst <= band["max_rad_s"]:
-            return band["limited_by"]
-    return "none"
+    verdicts = {band["limited_by"] for band in bands}
+    return "model" if "model" in verdicts else "data" if verdicts else "none"
+
+
+def _lead_band(bands: list[dict]) -> dict | None:
+    """The band the message leads with: the worst model-limited band, else the worst band."""
+    model = [b for b in bands if b["limited_by"] == "model"]
+    return max(model or bands, key=lambda b: b["epsilon"], default=None)
 
 
 def _range(lo: float, hi: float) -> str:
@@ -1021,17 +1037,16 @@ def _message(ev: _Evidence, base: _Fit, result: ChannelDiagnosis, coherence_thre
     if base.worst < 0:
         return (f"{prefix}data-limited: no frequency with coherence >= {coherence_threshold:g}; "
                 f"fly sweeps with more excitation")
-    w_worst = ev.w[base.worst]
-    band = next((b for b in result.bands if b["min_rad_s"] <= w_worst <= b["max_rad_s"]), None)
-    where = f"epsilon {base.eps:.2f} at {w_worst:.3g} rad/s"
+    band = _lead_band(result.bands)
     if band is None:
-        text = f"{prefix}model fits: {where}, within {epsilon_threshold:g} at every confident frequency"
+        text = (f"{prefix}model fits: epsilon {base.eps:.2f} at {ev.w[base.worst]:.3g} rad/s, within "
+                f"{epsilon_threshold:g} at every confident frequency")
     elif band["limited_by"] == "model":
-        text = (f"{prefix}model-limited at {_range(band['min_rad_s'], band['max_rad_s'])}: {where} is well "
-                f"outside the random error")
+        text = (f"{prefix}model-limited at {_range(band['min_rad_s'], band['max_rad_s'])}: epsilon "
+                f"{band['epsilon']:.2f} at {band['peak_rad_s']:.3g} rad/s is well outside the random error")
     else:
-        text = (f"{prefix}data-limited at {_range(band['min_rad_s'], band['max_rad_s'])}: {where}; "
-                f"{band['reason']}")
+        text = (f"{prefix}data-limited at {_range(band['min_rad_s'], band['max_rad_s'])}: epsilon "
+                f"{band['epsilon']:.2f} at {band['peak_rad_s']:.3g} rad/s; {band['reason']}")
     others = [b for b in result.bands if b is not band]
     if others:
         text += "; also " + ", ".join(f"{b['limited_by']}-limited at {_range(b['min_rad_s'], b['max_rad_s'])}"

@@ -4,13 +4,19 @@ them as a rosbag2).
 The "true aircraft" of each channel is the config's model (with its effects) with *hidden* effects in series
 (:meth:`LinearModel.with_effects`), so a replay of the flight measures the truth and the validation sees how far
 the config's model is from it. The flight follows the paper's test card (Section V): frequency sweeps per axis
-(roll, pitch, yaw in turn, several rounds), a doublet after each sweep, pilot trim inputs throughout, gusts
-entering at the output as low-pass filtered (coloured) noise, gyro and surface sensor noise, and topics
-published at their own rates with timestamp jitter, dropped messages and a transport latency (bag time =
-``header.stamp`` + latency).
+(roll, pitch, yaw in turn, several rounds), a doublet after each sweep, pilot re-trims between manoeuvres,
+gusts entering at the output as low-pass filtered (coloured) noise, gyro and surface sensor noise and
+quantisation, and topics published at their own rates with timestamp jitter, dropped messages and a transport
+latency (bag time = ``header.stamp`` + latency).
 
-Sweeps are exponential (log) chirps covering the channel's frequency grid band, so every analysis frequency
-receives the same time per octave; the instantaneous frequency is ``w(t) = w0 (w1/w0)^(t/T)``.
+Sweeps are exponential (log) chirps, ``w(t) = w0 (w1/w0)^(t/T)``, so every octave receives the same time.
+By default a sweep lasts 120 s and runs from half the channel's lowest grid frequency to 1.3 times its highest:
+the estimator's analysis windows are anchored at the sweep start and last up to 20 s, so the grid's lowest
+frequencies need the sweep to pass them well inside the first windows (a sweep that starts *at* the lowest
+grid frequency biases the estimate there, most visibly near the lightly damped yaw zeros of the Ultra Stick).
+
+Everything is seeded (``numpy.random.default_rng(seed)``) and drawn in a fixed order: the same seed gives the
+same flight.
 """
 from __future__ import annotations
 
@@ -20,7 +26,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy import signal
 
-from gap_validation.core.config import ChannelConfig, SignalSpec, ValidationConfig
+from gap_validation.core.config import SignalSpec, ValidationConfig
 from gap_validation.core.effects import validate_effect
 from gap_validation.core.errors import ConfigError
 from gap_validation.ingest import FieldPath

@@ -1,0 +1,356 @@
+"""Diagnosis on synthetic measured responses: where the model fails and which effect is missing.
+
+Measured responses are ``truth x (1 + d)`` with ``d`` complex, each component of standard deviation ``e_r`` (the
+Bendat & Piersol random error of the coherence and averages given to the estimate), averaged over sweeps the way
+the estimator pools them. The truth is the model with a hidden effect in series.
+"""
+import json
+import math
+import time
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from gap_validation.core import diagnosis, metrics
+from gap_validation.core.diagnosis import analyse_channel
+from gap_validation.core.effects import describe_effect, effect_response
+from gap_validation.core.estimator import SpectralEstimate
+from gap_validation.core.models import LinearModel
+
+W = np.geomspace(1.0, 40.0, 40)
+PITCH = LinearModel.from_spec({"numerator": [-133.7, -990.76], "denominator": [1.0, 23.37, 235.93]})
+ROLL = LinearModel.from_spec({"state_space": {
+    "A": [[-0.8726, 0.8968, -16.82, 9.791], [-2.757, -16.09, 3.368, 0.0], [1.708, 0.514, -2.775, 0.0],
+          [0.0, 1.0, 0.05511, -1.507e-08]],
+    "B": [[-4.198e-10, 7.984e-10, 5.302], [78.23, -78.23, -4.972], [-5.752, 5.752, -82.04], [0.0, 0.0, 0.0]],
+    "C": [[0.0, 1.0, 0.0, 0.0]], "input": [1.0, -1.0, 0.0], "output": 0}})
+THRESHOLD = 0.6
+
+HIDDEN = {
+    "time_delay": {"type": "time_delay", "seconds": 0.045},
+    "first_order_lag": {"type": "first_order_lag", "bandwidth_rad_s": 15.0},
+    "second_order_lag": {"type": "second_order_lag", "natural_frequency_rad_s": 25.0, "damping": 0.5},
+    "gain": {"type": "gain", "factor": 1.5},
+    "structural_mode": {"type": "structural_mode", "frequency_rad_s": 22.0, "damping": 0.08,
+                        "zero_frequency_rad_s": 17.0, "zero_damping": 0.05},
+}
+SERVO = [{"type": "first_order_lag", "bandwidth_rad_s": 37.7}, {"type": "time_delay", "seconds": 0.05}]
+
+
+def estimate(response, coherence, n_averages, n_sweeps=1):
+    """A SpectralEstimate whose spectra agree with ``response`` and ``coherence`` (Gxx = 1)."""
+    response = np.asarray(response, complex)
+    coherence = np.broadcast_to(np.asarray(coherence, float), response.shape).copy()
+    n = np.broadcast_to(np.asarray(n_averages), response.shape).astype(np.int64)
+    gxx = np.ones(response.shape)
+    return SpectralEstimate(W.copy(), gxx, np.abs(response) ** 2 / coherence, response * gxx, n, response,
+                            coherence, diagnosis.bendat_piersol_random_error(coherence, n), n_sweeps=n_sweeps)
+
+
+def flight(truth, rng, coherence=0.95, n_per_sweep=20, n_sweeps=3):
+    """(averaged estimate, sweep estimates) of noisy measurements of ``truth`` (complex response on W)."""
+    coherence = np.broadcast_to(np.asarray(coherence, float), W.shape)
+    e_sweep = diagnosis.bendat_piersol_random_error(coherence, n_per_sweep)
+    sweeps = []
+    for _ in range(n_sweeps):
+        d = e_sweep * (rng.standard_normal(W.size) + 1j * rng.standard_normal(W.size))
+        sweeps.append(estimate(truth * (1.0 + d), coherence, n_per_sweep))
+    mean = np.mean([s.response for s in sweeps], axis=0)
+    return estimate(mean, coherence, n_per_sweep * n_sweeps, n_sweeps), sweeps
+
+
+def measure(model, hidden, seed, **kwargs):
+    truth = model.with_effects(hidden).freqresp(W)
+    return flight(truth, np.random.default_rng(seed), **kwargs)
+
+
+def close(found, expected, rel=0.2):
+    return abs(found - expected) <= rel * abs(expected)
+
+
+# ------------------------------------------------------------------------------------------------ statistics
+
+
+def test_cifer_weight_and_cost_pinned():
+    # W_g = [1.58 (1 - exp(-g^2))]^2: 0 at g^2 = 0, 0.9975 at g^2 = 1 (Tischler & Remple)
+    assert diagnosis.cifer_weight([0.0, 1.0]) == pytest.approx([0.0, 0.99750], abs=1e-5)
+    p = np.ones(10, complex)
+    one_db = 10 ** (1 / 20) * p
+    assert diagnosis.cifer_cost(one_db, p, np.ones(10)) == pytest.approx(20 * 0.99750, rel=1e-4)
+    ten_deg = p * np.exp(1j * np.radians(10.0))
+    assert diagnosis.cifer_cost(ten_deg, p, np.ones(10)) == pytest.approx(20 * 0.99750 * 1.745, rel=1e-4)
+
+
+def test_bendat_piersol_random_error():
+    # e_r = sqrt(1 - g^2) / (|g| sqrt(2 n)): coherence 0.8 with 10 averages -> 0.4472/(0.8944 * 4.4721) = 0.1118
+    assert diagnosis.bendat_piersol_random_error(0.8, 10) == pytest.approx(0.11180, rel=1e-4)
+    assert np.isinf(diagnosis.bendat_piersol_random_error(0.0, 10))
+
+
+def test_noise_only_epsilon_is_rayleigh_with_scale_half_the_random_error():
+    rng = np.random.default_rng(0)
+    e_r = 0.04
+    d = e_r * (rng.standard_normal(200_000) + 1j * rng.standard_normal(200_000))
+    eps = metrics.epsilon_per_frequency(np.ones(d.size), 1.0 + d)
+    sigma = diagnosis.epsilon_noise_scale(e_r)
+    assert sigma == pytest.approx(0.02)
+    assert np.mean(eps) == pytest.approx(sigma * math.sqrt(math.pi / 2), rel=0.01)   # Rayleigh mean
+    assert np.mean(eps > 4 * sigma) == pytest.approx(math.exp(-8), rel=0.3)         # tail exp(-k^2/2)
+
+
+@pytest.mark.parametrize("n", [3, 9, 40, 500])
+@pytest.mark.parametrize("ratio", [1.0, 3.0, 6.0])
+def test_normalised_mismatch_matches_the_f_distribution(n, ratio):
+    # H1 error with n averages: T = r^2 (n - 1) / (2 n) ~ F(2, 2n - 2); k = sqrt(-2 ln P)
+    p = stats.f.sf(ratio ** 2 * (n - 1) / (2 * n), 2, 2 * n - 2)
+    k = diagnosis.normalised_mismatch(ratio, 1.0, n)
+    assert k == pytest.approx(math.sqrt(-2 * math.log(p)), rel=1e-6)
+    assert k <= ratio
+    assert diagnosis.normalised_mismatch(ratio, 1.0, np.inf) == pytest.approx(ratio)
+
+
+def test_minimum_averages():
+    # (1 - 0.6)^(n - 1) <= 1e-3  ->  n >= 8.54
+    assert diagnosis.minimum_averages(0.6) == 9
+    assert diagnosis.minimum_averages(0.9) == 4
+    assert diagnosis.minimum_averages(0.3) == 16
+
+
+def test_fit_families_agree_with_the_effects_module():
+    rng = np.random.default_rng(3)
+    ctx = diagnosis._Context(1.0, 40.0)
+    for name, family in diagnosis.FAMILIES.items():
+        lo, hi = family.bounds(family.grid(ctx, True)[0], ctx)
+        for _ in range(5):
+            x = lo + (hi - lo) * rng.uniform(size=lo.size)
+            spec = family.spec(x)
+            assert spec["type"] == name
+            # the spec is rounded to 4 significant digits: compare the factors to 3 %
+            ratio = family.response(x[None, :], W)[0] / effect_response(spec, W)
+            assert np.max(np.abs(ratio - 1.0)) < 0.03, spec
+    assert set(diagnosis.FAMILIES) == {"time_delay", "first_order_lag", "second_order_lag", "gain",
+                                       "structural_mode"}
+    assert ("first_order_lag", "time_delay") in diagnosis.PAIRS and len(diagnosis.PAIRS) == 10
+
+
+# ------------------------------------------------------------------------------------------------ which effect
+
+
+@pytest.mark.parametrize("seed", range(3))
+@pytest.mark.parametrize("name", sorted(HIDDEN))
+def test_hidden_effect_is_named_with_its_parameters(name, seed):
+    model = ROLL if seed == 2 else PITCH
+    est, sweeps = measure(model, [HIDDEN[name]], seed)
+    found = analyse_channel(model, est, sweeps, THRESHOLD)
+    assert found.limited_by == "model"
+    top = found.candidates[0]
+    assert top["effect"] == name
+    assert [e["type"] for e in top["effects"]] == [name]
+    for key, value in HIDDEN[name].items():
+        if key != "type":
+            assert close(top["parameters"][key], value, 0.5 if "damping" in key else 0.2), (key, top)
+    assert top["epsilon"] <= top["epsilon_before"] / 2
+    # the effects list is appended as-is and gives the reported epsilon and nu-gap
+    fixed = model.with_effects(top["effects"]).freqresp(W)
+    assert np.max(metrics.epsilon_per_frequency(fixed, est.response)) == pytest.approx(top["epsilon"])
+    assert np.max(metrics.chordal_distance(fixed, est.response)) == pytest.approx(top["nu_gap"])
+    assert top["sentence"] == (f"missing: {describe_effect(top['effects'][0])}; adding it brings epsilon from "
+                               f"{top['epsilon_before']:.2f} to {top['epsilon']:.2f}")
+    json.dumps(found.candidates, allow_nan=False)
+
+
+def test_delay_sentence_reads_like_the_issue():
+    est, sweeps = measure(PITCH, [HIDDEN["time_delay"]], 7)
+    top = analyse_channel(PITCH, est, sweeps, THRESHOLD).candidates[0]
+    assert top["parameters"]["seconds"] == pytest.approx(0.045, rel=0.05)
+    assert top["sentence"].startswith("missing: time delay of 45 ms; adding it brings epsilon from ")
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_servo_lag_and_delay_give_the_pair(seed):
+    est, sweeps = measure(PITCH, SERVO, seed)
+    found = analyse_channel(PITCH, est, sweeps, THRESHOLD)
+    top = found.candidates[0]
+    assert top["effect"] == "first_order_lag+time_delay"
+    assert sorted(e["type"] for e in top["effects"]) == ["first_order_lag", "time_delay"]
+    assert close(top["parameters"]["bandwidth_rad_s"], 37.7) and close(top["parameters"]["seconds"], 0.05)
+    assert top["epsilon"] <= top["epsilon_before"] / 2
+    assert top["sentence"].startswith("missing: first-order lag at") and "adding both" in top["sentence"]
+    # the pair is reported because it is clearly better than its best member alone
+    singles = {c["effect"]: c["epsilon"] for c in found.candidates if "+" not in c["effect"]}
+    assert all(top["epsilon"] < 0.75 * singles.get(m, np.inf) for m in ("first_order_lag", "time_delay"))
+
+
+def test_sign_error_is_a_negative_gain():
+    est, sweeps = measure(PITCH, [{"type": "gain", "factor": -1.0}], 1)
+    top = analyse_channel(PITCH, est, sweeps, THRESHOLD).candidates[0]
+    assert top["effect"] == "gain" and top["parameters"]["factor"] == pytest.approx(-1.0, rel=0.05)
+
+
+def test_wrong_coefficients_give_a_parameter_error_with_a_replacement_model():
+    truth = LinearModel.from_tf([-160.0, -990.76], [1.0, 17.0, 340.0])      # short period 20 % faster, less damped
+    est, sweeps = flight(truth.freqresp(W), np.random.default_rng(5))
+    found = analyse_channel(PITCH, est, sweeps, THRESHOLD)
+    top = found.candidates[0]
+    assert top["effect"] == "parameter_error"
+    assert top["effects"] == [] and "replace" in top["note"]
+    refit = LinearModel.from_spec(top["model"])
+    np.testing.assert_allclose(refit.den, truth.den, rtol=0.05)
+    np.testing.assert_allclose(refit.num, truth.num, rtol=0.05)
+    assert top["epsilon"] <= top["epsilon_before"] / 4
+
+
+def test_current_effects_are_kept_and_the_missing_one_is_added():
+    model = PITCH.with_effects([SERVO[0]])
+    est, sweeps = measure(PITCH, SERVO, 2)
+    top = analyse_channel(model, est, sweeps, THRESHOLD).candidates[0]
+    assert top["effect"] == "time_delay" and close(top["parameters"]["seconds"], 0.05)
+
+
+# ------------------------------------------------------------------------------------------------ no false alarms
+
+
+@pytest.mark.parametrize("seed", range(24))
+def test_clean_data_give_no_candidate(seed):
+    rng = np.random.default_rng(100 + seed)
+    model = (PITCH, ROLL)[seed % 2]
+    coherence = rng.uniform(0.65, 0.995, size=W.size) if seed % 3 else rng.uniform(0.7, 0.99)
+    est, sweeps = flight(model.freqresp(W), rng, coherence=coherence, n_per_sweep=int(rng.integers(4, 40)),
+                         n_sweeps=int(rng.integers(1, 5)))
+    found = analyse_channel(model, est, sweeps, THRESHOLD)
+    assert found.candidates == []
+    assert found.limited_by in ("none", "data")
+    assert "model" not in found.frequency_flags
+
+
+def test_small_effect_within_the_random_error_gives_no_candidate():
+    # a 5 ms delay (at most 11 deg at 40 rad/s) under 15 % random error: not resolvable
+    est, sweeps = measure(PITCH, [{"type": "time_delay", "seconds": 0.005}], 4, coherence=0.75, n_per_sweep=6,
+                          n_sweeps=2)
+    assert analyse_channel(PITCH, est, sweeps, THRESHOLD).candidates == []
+
+
+# ------------------------------------------------------------------------------------------------ where it fails
+
+
+def test_hidden_effect_with_good_data_is_model_limited():
+    est, sweeps = measure(PITCH, [HIDDEN["time_delay"]], 11)
+    found = analyse_channel(PITCH, est, sweeps, THRESHOLD)
+    assert found.limited_by == "model"
+    assert len(found.frequency_flags) == W.size
+    band = found.bands[-1]
+    assert band["limited_by"] == "model" and band["max_rad_s"] == pytest.approx(40.0)
+    assert band["epsilon"] > 0.15 and "disagree" in band["reason"]
+    assert all(f == "model" for f, w in zip(found.frequency_flags, W) if w > 15.0)
+    assert found.message.startswith("model-limited at ") and "missing: time delay" in found.message
+
+
+def test_noisy_band_is_data_limited():
+    coherence = np.where(W > 20.0, 0.62, 0.98)      # e_r about 0.18 above 20 rad/s
+    est, sweeps = measure(PITCH, [], 12, coherence=coherence, n_per_sweep=5, n_sweeps=2)
+    found = analyse_channel(PITCH, est, sweeps, THRESHOLD)
+    assert found.bands, "noise this large passes epsilon 0.15 somewhere"
+    assert all(b["limited_by"] == "data" and b["min_rad_s"] > 20.0 for b in found.bands)
+    assert found.limited_by == "data"
+    assert all(f in ("ok", "excluded") for f, w in zip(found.frequency_flags, W) if w <= 20.0)
+    assert found.candidates == []
+    assert found.message.startswith("data-limited at ") and "fly better sweeps" in found.message
+
+
+def test_low_coherence_is_excluded_and_too_few_averages_is_data_limited():
+    coherence = np.where(W < 3.0, 0.3, 0.97)
+    n = np.where((W > 10.0) & (W < 15.0), 4, 60)
+    truth = PITCH.freqresp(W)
+    measured = np.where(n == 4, truth * 3.0, truth)         # garbage where only 4 averages were taken
+    found = analyse_channel(PITCH, estimate(measured, coherence, n), [], THRESHOLD)
+    flags = np.array(found.frequency_flags)
+    assert np.all(flags[W < 3.0] == "excluded")
+    assert np.all(flags[n == 4] == "data")
+    assert np.all(flags[(W >= 3.0) & (n == 60)] == "ok")
+    assert len(found.bands) == 1
+    band = found.bands[0]
+    assert band["limited_by"] == "data" and band["min_averages"] == 4 and "too few averages" in band["reason"]
+    assert found.limited_by == "data" and found.candidates == []
+    # the same mismatch with enough averages is model-limited; fit=False reports where, not why
+    found = analyse_channel(PITCH, estimate(measured, coherence, 60), [], THRESHOLD, fit=False)
+    assert [b["limited_by"] for b in found.bands] == ["model"] and found.limited_by == "model"
+    assert found.candidates == []
+
+
+def test_no_confident_frequency_is_data_limited():
+    est = estimate(PITCH.freqresp(W), 0.2, 20)
+    found = analyse_channel(PITCH, est, [], THRESHOLD)
+    assert found.limited_by == "data"
+    assert set(found.frequency_flags) == {"excluded"}
+    assert found.candidates == [] and "no frequency with coherence >= 0.6" in found.message
+
+
+def test_within_threshold_says_so():
+    est, sweeps = measure(PITCH, [], 13)
+    found = analyse_channel(PITCH, est, sweeps, THRESHOLD, channel="pitch")
+    assert found.limited_by == "none" and found.bands == []
+    assert set(found.frequency_flags) == {"ok"}
+    assert found.message.startswith("pitch: model fits: epsilon ")
+
+
+def test_sweep_scatter_raises_the_random_error():
+    # sweeps that disagree far more than their own coherence says: the scatter, not B&P, sets the error
+    est, sweeps = measure(PITCH, [], 14, coherence=0.99, n_per_sweep=50, n_sweeps=4)
+    rng = np.random.default_rng(0)
+    wild = [estimate(s.response * (1 + 0.2 * rng.standard_normal(W.size)), s.coherence, 50) for s in sweeps]
+    e_bp = diagnosis.effective_random_error(est, [], THRESHOLD)
+    e_sc = diagnosis.effective_random_error(est, wild, THRESHOLD)
+    assert np.median(e_sc / e_bp) > 5
+
+
+# ------------------------------------------------------------------------------------------------ speed
+
+
+def test_full_fit_is_fast():
+    est, sweeps = measure(ROLL, SERVO, 0)
+    start = time.perf_counter()
+    found = analyse_channel(ROLL, est, sweeps, THRESHOLD)
+    elapsed = time.perf_counter() - start
+    assert found.candidates[0]["effect"] == "first_order_lag+time_delay"
+    assert elapsed < 3.0
+
+
+# ------------------------------------------------------------------------------------------------ guards
+
+
+def _fit(eps_u, chi2, k_max=10.0, worst=0):
+    eps_w = np.full(W.size, eps_u)
+    return diagnosis._Fit(eps_w, eps_u, worst, eps_u, worst, k_max, chi2)
+
+
+def _evidence(sigma=0.001):
+    ones = np.ones(W.size, bool)
+    return diagnosis._Evidence(W, np.ones(W.size, complex), np.ones(W.size), np.full(W.size, 50.0), ones, ones,
+                               np.full(W.size, sigma), diagnosis.SIGMA_FACTOR)
+
+
+def test_improvement_must_remove_half_the_excess_chi_square():
+    # 40 usable points: chi-square 80 expected; a candidate fitting one noise spike removes little of a broad
+    # excess (random error under-reported), a real effect removes most of it
+    before = _fit(0.2, 80 + 400)
+    assert not diagnosis._chi2_improvement(before, _fit(0.05, 80 + 300), 4, W.size)
+    assert diagnosis._chi2_improvement(before, _fit(0.05, 80 + 150), 4, W.size)
+    assert not diagnosis._chi2_improvement(_fit(0.2, 100), _fit(0.05, 90), 1, W.size)   # < 10 + 3 p
+    ev = _evidence()
+    assert not diagnosis._real_improvement(ev, before, _fit(0.05, 80 + 300), 4, 0.25)
+    assert diagnosis._real_improvement(ev, before, _fit(0.05, 80 + 150), 4, 0.25)
+
+
+def test_improvement_must_remove_a_quarter_of_epsilon():
+    ev = _evidence(sigma=1e-4)
+    before = _fit(0.20, 5000)
+    assert not diagnosis._real_improvement(ev, before, _fit(0.16, 80), 1, 0.25)       # 20 % lower only
+    assert diagnosis._real_improvement(ev, before, _fit(0.14, 80), 1, 0.25)
+
+
+def test_no_pair_when_a_single_effect_explains_it():
+    est, sweeps = measure(PITCH, [HIDDEN["time_delay"]], 21)
+    found = analyse_channel(PITCH, est, sweeps, THRESHOLD)
+    assert found.candidates[0]["explains"]
+    assert not any("+" in c["effect"] for c in found.candidates)

@@ -1,0 +1,335 @@
+"""Replay (gap_validation.replay and ``gap-validate replay|simulate``): simulate -> bag -> replay round trips."""
+import io
+import json
+import math
+
+import numpy as np
+import pytest
+from scipy import interpolate, signal
+
+from _flights import CONFIG_PATH, SHORT, config_from, make_bag, single_channel, ultrastick, write_config
+from gap_validation.bagio import open_bag
+from gap_validation.cli import main
+from gap_validation.core.errors import DataError
+from gap_validation.core.estimator import FrequencyResponseEstimator
+from gap_validation.core.simulation import FlightOptions, with_options
+from gap_validation.ingest import FieldPath, stamp_seconds
+from gap_validation.replay import replay
+
+#: The full test card (3 sweeps of 120 s per axis, about 20 minutes) with the IMU at 50 Hz like the paper's lab.
+FULL = FlightOptions(imu_rate_hz=50.0)
+#: Pitch-only flights for the many variant tests: short, and pitch is well conditioned.
+PITCH = with_options(SHORT, sweeps_per_channel=2, sweep_duration_s=60.0, quiet_s=8.0)
+
+
+@pytest.fixture(scope="module")
+def bags(tmp_path_factory):
+    root = tmp_path_factory.mktemp("replay")
+    clean = make_bag(root / "clean", seed=0, options=FULL)
+    late = make_bag(root / "late", hidden=["pitch:time_delay:seconds=0.04"], seed=0, options=FULL)
+    return {"root": root, "clean": root / "clean", "late": root / "late", "clean_flight": clean,
+            "late_flight": late}
+
+
+@pytest.fixture(scope="module")
+def clean_outcome(bags):
+    return replay([bags["clean"]], ultrastick())
+
+
+@pytest.fixture(scope="module")
+def pitch_config():
+    return config_from(single_channel("pitch"))
+
+
+@pytest.fixture(scope="module")
+def pitch_bag(tmp_path_factory, pitch_config):
+    path = tmp_path_factory.mktemp("pitch") / "pitch"
+    flight = make_bag(path, config=pitch_config, seed=7, options=PITCH)
+    return path, flight
+
+
+# ------------------------------------------------------------------------------------------- round trips
+def test_clean_flight_validates_every_channel(clean_outcome):
+    assert clean_outcome.ok and not clean_outcome.warnings
+    for name, ch in clean_outcome.result.channels.items():
+        assert ch.sweeps == FULL.sweeps_per_channel, name
+        assert ch.epsilon is not None and ch.epsilon < 0.15, (name, ch.epsilon)
+        assert ch.points_used >= 35, name
+
+
+def test_hidden_pitch_delay_flags_pitch_only(bags):
+    result = replay([bags["late"]], ultrastick()).result
+    eps = {name: ch.epsilon for name, ch in result.channels.items()}
+    assert eps["pitch"] > 0.5
+    assert eps["roll"] < 0.15 and eps["yaw"] < 0.15
+    # 40 ms at the top of the grid: epsilon(w) = tan(w T / 2) = 1.02 at 40 rad/s for a pure delay (eq. 14)
+    assert result.channels["pitch"].worst_frequency_rad_s == pytest.approx(40.0)
+    assert eps["pitch"] == pytest.approx(math.tan(40.0 * 0.04 / 2), abs=0.1)
+
+
+def test_measured_response_matches_truth_within_error_bounds(clean_outcome, bags):
+    """Averaged estimate against the true model: within 3 random errors (Bendat and Piersol) plus 3 %."""
+    truth = bags["clean_flight"].truth
+    for name, ch in clean_outcome.result.channels.items():
+        ok = ch.confident
+        rel = np.abs(ch.measured[ok] / truth[name].freqresp(ch.frequency_rad_s[ok]) - 1.0)
+        bound = 3.0 * ch.random_error[ok] + 0.03
+        assert np.mean(rel <= bound) >= 0.9, (name, rel.max())
+
+
+def _samples(bag, spec):
+    path = FieldPath.parse(spec.field)
+    t, v = [], []
+    with open_bag(bag) as b:
+        for _, msg, bag_time in b.messages([spec.topic]):
+            stamp = stamp_seconds(msg)
+            t.append(bag_time if stamp is None else stamp)
+            v.append(path.extract(msg) * spec.scale)
+    return np.asarray(t), np.asarray(v)
+
+
+def test_replay_agrees_with_scipy_welch_on_the_same_samples(bags, clean_outcome):
+    """Independent batch estimate: the bag's samples, cubic-spline aligned on a 100 Hz grid, cut to the sweeps
+    the replay detected, scipy.signal.csd/welch with the estimator's Hann window length per frequency and
+    50 % overlap, pooled over sweeps (H1 = Gxy/Gxx). Agreement within the replay's random error."""
+    config = ultrastick()
+    channel = config.channels["pitch"]
+    result = clean_outcome.result.channels["pitch"]
+    tx, x = _samples(bags["clean"], channel.input)
+    ty, y = _samples(bags["clean"], channel.output)
+    fs = 100.0
+    w = channel.frequencies.values()
+    window_s = FrequencyResponseEstimator(w).window_s
+    spans = [(s.start_s, s.end_s) for s in result.sweep_results]
+    fx, fy = interpolate.CubicSpline(tx, x), interpolate.CubicSpline(ty, y)
+    h = np.empty(w.size, complex)
+    for i, (wi, win) in enumerate(zip(w, window_s)):
+        nper = int(round(win * fs))
+        # zero-padded FFT length that puts w on bin k (to < 0.1 % of w)
+        k = math.ceil(8 * nper * wi / (2 * math.pi * fs))
+        nfft = int(round(2 * math.pi * fs * k / wi))
+        pxy = pxx = 0.0
+        for start, end in spans:
+            grid = np.arange(math.ceil(start * fs), math.floor(end * fs)) / fs
+            if grid.size < nper:
+                continue
+            xs, ys = fx(grid), fy(grid)
+            n_seg = 1 + (grid.size - nper) // (nper // 2)
+            _, gxy = signal.csd(xs, ys, fs=fs, window="hann", nperseg=nper, noverlap=nper // 2, nfft=nfft,
+                                detrend="constant")
+            _, gxx = signal.welch(xs, fs=fs, window="hann", nperseg=nper, noverlap=nper // 2, nfft=nfft,
+                                  detrend="constant")
+            pxy, pxx = pxy + n_seg * gxy[k], pxx + n_seg * gxx[k]
+        h[i] = pxy / pxx
+    ok = result.confident
+    rel = np.abs(result.measured[ok] / h[ok] - 1.0)
+    assert np.all(rel <= 2.0 * result.random_error[ok] + 0.02), rel.max()
+    assert np.median(rel) < 0.02
+
+
+# ------------------------------------------------------------------------------------------- storages, variants
+def test_mcap_sqlite3_bare_files_and_full_decode_agree(tmp_path, pitch_config, pitch_bag):
+    path, flight = pitch_bag
+    from gap_validation.bagio import write_flight
+
+    reference = replay([path], pitch_config).result.to_json_dict()
+    assert reference["channels"]["pitch"]["epsilon"] < 0.15
+    others = [write_flight(flight, tmp_path / "sql", "sqlite3"), write_flight(flight, tmp_path / "f.db3"),
+              write_flight(flight, tmp_path / "f.mcap")]
+    for bag in others:
+        assert replay([bag], pitch_config).result.to_json_dict()["channels"] == reference["channels"], bag
+    full = replay([path], pitch_config, fast=False)
+    assert full.result.to_json_dict()["channels"] == reference["channels"]
+    fast = replay([path], pitch_config)
+    assert fast.bags[0].fast_topics == ["/control_surfaces", "/imu"] and full.bags[0].fast_topics == []
+
+
+def test_custom_topics_joint_names_and_rates(tmp_path):
+    data = single_channel("pitch")
+    data["channels"]["pitch"]["input"] = {"topic": "/fmu/servo_feedback", "field": "position[elev_servo]"}
+    data["channels"]["pitch"]["output"] = {"topic": "/vn300/imu", "field": "angular_velocity.y"}
+    config = config_from(data)
+    make_bag(tmp_path / "custom", config=config, seed=3, options=PITCH, imu_rate_hz=200.0, surface_rate_hz=25.0)
+    with open_bag(tmp_path / "custom") as bag:
+        topics = bag.topics
+    assert set(topics) == {"/fmu/servo_feedback", "/vn300/imu"}
+    assert 7.0 < topics["/vn300/imu"].count / topics["/fmu/servo_feedback"].count < 9.0
+    outcome = replay([tmp_path / "custom"], config)
+    assert outcome.ok and outcome.result.channels["pitch"].epsilon < 0.15
+
+
+def test_float64_topics_with_scale(tmp_path):
+    data = single_channel("pitch")
+    data["channels"]["pitch"]["input"] = {"topic": "/surfaces/elevator_deg", "field": "data",
+                                          "scale": math.pi / 180.0}
+    config = config_from(data)
+    make_bag(tmp_path / "f64", config=config, seed=4, options=PITCH)
+    with open_bag(tmp_path / "f64") as bag:
+        assert bag.topics["/surfaces/elevator_deg"].msgtype == "std_msgs/msg/Float64"
+        _, msg, _ = next(bag.messages(["/surfaces/elevator_deg"]))
+        assert abs(msg.data) > 0.3  # degrees in the message (trim offset and noise), not radians
+    outcome = replay([tmp_path / "f64"], config)
+    assert outcome.ok and outcome.result.channels["pitch"].epsilon < 0.15
+    wrong = config_from(single_channel("pitch", input={"topic": "/surfaces/elevator_deg", "field": "data"}))
+    assert replay([tmp_path / "f64"], wrong).result.channels["pitch"].epsilon > 0.9  # missing deg->rad scale
+
+
+def test_trigger_topic_defines_the_sweeps(tmp_path):
+    config = config_from(single_channel("pitch", trigger={"topic": "/test_point/active", "field": "data"}))
+    flight = make_bag(tmp_path / "trig", config=config, seed=5, options=PITCH)
+    result = replay([tmp_path / "trig"], config).result.channels["pitch"]
+    assert result.sweeps == PITCH.sweeps_per_channel
+    for measured, true in zip(result.sweep_results, flight.sweeps("pitch")):
+        assert measured.start_s - flight.start_time_s == pytest.approx(true.start_s, abs=0.1)
+        assert measured.end_s - flight.start_time_s == pytest.approx(true.end_s, abs=0.1)
+
+
+def test_several_bags_add_their_sweeps(tmp_path, pitch_config):
+    one = with_options(PITCH, sweeps_per_channel=1)
+    paths = [tmp_path / "a", tmp_path / "b.mcap", tmp_path / "c.db3"]
+    for seed, path in enumerate(paths):
+        make_bag(path, config=pitch_config, seed=10 + seed, options=one)  # all three start at the same epoch
+    single = replay(paths[:1], pitch_config).result.channels["pitch"]
+    outcome = replay(paths, pitch_config)
+    combined = outcome.result.channels["pitch"]
+    assert outcome.ok and single.sweeps == 1 and combined.sweeps == 3
+    assert sorted(b.time_offset_s > 0 for b in outcome.bags) == [False, True, True]  # clocks overlap: shifted
+    assert combined.random_error[combined.confident].mean() < single.random_error[single.confident].mean()
+    assert combined.epsilon < 0.15 and outcome.result.sources == [str(p) for p in paths]
+
+
+# ------------------------------------------------------------------------------------------- bad inputs
+def test_one_unreadable_bag_among_several_keeps_the_rest(tmp_path, pitch_bag, pitch_config):
+    path, _ = pitch_bag
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(b"\x89MCAP0\r\n" + bytes(100))
+    outcome = replay([path, tmp_path / "missing", junk], pitch_config)
+    assert outcome.result.channels["pitch"].sweeps == PITCH.sweeps_per_channel
+    assert len(outcome.errors) == 2
+    assert str(tmp_path / "missing") in outcome.errors[0] and str(junk) in outcome.errors[1]
+    assert all("\n" not in e for e in outcome.errors)
+
+
+def test_only_bad_bags_raise_data_error(tmp_path, pitch_config):
+    with pytest.raises(DataError) as err:
+        replay([tmp_path / "missing"], pitch_config)
+    assert str(tmp_path / "missing") in str(err.value) and "\n" not in str(err.value)
+
+
+def test_missing_topic_warns_and_no_topic_is_an_error(pitch_bag):
+    path, _ = pitch_bag
+    data = single_channel("pitch")
+    data["channels"]["roll"] = dict(ultrastick().raw["channels"]["roll"])
+    data["channels"]["roll"]["output"] = {"topic": "/imu_roll", "field": "angular_velocity.x"}
+    outcome = replay([path], config_from(data))
+    assert any("/imu_roll" in w and "not in the bag" in w for w in outcome.warnings)
+    assert outcome.result.channels["pitch"].sweeps == PITCH.sweeps_per_channel
+    nothing = config_from(single_channel("pitch", input={"topic": "/a", "field": "data"},
+                                         output={"topic": "/b", "field": "data"}))
+    with pytest.raises(DataError) as err:
+        replay([path], nothing)
+    assert "/a" in str(err.value) and "/imu" in str(err.value)
+
+
+@pytest.mark.parametrize("change, needles", [
+    ({"output": {"topic": "/imu", "field": "angular_velocity.w"}}, ["/imu", "angular_velocity.w"]),
+    ({"input": {"topic": "/control_surfaces", "field": "position[flap]"}}, ["flap", "/control_surfaces"]),
+    ({"input": {"topic": "/control_surfaces", "field": "position[elevator]", "type": "sensor_msgs/msg/Imu"}},
+     ["/control_surfaces", "sensor_msgs/msg/JointState", "sensor_msgs/msg/Imu"]),
+    ({"input": {"topic": "/imu", "field": "position[elevator]"}}, ["/imu", "position"]),
+])
+def test_bad_fields_give_one_line_errors(pitch_bag, change, needles):
+    path, _ = pitch_bag
+    outcome = replay([path], config_from(single_channel("pitch", **change)))
+    assert outcome.errors
+    text = outcome.errors[0]
+    assert "\n" not in text and all(n in text for n in needles), text
+
+
+# ------------------------------------------------------------------------------------------- CLI
+def test_cli_replay_table_and_json(tmp_path, pitch_bag, capsys):
+    path, _ = pitch_bag
+    config = write_config(single_channel("pitch"), tmp_path / "pitch.yaml")
+    out = tmp_path / "out.json"
+    assert main(["replay", str(path), "--config", str(config), "--json", str(out)]) == 0
+    captured = capsys.readouterr()
+    assert captured.out.splitlines()[0].split()[:3] == ["channel", "nu-gap", "epsilon"]
+    data = json.loads(out.read_text())
+    pitch = data["channels"]["pitch"]
+    for key in ("nu_gap", "epsilon", "epsilon_raw", "worst_frequency_rad_s", "sweeps", "coherence", "measured"):
+        assert key in pitch
+    assert pitch["sweeps"] == PITCH.sweeps_per_channel and data["sources"] == [str(path)]
+
+
+def test_cli_replay_bad_bag_exit_1_results_kept(tmp_path, pitch_bag, capsys):
+    path, _ = pitch_bag
+    config = write_config(single_channel("pitch"), tmp_path / "pitch.yaml")
+    out = tmp_path / "out.json"
+    status = main(["replay", str(path), str(tmp_path / "nope"), "--config", str(config), "--json", str(out)])
+    assert status == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(tmp_path / "nope") in err[0] and "Traceback" not in err[0]
+    assert json.loads(out.read_text())["channels"]["pitch"]["sweeps"] == PITCH.sweeps_per_channel
+    assert main(["replay", str(tmp_path / "nope"), "--config", str(config)]) == 1
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+def test_cli_bad_config_exit_2(tmp_path, pitch_bag, capsys):
+    path, _ = pitch_bag
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("channels: {pitch: {input: {topic: /a, field: 'a..b'}}}")
+    assert main(["replay", str(path), "--config", str(bad)]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+def test_cli_report_hook(tmp_path, pitch_bag, capsys, monkeypatch):
+    import importlib.util
+
+    from gap_validation.commands import replay as command
+
+    path, _ = pitch_bag
+    config = write_config(single_channel("pitch"), tmp_path / "pitch.yaml")
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "gap_validation.report" else real(name, *a))
+    assert main(["replay", str(path), "--config", str(config), "--report", str(tmp_path / "r")]) == 2
+    assert "report not available" in capsys.readouterr().err
+    monkeypatch.undo()
+    calls = []
+    monkeypatch.setattr(command, "_report_writer", lambda: lambda result, d: calls.append((result, d)))
+    assert main(["replay", str(path), "--config", str(config), "--report", str(tmp_path / "r")]) == 0
+    assert calls and calls[0][1] == str(tmp_path / "r") and "pitch" in calls[0][0].channels
+
+
+def test_progress_bar_draws_on_a_stream():
+    from gap_validation.commands.replay import ProgressBar
+
+    stream = io.StringIO()
+    bar = ProgressBar(stream)
+    bar(50, 100)
+    bar(100, 100)
+    bar.close()
+    text = stream.getvalue()
+    assert text.startswith("\rreplay [") and "100%" in text and "100/100 msgs" in text and text.endswith("\n")
+
+
+def test_cli_simulate_and_errors(tmp_path, capsys):
+    out = tmp_path / "sim"
+    argv = ["simulate", "--config", str(CONFIG_PATH), "--out", str(out), "--sweeps", "1", "--sweep-duration",
+            "20", "--hidden", "pitch:time_delay:seconds=0.04", "--seed", "3"]
+    assert main(argv) == 0
+    assert "pitch: 1 sweeps, hidden: time delay of 40 ms" in capsys.readouterr().out
+    first = next(out.glob("*.mcap")).read_bytes()
+    assert main(argv) == 2 and "exists already" in capsys.readouterr().err
+    assert main(argv + ["--force"]) == 0
+    assert next(out.glob("*.mcap")).read_bytes() == first  # same seed, same bag
+    capsys.readouterr()
+    for bad, part in (("pitch:time_delay:seconds=abc", "seconds=abc"), ("wing:gain:factor=2", "wing"),
+                      ("pitch-time_delay", "CHANNEL:EFFECT")):
+        assert main(["simulate", "--config", str(CONFIG_PATH), "--out", str(tmp_path / "x"),
+                     "--hidden", bad]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and part in err
+    assert main(["simulate", "--config", str(CONFIG_PATH), "--out", str(tmp_path / "y.db3"), "--sweeps", "1",
+                 "--sweep-duration", "10", "--storage", "sqlite3"]) == 0
+    assert (tmp_path / "y.db3").is_file()

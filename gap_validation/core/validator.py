@@ -41,8 +41,7 @@ def _estimator_for(channel: ChannelConfig) -> FrequencyResponseEstimator:
 
 def _same_measurement(a: ChannelConfig, b: ChannelConfig) -> bool:
     """True when spectra gathered for ``a`` stay valid for ``b`` (only the model may differ)."""
-    return (a.input == b.input and a.output == b.output and a.trigger == b.trigger
-            and a.frequencies == b.frequencies and a.estimator == b.estimator)
+    return _measurement_key(a) == _measurement_key(b)
 
 
 class OnlineValidator:
@@ -268,7 +267,11 @@ class OnlineValidator:
 
 
 def _measurement_key(channel: ChannelConfig) -> str:
-    return repr((channel.input, channel.output, channel.trigger, channel.frequencies,
+    """What the gathered spectra depend on: signals (not their declared message type), grid, estimator."""
+    def signal(spec):
+        return None if spec is None else (spec.topic, spec.field, spec.scale)
+
+    return repr((signal(channel.input), signal(channel.output), signal(channel.trigger), channel.frequencies,
                  sorted(channel.estimator.items())))
 
 

@@ -13,9 +13,10 @@ the H1 estimate's error (Goodman; Bendat & Piersol's confidence region of H) is 
 
 ``e`` is the larger of the estimate's Bendat & Piersol error and the scatter between sweeps (where three or
 more sweeps are confident), combined with a small systematic floor :data:`BIAS_ERROR` (window resolution and
-leakage near resonances). A frequency is *confident* when its coherence passes the threshold (it counts for
-epsilon, as in the validator) and *usable* for the diagnosis when it also has enough averages for the coherence
-itself to mean something (:func:`minimum_averages`).
+leakage near resonances). A frequency is *confident* (:func:`confident_points`, the one definition the
+validator uses too) when its coherence passes the threshold and it has enough averages for the coherence itself
+to mean something (:func:`minimum_averages`); only confident frequencies count for epsilon, the nu-gap and the
+fits. A coherent frequency with too few averages is flagged data-limited where epsilon passes the threshold.
 
 Bands where ``epsilon(w)`` passes the threshold are **model-limited** when at a usable frequency of the band
 the mismatch exceeds ``k = SIGMA_FACTOR`` (4: about 1 % false alarms over 40 frequencies), and
@@ -288,6 +289,21 @@ def minimum_averages(coherence_threshold: float, false_alarm: float = COHERENCE_
     c = min(max(float(coherence_threshold), 1e-6), 0.999)
     n = 1.0 + math.log(false_alarm) / math.log(1.0 - c)
     return int(min(max(math.ceil(n), 4), 16))
+
+
+def confident_points(estimate, coherence_threshold: float) -> np.ndarray:
+    """Frequencies whose estimate counts for epsilon, the nu-gap and the diagnosis (the one definition).
+
+    A point is confident when its coherence passes the threshold *and* it has at least
+    :func:`minimum_averages` averages, so that the coherence itself means something (with 6 averages pure
+    noise exceeds a coherence of 0.6 with probability 2.6 %), and its response is finite and nonzero. Points
+    with too few averages are also the ones where a short sweep leaves the windows too few cycles: their
+    estimate is smeared over a wide band (resolution bias).
+    """
+    p_meas = np.asarray(estimate.response, complex)
+    coherence = np.asarray(estimate.coherence, float)
+    return ((coherence >= coherence_threshold) & np.isfinite(p_meas) & (np.abs(p_meas) > 0)
+            & (_n_averages(estimate) >= minimum_averages(coherence_threshold)))
 
 
 def normalised_mismatch(eps_w, sigma, n_averages=np.inf) -> np.ndarray:
@@ -724,8 +740,8 @@ def _evidence(estimate, sweeps, coherence_threshold, bias_error, sigma_factor) -
     p_meas = np.asarray(estimate.response, complex)
     coherence = np.asarray(estimate.coherence, float)
     n_avg = _n_averages(estimate)
-    confident = (coherence >= coherence_threshold) & np.isfinite(p_meas) & (np.abs(p_meas) > 0)
-    usable = confident & (n_avg >= minimum_averages(coherence_threshold))
+    confident = confident_points(estimate, coherence_threshold)
+    usable = confident
     sigma = epsilon_noise_scale(effective_random_error(estimate, sweeps, coherence_threshold, bias_error))
     return _Evidence(w, p_meas, coherence, n_avg, confident, usable, sigma, sigma_factor)
 
@@ -992,7 +1008,9 @@ def analyse_channel(model: LinearModel, estimate, sweeps: list, coherence_thresh
     p_model = model.freqresp(ev.w)
     base = ev.fit(p_model)
     mismatch = ev.mismatch(base.eps_w)
-    flags = frequency_flags(base.eps_w, mismatch, ev.confident, ev.usable, epsilon_threshold, sigma_factor)
+    # coherent points with too few averages do not count for epsilon, but a mismatch there is data-limited
+    coherent = (ev.coherence >= coherence_threshold) & np.isfinite(ev.p_meas) & (np.abs(ev.p_meas) > 0)
+    flags = frequency_flags(base.eps_w, mismatch, coherent, ev.usable, epsilon_threshold, sigma_factor)
     bands = find_bands(ev.w, base.eps_w, mismatch, ev.coherence, ev.n_averages, flags, coherence_threshold,
                        minimum_averages(coherence_threshold), sigma_factor)
     result = ChannelDiagnosis(limited_by=_limited_by(ev, base, bands), frequency_flags=flags, bands=bands)

@@ -17,6 +17,7 @@ import numpy as np
 from gap_validation.core import metrics
 from gap_validation.core.config import STREAMS, ChannelConfig, ValidationConfig
 from gap_validation.core.errors import ConfigError
+from gap_validation.core.diagnosis import confident_points
 from gap_validation.core.estimator import FrequencyResponseEstimator, SpectralEstimate
 from gap_validation.core.margins import margins_from_epsilon
 from gap_validation.core.results import ChannelResult, SweepResult, ValidationResult
@@ -185,7 +186,7 @@ class OnlineValidator:
         w = np.asarray(avg.w_rad_s, dtype=float)
         p_model = channel.model.freqresp(w)
         p_meas = np.asarray(avg.response, dtype=complex)
-        confident = (np.asarray(avg.coherence) >= channel.coherence_threshold) & np.isfinite(p_meas)
+        confident = confident_points(avg, channel.coherence_threshold)
         kappa = metrics.chordal_distance(p_model, p_meas)
         eps_w = metrics.epsilon_per_frequency(p_model, p_meas)
         result.frequency_rad_s, result.coherence = w, np.asarray(avg.coherence, dtype=float)
@@ -212,7 +213,7 @@ class OnlineValidator:
     def _sweep_result(channel: ChannelConfig, sweep: SpectralEstimate, p_model: np.ndarray) -> SweepResult:
         w = np.asarray(sweep.w_rad_s, dtype=float)
         p_meas = np.asarray(sweep.response, dtype=complex)
-        ok = (np.asarray(sweep.coherence) >= channel.coherence_threshold) & np.isfinite(p_meas)
+        ok = confident_points(sweep, channel.coherence_threshold)
         eps, w_eps = _sup(w, metrics.epsilon_per_frequency(p_model, p_meas), ok)
         return SweepResult(start_s=float(getattr(sweep, "start_s", np.nan)),
                            end_s=float(getattr(sweep, "end_s", np.nan)), epsilon=eps,
@@ -220,10 +221,8 @@ class OnlineValidator:
 
     def _apply_diagnosis(self, name: str, channel: ChannelConfig, avg: SpectralEstimate,
                          sweeps: list[SpectralEstimate], result: ChannelResult, fit: bool) -> None:
-        try:
-            from gap_validation.core import diagnosis
-        except ImportError:  # pragma: no cover - diagnosis arrives with its own issue
-            return
+        from gap_validation.core import diagnosis
+
         key = (self._versions[name], repr(channel.model_spec), fit)
         cached = self._diagnosis_cache.get(name)
         if cached is not None and cached[0] == key:

@@ -27,13 +27,13 @@ log = logging.getLogger(__name__)
 STATE_VERSION = 1
 
 
-def _sup(w: np.ndarray, values: np.ndarray, mask: np.ndarray) -> tuple[float | None, float | None]:
-    """(max of ``values`` over ``mask``, frequency where it occurs), or (None, None) when the mask is empty."""
-    mask = mask & np.isfinite(values)
+def _sup(metric, w: np.ndarray, p_model: np.ndarray, p_meas: np.ndarray,
+         mask: np.ndarray) -> tuple[float | None, float | None]:
+    """``metric`` (a sup over frequency points from :mod:`metrics`) over the masked points, or (None, None)."""
     if not np.any(mask):
         return None, None
-    idx = np.flatnonzero(mask)[np.argmax(values[mask])]
-    return float(values[idx]), float(w[idx])
+    value, w_peak = metric(w[mask], p_model[mask], p_meas[mask])
+    return (None, None) if np.isnan(value) else (float(value), float(w_peak))
 
 
 def _estimator_for(channel: ChannelConfig) -> FrequencyResponseEstimator:
@@ -194,8 +194,10 @@ class OnlineValidator:
         result.kappa, result.epsilon_per_frequency = kappa, eps_w
         result.measured, result.model, result.confident = p_meas, p_model, confident
         result.points_excluded = int(w.size - np.count_nonzero(confident))
-        result.nu_gap, result.nu_gap_frequency_rad_s = _sup(w, kappa, confident)
-        result.epsilon, result.worst_frequency_rad_s = _sup(w, eps_w, confident)
+        result.nu_gap, result.nu_gap_frequency_rad_s = _sup(metrics.nugap_frequency_data, w, p_model, p_meas,
+                                                            confident)
+        result.epsilon, result.worst_frequency_rad_s = _sup(metrics.epsilon_frequency_data, w, p_model, p_meas,
+                                                            confident)
         result.margins = margins_from_epsilon(result.epsilon if result.epsilon is not None else float("nan"))
         result.sweep_results = [self._sweep_result(channel, s, p_model) for s in sweeps]
         result.sweep_measured = [np.asarray(s.response, dtype=complex) for s in sweeps]
@@ -214,7 +216,7 @@ class OnlineValidator:
         w = np.asarray(sweep.w_rad_s, dtype=float)
         p_meas = np.asarray(sweep.response, dtype=complex)
         ok = confident_points(sweep, channel.coherence_threshold)
-        eps, w_eps = _sup(w, metrics.epsilon_per_frequency(p_model, p_meas), ok)
+        eps, w_eps = _sup(metrics.epsilon_frequency_data, w, p_model, p_meas, ok)
         return SweepResult(start_s=float(getattr(sweep, "start_s", np.nan)),
                            end_s=float(getattr(sweep, "end_s", np.nan)), epsilon=eps,
                            worst_frequency_rad_s=w_eps, points_used=int(np.count_nonzero(ok)))

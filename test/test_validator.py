@@ -1,0 +1,101 @@
+"""OnlineValidator: the one data path; live model update keeps the spectra; checkpoint state; bad input."""
+import copy
+
+import numpy as np
+import pytest
+
+from gap_validation.core.config import parse_config
+from gap_validation.core.errors import ConfigError
+from gap_validation.core.simulation import FlightOptions, hidden_effects, simulate_flight
+from gap_validation.core.validator import OnlineValidator
+
+from _flights import raw_config, ultrastick
+
+OPTIONS = FlightOptions(sweeps_per_channel=2, sweep_duration_s=40.0, quiet_s=3.0)
+
+
+@pytest.fixture(scope="module")
+def flight():
+    config = ultrastick()
+    return simulate_flight(config, hidden_effects(["pitch:time_delay:seconds=0.04"], config), OPTIONS, seed=11)
+
+
+def fed(config, flight, channels=None):
+    validator = OnlineValidator(config, diagnose=False)
+    for name, ch in config.channels.items():
+        if channels and name not in channels:
+            continue
+        inp, out = flight.topics[ch.input.topic], flight.topics[ch.output.topic]
+        validator.add_time_histories(name, inp.stamp_s, inp.values[ch.input.field] * ch.input.scale,
+                                     out.stamp_s, out.values[ch.output.field] * ch.output.scale)
+    validator.finish()
+    return validator
+
+
+def with_pitch_effects(effects, **channel_changes):
+    data = raw_config()
+    data["channels"]["pitch"]["model"]["effects"] = effects
+    data["channels"]["pitch"].update(channel_changes)
+    return parse_config(data, "fixed.yaml")
+
+
+def test_model_update_recomputes_on_gathered_spectra(flight):
+    validator = fed(ultrastick(), flight)
+    before = validator.results()
+    assert before.channels["pitch"].epsilon > 0.5 and before.channels["pitch"].sweeps == 2
+    restarted = validator.set_config(with_pitch_effects([{"type": "time_delay", "seconds": 0.04}]))
+    assert restarted == []
+    after = validator.results()
+    pitch = after.channels["pitch"]
+    assert pitch.sweeps == 2                                  # nothing flown again
+    assert pitch.epsilon < 0.15 < before.channels["pitch"].epsilon
+    assert pitch.epsilon_previous == before.channels["pitch"].epsilon
+    # the measurement is unchanged: the same estimate, only the model differs
+    np.testing.assert_array_equal(pitch.measured, before.channels["pitch"].measured)
+    assert after.channels["roll"].epsilon == pytest.approx(before.channels["roll"].epsilon, rel=1e-12)
+
+
+def test_changed_frequency_grid_restarts_that_channel_only(flight):
+    validator = fed(ultrastick(), flight)
+    restarted = validator.set_config(with_pitch_effects([], frequencies={"min_rad_s": 2.0, "max_rad_s": 30.0,
+                                                                         "count": 20}))
+    assert restarted == ["pitch"]
+    result = validator.results()
+    assert result.channels["pitch"].sweeps == 0 and result.channels["pitch"].epsilon is None
+    assert result.channels["roll"].sweeps == 2
+
+
+def test_state_round_trip_reproduces_results(flight):
+    config = ultrastick()
+    validator = fed(config, flight)
+    clone = OnlineValidator.from_state(config, copy.deepcopy(validator.state_dict()), diagnose=False)
+    a, b = validator.results().to_json_dict(), clone.results().to_json_dict()
+    assert a["channels"]["pitch"]["epsilon"] == b["channels"]["pitch"]["epsilon"]
+    assert a["channels"]["yaw"]["coherence"] == b["channels"]["yaw"]["coherence"]
+    with pytest.raises(ConfigError, match="version"):
+        OnlineValidator.from_state(config, {"version": 99})
+
+
+def test_results_before_data_and_bad_input():
+    validator = OnlineValidator(ultrastick(), diagnose=False)
+    pitch = validator.results().channels["pitch"]
+    assert pitch.sweeps == 0 and pitch.epsilon is None and pitch.message == "no sweep yet"
+    assert pitch.to_json_dict()["gain_margin_db"] is None
+    validator.count_bad("pitch", "output", "NaN", 3)
+    assert validator.results().channels["pitch"].bad_samples == {"output: NaN": 3}
+    with pytest.raises(ConfigError, match="no channel 'nope'"):
+        validator.add_samples("nope", "input", [0.0], [0.0])
+    with pytest.raises(ConfigError, match="unknown stream"):
+        validator.add_samples("pitch", "surface", [0.0], [0.0])
+    validator.reset()
+    assert validator.results().channels["pitch"].bad_samples == {}
+
+
+def test_excluded_points_are_counted(flight):
+    data = raw_config()
+    data["channels"]["roll"]["coherence_threshold"] = 0.999
+    validator = fed(parse_config(data, "strict.yaml"), flight, channels=["roll"])
+    roll = validator.results().channels["roll"]
+    assert roll.points_excluded + roll.points_used == 40
+    assert roll.points_excluded > 0
+    assert not np.any(roll.confident & (roll.coherence < 0.999))

@@ -139,7 +139,7 @@ def _signal(value: Any, source: str, path: str) -> SignalSpec:
     if not topic.startswith("/"):
         topic = "/" + topic
     spec_field = _string(data["field"], source, f"{path}.field")
-    from gap_validation.ingest import FieldPath  # syntax check only; ingest has no ROS imports
+    from gap_validation.core.fields import FieldPath
 
     try:
         FieldPath.parse(spec_field)

@@ -237,6 +237,9 @@ def _channel_checks(config: ValidationConfig, router: MessageRouter) -> tuple[li
                 errors.append(f"{where}: no usable sample ({reasons})" + (f": {first}" if first else ""))
             else:
                 warnings.append(f"{where}: no samples")
+    if not any(router.samples(name, "input") and router.samples(name, "output") for name in config.channels):
+        errors.append("no channel has both input and output samples in the data: nothing to validate "
+                      "(check the config's topics and fields against the bag)")
     return errors, warnings
 
 

@@ -56,3 +56,13 @@ def test_corrupt_history_does_not_lose_results(tmp_path, capsys):
     assert "history.jsonl:1: corrupt validation history line" in err
     assert json.loads(out_json.read_text())["channels"]["pitch"]["sweeps"] == 3
     assert history.read_text() == "{not json\n"      # left as it was for the user to inspect
+
+
+def test_config_topics_missing_from_the_bag_is_an_error(tmp_path, capsys):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(Path(CONFIG).read_text().replace("/imu", "/imu_missing"))
+    assert main(["replay", BAG, "--config", str(bad), "--no-history", "--no-progress"]) == 1
+    err = capsys.readouterr().err
+    assert "topic /imu_missing (roll.output, pitch.output, yaw.output) is not in the bag" in err
+    assert "no channel has both input and output samples" in err
+    assert "Traceback" not in err

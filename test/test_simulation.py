@@ -3,6 +3,7 @@ import math
 import subprocess
 import sys
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -13,8 +14,8 @@ from scipy import signal
 from _flights import SHORT, config_from, raw_config, single_channel, ultrastick
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.simulation import (
-    FlightOptions, doublet, hidden_effects, log_sweep, parse_hidden, plan_topics, simulate_flight, truth_models,
-    with_options)
+    FlightOptions, band_noise, doublet, hidden_effects, log_sweep, parse_band_noise, parse_hidden, plan_topics,
+    simulate_flight, truth_models, with_options)
 
 CHANNELS = ("roll", "pitch", "yaw")
 
@@ -191,6 +192,139 @@ def test_same_seed_same_flight_other_seed_differs(config):
             np.testing.assert_array_equal(a.topics[topic].values[key], b.topics[topic].values[key])
     assert not np.array_equal(a.topics["/imu"].values["angular_velocity.y"][:100],
                               c.topics["/imu"].values["angular_velocity.y"][:100])
+
+
+# ------------------------------------------------------------------------------------------- band noise
+BAND = with_options(SHORT, sweeps_per_channel=1, band_noise_rad_s=(5.0, 10.0), band_noise_rms_rad_s=0.05,
+                    band_noise_channels=("pitch",))
+
+
+def _rates(fl):
+    return {key: fl.topics["/imu"].values[key] for key in sorted(fl.topics["/imu"].values)}
+
+
+def test_band_noise_is_off_by_default():
+    assert FlightOptions().band_noise_rad_s is None and FlightOptions().band_noise_rms_rad_s == 0.0
+    cfg = ultrastick()
+    plain = simulate_flight(cfg, options=with_options(SHORT, sweeps_per_channel=1), seed=4)
+    # a band with zero rms, or an rms without a band, changes nothing
+    for changes in ({"band_noise_rad_s": (5.0, 10.0)}, {"band_noise_rms_rad_s": 0.05}):
+        other = simulate_flight(cfg, options=with_options(SHORT, sweeps_per_channel=1, **changes), seed=4)
+        for topic in plain.topics:
+            np.testing.assert_array_equal(plain.topics[topic].stamp_s, other.topics[topic].stamp_s)
+            for key, value in plain.topics[topic].values.items():
+                np.testing.assert_array_equal(value, other.topics[topic].values[key])
+
+
+def test_band_noise_is_band_limited_on_the_chosen_channel_only(config):
+    """Same seed with and without band noise: only the pitch rate differs, by noise of the asked RMS whose power
+    lies in the band."""
+    plain = simulate_flight(config, options=replace(BAND, band_noise_rad_s=None), seed=6)
+    noisy = simulate_flight(config, options=BAND, seed=6)
+    np.testing.assert_array_equal(plain.topics["/control_surfaces"].values["position[elevator]"],
+                                  noisy.topics["/control_surfaces"].values["position[elevator]"])
+    np.testing.assert_array_equal(plain.topics["/imu"].stamp_s, noisy.topics["/imu"].stamp_s)
+    for key in ("angular_velocity.x", "angular_velocity.z"):
+        np.testing.assert_array_equal(plain.topics["/imu"].values[key], noisy.topics["/imu"].values[key])
+    added = noisy.topics["/imu"].values["angular_velocity.y"] - plain.topics["/imu"].values["angular_velocity.y"]
+    assert 0.9 * 0.05 < np.std(added) < 1.1 * 0.05
+    f, pxx = signal.welch(added, fs=SHORT.imu_rate_hz, nperseg=2048)
+    w = 2 * math.pi * f
+    inside = np.mean(pxx[(w > 6.0) & (w < 9.0)])
+    assert inside > 300 * np.mean(pxx[(w > 0.5) & (w < 2.0)])
+    assert inside > 300 * np.mean(pxx[(w > 25.0) & (w < 60.0)])
+
+
+def test_band_noise_is_seeded(config):
+    a = simulate_flight(config, options=BAND, seed=6).topics["/imu"].values["angular_velocity.y"]
+    b = simulate_flight(config, options=BAND, seed=6).topics["/imu"].values["angular_velocity.y"]
+    np.testing.assert_array_equal(a, b)
+    rng = [np.random.default_rng(1), np.random.default_rng(1), np.random.default_rng(2)]
+    x, y, z = (band_noise(4000, 100.0, (5.0, 10.0), 0.1, r) for r in rng)
+    np.testing.assert_array_equal(x, y)
+    assert not np.allclose(x, z)
+    assert np.std(x) == pytest.approx(0.1)
+    assert not np.any(band_noise(100, 100.0, (5.0, 10.0), 0.0, np.random.default_rng(1)))
+
+
+def test_band_noise_on_every_channel_by_default(config):
+    plain = simulate_flight(config, options=replace(BAND, band_noise_rad_s=None), seed=6)
+    noisy = simulate_flight(config, options=replace(BAND, band_noise_channels=None), seed=6)
+    for key, value in _rates(plain).items():
+        assert 0.9 * 0.05 < np.std(noisy.topics["/imu"].values[key] - value) < 1.1 * 0.05, key
+
+
+@pytest.mark.parametrize("text, expected", [
+    ("8:14:0.05", ((8.0, 14.0), 0.05, None)),
+    (" 1.2 : 4 : 0.08 : pitch ", ((1.2, 4.0), 0.08, ("pitch",))),
+    ("8:14:0.05:roll,yaw", ((8.0, 14.0), 0.05, ("roll", "yaw"))),
+])
+def test_parse_band_noise(text, expected):
+    assert parse_band_noise(text, CHANNELS) == expected
+
+
+@pytest.mark.parametrize("text, part", [
+    ("8:14", "LOW:HIGH:RMS"),
+    ("8-14-0.05", "LOW:HIGH:RMS"),
+    ("8:14:0.05:pitch:x", "LOW:HIGH:RMS"),
+    ("a:14:0.05", "'a'"),
+    ("8:14:nan", "'nan'"),
+    ("14:8:0.05", "14:8"),
+    ("0:8:0.05", "0:8"),
+    ("8:14:-1", "'-1'"),
+    ("8:14:0.05:wing", "'wing'"),
+    ("8:14:0.05:", "no channel"),
+])
+def test_parse_band_noise_errors_name_the_bad_part(text, part):
+    with pytest.raises(ConfigError) as err:
+        parse_band_noise(text, CHANNELS)
+    message = str(err.value)
+    assert "\n" not in message and part in message and "--band-noise" in message
+
+
+@pytest.mark.parametrize("changes, needle", [
+    ({"band_noise_rad_s": (10.0, 5.0)}, "band_noise_rad_s"),
+    ({"band_noise_rad_s": (5.0, 2000.0)}, "Nyquist"),
+    ({"band_noise_rad_s": (5.0,)}, "band_noise_rad_s"),
+    ({"band_noise_rad_s": (5.0, 10.0), "band_noise_rms_rad_s": -0.1}, "band_noise_rms_rad_s"),
+    ({"band_noise_rad_s": (5.0, 10.0), "band_noise_channels": "pitch"}, "band_noise_channels"),
+])
+def test_band_noise_options_checked(changes, needle):
+    with pytest.raises(ConfigError, match=needle):
+        with_options(SHORT, **changes).check()
+
+
+def test_band_noise_unknown_channel(config):
+    with pytest.raises(ConfigError, match="'wing'"):
+        simulate_flight(config, options=with_options(BAND, band_noise_channels=("wing",)), seed=0)
+
+
+def test_cli_band_noise(tmp_path, capsys):
+    from _flights import CONFIG_PATH
+    from gap_validation.cli import main
+
+    base = ["simulate", "--config", str(CONFIG_PATH), "--sweeps", "1", "--sweep-duration", "10", "--seed", "2"]
+    assert main(base + ["--out", str(tmp_path / "a"), "--band-noise", "5:10:0.05:pitch"]) == 0
+    assert "band noise: 0.05 rad/s rms at 5-10 rad/s on pitch" in capsys.readouterr().out
+    for bad, part in (("5:10", "LOW:HIGH:RMS"), ("5:x:0.05", "'x'"), ("5:10:0.05:wing", "'wing'")):
+        assert main(base + ["--out", str(tmp_path / "b"), "--band-noise", bad]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and part in err and "--band-noise" in err
+    assert not (tmp_path / "b").exists()
+
+
+def test_bundled_example_bag_is_reproduced(tmp_path):
+    """Options added to the simulator leave default flights alone: scripts/make_example_bag rebuilds the bundled
+    bag byte for byte."""
+    from _flights import ROOT
+
+    out = tmp_path / "ultrastick25e_flight"
+    done = subprocess.run([sys.executable, str(ROOT / "scripts" / "make_example_bag"), "--out", str(out)],
+                          capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    bundled = ROOT / "bags" / "ultrastick25e_flight"
+    for name in ("ultrastick25e_flight.mcap", "metadata.yaml"):
+        assert (out / name).read_bytes() == (bundled / name).read_bytes(), name
 
 
 # ------------------------------------------------------------------------------------------- config variants

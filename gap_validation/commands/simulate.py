@@ -3,6 +3,9 @@
 Writes a synthetic sweep flight as a rosbag2: the true aircraft of each channel is the config's model with
 the hidden effects in series; sweeps per axis (roll, pitch, yaw in turn), doublets, pilot trim inputs, gusts,
 sensor noise, message rates with jitter and drops. The same seed gives the same bag.
+``--band-noise LOW:HIGH:RMS[:CHANNEL[,CHANNEL]]`` adds a narrow-band output disturbance (band-pass filtered noise
+between LOW and HIGH rad/s, RMS rad/s) to the measured rates: the coherence drops there and the diagnosis
+should call that band data-limited.
 """
 from __future__ import annotations
 
@@ -14,7 +17,8 @@ from gap_validation.bagio import BAG_SUFFIXES, STORAGES, write_flight
 from gap_validation.config import load_config
 from gap_validation.core.effects import describe_effect
 from gap_validation.core.errors import ConfigError
-from gap_validation.core.simulation import FlightOptions, hidden_effects, simulate_flight, with_options
+from gap_validation.core.simulation import (FlightOptions, hidden_effects, parse_band_noise, simulate_flight,
+                                            with_options)
 
 
 def _positive(kind):
@@ -66,6 +70,9 @@ def register(sub) -> None:
                    help="multiplies sensor noise and gust levels (default 1; 0: noise-free)")
     p.add_argument("--drop-probability", type=_non_negative, default=d.drop_probability,
                    help=f"probability of a lost message (default {d.drop_probability:g})")
+    p.add_argument("--band-noise", default=None, metavar="LOW:HIGH:RMS[:CHANNEL[,CHANNEL]]",
+                   help="band-pass filtered noise between LOW and HIGH rad/s with RMS rad/s added to the measured "
+                        "rate of every channel (or of the channels named), e.g. 8:14:0.05 (default: none)")
     p.add_argument("--no-compression", action="store_true", help="no zstd chunk compression (mcap)")
     p.add_argument("--force", action="store_true", help="replace BAG if it exists and is a bag")
     p.set_defaults(func=run)
@@ -83,21 +90,26 @@ def _remove_existing(out: Path) -> None:
         raise ConfigError(f"--out {out}: exists and is not a bag; not replacing it")
 
 
-def options_from_args(args) -> FlightOptions:
-    """The :class:`FlightOptions` the command-line arguments ask for."""
+def options_from_args(args, channels: tuple[str, ...] | None = None) -> FlightOptions:
+    """The :class:`FlightOptions` the command-line arguments ask for (``channels``: the config's, to check the
+    ones ``--band-noise`` names)."""
     import math
 
+    band = {}
+    if getattr(args, "band_noise", None) is not None:
+        band_rad_s, rms, chosen = parse_band_noise(args.band_noise, channels)
+        band = {"band_noise_rad_s": band_rad_s, "band_noise_rms_rad_s": rms, "band_noise_channels": chosen}
     return with_options(
         sweeps_per_channel=args.sweeps, sweep_duration_s=args.sweep_duration, imu_rate_hz=args.imu_rate_hz,
         surface_rate_hz=args.surface_rate_hz, noise=args.noise, drop_probability=args.drop_probability,
-        sweep_amplitude_rad=math.radians(args.amplitude_deg) if args.amplitude_deg else None,
+        sweep_amplitude_rad=math.radians(args.amplitude_deg) if args.amplitude_deg else None, **band,
     ).check()
 
 
 def run(args) -> int:
     config = load_config(args.config)
     hidden = hidden_effects(args.hidden, config)
-    options = options_from_args(args)
+    options = options_from_args(args, tuple(config.channels))
     out = Path(args.out)
     if out.exists():
         if not args.force:
@@ -113,4 +125,9 @@ def run(args) -> int:
         effects = hidden.get(name, [])
         truth = " + ".join(describe_effect(e) for e in effects) if effects else "nothing (model = truth)"
         print(f"  {name}: {len(flight.sweeps(name))} sweeps, hidden: {truth}")
+    if options.band_noise_rad_s is not None:
+        low, high = options.band_noise_rad_s
+        chosen = options.band_noise_channels or tuple(config.channels)
+        print(f"  band noise: {options.band_noise_rms_rad_s:g} rad/s rms at {low:g}-{high:g} rad/s on "
+              f"{', '.join(chosen)}")
     return 0

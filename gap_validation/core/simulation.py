@@ -5,7 +5,8 @@ The "true aircraft" of each channel is the config's model (with its effects) wit
 (:meth:`LinearModel.with_effects`), so a replay of the flight measures the truth and the validation sees how far
 the config's model is from it. The flight follows the paper's test card (Section V): frequency sweeps per axis
 (roll, pitch, yaw in turn, several rounds), a doublet after each sweep, pilot re-trims between manoeuvres,
-gusts entering at the output as low-pass filtered (coloured) noise, gyro and surface sensor noise and
+gusts entering at the output as low-pass filtered (coloured) noise, optionally a narrow-band output
+disturbance (band-pass filtered noise, e.g. a vibration or a poorly flown band), gyro and surface sensor noise and
 quantisation, and topics published at their own rates with timestamp jitter, dropped messages and a transport
 latency (bag time = ``header.stamp`` + latency).
 
@@ -16,7 +17,8 @@ frequencies need the sweep to pass them well inside the first windows (a sweep t
 grid frequency biases the estimate there, most visibly near the lightly damped yaw zeros of the Ultra Stick).
 
 Everything is seeded (``numpy.random.default_rng(seed)``) and drawn in a fixed order: the same seed gives the
-same flight.
+same flight. The band noise draws from its own stream of the same seed, so switching it on changes nothing
+else in the flight (and with it off a flight is exactly what it was before the option existed).
 """
 from __future__ import annotations
 
@@ -29,11 +31,12 @@ from scipy import signal
 from gap_validation.core.config import SignalSpec, ValidationConfig
 from gap_validation.core.effects import validate_effect
 from gap_validation.core.errors import ConfigError
-from gap_validation.ingest import FieldPath
+from gap_validation.core.fields import FieldPath
 
 __all__ = [
     "FlightOptions", "Segment", "TopicSeries", "SimulatedFlight", "parse_hidden", "hidden_effects",
-    "truth_models", "plan_topics", "simulate_flight", "log_sweep", "doublet", "with_options", "SUPPORTED_TYPES",
+    "parse_band_noise", "band_noise", "truth_models", "plan_topics", "simulate_flight", "log_sweep", "doublet",
+    "with_options", "SUPPORTED_TYPES",
 ]
 
 IMU = "sensor_msgs/msg/Imu"
@@ -41,6 +44,11 @@ JOINT_STATE = "sensor_msgs/msg/JointState"
 FLOAT64 = "std_msgs/msg/Float64"
 FLOAT32 = "std_msgs/msg/Float32"
 BOOL = "std_msgs/msg/Bool"
+
+#: Spawn key of the band-noise random stream (independent of the main stream of the same seed).
+_BAND_NOISE_STREAM = 1
+#: Order of the band-pass filter of the band noise (Butterworth; the band-pass doubles it).
+_BAND_NOISE_ORDER = 4
 
 #: Message types a simulated flight can publish -> the fields it can fill (``None``: see the type's rule).
 SUPPORTED_TYPES = {
@@ -83,6 +91,16 @@ class FlightOptions:
     gust_rms_rad_s, gust_bandwidth_rad_s : float
         RMS and corner frequency of the gust disturbance added at each output: white noise through a
         second-order low-pass (damping 0.7), so coherence falls at low frequency.
+    band_noise_rad_s : tuple of float, optional
+        ``(low, high)`` [rad/s]: a narrow-band disturbance is added to the measured output (body rate) of the
+        channels in ``band_noise_channels``: white noise through a Butterworth band-pass (order 4, -3 dB at
+        ``low`` and ``high``), scaled to ``band_noise_rms_rad_s``. Like a gust it is uncorrelated with the
+        surface, so the coherence drops in that band only (a band above the output topic's Nyquist frequency
+        aliases into it, as it would on a real gyro). None (default): off.
+    band_noise_rms_rad_s : float
+        RMS of the band noise [rad/s] (not scaled by ``noise``: the band noise is asked for explicitly).
+    band_noise_channels : tuple of str, optional
+        Channels that get the band noise; None (default): every channel.
     trim_step_rad : float
         Size of the pilot's re-trims (slow ramps in about half of the quiet gaps, random sign) [rad]. Trim
         moves the equilibrium, so it is in the surface measurement but not in the model's input.
@@ -123,6 +141,9 @@ class FlightOptions:
     surface_noise_rad: float = 0.001
     gust_rms_rad_s: float = 0.03
     gust_bandwidth_rad_s: float = 1.5
+    band_noise_rad_s: tuple[float, float] | None = None
+    band_noise_rms_rad_s: float = 0.0
+    band_noise_channels: tuple[str, ...] | None = None
     trim_step_rad: float = 0.004
     trim_offset_rad: float = 0.03
     gyro_lsb_rad_s: float = 2.0 ** -13
@@ -146,7 +167,7 @@ class FlightOptions:
         for name in ("sweep_amplitude_rad", "doublet_amplitude_rad", "quiet_s", "noise", "gyro_noise_rad_s",
                      "surface_noise_rad", "gust_rms_rad_s", "trim_step_rad", "trim_offset_rad", "jitter_s",
                      "gyro_lsb_rad_s", "surface_lsb_rad",
-                     "latency_s", "latency_jitter_s"):
+                     "latency_s", "latency_jitter_s", "band_noise_rms_rad_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ConfigError(f"simulation option {name}: expected a number >= 0, got {value!r}")
@@ -159,7 +180,26 @@ class FlightOptions:
         if not 0.0 <= self.drop_probability < 0.5:
             raise ConfigError(f"simulation option drop_probability: expected a number in [0, 0.5), "
                               f"got {self.drop_probability!r}")
+        self._check_band_noise()
         return self
+
+    def _check_band_noise(self) -> None:
+        band = self.band_noise_rad_s
+        if band is None:
+            return
+        try:
+            low, high = (float(x) for x in band)
+        except (TypeError, ValueError):
+            raise ConfigError(f"simulation option band_noise_rad_s: expected (low, high) in rad/s, "
+                              f"got {band!r}") from None
+        nyquist_rad_s = math.pi * self.sim_rate_hz
+        if not (math.isfinite(low) and math.isfinite(high) and 0 < low < high < nyquist_rad_s):
+            raise ConfigError(f"simulation option band_noise_rad_s: expected 0 < low < high < "
+                              f"{nyquist_rad_s:.0f} rad/s (Nyquist of sim_rate_hz), got {band!r}")
+        channels = self.band_noise_channels
+        if channels is not None and (isinstance(channels, str) or not all(isinstance(c, str) for c in channels)):
+            raise ConfigError(f"simulation option band_noise_channels: expected a tuple of channel names, "
+                              f"got {channels!r}")
 
 
 @dataclass(frozen=True)
@@ -319,6 +359,59 @@ def truth_models(config: ValidationConfig, hidden: dict[str, list[dict]] | None 
                           f"(channels: {', '.join(config.channels)})")
     return {name: ch.model.with_effects(list(hidden.get(name, []))) if hidden.get(name) else ch.model
             for name, ch in config.channels.items()}
+
+
+def parse_band_noise(text: str, channels: list[str] | tuple[str, ...] | None = None
+                     ) -> tuple[tuple[float, float], float, tuple[str, ...] | None]:
+    """Parse ``LOW:HIGH:RMS[:CHANNEL[,CHANNEL]]`` (e.g. ``8:14:0.05`` or ``8:14:0.05:pitch``).
+
+    Parameters
+    ----------
+    text : str
+        The ``--band-noise`` argument: band edges [rad/s], RMS [rad/s], optionally the channels (default all).
+    channels : sequence of str, optional
+        Channel names of the config; named channels must be among them.
+
+    Returns
+    -------
+    band_rad_s : (float, float)
+    rms_rad_s : float
+    channels : tuple of str or None
+        For :class:`FlightOptions` ``band_noise_rad_s``, ``band_noise_rms_rad_s``, ``band_noise_channels``.
+
+    Raises
+    ------
+    ConfigError
+        One line naming the bad part.
+    """
+    usage = "expected LOW:HIGH:RMS[:CHANNEL[,CHANNEL]] in rad/s and rad/s rms, e.g. 8:14:0.05"
+    parts = [p.strip() for p in text.split(":")]
+    if len(parts) not in (3, 4):
+        raise ConfigError(f"--band-noise {text!r}: {usage}")
+    numbers = []
+    for part in parts[:3]:
+        try:
+            value = float(part)
+        except ValueError:
+            value = float("nan")
+        if not math.isfinite(value):
+            raise ConfigError(f"--band-noise {text!r}: bad part {part!r} ({usage})")
+        numbers.append(value)
+    low, high, rms = numbers
+    if not 0 < low < high:
+        raise ConfigError(f"--band-noise {text!r}: bad band {parts[0]}:{parts[1]} (expected 0 < LOW < HIGH)")
+    if rms < 0:
+        raise ConfigError(f"--band-noise {text!r}: bad part {parts[2]!r} (RMS must be >= 0)")
+    chosen = None
+    if len(parts) == 4:
+        chosen = tuple(c.strip() for c in parts[3].split(",") if c.strip())
+        if not chosen:
+            raise ConfigError(f"--band-noise {text!r}: no channel after the last ':' ({usage})")
+        unknown = [c for c in chosen if channels is not None and c not in channels]
+        if unknown:
+            raise ConfigError(f"--band-noise {text!r}: bad part {unknown[0]!r}: no such channel in the config "
+                              f"(channels: {', '.join(channels)})")
+    return (low, high), rms, chosen
 
 
 # --------------------------------------------------------------------------------------------- topic layout
@@ -498,6 +591,54 @@ def _gust(n: int, fs_hz: float, opt: FlightOptions, rng: np.random.Generator) ->
     return coloured * (rms / max(float(np.std(coloured)), 1e-300))
 
 
+def band_noise(n: int, fs_hz: float, band_rad_s: tuple[float, float], rms: float,
+               rng: np.random.Generator) -> np.ndarray:
+    """Narrow-band disturbance: white noise through a Butterworth band-pass, scaled to ``rms``.
+
+    Parameters
+    ----------
+    n : int
+        Samples.
+    fs_hz : float
+        Sample rate [Hz].
+    band_rad_s : (float, float)
+        -3 dB edges of the band-pass [rad/s] (below the Nyquist frequency ``pi fs``).
+    rms : float
+        RMS of the result (over its n samples) [rad/s].
+    rng : numpy.random.Generator
+        Source of the white noise (n samples plus the filter's start-up, at least 5 s, are drawn even when
+        ``rms`` is 0).
+    """
+    low, high = band_rad_s
+    settle_s = max(5.0, 20.0 * 2.0 * math.pi / low)     # filter start-up: 20 periods of the lower edge
+    white = rng.standard_normal(n + int(settle_s * fs_hz))
+    if rms == 0.0:
+        return np.zeros(n)
+    sos = signal.butter(_BAND_NOISE_ORDER, [low / (2 * math.pi), high / (2 * math.pi)], btype="bandpass",
+                        output="sos", fs=fs_hz)
+    filtered = signal.sosfilt(sos, white)[-n:]
+    return filtered * (rms / max(float(np.std(filtered)), 1e-300))
+
+
+def _band_noises(config: ValidationConfig, n: int, fs_hz: float, opt: FlightOptions, seed: int) -> dict:
+    """Channel -> band noise on the simulation grid, for the chosen channels only (empty when off), from the
+    band-noise stream of ``seed``."""
+    out: dict[str, np.ndarray] = {}
+    if opt.band_noise_rad_s is None:
+        return out
+    chosen = tuple(config.channels) if opt.band_noise_channels is None else opt.band_noise_channels
+    unknown = [c for c in chosen if c not in config.channels]
+    if unknown:
+        raise ConfigError(f"simulation option band_noise_channels: no channel {unknown[0]!r} in the config "
+                          f"(channels: {', '.join(config.channels)})")
+    rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(_BAND_NOISE_STREAM,)))
+    for name in config.channels:          # config order, every channel drawn: choosing channels changes none
+        noise = band_noise(n, fs_hz, opt.band_noise_rad_s, opt.band_noise_rms_rad_s, rng)
+        if name in chosen:
+            out[name] = noise
+    return out
+
+
 # --------------------------------------------------------------------------------------------- sampling
 def _sample_times(duration_s: float, rate_hz: float, opt: FlightOptions, rng: np.random.Generator):
     """Nominal sample instants with jitter and drops, and receive times with latency (both relative) [s]."""
@@ -551,12 +692,15 @@ def simulate_flight(config: ValidationConfig, hidden: dict[str, list[dict]] | No
     outputs = {name: np.asarray(truth[name].simulate(t_s, inputs[name]), dtype=float).ravel()
                for name in config.channels}
     gusts = {name: _gust(t_s.size, fs_hz, opt, rng) for name in config.channels}
+    bands = _band_noises(config, t_s.size, fs_hz, opt, seed)
     measured = {}
     for name, ch in config.channels.items():
         measured[(name, "input")] = (inputs[name] + trim[name], opt.surface_noise_rad * opt.noise,
                                      opt.surface_lsb_rad)
-        measured[(name, "output")] = (outputs[name] + gusts[name], opt.gyro_noise_rad_s * opt.noise,
-                                      opt.gyro_lsb_rad_s)
+        disturbed = outputs[name] + gusts[name]
+        if name in bands:
+            disturbed = disturbed + bands[name]
+        measured[(name, "output")] = (disturbed, opt.gyro_noise_rad_s * opt.noise, opt.gyro_lsb_rad_s)
         if ch.trigger is not None:
             active = np.zeros_like(t_s)
             for seg in segments:

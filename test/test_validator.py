@@ -99,3 +99,14 @@ def test_excluded_points_are_counted(flight):
     assert roll.points_excluded + roll.points_used == 40
     assert roll.points_excluded > 0
     assert not np.any(roll.confident & (roll.coherence < 0.999))
+
+
+def test_raw_epsilon_covers_the_averaged_one(flight):
+    """The pooled (H1) estimate is a convex combination of the sweeps' estimates and the epsilon disk is convex
+    for epsilon < 1, so on the same frequencies the raw epsilon (sup over sweeps) is at least the averaged one."""
+    result = fed(ultrastick(), flight).results()
+    for name in ("roll", "yaw"):
+        ch = result.channels[name]
+        assert ch.epsilon < 1 and len(ch.sweep_results) == 2
+        assert ch.epsilon_raw >= ch.epsilon - 1e-12
+        assert ch.margins_raw.gain_margin_db >= ch.margins.gain_margin_db - 1e-9

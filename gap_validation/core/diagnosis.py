@@ -306,6 +306,16 @@ def confident_points(estimate, coherence_threshold: float) -> np.ndarray:
             & (_n_averages(estimate) >= minimum_averages(coherence_threshold)))
 
 
+def sweep_points(sweep, average_confident: np.ndarray, coherence_threshold: float) -> np.ndarray:
+    """Frequencies of one sweep's (raw) estimate that count for the raw epsilon: those confident in the average
+    (the validation's frequency set) where the sweep itself is coherent. A single sweep has fewer averages than
+    the pool, so the minimum-averages rule applies to the average only; raw epsilon is then the sup over the
+    same frequencies as the averaged one, and not smaller for want of points (paper, Table 1)."""
+    p = np.asarray(sweep.response, complex)
+    return (np.asarray(average_confident, bool) & (np.asarray(sweep.coherence, float) >= coherence_threshold)
+            & np.isfinite(p) & (np.abs(p) > 0))
+
+
 def normalised_mismatch(eps_w, sigma, n_averages=np.inf) -> np.ndarray:
     """How many noise scales the mismatch is: the Rayleigh-equivalent ``k`` of ``epsilon / sigma``.
 
@@ -335,15 +345,19 @@ def frequency_flags(eps_w, mismatch, confident, usable, epsilon_threshold: float
                     sigma_factor: float = SIGMA_FACTOR) -> list[str]:
     """Per-frequency verdict.
 
-    Returns ``"excluded"`` (not confident: coherence below the threshold), ``"ok"`` (epsilon within the
-    threshold), ``"model"`` (epsilon above it and the normalised mismatch beyond ``sigma_factor`` at a usable
-    frequency) or ``"data"`` (above it, but within the errors or with too few averages).
+    Returns ``"excluded"`` (coherence below the threshold and epsilon within it, or no estimate), ``"ok"``
+    (epsilon within the threshold), ``"model"`` (epsilon above it and the normalised mismatch beyond
+    ``sigma_factor`` at a usable frequency) or ``"data"`` (above it, but low coherence, too few averages or
+    within the errors: the data cannot tell, fly better sweeps there). Only confident frequencies count for
+    epsilon; a ``"data"`` flag at low coherence marks where a mismatch may hide in the noise.
     """
     flags = []
     for e, k, c, u in zip(np.asarray(eps_w, float), np.asarray(mismatch, float), np.asarray(confident, bool),
                           np.asarray(usable, bool)):
-        if not c or not np.isfinite(e):
+        if not np.isfinite(e) or (not c and e <= epsilon_threshold):
             flags.append("excluded")
+        elif not c:
+            flags.append("data")
         elif e <= epsilon_threshold:
             flags.append("ok")
         elif u and k > sigma_factor:
@@ -383,6 +397,9 @@ def _band(idx, w_rad_s, eps_w, mismatch, coherence, n_averages, flags, coherence
     if model:
         reason = (f"confident data disagree with the model: the mismatch is {k_max:.0f} noise scales "
                   f"(coherence >= {coherence_threshold:g}, random error included)")
+    elif coh_min < coherence_threshold:
+        reason = (f"low coherence (down to {coh_min:.2f} < {coherence_threshold:g}): noise or disturbances "
+                  f"dominate; fly better sweeps there (more amplitude, longer, calmer air)")
     elif n_min < min_averages:
         reason = (f"too few averages ({n_min:.0f} < {min_averages}) for the coherence to mean much; "
                   f"fly longer sweeps there")
@@ -916,7 +933,7 @@ def _candidate_dict(c: FittedCandidate, ev: _Evidence, base: _Fit, p_model: np.n
         "sentence": _sentence(c, base, ev),
         "improvement": base.eps - score.eps,
         "epsilon_before": base.eps,
-        "epsilon_raw": _raw_epsilon(c.model, sweeps, coherence_threshold),
+        "epsilon_raw": _raw_epsilon(c.model, sweeps, coherence_threshold, ev.confident),
         "worst_frequency_rad_s": float(ev.w[score.worst]),
         "epsilon_usable": score.eps_u,
         "epsilon_usable_before": base.eps_u,
@@ -956,15 +973,15 @@ def _sentence(c: FittedCandidate, base: _Fit, ev: _Evidence) -> str:
     return text
 
 
-def _raw_epsilon(model: LinearModel, sweeps: Sequence, coherence_threshold: float) -> float | None:
-    """Sup of epsilon over every sweep's confident points for ``model`` (raw epsilon, Table 1)."""
+def _raw_epsilon(model: LinearModel, sweeps: Sequence, coherence_threshold: float,
+                 average_confident: np.ndarray) -> float | None:
+    """Sup of epsilon over every sweep's points (:func:`sweep_points`) for ``model`` (raw epsilon, Table 1)."""
     best = None
     for s in sweeps:
-        w = np.asarray(s.w_rad_s, float)
-        p = np.asarray(s.response, complex)
-        ok = (np.asarray(s.coherence, float) >= coherence_threshold) & np.isfinite(p)
+        ok = sweep_points(s, average_confident, coherence_threshold)
         if np.any(ok):
-            e = float(np.max(metrics.epsilon_per_frequency(model.freqresp(w[ok]), p[ok])))
+            w = np.asarray(s.w_rad_s, float)[ok]
+            e = float(np.max(metrics.epsilon_per_frequency(model.freqresp(w), np.asarray(s.response, complex)[ok])))
             best = e if best is None else max(best, e)
     return best
 
@@ -1074,5 +1091,9 @@ def _message(ev: _Evidence, base: _Fit, result: ChannelDiagnosis, coherence_thre
             result.candidates[0]["sentence"]
     excluded = int(np.count_nonzero(~ev.confident))
     if excluded:
-        text += f" ({excluded} of {ev.w.size} frequencies excluded: coherence < {coherence_threshold:g})"
+        low = int(np.count_nonzero(ev.coherence < coherence_threshold))
+        text += (f" ({excluded} of {ev.w.size} frequencies excluded: {low} with coherence < "
+                 f"{coherence_threshold:g}, {excluded - low} with fewer than "
+                 f"{minimum_averages(coherence_threshold)} averages)" if excluded > low else
+                 f" ({excluded} of {ev.w.size} frequencies excluded: coherence < {coherence_threshold:g})")
     return text

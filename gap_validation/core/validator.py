@@ -17,7 +17,7 @@ import numpy as np
 from gap_validation.core import metrics
 from gap_validation.core.config import STREAMS, ChannelConfig, ValidationConfig
 from gap_validation.core.errors import ConfigError
-from gap_validation.core.diagnosis import confident_points
+from gap_validation.core.diagnosis import confident_points, sweep_points
 from gap_validation.core.estimator import FrequencyResponseEstimator, SpectralEstimate
 from gap_validation.core.margins import margins_from_epsilon
 from gap_validation.core.results import ChannelResult, SweepResult, ValidationResult
@@ -199,7 +199,7 @@ class OnlineValidator:
         result.epsilon, result.worst_frequency_rad_s = _sup(metrics.epsilon_frequency_data, w, p_model, p_meas,
                                                             confident)
         result.margins = margins_from_epsilon(result.epsilon if result.epsilon is not None else float("nan"))
-        result.sweep_results = [self._sweep_result(channel, s, p_model) for s in sweeps]
+        result.sweep_results = [self._sweep_result(channel, s, p_model, confident) for s in sweeps]
         result.sweep_measured = [np.asarray(s.response, dtype=complex) for s in sweeps]
         raw = [(s.epsilon, s.worst_frequency_rad_s) for s in result.sweep_results if s.epsilon is not None]
         if raw:
@@ -212,10 +212,11 @@ class OnlineValidator:
         return result
 
     @staticmethod
-    def _sweep_result(channel: ChannelConfig, sweep: SpectralEstimate, p_model: np.ndarray) -> SweepResult:
+    def _sweep_result(channel: ChannelConfig, sweep: SpectralEstimate, p_model: np.ndarray,
+                      average_confident: np.ndarray) -> SweepResult:
         w = np.asarray(sweep.w_rad_s, dtype=float)
         p_meas = np.asarray(sweep.response, dtype=complex)
-        ok = confident_points(sweep, channel.coherence_threshold)
+        ok = sweep_points(sweep, average_confident, channel.coherence_threshold)
         eps, w_eps = _sup(metrics.epsilon_frequency_data, w, p_model, p_meas, ok)
         return SweepResult(start_s=float(getattr(sweep, "start_s", np.nan)),
                            end_s=float(getattr(sweep, "end_s", np.nan)), epsilon=eps,

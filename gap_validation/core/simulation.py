@@ -290,14 +290,19 @@ class SimulatedFlight:
 
 
 # --------------------------------------------------------------------------------------------- hidden effects
-def _hidden_value(text: str, part: str, value: str) -> float:
+def _finite(value: str, error: str) -> float:
+    """``float(value)``, or a ConfigError with ``error`` when it is not a finite number."""
     try:
         number = float(value)
     except ValueError:
         number = float("nan")
     if not math.isfinite(number):
-        raise ConfigError(f"--hidden {text!r}: bad part {part!r} (value must be a finite number)")
+        raise ConfigError(error)
     return number
+
+
+def _hidden_value(text: str, part: str, value: str) -> float:
+    return _finite(value, f"--hidden {text!r}: bad part {part!r} (value must be a finite number)")
 
 
 def parse_hidden(text: str, channels: list[str] | tuple[str, ...] | None = None) -> tuple[str, dict]:
@@ -388,16 +393,7 @@ def parse_band_noise(text: str, channels: list[str] | tuple[str, ...] | None = N
     parts = [p.strip() for p in text.split(":")]
     if len(parts) not in (3, 4):
         raise ConfigError(f"--band-noise {text!r}: {usage}")
-    numbers = []
-    for part in parts[:3]:
-        try:
-            value = float(part)
-        except ValueError:
-            value = float("nan")
-        if not math.isfinite(value):
-            raise ConfigError(f"--band-noise {text!r}: bad part {part!r} ({usage})")
-        numbers.append(value)
-    low, high, rms = numbers
+    low, high, rms = (_finite(part, f"--band-noise {text!r}: bad part {part!r} ({usage})") for part in parts[:3])
     if not 0 < low < high:
         raise ConfigError(f"--band-noise {text!r}: bad band {parts[0]}:{parts[1]} (expected 0 < LOW < HIGH)")
     if rms < 0:

@@ -463,6 +463,24 @@ def test_odd_calls_never_crash():
         est.add_output([1.0, 2.0], [1.0])
 
 
+
+def test_whole_arrays_with_a_stray_timestamp_are_fed_in_few_chunks(monkeypatch):
+    """Regression: add_time_histories made one chunk per chunk_s over the whole time span, so one zero stamp
+    among epoch times (span 1.7e9 s) meant 1.7e8 chunks: gigabytes and minutes. Chunks now follow the samples."""
+    t = 1.0e6 + np.arange(0.0, 1.0, 0.01)
+    t_in = t.copy()
+    t_in[0] = 0.0                                             # unset header stamp
+    est = FrequencyResponseEstimator(W_RAD_S)
+    calls = []
+    original = est.add_input
+    monkeypatch.setattr(est, "add_input", lambda ts, u: (calls.append(len(ts)), original(ts, u)))
+    est.add_time_histories(t_in, np.zeros(t.size), t, np.zeros(t.size))
+    assert sum(calls) == t.size and len(calls) <= 4
+    for chunk_s in (0.0, -1.0, float("nan")):
+        with pytest.raises(ConfigError, match="chunk_s"):
+            est.add_time_histories(t, np.zeros(t.size), t, np.zeros(t.size), chunk_s=chunk_s)
+
+
 # ---------------------------------------------------------------------------------------------- options
 def test_unknown_option_is_a_config_error_naming_it():
     with pytest.raises(ConfigError, match="window_cylces"):

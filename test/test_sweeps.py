@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from gap_validation.core.errors import ConfigError
+from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.sweeps import SweepDetector, TriggerTracker, detect_sweeps, detrended_std
 
 FS_HZ = 100.0
@@ -153,3 +153,12 @@ def test_trigger_edges():
     assert trig.edges(np.array([12, 20, 21]), np.array([True, False, False])) == [(20, False)]
     assert trig.edges(np.array([30]), np.array([True])) == [(30, True)]
     assert trig.seen and trig.state
+
+
+@pytest.mark.parametrize("t_s, u", [(np.zeros(5), np.zeros(5)), (np.arange(5.0)[::-1], np.zeros(5)),
+                                    (np.arange(5.0), np.zeros(3)), ([0.0, np.nan, 2.0], np.zeros(3))])
+def test_detect_sweeps_bad_times_are_a_data_error(t_s, u):
+    """Regression: constant times raised ZeroDivisionError, decreasing ones blamed an estimator option, and
+    mismatched lengths were used silently."""
+    with pytest.raises(DataError, match="detect_sweeps"):
+        detect_sweeps(t_s, u)

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from gap_validation.core.config import parse_config
-from gap_validation.core.errors import ConfigError
+from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.simulation import FlightOptions, hidden_effects, simulate_flight
 from gap_validation.core.validator import OnlineValidator
 
@@ -75,6 +75,30 @@ def test_state_round_trip_reproduces_results(flight):
     with pytest.raises(ConfigError, match="version"):
         OnlineValidator.from_state(config, {"version": 99})
 
+
+
+def test_restore_with_a_changed_grid_drops_that_channels_previous_epsilon(flight):
+    """Regression: from_state kept epsilon_previous of a channel whose spectra restarted (set_config drops it)."""
+    validator = fed(ultrastick(), flight)
+    validator.set_config(with_pitch_effects([{"type": "time_delay", "seconds": 0.04}]))
+    state = copy.deepcopy(validator.state_dict())
+    regrid = with_pitch_effects([], frequencies={"min_rad_s": 2.0, "max_rad_s": 30.0, "count": 20})
+    result = OnlineValidator.from_state(regrid, state, diagnose=False).results()
+    assert result.channels["pitch"].sweeps == 0 and result.channels["pitch"].epsilon_previous is None
+    assert result.channels["roll"].epsilon_previous is not None
+
+
+@pytest.mark.parametrize("state", [{"version": 1}, {"version": 1, "channels": []}])
+def test_malformed_state_is_a_one_line_data_error(state):
+    with pytest.raises(DataError, match="checkpoint state"):
+        OnlineValidator.from_state(ultrastick(), state)
+
+
+def test_estimator_state_of_another_shape_is_a_one_line_data_error(flight):
+    state = OnlineValidator(ultrastick()).state_dict()
+    state["channels"]["pitch"]["w_rad_s"] = state["channels"]["pitch"]["w_rad_s"][:-1]
+    with pytest.raises(DataError, match="estimator state"):
+        OnlineValidator.from_state(ultrastick(), state)
 
 def test_results_before_data_and_bad_input():
     validator = OnlineValidator(ultrastick(), diagnose=False)

@@ -760,9 +760,11 @@ class FrequencyResponseEstimator:
             self.add_output(t_output_s, y)
             return
         lag = self._opts["max_lag_s"]
-        step = lag / 3.0 if chunk_s is None else min(float(chunk_s), lag / 2.0)
-        lo, hi = float(finite.min()), float(finite.max())
-        edges = np.arange(lo, hi + step, step)[1:]
+        step = lag / 3.0 if chunk_s is None else min(_number("chunk_s", chunk_s), lag / 2.0)
+        lo = float(finite.min())
+        # only the chunk ends that close a non-empty chunk (empty chunks are no-ops): at most one per sample,
+        # however far apart the timestamps are (a stray zero stamp among epoch times would be 1e8 chunks)
+        edges = lo + np.unique(np.maximum(np.ceil((finite - lo) / step), 1.0)) * step
         ia = np.searchsorted(t_input_s, edges, side="right")
         ib = np.searchsorted(t_output_s, edges, side="right")
         pa = pb = 0
@@ -1037,6 +1039,11 @@ class FrequencyResponseEstimator:
             self._load(state)
         except KeyError as err:
             raise DataError(f"estimator state: missing key {err.args[0]!r}") from None
+        except ConfigError:
+            raise
+        except (TypeError, ValueError, IndexError) as err:    # arrays of the wrong shape or type
+            reason = str(err).splitlines()[0] if str(err) else type(err).__name__
+            raise DataError(f"estimator state: inconsistent ({reason})") from None
         return self
 
     def _load(self, st: dict) -> None:

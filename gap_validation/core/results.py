@@ -35,11 +35,21 @@ def phase_deg(response: np.ndarray, reference: np.ndarray | None = None) -> np.n
     (phase of the reference plus the unwrapped phase of response/reference), so that curves overlay."""
     response = np.asarray(response, dtype=complex)
     if reference is None:
-        return np.degrees(np.unwrap(np.angle(response)))
+        return np.degrees(_unwrap_finite(np.angle(response)))
     reference = np.asarray(reference, dtype=complex)
     with np.errstate(divide="ignore", invalid="ignore"):
-        relative = np.unwrap(np.angle(response / reference))
-    return np.degrees(np.unwrap(np.angle(reference)) + relative)
+        relative = _unwrap_finite(np.angle(response / reference))
+    return np.degrees(_unwrap_finite(np.angle(reference)) + relative)
+
+
+def _unwrap_finite(angle_rad: np.ndarray) -> np.ndarray:
+    """``np.unwrap`` over the finite entries only (NaN stays NaN at its own index instead of every later one)."""
+    ok = np.isfinite(angle_rad)
+    if ok.all() or angle_rad.ndim != 1:
+        return np.unwrap(angle_rad)
+    out = np.full(angle_rad.shape, np.nan)
+    out[ok] = np.unwrap(angle_rad[ok])
+    return out
 
 
 def _mag_phase(response: np.ndarray | None, reference: np.ndarray | None = None) -> dict:

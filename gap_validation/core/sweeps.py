@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gap_validation.core.errors import ConfigError
+from gap_validation.core.errors import ConfigError, DataError
 
 __all__ = ["SweepDetector", "TriggerTracker", "detect_sweeps", "DETECTOR_DEFAULTS"]
 
@@ -391,11 +391,15 @@ def detect_sweeps(t_s, u, min_sweep_s: float = 10.0, **options) -> list[tuple[fl
     list of (float, float)
         ``(start_s, end_s)`` of each sweep.
     """
-    t_s = np.asarray(t_s, dtype=float)
-    u = np.asarray(u, dtype=float)
+    t_s = np.asarray(t_s, dtype=float).ravel()
+    u = np.asarray(u, dtype=float).ravel()
+    if t_s.size != u.size:
+        raise DataError(f"detect_sweeps: {t_s.size} times but {u.size} values")
     if t_s.size < 2:
         return []
     dt = float(np.median(np.diff(t_s)))
+    if not (np.all(np.isfinite(t_s)) and dt > 0.0):
+        raise DataError("detect_sweeps: times must be finite and increasing (uniform samples)")
     det = SweepDetector(1.0 / dt, **options)
     det.start_run(0)
     edges = det.process(0, u) + det.end_run(u.size)

@@ -16,7 +16,7 @@ import numpy as np
 
 from gap_validation.core import metrics
 from gap_validation.core.config import STREAMS, ChannelConfig, ValidationConfig
-from gap_validation.core.errors import ConfigError
+from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.diagnosis import confident_points, sweep_points
 from gap_validation.core.estimator import FrequencyResponseEstimator, SpectralEstimate
 from gap_validation.core.margins import margins_from_epsilon
@@ -259,12 +259,18 @@ class OnlineValidator:
             raise ConfigError(f"checkpoint state has version {state.get('version') if isinstance(state, dict) else None!r}, "
                               f"expected {STATE_VERSION}")
         self = cls(config, **kwargs)
-        for name, ch in config.channels.items():
-            saved = state["channels"].get(name)
-            if saved is not None and state.get("measurement", {}).get(name) == _measurement_key(ch):
-                self._estimators[name] = FrequencyResponseEstimator.from_state(saved)
-                self._bad[name] = Counter(state.get("bad", {}).get(name, {}))
-        self._previous = {k: v for k, v in state.get("previous", {}).items() if k in config.channels}
+        try:
+            resumed = []
+            for name, ch in config.channels.items():
+                saved = state["channels"].get(name)
+                if saved is not None and state.get("measurement", {}).get(name) == _measurement_key(ch):
+                    self._estimators[name] = FrequencyResponseEstimator.from_state(saved)
+                    self._bad[name] = Counter(state.get("bad", {}).get(name, {}))
+                    resumed.append(name)
+            # as in set_config: a restarted channel has no previous epsilon (it was of other spectra)
+            self._previous = {k: v for k, v in state.get("previous", {}).items() if k in resumed}
+        except (KeyError, AttributeError, TypeError) as err:
+            raise DataError(f"checkpoint state: malformed ({type(err).__name__}: {err})") from None
         return self
 
 

@@ -319,19 +319,19 @@ def test_full_fit_is_fast():
 # ------------------------------------------------------------------------------------------------ guards
 
 
-def _fit(eps_u, chi2, k_max=10.0, worst=0):
-    eps_w = np.full(W.size, eps_u)
-    return diagnosis._Fit(eps_w, eps_u, worst, eps_u, worst, k_max, chi2)
+def _fit(eps, chi2, k_max=10.0, worst=0):
+    eps_w = np.full(W.size, eps)
+    return diagnosis._Fit(eps_w, eps, worst, k_max, chi2)
 
 
 def _evidence(sigma=0.001):
     ones = np.ones(W.size, bool)
-    return diagnosis._Evidence(W, np.ones(W.size, complex), np.ones(W.size), np.full(W.size, 50.0), ones, ones,
+    return diagnosis._Evidence(W, np.ones(W.size, complex), np.ones(W.size), np.full(W.size, 50.0), ones,
                                np.full(W.size, sigma), diagnosis.SIGMA_FACTOR)
 
 
 def test_improvement_must_remove_half_the_excess_chi_square():
-    # 40 usable points: chi-square 80 expected; a candidate fitting one noise spike removes little of a broad
+    # 40 confident points: chi-square 80 expected; a candidate fitting one noise spike removes little of a broad
     # excess (random error under-reported), a real effect removes most of it
     before = _fit(0.2, 80 + 400)
     assert not diagnosis._chi2_improvement(before, _fit(0.05, 80 + 300), 4, W.size)

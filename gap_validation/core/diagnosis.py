@@ -94,7 +94,7 @@ _PHASE_WEIGHT = 0.01745
 _DB_PER_NEPER = 20.0 / math.log(10.0)
 _DEG_PER_RAD = 180.0 / math.pi
 _N_STARTS = 3          # local refinements per candidate, from distinct grid points
-_MIN_POINTS = 4        # fewer usable points: no fitting
+_MIN_POINTS = 4        # fewer confident points: no fitting
 _MAX_CANDIDATES = 6    # reported at most
 
 
@@ -120,8 +120,7 @@ class ChannelDiagnosis:
         JSON ``diagnosis``, best first: ``effect``, ``parameters``, ``effects``, ``epsilon``, ``nu_gap`` plus
         ``sentence``, ``improvement``, ``epsilon_before``, ``epsilon_raw``, ``worst_frequency_rad_s``,
         ``complexity`` (fitted parameters), ``cost`` and ``cost_before`` (CIFER J), ``explains`` (True when
-        the mismatch left is within the errors), ``epsilon_usable`` and ``epsilon_usable_before`` (sups over
-        the frequencies with enough averages, which the decisions use). ``parameter_error`` has empty
+        the mismatch left is within the errors). ``parameter_error`` has empty
         ``effects`` and the refitted ``model`` mapping (replace the model's airframe; nothing to append) with a
         ``note`` saying so.
     message : str
@@ -341,19 +340,20 @@ def normalised_mismatch(eps_w, sigma, n_averages=np.inf) -> np.ndarray:
 # ------------------------------------------------------------------------------------------------ where it fails
 
 
-def frequency_flags(eps_w, mismatch, confident, usable, epsilon_threshold: float,
+def frequency_flags(eps_w, mismatch, coherent, confident, epsilon_threshold: float,
                     sigma_factor: float = SIGMA_FACTOR) -> list[str]:
     """Per-frequency verdict.
 
+    ``coherent``: coherence passes the threshold; ``confident``: also enough averages (:func:`confident_points`).
     Returns ``"excluded"`` (coherence below the threshold and epsilon within it, or no estimate), ``"ok"``
     (epsilon within the threshold), ``"model"`` (epsilon above it and the normalised mismatch beyond
-    ``sigma_factor`` at a usable frequency) or ``"data"`` (above it, but low coherence, too few averages or
+    ``sigma_factor`` at a confident frequency) or ``"data"`` (above it, but low coherence, too few averages or
     within the errors: the data cannot tell, fly better sweeps there). Only confident frequencies count for
     epsilon; a ``"data"`` flag at low coherence marks where a mismatch may hide in the noise.
     """
     flags = []
-    for e, k, c, u in zip(np.asarray(eps_w, float), np.asarray(mismatch, float), np.asarray(confident, bool),
-                          np.asarray(usable, bool)):
+    for e, k, c, u in zip(np.asarray(eps_w, float), np.asarray(mismatch, float), np.asarray(coherent, bool),
+                          np.asarray(confident, bool)):
         if not np.isfinite(e) or (not c and e <= epsilon_threshold):
             flags.append("excluded")
         elif not c:
@@ -706,7 +706,6 @@ class _Evidence:
     coherence: np.ndarray
     n_averages: np.ndarray
     confident: np.ndarray      # coherence passes the threshold: counts for epsilon (as in the validator)
-    usable: np.ndarray         # confident and enough averages: counts for the diagnosis
     sigma: np.ndarray          # noise scale of epsilon(w)
     sigma_factor: float
 
@@ -718,15 +717,14 @@ class _Evidence:
         """epsilon(w) of a model response against the data, with its sups and statistics."""
         eps_w = np.asarray(metrics.epsilon_per_frequency(p_fit, self.p_meas), float)
         eps, worst = _sup(eps_w, self.confident)
-        eps_u, worst_u = _sup(eps_w, self.usable)
         k = self.mismatch(eps_w)
-        k_max = float(np.max(np.where(self.usable, k, 0.0))) if self.usable.any() else 0.0
-        return _Fit(eps_w, eps, worst, eps_u, worst_u, k_max, self._chi2(p_fit))
+        k_max = float(np.max(np.where(self.confident, k, 0.0))) if self.confident.any() else 0.0
+        return _Fit(eps_w, eps, worst, k_max, self._chi2(p_fit))
 
     def _chi2(self, p_fit) -> float:
         """``sum |ln(P_fit / P_meas)|^2 / e^2`` over the usable frequencies (about 2 per frequency when the fit
         equals the truth: chi-square with 2 n degrees of freedom)."""
-        u = self.usable
+        u = self.confident
         log_q = _log_ratio(np.asarray(p_fit, complex)[u], self.p_meas[u])
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             terms = np.abs(log_q) ** 2 / (2.0 * self.sigma[u]) ** 2
@@ -746,8 +744,6 @@ class _Fit:
     eps_w: np.ndarray
     eps: float             # sup over confident frequencies (what a replay reports)
     worst: int
-    eps_u: float           # sup over usable frequencies (what the decisions use)
-    worst_u: int
     k_max: float           # largest normalised mismatch at a usable frequency
     chi2: float
 
@@ -758,9 +754,8 @@ def _evidence(estimate, sweeps, coherence_threshold, bias_error, sigma_factor) -
     coherence = np.asarray(estimate.coherence, float)
     n_avg = _n_averages(estimate)
     confident = confident_points(estimate, coherence_threshold)
-    usable = confident
     sigma = epsilon_noise_scale(effective_random_error(estimate, sweeps, coherence_threshold, bias_error))
-    return _Evidence(w, p_meas, coherence, n_avg, confident, usable, sigma, sigma_factor)
+    return _Evidence(w, p_meas, coherence, n_avg, confident, sigma, sigma_factor)
 
 
 # ------------------------------------------------------------------------------------------------ candidates
@@ -796,9 +791,9 @@ class FittedCandidate:
 
 
 def _fit_data(model: LinearModel, ev: _Evidence) -> _FitData | None:
-    if np.count_nonzero(ev.usable) < _MIN_POINTS:
+    if np.count_nonzero(ev.confident) < _MIN_POINTS:
         return None
-    u = ev.usable
+    u = ev.confident
     wc = ev.w[u]
     return _FitData(w=wc, p_meas=ev.p_meas[u], p_model=model.freqresp(wc),
                     sqrt_w=np.sqrt(cifer_weight(ev.coherence[u])), coherence=ev.coherence[u],
@@ -878,12 +873,12 @@ def _chi2_improvement(before: _Fit, after: _Fit, extra_parameters: int, n_usable
 def _real_improvement(ev: _Evidence, before: _Fit, after: _Fit, extra_parameters: int,
                       min_relative: float) -> bool:
     """True when ``after`` leaves an epsilon clearly below ``before``'s, beyond what the errors explain."""
-    e0, e1 = before.eps_u, after.eps_u
+    e0, e1 = before.eps, after.eps
     if not (math.isfinite(e0) and math.isfinite(e1)) or e1 > (1.0 - min_relative) * e0:
         return False
-    if not _chi2_improvement(before, after, extra_parameters, int(np.count_nonzero(ev.usable))):
+    if not _chi2_improvement(before, after, extra_parameters, int(np.count_nonzero(ev.confident))):
         return False
-    s = max(ev.sigma[before.worst_u], ev.sigma[after.worst_u])
+    s = max(ev.sigma[before.worst], ev.sigma[after.worst])
     if e0 - e1 > IMPROVEMENT_SIGMA_FACTOR * s:
         return True
     return before.k_max > ev.sigma_factor + 1.0 and after.k_max <= ev.sigma_factor
@@ -898,7 +893,7 @@ def _select(ev: _Evidence, base: _Fit, fitted: list[FittedCandidate]) -> list[Fi
         if not _real_improvement(ev, base, cand.score, cand.complexity, MIN_RELATIVE_IMPROVEMENT):
             continue
         if cand.members:
-            best = min((singles[m] for m in cand.members if m in singles), key=lambda c: c.score.eps_u,
+            best = min((singles[m] for m in cand.members if m in singles), key=lambda c: c.score.eps,
                        default=None)
             if best is not None and not _real_improvement(ev, best.score, cand.score,
                                                           cand.complexity - best.complexity,
@@ -907,15 +902,15 @@ def _select(ev: _Evidence, base: _Fit, fitted: list[FittedCandidate]) -> list[Fi
         kept.append(cand)
     if not kept:
         return []
-    best_eps = min(c.score.eps_u for c in kept)
+    best_eps = min(c.score.eps for c in kept)
 
     def adequate(c: FittedCandidate) -> bool:
         if c.score.k_max <= ev.sigma_factor:
             return True
-        tolerance = max(IMPROVEMENT_SIGMA_FACTOR * ev.sigma[c.score.worst_u], MIN_RELATIVE_IMPROVEMENT * best_eps)
-        return c.score.eps_u <= best_eps + tolerance
+        tolerance = max(IMPROVEMENT_SIGMA_FACTOR * ev.sigma[c.score.worst], MIN_RELATIVE_IMPROVEMENT * best_eps)
+        return c.score.eps <= best_eps + tolerance
 
-    ranked = sorted(kept, key=lambda c: (0, c.complexity, c.score.eps_u) if adequate(c) else (1, 0, c.score.eps_u))
+    ranked = sorted(kept, key=lambda c: (0, c.complexity, c.score.eps) if adequate(c) else (1, 0, c.score.eps))
     return ranked[:_MAX_CANDIDATES]
 
 
@@ -935,8 +930,6 @@ def _candidate_dict(c: FittedCandidate, ev: _Evidence, base: _Fit, p_model: np.n
         "epsilon_before": base.eps,
         "epsilon_raw": _raw_epsilon(c.model, sweeps, coherence_threshold, ev.confident),
         "worst_frequency_rad_s": float(ev.w[score.worst]),
-        "epsilon_usable": score.eps_u,
-        "epsilon_usable_before": base.eps_u,
         "complexity": c.complexity,
         "explains": bool(score.k_max <= ev.sigma_factor),
         "cost": cifer_cost(p_fit[conf], ev.p_meas[conf], ev.coherence[conf]),
@@ -967,9 +960,6 @@ def _sentence(c: FittedCandidate, base: _Fit, ev: _Evidence) -> str:
         what = " and ".join(describe_effect(e) for e in c.effects)
         verb = "adding it" if len(c.effects) == 1 else "adding both"
         text = f"missing: {what}; {verb} brings epsilon from {base.eps:.2f} to {after.eps:.2f}"
-    if after.worst >= 0 and not ev.usable[after.worst] and after.eps - after.eps_u > max(0.01, 0.25 * after.eps_u):
-        text += (f" ({base.eps_u:.2f} to {after.eps_u:.2f} where the data have enough averages; "
-                 f"{ev.w[after.worst]:.3g} rad/s has too few)")
     return text
 
 
@@ -1027,11 +1017,11 @@ def analyse_channel(model: LinearModel, estimate, sweeps: list, coherence_thresh
     mismatch = ev.mismatch(base.eps_w)
     # coherent points with too few averages do not count for epsilon, but a mismatch there is data-limited
     coherent = (ev.coherence >= coherence_threshold) & np.isfinite(ev.p_meas) & (np.abs(ev.p_meas) > 0)
-    flags = frequency_flags(base.eps_w, mismatch, coherent, ev.usable, epsilon_threshold, sigma_factor)
+    flags = frequency_flags(base.eps_w, mismatch, coherent, ev.confident, epsilon_threshold, sigma_factor)
     bands = find_bands(ev.w, base.eps_w, mismatch, ev.coherence, ev.n_averages, flags, coherence_threshold,
                        minimum_averages(coherence_threshold), sigma_factor)
     result = ChannelDiagnosis(limited_by=_limited_by(ev, base, bands), frequency_flags=flags, bands=bands)
-    if fit and base.worst_u >= 0 and base.k_max > sigma_factor:
+    if fit and base.worst >= 0 and base.k_max > sigma_factor:
         chosen = _select(ev, base, _diagnose(model, ev))
         result.candidates = [_candidate_dict(c, ev, base, p_model, sweeps, coherence_threshold) for c in chosen]
     result.message = _message(ev, base, result, coherence_threshold, epsilon_threshold, channel)

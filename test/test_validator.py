@@ -134,3 +134,10 @@ def test_raw_epsilon_covers_the_averaged_one(flight):
         assert ch.epsilon < 1 and len(ch.sweep_results) == 2
         assert ch.epsilon_raw >= ch.epsilon - 1e-12
         assert ch.margins_raw.gain_margin_db >= ch.margins.gain_margin_db - 1e-9
+
+
+def test_trigger_strings_are_refused():
+    validator = OnlineValidator(ultrastick(), diagnose=False)
+    with pytest.raises(DataError, match="trigger values must be booleans or numbers"):
+        validator.add_samples("pitch", "trigger", [0.0, 1.0], ["false", "true"])
+    validator.add_samples("pitch", "trigger", [0.0, 1.0], [0, 1])

@@ -94,7 +94,10 @@ class OnlineValidator:
         elif stream == "output":
             est.add_output(t_s, np.asarray(values, dtype=float))
         elif stream == "trigger":
-            est.add_trigger(t_s, np.asarray(values, dtype=bool))
+            values = np.asarray(values)
+            if values.dtype.kind not in "biuf":  # "false" would be True as a string
+                raise DataError(f"channel {channel}: trigger values must be booleans or numbers, got {values.dtype}")
+            est.add_trigger(t_s, values.astype(bool))
         else:
             raise ConfigError(f"unknown stream {stream!r} (expected one of {', '.join(STREAMS)})")
         self._versions[channel] += 1

@@ -43,7 +43,11 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``gap-validate``; returns the exit status."""
     warnings.filterwarnings("ignore", category=DeprecationWarning)
-    parser = build_parser()
+    try:
+        parser = build_parser()  # imports every subcommand (numpy, scipy, rosbags): the slow part of startup
+    except KeyboardInterrupt:
+        print("gap-validate: interrupted", file=sys.stderr)
+        return 130
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.debug else logging.WARNING,
                         format="gap-validate: %(levelname)s: %(message)s")

@@ -30,8 +30,12 @@ if TYPE_CHECKING:  # pragma: no cover
     from gap_validation.core.config import ValidationConfig
     from gap_validation.core.validator import OnlineValidator
 
-__all__ = ["FieldError", "FieldPath", "MessageRouter", "Route", "stamp_seconds"]
+__all__ = ["FieldError", "FieldPath", "MessageRouter", "Route", "stamp_seconds", "VERIFY_MESSAGES",
+           "fast_values_agree"]
 
+#: Messages per topic decoded both ways (fast field decoder and full deserialisation) before replay and the
+#: node trust the fast decoder.
+VERIFY_MESSAGES = 8
 
 
 def stamp_seconds(msg: Any) -> float | None:
@@ -50,6 +54,17 @@ def stamp_seconds(msg: Any) -> float | None:
     if not sec and not nanosec:
         return None
     return sec + nanosec * 1e-9
+
+
+def fast_values_agree(routes, msg: Any, stamp: float | None, values) -> bool:
+    """Whether a fast decoder's ``(stamp, values)`` equal what ``routes`` extract from the fully decoded ``msg``
+    (NaN equals NaN); replay and the node stop using the fast decoder of a topic on the first difference."""
+    try:
+        full = [route.path.extract(msg) for route in routes]
+    except FieldError:
+        return False
+    return (len(full) == len(values) and stamp == stamp_seconds(msg)
+            and all(a == b or (math.isnan(a) and math.isnan(b)) for a, b in zip(values, full)))
 
 
 @dataclass(frozen=True)
@@ -189,6 +204,12 @@ class MessageRouter:
         if len(buf.t) >= self.batch or t_s - self._flush_t >= self.max_batch_s:
             self.flush()
             self._flush_t = t_s
+
+    def count_bad_message(self, topic: str, reason: str) -> None:
+        """Count one message of ``topic`` that could not be read at all (e.g. a damaged record) as a bad sample
+        of every signal the topic feeds."""
+        for route in self.routes.get(topic, ()):
+            self._count_bad(route, reason)
 
     def _count_bad(self, route: Route, reason: str, count: int = 1) -> None:
         if count <= 0:

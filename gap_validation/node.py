@@ -137,7 +137,7 @@ from gap_validation.core.config import ValidationConfig
 from gap_validation.core.errors import ConfigError, DataError, GapValidationError
 from gap_validation.core.results import ChannelResult, ValidationResult
 from gap_validation.core.validator import OnlineValidator
-from gap_validation.ingest import FieldError, FieldPath, MessageRouter, stamp_seconds
+from gap_validation.ingest import VERIFY_MESSAGES, FieldError, FieldPath, MessageRouter, fast_values_agree
 from gap_validation.render import write_json
 
 try:  # rclpy is only needed to run the node; the pure helpers below work without it
@@ -182,12 +182,6 @@ PARAMETERS: dict[str, tuple[Any, bool, str]] = {
     "executor": ("events", True, "events (rclpy's EventsExecutor, far less CPU) | single_threaded"),
 }
 
-#: Messages per topic decoded both ways (fast and rclpy) before the fast decoder is trusted.
-VERIFY_MESSAGES = 8
-
-#: Levels by name; the node maps them to the ``DiagnosticStatus`` byte constants.
-LEVEL_NAMES = ("OK", "WARN", "ERROR", "STALE")
-
 #: Status values taken from ``ChannelResult.to_json_dict()`` under the same key names.
 _JSON_VALUES = ("nu_gap", "epsilon", "epsilon_raw", "epsilon_previous", "gain_margin_db", "phase_margin_deg",
                 "disk_margin", "worst_frequency_rad_s", "sweeps", "limited_by", "points_excluded")
@@ -206,10 +200,6 @@ def _value_text(value: Any) -> str:
     if isinstance(value, str):
         return value
     return json.dumps(value, sort_keys=True)
-
-
-def _short(value: float | None, spec: str = ".2f") -> str:
-    return "-" if value is None else format(value, spec)
 
 
 def candidate_sentence(candidate: dict | None) -> str:
@@ -680,37 +670,33 @@ class ValidatorNode(Node):
         raw = self._raw.get(topic)
         if raw is None:
             return
-        try:
-            values = None
-            if raw.decoder is not None:
+        stamp, values = None, None
+        if raw.decoder is not None:
+            try:
+                stamp, values = raw.decoder(data)
+            except Exception:  # noqa: BLE001 - FastDecodeError, struct.error: decode this one fully
+                stamp, values = None, None
+            if values is not None and raw.verify_left <= 0:
                 try:
-                    stamp, values = raw.decoder(data)
-                except Exception:  # noqa: BLE001 - FastDecodeError, struct.error: decode this one fully
-                    values = None
-                if values is not None and raw.verify_left > 0:
-                    raw.verify_left -= 1
-                    if not self._verified(topic, raw, data, stamp, values):
-                        raw.decoder, values = None, None
-                        self._log_once(f"fast:{topic}", "info", f"topic {topic}: fast decoding disagrees with "
-                                                                "rclpy; deserialising instead")
-            if values is not None:
-                self.router.on_values(topic, now_s if stamp is None else stamp, values)
+                    self.router.on_values(topic, now_s if stamp is None else stamp, values)
+                except Exception as err:  # noqa: BLE001 - a message must never stop the node
+                    self._log_once(f"raw:{topic}:{type(err).__name__}", "error",
+                                   f"topic {topic}: message skipped ({_one_line(err)})")
                 return
+        try:
             msg = deserialize_message(data, raw.cls)
-        except Exception as err:  # noqa: BLE001 - a message must never stop the node
+        except Exception as err:  # noqa: BLE001 - a damaged message: counted as replay counts it
+            self.router.count_bad_message(topic, "undecodable")
             self._log_once(f"raw:{topic}:{type(err).__name__}", "error",
                            f"topic {topic}: message skipped ({_one_line(err)})")
             return
+        if values is not None:
+            raw.verify_left -= 1
+            if not fast_values_agree(self.router.routes.get(topic, ()), msg, stamp, values):
+                raw.decoder = None
+                self._log_once(f"fast:{topic}", "info", f"topic {topic}: fast decoding disagrees with rclpy; "
+                                                        "deserialising instead")
         self._route(topic, msg, now_s)
-
-    def _verified(self, topic: str, raw: "_RawTopic", data: bytes, stamp, values) -> bool:
-        msg = deserialize_message(data, raw.cls)
-        try:
-            full = [route.path.extract(msg) for route in self.router.routes.get(topic, ())]
-        except FieldError:
-            return False
-        same = all(a == b or (math.isnan(a) and math.isnan(b)) for a, b in zip(values, full))
-        return same and len(full) == len(values) and stamp == stamp_seconds(msg)
 
     def on_message(self, topic: str, msg: Any) -> None:
         """Subscription callback: hand the message to the router (never raises)."""

@@ -26,7 +26,7 @@ from gap_validation.core.config import ValidationConfig
 from gap_validation.core.errors import DataError
 from gap_validation.core.results import ValidationResult
 from gap_validation.core.validator import OnlineValidator
-from gap_validation.ingest import FieldError, MessageRouter, stamp_seconds
+from gap_validation.ingest import VERIFY_MESSAGES, FieldError, MessageRouter, fast_values_agree, stamp_seconds
 
 log = logging.getLogger(__name__)
 
@@ -34,8 +34,6 @@ __all__ = ["replay", "ReplayOutcome", "BagReport", "BAG_GAP_S", "VERIFY_MESSAGES
 
 #: Gap inserted between bags whose clocks overlap [s].
 BAG_GAP_S = 60.0
-#: Messages per topic decoded both ways (fast and full) before the fast decoder is trusted.
-VERIFY_MESSAGES = 8
 #: Router batching for replay: messages per topic and time span [s] per push (well inside the estimator's
 #: ``max_lag_s`` of 30 s; larger pushes amortise its per-call cost).
 REPLAY_BATCH = 8192
@@ -85,7 +83,7 @@ class ReplayOutcome:
 class _TopicState:
     """Per-topic decoding state within one bag."""
 
-    __slots__ = ("routes", "decoder", "verify_left", "disabled", "msgtype")
+    __slots__ = ("routes", "decoder", "verify_left", "disabled", "msgtype", "damaged", "first_damage")
 
     def __init__(self, routes, msgtype: str, fast: bool):
         self.routes = routes
@@ -93,6 +91,8 @@ class _TopicState:
         self.decoder = fast_decoder(msgtype, [r.path for r in routes]) if fast else None
         self.verify_left = VERIFY_MESSAGES
         self.disabled = False
+        self.damaged = 0
+        self.first_damage = ""
 
 
 def _check_topics(bag: Bag, router: MessageRouter, report: BagReport) -> dict[str, _TopicState]:
@@ -125,8 +125,10 @@ def _check_topics(bag: Bag, router: MessageRouter, report: BagReport) -> dict[st
     return present
 
 
-def _same(fast_values, full_values) -> bool:
-    return all(a == b or (math.isnan(a) and math.isnan(b)) for a, b in zip(fast_values, full_values))
+def _after_topic(text: str, topic: str) -> str:
+    """``text`` without its ``<bag>: topic <topic>: `` prefix (the report line names both already)."""
+    marker = f"topic {topic}: "
+    return text.split(marker, 1)[1] if marker in text else text
 
 
 class _BagReplay:
@@ -159,6 +161,10 @@ class _BagReplay:
         finally:
             self.progress(count % PROGRESS_EVERY)
             self.report.messages = count
+            for topic, state in self.states.items():
+                if state.damaged:
+                    self.report.errors.append(f"{self.bag.path}: topic {topic}: {state.damaged} damaged "
+                                              f"record(s) skipped (first: {state.first_damage})")
             self.report.fast_topics = sorted(t for t, s in self.states.items()
                                              if s.decoder is not None and not s.disabled)
 
@@ -172,6 +178,7 @@ class _BagReplay:
         self.offset_set = True
 
     def _route(self, topic: str, state: _TopicState, bag_time_s: float, raw: Any) -> None:
+        stamp, values = None, None
         if state.decoder is not None:
             try:
                 stamp, values = state.decoder(raw)
@@ -183,10 +190,16 @@ class _BagReplay:
                     self._set_offset(t_s)
                 self.router.on_values(topic, t_s, values)
                 return
-            if values is not None:
-                state.verify_left -= 1
-                self._verify(topic, state, raw, stamp, values)
-        msg = self.bag.deserialize(raw, state.msgtype, topic)
+        try:
+            msg = self.bag.deserialize(raw, state.msgtype, topic)
+        except DataError as err:  # a damaged record: count it, keep reading the bag
+            state.damaged += 1
+            state.first_damage = state.first_damage or _after_topic(str(err), topic)
+            self.router.count_bad_message(topic, "undecodable")
+            return
+        if values is not None:
+            state.verify_left -= 1
+            self._verify(topic, state, msg, stamp, values)
         if not self.offset_set:
             stamp = stamp_seconds(msg)
             self._set_offset(bag_time_s if stamp is None else stamp)
@@ -196,14 +209,9 @@ class _BagReplay:
             state.disabled = True
             self.report.errors.append(f"{self.bag.path}: {err} ({state.msgtype}); topic skipped")
 
-    def _verify(self, topic: str, state: _TopicState, raw: Any, stamp, values) -> None:
-        """Compare the fast decoder with full deserialisation; on any difference stop using it."""
-        msg = self.bag.deserialize(raw, state.msgtype, topic)
-        try:
-            full = [r.path.extract(msg) for r in state.routes]
-        except FieldError:
-            full = None
-        if full is None or stamp != stamp_seconds(msg) or not _same(values, full):
+    def _verify(self, topic: str, state: _TopicState, msg: Any, stamp, values) -> None:
+        """Compare the fast decoder with full deserialisation (``msg``); on any difference stop using it."""
+        if not fast_values_agree(state.routes, msg, stamp, values):
             log.debug("fast decoder of %s disagrees with rosbags; decoding fully", topic)
             state.decoder = None
 

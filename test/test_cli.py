@@ -64,3 +64,14 @@ def test_console_script_runs():
         pytest.skip("gap-validate console script not installed in this environment")
     proc = subprocess.run([exe, "--help"], capture_output=True, text=True, env=os.environ.copy(), timeout=60)
     assert proc.returncode == 0 and "compare-models" in proc.stdout
+
+
+def test_ctrl_c_while_starting_up_is_one_line_exit_130(capsys, monkeypatch):
+    import gap_validation.cli as cli
+
+    def interrupted():
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "build_parser", interrupted)
+    assert cli.main(["compare-models", "a.yaml", "b.yaml"]) == 130
+    assert capsys.readouterr().err.strip() == "gap-validate: interrupted"

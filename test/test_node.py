@@ -582,6 +582,8 @@ def test_bad_messages_are_counted_and_survived(ros, typed, path):
     assert yaw.get("input: wrong length") == 1
     if path == "message":
         assert all(counts.get("output: missing field") == 1 for counts in (roll, pitch, yaw))
+    else:  # a damaged record is counted as replay counts it
+        assert all(counts.get("output: undecodable") == 1 for counts in (roll, pitch, yaw))
     for name in ("roll", "pitch", "yaw"):
         assert int(values[name]["bad_samples"]) == sum(json.loads(values[name]["bad_samples_by_reason"]).values())
     # still alive and still counting good samples

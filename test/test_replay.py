@@ -212,6 +212,33 @@ def test_one_unreadable_bag_among_several_keeps_the_rest(tmp_path, pitch_bag, pi
     assert all("\n" not in e for e in outcome.errors)
 
 
+def _copy_with_damaged_records(src, dst, damage):
+    """Copy bag ``src`` to ``dst`` with the records whose 1-based numbers are in ``damage`` cut to 20 bytes."""
+    from rosbags.rosbag2 import Reader, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    with Reader(src) as reader, Writer(dst, version=Writer.VERSION_LATEST) as writer:
+        conns = {c.id: writer.add_connection(c.topic, c.msgtype, typestore=store) for c in reader.connections}
+        for number, (conn, stamp, raw) in enumerate(reader.messages(), start=1):
+            writer.write(conns[conn.id], stamp, bytes(raw)[:20] if number in damage else raw)
+
+
+@pytest.mark.parametrize("fast", [True, False])
+def test_damaged_record_is_skipped_and_the_rest_of_the_bag_kept(tmp_path, pitch_bag, pitch_config, fast):
+    path, _ = pitch_bag
+    damaged = tmp_path / "damaged"
+    _copy_with_damaged_records(path, damaged, {3, 2000, 2001})   # the first while verifying the fast path
+    outcome = replay([damaged], pitch_config, fast=fast, diagnose=False)
+    clean = replay([path], pitch_config, fast=fast, diagnose=False)
+    pitch = outcome.result.channels["pitch"]
+    assert pitch.sweeps == clean.result.channels["pitch"].sweeps == PITCH.sweeps_per_channel
+    assert abs(pitch.epsilon - clean.result.channels["pitch"].epsilon) < 0.01
+    assert sum(v for k, v in pitch.bad_samples.items() if "undecodable" in k) == 3
+    assert len(outcome.errors) == 2 and all("\n" not in e and "damaged record" in e for e in outcome.errors)
+    assert any("/imu" in e for e in outcome.errors) and any("/control_surfaces" in e for e in outcome.errors)
+
+
 def test_only_bad_bags_raise_data_error(tmp_path, pitch_config):
     with pytest.raises(DataError) as err:
         replay([tmp_path / "missing"], pitch_config)
@@ -276,6 +303,26 @@ def test_cli_replay_bad_bag_exit_1_results_kept(tmp_path, pitch_bag, capsys):
     assert len(capsys.readouterr().err.strip().splitlines()) == 1
 
 
+@pytest.mark.parametrize("option, target, needle", [
+    ("--json", "missing/out.json", "does not exist"),
+    ("--json", ".", "is a directory"),
+    ("--apply-diagnosis", "missing/fixed.yaml", "does not exist"),
+    ("--report", "file.txt/report", "is a file"),
+])
+def test_cli_unwritable_output_is_refused_before_the_replay(tmp_path, pitch_bag, capsys, monkeypatch, option,
+                                                            target, needle):
+    import gap_validation.commands.replay as command
+
+    path, _ = pitch_bag
+    config = write_config(single_channel("pitch"), tmp_path / "pitch.yaml")
+    (tmp_path / "file.txt").write_text("")
+    monkeypatch.setattr(command, "replay", lambda *a, **k: pytest.fail("replayed before checking the outputs"))
+    assert main(["replay", str(path), "--config", str(config), "--no-history", option,
+                 str(tmp_path / target)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and option in err and needle in err, err
+
+
 def test_cli_bad_config_exit_2(tmp_path, pitch_bag, capsys):
     path, _ = pitch_bag
     bad = tmp_path / "bad.yaml"
@@ -332,6 +379,12 @@ def test_cli_simulate_and_errors(tmp_path, capsys):
                      "--hidden", bad]) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and part in err
+    (tmp_path / "file.txt").write_text("")
+    for bad, part in (("missing/y.mcap", "does not exist"), ("file.txt/y", "is a file")):
+        assert main(["simulate", "--config", str(CONFIG_PATH), "--out", str(tmp_path / bad), "--sweeps", "1",
+                     "--sweep-duration", "10"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "--out" in err and part in err, err
     assert main(["simulate", "--config", str(CONFIG_PATH), "--out", str(tmp_path / "y.db3"), "--sweeps", "1",
                  "--sweep-duration", "10", "--storage", "sqlite3"]) == 0
     assert (tmp_path / "y.db3").is_file()

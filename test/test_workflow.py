@@ -66,3 +66,17 @@ def test_config_topics_missing_from_the_bag_is_an_error(tmp_path, capsys):
     assert "topic /imu_missing (roll.output, pitch.output, yaw.output) is not in the bag" in err
     assert "no channel has both input and output samples" in err
     assert "Traceback" not in err
+
+
+def test_unwritable_history_keeps_the_other_outputs_and_the_bag_errors(tmp_path, capsys):
+    blocker = tmp_path / "not_a_dir"
+    blocker.write_text("")
+    fixed = tmp_path / "fixed.yaml"
+    out_json = tmp_path / "out.json"
+    status = main(["replay", BAG, str(tmp_path / "missing.mcap"), "--config", CONFIG, "--json", str(out_json),
+                   "--history", str(blocker / "history.jsonl"), "--apply-diagnosis", str(fixed), "--no-progress"])
+    assert status == 1                                   # the missing bag, not the history
+    err = capsys.readouterr().err
+    assert "cannot write the validation history" in err and "history is not appended" in err
+    assert "missing.mcap" in err and "Traceback" not in err
+    assert fixed.exists() and json.loads(out_json.read_text())["channels"]["pitch"]["sweeps"] == 3

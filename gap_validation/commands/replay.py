@@ -81,9 +81,26 @@ def _report_writer():
     return writer
 
 
+def _check_outputs(args) -> None:
+    """Refuse output paths that cannot be written before the replay, not after it (ConfigError, one line)."""
+    for option, value in (("--json", args.json), ("--apply-diagnosis", args.apply_diagnosis)):
+        if not value:
+            continue
+        path = Path(value)
+        if path.is_dir():
+            raise ConfigError(f"{option} {value}: is a directory (expected a file path)")
+        if not path.resolve().parent.is_dir():
+            raise ConfigError(f"{option} {value}: directory {path.resolve().parent} does not exist")
+    if args.report:
+        existing = next((p for p in (Path(args.report), *Path(args.report).parents) if p.exists()), None)
+        if existing is not None and not existing.is_dir():
+            raise ConfigError(f"--report {args.report}: {existing} is a file, not a directory")
+
+
 def run(args) -> int:
     config = load_config(args.config)
     write_report = _report_writer() if args.report else None
+    _check_outputs(args)
     bar = ProgressBar() if not args.no_progress and sys.stderr.isatty() else None
     try:
         outcome = replay(args.bags, config, progress=bar, fast=not args.full_decode)
@@ -92,7 +109,16 @@ def run(args) -> int:
             bar.close()
     for warning in outcome.warnings:
         print(f"gap-validate: warning: {warning}", file=sys.stderr)
-    result = outcome.result
+    try:
+        _write_outputs(args, config, outcome.result, write_report)
+    finally:  # the bags' problems are reported even when an output fails
+        for error in outcome.errors:
+            print(f"gap-validate: error: {error}", file=sys.stderr)
+    return 1 if outcome.errors else 0
+
+
+def _write_outputs(args, config, result, write_report) -> None:
+    """Table, JSON, report, history and --apply-diagnosis of a replay's result."""
     history = None if args.no_history else _history_path(args, config)
     records = _load_history(history) if history is not None else None
     if records is not None:
@@ -103,14 +129,15 @@ def run(args) -> int:
     if write_report is not None:
         write_report(result, args.report)
     if records is not None and any(ch.sweeps for ch in result.channels.values()):
-        record = append_history(history, result, config, args.bags)
-        for line in _trends(records + [record], result):
-            print(line)
+        try:
+            record = append_history(history, result, config, args.bags)
+        except DataError as err:  # results come first: the other outputs are still written
+            print(f"gap-validate: warning: {err}; the history is not appended", file=sys.stderr)
+        else:
+            for line in _trends(records + [record], result):
+                print(line)
     if args.apply_diagnosis:
         _apply_diagnosis(config, result, args.apply_diagnosis, history)
-    for error in outcome.errors:
-        print(f"gap-validate: error: {error}", file=sys.stderr)
-    return 1 if outcome.errors else 0
 
 
 def _history_path(args, config) -> Path:

@@ -90,6 +90,15 @@ def _remove_existing(out: Path) -> None:
         raise ConfigError(f"--out {out}: exists and is not a bag; not replacing it")
 
 
+def _check_out(out: Path) -> None:
+    """Refuse an ``--out`` that cannot be written before simulating (ConfigError, one line)."""
+    existing = next((p for p in out.parents if p.exists()), None)
+    if existing is not None and not existing.is_dir():
+        raise ConfigError(f"--out {out}: {existing} is a file, not a directory")
+    if out.suffix in BAG_SUFFIXES and not out.parent.is_dir():
+        raise ConfigError(f"--out {out}: directory {out.parent} does not exist")
+
+
 def options_from_args(args, channels: tuple[str, ...] | None = None) -> FlightOptions:
     """The :class:`FlightOptions` the command-line arguments ask for (``channels``: the config's, to check the
     ones ``--band-noise`` names)."""
@@ -111,6 +120,7 @@ def run(args) -> int:
     hidden = hidden_effects(args.hidden, config)
     options = options_from_args(args, tuple(config.channels))
     out = Path(args.out)
+    _check_out(out)
     if out.exists():
         if not args.force:
             raise ConfigError(f"--out {out}: exists already (use --force to replace a bag)")

@@ -80,3 +80,4 @@ def test_unwritable_history_keeps_the_other_outputs_and_the_bag_errors(tmp_path,
     assert "cannot write the validation history" in err and "history is not appended" in err
     assert "missing.mcap" in err and "Traceback" not in err
     assert fixed.exists() and json.loads(out_json.read_text())["channels"]["pitch"]["sweeps"] == 3
+    assert "history" not in yaml.safe_load(fixed.read_text())   # not pointed at a history it could not write

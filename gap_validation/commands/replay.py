@@ -133,6 +133,7 @@ def _write_outputs(args, config, result, write_report) -> None:
             record = append_history(history, result, config, args.bags)
         except DataError as err:  # results come first: the other outputs are still written
             print(f"gap-validate: warning: {err}; the history is not appended", file=sys.stderr)
+            history = None  # and --apply-diagnosis does not point the new config at it
         else:
             for line in _trends(records + [record], result):
                 print(line)

@@ -34,7 +34,7 @@ from rosbags.rosbag2.errors import ReaderError, WriterError
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, TypesysError, get_types_from_idl, get_types_from_msg, get_typestore
 
-from gap_validation.core.errors import ConfigError, DataError
+from gap_validation.core.errors import ConfigError, DataError, one_line
 from gap_validation.ingest import FieldPath
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -66,11 +66,6 @@ class TopicInfo:
 
 class FastDecodeError(Exception):
     """The fast decoder cannot read this record; decode it fully instead."""
-
-
-def _one_line(err: BaseException) -> str:
-    text = " ".join(str(err).split()) or type(err).__name__
-    return text.rstrip(".")
 
 
 # --------------------------------------------------------------------------------------------- reading
@@ -113,7 +108,7 @@ class Bag:
             self._reader = Reader(self._storage)
             self._reader.open()
         except Exception as err:  # noqa: BLE001 - any failure to open means "not a readable bag"
-            raise DataError(f"{self.path}: cannot read bag ({_one_line(err)})") from None
+            raise DataError(f"{self.path}: cannot read bag ({one_line(err)})") from None
         self._closed = False
 
     def __enter__(self) -> "Bag":
@@ -185,7 +180,7 @@ class Bag:
                 return
             except (TypesysError, ValueError, KeyError) as err:
                 raise DataError(f"{self.path}: cannot use the definition of {msgtype} in the bag "
-                                f"({_one_line(err)})") from None
+                                f"({one_line(err)})") from None
         raise DataError(f"{self.path}: unknown message type {msgtype} (not in the {TYPESTORE.name} typestore "
                         "and no definition in the bag)")
 
@@ -206,7 +201,7 @@ class Bag:
         except Exception as err:  # noqa: BLE001 - rosbags, zstd, lz4 and sqlite3 raise many kinds on damage
             if isinstance(err, DataError):
                 raise
-            raise DataError(f"{self.path}: corrupted or unreadable data ({_one_line(err)})") from None
+            raise DataError(f"{self.path}: corrupted or unreadable data ({one_line(err)})") from None
 
     def deserialize(self, raw: Any, msgtype: str, topic: str = "") -> Any:
         """Fully decode one CDR record into a rosbags message object.
@@ -224,7 +219,7 @@ class Bag:
         except (SerdeError, struct.error, ValueError, IndexError, AssertionError, TypeError,
                 UnicodeDecodeError) as err:
             raise DataError(f"{self.path}: topic {topic}: message does not decode as {msgtype} "
-                            f"({_one_line(err)})") from None
+                            f"({one_line(err)})") from None
 
     def messages(self, topics: Sequence[str] | None = None) -> Iterator[tuple[str, Any, float]]:
         """Stream ``(topic, message object, bag_time_s)`` (full deserialisation)."""
@@ -613,7 +608,7 @@ def _write_dir(flight, out: Path, storage: str, compress: bool, frame_id: str,
                 ti = topic_index[k]
                 writer.write(conns[ti], receive_ns[k], serializers[ti](sample_index[k], stamps_ns[k]))
     except WriterError as err:
-        raise ConfigError(f"{out}: cannot write bag ({_one_line(err)})") from None
+        raise ConfigError(f"{out}: cannot write bag ({one_line(err)})") from None
 
 
 def _nanoseconds(t_s: np.ndarray, start_s: float) -> np.ndarray:

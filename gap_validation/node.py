@@ -134,7 +134,7 @@ import numpy as np
 from gap_validation.config import load_config
 from gap_validation.core.checkpoint import load_state, save_state
 from gap_validation.core.config import ValidationConfig
-from gap_validation.core.errors import ConfigError, DataError, GapValidationError
+from gap_validation.core.errors import ConfigError, DataError, GapValidationError, one_line
 from gap_validation.core.results import ChannelResult, ValidationResult
 from gap_validation.core.validator import OnlineValidator
 from gap_validation.ingest import VERIFY_MESSAGES, FieldError, FieldPath, MessageRouter, fast_values_agree
@@ -347,11 +347,6 @@ def channel_status(result: ChannelResult, *, warn_epsilon: float = 0.25, error_e
     return ChannelStatus(result.name, level, summary, values)
 
 
-def _one_line(err: BaseException) -> str:
-    text = " ".join(str(err).split())
-    return text or type(err).__name__
-
-
 def _copy_tree(value: Any) -> Any:
     """Deep copy of a state tree (arrays copied), so a worker thread never sees arrays being updated."""
     if isinstance(value, np.ndarray):
@@ -382,7 +377,7 @@ def message_class(type_name: str) -> type:
         module = importlib.import_module(f"{parts[0]}.{parts[1]}")
         return getattr(module, parts[2])
     except (ImportError, AttributeError) as err:
-        raise ConfigError(f"message type {type_name!r} is not installed ({_one_line(err)})") from None
+        raise ConfigError(f"message type {type_name!r} is not installed ({one_line(err)})") from None
 
 
 def _check_fields(topic: str, cls: type, entries) -> None:
@@ -492,7 +487,7 @@ class ValidatorNode(Node):
                                                                            read_only=read_only))
             except ParameterException as err:
                 kind = type(default).__name__.replace("str", "string").replace("float", "double (e.g. 1.0)")
-                raise ConfigError(f"parameter {name}: expected a {kind} ({_one_line(err)})") from None
+                raise ConfigError(f"parameter {name}: expected a {kind} ({one_line(err)})") from None
 
     def _param(self, name: str) -> Any:
         return self.get_parameter(name).value
@@ -551,7 +546,7 @@ class ValidatorNode(Node):
                 os.replace(path, aside)
             except OSError:
                 aside = "(could not move it aside)"
-            self.get_logger().error(f"checkpoint {path} unusable ({_one_line(err)}); kept as {aside}, "
+            self.get_logger().error(f"checkpoint {path} unusable ({one_line(err)}); kept as {aside}, "
                                     "starting fresh")
             return OnlineValidator(self.config, diagnose=False)
         self.get_logger().info(f"resumed from checkpoint {path}")
@@ -568,7 +563,7 @@ class ValidatorNode(Node):
                        meta={"node": self.get_fully_qualified_name(), "config_file": self.config.source,
                              "saved_unix_s": time.time()})
         except (DataError, TypeError) as err:
-            self._log_once(f"checkpoint:{err}", "error", f"checkpoint failed: {_one_line(err)}")
+            self._log_once(f"checkpoint:{err}", "error", f"checkpoint failed: {one_line(err)}")
             return None
         return path
 
@@ -681,14 +676,14 @@ class ValidatorNode(Node):
                     self.router.on_values(topic, now_s if stamp is None else stamp, values)
                 except Exception as err:  # noqa: BLE001 - a message must never stop the node
                     self._log_once(f"raw:{topic}:{type(err).__name__}", "error",
-                                   f"topic {topic}: message skipped ({_one_line(err)})")
+                                   f"topic {topic}: message skipped ({one_line(err)})")
                 return
         try:
             msg = deserialize_message(data, raw.cls)
         except Exception as err:  # noqa: BLE001 - a damaged message: counted as replay counts it
             self.router.count_bad_message(topic, "undecodable")
             self._log_once(f"raw:{topic}:{type(err).__name__}", "error",
-                           f"topic {topic}: message skipped ({_one_line(err)})")
+                           f"topic {topic}: message skipped ({one_line(err)})")
             return
         if values is not None:
             raw.verify_left -= 1
@@ -710,10 +705,10 @@ class ValidatorNode(Node):
         except FieldError as err:  # the message type lacks a configured field: every message will fail
             for route in self.router.routes.get(topic, ()):
                 self.validator.count_bad(route.channel, route.stream, err.reason)
-            self._log_once(f"field:{topic}", "error", f"{_one_line(err)} (check the config; counted as bad)")
+            self._log_once(f"field:{topic}", "error", f"{one_line(err)} (check the config; counted as bad)")
         except Exception as err:  # noqa: BLE001 - a message must never stop the node
             self._log_once(f"msg:{topic}:{type(err).__name__}", "error",
-                           f"topic {topic}: message skipped ({_one_line(err)})")
+                           f"topic {topic}: message skipped ({one_line(err)})")
 
     # ---------------------------------------------------------------- diagnostics
     def _update_seen(self, now_s: float) -> None:
@@ -789,7 +784,7 @@ class ValidatorNode(Node):
             self._schedule_diagnosis(result)
             array = self.diagnostic_array(self.statuses(result, now_s))
         except Exception as err:  # noqa: BLE001 - keep publishing next time
-            self._log_once(f"diagnostics:{type(err).__name__}", "error", f"diagnostics failed: {_one_line(err)}")
+            self._log_once(f"diagnostics:{type(err).__name__}", "error", f"diagnostics failed: {one_line(err)}")
             return None
         self._diag_pub.publish(array)
         return array
@@ -799,7 +794,7 @@ class ValidatorNode(Node):
         try:
             self.router.flush()
         except Exception as err:  # noqa: BLE001 - the estimator refused a batch: keep going without it
-            self._log_once(f"flush:{type(err).__name__}", "error", f"samples dropped: {_one_line(err)}")
+            self._log_once(f"flush:{type(err).__name__}", "error", f"samples dropped: {one_line(err)}")
 
     # ---------------------------------------------------------------- full diagnosis (worker thread)
     def _results_key(self, result: ValidationResult) -> tuple:
@@ -835,7 +830,7 @@ class ValidatorNode(Node):
         try:
             generation, result = job.result()
         except Exception as err:  # noqa: BLE001
-            self._log_once(f"diagnosis:{type(err).__name__}", "error", f"diagnosis failed: {_one_line(err)}")
+            self._log_once(f"diagnosis:{type(err).__name__}", "error", f"diagnosis failed: {one_line(err)}")
             return
         if generation == self._generation:
             self._take_diagnosis(result)
@@ -872,14 +867,14 @@ class ValidatorNode(Node):
             config = load_config(path)
             types = self._resolve_types(config)
         except GapValidationError as err:
-            text = f"reload failed (the model of {self.config.source} stays): {_one_line(err)}"
+            text = f"reload failed (the model of {self.config.source} stays): {one_line(err)}"
             self.get_logger().error(text)
             return False, text
         self._flush()
         try:
             restarted = self.validator.set_config(config)
         except Exception as err:  # noqa: BLE001
-            text = f"reload failed (the model of {self.config.source} stays): {_one_line(err)}"
+            text = f"reload failed (the model of {self.config.source} stays): {one_line(err)}"
             self.get_logger().error(text)
             return False, text
         self.config, self._types = config, types
@@ -941,7 +936,7 @@ class ValidatorNode(Node):
         try:
             write_report(result, target)
         except Exception as err:  # noqa: BLE001 - the JSON is written; the report is a bonus
-            self.get_logger().warning(f"report not written: {_one_line(err)}")
+            self.get_logger().warning(f"report not written: {one_line(err)}")
 
     def _srv_reload(self, request, response):
         response.success, response.message = self.reload()
@@ -957,7 +952,7 @@ class ValidatorNode(Node):
             response.message = str(self.save_results())
             response.success = True
         except Exception as err:  # noqa: BLE001
-            response.success, response.message = False, f"save_results failed: {_one_line(err)}"
+            response.success, response.message = False, f"save_results failed: {one_line(err)}"
             self.get_logger().error(response.message)
         return response
 
@@ -1047,7 +1042,7 @@ def main(args: list[str] | None = None) -> int:
     try:
         node = ValidatorNode()
     except GapValidationError as err:
-        print(f"validator_node: error: {_one_line(err)}", file=sys.stderr)
+        print(f"validator_node: error: {one_line(err)}", file=sys.stderr)
         rclpy.try_shutdown()
         return 2
     executor = _executor(node)

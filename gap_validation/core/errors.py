@@ -17,3 +17,9 @@ class DataError(GapValidationError):
     """Unreadable or unusable data: names the file or topic (CLI exit status 1)."""
 
     exit_code = 1
+
+
+def one_line(err: BaseException) -> str:
+    """The text of an exception on one line (whitespace collapsed, no trailing period), or its type name."""
+    text = " ".join(str(err).split()) or type(err).__name__
+    return text.rstrip(".")

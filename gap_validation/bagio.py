@@ -144,11 +144,6 @@ class Bag:
         """Bag time of the first message [s]."""
         return self._reader.start_time * 1e-9
 
-    @property
-    def duration_s(self) -> float:
-        """Bag duration [s]."""
-        return self._reader.duration * 1e-9
-
     def message_count(self, topics: Sequence[str] | None = None) -> int:
         """Messages in ``topics`` (all topics when None)."""
         info = self.topics

@@ -448,7 +448,6 @@ class ValidatorNode(Node):
         self.validator = self._initial_validator()
         self.router = MessageRouter(self.config, self.validator)
         self.last_result: ValidationResult | None = None
-        self.last_diagnosis: ValidationResult | None = None
         self._subs: dict[str, Any] = {}
         self._raw: dict[str, _RawTopic] = {}
         self._sub_types: dict[str, str] = {}
@@ -836,7 +835,6 @@ class ValidatorNode(Node):
             self._take_diagnosis(result)
 
     def _take_diagnosis(self, result: ValidationResult) -> None:
-        self.last_diagnosis = result
         for name, ch in result.channels.items():
             if ch.epsilon is not None:
                 self._top[name] = ch.diagnosis[0] if ch.diagnosis else None

@@ -198,6 +198,25 @@ def previous_epsilon(history: Sequence[dict], channel: str, exclude_model_hash: 
     return None
 
 
+def epsilon_versions(history: Sequence[dict], channel: str) -> list[dict]:
+    """Epsilon of ``channel`` per model version, in the order they were flown (for the report's plot).
+
+    Consecutive replays with the same model form one version; its latest record counts. Each entry has
+    ``model_description``, ``model_hash``, ``airframe_hash``, ``epsilon``, ``epsilon_raw`` and ``timestamp``.
+    """
+    versions: list[dict] = []
+    for record, entry in _entries(history, channel):
+        item = {"model_description": entry.get("model_description") or "model",
+                "model_hash": entry.get("model_hash"), "airframe_hash": entry.get("airframe_hash"),
+                "epsilon": float(entry["epsilon"]), "epsilon_raw": entry.get("epsilon_raw"),
+                "timestamp": record.get("timestamp")}
+        if versions and versions[-1]["model_hash"] == item["model_hash"]:
+            versions[-1] = item
+        else:
+            versions.append(item)
+    return versions
+
+
 def format_trend(history: Sequence[dict], channel: str) -> str:
     """One line: epsilon of ``channel`` per model version, in the order they were flown.
 
@@ -208,20 +227,14 @@ def format_trend(history: Sequence[dict], channel: str) -> str:
     --------
     ``pitch epsilon over model versions: 0.62 (airframe only) -> 0.07 (+ time delay of 45 ms)``
     """
-    versions: list[list] = []   # [model_hash, description, epsilon, airframe_hash]
-    for _, entry in _entries(history, channel):
-        key = entry.get("model_hash")
-        if versions and versions[-1][0] == key:
-            versions[-1][2] = float(entry["epsilon"])
-        else:
-            versions.append([key, entry.get("model_description") or "model", float(entry["epsilon"]),
-                             entry.get("airframe_hash")])
+    versions = epsilon_versions(history, channel)
     if not versions:
         return f"{channel}: no validation history yet"
-    airframes = {v[3] for v in versions}
+    airframes = {v["airframe_hash"] for v in versions}
     parts = []
-    for key, description, eps, airframe in versions:
-        if len(airframes) > 1 and airframe:
-            description = f"{description}, airframe {airframe[:6]}"
-        parts.append(f"{eps:.2f} ({description})")
+    for v in versions:
+        description = v["model_description"]
+        if len(airframes) > 1 and v["airframe_hash"]:
+            description = f"{description}, airframe {v['airframe_hash'][:6]}"
+        parts.append(f"{v['epsilon']:.2f} ({description})")
     return f"{channel} epsilon over model versions: " + " -> ".join(parts)

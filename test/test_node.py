@@ -622,6 +622,9 @@ def test_services_reload_reset_save_results(flight, typed, fed, ros, tmp_path):
         pass
     else:
         assert report.exists()
+        for name in fed["result"].channels:      # the paper's figures from the live spectra, doublets included
+            for kind in ("bode", "disk", "failure", "nichols", "nyquist", "time"):
+                assert (report.parent / f"{name}_{kind}.png").stat().st_size > 10_000
 
     # reload with a good file that adds the missing effects: epsilon falls, previous kept
     write_typed(config, flight.hidden or {name: MISSING for name in flight.config.channels})

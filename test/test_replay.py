@@ -345,7 +345,7 @@ def test_cli_report_hook(tmp_path, pitch_bag, capsys, monkeypatch):
     assert "report not available" in capsys.readouterr().err
     monkeypatch.undo()
     calls = []
-    monkeypatch.setattr(command, "_report_writer", lambda: lambda result, d: calls.append((result, d)))
+    monkeypatch.setattr(command, "_report_writer", lambda: lambda result, d, **kw: calls.append((result, d)))
     assert main(["replay", str(path), "--config", str(config), "--report", str(tmp_path / "r")]) == 0
     assert calls and calls[0][1] == str(tmp_path / "r") and "pitch" in calls[0][0].channels
 

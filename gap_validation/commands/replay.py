@@ -15,8 +15,8 @@ from pathlib import Path
 
 from gap_validation.config import dump_config, load_config
 from gap_validation.core.errors import ConfigError, DataError
-from gap_validation.history import (append_history, default_history_path, format_trend, load_history,
-                                    model_hash, previous_epsilon)
+from gap_validation.history import (append_history, default_history_path, epsilon_versions, format_trend,
+                                    load_history, model_hash, previous_epsilon)
 from gap_validation.render import format_table, write_json
 from gap_validation.replay import replay
 
@@ -124,10 +124,6 @@ def _write_outputs(args, config, result, write_report) -> None:
     if records is not None:
         _set_previous(result, config, records)
     print(format_table(result))
-    if args.json:
-        write_json(result.to_json_dict(), args.json)
-    if write_report is not None:
-        write_report(result, args.report)
     if records is not None and any(ch.sweeps for ch in result.channels.values()):
         try:
             record = append_history(history, result, config, args.bags)
@@ -135,10 +131,21 @@ def _write_outputs(args, config, result, write_report) -> None:
             print(f"gap-validate: warning: {err}; the history is not appended", file=sys.stderr)
             history = None  # and --apply-diagnosis does not point the new config at it
         else:
-            for line in _trends(records + [record], result):
+            records = records + [record]
+            for line in _trends(records, result):
                 print(line)
+    if records:
+        result.history = {name: epsilon_versions(records, name) for name in result.channels}
+    if args.json:
+        write_json(result.to_json_dict(), args.json)
+    if write_report is not None:
+        write_report(result, args.report, warn=_warn)
     if args.apply_diagnosis:
         _apply_diagnosis(config, result, args.apply_diagnosis, history)
+
+
+def _warn(message: str) -> None:
+    print(f"gap-validate: warning: {message}", file=sys.stderr)
 
 
 def _history_path(args, config) -> Path:

@@ -85,6 +85,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from gap_validation.core.errors import ConfigError, DataError
+from gap_validation.core.manoeuvres import Manoeuvre, ManoeuvreRecorder
 from gap_validation.core.sweeps import DETECTOR_DEFAULTS, SweepDetector, TriggerTracker
 
 __all__ = ["FrequencyResponseEstimator", "SpectralEstimate", "ESTIMATOR_DEFAULTS"]
@@ -115,7 +116,7 @@ _MATMUL_SIZE = 1e6               # multiply-adds per matrix product: below where
 _EVENT_CAP = 64                  # pending sweep edges
 _BUFFER_CAP = 256                # samples per stream buffered before processing (amortises per-call cost)
 _ENERGY, _TRIGGER = 0, 1         # source of a sweep
-_STATE_VERSION = 1
+_STATE_VERSION = 2
 
 
 # ---------------------------------------------------------------------------------------------- results
@@ -652,6 +653,7 @@ class FrequencyResponseEstimator:
         self._xf = _SegmentTransform(w, fs, block_n, opts["window_cycles"], opts["min_window_s"],
                                      opts["max_window_s"], self._n_slots, opts["detrend"])
         self._det = SweepDetector(fs, **{k: opts[k] for k in DETECTOR_DEFAULTS})
+        self._man = ManoeuvreRecorder(fs, opts["min_sweep_s"])
         self._trig = TriggerTracker()
         self._streams = [_StreamResampler(self._dt, opts["max_gap_s"], opts["cubic_interpolation"])
                          for _ in range(2)]
@@ -828,6 +830,16 @@ class FrequencyResponseEstimator:
                 self._time(self._raw_span[r, 0]), self._time(self._raw_span[r, 1]), 1))
         return out
 
+    @property
+    def manoeuvres(self) -> list[Manoeuvre]:
+        """Short manoeuvres (doublets) found between sweeps, kept for the time-domain check (largest 3)."""
+        return self._man.manoeuvres(self._t0, self._dt)
+
+    @property
+    def manoeuvres_key(self) -> bytes:
+        """Changes exactly when :attr:`manoeuvres` changes."""
+        return self._man.key
+
     def averaged(self) -> SpectralEstimate | None:
         """Estimate pooled over all completed sweeps (None before the first)."""
         if self._n_sweeps == 0:
@@ -929,6 +941,7 @@ class FrequencyResponseEstimator:
             self._desired, self._desired_src = on, src
         if self._xf.active:
             self._finish_sweep(k_end)
+        self._man.end_run()
         self._last_k = None
 
     # ------------------------------------------------------------------ internals: sweeps
@@ -955,25 +968,35 @@ class FrequencyResponseEstimator:
         while self._events and self._events[0][0] < end:
             k, on, src = self._events.pop(0)
             k = max(k, pos)
-            if self._xf.active and k > pos:
-                self._xf.feed(xs[pos - k_a: k - k_a], ys[pos - k_a: k - k_a])
+            if k > pos:
+                self._feed(pos, xs[pos - k_a: k - k_a], ys[pos - k_a: k - k_a])
             pos = k
             self._desired, self._desired_src = on, src
             if on and not self._xf.active:
                 self._start_sweep(k, src)
             elif not on and self._xf.active:
                 self._finish_sweep(k)
-        if self._xf.active and end > pos:
-            self._xf.feed(xs[pos - k_a:], ys[pos - k_a:])
+        if end > pos:
+            self._feed(pos, xs[pos - k_a:], ys[pos - k_a:])
+
+    def _feed(self, k_a: int, xs: np.ndarray, ys: np.ndarray) -> None:
+        """Released samples between two sweep edges: to the manoeuvre ring, and to the transform in a sweep."""
+        self._man.record(k_a, xs, ys)
+        if self._xf.active:
+            self._xf.feed(xs, ys)
 
     def _start_sweep(self, k: int, src: int) -> None:
         self._xf.start()
         self._sweep_k0, self._sweep_src = int(k), int(src)
+        self._man.cut(self._sweep_k0)
 
     def _finish_sweep(self, k_end: int) -> None:
         acc, n = self._xf.end()
         long_enough = (k_end - self._sweep_k0) * self._dt >= self._opts["min_sweep_s"] - 1e-9
-        if n.sum() == 0 or (self._sweep_src == _ENERGY and not long_enough):
+        if self._sweep_src == _ENERGY and not long_enough:
+            self._man.excitation(self._sweep_k0, k_end)       # a doublet, a pulse or a trim step
+            return
+        if n.sum() == 0:
             return
         R = self._raw.shape[0]
         r = self._n_sweeps % R
@@ -1014,7 +1037,7 @@ class FrequencyResponseEstimator:
             "span": np.array(self._span, np.int64),
         })
         parts = {"in": self._streams[0], "out": self._streams[1], "align": self._align, "xf": self._xf,
-                 "det": self._det, "trig": self._trig}
+                 "det": self._det, "trig": self._trig, "man": self._man}
         for prefix, part in parts.items():
             for key, value in part.state_dict().items():
                 st[f"{prefix}.{key}"] = value
@@ -1071,7 +1094,7 @@ class FrequencyResponseEstimator:
         self._tot_n[:] = st["tot_n"]
         self._span = [int(v) for v in st["span"]]
         parts = {"in": self._streams[0], "out": self._streams[1], "align": self._align, "xf": self._xf,
-                 "det": self._det, "trig": self._trig}
+                 "det": self._det, "trig": self._trig, "man": self._man}
         for prefix, part in parts.items():
             n = len(prefix) + 1
             part.load_state({k[n:]: v for k, v in st.items() if k.startswith(prefix + ".")})

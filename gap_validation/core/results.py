@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from gap_validation.core.manoeuvres import Manoeuvre
 from gap_validation.core.margins import Margins, margins_from_epsilon
 
 #: Note attached to every measured nu-gap: on frequency data the winding-number condition cannot be checked.
@@ -52,6 +53,22 @@ def _unwrap_finite(angle_rad: np.ndarray) -> np.ndarray:
     return out
 
 
+def _complex(mag_phase: dict | None) -> np.ndarray | None:
+    """Inverse of :func:`_mag_phase` (null entries become NaN)."""
+    if not mag_phase or not mag_phase.get("magnitude_db"):
+        return None
+    mag = _array(mag_phase["magnitude_db"])
+    phase = _array(mag_phase["phase_deg"])
+    return 10.0 ** (mag / 20.0) * np.exp(1j * np.radians(phase))
+
+
+def _array(values) -> np.ndarray | None:
+    """A float array from a JSON list (null -> NaN); None for a missing or empty list."""
+    if not values:
+        return None
+    return np.array([np.nan if v is None else v for v in values], dtype=float)
+
+
 def _mag_phase(response: np.ndarray | None, reference: np.ndarray | None = None) -> dict:
     if response is None or len(response) == 0:
         return {"magnitude_db": [], "phase_deg": []}
@@ -74,6 +91,34 @@ class SweepResult:
     def to_json_dict(self) -> dict:
         return {"start_s": _num(self.start_s), "end_s": _num(self.end_s), "epsilon": _num(self.epsilon),
                 "worst_frequency_rad_s": _num(self.worst_frequency_rad_s), "points_used": self.points_used}
+
+    @classmethod
+    def from_json_dict(cls, data: dict) -> "SweepResult":
+        return cls(_float(data.get("start_s")), _float(data.get("end_s")), data.get("epsilon"),
+                   data.get("worst_frequency_rad_s"), int(data.get("points_used") or 0))
+
+
+def _float(value) -> float:
+    return float("nan") if value is None else float(value)
+
+
+def _manoeuvre_json(m: Manoeuvre, check: dict | None) -> dict:
+    """A kept manoeuvre: its TIC against the model and its samples (so a report can be drawn from the JSON)."""
+    dt = float(m.t_s[1] - m.t_s[0]) if m.t_s.size > 1 else 0.0
+    out = {"kind": m.kind, "start_s": _num(m.start_s), "end_s": _num(m.end_s)}
+    out.update({key: _num(value) for key, value in (check or {}).items()})
+    out.update({"t0_s": _num(m.t_s[0]) if m.t_s.size else None, "dt_s": dt, "trim_samples": int(m.trim_samples),
+                "input": _list(m.u), "output": _list(m.y)})
+    return out
+
+
+def _manoeuvre_from_json(data: dict) -> Manoeuvre:
+    u, y = _array(data.get("input")), _array(data.get("output"))
+    n = 0 if u is None else u.size
+    t = float(data.get("t0_s") or 0.0) + np.arange(n) * float(data.get("dt_s") or 0.0)
+    return Manoeuvre(str(data.get("kind", "doublet")), t, u if u is not None else np.zeros(0),
+                     y if y is not None else np.zeros(0), _float(data.get("start_s")), _float(data.get("end_s")),
+                     int(data.get("trim_samples") or 0))
 
 
 @dataclass
@@ -110,6 +155,9 @@ class ChannelResult:
     epsilon_previous: float | None = None
     model_description: str = ""
     message: str = ""
+    model_spec: dict = field(default_factory=dict)                   # the config's model mapping
+    manoeuvres: list[Manoeuvre] = field(default_factory=list)        # doublets kept for the time domain
+    time_domain: list[dict] = field(default_factory=list)            # per manoeuvre: tic, tic_input_augmented
 
     @property
     def points_used(self) -> int:
@@ -148,8 +196,46 @@ class ChannelResult:
             "model_description": self.model_description,
             "message": self.message,
             "nu_gap_note": NUGAP_DATA_NOTE,
+            "model_spec": self.model_spec,
+            "confident": [] if self.confident is None else [bool(c) for c in self.confident],
+            "time_domain": [_manoeuvre_json(m, c) for m, c in zip(self.manoeuvres, self._checks())],
         }
+        for entry, response in zip(out["raw_sweeps"], self.sweep_measured):
+            entry["measured"] = _mag_phase(response, self.model)
         return out
+
+    def _checks(self) -> list[dict | None]:
+        return list(self.time_domain) + [None] * (len(self.manoeuvres) - len(self.time_domain))
+
+    @classmethod
+    def from_json_dict(cls, name: str, data: dict) -> "ChannelResult":
+        """Rebuild a channel's result from its JSON object (e.g. to draw a report from saved results)."""
+        ch = cls(name=name, sweeps=int(data.get("sweeps") or 0), nu_gap=data.get("nu_gap"),
+                 nu_gap_frequency_rad_s=data.get("nu_gap_frequency_rad_s"), epsilon=data.get("epsilon"),
+                 worst_frequency_rad_s=data.get("worst_frequency_rad_s"), epsilon_raw=data.get("epsilon_raw"),
+                 epsilon_raw_frequency_rad_s=data.get("epsilon_raw_frequency_rad_s"),
+                 coherence_threshold=float(data.get("coherence_threshold", 0.6)),
+                 points_excluded=int(data.get("points_excluded") or 0), limited_by=data.get("limited_by", "none"),
+                 frequency_flags=list(data.get("frequency_flags") or []), bands=list(data.get("bands") or []),
+                 diagnosis=list(data.get("diagnosis") or []), bad_samples=dict(data.get("bad_samples") or {}),
+                 epsilon_previous=data.get("epsilon_previous"),
+                 model_description=data.get("model_description", ""), message=data.get("message", ""),
+                 model_spec=dict(data.get("model_spec") or {}))
+        ch.margins = margins_from_epsilon(ch.epsilon if ch.epsilon is not None else float("nan"))
+        if ch.epsilon_raw is not None:
+            ch.margins_raw = margins_from_epsilon(ch.epsilon_raw)
+        for key in ("frequency_rad_s", "coherence", "random_error", "kappa", "epsilon_per_frequency"):
+            setattr(ch, key, _array(data.get(key)))
+        ch.measured, ch.model = _complex(data.get("measured")), _complex(data.get("model"))
+        confident = data.get("confident")
+        ch.confident = np.array(confident, dtype=bool) if confident else None
+        raw = list(data.get("raw_sweeps") or [])
+        ch.sweep_results = [SweepResult.from_json_dict(r) for r in raw]
+        ch.sweep_measured = [m for m in (_complex(r.get("measured")) for r in raw) if m is not None]
+        entries = list(data.get("time_domain") or [])
+        ch.manoeuvres = [_manoeuvre_from_json(e) for e in entries]
+        ch.time_domain = [{k: e.get(k) for k in ("tic", "tic_input_augmented")} for e in entries]
+        return ch
 
 
 @dataclass
@@ -160,6 +246,7 @@ class ValidationResult:
     config_source: str | None = None
     sources: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    history: dict[str, list[dict]] = field(default_factory=dict)   # per channel: epsilon per model version
 
     def to_json_dict(self) -> dict:
         return {
@@ -167,4 +254,15 @@ class ValidationResult:
             "config": self.config_source,
             "sources": list(self.sources),
             "notes": list(self.notes),
+            "history": {name: list(v) for name, v in self.history.items()},
         }
+
+    @classmethod
+    def from_json_dict(cls, data: dict) -> "ValidationResult":
+        """Rebuild results from :meth:`to_json_dict` output (``gap-validate report RESULTS.json``)."""
+        channels = data.get("channels")
+        if not isinstance(channels, dict):
+            raise ValueError("no 'channels' object")
+        return cls(channels={name: ChannelResult.from_json_dict(name, ch) for name, ch in channels.items()},
+                   config_source=data.get("config"), sources=list(data.get("sources") or []),
+                   notes=list(data.get("notes") or []), history=dict(data.get("history") or {}))

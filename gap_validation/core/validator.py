@@ -21,6 +21,7 @@ from gap_validation.core.diagnosis import confident_points, sweep_points
 from gap_validation.core.estimator import FrequencyResponseEstimator, SpectralEstimate
 from gap_validation.core.margins import margins_from_epsilon
 from gap_validation.core.results import ChannelResult, SweepResult, ValidationResult
+from gap_validation.core.uncertainty import time_domain_check
 
 log = logging.getLogger(__name__)
 
@@ -64,6 +65,7 @@ class OnlineValidator:
         self._previous: dict[str, float | None] = {}
         self._versions: dict[str, int] = {name: 0 for name in config.channels}
         self._diagnosis_cache: dict[str, tuple[Any, dict]] = {}
+        self._time_domain_cache: dict[str, tuple] = {}
         self.sources: list[str] = []
 
     # ------------------------------------------------------------------ data in
@@ -133,6 +135,7 @@ class OnlineValidator:
         self._previous = {}
         self._versions = {name: v + 1 for name, v in self._versions.items()}
         self._diagnosis_cache.clear()
+        self._time_domain_cache.clear()
 
     def set_config(self, config: ValidationConfig) -> list[str]:
         """Swap in new models (live model update); spectra are kept where the measurement is unchanged.
@@ -158,6 +161,7 @@ class OnlineValidator:
         self._estimators, self._bad = estimators, bad
         self._versions = {name: self._versions.get(name, 0) + 1 for name in config.channels}
         self._diagnosis_cache.clear()
+        self._time_domain_cache.clear()
         return restarted
 
     # ------------------------------------------------------------------ results
@@ -181,7 +185,8 @@ class OnlineValidator:
         result = ChannelResult(name=name, sweeps=int(getattr(est, "n_sweeps", len(sweeps))),
                                coherence_threshold=channel.coherence_threshold,
                                bad_samples=dict(self._bad[name]), epsilon_previous=self._previous.get(name),
-                               model_description=_describe_model(channel))
+                               model_description=_describe_model(channel), model_spec=channel.model_spec)
+        self._time_domain(name, channel, est, result)
         avg = est.averaged()
         if avg is None:
             result.message = "no sweep yet"
@@ -213,6 +218,19 @@ class OnlineValidator:
                               f"({result.points_excluded} points excluded)")
         self._apply_diagnosis(name, channel, avg, sweeps, result, diagnose)
         return result
+
+    def _time_domain(self, name: str, channel: ChannelConfig, est: FrequencyResponseEstimator,
+                     result: ChannelResult) -> None:
+        """Doublets kept from the flight, and the TIC of the model against each (paper eqs. 1, 3; Fig. 6)."""
+        key = (est.manoeuvres_key, repr(channel.model_spec))
+        cached = self._time_domain_cache.get(name)
+        if cached is None or cached[0] != key:
+            manoeuvres = est.manoeuvres
+            checks = [time_domain_check(channel.model, m) for m in manoeuvres]
+            cached = (key, manoeuvres, [{"tic": c.tic, "tic_input_augmented": c.tic_input_augmented}
+                                        for c in checks])
+            self._time_domain_cache[name] = cached
+        result.manoeuvres, result.time_domain = list(cached[1]), [dict(c) for c in cached[2]]
 
     @staticmethod
     def _sweep_result(channel: ChannelConfig, sweep: SpectralEstimate, p_model: np.ndarray,

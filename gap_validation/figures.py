@@ -208,14 +208,17 @@ def failure_figure(ch: ChannelResult, path: Path) -> None:
     plt = pyplot()
     w = ch.frequency_rad_s
     fig, ax = plt.subplots(figsize=(7, 4.0))
+    labelled = set()
     for band in ch.bands:
-        colour = _BAND_COLOURS.get(band.get("limited_by"))
+        kind = band.get("limited_by")
+        colour = _BAND_COLOURS.get(kind)
         if colour and band.get("min_rad_s") is not None:
             lo, hi = float(band["min_rad_s"]), float(band["max_rad_s"])
             if hi <= lo:
                 lo, hi = lo / 1.05, hi * 1.05
-            ax.axvspan(lo, hi, color=colour, alpha=0.12, lw=0)
-            ax.plot([], [], color=colour, alpha=0.3, lw=6, label=f"{band['limited_by']}-limited band")
+            ax.axvspan(lo, hi, color=colour, alpha=0.12, lw=0,
+                       label=None if kind in labelled else f"{kind}-limited band")
+            labelled.add(kind)
     ax.semilogx(w, ch.epsilon_per_frequency, color="0.3", lw=1, label="epsilon(w), eq. 14")
     ax.semilogx(w, ch.kappa, color="tab:purple", lw=1, ls="--", label="kappa(w), eq. 13")
     if ch.random_error is not None and len(ch.random_error) == len(w):
@@ -230,9 +233,10 @@ def failure_figure(ch: ChannelResult, path: Path) -> None:
     ax.axhline(WARN_EPSILON, color="tab:orange", ls=":", lw=1, label="0.25: warning (4.4 dB, 29 deg)")
     if ch.worst_frequency_rad_s is not None and ch.epsilon is not None:
         ax.axvline(ch.worst_frequency_rad_s, color="k", lw=0.8, ls="--")
+        right = ch.worst_frequency_rad_s > math.sqrt(float(np.min(w)) * float(np.max(w)))
         ax.annotate(f"worst {ch.worst_frequency_rad_s:.3g} rad/s\nepsilon {ch.epsilon:.3f}",
-                    (ch.worst_frequency_rad_s, min(ch.epsilon, 1.0)), fontsize=7, xytext=(5, -25),
-                    textcoords="offset points")
+                    (ch.worst_frequency_rad_s, min(ch.epsilon, 1.0)), fontsize=7, xytext=(-5 if right else 5, -25),
+                    textcoords="offset points", ha="right" if right else "left")
     top = float(np.nanmax(ch.epsilon_per_frequency)) if np.any(np.isfinite(ch.epsilon_per_frequency)) else 1.0
     ax.set_ylim(0, min(1.05, max(0.45, top * 1.15)))
     ax.set_xlabel("frequency [rad/s]")
@@ -298,6 +302,9 @@ def nyquist_figure(ch: ChannelResult, path: Path, model=None) -> None:
         discs = [Circle((c.real, c.imag), r) for c, r in zip(p1 * centre, np.abs(p1) * radius)]
         ax.add_collection(PatchCollection(discs, facecolor="#c6dbef", edgecolor="none", zorder=1))
         ax.plot([], [], color="#c6dbef", lw=8, label=f"uncertainty tube (epsilon {ch.epsilon:.3f})")
+    else:
+        ax.text(0.02, 0.04, "epsilon >= 1: no uncertainty tube (no guarantee)", transform=ax.transAxes,
+                color="tab:red")
     ax.plot(p1.real, p1.imag, "k--", lw=1.5, label="model", zorder=3)
     ok = _confident(ch)
     ax.plot(ch.measured.real[ok], ch.measured.imag[ok], "o", color="tab:blue", ms=3, label="flight data (average)",

@@ -95,7 +95,10 @@ Values are strings under the JSON key names (``nu_gap``, ``epsilon``, ``epsilon_
 ``gain_margin_db``, ``phase_margin_deg``, ``disk_margin``, ``worst_frequency_rad_s``, ``sweeps``, ``limited_by``,
 ``points_excluded``, ``bad_samples`` (total; ``bad_samples_by_reason`` has the JSON dict), ``diagnosis`` (top
 candidate sentence; ``pending`` before the first fit, ``none`` when no effect helps, ``off`` when disabled),
-``diagnosis_effects`` (the JSON list to append to the model's effects) ...). Numbers are Python ``repr``
+``diagnosis_effects`` (the JSON list to append to the model's effects), ``samples_input``/``samples_output``,
+``samples_dropped`` ...). ``samples_dropped`` counts the messages missing from the channel's topics, inferred from
+gaps in their ``header.stamp`` (:class:`StampGaps`; DDS does not tell the node when a queue overflows; topics
+without a header are not counted). Numbers are Python ``repr``
 (round-trip exact); missing numbers are ``null`` (margins for epsilon >= 1: no guarantee).
 
 The cheap results (``diagnose=False``) are computed every tick. The full diagnosis fits effects, which takes
@@ -137,7 +140,8 @@ from gap_validation.core.config import ValidationConfig
 from gap_validation.core.errors import ConfigError, DataError, GapValidationError, one_line
 from gap_validation.core.results import ChannelResult, ValidationResult
 from gap_validation.core.validator import OnlineValidator
-from gap_validation.ingest import VERIFY_MESSAGES, FieldError, FieldPath, MessageRouter, fast_values_agree
+from gap_validation.ingest import (VERIFY_MESSAGES, FieldError, FieldPath, MessageRouter, fast_values_agree,
+                                   stamp_seconds)
 from gap_validation.render import write_json
 
 try:  # rclpy is only needed to run the node; the pure helpers below work without it
@@ -156,8 +160,8 @@ except ImportError as _err:  # pragma: no cover - exercised only without ROS 2
     Node = object
     _ROS_IMPORT_ERROR = _err
 
-__all__ = ["NODE_NAME", "PARAMETERS", "ChannelStatus", "channel_status", "candidate_sentence", "ValidatorNode",
-           "main"]
+__all__ = ["NODE_NAME", "PARAMETERS", "ChannelStatus", "channel_status", "candidate_sentence", "StampGaps",
+           "ValidatorNode", "main"]
 
 #: Node name (DESIGN.md).
 NODE_NAME = "gap_validator"
@@ -360,6 +364,56 @@ def _copy_tree(value: Any) -> Any:
     return value
 
 
+class StampGaps:
+    """Messages missing from one topic, inferred from its ``header.stamp`` continuity.
+
+    The node cannot see losses inside DDS (a KEEP_LAST queue that overflows drops the oldest samples silently,
+    a BEST_EFFORT link loses some), so it counts them from the stamps: the nominal period is learnt from the
+    first :attr:`LEARN` intervals (their median) and then refined as the mean of every interval below 1.5
+    periods (stamps of 1.7e9 s carry float rounding of 0.24 us, which the mean averages out), and an interval of
+    ``dt`` with ``1.5 period < dt <= max_gap_s`` counts ``round(dt / period) - 1`` missing messages. Longer
+    silences are pauses (STALE), not drops; after one the period is learnt again. A rate change in flight would
+    count as drops; stamps going backwards are ignored.
+    """
+
+    LEARN = 16
+    __slots__ = ("max_gap_s", "period_s", "first_s", "last_s", "dropped", "_intervals", "_sum_s", "_count")
+
+    def __init__(self, max_gap_s: float):
+        self.max_gap_s = float(max_gap_s)
+        self.first_s: float | None = None   # first stamp seen [s]
+        self.last_s: float | None = None
+        self.dropped = 0
+        self._learn()
+
+    def _learn(self) -> None:
+        self.period_s, self._intervals, self._sum_s, self._count = 0.0, [], 0.0, 0
+
+    def add(self, t_s: float) -> None:
+        """One message stamped ``t_s`` [s]."""
+        last, self.last_s = self.last_s, t_s
+        if last is None:
+            self.first_s = t_s
+            return
+        dt = t_s - last
+        if dt <= 0.0:
+            self.last_s = last if dt < 0.0 else t_s
+        elif dt > self.max_gap_s:
+            self._learn()
+        elif self.period_s <= 0.0:
+            self._intervals.append(dt)
+            if len(self._intervals) >= self.LEARN:
+                self.period_s = float(np.median(self._intervals))
+                normal = [d for d in self._intervals if d <= 1.5 * self.period_s]
+                self._sum_s, self._count = float(sum(normal)), len(normal)
+        elif dt > 1.5 * self.period_s:
+            self.dropped += int(round(dt / self.period_s)) - 1
+        else:
+            self._sum_s += dt
+            self._count += 1
+            self.period_s = self._sum_s / self._count
+
+
 def message_class(type_name: str) -> type:
     """The rclpy message class of ``pkg/msg/Name`` (``pkg/Name`` accepted).
 
@@ -453,6 +507,7 @@ class ValidatorNode(Node):
         self._sub_types: dict[str, str] = {}
         self._pending: dict[str, None] = {}
         self._last_arrival: dict[str, float] = {}
+        self._gaps: dict[str, StampGaps] = {}
         self._last_seen: dict[tuple[str, str], float] = {}
         self._seen_count: dict[tuple[str, str], int] = {}
         self._top: dict[str, dict | None] = {}
@@ -671,6 +726,8 @@ class ValidatorNode(Node):
             except Exception:  # noqa: BLE001 - FastDecodeError, struct.error: decode this one fully
                 stamp, values = None, None
             if values is not None and raw.verify_left <= 0:
+                if stamp is not None:
+                    self._stamp_gaps(topic, stamp)
                 try:
                     self.router.on_values(topic, now_s if stamp is None else stamp, values)
                 except Exception as err:  # noqa: BLE001 - a message must never stop the node
@@ -698,7 +755,21 @@ class ValidatorNode(Node):
         self._last_arrival[topic] = now_s
         self._route(topic, msg, now_s)
 
+    def _stamp_gaps(self, topic: str, stamp_s: float) -> None:
+        gaps = self._gaps.get(topic)
+        if gaps is None:
+            gaps = self._gaps[topic] = StampGaps(self._param("stale_timeout"))
+        gaps.add(stamp_s)
+
+    def samples_dropped(self, topic: str) -> int:
+        """Messages of ``topic`` missing from its header stamps so far (:class:`StampGaps`)."""
+        gaps = self._gaps.get(topic)
+        return gaps.dropped if gaps is not None else 0
+
     def _route(self, topic: str, msg: Any, now_s: float) -> None:
+        stamp = stamp_seconds(msg)
+        if stamp is not None:
+            self._stamp_gaps(topic, stamp)
         try:
             self.router.on_message(topic, msg, now_s)
         except FieldError as err:  # the message type lacks a configured field: every message will fail
@@ -750,8 +821,10 @@ class ValidatorNode(Node):
         for name, ch in result.channels.items():
             waiting, stale, ages = self._reasons(name, now_s)
             state = "off" if off else ("done" if name in self._top else "pending")
+            topics = {self.config.channels[name].signal(stream).topic for stream in _STREAM_TOPICS}
             extra = {**ages, "samples_input": self.router.samples(name, "input"),
-                     "samples_output": self.router.samples(name, "output")}
+                     "samples_output": self.router.samples(name, "output"),
+                     "samples_dropped": sum(self.samples_dropped(topic) for topic in sorted(topics))}
             out.append(channel_status(ch, warn_epsilon=self._param("warn_epsilon"),
                                       error_epsilon=self._param("error_epsilon"), stale_reason=stale,
                                       waiting_reason=waiting, candidate=self._top.get(name),

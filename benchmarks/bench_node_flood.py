@@ -191,7 +191,7 @@ def flood(seconds: float = 60.0, imu_rate_hz: float = 10_000.0, surface_rate_hz:
             truth += last_index + 1 - node.router.messages.get(topic, 0)
             per_topic[topic] = (last_index + 1 - node.router.messages.get(topic, 0), node.samples_dropped(topic))
             tail = count - 1 - last_index if topic == "/imu" else tail
-        gaps = list(np.diff([a for a in arrivals if started <= a]))
+        gaps = list(np.diff([started] + [a for a in arrivals if started <= a]))  # a stall at the start counts
         result = FloodResult(published=n_imu, received=received, tail=tail, samples_dropped=dropped[0],
                              truth_dropped=truth,                             diagnostics_period_s=diagnostic_period_s, diagnostics_gaps_s=gaps, rss_mb=rss,
                              wall_s=wall, per_topic=per_topic)

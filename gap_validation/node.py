@@ -81,7 +81,10 @@ published before the bag plays or while it is paused.
 
 Diagnostics
 -----------
-One status per channel, named ``gap_validator: <channel>``. Level:
+Published every ``diagnostic_period`` by a timer; when the timer is 1.5 periods late (a flood: rclpy's
+EventsExecutor queues it behind every pending message) the next message callback publishes instead, so
+``/diagnostics`` stays on time under load (``benchmarks/bench_node_flood.py``). One status per channel, named
+``gap_validator: <channel>``. Level:
 
 * STALE before any data (message "waiting for data on ..."), when a topic's type is still being discovered,
   when the input or output had no good sample for ``stale_timeout`` s (the last numbers stay in the values),
@@ -477,6 +480,9 @@ class ValidatorNode(Node):
         Bad startup config or parameter (one line; ``main`` exits with status 2).
     """
 
+    #: Diagnostics periods after the last publication when a message callback publishes in the timer's stead.
+    DIAGNOSTICS_LATE = 1.5
+
     def __init__(self, **kwargs):
         if rclpy is None:  # pragma: no cover
             raise ConfigError(f"rclpy is not available ({_ROS_IMPORT_ERROR})")
@@ -524,7 +530,8 @@ class ValidatorNode(Node):
         self.create_service(Trigger, "~/reload", self._srv_reload)
         self.create_service(Trigger, "~/reset", self._srv_reset)
         self.create_service(Trigger, "~/save_results", self._srv_save_results)
-        self._diag_timer = self.create_timer(self._param("diagnostic_period"), self.publish_diagnostics)
+        self._diag_due_s = self._now_s() + self.DIAGNOSTICS_LATE * self._param("diagnostic_period")
+        self._diag_timer = self.create_timer(self._param("diagnostic_period"), self._diagnostics_tick)
         self._ckpt_timer = None
         if self._param("state_file"):
             self._ckpt_timer = self.create_timer(self._param("checkpoint_period"), self.checkpoint)
@@ -716,6 +723,7 @@ class ValidatorNode(Node):
         """
         now_s = self._now_s()
         self._last_arrival[topic] = now_s
+        self._diagnostics_overdue(now_s)
         raw = self._raw.get(topic)
         if raw is None:
             return
@@ -753,6 +761,7 @@ class ValidatorNode(Node):
         """Subscription callback: hand the message to the router (never raises)."""
         now_s = self._now_s()
         self._last_arrival[topic] = now_s
+        self._diagnostics_overdue(now_s)
         self._route(topic, msg, now_s)
 
     def _stamp_gaps(self, topic: str, stamp_s: float) -> None:
@@ -844,9 +853,23 @@ class ValidatorNode(Node):
                 hardware_id=hardware_id, values=[KeyValue(key=k, value=v) for k, v in status.values]))
         return array
 
+    def _diagnostics_tick(self) -> None:
+        """Timer callback: publish, unless a message callback just did (the timer was late, see below)."""
+        period = self._param("diagnostic_period")
+        if self._now_s() >= self._diag_due_s - (self.DIAGNOSTICS_LATE - 0.5) * period:
+            self.publish_diagnostics()
+
+    def _diagnostics_overdue(self, now_s: float) -> None:
+        """From the message callbacks: publish when the timer is late (under a flood rclpy's EventsExecutor
+        queues the timer behind every pending message, and /diagnostics would stall while the flood lasts)."""
+        if now_s > self._diag_due_s:
+            self.publish_diagnostics()
+
     def publish_diagnostics(self) -> "DiagnosticArray":
-        """Timer callback: flush, compute the cheap results, schedule a diagnosis, publish /diagnostics."""
+        """Flush, compute the cheap results, schedule a diagnosis, publish /diagnostics (timer callback, or a
+        message callback when the timer is :attr:`DIAGNOSTICS_LATE` periods late)."""
         now_s = self._now_s()
+        self._diag_due_s = now_s + self.DIAGNOSTICS_LATE * self._param("diagnostic_period")
         self._flush()
         try:
             self._update_seen(now_s)

@@ -12,6 +12,7 @@ import random
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from gap_validation.node import StampGaps
@@ -64,6 +65,40 @@ def test_flood_memory_bounded_diagnostics_on_time_drops_reported(bench, tmp_path
     for topic, (missing, counted) in r.per_topic.items():
         assert counted == missing, topic          # every lost message is reported, none invented
     assert r.samples_dropped == r.truth_dropped   # ... and published in /diagnostics
-    # on time: within 2 periods in the benchmark; 3 here, where two other jobs share the 2 cores
-    assert len(r.diagnostics_gaps_s) >= 3 and r.worst_gap_ratio <= 3.0
+    # on time: a message callback publishes when the timer is 1.5 periods late (the EventsExecutor queues the
+    # timer behind the flood); 2 periods leaves room for the two other jobs sharing the 2 cores
+    assert len(r.diagnostics_gaps_s) >= 6 and r.worst_gap_ratio <= 2.0
     assert r.rss_mb[-1][1] - r.rss_at(1 / 3) < 25.0   # MB: no growth with the messages
+
+
+def test_message_callbacks_publish_diagnostics_when_the_timer_is_late(bench, tmp_path):
+    """No executor runs the timer here (as when a flood queues it behind messages): the callbacks publish."""
+    import time
+
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.parameter import Parameter
+    from sensor_msgs.msg import Imu
+
+    from gap_validation.node import ValidatorNode
+
+    context = Context()
+    rclpy.init(context=context)
+    try:
+        node = ValidatorNode(context=context, parameter_overrides=[
+            Parameter("config_file", value=str(bench.typed_config(tmp_path / "cfg.yaml"))),
+            Parameter("diagnostic_period", value=0.1)])
+        published = []
+        real = node.publish_diagnostics
+        node.publish_diagnostics = lambda: published.append(time.monotonic()) or real()
+        msg, start, k = Imu(), time.monotonic(), 0
+        while time.monotonic() - start < 1.0:
+            bench._stamp(msg, k, 1000.0)
+            node.on_message("/imu", msg)
+            k += 1
+        assert 4 <= len(published) <= 8   # every 1.5 periods (0.15 s) of the 1 s
+        assert max(np.diff(published)) < 0.25
+        node.close()
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)

@@ -38,6 +38,7 @@ def test_good_corrupt_good_validates_both_good_bags_names_the_bad_one_exit_1(tmp
 def test_channel_whose_topic_is_missing_does_not_stop_the_others(tmp_path, good_bags, capsys):
     data = raw_config()
     data["channels"] = {"pitch": data["channels"]["pitch"], "roll": data["channels"]["roll"]}
+    data["channels"]["roll"]["input"]["field"] = "position[elevator]"   # the pitch-only bag has this joint
     data["channels"]["roll"]["output"] = {"topic": "/no_such_imu", "field": "angular_velocity.x"}
     config = write_config(data, tmp_path / "two.yaml")
     out = tmp_path / "out.json"

@@ -111,12 +111,18 @@ def flood(seconds: float = 60.0, imu_rate_hz: float = 10_000.0, surface_rate_hz:
     workdir = Path(tmp.name) if tmp is not None else workdir
     context = Context()
     rclpy.init(context=context)
-    spinner = None
+    spinner, listen_context, listen_executor = None, None, None
     try:
         node = ValidatorNode(context=context, parameter_overrides=[
             Parameter("config_file", value=str(typed_config(workdir / "ultrastick25e.yaml"))),
             Parameter("diagnostic_period", value=diagnostic_period_s)])
-        listener = rclpy.create_node("flood_listener", context=context)
+        # the listener has its own context and executor thread (another process in a real system), so that its
+        # arrival times are not delayed by the node's executor queue
+        listen_context = Context()
+        rclpy.init(context=listen_context)
+        listener = rclpy.create_node("flood_listener", context=listen_context)
+        listen_executor = SingleThreadedExecutor(context=listen_context)
+        listen_executor.add_node(listener)
         arrivals, dropped = [], [0]
 
         def on_diagnostics(array: DiagnosticArray) -> None:
@@ -132,15 +138,16 @@ def flood(seconds: float = 60.0, imu_rate_hz: float = 10_000.0, surface_rate_hz:
         else:
             spinner = SingleThreadedExecutor(context=context)
         spinner.add_node(node)
-        spinner.add_node(listener)
         stop = threading.Event()
 
-        def spin() -> None:
-            while not stop.is_set() and context.ok():
-                spinner.spin_once(timeout_sec=0.05)
+        def spin(executor, ctx) -> None:
+            while not stop.is_set() and ctx.ok():
+                executor.spin_once(timeout_sec=0.05)
 
-        thread = threading.Thread(target=spin, daemon=True)
+        thread = threading.Thread(target=spin, args=(spinner, context), daemon=True)
+        listen_thread = threading.Thread(target=spin, args=(listen_executor, listen_context), daemon=True)
         thread.start()
+        listen_thread.start()
         publisher = rclpy.create_node("flood_publisher", context=context)
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE)
         imu_pub = publisher.create_publisher(Imu, "/imu", qos)
@@ -182,6 +189,7 @@ def flood(seconds: float = 60.0, imu_rate_hz: float = 10_000.0, surface_rate_hz:
         wall = time.monotonic() - started
         stop.set()
         thread.join(timeout=10.0)
+        listen_thread.join(timeout=10.0)
         received = node.router.messages.get("/imu", 0)
         truth, tail, per_topic = 0, 0, {}
         for topic, count, rate in (("/imu", n_imu, imu_rate_hz), ("/control_surfaces", -(-n_imu // every),
@@ -201,6 +209,10 @@ def flood(seconds: float = 60.0, imu_rate_hz: float = 10_000.0, surface_rate_hz:
         if spinner is not None:
             spinner.shutdown()
         rclpy.shutdown(context=context)
+        if listen_executor is not None:
+            listen_executor.shutdown()
+        if listen_context is not None:
+            rclpy.shutdown(context=listen_context)
         if tmp is not None:
             tmp.cleanup()
 

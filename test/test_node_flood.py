@@ -67,7 +67,7 @@ def test_flood_memory_bounded_diagnostics_on_time_drops_reported(bench, tmp_path
     assert r.samples_dropped == r.truth_dropped   # ... and published in /diagnostics
     # on time: a message callback publishes when the timer is 1.5 periods late (the EventsExecutor queues the
     # timer behind the flood); 2 periods leaves room for the two other jobs sharing the 2 cores
-    assert len(r.diagnostics_gaps_s) >= 6 and r.worst_gap_ratio <= 2.0
+    assert len(r.diagnostics_gaps_s) >= 4 and r.worst_gap_ratio <= 2.0
     assert r.rss_mb[-1][1] - r.rss_at(1 / 3) < 25.0   # MB: no growth with the messages
 
 

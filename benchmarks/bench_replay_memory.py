@@ -1,17 +1,20 @@
 #!/usr/bin/env python3
-"""Replay memory against flight length: peak RSS replaying a short and a long flight, in the same run.
+"""Replay memory and throughput against flight length: a short and a long flight replayed in the same run.
 
 Peak RSS is the child's ``VmHWM`` (``ru_maxrss`` survives exec on Linux and would report the parent's peak).
-Two flights of the same test card are simulated from the config (``--short`` and ``--long`` minutes, IMU 100 Hz,
-surfaces 50 Hz), written as mcap bags, and each is replayed (``gap_validation.replay.replay``, no diagnosis) in a
+Two flights of the same test card are simulated from the config (``--short`` and ``--long`` minutes, IMU
+``--imu-rate-hz``, surfaces ``--surface-rate-hz``), written as mcap bags in the temporary directory (``/tmp``), and
+each is replayed (``gap_validation.replay.replay``, no diagnosis) in a
 fresh child process that reports its own peak resident set size. Streaming replay keeps memory flat: the figure of
 merit is ``(peak RSS long - baseline) / (peak RSS short - baseline)`` against the bag size ratio, where the baseline
 is a child that imports the same modules and replays nothing. Constant memory means a ratio near 1 however large the
-bag ratio.
+bag ratio. Throughput (messages per second of the replay call, in the child) is compared the same way: streaming
+means a ratio long/short near 1.
 
 Usage::
 
-    python benchmarks/bench_replay_memory.py [--short 10] [--long 60] [--config CFG]
+    python benchmarks/bench_replay_memory.py [--short 10] [--long 60] [--imu-rate-hz 100] [--surface-rate-hz 50]
+    python benchmarks/bench_replay_memory.py --long 120 --imu-rate-hz 1000 --surface-rate-hz 100   # 2-hour 1 kHz
 """
 from __future__ import annotations
 
@@ -31,17 +34,19 @@ from gap_validation.config import load_config  # noqa: E402
 from gap_validation.core.simulation import FlightOptions, simulate_flight  # noqa: E402
 
 CHILD = """
-import json, sys, warnings
+import json, sys, time, warnings
 warnings.filterwarnings("ignore")
 sys.path.insert(0, {root!r})
 from gap_validation.config import load_config
 from gap_validation.replay import replay
 config = load_config({config!r})
-messages = 0
+messages, elapsed = 0, 0.0
 if {bag!r}:
+    start = time.perf_counter()
     messages = replay([{bag!r}], config, diagnose=False).messages
+    elapsed = time.perf_counter() - start
 hwm = next(int(l.split()[1]) for l in open("/proc/self/status") if l.startswith("VmHWM:"))
-print(json.dumps({{"messages": messages, "max_rss_kb": hwm}}))
+print(json.dumps({{"messages": messages, "max_rss_kb": hwm, "elapsed_s": elapsed}}))
 """
 
 
@@ -53,10 +58,11 @@ def child_peak(config: Path, bag: Path | None) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def flight_bag(config, minutes: float, out: Path) -> Path:
+def flight_bag(config, minutes: float, out: Path, imu_rate_hz: float, surface_rate_hz: float) -> Path:
     """Simulate about ``minutes`` of sweeps (three channels in turn) and write an mcap bag."""
     sweeps = max(1, round(minutes * 60 / (3 * 120)))
-    options = FlightOptions(sweeps_per_channel=sweeps, sweep_duration_s=100.0, quiet_s=10.0)
+    options = FlightOptions(sweeps_per_channel=sweeps, sweep_duration_s=100.0, quiet_s=10.0,
+                            imu_rate_hz=imu_rate_hz, surface_rate_hz=surface_rate_hz)
     write_flight(simulate_flight(config, {}, options, seed=1), out, "mcap")
     return out
 
@@ -71,23 +77,29 @@ def main() -> None:
     parser.add_argument("--config", type=Path, default=ROOT / "config" / "ultrastick25e.yaml")
     parser.add_argument("--short", type=float, default=10.0, help="minutes of the short flight")
     parser.add_argument("--long", type=float, default=60.0, help="minutes of the long flight")
+    parser.add_argument("--imu-rate-hz", type=float, default=100.0)
+    parser.add_argument("--surface-rate-hz", type=float, default=50.0)
     args = parser.parse_args()
     config = load_config(args.config)
+    rates = args.imu_rate_hz, args.surface_rate_hz
     with tempfile.TemporaryDirectory() as tmp:
-        short = flight_bag(config, args.short, Path(tmp) / "short")
-        long = flight_bag(config, args.long, Path(tmp) / "long")
+        short = flight_bag(config, args.short, Path(tmp) / "short", *rates)
+        long = flight_bag(config, args.long, Path(tmp) / "long", *rates)
         sizes = size_mb(short), size_mb(long)
         base = child_peak(args.config, None)
         a, b = child_peak(args.config, short), child_peak(args.config, long)
     grow_a = (a["max_rss_kb"] - base["max_rss_kb"]) / 1024
     grow_b = (b["max_rss_kb"] - base["max_rss_kb"]) / 1024
     print(f"baseline (imports, no replay): peak RSS {base['max_rss_kb'] / 1024:.1f} MB")
-    print(f"short flight: {a['messages']:>8} messages, bag {sizes[0]:6.1f} MB, peak RSS "
-          f"{a['max_rss_kb'] / 1024:.1f} MB (+{grow_a:.1f} MB)")
-    print(f"long flight:  {b['messages']:>8} messages, bag {sizes[1]:6.1f} MB, peak RSS "
-          f"{b['max_rss_kb'] / 1024:.1f} MB (+{grow_b:.1f} MB)")
+    rate_a, rate_b = (c["messages"] / max(c["elapsed_s"], 1e-9) for c in (a, b))
+    print(f"rates: IMU {rates[0]:g} Hz, surfaces {rates[1]:g} Hz")
+    for label, minutes, c, size, grow, rate in (("short", args.short, a, sizes[0], grow_a, rate_a),
+                                                  ("long", args.long, b, sizes[1], grow_b, rate_b)):
+        print(f"{label + ' flight':<13} {minutes:g} min: {c['messages']:>8} messages, bag {size:7.1f} MB, peak RSS "
+              f"{c['max_rss_kb'] / 1024:.1f} MB (+{grow:.1f} MB), {rate:,.0f} msgs/s")
     print(f"messages ratio long/short {b['messages'] / max(a['messages'], 1):.1f}; replay memory growth ratio "
-          f"{grow_b / max(grow_a, 1e-9):.2f} (constant memory: about 1)")
+          f"{grow_b / max(grow_a, 1e-9):.2f}, peak RSS ratio {b['max_rss_kb'] / a['max_rss_kb']:.2f}, throughput "
+          f"ratio {rate_b / rate_a:.2f} (constant memory, unchanged throughput: about 1)")
 
 
 if __name__ == "__main__":

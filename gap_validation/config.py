@@ -6,8 +6,9 @@ from pathlib import Path
 
 import yaml
 
+from gap_validation.atomic import atomic_write_text
 from gap_validation.core.config import ValidationConfig, parse_config
-from gap_validation.core.errors import ConfigError
+from gap_validation.core.errors import ConfigError, DataError
 
 __all__ = ["load_config", "dump_config", "ValidationConfig"]
 
@@ -38,9 +39,17 @@ def load_config(path: str | os.PathLike) -> ValidationConfig:
 
 
 def dump_config(config: ValidationConfig | dict, path: str | os.PathLike) -> None:
-    """Write a config (its raw mapping) as YAML, atomically (write to a temporary file, then rename)."""
+    """Write a config (its raw mapping) as YAML, atomically (:mod:`gap_validation.atomic`: temporary file, then
+    rename; a crash never leaves a half-written config).
+
+    Raises
+    ------
+    DataError
+        One line naming the file when it cannot be written (the old file, if any, is kept).
+    """
     data = config.raw if isinstance(config, ValidationConfig) else config
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(yaml.safe_dump(data, sort_keys=False, default_flow_style=None), encoding="utf-8")
-    os.replace(tmp, path)
+    text = yaml.safe_dump(data, sort_keys=False, default_flow_style=None)
+    try:
+        atomic_write_text(path, text)
+    except OSError as err:
+        raise DataError(f"{path}: cannot write config ({err.strerror or err})") from None

@@ -2,7 +2,8 @@
 versions ("add the effect and watch epsilon fall", DESIGN.md step 4).
 
 The history is a JSON Lines file beside the config (``<config stem>.history.jsonl``): one record per replay,
-appended, never rewritten::
+appended; each append rewrites the file atomically (temporary file, then rename), so a crash or ``kill -9``
+never leaves a half record::
 
     {"timestamp": "2024-05-01T12:00:00+00:00", "config": "cfg.yaml", "sources": ["flight1.mcap"],
      "channels": {"pitch": {"nu_gap": 0.08, "epsilon": 0.62, "epsilon_raw": 0.7, "worst_frequency_rad_s": 31.4,
@@ -18,13 +19,17 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import math
 import os
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Sequence
 
+from gap_validation.atomic import atomic_write_bytes
 from gap_validation.core.errors import DataError
+
+log = logging.getLogger(__name__)
 
 __all__ = ["default_history_path", "append_history", "load_history", "previous_epsilon", "format_trend",
            "model_hash", "describe_model"]
@@ -133,15 +138,34 @@ def append_history(path: str | os.PathLike, result, config, sources: Sequence[st
     line = json.dumps(record, sort_keys=False, allow_nan=False)
     path = Path(path)
     try:
-        with path.open("a", encoding="utf-8") as handle:
-            handle.write(line + "\n")
+        kept = _complete_lines(path.read_bytes()) if path.exists() else b""
+        atomic_write_bytes(path, kept + line.encode("utf-8") + b"\n")
     except OSError as err:
         raise DataError(f"{path}: cannot write the validation history ({err.strerror or err})") from None
     return record
 
 
+def _complete_lines(data: bytes) -> bytes:
+    """``data`` up to its last complete line, newline-terminated: a torn last line (no newline, not JSON) is
+    dropped, a complete record without its newline (edited by hand) is kept."""
+    if not data or data.endswith(b"\n"):
+        return data
+    head, _, last = data.rpartition(b"\n")
+    try:
+        json.loads(last)
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        log.warning("validation history: dropping a torn last line (%d bytes, an interrupted write)", len(last))
+        return head + b"\n" if head else b""
+    return data + b"\n"
+
+
 def load_history(path: str | os.PathLike) -> list[dict]:
     """Read a history file; a missing file is an empty history.
+
+    The history is rewritten atomically (:mod:`gap_validation.atomic`), so no write of this tool leaves a
+    half line; a torn *last* line without its newline (a file written by an older version or another tool,
+    killed mid-append) is skipped with a logged warning naming the file and line, since every record before
+    it is complete.
 
     Raises
     ------
@@ -157,13 +181,18 @@ def load_history(path: str | os.PathLike) -> list[dict]:
     except (OSError, UnicodeDecodeError) as err:
         raise DataError(f"{path}: cannot read the validation history ({getattr(err, 'strerror', None) or err})") \
             from None
+    lines = text.splitlines()
     records = []
-    for number, line in enumerate(text.splitlines(), start=1):
+    for number, line in enumerate(lines, start=1):
         if not line.strip():
             continue
         try:
             record = json.loads(line)
         except json.JSONDecodeError as err:
+            if number == len(lines) and not text.endswith("\n"):
+                log.warning("%s:%d: torn last line of the validation history skipped (an interrupted write)",
+                            path, number)
+                break
             raise DataError(f"{path}:{number}: corrupt validation history line ({err.msg}, column {err.colno})") \
                 from None
         if not isinstance(record, dict) or not isinstance(record.get("channels"), dict):

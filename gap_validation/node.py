@@ -81,7 +81,10 @@ published before the bag plays or while it is paused.
 
 Diagnostics
 -----------
-One status per channel, named ``gap_validator: <channel>``. Level:
+Published every ``diagnostic_period`` by a timer; when the timer is 1.5 periods late (a flood: rclpy's
+EventsExecutor queues it behind every pending message) the next message callback publishes instead, so
+``/diagnostics`` stays on time under load (``benchmarks/bench_node_flood.py``). One status per channel, named
+``gap_validator: <channel>``. Level:
 
 * STALE before any data (message "waiting for data on ..."), when a topic's type is still being discovered,
   when the input or output had no good sample for ``stale_timeout`` s (the last numbers stay in the values),
@@ -95,7 +98,10 @@ Values are strings under the JSON key names (``nu_gap``, ``epsilon``, ``epsilon_
 ``gain_margin_db``, ``phase_margin_deg``, ``disk_margin``, ``worst_frequency_rad_s``, ``sweeps``, ``limited_by``,
 ``points_excluded``, ``bad_samples`` (total; ``bad_samples_by_reason`` has the JSON dict), ``diagnosis`` (top
 candidate sentence; ``pending`` before the first fit, ``none`` when no effect helps, ``off`` when disabled),
-``diagnosis_effects`` (the JSON list to append to the model's effects) ...). Numbers are Python ``repr``
+``diagnosis_effects`` (the JSON list to append to the model's effects), ``samples_input``/``samples_output``,
+``samples_dropped`` ...). ``samples_dropped`` counts the messages missing from the channel's topics, inferred from
+gaps in their ``header.stamp`` (:class:`StampGaps`; DDS does not tell the node when a queue overflows; topics
+without a header are not counted). Numbers are Python ``repr``
 (round-trip exact); missing numbers are ``null`` (margins for epsilon >= 1: no guarantee).
 
 The cheap results (``diagnose=False``) are computed every tick. The full diagnosis fits effects, which takes
@@ -137,7 +143,8 @@ from gap_validation.core.config import ValidationConfig
 from gap_validation.core.errors import ConfigError, DataError, GapValidationError, one_line
 from gap_validation.core.results import ChannelResult, ValidationResult
 from gap_validation.core.validator import OnlineValidator
-from gap_validation.ingest import VERIFY_MESSAGES, FieldError, FieldPath, MessageRouter, fast_values_agree
+from gap_validation.ingest import (VERIFY_MESSAGES, FieldError, FieldPath, MessageRouter, fast_values_agree,
+                                   stamp_seconds)
 from gap_validation.render import write_json
 
 try:  # rclpy is only needed to run the node; the pure helpers below work without it
@@ -156,8 +163,8 @@ except ImportError as _err:  # pragma: no cover - exercised only without ROS 2
     Node = object
     _ROS_IMPORT_ERROR = _err
 
-__all__ = ["NODE_NAME", "PARAMETERS", "ChannelStatus", "channel_status", "candidate_sentence", "ValidatorNode",
-           "main"]
+__all__ = ["NODE_NAME", "PARAMETERS", "ChannelStatus", "channel_status", "candidate_sentence", "StampGaps",
+           "ValidatorNode", "main"]
 
 #: Node name (DESIGN.md).
 NODE_NAME = "gap_validator"
@@ -360,6 +367,56 @@ def _copy_tree(value: Any) -> Any:
     return value
 
 
+class StampGaps:
+    """Messages missing from one topic, inferred from its ``header.stamp`` continuity.
+
+    The node cannot see losses inside DDS (a KEEP_LAST queue that overflows drops the oldest samples silently,
+    a BEST_EFFORT link loses some), so it counts them from the stamps: the nominal period is learnt from the
+    first :attr:`LEARN` intervals (their median) and then refined as the mean of every interval below 1.5
+    periods (stamps of 1.7e9 s carry float rounding of 0.24 us, which the mean averages out), and an interval of
+    ``dt`` with ``1.5 period < dt <= max_gap_s`` counts ``round(dt / period) - 1`` missing messages. Longer
+    silences are pauses (STALE), not drops; after one the period is learnt again. A rate change in flight would
+    count as drops; stamps going backwards are ignored.
+    """
+
+    LEARN = 16
+    __slots__ = ("max_gap_s", "period_s", "first_s", "last_s", "dropped", "_intervals", "_sum_s", "_count")
+
+    def __init__(self, max_gap_s: float):
+        self.max_gap_s = float(max_gap_s)
+        self.first_s: float | None = None   # first stamp seen [s]
+        self.last_s: float | None = None
+        self.dropped = 0
+        self._learn()
+
+    def _learn(self) -> None:
+        self.period_s, self._intervals, self._sum_s, self._count = 0.0, [], 0.0, 0
+
+    def add(self, t_s: float) -> None:
+        """One message stamped ``t_s`` [s]."""
+        last, self.last_s = self.last_s, t_s
+        if last is None:
+            self.first_s = t_s
+            return
+        dt = t_s - last
+        if dt <= 0.0:
+            self.last_s = last if dt < 0.0 else t_s
+        elif dt > self.max_gap_s:
+            self._learn()
+        elif self.period_s <= 0.0:
+            self._intervals.append(dt)
+            if len(self._intervals) >= self.LEARN:
+                self.period_s = float(np.median(self._intervals))
+                normal = [d for d in self._intervals if d <= 1.5 * self.period_s]
+                self._sum_s, self._count = float(sum(normal)), len(normal)
+        elif dt > 1.5 * self.period_s:
+            self.dropped += int(round(dt / self.period_s)) - 1
+        else:
+            self._sum_s += dt
+            self._count += 1
+            self.period_s = self._sum_s / self._count
+
+
 def message_class(type_name: str) -> type:
     """The rclpy message class of ``pkg/msg/Name`` (``pkg/Name`` accepted).
 
@@ -423,6 +480,9 @@ class ValidatorNode(Node):
         Bad startup config or parameter (one line; ``main`` exits with status 2).
     """
 
+    #: Diagnostics periods after the last publication when a message callback publishes in the timer's stead.
+    DIAGNOSTICS_LATE = 1.5
+
     def __init__(self, **kwargs):
         if rclpy is None:  # pragma: no cover
             raise ConfigError(f"rclpy is not available ({_ROS_IMPORT_ERROR})")
@@ -453,6 +513,7 @@ class ValidatorNode(Node):
         self._sub_types: dict[str, str] = {}
         self._pending: dict[str, None] = {}
         self._last_arrival: dict[str, float] = {}
+        self._gaps: dict[str, StampGaps] = {}
         self._last_seen: dict[tuple[str, str], float] = {}
         self._seen_count: dict[tuple[str, str], int] = {}
         self._top: dict[str, dict | None] = {}
@@ -469,7 +530,8 @@ class ValidatorNode(Node):
         self.create_service(Trigger, "~/reload", self._srv_reload)
         self.create_service(Trigger, "~/reset", self._srv_reset)
         self.create_service(Trigger, "~/save_results", self._srv_save_results)
-        self._diag_timer = self.create_timer(self._param("diagnostic_period"), self.publish_diagnostics)
+        self._diag_due_s = self._now_s() + self.DIAGNOSTICS_LATE * self._param("diagnostic_period")
+        self._diag_timer = self.create_timer(self._param("diagnostic_period"), self._diagnostics_tick)
         self._ckpt_timer = None
         if self._param("state_file"):
             self._ckpt_timer = self.create_timer(self._param("checkpoint_period"), self.checkpoint)
@@ -661,6 +723,7 @@ class ValidatorNode(Node):
         """
         now_s = self._now_s()
         self._last_arrival[topic] = now_s
+        self._diagnostics_overdue(now_s)
         raw = self._raw.get(topic)
         if raw is None:
             return
@@ -671,6 +734,8 @@ class ValidatorNode(Node):
             except Exception:  # noqa: BLE001 - FastDecodeError, struct.error: decode this one fully
                 stamp, values = None, None
             if values is not None and raw.verify_left <= 0:
+                if stamp is not None:
+                    self._stamp_gaps(topic, stamp)
                 try:
                     self.router.on_values(topic, now_s if stamp is None else stamp, values)
                 except Exception as err:  # noqa: BLE001 - a message must never stop the node
@@ -696,9 +761,24 @@ class ValidatorNode(Node):
         """Subscription callback: hand the message to the router (never raises)."""
         now_s = self._now_s()
         self._last_arrival[topic] = now_s
+        self._diagnostics_overdue(now_s)
         self._route(topic, msg, now_s)
 
+    def _stamp_gaps(self, topic: str, stamp_s: float) -> None:
+        gaps = self._gaps.get(topic)
+        if gaps is None:
+            gaps = self._gaps[topic] = StampGaps(self._param("stale_timeout"))
+        gaps.add(stamp_s)
+
+    def samples_dropped(self, topic: str) -> int:
+        """Messages of ``topic`` missing from its header stamps so far (:class:`StampGaps`)."""
+        gaps = self._gaps.get(topic)
+        return gaps.dropped if gaps is not None else 0
+
     def _route(self, topic: str, msg: Any, now_s: float) -> None:
+        stamp = stamp_seconds(msg)
+        if stamp is not None:
+            self._stamp_gaps(topic, stamp)
         try:
             self.router.on_message(topic, msg, now_s)
         except FieldError as err:  # the message type lacks a configured field: every message will fail
@@ -750,8 +830,10 @@ class ValidatorNode(Node):
         for name, ch in result.channels.items():
             waiting, stale, ages = self._reasons(name, now_s)
             state = "off" if off else ("done" if name in self._top else "pending")
+            topics = {self.config.channels[name].signal(stream).topic for stream in _STREAM_TOPICS}
             extra = {**ages, "samples_input": self.router.samples(name, "input"),
-                     "samples_output": self.router.samples(name, "output")}
+                     "samples_output": self.router.samples(name, "output"),
+                     "samples_dropped": sum(self.samples_dropped(topic) for topic in sorted(topics))}
             out.append(channel_status(ch, warn_epsilon=self._param("warn_epsilon"),
                                       error_epsilon=self._param("error_epsilon"), stale_reason=stale,
                                       waiting_reason=waiting, candidate=self._top.get(name),
@@ -771,9 +853,23 @@ class ValidatorNode(Node):
                 hardware_id=hardware_id, values=[KeyValue(key=k, value=v) for k, v in status.values]))
         return array
 
+    def _diagnostics_tick(self) -> None:
+        """Timer callback: publish, unless a message callback just did (the timer was late, see below)."""
+        period = self._param("diagnostic_period")
+        if self._now_s() >= self._diag_due_s - (self.DIAGNOSTICS_LATE - 0.5) * period:
+            self.publish_diagnostics()
+
+    def _diagnostics_overdue(self, now_s: float) -> None:
+        """From the message callbacks: publish when the timer is late (under a flood rclpy's EventsExecutor
+        queues the timer behind every pending message, and /diagnostics would stall while the flood lasts)."""
+        if now_s > self._diag_due_s:
+            self.publish_diagnostics()
+
     def publish_diagnostics(self) -> "DiagnosticArray":
-        """Timer callback: flush, compute the cheap results, schedule a diagnosis, publish /diagnostics."""
+        """Flush, compute the cheap results, schedule a diagnosis, publish /diagnostics (timer callback, or a
+        message callback when the timer is :attr:`DIAGNOSTICS_LATE` periods late)."""
         now_s = self._now_s()
+        self._diag_due_s = now_s + self.DIAGNOSTICS_LATE * self._param("diagnostic_period")
         self._flush()
         try:
             self._update_seen(now_s)

@@ -4,18 +4,23 @@ from __future__ import annotations
 import json
 import os
 
+from gap_validation.atomic import atomic_open
 from gap_validation.core.errors import DataError
 from gap_validation.core.results import ChannelResult, ValidationResult
 
 
 def write_json(data: dict, path: str | os.PathLike) -> None:
-    """Write ``data`` as JSON atomically; a one-line :class:`DataError` when the file cannot be written."""
-    tmp = f"{path}.tmp"
+    """Write ``data`` as JSON atomically (:mod:`gap_validation.atomic`: temporary file, then rename).
+
+    Raises
+    ------
+    DataError
+        One line naming the file when it cannot be written (the old file, if any, is kept).
+    """
     try:
-        with open(tmp, "w", encoding="utf-8") as fh:
+        with atomic_open(path, "w") as fh:
             json.dump(data, fh, indent=1, allow_nan=False)
             fh.write("\n")
-        os.replace(tmp, path)
     except OSError as err:
         raise DataError(f"{path}: cannot write JSON ({err.strerror or err})") from None
 

@@ -8,8 +8,9 @@ member ``state.json``, where each node is tagged with its type so that the state
 keys and key types, same dtypes, bit-identical floats: JSON holds Python floats as their shortest round-trip
 ``repr``, non-finite ones as strings). Pickle is never used, so a checkpoint cannot run code when loaded.
 
-The file is written atomically: to a temporary file in the same directory, flushed and ``fsync``-ed, then
-renamed over the old checkpoint with :func:`os.replace`. A crash mid-write leaves the previous checkpoint.
+The file is written atomically (:mod:`gap_validation.core.atomic`): to a temporary file in the same directory,
+flushed and ``fsync``-ed, then renamed over the old checkpoint with :func:`os.replace`. A crash or ``kill -9``
+mid-write leaves the previous checkpoint.
 
 Encoding of a node in ``state.json`` (one key per object)::
 
@@ -26,13 +27,13 @@ import json
 import math
 import os
 import re
-import tempfile
 import zipfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from gap_validation.core.atomic import atomic_open
 from gap_validation.core.errors import DataError
 
 __all__ = ["FORMAT", "VERSION", "save_state", "load_state", "encode_state", "decode_state"]
@@ -188,28 +189,16 @@ def save_state(state: dict, path: str | os.PathLike, meta: dict | None = None) -
     tree, arrays = encode_state(state)
     document = {"format": FORMAT, "version": VERSION, "meta": dict(meta or {}), "state": tree}
     text = json.dumps(document, allow_nan=False, separators=(",", ":"))
-    fd, tmp = -1, None
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
-        with os.fdopen(fd, "wb") as fh:
-            fd = -1
+        with atomic_open(path, "wb") as fh:
             with zipfile.ZipFile(fh, "w", compression=zipfile.ZIP_STORED) as archive:
                 archive.writestr(_JSON_MEMBER, text)
                 for name, array in arrays.items():
                     buffer = io.BytesIO()
                     np.lib.format.write_array(buffer, np.asanyarray(array), allow_pickle=False)
                     archive.writestr(name, buffer.getvalue())
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-        tmp = None
     except OSError as err:
         raise DataError(f"{path}: cannot write checkpoint ({err.strerror or err})") from None
-    finally:
-        if fd >= 0:
-            os.close(fd)
-        if tmp is not None and os.path.exists(tmp):
-            os.unlink(tmp)
     return path
 
 

@@ -21,12 +21,12 @@ and saves it atomically to ``path``:
 from __future__ import annotations
 
 import math
-import os
 from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 
+from gap_validation.atomic import atomic_open
 from gap_validation.core.margins import margins_from_epsilon
 from gap_validation.core.results import ChannelResult, phase_deg
 from gap_validation.core.uncertainty import monte_carlo_tube, time_domain_check
@@ -51,15 +51,12 @@ def pyplot():
 
 
 def _save(fig, path: Path) -> None:
-    """Save as PNG via a temporary file and a rename: a crash never leaves a half-written image."""
-    tmp = path.with_name(f".{path.name}.tmp")
+    """Save as PNG atomically (temporary file, then rename): a crash never leaves a half-written image."""
     try:
-        fig.savefig(tmp, dpi=90, format="png")
-        os.replace(tmp, path)
+        with atomic_open(path, "wb") as handle:
+            fig.savefig(handle, dpi=90, format="png")
     finally:
         pyplot().close(fig)
-        if tmp.exists():
-            tmp.unlink()
 
 
 def _db(x) -> np.ndarray:

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Callable
 
 from gap_validation import figures
+from gap_validation.atomic import atomic_write_text
 from gap_validation.core.errors import DataError, one_line
 from gap_validation.core.margins import margins_from_epsilon
 from gap_validation.core.results import NUGAP_DATA_NOTE, ChannelResult, ValidationResult
@@ -136,16 +137,6 @@ def _slug(name: str, index: int) -> str:
     return f"channel{index}_" + (re.sub(r"[^A-Za-z0-9_-]+", "_", name)[:40].strip("_") or "x")
 
 
-def _atomic_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        tmp.write_text(text, encoding="utf-8")
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-
-
 class _Channel:
     """Draws one channel's figures, collecting the HTML and the problems."""
 
@@ -255,7 +246,10 @@ def write_report(result: ValidationResult, directory: str | os.PathLike, *, runs
         problems += drawer.problems
     parts.append(f"<p class='note'>{html.escape(NUGAP_DATA_NOTE)}.</p></body></html>")
     index = directory / "index.html"
-    _atomic_text(index, "\n".join(parts))
+    try:
+        atomic_write_text(index, "\n".join(parts))
+    except OSError as err:
+        raise DataError(f"{index}: cannot write the report ({err.strerror or err})") from None
     for problem in problems:
         (warn or log.warning)(problem)
     return index

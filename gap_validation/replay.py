@@ -104,7 +104,8 @@ def _check_topics(bag: Bag, router: MessageRouter, report: BagReport) -> dict[st
         routes = router.routes[topic]
         feeds = ", ".join(f"{r.channel}.{r.stream}" for r in routes)
         if topic not in info:
-            report.warnings.append(f"{bag.path}: topic {topic} ({feeds}) is not in the bag")
+            report.warnings.append(f"{bag.path}: topic {topic} ({feeds}) is not in the bag "
+                                   f"(it has: {', '.join(sorted(info)) or 'none'})")
             continue
         msgtype = info[topic].msgtype
         expected = {r.spec.type for r in routes if r.spec is not None and r.spec.type}
@@ -115,6 +116,11 @@ def _check_topics(bag: Bag, router: MessageRouter, report: BagReport) -> dict[st
             report.errors.append(f"{bag.path}: topic {topic} has type {msgtype}, the config expects "
                                  f"{', '.join(sorted(expected))}")
             continue
+        try:
+            bag.ensure_type(msgtype)
+        except DataError as err:               # every record would fail: one line for the topic, not per record
+            report.errors.append(f"{_after_path(str(err), bag)} (topic {topic}, {feeds}); topic skipped")
+            continue
         if info[topic].count == 0:
             report.warnings.append(f"{bag.path}: topic {topic} ({feeds}) has no messages")
         present[topic] = msgtype
@@ -123,6 +129,12 @@ def _check_topics(bag: Bag, router: MessageRouter, report: BagReport) -> dict[st
         raise DataError(f"{bag.path}: none of the configured topics ({', '.join(wanted)}) is in the bag "
                         f"(it has: {have})")
     return present
+
+
+def _after_path(text: str, bag: Bag) -> str:
+    """``text`` with exactly one ``<bag>: `` prefix."""
+    prefix = f"{bag.path}: "
+    return text if text.startswith(prefix) else prefix + text
 
 
 def _after_topic(text: str, topic: str) -> str:
@@ -207,7 +219,7 @@ class _BagReplay:
             self.router.on_message(topic, msg, bag_time_s)
         except FieldError as err:
             state.disabled = True
-            self.report.errors.append(f"{self.bag.path}: {err} ({state.msgtype}); topic skipped")
+            self.report.errors.append(f"{self.bag.path}: {err}; topic skipped")
 
     def _verify(self, topic: str, state: _TopicState, msg: Any, stamp, values) -> None:
         """Compare the fast decoder with full deserialisation (``msg``); on any difference stop using it."""
@@ -249,6 +261,23 @@ def _channel_checks(config: ValidationConfig, router: MessageRouter) -> tuple[li
         errors.append("no channel has both input and output samples in the data: nothing to validate "
                       "(check the config's topics and fields against the bag)")
     return errors, warnings
+
+
+def _saturation_checks(config: ValidationConfig, router: MessageRouter, result: ValidationResult) -> list[str]:
+    """Warn (and say in the channel's message and bad counts) where a swept surface sits pinned at an extreme:
+    a saturated actuator clips the input, and the estimate near those amplitudes is biased."""
+    warnings = []
+    for name, ch in result.channels.items():
+        if not ch.sweeps:
+            continue
+        for side, value, n in router.saturation(name):
+            spec = config.channels[name].input
+            text = (f"input {spec.topic} {spec.field!r} pinned at its {side} {value:.4g} for {n} samples "
+                    "(saturated surface? the estimate is biased where it clips)")
+            warnings.append(f"channel {name}: {text}")
+            ch.message = f"{ch.message}; {text}" if ch.message else text
+            ch.bad_samples[f"input: saturated at {side}"] = n
+    return warnings
 
 
 def replay(bags: Sequence[str | Path], config: ValidationConfig, *, progress: ProgressCallback | None = None,
@@ -315,6 +344,7 @@ def replay(bags: Sequence[str | Path], config: ValidationConfig, *, progress: Pr
     errors += channel_errors
     warnings += channel_warnings
     result = validator.results()
+    warnings += _saturation_checks(config, router, result)
     result.sources = [r.path for r in read]
     result.notes = list(result.notes) + [f"error: {e}" for e in errors] + [f"warning: {w}" for w in warnings]
     return ReplayOutcome(result=result, bags=reports, errors=errors, warnings=warnings,

@@ -190,6 +190,25 @@ def _tf2ss(num, den):
 # ----------------------------------------------------------------------------------------------------------
 
 
+#: Plausible ranges of effect parameters in a config (outside: a typo or wrong units, refused with the key).
+PLAUSIBLE = {"seconds": (0.0, 10.0), "bandwidth_rad_s": (1e-4, 1e5), "natural_frequency_rad_s": (1e-4, 1e5),
+             "frequency_rad_s": (1e-4, 1e5), "zero_frequency_rad_s": (1e-4, 1e5), "damping": (0.0, 100.0),
+             "zero_damping": (0.0, 100.0), "factor": (1e-6, 1e6)}
+
+
+def _check_plausible(delay_s: float, effects: list, where: str) -> None:
+    """ConfigError naming the key for absurd delays [s], frequencies [rad/s], dampings or gains."""
+    items = [(f"{where}.delay_s", "seconds", delay_s)]
+    items += [(f"{where}.effects[{i}].{key}", key, value) for i, e in enumerate(effects)
+              for key, value in e.items() if key != "type"]
+    for path, key, value in items:
+        low, high = PLAUSIBLE.get(key, (-math.inf, math.inf))
+        size = abs(value) if key == "factor" else value
+        if not low <= size <= high:
+            raise ConfigError(f"{path}: {value!r} is outside the plausible range [{low:g}, {high:g}] "
+                              f"(wrong units?)")
+
+
 class LinearModel:
     """A SISO linear model ``P(s) = num(s)/den(s) * exp(-s delay_s)``, immutable.
 
@@ -301,6 +320,7 @@ class LinearModel:
         if not isinstance(effects, (list, tuple)):
             raise ConfigError(f"{where}.effects: expected a list of effects, got {effects!r}")
         effects = [validate_effect(e, f"{where}.effects[{i}]") for i, e in enumerate(effects)]
+        _check_plausible(delay_s, effects, where)
         if forms[0] == "transfer function":
             num, den, air_spec, air_ss = _parse_tf(spec, where)
         elif forms[0] == "zeros-poles-gain":

@@ -184,7 +184,7 @@ class OnlineValidator:
                                model_description=_describe_model(channel))
         avg = est.averaged()
         if avg is None:
-            result.message = "no sweep yet"
+            result.message = "no sweep found"
             return result
         w = np.asarray(avg.w_rad_s, dtype=float)
         p_model = channel.model.freqresp(w)

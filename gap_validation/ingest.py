@@ -181,7 +181,8 @@ class MessageRouter:
     :attr:`time_offset_s` (replay of several bags whose clocks overlap). Samples that are not finite, lack
     their joint, or do not advance in time are dropped and counted with ``validator.count_bad`` (a step back of
     more than ``max(JUMP_BACK_S, max_gap_s)`` is a new time base instead: passed on, counted). A field the
-    *message type* does not have raises :class:`FieldError` (``structural``): every message would fail.
+    *message type* does not have raises :class:`FieldError` (``structural``) once, after the message's other
+    signals were queued; that signal is skipped from then on (:attr:`broken`), the others go on.
     Per message only the raw values are queued; scaling and the checks run vectorised when a batch is pushed.
     """
 
@@ -206,6 +207,8 @@ class MessageRouter:
                             if r.stream == "input"}
         self.bad: dict[tuple[str, str], dict[str, int]] = {}
         self.first_error: dict[tuple[str, str], str] = {}
+        #: (channel, stream) -> why its field cannot be read from the topic's message type (skipped).
+        self.broken: dict[tuple[str, str], str] = {}
         self.messages: dict[str, int] = {topic: 0 for topic in self.routes}
         self.last_time_s = -math.inf
 
@@ -234,25 +237,35 @@ class MessageRouter:
         Raises
         ------
         FieldError
-            When the message type lacks a configured field (a config / type mismatch).
+            The first time the message type lacks a configured field (a config / type mismatch), after the
+            message's other signals were queued; that signal is skipped from then on (:attr:`broken`).
         """
         routes = self.routes.get(topic)
         if routes is None:
             return
         stamp = stamp_seconds(msg)
         values = []
+        broken = None
         for route in routes:
+            key = (route.channel, route.stream)
+            if key in self.broken:                       # the message type lacks this field: skip it quietly
+                self._streams[key].precounted += 1
+                values.append(math.nan)
+                continue
             try:
                 values.append(route.path.extract(msg))
             except FieldError as err:
-                if err.structural:
-                    raise FieldError(f"topic {topic}: {err}", err.reason, structural=True) from None
-                key = (route.channel, route.stream)
                 self.first_error.setdefault(key, f"topic {topic}: {err}")
-                self._count_bad(route, err.reason)
+                if err.structural:                       # this signal only: the topic's others still count
+                    self.broken[key] = f"topic {topic}: {err}"
+                    broken = broken or FieldError(self.broken[key], err.reason, structural=True)
+                else:
+                    self._count_bad(route, err.reason)
                 self._streams[key].precounted += 1
                 values.append(math.nan)
         self._queue(topic, receive_time_s if stamp is None else stamp, values)
+        if broken is not None:
+            raise broken
 
     def on_values(self, topic: str, t_s: float, values: Any) -> None:
         """Queue already extracted raw values (one per route of ``topic``, in :attr:`routes` order).

@@ -217,9 +217,13 @@ class _BagReplay:
             self._set_offset(bag_time_s if stamp is None else stamp)
         try:
             self.router.on_message(topic, msg, bag_time_s)
-        except FieldError as err:
-            state.disabled = True
-            self.report.errors.append(f"{self.bag.path}: {err}; topic skipped")
+        except FieldError as err:                # one signal skipped; the topic's other signals still count
+            feeds = [(r.channel, r.stream) for r in state.routes]
+            broken = [f"{c}.{s}" for c, s in feeds if (c, s) in self.router.broken]
+            state.disabled = len(broken) == len(feeds)
+            which = next((b for b, key in zip(broken, [k for k in feeds if k in self.router.broken])
+                          if self.router.broken[key] == str(err)), broken[-1])
+            self.report.errors.append(f"{self.bag.path}: {err}; {which} skipped")
 
     def _verify(self, topic: str, state: _TopicState, msg: Any, stamp, values) -> None:
         """Compare the fast decoder with full deserialisation (``msg``); on any difference stop using it."""

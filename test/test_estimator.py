@@ -608,3 +608,27 @@ def test_checkpoint_written_before_time_bases_still_loads(lap):
     est.flush()
     assert resumed.n_sweeps == est.n_sweeps == 1
     assert np.array_equal(resumed.averaged().gxy, est.averaged().gxy)
+
+
+def test_stray_stamp_forward_is_dropped_and_the_flight_goes_on(lap):
+    """One IMU stamp 500 s in the future: dropped (not confirmed), the samples after it still count."""
+    est = FrequencyResponseEstimator(W_RAD_S)
+    for i, (ti, ui, to, yo) in enumerate(lap):
+        if i == 20:
+            to = to.copy()
+            to[5] += 500.0
+        est.add_input(ti, ui)
+        est.add_output(to, yo)
+    est.flush()
+    counts = est.bad_sample_counts["output"]
+    assert counts["non_monotonic"] == 1 and counts["dropped_lag"] == 0 and counts["time_jumps_back"] == 0
+    assert est.n_sweeps == 1
+
+
+def test_real_gap_is_confirmed_and_kept(nominal):
+    """A 2 s silence is a gap (confirmed by the samples after it): nothing after it is lost."""
+    *_, (ti, ui, to, yo), _ = nominal
+    keep = (to < 155.0) | (to > 157.0)
+    est = estimate(ti, ui, to[keep], yo[keep])
+    counts = est.bad_sample_counts["output"]
+    assert counts["accepted"] == np.count_nonzero(keep) and counts["non_monotonic"] == 0

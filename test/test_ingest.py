@@ -346,3 +346,20 @@ def test_router_detects_a_surface_pinned_at_its_extremes(clip, pinned):
     if pinned:
         assert {side for side, _, _ in found} == {"maximum", "minimum"}
         assert all(abs(abs(value) - 0.07) < 1e-3 and n > 100 for _, value, n in found)
+
+
+def test_structural_error_skips_only_that_signal():
+    """A field the message type lacks breaks that signal alone: raised once, the topic's others go on."""
+    config = make_config()
+    ch = config.channels["pitch"]
+    roll = dataclasses.replace(ch, name="roll", output=SignalSpec("/imu", "angular_velocity.w"))
+    val = FakeValidator()
+    router = MessageRouter(ValidationConfig(channels={"pitch": ch, "roll": roll}), val)
+    with pytest.raises(FieldError, match="angular_velocity has: x, y, z"):
+        router.on_message("/imu", imu(y=1.0, sec=1), 0.0)
+    for sec in (2, 3):
+        router.on_message("/imu", imu(y=float(sec), sec=sec), 0.0)       # no more errors
+    router.flush()
+    assert val.samples("pitch", "output")[1].tolist() == [1.0, 2.0, 3.0]
+    assert val.samples("roll", "output")[0].size == 0 and not val.bad
+    assert "angular_velocity.w" in router.broken[("roll", "output")]

@@ -367,3 +367,20 @@ def test_winding_number_failure_gives_nu_gap_one_with_the_reason(tmp_path, capsy
     assert ch["nu_gap"] == 1.0 and "winding-number condition fails" in ch["nu_gap_note"]
     assert "pitch: winding-number condition fails" in text
     assert ch["gain_margin_db"] is None and ch["margins_note"]
+
+
+def test_one_bad_channel_never_costs_the_others(tmp_path, capsys):
+    """roll's output names a field the IMU lacks: roll is reported and skipped, pitch and yaw (same topic)
+    are validated."""
+    config = ultrastick()
+    write_flight(simulate_flight(config, {}, TRIO, seed=5), tmp_path / "bag")
+    data = copy.deepcopy(config.raw)
+    data["channels"]["roll"]["output"]["field"] = "angular_velocity.p"
+    out = tmp_path / "out.json"
+    assert replay_cli(tmp_path / "bag", write_config(data, tmp_path / "cfg.yaml"), "--json", str(out)) == 1
+    err = capsys.readouterr().err
+    assert "has no field 'angular_velocity.p' (angular_velocity has: x, y, z); roll.output skipped" in err
+    channels = json.loads(out.read_text())["channels"]
+    assert channels["roll"]["sweeps"] == 0
+    for name in ("pitch", "yaw"):
+        assert channels[name]["sweeps"] == 1 and channels[name]["epsilon"] is not None, name

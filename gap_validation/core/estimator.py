@@ -281,9 +281,15 @@ class _TimeBase:
         """Latest accepted time on the shifted (continuous) time axis [s], -inf before any."""
         return self.last_t + self.offset
 
-    def intake(self, t: np.ndarray, v: np.ndarray, tol_s: float, new_base) -> tuple[np.ndarray, np.ndarray]:
-        """Accepted samples of a batch on the shifted axis; ``new_base(self, t_raw)`` sets ``epoch``/``offset``
-        when a jump back of more than ``tol_s`` [s] is confirmed."""
+    def intake(self, t: np.ndarray, v: np.ndarray, tol_s: float, new_base,
+               forward_s: float = math.inf) -> tuple[np.ndarray, np.ndarray]:
+        """Accepted samples of a batch on the shifted axis.
+
+        A step back of more than ``tol_s`` [s] that :data:`JUMP_CONFIRM` increasing samples confirm is a new
+        time base (``new_base(self, t_raw)`` sets ``epoch``/``offset``); a step forward of more than
+        ``forward_s`` [s] (a gap) needs the same confirmation, so one stray stamp far in the future does not
+        hide the samples after it. Unconfirmed jumps are dropped as ``non_monotonic``.
+        """
         finite = (np.abs(t) < _MAX_ABS_TIME_S) & (np.abs(v) < _MAX_ABS_VALUE)    # False for NaN too
         n_bad = int(t.size - np.count_nonzero(finite))
         if n_bad:
@@ -293,15 +299,18 @@ class _TimeBase:
             t = np.concatenate((self.pend[0, : self.pend_n], t))
             v = np.concatenate((self.pend[1, : self.pend_n], v))
             self.pend_n = 0
-        if t.size and t[0] > self.last_t and np.all(t[1:] > t[:-1]):   # the usual case: nothing to check
+        if t.size and self.last_t < t[0] and (t[0] <= self.last_t + forward_s or self.last_t == -np.inf) \
+                and np.all(t[1:] > t[:-1]) \
+                and (forward_s == math.inf or np.all(t[1:] - t[:-1] <= forward_s)):   # the usual case
             self.last_t = float(t[-1])
             self.accepted += t.size
             return t + self.offset, v
         out_t, out_v = [], []
         while t.size:
             prev = np.maximum.accumulate(np.concatenate(([self.last_t], t[:-1])))
-            back = np.flatnonzero(t < prev - tol_s)
-            j = int(back[0]) if back.size else t.size
+            with np.errstate(invalid="ignore"):
+                jump = np.flatnonzero((t < prev - tol_s) | ((t > prev + forward_s) & (prev > -np.inf)))
+            j = int(jump[0]) if jump.size else t.size
             ok = t[:j] > prev[:j]
             self.non_monotonic += int(j - np.count_nonzero(ok))
             if np.any(ok):
@@ -311,17 +320,26 @@ class _TimeBase:
                 self.last_t = float(t[:j][ok][-1])
             if j == t.size:
                 break
-            n = self._confirmed(t[j:], prev[j] - tol_s)
-            if n == JUMP_CONFIRM:                       # a new time base from sample j on
+            back = t[j] < prev[j]
+            n = self._confirmed(t[j:], -math.inf if back else prev[j] + forward_s,
+                                prev[j] - tol_s if back else math.inf)
+            if n == JUMP_CONFIRM and back:              # a new time base from sample j on
                 self.jumps += 1
                 new_base(self, float(t[j]))
                 self.last_t = -np.inf
                 t, v = t[j:], v[j:]
+            elif n == JUMP_CONFIRM:                     # a real gap: accept the sample after it
+                out_t.append(t[j:j + 1] + self.offset)
+                out_v.append(v[j:j + 1])
+                self.accepted += 1
+                self.last_t = float(t[j])
+                t, v = t[j + 1:], v[j + 1:]
             elif n == t.size - j:                       # undecided at the end of the batch: wait
                 self.pend[0, :n], self.pend[1, :n] = t[j:], v[j:]
                 self.pend_n = n
                 break
-            else:                                       # stray stamps: the next sample went back up
+            else:                                       # stray stamps: the next sample went back
+                n = max(n, 1)
                 self.non_monotonic += n
                 t, v = t[j + n:], v[j + n:]
         if not out_t:
@@ -329,10 +347,10 @@ class _TimeBase:
         return np.concatenate(out_t), np.concatenate(out_v)
 
     @staticmethod
-    def _confirmed(t: np.ndarray, below: float) -> int:
-        """How many leading samples of ``t`` (at most JUMP_CONFIRM) increase and stay below ``below``."""
+    def _confirmed(t: np.ndarray, above: float, below: float) -> int:
+        """How many leading samples of ``t`` (at most JUMP_CONFIRM) increase and stay in (above, below)."""
         c = t[:JUMP_CONFIRM]
-        good = (c < below) & np.concatenate(([True], c[1:] > c[:-1]))
+        good = (c > above) & (c < below) & np.concatenate(([True], c[1:] > c[:-1]))
         return int(np.argmin(good)) if not good.all() else int(c.size)
 
     def drop_pending(self) -> None:
@@ -969,7 +987,7 @@ class FrequencyResponseEstimator:
 
     def _process_stream(self, s: int, t: np.ndarray, v: np.ndarray) -> None:
         st = self._streams[s]
-        t, v = st.base.intake(t, v, self._jump_tol_s, self._new_base)
+        t, v = st.base.intake(t, v, self._jump_tol_s, self._new_base, self._jump_tol_s)
         if t.size == 0:
             return
         self._ensure_t0(t[0])

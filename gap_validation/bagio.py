@@ -13,6 +13,12 @@ little-endian CDR, :func:`fast_decoder` reads exactly the configured fields at t
 size). Anything unexpected (big-endian data, short buffers, a missing joint) falls back to full deserialisation,
 and replay checks the first messages of every topic against full deserialisation before trusting it.
 
+Damaged files: rosbags refuses an mcap without its footer (a recording cut short) and a sqlite3 file whose
+index is broken. :class:`Bag` then falls back to a linear scan (:class:`_McapSalvage`: records and chunks up to
+the first one that is cut off or does not decompress; :class:`_SqliteSalvage`: rows in insertion order up to the
+first unreadable page) and :meth:`Bag.records` ends with a :class:`DataError` saying where the file stopped
+and how many seconds before it were read, so replay validates what was recorded and reports the rest.
+
 Writing: :func:`write_flight` writes a :class:`~gap_validation.core.simulation.SimulatedFlight` as a rosbag2
 (mcap with zstd chunk compression by default, or sqlite3).
 """
@@ -206,7 +212,8 @@ class Bag:
             raise DataError(f"{self.path}: corrupted or unreadable data ({one_line(err)}){self._before()}") \
                 from None
         if self.damage is not None:
-            raise DataError(f"{self.path}: {self.damage.text}{self._before()}")
+            where = getattr(self._reader, "path", self.path)      # the damaged file itself
+            raise DataError(f"{where}: {self.damage.text}{self._before()}")
 
     def _before(self) -> str:
         """``; validated the X s before (up to bag time T)`` for what was read before a damage."""

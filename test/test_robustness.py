@@ -384,3 +384,13 @@ def test_one_bad_channel_never_costs_the_others(tmp_path, capsys):
     assert channels["roll"]["sweeps"] == 0
     for name in ("pitch", "yaw"):
         assert channels[name]["sweeps"] == 1 and channels[name]["epsilon"] is not None, name
+
+
+def test_truncated_mcap_inside_a_rosbag2_directory_names_the_file(pitch, tmp_path):
+    bag = tmp_path / "bag"
+    shutil.copytree(pitch["root"] / "bag", bag)
+    mcap = next(bag.glob("*.mcap"))
+    mcap.write_bytes(mcap.read_bytes()[: int(mcap.stat().st_size * 0.7)])
+    outcome = replay([bag], pitch["config"], diagnose=False)
+    assert len(outcome.errors) == 1 and outcome.errors[0].startswith(f"{mcap}: truncated at byte")
+    assert outcome.result.channels["pitch"].sweeps >= 1

@@ -126,10 +126,10 @@ def flood(seconds: float = 60.0, imu_rate_hz: float = 10_000.0, surface_rate_hz:
         arrivals, dropped = [], [0]
 
         def on_diagnostics(array: DiagnosticArray) -> None:
-            arrivals.append(time.monotonic())
             for status in array.status:
                 values = {kv.key: kv.value for kv in status.values}
                 dropped[0] = max(dropped[0], int(values.get("samples_dropped", "0")))
+            arrivals.append(time.monotonic())           # after the value: a reader that sees it sees the value
 
         listener.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, 10)
         if executor == "events":
@@ -138,14 +138,15 @@ def flood(seconds: float = 60.0, imu_rate_hz: float = 10_000.0, surface_rate_hz:
         else:
             spinner = SingleThreadedExecutor(context=context)
         spinner.add_node(node)
-        stop = threading.Event()
+        stop, listen_stop = threading.Event(), threading.Event()
 
-        def spin(executor, ctx) -> None:
-            while not stop.is_set() and ctx.ok():
+        def spin(executor, ctx, until) -> None:
+            while not until.is_set() and ctx.ok():
                 executor.spin_once(timeout_sec=0.05)
 
-        thread = threading.Thread(target=spin, args=(spinner, context), daemon=True)
-        listen_thread = threading.Thread(target=spin, args=(listen_executor, listen_context), daemon=True)
+        thread = threading.Thread(target=spin, args=(spinner, context, stop), daemon=True)
+        listen_thread = threading.Thread(target=spin, args=(listen_executor, listen_context, listen_stop),
+                                         daemon=True)
         thread.start()
         listen_thread.start()
         publisher = rclpy.create_node("flood_publisher", context=context)
@@ -176,20 +177,32 @@ def flood(seconds: float = 60.0, imu_rate_hz: float = 10_000.0, surface_rate_hz:
             imu_pub.publish(imu)
             if k % max(1, n_imu // 30) == 0:
                 rss.append(((k + 1) / n_imu, rss_mb()))
-        # let the queues drain and two more diagnostics arrive
+        # let the queues drain, then wait for a diagnostics message published a full period after the last
+        # message was taken (an earlier one may predate the last drops counted)
         settled = time.monotonic()
-        last = -1
+        last, stable_at = -1, None
         while time.monotonic() - settled < 30.0:
             now = node.router.messages.get("/imu", 0)
-            if now == last and len([a for a in arrivals if a > settled]) >= 2:
+            if now != last:
+                last, stable_at = now, None
+            elif stable_at is None:
+                stable_at = time.monotonic()
+            if stable_at is not None and any(a > stable_at + diagnostic_period_s for a in arrivals):
                 break
-            last = now
-            time.sleep(max(0.2, diagnostic_period_s))
+            time.sleep(min(0.1, diagnostic_period_s / 4))
         rss.append((1.0, rss_mb()))
         wall = time.monotonic() - started
         stop.set()
         thread.join(timeout=10.0)
+        # the executor may have handed over a late backlog after the last /diagnostics: with the node stopped,
+        # publish once more so that the value read is the node's final count
+        final_at = time.monotonic()
+        node.publish_diagnostics()
+        while time.monotonic() - final_at < 10.0 and not any(a > final_at for a in arrivals):
+            time.sleep(0.02)
+        listen_stop.set()
         listen_thread.join(timeout=10.0)
+        arrivals = [a for a in arrivals if a <= final_at]       # the on-time check covers the flood only
         received = node.router.messages.get("/imu", 0)
         truth, tail, per_topic = 0, 0, {}
         for topic, count, rate in (("/imu", n_imu, imu_rate_hz), ("/control_surfaces", -(-n_imu // every),
@@ -201,8 +214,8 @@ def flood(seconds: float = 60.0, imu_rate_hz: float = 10_000.0, surface_rate_hz:
             tail = count - 1 - last_index if topic == "/imu" else tail
         gaps = list(np.diff([started] + [a for a in arrivals if started <= a]))  # a stall at the start counts
         result = FloodResult(published=n_imu, received=received, tail=tail, samples_dropped=dropped[0],
-                             truth_dropped=truth,                             diagnostics_period_s=diagnostic_period_s, diagnostics_gaps_s=gaps, rss_mb=rss,
-                             wall_s=wall, per_topic=per_topic)
+                             truth_dropped=truth, diagnostics_period_s=diagnostic_period_s,
+                             diagnostics_gaps_s=gaps, rss_mb=rss, wall_s=wall, per_topic=per_topic)
         node.close()
         return result
     finally:

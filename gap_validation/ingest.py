@@ -24,13 +24,14 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from gap_validation.core.estimator import ESTIMATOR_DEFAULTS, JUMP_BACK_S
 from gap_validation.core.fields import FieldError, FieldPath  # re-exported: the node and replay use both
 
 if TYPE_CHECKING:  # pragma: no cover
     from gap_validation.core.config import ValidationConfig
     from gap_validation.core.validator import OnlineValidator
 
-__all__ = ["FieldError", "FieldPath", "MessageRouter", "Route", "stamp_seconds", "VERIFY_MESSAGES",
+__all__ = ["FieldError", "FieldPath", "MessageRouter", "Route", "stamp_seconds", "note_saturation", "VERIFY_MESSAGES",
            "fast_values_agree"]
 
 #: Messages per topic decoded both ways (fast field decoder and full deserialisation) before replay and the
@@ -89,14 +90,74 @@ class _TopicBuffer:
 
 
 class _StreamState:
-    """Per (channel, stream): last accepted time, samples pushed, NaNs already counted as bad."""
+    """Per (channel, stream): last accepted time, samples pushed, NaNs already counted as bad, and how far
+    back [s] time must jump to be a new time base (a looped bag) rather than a reordered sample."""
 
-    __slots__ = ("last_t", "good", "precounted")
+    __slots__ = ("last_t", "good", "precounted", "jump_s")
 
-    def __init__(self):
+    def __init__(self, jump_s: float = JUMP_BACK_S):
         self.last_t = -math.inf
         self.good = 0
         self.precounted = 0
+        self.jump_s = jump_s
+
+
+class _Saturation:
+    """Whether a surface sits pinned at an extreme of its range (flat-topped input: a saturated actuator).
+
+    Counts, since the range last grew by more than 5 %, the samples within 0.2 % of the range of the maximum
+    (minimum) and the samples in the outer half of the upper (lower) half-range. A sine-like sweep spends a
+    few per cent of its outer samples that close to its peak, a clipped one most of them. Constant size.
+    """
+
+    __slots__ = ("hi", "lo", "n_hi", "n_lo", "outer_hi", "outer_lo")
+    BAND, SHARE, MIN_SAMPLES = 2e-3, 0.25, 25
+
+    def __init__(self):
+        self.hi, self.lo = -math.inf, math.inf
+        self.n_hi = self.n_lo = self.outer_hi = self.outer_lo = 0
+
+    def update(self, v: np.ndarray) -> None:
+        hi, lo = max(self.hi, float(v.max())), min(self.lo, float(v.min()))
+        if not (hi - lo <= 1.05 * (self.hi - self.lo)):          # grew (or first batch): count afresh
+            self.n_hi = self.n_lo = self.outer_hi = self.outer_lo = 0
+        self.hi, self.lo = hi, lo
+        band, mid, quarter = self.BAND * (hi - lo), 0.5 * (hi + lo), 0.25 * (hi - lo)
+        self.n_hi += int(np.count_nonzero(v >= hi - band))
+        self.n_lo += int(np.count_nonzero(v <= lo + band))
+        self.outer_hi += int(np.count_nonzero(v > mid + quarter))
+        self.outer_lo += int(np.count_nonzero(v < mid - quarter))
+
+    def pinned(self) -> list[tuple[str, float, int]]:
+        """``(side, value, samples)`` for each extreme the input sits pinned at."""
+        if not self.hi > self.lo:
+            return []
+        out = []
+        for side, value, n, outer in (("maximum", self.hi, self.n_hi, self.outer_hi),
+                                      ("minimum", self.lo, self.n_lo, self.outer_lo)):
+            if n >= self.MIN_SAMPLES and n >= self.SHARE * outer:
+                out.append((side, value, n))
+        return out
+
+
+def _increasing(t: np.ndarray, last_t: float, jump_s: float) -> tuple[np.ndarray, int]:
+    """Mask of samples after every earlier one, where a step back of more than ``jump_s`` [s] restarts the
+    comparison (the estimator opens a new time base there); also the number of such jumps."""
+    keep = np.zeros(t.size, bool)
+    start, jumps = 0, 0
+    while start < t.size:
+        seg = t[start:]
+        prev = np.maximum.accumulate(np.concatenate(([last_t], seg[:-1])))
+        back = np.flatnonzero(seg < prev - jump_s)
+        stop = int(back[0]) if back.size else seg.size
+        keep[start:start + stop] = seg[:stop] > prev[:stop]
+        if stop == seg.size:
+            break
+        jumps += 1
+        keep[start + stop] = True
+        last_t = float(seg[stop])
+        start += stop + 1
+    return keep, jumps
 
 
 class MessageRouter:
@@ -118,8 +179,10 @@ class MessageRouter:
     -----
     Time [s] is ``header.stamp`` when the message has a nonzero one, else ``receive_time_s``, plus
     :attr:`time_offset_s` (replay of several bags whose clocks overlap). Samples that are not finite, lack
-    their joint, or do not advance in time are dropped and counted with ``validator.count_bad``. A field the
-    *message type* does not have raises :class:`FieldError` (``structural``): every message would fail.
+    their joint, or do not advance in time are dropped and counted with ``validator.count_bad`` (a step back of
+    more than ``max(JUMP_BACK_S, max_gap_s)`` is a new time base instead: passed on, counted). A field the
+    *message type* does not have raises :class:`FieldError` (``structural``) once, after the message's other
+    signals were queued; that signal is skipped from then on (:attr:`broken`), the others go on.
     Per message only the raw values are queued; scaling and the checks run vectorised when a batch is pushed.
     """
 
@@ -137,12 +200,22 @@ class MessageRouter:
         }
         self._pending = {topic: _TopicBuffer() for topic in self.routes}
         self._flush_order = sorted(self.routes, key=lambda t: not any(r.stream == "trigger" for r in self.routes[t]))
-        self._streams = {(r.channel, r.stream): _StreamState() for routes in self.routes.values() for r in routes}
+        self._streams = {(r.channel, r.stream): _StreamState(self._jump_s(r.channel))
+                         for routes in self.routes.values() for r in routes}
         self._flush_t: float | None = None
+        self._saturation = {r.channel: _Saturation() for routes in self.routes.values() for r in routes
+                            if r.stream == "input"}
         self.bad: dict[tuple[str, str], dict[str, int]] = {}
         self.first_error: dict[tuple[str, str], str] = {}
+        #: (channel, stream) -> why its field cannot be read from the topic's message type (skipped).
+        self.broken: dict[tuple[str, str], str] = {}
         self.messages: dict[str, int] = {topic: 0 for topic in self.routes}
         self.last_time_s = -math.inf
+
+    def _jump_s(self, channel: str) -> float:
+        """The channel estimator's threshold for a jump back in time [s] (see ``core.estimator``)."""
+        options = self.config.channels[channel].estimator
+        return max(JUMP_BACK_S, float(options.get("max_gap_s", ESTIMATOR_DEFAULTS["max_gap_s"])))
 
     @property
     def topics(self) -> tuple[str, ...]:
@@ -164,25 +237,35 @@ class MessageRouter:
         Raises
         ------
         FieldError
-            When the message type lacks a configured field (a config / type mismatch).
+            The first time the message type lacks a configured field (a config / type mismatch), after the
+            message's other signals were queued; that signal is skipped from then on (:attr:`broken`).
         """
         routes = self.routes.get(topic)
         if routes is None:
             return
         stamp = stamp_seconds(msg)
         values = []
+        broken = None
         for route in routes:
+            key = (route.channel, route.stream)
+            if key in self.broken:                       # the message type lacks this field: skip it quietly
+                self._streams[key].precounted += 1
+                values.append(math.nan)
+                continue
             try:
                 values.append(route.path.extract(msg))
             except FieldError as err:
-                if err.structural:
-                    raise FieldError(f"topic {topic}: {err}", err.reason, structural=True) from None
-                key = (route.channel, route.stream)
                 self.first_error.setdefault(key, f"topic {topic}: {err}")
-                self._count_bad(route, err.reason)
+                if err.structural:                       # this signal only: the topic's others still count
+                    self.broken[key] = f"topic {topic}: {err}"
+                    broken = broken or FieldError(self.broken[key], err.reason, structural=True)
+                else:
+                    self._count_bad(route, err.reason)
                 self._streams[key].precounted += 1
                 values.append(math.nan)
         self._queue(topic, receive_time_s if stamp is None else stamp, values)
+        if broken is not None:
+            raise broken
 
     def on_values(self, topic: str, t_s: float, values: Any) -> None:
         """Queue already extracted raw values (one per route of ``topic``, in :attr:`routes` order).
@@ -203,6 +286,8 @@ class MessageRouter:
             self._flush_t = t_s
         if len(buf.t) >= self.batch or t_s - self._flush_t >= self.max_batch_s:
             self.flush()
+            self._flush_t = t_s
+        elif t_s < self._flush_t - JUMP_BACK_S:      # time went back (a looped bag): batch from here on
             self._flush_t = t_s
 
     def count_bad_message(self, topic: str, reason: str) -> None:
@@ -235,14 +320,16 @@ class MessageRouter:
             t, values = t_all[finite], values[finite]
             if t.size == 0:
                 continue
-            previous = np.maximum.accumulate(np.concatenate(([state.last_t], t[:-1])))
-            increasing = t > previous
+            increasing, jumps = _increasing(t, state.last_t, state.jump_s)
             self._count_bad(route, "time not increasing", int(t.size - np.count_nonzero(increasing)))
+            self._count_bad(route, "time jumped back (new segment)", jumps)
             t, values = t[increasing], values[increasing]
             if t.size == 0:
                 continue
             state.last_t = float(t[-1])
             state.good += int(t.size)
+            if route.stream == "input":
+                self._saturation[route.channel].update(values)
             self.last_time_s = max(self.last_time_s, state.last_t)
             self.validator.add_samples(route.channel, route.stream, t,
                                        values != 0.0 if route.stream == "trigger" else values)
@@ -254,6 +341,11 @@ class MessageRouter:
             buf = self._pending[topic]
             if buf.t:
                 self._send_topic(topic, buf)
+
+    def saturation(self, channel: str) -> list[tuple[str, float, int]]:
+        """Where ``channel``'s input sits pinned at an extreme: ``(side, value in SI units, samples)``."""
+        sat = self._saturation.get(channel)
+        return sat.pinned() if sat is not None else []
 
     def samples(self, channel: str, stream: str) -> int:
         """Samples of ``(channel, stream)`` pushed so far plus the messages still pending for it."""
@@ -268,3 +360,21 @@ class MessageRouter:
         """Latest sample time [s] queued on any topic (``-inf`` before the first sample)."""
         pending = [buf.t[-1] for buf in self._pending.values() if buf.t]
         return max([self.last_time_s, *pending])
+
+
+def note_saturation(config, router: MessageRouter, result) -> list[str]:
+    """Warn (and say in the channel's message and bad counts) where a swept surface sits pinned at an extreme:
+    a saturated actuator clips the input, and the estimate near those amplitudes is biased. Used by replay and
+    the node alike; returns one warning line per pinned extreme."""
+    warnings = []
+    for name, ch in result.channels.items():
+        if not ch.sweeps:
+            continue
+        for side, value, n in router.saturation(name):
+            spec = config.channels[name].input
+            text = (f"input {spec.topic} {spec.field!r} pinned at its {side} {value:.4g} for {n} samples "
+                    "(saturated surface? the estimate is biased where it clips)")
+            warnings.append(f"channel {name}: {text}")
+            ch.message = f"{ch.message}; {text}" if ch.message else text
+            ch.bad_samples[f"input: saturated at {side}"] = n
+    return warnings

@@ -144,7 +144,7 @@ from gap_validation.core.errors import ConfigError, DataError, GapValidationErro
 from gap_validation.core.results import ChannelResult, ValidationResult
 from gap_validation.core.validator import OnlineValidator
 from gap_validation.ingest import (VERIFY_MESSAGES, FieldError, FieldPath, MessageRouter, fast_values_agree,
-                                   stamp_seconds)
+                                   note_saturation, stamp_seconds)
 from gap_validation.render import write_json
 
 try:  # rclpy is only needed to run the node; the pure helpers below work without it
@@ -875,6 +875,7 @@ class ValidatorNode(Node):
             self._update_seen(now_s)
             self._harvest_diagnosis()
             result = self.validator.results(diagnose=False)
+            self._note_saturation(result)
             self.last_result = result
             self._schedule_diagnosis(result)
             array = self.diagnostic_array(self.statuses(result, now_s))
@@ -997,6 +998,11 @@ class ValidatorNode(Node):
         self.checkpoint()
         return "spectra cleared"
 
+    def _note_saturation(self, result: ValidationResult) -> None:
+        """A swept surface pinned at an extreme: in the channel's message and bad counts; logged once."""
+        for line in note_saturation(self.config, self.router, result):
+            self._log_once(f"saturation:{line.split(':')[0]}", "warning", line)
+
     def save_results(self) -> Path:
         """Write the JSON (and report, when available) of what was gathered so far; returns the JSON path.
 
@@ -1004,6 +1010,7 @@ class ValidatorNode(Node):
         """
         self._flush()
         result = self.validator.results(diagnose=True)
+        self._note_saturation(result)
         self._take_diagnosis(result)
         out_dir = Path(self._param("results_dir") or ".")
         try:

@@ -82,6 +82,7 @@ def format_table(result: ValidationResult) -> str:
             lines.append(f"  {name}: {sentence}")
     if any(ch.epsilon is not None and ch.epsilon >= 1 for ch in result.channels.values()):
         lines.append("  epsilon >= 1: no stability guarantee, margins not given")
-    lines.append("  margins from epsilon (eqs. 15-17): a controller with these gain/phase/disk margins on the model"
-                 " is guaranteed stable on the aircraft")
+    if any(ch.margins.guaranteed for ch in result.channels.values()):
+        lines.append("  margins from epsilon (eqs. 15-17): a controller with these gain/phase/disk margins on the "
+                     "model is guaranteed stable on the aircraft")
     return "\n".join(lines)

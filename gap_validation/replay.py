@@ -26,7 +26,8 @@ from gap_validation.core.config import ValidationConfig
 from gap_validation.core.errors import DataError
 from gap_validation.core.results import ValidationResult
 from gap_validation.core.validator import OnlineValidator
-from gap_validation.ingest import VERIFY_MESSAGES, FieldError, MessageRouter, fast_values_agree, stamp_seconds
+from gap_validation.ingest import (VERIFY_MESSAGES, FieldError, MessageRouter, fast_values_agree, note_saturation,
+                                   stamp_seconds)
 
 log = logging.getLogger(__name__)
 
@@ -104,7 +105,8 @@ def _check_topics(bag: Bag, router: MessageRouter, report: BagReport) -> dict[st
         routes = router.routes[topic]
         feeds = ", ".join(f"{r.channel}.{r.stream}" for r in routes)
         if topic not in info:
-            report.warnings.append(f"{bag.path}: topic {topic} ({feeds}) is not in the bag")
+            report.warnings.append(f"{bag.path}: topic {topic} ({feeds}) is not in the bag "
+                                   f"(it has: {', '.join(sorted(info)) or 'none'})")
             continue
         msgtype = info[topic].msgtype
         expected = {r.spec.type for r in routes if r.spec is not None and r.spec.type}
@@ -115,6 +117,11 @@ def _check_topics(bag: Bag, router: MessageRouter, report: BagReport) -> dict[st
             report.errors.append(f"{bag.path}: topic {topic} has type {msgtype}, the config expects "
                                  f"{', '.join(sorted(expected))}")
             continue
+        try:
+            bag.ensure_type(msgtype)
+        except DataError as err:               # every record would fail: one line for the topic, not per record
+            report.errors.append(f"{_after_path(str(err), bag)} (topic {topic}, {feeds}); topic skipped")
+            continue
         if info[topic].count == 0:
             report.warnings.append(f"{bag.path}: topic {topic} ({feeds}) has no messages")
         present[topic] = msgtype
@@ -123,6 +130,12 @@ def _check_topics(bag: Bag, router: MessageRouter, report: BagReport) -> dict[st
         raise DataError(f"{bag.path}: none of the configured topics ({', '.join(wanted)}) is in the bag "
                         f"(it has: {have})")
     return present
+
+
+def _after_path(text: str, bag: Bag) -> str:
+    """``text`` with exactly one ``<bag>: `` prefix."""
+    prefix = f"{bag.path}: "
+    return text if text.startswith(prefix) else prefix + text
 
 
 def _after_topic(text: str, topic: str) -> str:
@@ -205,9 +218,13 @@ class _BagReplay:
             self._set_offset(bag_time_s if stamp is None else stamp)
         try:
             self.router.on_message(topic, msg, bag_time_s)
-        except FieldError as err:
-            state.disabled = True
-            self.report.errors.append(f"{self.bag.path}: {err} ({state.msgtype}); topic skipped")
+        except FieldError as err:                # one signal skipped; the topic's other signals still count
+            feeds = [(r.channel, r.stream) for r in state.routes]
+            broken = [f"{c}.{s}" for c, s in feeds if (c, s) in self.router.broken]
+            state.disabled = len(broken) == len(feeds)
+            which = next((b for b, key in zip(broken, [k for k in feeds if k in self.router.broken])
+                          if self.router.broken[key] == str(err)), broken[-1])
+            self.report.errors.append(f"{self.bag.path}: {err}; {which} skipped")
 
     def _verify(self, topic: str, state: _TopicState, msg: Any, stamp, values) -> None:
         """Compare the fast decoder with full deserialisation (``msg``); on any difference stop using it."""
@@ -315,6 +332,7 @@ def replay(bags: Sequence[str | Path], config: ValidationConfig, *, progress: Pr
     errors += channel_errors
     warnings += channel_warnings
     result = validator.results()
+    warnings += note_saturation(config, router, result)
     result.sources = [r.path for r in read]
     result.notes = list(result.notes) + [f"error: {e}" for e in errors] + [f"warning: {w}" for w in warnings]
     return ReplayOutcome(result=result, bags=reports, errors=errors, warnings=warnings,

@@ -518,3 +518,117 @@ def test_windows_have_the_documented_length():
     assert np.all(est.window_s >= 2.0 - 1e-9) and np.all(est.window_s <= 20.0 + 1e-9)
     assert np.all((cycles >= 7.0) | (est.window_s >= 19.9) | (est.window_s <= 2.1))
     np.testing.assert_allclose(est.hop_s, est.window_s / 2)
+
+
+# ---------------------------------------------------------------------------------------------- time jumping back
+@pytest.fixture(scope="module")
+def lap():
+    """One 110 s lap with one sweep, measured at 100 Hz / 1 kHz, as 2 s interleaved chunks (replay-like)."""
+    t, u, y = flight(duration_s=110.0, sweeps=((10.0, 70.0),))
+    return _chunks(measure(t, u, y, 100.0, 1000.0, seed=1), step_s=2.0)
+
+
+def test_time_jumping_back_starts_a_new_segment_and_both_laps_count(lap):
+    once = FrequencyResponseEstimator(W_RAD_S)
+    _feed(once, lap)
+    once.flush()
+    looped = FrequencyResponseEstimator(W_RAD_S)
+    _feed(looped, lap + lap)                              # a looped bag: the same stamps again
+    looped.flush()
+    assert once.n_sweeps == 1 and looped.n_sweeps == 2
+    counts = looped.bad_sample_counts
+    for stream in ("input", "output"):
+        assert counts[stream]["time_jumps_back"] == 1
+        assert counts[stream]["non_monotonic"] == counts[stream]["dropped_lag"] == 0
+    first, second = looped.sweeps
+    ref = once.sweeps[0]
+    for est in (first, second):                           # the new base keeps the grid phase: same numbers
+        assert np.allclose(est.response, ref.response, rtol=1e-9)
+        assert np.array_equal(est.n_averages, ref.n_averages)
+    assert second.start_s > first.end_s                   # the second lap on a continued time axis
+
+
+def test_stray_stamp_back_is_dropped_not_a_new_segment(lap):
+    est = FrequencyResponseEstimator(W_RAD_S)
+    stray = []
+    for i, (ti, ui, to, yo) in enumerate(lap):
+        if i == 20:                                       # one IMU sample stamped 30 s in the past
+            to = np.insert(to, 5, to[4] - 30.0)
+            yo = np.insert(yo, 5, 99.0)
+            stray.append(True)
+        est.add_input(ti, ui)
+        est.add_output(to, yo)
+    est.flush()
+    counts = est.bad_sample_counts["output"]
+    assert stray and counts["time_jumps_back"] == 0 and counts["non_monotonic"] == 1
+    assert est.n_sweeps == 1
+
+
+def test_small_step_back_and_duplicates_are_dropped_and_counted(lap):
+    est = FrequencyResponseEstimator(W_RAD_S)
+    ti, ui, to, yo = lap[10]
+    est.add_input(ti, ui)
+    est.add_output(to, yo)
+    est.add_output(to[-50:] - 0.2, yo[-50:])              # 0.2 s back: a reorder, not a new time base
+    est.add_output(to[-1:], yo[-1:])                      # a duplicate stamp
+    assert est.bad_sample_counts["output"]["non_monotonic"] == 51
+    assert est.bad_sample_counts["output"]["time_jumps_back"] == 0
+
+
+@pytest.mark.parametrize("split", [50, 56, 57, 60])      # before, at and after the jump (lap: 55 chunks)
+def test_checkpoint_across_a_time_jump_continues_identically(lap, split):
+    chunks = lap + lap
+    whole = FrequencyResponseEstimator(W_RAD_S)
+    _feed(whole, chunks)
+    whole.flush()
+    first = FrequencyResponseEstimator(W_RAD_S)
+    _feed(first, chunks[:split])
+    size = _nbytes(FrequencyResponseEstimator(W_RAD_S).state_dict())
+    assert _nbytes(first.state_dict()) == size
+    resumed = FrequencyResponseEstimator.from_state(copy.deepcopy(first.state_dict()))
+    _feed(resumed, chunks[split:])
+    resumed.flush()
+    assert resumed.n_sweeps == whole.n_sweeps == 2
+    for a, b in zip(resumed.sweeps, whole.sweeps):
+        assert np.array_equal(a.gxy, b.gxy) and (a.start_s, a.end_s) == (b.start_s, b.end_s)
+
+
+def test_checkpoint_written_before_time_bases_still_loads(lap):
+    est = FrequencyResponseEstimator(W_RAD_S)
+    _feed(est, lap[:20])
+    state = est.state_dict()
+    old = {k: v for k, v in state.items()
+           if not (k in ("epoch", "epoch_offset") or k.startswith("tbase.")
+                   or k.split(".", 1)[-1] in ("epoch", "offset", "pend", "pend_n", "jumps"))}
+    old["trig_last_t"], old["trig_counts"] = -np.inf, np.zeros(3, np.int64)
+    resumed = FrequencyResponseEstimator.from_state(old)
+    _feed(resumed, lap[20:])
+    _feed(est, lap[20:])
+    resumed.flush()
+    est.flush()
+    assert resumed.n_sweeps == est.n_sweeps == 1
+    assert np.array_equal(resumed.averaged().gxy, est.averaged().gxy)
+
+
+def test_stray_stamp_forward_is_dropped_and_the_flight_goes_on(lap):
+    """One IMU stamp 500 s in the future: dropped (not confirmed), the samples after it still count."""
+    est = FrequencyResponseEstimator(W_RAD_S)
+    for i, (ti, ui, to, yo) in enumerate(lap):
+        if i == 20:
+            to = to.copy()
+            to[5] += 500.0
+        est.add_input(ti, ui)
+        est.add_output(to, yo)
+    est.flush()
+    counts = est.bad_sample_counts["output"]
+    assert counts["non_monotonic"] == 1 and counts["dropped_lag"] == 0 and counts["time_jumps_back"] == 0
+    assert est.n_sweeps == 1
+
+
+def test_real_gap_is_confirmed_and_kept(nominal):
+    """A 2 s silence is a gap (confirmed by the samples after it): nothing after it is lost."""
+    *_, (ti, ui, to, yo), _ = nominal
+    keep = (to < 155.0) | (to > 157.0)
+    est = estimate(ti, ui, to[keep], yo[keep])
+    counts = est.bad_sample_counts["output"]
+    assert counts["accepted"] == np.count_nonzero(keep) and counts["non_monotonic"] == 0

@@ -1,4 +1,5 @@
 """Field paths and the message router (gap_validation.ingest) on rosbags and rclpy message objects."""
+import dataclasses
 import math
 
 import numpy as np
@@ -299,3 +300,66 @@ def test_router_pushes_trigger_topics_first():
     streams = [b[1] for b in val.batches]
     pushes = [streams[i:i + 3] for i in range(0, len(streams), 3)]
     assert len(pushes) >= 3 and all(p[0] == "trigger" for p in pushes)
+
+
+def test_router_passes_a_jump_back_in_time_on_as_a_new_segment():
+    """A looped bag: stamps start over. The router passes them on (the estimator opens a new time base) and
+    counts the jump; steps back within the jump threshold are still dropped."""
+    val = FakeValidator()
+    router = MessageRouter(make_config(), val)
+    for sec in (10, 11, 12, 13, 1, 2, 3):                 # back by 12 s: a new lap
+        router.on_message("/control_surfaces", joints(["elevator"], [0.1 * sec], sec=sec), 0.0)
+    router.on_message("/control_surfaces", joints(["elevator"], [0.0], sec=3), 0.0)  # duplicate stamp
+    router.flush()
+    t, _ = val.samples("pitch", "input")
+    assert t.tolist() == [10.0, 11.0, 12.0, 13.0, 1.0, 2.0, 3.0]
+    assert [r for _, _, r in val.bad] == ["time jumped back (new segment)", "time not increasing"]
+
+
+def test_router_jump_threshold_follows_the_channel_max_gap():
+    config = make_config()
+    ch = config.channels["pitch"]
+    config = ValidationConfig(channels={"pitch": dataclasses.replace(ch, estimator={"max_gap_s": 5.0})})
+    val = FakeValidator()
+    router = MessageRouter(config, val)
+    for sec in (10, 11, 12, 8, 9, 13):                    # 4 s back < max_gap_s: reordered, dropped
+        router.on_message("/control_surfaces", joints(["elevator"], [0.0], sec=sec), 0.0)
+    router.flush()
+    assert val.samples("pitch", "input")[0].tolist() == [10.0, 11.0, 12.0, 13.0]
+
+
+@pytest.mark.parametrize("clip, pinned", [(None, False), (0.7, True)])
+def test_router_detects_a_surface_pinned_at_its_extremes(clip, pinned):
+    val = FakeValidator()
+    router = MessageRouter(make_config(), val)
+    t = np.arange(0.0, 60.0, 0.02)
+    f_hz = 0.2 * (10.0 ** (t / 60.0))                      # 0.2-2 Hz log sweep
+    u = 0.1 * np.sin(2 * np.pi * np.cumsum(f_hz) * 0.02) + np.random.default_rng(0).normal(0, 1e-4, t.size)
+    if clip:
+        u = np.clip(u, -clip * 0.1, clip * 0.1)
+    for tk, uk in zip(t, u):
+        router.on_message("/control_surfaces", joints(["elevator"], [uk], sec=100 + int(tk),
+                                                       nanosec=int(round((tk % 1) * 1e9))), 0.0)
+    router.flush()
+    found = router.saturation("pitch")
+    assert bool(found) == pinned
+    if pinned:
+        assert {side for side, _, _ in found} == {"maximum", "minimum"}
+        assert all(abs(abs(value) - 0.07) < 1e-3 and n > 100 for _, value, n in found)
+
+
+def test_structural_error_skips_only_that_signal():
+    """A field the message type lacks breaks that signal alone: raised once, the topic's others go on."""
+    config = make_config()
+    ch = config.channels["pitch"]
+    roll = dataclasses.replace(ch, name="roll", output=SignalSpec("/imu", "angular_velocity.w"))
+    val = FakeValidator()
+    router = MessageRouter(ValidationConfig(channels={"pitch": ch, "roll": roll}), val)
+    with pytest.raises(FieldError, match="angular_velocity has: x, y, z"):
+        router.on_message("/imu", imu(y=1.0, sec=1), 0.0)
+    for sec in (2, 3):
+        router.on_message("/imu", imu(y=float(sec), sec=sec), 0.0)       # no more errors
+    router.flush()
+    assert val.samples("pitch", "output")[1].tolist() == [1.0, 2.0, 3.0]
+    assert val.samples("roll", "output")[0].size == 0 and not val.bad
+    assert "angular_velocity.w" in router.broken[("roll", "output")]

@@ -58,17 +58,33 @@ def bench():
             os.environ[key] = value
 
 
-@pytest.mark.slow
-def test_flood_memory_bounded_diagnostics_on_time_drops_reported(bench, tmp_path):
-    r = bench.flood(6.0, 10_000.0, 100.0, diagnostic_period_s=0.5, workdir=tmp_path)
-    assert r.received > 0.1 * r.published
+def _check_flood(r) -> None:
     for topic, (missing, counted) in r.per_topic.items():
         assert counted == missing, topic          # every lost message is reported, none invented
     assert r.samples_dropped == r.truth_dropped   # ... and published in /diagnostics
     # on time: a message callback publishes when the timer is 1.5 periods late (the EventsExecutor queues the
-    # timer behind the flood); 2 periods leaves room for the two other jobs sharing the 2 cores
-    assert len(r.diagnostics_gaps_s) >= 4 and r.worst_gap_ratio <= 2.0
+    # timer behind the flood); 2 periods leaves room for the other jobs sharing the 2 cores
+    expected = int(r.wall_s / r.diagnostics_period_s) - 1      # the flood lasts wall_s (2-7 s here)
+    assert len(r.diagnostics_gaps_s) >= max(2, expected - 1) and r.worst_gap_ratio <= 2.0
     assert r.rss_mb[-1][1] - r.rss_at(1 / 3) < 25.0   # MB: no growth with the messages
+
+
+@pytest.mark.slow
+def test_realtime_10khz_flood_is_taken_with_bounded_memory_and_diagnostics_on_time(bench, tmp_path):
+    """The issue's flood, 6 s of it in real time (the benchmark runs 60 s): the node keeps up."""
+    r = bench.flood(6.0, 10_000.0, 100.0, realtime=True, diagnostic_period_s=0.5, workdir=tmp_path)
+    assert r.received > 0.5 * r.published
+    _check_flood(r)
+
+
+@pytest.mark.slow
+def test_flood_faster_than_the_node_counts_every_drop(bench, tmp_path):
+    """Published as fast as possible (several times real time): the node drops most, and reports each drop.
+
+    How many it takes depends on the machine (7-56 % seen on this one), so only that it takes some is pinned."""
+    r = bench.flood(6.0, 10_000.0, 100.0, diagnostic_period_s=0.5, workdir=tmp_path)
+    assert r.received > 0 and r.truth_dropped > 0
+    _check_flood(r)
 
 
 def test_message_callbacks_publish_diagnostics_when_the_timer_is_late(bench, tmp_path):

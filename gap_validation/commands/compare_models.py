@@ -8,7 +8,7 @@ from __future__ import annotations
 from gap_validation.config import load_config
 from gap_validation.core import metrics
 from gap_validation.core.errors import ConfigError
-from gap_validation.core.margins import margins_from_epsilon
+from gap_validation.core.margins import margins_from_epsilon, margins_note
 from gap_validation.render import fmt, table, write_json
 
 
@@ -32,10 +32,14 @@ def compare(config_a, config_b) -> dict:
         nugap, w_nugap = metrics.nugap(m1, m2)
         eps, w_eps = metrics.epsilon(m1, m2)
         margins = margins_from_epsilon(eps)
-        out[name] = {"nu_gap": nugap, "nu_gap_frequency_rad_s": _finite(w_nugap), "epsilon": eps,
+        winding = metrics.winding_condition(m1, m2)
+        out[name] = {"nu_gap": nugap, "nu_gap_frequency_rad_s": _finite(w_nugap), "epsilon": _finite(eps),
                      "worst_frequency_rad_s": _finite(w_eps), **margins.to_json_dict(),
                      "disk_markers": [margins.lower_disk_marker, margins.upper_disk_marker]
-                     if margins.lower_disk_marker is not None else None}
+                     if margins.lower_disk_marker is not None else None,
+                     "margins_note": margins_note(eps),
+                     "nu_gap_note": None if winding.satisfied else
+                     f"winding-number condition fails ({winding.reason}): nu-gap 1"}
     return {"channels": out, "config_a": config_a.source, "config_b": config_b.source}
 
 
@@ -55,8 +59,10 @@ def run(args) -> int:
                      fmt(ch["disk_margin"], ".3f"),
                      "-" if markers is None else f"{markers[0]:.2f}/{markers[1]:.2f}"])
     print(table(headers, rows))
-    if any(ch["epsilon"] >= 1 for ch in result["channels"].values()):
-        print("  epsilon >= 1: no stability guarantee, margins not given")
+    for name, ch in result["channels"].items():
+        for note in (ch["nu_gap_note"], ch["margins_note"]):
+            if note:
+                print(f"  {name}: {note}")
     if args.json:
         write_json(result, args.json)
     return 0

@@ -44,6 +44,17 @@ def _non_negative(text: str) -> float:
     return value
 
 
+def _seed(text: str) -> int:
+    """``--seed``: a non-negative integer (numpy's generators refuse others)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
+    return value
+
+
 def register(sub) -> None:
     d = FlightOptions()
     p = sub.add_parser("simulate", help="write a synthetic sweep flight (truth = model + hidden effects)",
@@ -54,7 +65,7 @@ def register(sub) -> None:
     p.add_argument("--hidden", action="append", default=[], metavar="CHANNEL:EFFECT:key=value[,key=value]",
                    help="effect in series with the channel's model in the truth (repeatable), "
                         "e.g. pitch:time_delay:seconds=0.04")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
     p.add_argument("--storage", choices=STORAGES, default=None, help="storage plugin (default mcap)")
     p.add_argument("--sweeps", type=_positive(int), default=d.sweeps_per_channel, metavar="N",
                    help=f"sweeps per channel (default {d.sweeps_per_channel})")

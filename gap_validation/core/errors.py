@@ -6,6 +6,12 @@ class GapValidationError(Exception):
 
     exit_code = 1
 
+    def __init__(self, *args):
+        # names from files (keys, topics, values) may hold line breaks: keep the message on one line
+        if len(args) == 1 and isinstance(args[0], str):
+            args = (args[0].replace("\r", "\\r").replace("\n", "\\n"),)
+        super().__init__(*args)
+
 
 class ConfigError(GapValidationError, ValueError):
     """Bad configuration or usage: names the file, key and value (CLI exit status 2)."""

@@ -14,7 +14,13 @@ Data path (one pass, bounded delay)
    5 %). Only the last three samples per stream are kept. Grid values wait in a bounded queue until the other
    stream has reached the same instant (``max_lag_s``, default 30 s; beyond it the oldest are dropped and
    counted). A spacing larger than ``max_gap_s`` (default 0.5 s) is a gap: no interpolation across it; the
-   run of data, its open segments and its sweep end there.
+   run of data, its open segments and its sweep end there. Time jumping *back* (a looped bag, two recordings
+   with overlapping clocks fed in sequence) by more than ``max(JUMP_BACK_S, max_gap_s)`` starts a new time
+   base (:class:`_TimeBase`): once :data:`JUMP_CONFIRM` increasing samples confirm it, the stream's times are
+   shifted to continue just after the latest sample of any stream (a gap, so the run and its sweep end), and
+   the other streams adopt the same shift when they jump too; each jump is counted (``time_jumps_back``).
+   Smaller steps back and duplicate stamps are dropped and counted (``non_monotonic``), and so is a single
+   stray stamp far back that the next samples do not follow.
 2. **Sweep membership** (:mod:`gap_validation.core.sweeps`). The detector sees the newest grid samples; the
    transform sees them ``lookahead_samples`` later (about 2 s, a fixed delay line), by which time it is known
    whether they belong to a sweep. An explicit trigger (:meth:`add_trigger`) overrides detection.
@@ -116,7 +122,30 @@ _MATMUL_SIZE = 1e6               # multiply-adds per matrix product: below where
 _EVENT_CAP = 64                  # pending sweep edges
 _BUFFER_CAP = 256                # samples per stream buffered before processing (amortises per-call cost)
 _ENERGY, _TRIGGER = 0, 1         # source of a sweep
-_STATE_VERSION = 2
+_STATE_VERSION = 2                 # 2: doublets kept (``man.*``); version 1 checkpoints still load
+#: A timestamp more than this [s] (or ``max_gap_s``, if larger) before the stream's latest starts a new time
+#: base instead of being dropped (a looped bag); smaller steps back are reorders or duplicates.
+JUMP_BACK_S = 1.0
+#: Consecutive increasing samples after a jump back that confirm it (fewer: stray stamps, dropped).
+JUMP_CONFIRM = 3
+_MAX_ABS_TIME_S = 1e11           # beyond 3000 years from the epoch: a corrupt stamp (also keeps grid indices in int64)
+_MAX_ABS_VALUE = 1e100           # a corrupt value (squares and slopes of larger ones overflow float64)
+
+
+def _upgrade_state(state: dict) -> dict:
+    """A checkpoint written before time bases existed, with their neutral values filled in."""
+    if "epoch" in state:
+        return state
+    st = {"epoch": 0, "epoch_offset": 0.0, **state}
+    for prefix in ("in.", "out."):
+        st.update({prefix + "epoch": 0, prefix + "offset": 0.0, prefix + "pend": np.zeros((2, JUMP_CONFIRM)),
+                   prefix + "pend_n": 0, prefix + "jumps": 0})
+    counts = [int(c) for c in state.get("trig_counts", (0, 0, 0))]
+    st.update({"tbase.last_t": float(state.get("trig_last_t", -np.inf)), "tbase.accepted": counts[0],
+               "tbase.nonfinite": counts[1], "tbase.non_monotonic": counts[2], "tbase.epoch": 0,
+               "tbase.offset": 0.0, "tbase.pend": np.zeros((2, JUMP_CONFIRM)), "tbase.pend_n": 0,
+               "tbase.jumps": 0})
+    return st
 
 
 # ---------------------------------------------------------------------------------------------- results
@@ -230,20 +259,117 @@ def _validate_options(w_rad_s: np.ndarray, options: dict) -> dict:
 
 
 # ---------------------------------------------------------------------------------------------- alignment
-def _clean(t: np.ndarray, v: np.ndarray, last_t: float) -> tuple[np.ndarray, np.ndarray, int, int]:
-    """Drop non-finite samples and timestamps not after every earlier one; return counts of both."""
-    finite = np.isfinite(t) & np.isfinite(v)
-    n_bad = int(t.size - np.count_nonzero(finite))
-    if n_bad:
-        t, v = t[finite], v[finite]
-    if t.size == 0:
-        return t, v, n_bad, 0
-    prev = np.maximum.accumulate(np.concatenate(([last_t], t[:-1])))
-    ok = t > prev
-    n_mono = int(t.size - np.count_nonzero(ok))
-    if n_mono:
-        t, v = t[ok], v[ok]
-    return t, v, n_bad, n_mono
+class _TimeBase:
+    """Intake of one stream's timestamps: drops bad samples, detects time jumping back, applies the shift.
+
+    Times are kept raw (``last_t``: the latest accepted raw time of the current base); accepted samples are
+    returned as ``raw + offset``. ``epoch`` counts the time bases this stream has entered; samples after a
+    jump back wait in ``pend`` (at most :data:`JUMP_CONFIRM` - 1) until the jump is confirmed or refuted.
+    """
+
+    KEYS = ("last_t", "accepted", "nonfinite", "non_monotonic", "epoch", "offset", "pend", "pend_n", "jumps")
+
+    def __init__(self) -> None:
+        self.last_t = -np.inf
+        self.accepted = self.nonfinite = self.non_monotonic = self.jumps = 0
+        self.epoch = 0
+        self.offset = 0.0
+        self.pend = np.zeros((2, JUMP_CONFIRM))
+        self.pend_n = 0
+
+    @property
+    def latest_s(self) -> float:
+        """Latest accepted time on the shifted (continuous) time axis [s], -inf before any."""
+        return self.last_t + self.offset
+
+    def intake(self, t: np.ndarray, v: np.ndarray, tol_s: float, new_base,
+               forward_s: float = math.inf) -> tuple[np.ndarray, np.ndarray]:
+        """Accepted samples of a batch on the shifted axis.
+
+        A step back of more than ``tol_s`` [s] that :data:`JUMP_CONFIRM` increasing samples confirm is a new
+        time base (``new_base(self, t_raw)`` sets ``epoch``/``offset``); a step forward of more than
+        ``forward_s`` [s] (a gap) needs the same confirmation, so one stray stamp far in the future does not
+        hide the samples after it. Unconfirmed jumps are dropped as ``non_monotonic``.
+        """
+        finite = (np.abs(t) < _MAX_ABS_TIME_S) & (np.abs(v) < _MAX_ABS_VALUE)    # False for NaN too
+        n_bad = int(t.size - np.count_nonzero(finite))
+        if n_bad:
+            self.nonfinite += n_bad
+            t, v = t[finite], v[finite]
+        if self.pend_n:
+            t = np.concatenate((self.pend[0, : self.pend_n], t))
+            v = np.concatenate((self.pend[1, : self.pend_n], v))
+            self.pend_n = 0
+        if t.size and self.last_t < t[0] and (t[0] <= self.last_t + forward_s or self.last_t == -np.inf) \
+                and np.all(t[1:] > t[:-1]) \
+                and (forward_s == math.inf or np.all(t[1:] - t[:-1] <= forward_s)):   # the usual case
+            self.last_t = float(t[-1])
+            self.accepted += t.size
+            return t + self.offset, v
+        out_t, out_v = [], []
+        while t.size:
+            prev = np.maximum.accumulate(np.concatenate(([self.last_t], t[:-1])))
+            with np.errstate(invalid="ignore"):
+                jump = np.flatnonzero((t < prev - tol_s) | ((t > prev + forward_s) & (prev > -np.inf)))
+            j = int(jump[0]) if jump.size else t.size
+            ok = t[:j] > prev[:j]
+            self.non_monotonic += int(j - np.count_nonzero(ok))
+            if np.any(ok):
+                out_t.append(t[:j][ok] + self.offset)
+                out_v.append(v[:j][ok])
+                self.accepted += int(np.count_nonzero(ok))
+                self.last_t = float(t[:j][ok][-1])
+            if j == t.size:
+                break
+            back = t[j] < prev[j]
+            n = self._confirmed(t[j:], -math.inf if back else prev[j] + forward_s,
+                                prev[j] - tol_s if back else math.inf)
+            if n == JUMP_CONFIRM and back:              # a new time base from sample j on
+                self.jumps += 1
+                new_base(self, float(t[j]))
+                self.last_t = -np.inf
+                t, v = t[j:], v[j:]
+            elif n == JUMP_CONFIRM:                     # a real gap: accept the sample after it
+                out_t.append(t[j:j + 1] + self.offset)
+                out_v.append(v[j:j + 1])
+                self.accepted += 1
+                self.last_t = float(t[j])
+                t, v = t[j + 1:], v[j + 1:]
+            elif n == t.size - j:                       # undecided at the end of the batch: wait
+                self.pend[0, :n], self.pend[1, :n] = t[j:], v[j:]
+                self.pend_n = n
+                break
+            else:                                       # stray stamps: the next sample went back
+                n = max(n, 1)
+                self.non_monotonic += n
+                t, v = t[j + n:], v[j + n:]
+        if not out_t:
+            return np.empty(0), np.empty(0)
+        return np.concatenate(out_t), np.concatenate(out_v)
+
+    @staticmethod
+    def _confirmed(t: np.ndarray, above: float, below: float) -> int:
+        """How many leading samples of ``t`` (at most JUMP_CONFIRM) increase and stay in (above, below)."""
+        c = t[:JUMP_CONFIRM]
+        good = (c > above) & (c < below) & np.concatenate(([True], c[1:] > c[:-1]))
+        return int(np.argmin(good)) if not good.all() else int(c.size)
+
+    def drop_pending(self) -> None:
+        """End of data: samples still waiting for a confirmation are dropped (counted)."""
+        self.non_monotonic += self.pend_n
+        self.pend_n = 0
+
+    def state_dict(self) -> dict:
+        return {"last_t": self.last_t, "accepted": self.accepted, "nonfinite": self.nonfinite,
+                "non_monotonic": self.non_monotonic, "epoch": self.epoch, "offset": self.offset,
+                "pend": self.pend.copy(), "pend_n": self.pend_n, "jumps": self.jumps}
+
+    def load_state(self, st: dict) -> None:
+        self.last_t, self.offset = float(st["last_t"]), float(st.get("offset", 0.0))
+        self.accepted, self.nonfinite = int(st["accepted"]), int(st["nonfinite"])
+        self.non_monotonic, self.jumps = int(st["non_monotonic"]), int(st.get("jumps", 0))
+        self.epoch, self.pend_n = int(st.get("epoch", 0)), int(st.get("pend_n", 0))
+        self.pend[:] = st.get("pend", 0.0)
 
 
 class _StreamResampler:
@@ -259,19 +385,7 @@ class _StreamResampler:
         self.hv = np.zeros(3)
         self.hn = 0
         self.k_next = _NONE
-        self.last_t = -np.inf
-        self.accepted = 0
-        self.nonfinite = 0
-        self.non_monotonic = 0
-
-    def clean(self, t: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        t, v, n_bad, n_mono = _clean(t, v, self.last_t)
-        self.nonfinite += n_bad
-        self.non_monotonic += n_mono
-        self.accepted += t.size
-        if t.size:
-            self.last_t = float(t[-1])
-        return t, v
+        self.base = _TimeBase()
 
     def add(self, t_rel: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         T = np.concatenate((self.ht[: self.hn], t_rel))
@@ -350,16 +464,13 @@ class _StreamResampler:
 
     def state_dict(self) -> dict:
         return {"ht": self.ht.copy(), "hv": self.hv.copy(), "hn": self.hn, "k_next": self.k_next,
-                "last_t": self.last_t, "accepted": self.accepted, "nonfinite": self.nonfinite,
-                "non_monotonic": self.non_monotonic}
+                **self.base.state_dict()}
 
     def load_state(self, st: dict) -> None:
         self.ht[:] = st["ht"]
         self.hv[:] = st["hv"]
         self.hn, self.k_next = int(st["hn"]), int(st["k_next"])
-        self.last_t = float(st["last_t"])
-        self.accepted, self.nonfinite = int(st["accepted"]), int(st["nonfinite"])
-        self.non_monotonic = int(st["non_monotonic"])
+        self.base.load_state(st)
 
 
 class _GridAligner:
@@ -667,8 +778,11 @@ class FrequencyResponseEstimator:
         self._t0 = float("nan")
         self._last_k: int | None = None
         self._trigger_mode = not opts["detect_sweeps"]
-        self._trig_last_t = -np.inf
-        self._trig_counts = {"accepted": 0, "nonfinite": 0, "non_monotonic": 0}
+        self._trig_base = _TimeBase()
+        self._jump_tol_s = max(JUMP_BACK_S, opts["max_gap_s"])
+        self._jump_gap_s = 2.0 * opts["max_gap_s"] + 1.0     # between the old and the new time base [s]
+        self._epoch = 0
+        self._epoch_offset = 0.0
         self._events: list[tuple[int, bool, int]] = []
         self._events_dropped = 0
         self._desired = False
@@ -724,16 +838,19 @@ class FrequencyResponseEstimator:
     def bad_sample_counts(self) -> dict:
         """Counts of samples not used, by stream and reason.
 
-        ``nonfinite`` (NaN/inf time or value), ``non_monotonic`` (time not after an earlier sample),
-        ``dropped_lag`` (grid values given up because the other stream fell more than ``max_lag_s`` behind
+        ``nonfinite`` (NaN/inf time or value, or absurd: ``|t| >= 1e11`` s, ``|value| >= 1e100``), ``non_monotonic`` (time not after an earlier sample, within
+        ``max(JUMP_BACK_S, max_gap_s)``, or a stray stamp further back), ``time_jumps_back`` (new time bases
+        started: not samples lost, the data before and after both count), ``dropped_lag`` (grid values given up because the other stream fell more than ``max_lag_s`` behind
         or had no data), and ``events_dropped`` (sweep edges beyond the bounded queue).
         """
         out = {}
         for s, name in ((0, "input"), (1, "output")):
-            st = self._streams[s]
-            out[name] = {"accepted": st.accepted, "nonfinite": st.nonfinite,
-                         "non_monotonic": st.non_monotonic, "dropped_lag": self._align.dropped[s]}
-        out["trigger"] = dict(self._trig_counts)
+            b = self._streams[s].base
+            out[name] = {"accepted": b.accepted, "nonfinite": b.nonfinite, "non_monotonic": b.non_monotonic,
+                         "time_jumps_back": b.jumps, "dropped_lag": self._align.dropped[s]}
+        b = self._trig_base
+        out["trigger"] = {"accepted": b.accepted, "nonfinite": b.nonfinite, "non_monotonic": b.non_monotonic,
+                          "time_jumps_back": b.jumps}
         out["events_dropped"] = self._events_dropped
         return out
 
@@ -786,13 +903,9 @@ class FrequencyResponseEstimator:
         a = np.atleast_1d(np.asarray(active)).ravel()
         if t.shape != a.shape:
             raise DataError(f"trigger: {t.size} times but {a.size} values")
-        t, a, n_bad, n_mono = _clean(t, a.astype(float), self._trig_last_t)
-        self._trig_counts["nonfinite"] += n_bad
-        self._trig_counts["non_monotonic"] += n_mono
-        self._trig_counts["accepted"] += t.size
+        t, a = self._trig_base.intake(t, a.astype(float), self._jump_tol_s, self._new_base)
         if t.size == 0:
             return
-        self._trig_last_t = float(t[-1])
         self._ensure_t0(t[0])
         k = np.ceil((t - self._t0) / self._dt - 1e-9).astype(np.int64)
         if not self._trigger_mode:
@@ -806,7 +919,9 @@ class FrequencyResponseEstimator:
         """End of data (or a pause): process everything received and close the sweep in progress."""
         self._drain(0)
         self._drain(1)
+        self._trig_base.drop_pending()
         for s in (0, 1):
+            self._streams[s].base.drop_pending()
             k, v = self._streams[s].flush()
             self._align.push(s, k, v)
         idx, x, y = self._align.combine(self._streams[0].k_next, self._streams[1].k_next)
@@ -884,7 +999,7 @@ class FrequencyResponseEstimator:
 
     def _process_stream(self, s: int, t: np.ndarray, v: np.ndarray) -> None:
         st = self._streams[s]
-        t, v = st.clean(t, v)
+        t, v = st.base.intake(t, v, self._jump_tol_s, self._new_base, self._jump_tol_s)
         if t.size == 0:
             return
         self._ensure_t0(t[0])
@@ -892,6 +1007,18 @@ class FrequencyResponseEstimator:
         self._align.push(s, k, vals)
         idx, x, y = self._align.combine(self._streams[0].k_next, self._streams[1].k_next)
         self._process_combined(idx, x, y)
+
+    def _new_base(self, base: _TimeBase, t_raw: float) -> None:
+        """``base``'s time jumped back to ``t_raw`` [s] (confirmed): adopt the new time base another stream
+        already opened, or open one just after the latest sample of every stream (a gap: the run ends)."""
+        if self._epoch > base.epoch and t_raw + self._epoch_offset > base.latest_s + self._opts["max_gap_s"]:
+            base.epoch, base.offset = self._epoch, self._epoch_offset
+            return
+        latest = max(b.latest_s for b in (self._streams[0].base, self._streams[1].base, self._trig_base))
+        self._epoch += 1
+        # a whole number of grid steps: the new base samples the data at the same grid phase as before
+        self._epoch_offset = math.ceil((latest + self._jump_gap_s - t_raw) / self._dt) * self._dt
+        base.epoch, base.offset = self._epoch, self._epoch_offset
 
     def _process_combined(self, idx: np.ndarray, x: np.ndarray, y: np.ndarray) -> None:
         if idx.size == 0:
@@ -1024,9 +1151,7 @@ class FrequencyResponseEstimator:
             ev[i] = e
         st.update({
             "t0": self._t0, "last_k": _NONE if self._last_k is None else self._last_k,
-            "trigger_mode": int(self._trigger_mode), "trig_last_t": self._trig_last_t,
-            "trig_counts": np.array([self._trig_counts[k] for k in ("accepted", "nonfinite", "non_monotonic")],
-                                    np.int64),
+            "trigger_mode": int(self._trigger_mode), "epoch": self._epoch, "epoch_offset": self._epoch_offset,
             "events": ev, "n_events": len(self._events), "events_dropped": self._events_dropped,
             "desired": int(self._desired), "desired_src": self._desired_src,
             "sweep_k0": self._sweep_k0, "sweep_src": self._sweep_src,
@@ -1037,7 +1162,7 @@ class FrequencyResponseEstimator:
             "span": np.array(self._span, np.int64),
         })
         parts = {"in": self._streams[0], "out": self._streams[1], "align": self._align, "xf": self._xf,
-                 "det": self._det, "trig": self._trig, "man": self._man}
+                 "det": self._det, "trig": self._trig, "tbase": self._trig_base, "man": self._man}
         for prefix, part in parts.items():
             for key, value in part.state_dict().items():
                 st[f"{prefix}.{key}"] = value
@@ -1047,7 +1172,7 @@ class FrequencyResponseEstimator:
     def from_state(cls, state: dict) -> "FrequencyResponseEstimator":
         """Rebuild an estimator from :meth:`state_dict` (e.g. a checkpoint loaded from disk)."""
         version = state.get("version") if isinstance(state, dict) else None
-        if version is None or int(version) != _STATE_VERSION:
+        if version is None or int(version) not in (1, _STATE_VERSION):
             raise DataError(f"estimator state: unsupported version {version!r} (expected {_STATE_VERSION})")
         try:
             opts = {}
@@ -1056,6 +1181,9 @@ class FrequencyResponseEstimator:
                 opts[name] = (bool(value) if name in _BOOL_OPTIONS else
                               int(value) if name in _INT_OPTIONS else float(value))
             self = cls(np.asarray(state["w_rad_s"], float), **opts)
+            state = _upgrade_state(state)
+            if int(version) == 1:      # before doublets were kept: none kept yet
+                state = {**{f"man.{k}": v for k, v in self._man.state_dict().items()}, **state}
             missing = sorted(set(self.state_dict()) - set(state))
             if missing:
                 raise KeyError(missing[0])
@@ -1074,9 +1202,7 @@ class FrequencyResponseEstimator:
         last_k = int(st["last_k"])
         self._last_k = None if last_k == _NONE else last_k
         self._trigger_mode = bool(st["trigger_mode"])
-        self._trig_last_t = float(st["trig_last_t"])
-        self._trig_counts = dict(zip(("accepted", "nonfinite", "non_monotonic"),
-                                     (int(c) for c in st["trig_counts"])))
+        self._epoch, self._epoch_offset = int(st["epoch"]), float(st["epoch_offset"])
         ev = np.asarray(st["events"], np.int64)
         self._events = [(int(k), bool(on), int(src)) for k, on, src in ev[: int(st["n_events"])]]
         self._events_dropped = int(st["events_dropped"])
@@ -1094,7 +1220,7 @@ class FrequencyResponseEstimator:
         self._tot_n[:] = st["tot_n"]
         self._span = [int(v) for v in st["span"]]
         parts = {"in": self._streams[0], "out": self._streams[1], "align": self._align, "xf": self._xf,
-                 "det": self._det, "trig": self._trig, "man": self._man}
+                 "det": self._det, "trig": self._trig, "tbase": self._trig_base, "man": self._man}
         for prefix, part in parts.items():
             n = len(prefix) + 1
             part.load_state({k[n:]: v for k, v in st.items() if k.startswith(prefix + ".")})

@@ -88,21 +88,47 @@ def _attr_getter(names: list[str], text: str) -> Callable[[Any], Any]:
         try:
             return getter(obj)
         except AttributeError:
-            missing = _first_missing(obj, names)
-            raise FieldError(f"field {text!r}: message {type(obj).__name__} has no field {missing!r}",
+            missing, parent = _first_missing(obj, names)
+            where = f"{'.'.join(missing.split('.')[:-1])} " if "." in missing else ""
+            raise FieldError(f"field {text!r}: message {type_name(obj)} has no field {missing!r} "
+                             f"({where}has: {', '.join(field_names(parent)) or 'no fields'})",
                              "missing field", structural=True) from None
 
     return get
 
 
-def _first_missing(obj: Any, names: list[str]) -> str:
+def _first_missing(obj: Any, names: list[str]) -> tuple[str, Any]:
+    """The first missing dotted prefix of ``names`` and the object that lacks it."""
     path = []
     for name in names:
         path.append(name)
         if not hasattr(obj, name):
-            return ".".join(path)
+            return ".".join(path), obj
         obj = getattr(obj, name)
-    return ".".join(path)  # pragma: no cover (attrgetter failed, so some name was missing)
+    return ".".join(path), obj  # pragma: no cover (attrgetter failed, so some name was missing)
+
+
+def type_name(obj: Any) -> str:
+    """ROS-style name of a message's type: ``sensor_msgs/msg/Imu`` for rosbags classes, else the class name."""
+    name = type(obj).__name__
+    return name.replace("__", "/") if name.count("__") == 2 else name
+
+
+def field_names(obj: Any) -> list[str]:
+    """The fields of a message object: rosbags dataclasses, rclpy messages, or plain objects."""
+    fields = getattr(type(obj), "__dataclass_fields__", None)
+    if fields:
+        return [name for name in fields if not name.startswith("_")]
+    getter = getattr(obj, "get_fields_and_field_types", None)
+    if callable(getter):
+        try:
+            return list(getter())
+        except Exception:  # noqa: BLE001 - best effort for the error message only
+            pass
+    names = getattr(obj, "__dict__", None)
+    if isinstance(names, dict):
+        return [name for name in names if not name.startswith("_")]
+    return []
 
 
 def _index_getter(index: int, text: str) -> Callable[[Any], Any]:
@@ -133,8 +159,9 @@ class _NameLookup:
         try:
             values = getattr(parent, self.array)
         except AttributeError:
-            raise FieldError(f"field {self.text!r}: message {type(parent).__name__} has no field "
-                             f"{self.array!r}", "missing field", structural=True) from None
+            raise FieldError(f"field {self.text!r}: message {type_name(parent)} has no field "
+                             f"{self.array!r} (has: {', '.join(field_names(parent)) or 'no fields'})",
+                             "missing field", structural=True) from None
         i = self.cached
         if not (0 <= i < len(names) and names[i] == self.key):
             try:
@@ -153,8 +180,9 @@ class _NameLookup:
             names = getattr(parent, field_name, None)
             if names is not None:
                 return names
-        raise FieldError(f"field {self.text!r}: message {type(parent).__name__} has no 'name' list for the "
-                         f"lookup [{self.key}]", "missing field", structural=True)
+        raise FieldError(f"field {self.text!r}: message {type_name(parent)} has no 'name' list for the "
+                         f"lookup [{self.key}] (has: {', '.join(field_names(parent)) or 'no fields'})",
+                         "missing field", structural=True)
 
 
 class FieldPath:

@@ -50,6 +50,25 @@ class Margins:
         return {key: data[key] for key in ("gain_margin_db", "phase_margin_deg", "disk_margin")}
 
 
+def margins_note(eps):
+    """Why no margins are given for ``eps`` (one line), or None when they are (``0 <= eps < 1``).
+
+    >>> margins_note(1.2)
+    'epsilon 1.2 >= 1: the disk around the model contains -P (eq. 14), no stability guarantee, margins not given'
+    """
+    if eps is None or (isinstance(eps, float) and math.isnan(eps)):
+        return "no epsilon (no frequency passed the coherence threshold): margins not given"
+    eps = float(eps)
+    if math.isinf(eps):
+        return "epsilon is infinite (P2 = -P1 at some frequency): no stability guarantee, margins not given"
+    if eps >= 1.0:
+        return (f"epsilon {eps:.3g} >= 1: the disk around the model contains -P (eq. 14), no stability "
+                "guarantee, margins not given")
+    if eps < 0.0:
+        return f"epsilon {eps:.3g} is negative: margins not given"
+    return None
+
+
 def margins_from_epsilon(eps):
     """Gain, phase and disk margins guaranteed by an epsilon-disk validation (paper eqs. 15-17).
 

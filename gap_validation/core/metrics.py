@@ -458,9 +458,17 @@ def _grid_peaks(fun, w):
 
 
 def _refine(fun, w, values, k):
-    """Maximise fun between the grid neighbours of index k (bounded scalar search in ln w)."""
-    lo = w[max(k - 1, 0)]
-    hi = w[min(k + 1, w.size - 1)]
+    """Maximise fun between the grid neighbours of index k (bounded scalar search in ln w).
+
+    The bracket reaches out to the nearest neighbours with a lower value on each side: with equal neighbours
+    (a grid point repeated within rounding, or a flat top) the peak may lie beyond the adjacent point.
+    """
+    i, j = max(k - 1, 0), min(k + 1, w.size - 1)
+    while i > 0 and values[i] >= values[k]:
+        i -= 1
+    while j < w.size - 1 and values[j] >= values[k]:
+        j += 1
+    lo, hi = w[i], w[j]
     centre = w[k]
     value, where = float(values[k]), float(centre)
     if hi > lo and math.isfinite(value):

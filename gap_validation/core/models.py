@@ -49,7 +49,21 @@ def _number_list(value, where, allow_empty=False):
         raise ConfigError(f"{where}: expected a list of numbers, got {value!r}")
     if len(value) == 0 and not allow_empty:
         raise ConfigError(f"{where}: expected a non-empty list of numbers, got []")
-    return np.array([as_number(v, f"{where}[{i}]") for i, v in enumerate(value)], dtype=float)
+    out = np.array([as_number(v, f"{where}[{i}]") for i, v in enumerate(value)], dtype=float)
+    _check_magnitude(out, where, _MAX_COEFFICIENT)
+    return out
+
+
+#: Largest magnitude accepted for a polynomial coefficient and for a state-space matrix entry: beyond, the
+#: numbers are a units or typing error and products of them overflow float64 in the frequency response.
+_MAX_COEFFICIENT = 1e30
+_MAX_MATRIX_ENTRY = 1e15
+
+
+def _check_magnitude(values: np.ndarray, where: str, limit: float) -> None:
+    big = np.flatnonzero(np.abs(values) > limit)
+    if big.size:
+        raise ConfigError(f"{where}: {values.ravel()[big[0]]!r} is beyond {limit:g} in magnitude (wrong units?)")
 
 
 def _complex_value(value, where):
@@ -118,6 +132,7 @@ def _matrix(value, where, rows=None, cols=None):
         raise ConfigError(f"{where}: expected a non-empty matrix (list of lists of numbers), got {value!r}")
     if not np.all(np.isfinite(array)):
         raise ConfigError(f"{where}: expected finite numbers, got {value!r}")
+    _check_magnitude(array, where, _MAX_MATRIX_ENTRY)
     if rows is not None and array.shape[0] != rows:
         raise ConfigError(f"{where}: expected {rows} rows, got shape {array.shape[0]}x{array.shape[1]}")
     if cols is not None and array.shape[1] != cols:
@@ -188,6 +203,25 @@ def _tf2ss(num, den):
 # ----------------------------------------------------------------------------------------------------------
 # the model
 # ----------------------------------------------------------------------------------------------------------
+
+
+#: Plausible ranges of effect parameters in a config (outside: a typo or wrong units, refused with the key).
+PLAUSIBLE = {"seconds": (0.0, 10.0), "bandwidth_rad_s": (1e-4, 1e5), "natural_frequency_rad_s": (1e-4, 1e5),
+             "frequency_rad_s": (1e-4, 1e5), "zero_frequency_rad_s": (1e-4, 1e5), "damping": (0.0, 100.0),
+             "zero_damping": (0.0, 100.0), "factor": (1e-6, 1e6)}
+
+
+def _check_plausible(delay_s: float, effects: list, where: str) -> None:
+    """ConfigError naming the key for absurd delays [s], frequencies [rad/s], dampings or gains."""
+    items = [(f"{where}.delay_s", "seconds", delay_s)]
+    items += [(f"{where}.effects[{i}].{key}", key, value) for i, e in enumerate(effects)
+              for key, value in e.items() if key != "type"]
+    for path, key, value in items:
+        low, high = PLAUSIBLE.get(key, (-math.inf, math.inf))
+        size = abs(value) if key == "factor" else value
+        if not low <= size <= high:
+            raise ConfigError(f"{path}: {value!r} is outside the plausible range [{low:g}, {high:g}] "
+                              f"(wrong units?)")
 
 
 class LinearModel:
@@ -301,6 +335,7 @@ class LinearModel:
         if not isinstance(effects, (list, tuple)):
             raise ConfigError(f"{where}.effects: expected a list of effects, got {effects!r}")
         effects = [validate_effect(e, f"{where}.effects[{i}]") for i, e in enumerate(effects)]
+        _check_plausible(delay_s, effects, where)
         if forms[0] == "transfer function":
             num, den, air_spec, air_ss = _parse_tf(spec, where)
         elif forms[0] == "zeros-poles-gain":
@@ -571,7 +606,14 @@ def _parse_ss(spec, where):
     b1 = (b @ w_in).reshape(n, 1)
     c1 = (w_out @ c).reshape(1, n)
     d1 = np.array([[float(w_out @ d @ w_in)]])
-    num, den = scipy.signal.ss2tf(a, b1, c1, d1)
+    with np.errstate(all="ignore"):
+        try:
+            num, den = scipy.signal.ss2tf(a, b1, c1, d1)
+        except (np.linalg.LinAlgError, ValueError) as err:
+            raise ConfigError(f"{where}: cannot form the transfer function ({err})") from None
+    if not (np.all(np.isfinite(num)) and np.all(np.isfinite(den))):
+        raise ConfigError(f"{where}: the transfer function of these matrices is not finite in float64 "
+                          f"(entries too large?)")
     num = _trim_leading(num[0], den)
     air_spec = {"state_space": {key: _plain(spec[key]) for key in _SS_KEYS if spec.get(key) is not None}}
     return num, den, air_spec, (a, b1, c1, d1)

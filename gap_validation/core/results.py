@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from gap_validation.core.manoeuvres import Manoeuvre
-from gap_validation.core.margins import Margins, margins_from_epsilon
+from gap_validation.core.margins import Margins, margins_from_epsilon, margins_note
 
 #: Note attached to every measured nu-gap: on frequency data the winding-number condition cannot be checked.
 NUGAP_DATA_NOTE = ("nu-gap on measured frequency points assumes the winding-number condition holds "
@@ -184,6 +184,7 @@ class ChannelResult:
             "nu_gap_frequency_rad_s": _num(self.nu_gap_frequency_rad_s),
             "epsilon_raw_frequency_rad_s": _num(self.epsilon_raw_frequency_rad_s),
             "margins_raw": self.margins_raw.to_json_dict(),
+            "margins_note": margins_note(self.epsilon),     # why the margins are null (None when given)
             "coherence_threshold": self.coherence_threshold,
             "points_used": self.points_used,
             "points_excluded": int(self.points_excluded),

@@ -189,7 +189,7 @@ class OnlineValidator:
         self._time_domain(name, channel, est, result)
         avg = est.averaged()
         if avg is None:
-            result.message = "no sweep yet"
+            result.message = "no sweep found"
             return result
         w = np.asarray(avg.w_rad_s, dtype=float)
         p_model = channel.model.freqresp(w)

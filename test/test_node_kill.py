@@ -25,6 +25,7 @@ rclpy = pytest.importorskip("rclpy")
 
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from rclpy.context import Context  # noqa: E402
+from rclpy.event_handler import PublisherEventCallbacks  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from rclpy.serialization import deserialize_message  # noqa: E402
@@ -106,9 +107,23 @@ class Peer:
         self.node = rclpy.create_node("kill_test_peer", context=self.context)
         self.executor.add_node(self.node)
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE)
-        self.pubs = {topic: self.node.create_publisher(message_class(t), topic, qos) for topic, t in TYPES.items()}
+        self.matches = {topic: 0 for topic in TYPES}     # subscriptions matched so far (the killed node's too)
+        self.pubs = {topic: self.node.create_publisher(message_class(t), topic, qos,
+                                                       event_callbacks=self._matched_callbacks(topic))
+                     for topic, t in TYPES.items()}
         self.last: dict[str, dict] = {}
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
+
+    def _matched_callbacks(self, topic: str) -> PublisherEventCallbacks:
+        def on_matched(info) -> None:
+            self.matches[topic] = max(self.matches[topic], info.total_count)
+
+        return PublisherEventCallbacks(matched=on_matched)
+
+    def wait_new_subscriber(self, before: dict[str, int]) -> None:
+        """Until every publisher matched one more subscription than ``before``: a restarted node's (the killed
+        node's stays counted until its DDS lease expires, so the subscription count alone cannot tell)."""
+        self.wait(lambda: all(self.matches[t] > before[t] for t in TYPES), what="the restarted node's subscriptions")
 
     def _on_diagnostics(self, array) -> None:
         for status in array.status:
@@ -163,8 +178,9 @@ def test_kill_9_restart_resumes_identical_spectra_and_continues(env, tmp_path):
         assert child.returncode == -signal.SIGKILL
         assert_same_tree(load_state(state), saved)          # the kill left the checkpoint whole
 
-        restarted = time.time()
+        restarted, matched = time.time(), dict(peer.matches)
         child = _start(config, state)
+        peer.wait_new_subscriber(matched)
         peer.last.clear()
         peer.wait(lambda: "pitch" in peer.last, what="diagnostics of the restarted node")
         resumed = _checkpoint_after(peer, state, restarted)

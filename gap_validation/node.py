@@ -315,7 +315,7 @@ def channel_status(result: ChannelResult, *, warn_epsilon: float = 0.25, error_e
     -------
     ChannelStatus
     """
-    data = result.to_json_dict()
+    data = result.to_json_dict(samples=False)
     values = [(key, _value_text(data.get(key))) for key in _JSON_VALUES]
     bad = dict(result.bad_samples)
     values.append(("bad_samples", str(int(sum(bad.values())))))

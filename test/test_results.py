@@ -19,3 +19,23 @@ def test_a_frequency_without_estimate_does_not_wipe_the_other_phases():
 def test_phase_without_missing_points_is_plain_unwrap():
     response = np.exp(1j * np.linspace(0.0, -12.0, 30))
     np.testing.assert_allclose(phase_deg(response), np.degrees(np.linspace(0.0, -12.0, 30)), atol=1e-9)
+
+
+def test_doublets_round_trip_and_are_left_out_without_samples():
+    from gap_validation.core.manoeuvres import Manoeuvre
+    from gap_validation.core.results import ValidationResult
+
+    t = 1.7e9 + np.arange(300) * 0.01
+    m = Manoeuvre("doublet", t, np.sin(t - t[0]), np.cos(t - t[0]), t[100], t[150], 100)
+    ch = ChannelResult(name="roll", sweeps=1, manoeuvres=[m], time_domain=[{"tic": 0.2, "tic_input_augmented": 0.1}],
+                       sweep_measured=[np.ones(3, complex)], model=np.ones(3, complex), measured=np.ones(3, complex))
+    full = ch.to_json_dict()
+    back = ValidationResult.from_json_dict({"channels": {"roll": full}}).channels["roll"]
+    assert back.manoeuvres[0].kind == "doublet" and back.manoeuvres[0].trim_samples == 100
+    np.testing.assert_allclose(back.manoeuvres[0].u, m.u)
+    np.testing.assert_allclose(back.manoeuvres[0].t_s, m.t_s, atol=1e-5)
+    assert back.time_domain == [{"tic": 0.2, "tic_input_augmented": 0.1}]
+    light = ch.to_json_dict(samples=False)
+    assert light["time_domain"] == [{"kind": "doublet", "start_s": m.start_s, "end_s": m.end_s, "tic": 0.2,
+                                     "tic_input_augmented": 0.1}]
+    assert light["epsilon"] == full["epsilon"] and light["sweeps"] == full["sweeps"]

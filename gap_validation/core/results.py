@@ -102,11 +102,13 @@ def _float(value) -> float:
     return float("nan") if value is None else float(value)
 
 
-def _manoeuvre_json(m: Manoeuvre, check: dict | None) -> dict:
+def _manoeuvre_json(m: Manoeuvre, check: dict | None, samples: bool = True) -> dict:
     """A kept manoeuvre: its TIC against the model and its samples (so a report can be drawn from the JSON)."""
     dt = float(m.t_s[1] - m.t_s[0]) if m.t_s.size > 1 else 0.0
     out = {"kind": m.kind, "start_s": _num(m.start_s), "end_s": _num(m.end_s)}
     out.update({key: _num(value) for key, value in (check or {}).items()})
+    if not samples:
+        return out
     out.update({"t0_s": _num(m.t_s[0]) if m.t_s.size else None, "dt_s": dt, "trim_samples": int(m.trim_samples),
                 "input": _list(m.u), "output": _list(m.y)})
     return out
@@ -163,8 +165,12 @@ class ChannelResult:
     def points_used(self) -> int:
         return int(np.count_nonzero(self.confident)) if self.confident is not None else 0
 
-    def to_json_dict(self) -> dict:
-        """The channel's JSON object (DESIGN.md keys first, extensions after)."""
+    def to_json_dict(self, samples: bool = True) -> dict:
+        """The channel's JSON object (DESIGN.md keys first, extensions after).
+
+        ``samples=False`` leaves out the bulky parts only figures need (each raw sweep's response, the doublets'
+        samples): the node's 1 Hz diagnostics read a few numbers.
+        """
         out = {
             "nu_gap": _num(self.nu_gap),
             "epsilon": _num(self.epsilon),
@@ -199,9 +205,9 @@ class ChannelResult:
             "nu_gap_note": NUGAP_DATA_NOTE,
             "model_spec": self.model_spec,
             "confident": [] if self.confident is None else [bool(c) for c in self.confident],
-            "time_domain": [_manoeuvre_json(m, c) for m, c in zip(self.manoeuvres, self._checks())],
+            "time_domain": [_manoeuvre_json(m, c, samples) for m, c in zip(self.manoeuvres, self._checks())],
         }
-        for entry, response in zip(out["raw_sweeps"], self.sweep_measured):
+        for entry, response in zip(out["raw_sweeps"], self.sweep_measured if samples else ()):
             entry["measured"] = _mag_phase(response, self.model)
         return out
 

@@ -40,7 +40,6 @@ os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
 import numpy as np  # noqa: E402
 import rclpy  # noqa: E402
-import yaml  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from rclpy.context import Context  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
@@ -50,18 +49,10 @@ from sensor_msgs.msg import Imu, JointState  # noqa: E402
 
 from gap_validation.node import ValidatorNode  # noqa: E402
 
-CONFIG = ROOT / "config" / "ultrastick25e.yaml"
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_node import typed_config  # noqa: E402  (the same typed config as the CPU benchmark)
+
 T0_S = 1_700_000_000  # epoch of the first stamp [s]
-
-
-def typed_config(path: Path) -> Path:
-    """The Ultra Stick config with message types (the node subscribes at once, no graph discovery)."""
-    data = yaml.safe_load(CONFIG.read_text())
-    for channel in data["channels"].values():
-        channel["input"]["type"] = "sensor_msgs/msg/JointState"
-        channel["output"]["type"] = "sensor_msgs/msg/Imu"
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    return path
 
 
 def rss_mb() -> float:

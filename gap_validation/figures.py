@@ -69,6 +69,11 @@ def _confident(ch: ChannelResult) -> np.ndarray:
     return ch.confident if ch.confident is not None and len(ch.confident) == n else np.ones(n, bool)
 
 
+def _worst_index(ch: ChannelResult) -> int:
+    """Index of the grid point at the worst frequency."""
+    return int(np.argmin(np.abs(ch.frequency_rad_s - ch.worst_frequency_rad_s)))
+
+
 def _dense(ch: ChannelResult, count: int = 400) -> np.ndarray:
     w = ch.frequency_rad_s
     return np.geomspace(float(np.min(w)), float(np.max(w)), count)
@@ -171,7 +176,7 @@ def disk_figure(ch: ChannelResult, path: Path) -> None:
     ratio = ch.measured / ch.model
     ax.plot(ratio.real[ok], ratio.imag[ok], "o", color="tab:blue", ms=4, label="averaged data")
     if ch.worst_frequency_rad_s is not None:
-        k = int(np.argmin(np.abs(ch.frequency_rad_s - ch.worst_frequency_rad_s)))
+        k = _worst_index(ch)
         ax.plot(ratio.real[k], ratio.imag[k], "o", mfc="none", mec="tab:red", ms=11,
                 label=f"worst: {ch.worst_frequency_rad_s:.3g} rad/s")
     m = margins_from_epsilon(ch.epsilon) if _usable(ch.epsilon) else None
@@ -268,7 +273,7 @@ def nichols_figure(ch: ChannelResult, path: Path) -> None:
         ph, g = nichols_coordinates(ch.measured / ch.model)
         ax.plot(ph[ok], g[ok], "o", color="tab:blue", ms=3, label="measured perturbations")
         if ch.worst_frequency_rad_s is not None:
-            k = int(np.argmin(np.abs(ch.frequency_rad_s - ch.worst_frequency_rad_s)))
+            k = _worst_index(ch)
             ax.plot(ph[k], g[k], "o", mfc="none", mec="tab:red", ms=11,
                     label=f"worst: {ch.worst_frequency_rad_s:.3g} rad/s")
     ax.plot([-180], [0], "r+", ms=12, mew=2)
@@ -307,7 +312,7 @@ def nyquist_figure(ch: ChannelResult, path: Path, model=None) -> None:
     ax.plot(ch.measured.real[ok], ch.measured.imag[ok], "o", color="tab:blue", ms=3, label="flight data (average)",
             zorder=4)
     if ch.worst_frequency_rad_s is not None:
-        k = int(np.argmin(np.abs(ch.frequency_rad_s - ch.worst_frequency_rad_s)))
+        k = _worst_index(ch)
         for point in (ch.measured[k], ch.model[k]):
             ax.plot(point.real, point.imag, "o", mfc="none", mec="tab:red", ms=11, zorder=5)
         ax.plot([], [], "o", mfc="none", mec="tab:red", label=f"worst: {ch.worst_frequency_rad_s:.3g} rad/s")
@@ -323,18 +328,14 @@ def nyquist_figure(ch: ChannelResult, path: Path, model=None) -> None:
 
 
 # ------------------------------------------------------------------------------------------ Fig. 6
-def time_figure(ch: ChannelResult, path: Path, model, runs: int = 500, seed: int = 0) -> list[dict]:
-    """Doublets of the flight against the model and the Monte Carlo tube of the uncertain model (Fig. 6).
-
-    Returns per manoeuvre ``{"tic", "tic_input_augmented", "inside_tube"}`` (fraction of flight samples
-    inside the tube; None without a tube).
-    """
+def time_figure(ch: ChannelResult, path: Path, model, runs: int = 500, seed: int = 0) -> None:
+    """Doublets of the flight against the model and the Monte Carlo tube of the uncertain model (Fig. 6);
+    each title gives the TIC (eqs. 1, 3) and the share of the flight samples inside the tube."""
     plt = pyplot()
     shown = ch.manoeuvres[:3]
     fig, axes = plt.subplots(len(shown), 1, figsize=(7, 3.0 * len(shown)), squeeze=False)
     band = ((float(np.min(ch.frequency_rad_s)), float(np.max(ch.frequency_rad_s)))
             if ch.frequency_rad_s is not None and len(ch.frequency_rad_s) else (0.5, 100.0))
-    out = []
     for ax, m in zip(axes[:, 0], shown):
         check = time_domain_check(model, m)
         t = check.t_s - check.t_s[0]
@@ -354,11 +355,9 @@ def time_figure(ch: ChannelResult, path: Path, model, runs: int = 500, seed: int
         ax.set_ylabel("rate [deg/s]")
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=6.5, loc="upper right")
-        out.append({"tic": check.tic, "tic_input_augmented": check.tic_input_augmented, "inside_tube": inside})
     axes[-1, 0].set_xlabel("time from the manoeuvre window start [s]")
     fig.tight_layout()
     _save(fig, path)
-    return out
 
 
 # ------------------------------------------------------------------------------------------ diagnosis, history

@@ -158,21 +158,20 @@ class _Channel:
             self.problems.append(f"{self.ch.name}: model not usable for figures ({one_line(err)})")
             return None
 
-    def figure(self, kind: str, draw: Callable[[Path], object]) -> object:
+    def figure(self, kind: str, draw: Callable[[Path], None]) -> None:
         path = self.directory / f"{self.stem}_{kind}.png"
         try:
-            out = draw(path)
+            draw(path)
         except Exception as err:  # noqa: BLE001 - one figure never costs the rest of the report
             problem = f"{self.ch.name}: {kind} figure not drawn ({one_line(err)})"
             log.debug("figure failed", exc_info=True)
             self.problems.append(problem)
             self.parts.append(f"<p class='bad'>{html.escape(problem)}</p>")
-            return None
+            return
         alt = html.escape(f"{self.ch.name} {kind}", quote=True)
         self.parts.append(f"<figure id='{html.escape(self.stem, quote=True)}-{kind}'>"
                           f"<img src='{html.escape(path.name, quote=True)}' alt='{alt}'>"
                           f"<figcaption>{html.escape(FIGURES[kind])}</figcaption></figure>")
-        return out
 
     def draw_all(self) -> None:
         ch, model = self.ch, self.model
@@ -225,15 +224,16 @@ def write_report(result: ValidationResult, directory: str | os.PathLike, *, runs
              f"<p class='note'>config: {html.escape(str(result.config_source or '-'))}; data: "
              f"{html.escape(', '.join(result.sources) or '-')}; written {when}</p>",
              "<h2>Summary (paper Table 1)</h2>", table1_html(result), "<h3>Verdict</h3><ul>"]
-    for ch in result.channels.values():
-        text, cls = verdict(ch)
+    verdicts = {name: verdict(ch) for name, ch in result.channels.items()}
+    for name, ch in result.channels.items():
+        text, cls = verdicts[name]
         parts.append(f"<li class='verdict {cls}'><b>{html.escape(ch.name)}</b>: {html.escape(text)}</li>")
     parts += ["</ul>", details_html(result)]
     problems = []
     for index, (name, ch) in enumerate(result.channels.items()):
         drawer = _Channel(ch, _slug(name, index), directory, list(result.history.get(name) or []), runs, seed)
         drawer.draw_all()
-        text, cls = verdict(ch)
+        text, cls = verdicts[name]
         parts.append(f"<h2 id='{html.escape(drawer.stem, quote=True)}'>{html.escape(name)}</h2>")
         parts.append(f"<p class='verdict {cls}'>{html.escape(text)}</p>")
         parts.append(f"<p>model: {html.escape(ch.model_description or '-')}</p>")

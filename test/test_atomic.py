@@ -7,6 +7,7 @@ check can fail), once at random moments while the child writes in a loop.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -25,7 +26,7 @@ import yaml
 from gap_validation import atomic
 from gap_validation.config import dump_config
 from gap_validation.core import atomic as core_atomic
-from gap_validation.core.checkpoint import load_state, save_state
+from gap_validation.core.checkpoint import load_state
 from gap_validation.core.errors import DataError
 from gap_validation.history import load_history
 from gap_validation.render import write_json
@@ -146,6 +147,21 @@ CHECKS = {"json": check_json, "config": check_config, "history": check_history, 
 TARGETS = {"json": "results.json", "config": "config.yaml", "history": "h.jsonl", "checkpoint": "state.npz"}
 
 
+@contextlib.contextmanager
+def _killed_at_the_end(child: subprocess.Popen):
+    """SIGKILL ``child`` when the block ends (also on failure) and close its pipes."""
+    try:
+        yield child
+        child.send_signal(signal.SIGKILL)
+        child.wait(timeout=30)
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
+        child.stdout.close()
+        child.stderr.close()
+
+
 def _child(code: str, *args) -> subprocess.Popen:
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
     return subprocess.Popen([sys.executable, "-c", textwrap.dedent(code), *map(str, args)], env=env, cwd=ROOT,
@@ -247,16 +263,8 @@ def test_kill_9_in_the_middle_of_a_write_leaves_the_old_file(tmp_path, kind):
     ``naive`` (open, truncate, write) is the control: the same kill leaves a torn file there.
     """
     child = _child(CHILD_STALL, kind, tmp_path)
-    try:
+    with _killed_at_the_end(child):
         assert child.stdout.readline().strip() == "mid", child.stderr.read()
-        child.send_signal(signal.SIGKILL)
-        child.wait(timeout=30)
-    finally:
-        if child.poll() is None:
-            child.kill()
-            child.wait()
-        child.stdout.close()
-        child.stderr.close()
     assert child.returncode == -signal.SIGKILL
     if kind == "naive":
         with pytest.raises(json.JSONDecodeError):
@@ -272,20 +280,12 @@ def test_kill_9_at_random_moments_of_a_write_loop_leaves_only_complete_files(tmp
     start, kills = 0, 4
     for _ in range(kills):
         child = _child(CHILD_LOOP, tmp_path, start)
-        try:
+        with _killed_at_the_end(child):
             rounds = rng.randint(1, 2)
             for _ in range(rounds):
                 line = child.stdout.readline()
                 assert line, child.stderr.read()
             time.sleep(rng.uniform(0.0, 0.15))
-            child.send_signal(signal.SIGKILL)
-            child.wait(timeout=30)
-        finally:
-            if child.poll() is None:
-                child.kill()
-                child.wait()
-            child.stdout.close()
-            child.stderr.close()
         versions = {kind: check(tmp_path) for kind, check in CHECKS.items()}
         assert min(versions.values()) >= start + rounds - 1  # every completed round is on disk
         start = max(versions.values()) + 1

@@ -23,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_stamp_gaps_counts_missing_messages_and_ignores_pauses_and_jitter():
     rng = random.Random(3)
     gaps = StampGaps(max_gap_s=3.0)
-    period, kept, t = 0.001, 0, 0.0
+    period, kept = 0.001, 0
     missing = 0
     for k in range(5000):
         if k > 100 and rng.random() < 0.2:   # this message is lost

@@ -97,7 +97,7 @@ def test_negative_or_absurd_effect_parameters_are_refused(pitch, tmp_path, capsy
     path = variant(pitch, tmp_path, lambda ch: ch["model"].update(effects=[effect]))
     assert replay_cli(pitch["root"] / "bag", path) == 2
     line = one_error_line(capsys)
-    assert f"channels.pitch.model.effects[0].{key}" in line or f"effects[0]" in line and key in line, line
+    assert f"channels.pitch.model.effects[0].{key}" in line or "effects[0]" in line and key in line, line
 
 
 @pytest.mark.parametrize("model, needle", [

@@ -17,8 +17,8 @@ from gap_validation.bagio import BAG_SUFFIXES, STORAGES, write_flight
 from gap_validation.config import load_config
 from gap_validation.core.effects import describe_effect
 from gap_validation.core.errors import ConfigError
-from gap_validation.core.simulation import (FlightOptions, hidden_effects, parse_band_noise, simulate_flight,
-                                            with_options)
+from gap_validation.core.simulation import (EXCITATIONS, FlightOptions, hidden_effects, parse_band_noise,
+                                            simulate_flight, with_options)
 
 
 def _positive(kind):
@@ -67,8 +67,17 @@ def register(sub) -> None:
                         "e.g. pitch:time_delay:seconds=0.04")
     p.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
     p.add_argument("--storage", choices=STORAGES, default=None, help="storage plugin (default mcap)")
+    p.add_argument("--excitation", choices=EXCITATIONS, default=d.excitation,
+                   help="manoeuvre flown: log chirp then a doublet (default), multisine then a doublet, "
+                        "multisine-orthogonal (every channel at once on interleaved harmonics), 3211, doublet")
     p.add_argument("--sweeps", type=_positive(int), default=d.sweeps_per_channel, metavar="N",
-                   help=f"sweeps per channel (default {d.sweeps_per_channel})")
+                   help=f"manoeuvres per channel (rounds of the test card; default {d.sweeps_per_channel})")
+    p.add_argument("--sweep-gap-s", type=_non_negative, default=d.quiet_s, metavar="S",
+                   help=f"trim between manoeuvres [s] (default {d.quiet_s:g})")
+    p.add_argument("--trim-s", type=_non_negative, default=None, metavar="S",
+                   help="trim before the first manoeuvre [s] (default: the gap)")
+    p.add_argument("--duration-s", type=_positive(float), default=None, metavar="S",
+                   help="length of the flight [s]: the test card is cut there (default: the whole card)")
     p.add_argument("--sweep-duration", type=_positive(float), default=d.sweep_duration_s, metavar="S",
                    help=f"length of one sweep [s] (default {d.sweep_duration_s:g})")
     p.add_argument("--imu-rate-hz", type=_positive(float), default=d.imu_rate_hz,
@@ -120,6 +129,8 @@ def options_from_args(args, channels: tuple[str, ...] | None = None) -> FlightOp
         band_rad_s, rms, chosen = parse_band_noise(args.band_noise, channels)
         band = {"band_noise_rad_s": band_rad_s, "band_noise_rms_rad_s": rms, "band_noise_channels": chosen}
     return with_options(
+        excitation=getattr(args, "excitation", None), quiet_s=getattr(args, "sweep_gap_s", None),
+        trim_s=getattr(args, "trim_s", None), duration_s=getattr(args, "duration_s", None),
         sweeps_per_channel=args.sweeps, sweep_duration_s=args.sweep_duration, imu_rate_hz=args.imu_rate_hz,
         surface_rate_hz=args.surface_rate_hz, noise=args.noise, drop_probability=args.drop_probability,
         sweep_amplitude_rad=math.radians(args.amplitude_deg) if args.amplitude_deg else None, **band,
@@ -145,7 +156,7 @@ def run(args) -> int:
     for name in config.channels:
         effects = hidden.get(name, [])
         truth = " + ".join(describe_effect(e) for e in effects) if effects else "nothing (model = truth)"
-        print(f"  {name}: {len(flight.sweeps(name))} sweeps, hidden: {truth}")
+        print(f"  {name}: {len(flight.sweeps(name))} {options.excitation} manoeuvres, hidden: {truth}")
     if options.band_noise_rad_s is not None:
         low, high = options.band_noise_rad_s
         chosen = options.band_noise_channels or tuple(config.channels)

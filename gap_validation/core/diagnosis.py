@@ -59,6 +59,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 from scipy.optimize import least_squares
+from scipy.special import betainc
 
 from gap_validation.core import metrics
 from gap_validation.core.effects import describe_effect, validate_effect
@@ -80,10 +81,10 @@ IMPROVEMENT_SIGMA_FACTOR = 3.0
 MIN_RELATIVE_IMPROVEMENT = 0.25
 #: A pair must remove at least this fraction of its best single member's epsilon.
 PAIR_RELATIVE_IMPROVEMENT = 0.25
-#: Systematic (bias) error floor of a measured response, relative (3 % of |H|, 1.7 deg): window resolution
-#: and leakage of the spectral estimate near resonances, stream interpolation. Random error alone would call
-#: these few-percent biases significant on long, clean flights.
-BIAS_ERROR = 0.03
+#: Systematic error floor of a measured response, relative (1 % of |H|, 0.6 deg): interpolation of the
+#: streams onto the grid and timestamp offsets between them. The estimator's own smoothing bias is not in it:
+#: the decisions compare the data with the model seen through the estimator (``estimate.expected``).
+BIAS_ERROR = 0.01
 #: Probability that noise alone (zero true coherence) gives a coherence estimate above the threshold, used to
 #: set the minimum number of averages of a usable frequency (:func:`minimum_averages`).
 COHERENCE_FALSE_ALARM = 1e-3
@@ -220,23 +221,30 @@ def _random_error_of(estimate) -> np.ndarray:
 
 
 def _sweep_scatter_error(estimate, sweeps: Sequence, coherence_threshold: float) -> np.ndarray:
-    """Relative random error of the average from the scatter between sweeps (NaN with fewer than 3 sweeps).
+    """Relative random error of the average from the scatter between manoeuvres (NaN with fewer than 3).
 
-    ``e = sqrt(sum |H_i - mean H|^2 / (m - 1) / 2) / sqrt(m) / |H|`` per frequency, over the m sweeps whose
-    coherence passes the threshold there: the per-component standard deviation of the mean, relative.
+    Per frequency, over the m manoeuvres whose own estimate is coherent there and has a variance: the
+    inverse-variance weighted mean and ``chi^2 = sum |H_i - mean|^2 / var_i`` (about m - 1 when the manoeuvres
+    agree within their errors, Birge); the average's error is its own scaled by ``sqrt(chi^2 / (m - 1))``. A
+    flight whose manoeuvres disagree more than their noise says (turbulence that changed, a nonlinear
+    response to different amplitudes) widens the error instead of calling the difference model-limited.
     """
     w = np.asarray(estimate.w_rad_s, dtype=float)
     out = np.full(w.shape, np.nan)
-    usable = [s for s in sweeps if np.shape(s.response) == w.shape]
+    usable = [s for s in sweeps if np.shape(s.response) == w.shape and getattr(s, "variance", None) is not None]
     if len(usable) < 3:
         return out
     h = np.array([np.asarray(s.response, dtype=complex) for s in usable])
-    ok = np.array([np.asarray(s.coherence, dtype=float) >= coherence_threshold for s in usable]) & np.isfinite(h)
+    var = np.array([np.asarray(s.variance, dtype=float) for s in usable])
+    ok = (np.array([np.asarray(s.coherence, dtype=float) >= coherence_threshold for s in usable])
+          & np.isfinite(h) & np.isfinite(var) & (var > 0))
     m = ok.sum(axis=0)
     with np.errstate(divide="ignore", invalid="ignore"):
-        mean = np.where(ok, h, 0.0).sum(axis=0) / m
-        var = (np.abs(np.where(ok, h - mean, 0.0)) ** 2).sum(axis=0) / (m - 1)
-        e = np.sqrt(var / 2.0) / np.sqrt(m) / np.abs(np.asarray(estimate.response, dtype=complex))
+        weight = np.where(ok, 1.0 / np.where(ok, var, 1.0), 0.0)
+        mean = np.sum(weight * np.where(ok, h, 0.0), axis=0) / np.sum(weight, axis=0)
+        chi2 = np.sum(weight * np.abs(np.where(ok, h - mean, 0.0)) ** 2, axis=0)
+        birge = np.sqrt(np.maximum(chi2 / (m - 1), 1.0))
+        e = birge * _random_error_of(estimate)
     return np.where(m >= 3, e, out)
 
 
@@ -278,62 +286,80 @@ def epsilon_noise_scale(relative_error) -> np.ndarray:
     return 0.5 * np.asarray(relative_error, dtype=float)
 
 
-def minimum_averages(coherence_threshold: float, false_alarm: float = COHERENCE_FALSE_ALARM) -> int:
-    """Fewest averages for which a coherence above the threshold is not plausibly noise.
+def minimum_averages(coherence_threshold: float, false_alarm: float = COHERENCE_FALSE_ALARM,
+                     coefficients: int = 2) -> int:
+    """Fewest degrees of freedom for which a coherence above the threshold is not plausibly noise.
 
-    With ``n_d`` averages and zero true coherence, ``P(g^2_est > c) = (1 - c)^(n_d - 1)`` (Bendat & Piersol,
-    ch. 9); the result is the smallest ``n_d`` making that at most ``false_alarm`` (9 for c = 0.6), within
-    [4, 16].
+    The coherence of a local polynomial fit with ``nh`` complex coefficients and ``d`` residual degrees of
+    freedom is, for pure noise, Beta(nh, d) distributed (the share of the output a random regression explains);
+    the result is the smallest ``d`` making ``P(coherence > c)`` at most ``false_alarm`` (10 for c = 0.6 and
+    the default first-order polynomial, nh = 2), within [4, 64].
+
+    Parameters
+    ----------
+    coherence_threshold : float
+        Coherence a confident frequency must reach.
+    false_alarm : float
+        Allowed probability that noise alone passes.
+    coefficients : int
+        Complex coefficients of the response polynomial (``order + 1``).
     """
     c = min(max(float(coherence_threshold), 1e-6), 0.999)
-    n = 1.0 + math.log(false_alarm) / math.log(1.0 - c)
-    return int(min(max(math.ceil(n), 4), 16))
+    for d in range(4, 65):
+        if 1.0 - betainc(coefficients, d, c) <= false_alarm:
+            return d
+    return 64
 
 
 def confident_points(estimate, coherence_threshold: float) -> np.ndarray:
     """Frequencies whose estimate counts for epsilon, the nu-gap and the diagnosis (the one definition).
 
-    A point is confident when its coherence passes the threshold *and* it has at least
-    :func:`minimum_averages` averages, so that the coherence itself means something (with 6 averages pure
-    noise exceeds a coherence of 0.6 with probability 2.6 %), and its response is finite and nonzero. Points
-    with too few averages are also the ones where a short sweep leaves the windows too few cycles: their
-    estimate is smeared over a wide band (resolution bias).
+    A point is confident when its coherence passes the threshold *and* its noise estimate has at least
+    :func:`minimum_averages` degrees of freedom, so that the coherence itself means something (pure noise passes
+    a coherence of 0.6 with probability at most 1e-3), and its response is finite and nonzero.
     """
     p_meas = np.asarray(estimate.response, complex)
     coherence = np.asarray(estimate.coherence, float)
     return ((coherence >= coherence_threshold) & np.isfinite(p_meas) & (np.abs(p_meas) > 0)
-            & (_n_averages(estimate) >= minimum_averages(coherence_threshold)))
+            & (_n_averages(estimate) >= minimum_averages(coherence_threshold, coefficients=_coefficients(estimate))))
+
+
+def _coefficients(estimate) -> int:
+    """Complex coefficients of the estimate's response polynomial (2 when it does not say)."""
+    sums = getattr(estimate, "sums", None)
+    return int(sums.order) + 1 if sums is not None else 2
 
 
 def sweep_points(sweep, average_confident: np.ndarray, coherence_threshold: float) -> np.ndarray:
     """Frequencies of one sweep's (raw) estimate that count for the raw epsilon: those confident in the average
-    (the validation's frequency set) where the sweep itself is coherent. A single sweep has fewer averages than
-    the pool, so the minimum-averages rule applies to the average only; raw epsilon is then the sup over the
-    same frequencies as the averaged one, and not smaller for want of points (paper, Table 1)."""
+    (the validation's frequency set) where the sweep itself is coherent. A single sweep has fewer degrees of
+    freedom than the pool, so the minimum rule applies to the average only; raw epsilon is then the sup over
+    the same frequencies as the averaged one, and not smaller for want of points (paper, Table 1)."""
     p = np.asarray(sweep.response, complex)
     return (np.asarray(average_confident, bool) & (np.asarray(sweep.coherence, float) >= coherence_threshold)
             & np.isfinite(p) & (np.abs(p) > 0))
 
 
-def normalised_mismatch(eps_w, sigma, n_averages=np.inf) -> np.ndarray:
+def normalised_mismatch(eps_w, sigma, dof=np.inf) -> np.ndarray:
     """How many noise scales the mismatch is: the Rayleigh-equivalent ``k`` of ``epsilon / sigma``.
 
-    With ``n_d`` averages the H1 error follows ``F(2, 2 n_d - 2)`` (Goodman; Bendat & Piersol's confidence
-    region of H): ``P = (1 + r^2 / (2 n_d))^-(n_d - 1)`` for ``r = epsilon / sigma``, and
-    ``k = sqrt(-2 ln P) = sqrt(2 (n_d - 1) ln(1 + r^2 / (2 n_d)))``, which tends to ``r`` for many averages.
+    With the noise variance estimated on ``d`` (complex) degrees of freedom the normalised squared error of the
+    response is ``F(2, 2 d)`` distributed: ``P = (1 + r^2 / (2 d))^-d`` for ``r = epsilon / sigma``, and
+    ``k = sqrt(-2 ln P) = sqrt(2 d ln(1 + r^2 / (2 d)))``, which tends to ``r`` (Rayleigh) for many degrees of
+    freedom.
 
     Parameters
     ----------
     eps_w, sigma : array_like
         epsilon(w) and its noise scale.
-    n_averages : array_like
-        Averages per frequency (inf: the Rayleigh limit).
+    dof : array_like
+        Degrees of freedom per frequency (inf: the Rayleigh limit).
     """
     with np.errstate(divide="ignore", invalid="ignore"):
         r = np.asarray(eps_w, float) / np.asarray(sigma, float)
-        n = np.maximum(np.asarray(n_averages, float), 2.0)
-        k = np.sqrt(2.0 * (n - 1.0) * np.log1p(r ** 2 / (2.0 * n)))
-        k = np.where(np.isfinite(n), k, r)
+        d = np.maximum(np.asarray(dof, float), 0.5)
+        k = np.sqrt(2.0 * d * np.log1p(r ** 2 / (2.0 * d)))
+        k = np.where(np.isfinite(d), k, r)
     return np.where(np.isfinite(r), k, np.where(np.isnan(r), 0.0, np.inf))
 
 
@@ -704,30 +730,52 @@ class _Evidence:
     w: np.ndarray
     p_meas: np.ndarray
     coherence: np.ndarray
-    n_averages: np.ndarray
-    confident: np.ndarray      # coherence passes the threshold: counts for epsilon (as in the validator)
-    sigma: np.ndarray          # noise scale of epsilon(w)
+    n_averages: np.ndarray     # degrees of freedom of the noise estimate per frequency
+    confident: np.ndarray      # counts for epsilon (as in the validator)
+    sigma: np.ndarray          # noise scale of epsilon(w): random error, scatter and the systematic floor
     sigma_factor: float
+    estimate: object = None    # for ``expected``: the model seen through the estimator
 
-    def mismatch(self, eps_w) -> np.ndarray:
-        """Normalised mismatch k per frequency (:func:`normalised_mismatch`)."""
-        return normalised_mismatch(eps_w, self.sigma, self.n_averages)
+    def mismatch(self, eps_w, expansion_error=0.0) -> np.ndarray:
+        """Normalised mismatch k per frequency (:func:`normalised_mismatch`); ``expansion_error`` (relative)
+        widens the noise scale where the model's expansion over a band is inexact."""
+        sigma = np.hypot(self.sigma, 0.5 * np.asarray(expansion_error, float))
+        return normalised_mismatch(eps_w, sigma, self.n_averages)
 
-    def fit(self, p_fit) -> "_Fit":
-        """epsilon(w) of a model response against the data, with its sups and statistics."""
+    def expected(self, response) -> tuple[np.ndarray, np.ndarray]:
+        """A model's response through the estimator, and the expansion error (:meth:`SpectralEstimate.expected`);
+        the plain response where the estimate cannot say."""
+        direct = np.asarray(response(self.w), complex)
+        method = getattr(self.estimate, "expected", None)
+        if method is None:
+            return direct, np.zeros(self.w.shape)
+        through, error = method(response)
+        through = np.asarray(through, complex)
+        return np.where(np.isfinite(through), through, direct), np.where(np.isfinite(error), error, 0.0)
+
+    def fit(self, response) -> "_Fit":
+        """epsilon(w) of a model (``response(w) -> complex``) against the data, with its sups and statistics.
+
+        epsilon(w) is the paper's (the model at w against the estimate); the mismatch ``k`` and the chi-square,
+        which decide, compare the estimate with the model seen through the estimator, so the estimator's own
+        smoothing does not count as a mismatch.
+        """
+        p_fit = np.asarray(response(self.w), complex)
         eps_w = np.asarray(metrics.epsilon_per_frequency(p_fit, self.p_meas), float)
         eps, worst = _sup(eps_w, self.confident)
-        k = self.mismatch(eps_w)
+        through, error = self.expected(response)
+        k = self.mismatch(metrics.epsilon_per_frequency(through, self.p_meas), error)
         k_max = float(np.max(np.where(self.confident, k, 0.0))) if self.confident.any() else 0.0
-        return _Fit(eps_w, eps, worst, k_max, self._chi2(p_fit))
+        return _Fit(eps_w, eps, worst, k_max, self._chi2(through, error), k)
 
-    def _chi2(self, p_fit) -> float:
+    def _chi2(self, p_fit, expansion_error) -> float:
         """``sum |ln(P_fit / P_meas)|^2 / e^2`` over the usable frequencies (about 2 per frequency when the fit
         equals the truth: chi-square with 2 n degrees of freedom)."""
         u = self.confident
         log_q = _log_ratio(np.asarray(p_fit, complex)[u], self.p_meas[u])
+        e2 = (2.0 * self.sigma[u]) ** 2 + np.asarray(expansion_error, float)[u] ** 2
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            terms = np.abs(log_q) ** 2 / (2.0 * self.sigma[u]) ** 2
+            terms = np.abs(log_q) ** 2 / e2
         return float(np.sum(np.where(np.isfinite(terms), terms, 1e12)))
 
 
@@ -746,6 +794,7 @@ class _Fit:
     worst: int
     k_max: float           # largest normalised mismatch at a usable frequency
     chi2: float
+    k: np.ndarray          # normalised mismatch per frequency
 
 
 def _evidence(estimate, sweeps, coherence_threshold, bias_error, sigma_factor) -> _Evidence:
@@ -755,7 +804,7 @@ def _evidence(estimate, sweeps, coherence_threshold, bias_error, sigma_factor) -
     n_avg = _n_averages(estimate)
     confident = confident_points(estimate, coherence_threshold)
     sigma = epsilon_noise_scale(effective_random_error(estimate, sweeps, coherence_threshold, bias_error))
-    return _Evidence(w, p_meas, coherence, n_avg, confident, sigma, sigma_factor)
+    return _Evidence(w, p_meas, coherence, n_avg, confident, sigma, sigma_factor, estimate)
 
 
 # ------------------------------------------------------------------------------------------------ candidates
@@ -859,7 +908,7 @@ def _fit_all(model, ev: _Evidence, *, pairs: bool, parameter_error: bool, single
         if refit is not None:
             out.append(refit)
     for cand in out:
-        cand.score = ev.fit(cand.model.freqresp(ev.w))
+        cand.score = ev.fit(cand.model.freqresp)
     return out
 
 
@@ -1013,15 +1062,15 @@ def analyse_channel(model: LinearModel, estimate, sweeps: list, coherence_thresh
     """
     ev = _evidence(estimate, sweeps, coherence_threshold, bias_error, sigma_factor)
     p_model = model.freqresp(ev.w)
-    base = ev.fit(p_model)
-    mismatch = ev.mismatch(base.eps_w)
+    base = ev.fit(model.freqresp)
+    mismatch = base.k
     # coherent points with too few averages do not count for epsilon, but a mismatch there is data-limited
     coherent = (ev.coherence >= coherence_threshold) & np.isfinite(ev.p_meas) & (np.abs(ev.p_meas) > 0)
     flags = frequency_flags(base.eps_w, mismatch, coherent, ev.confident, epsilon_threshold, sigma_factor)
     bands = find_bands(ev.w, base.eps_w, mismatch, ev.coherence, ev.n_averages, flags, coherence_threshold,
                        minimum_averages(coherence_threshold), sigma_factor)
     result = ChannelDiagnosis(limited_by=_limited_by(ev, base, bands), frequency_flags=flags, bands=bands)
-    if fit and base.worst >= 0 and base.k_max > sigma_factor:
+    if fit and result.limited_by == "model":
         chosen = _select(ev, base, _diagnose(model, ev))
         result.candidates = [_candidate_dict(c, ev, base, p_model, sweeps, coherence_threshold) for c in chosen]
     result.message = _message(ev, base, result, coherence_threshold, epsilon_threshold, channel)

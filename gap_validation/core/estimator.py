@@ -1,128 +1,103 @@
-"""Recursive (online) frequency-response estimator: the measured responses of the paper's Fig. 4.
+"""Online frequency-response estimator: the measured responses of the paper's Fig. 4, from any manoeuvre.
 
-Samples of the control surface (input ``x``) and of the body rate (output ``y``) arrive one by one or in
-batches, each stream at its own irregular rate. Per completed sweep the estimator keeps a *raw* estimate (the
-light curves of Fig. 4) and it pools all sweeps into the *averaged* estimate (the dark curve), with coherence
-and random error per frequency. Nothing grows with flight length: the state is a fixed set of arrays.
+Samples of the control surface (input) and of the body rate (output) arrive one by one or in batches, each stream
+at its own irregular rate (more streams for other surfaces or an injected excitation). The estimator finds the
+manoeuvres in the flight, estimates a frequency response from each (the *raw* estimates, the light curves of
+Fig. 4) and pools them into the *averaged* estimate (the dark curve), with coherence, degrees of freedom and the
+variance of the response per frequency. Nothing grows with flight length.
 
 Data path (one pass, bounded delay)
 -----------------------------------
-1. **Alignment** (:class:`_StreamResampler`, :class:`_GridAligner`). Each stream is interpolated on its own
-   onto one uniform grid ``t_k = t0 + k / sample_rate_hz`` (default 100 Hz; must be >= 5x the highest
-   frequency). Cubic Hermite interpolation with three-point (parabola) slopes, which on uniform samples is
-   Catmull-Rom: a 50 Hz surface stream read on the 100 Hz grid loses < 0.4 % of magnitude at 5 Hz (linear:
-   5 %). Only the last three samples per stream are kept. Grid values wait in a bounded queue until the other
-   stream has reached the same instant (``max_lag_s``, default 30 s; beyond it the oldest are dropped and
-   counted). A spacing larger than ``max_gap_s`` (default 0.5 s) is a gap: no interpolation across it; the
-   run of data, its open segments and its sweep end there. Time jumping *back* (a looped bag, two recordings
-   with overlapping clocks fed in sequence) by more than ``max(JUMP_BACK_S, max_gap_s)`` starts a new time
-   base (:class:`_TimeBase`): once :data:`JUMP_CONFIRM` increasing samples confirm it, the stream's times are
-   shifted to continue just after the latest sample of any stream (a gap, so the run and its sweep end), and
-   the other streams adopt the same shift when they jump too; each jump is counted (``time_jumps_back``).
-   Smaller steps back and duplicate stamps are dropped and counted (``non_monotonic``), and so is a single
-   stray stamp far back that the next samples do not follow.
-2. **Sweep membership** (:mod:`gap_validation.core.sweeps`). The detector sees the newest grid samples; the
-   transform sees them ``lookahead_samples`` later (about 2 s, a fixed delay line), by which time it is known
-   whether they belong to a sweep. An explicit trigger (:meth:`add_trigger`) overrides detection.
-3. **Recursive windowed DFT** (:class:`_SegmentTransform`), run only inside sweeps. Per frequency ``w`` a Hann
-   window of ``window_cycles`` periods (default 8; clipped to [``min_window_s``, ``max_window_s``] = [2, 20]
-   s; rounded to whole blocks of ``block_s`` = 0.2 s), hop ``(1 - overlap)`` of it (default 50 %), segments
-   anchored at the sweep start. The Hann-windowed DFT of a segment starting at sample ``s`` (length ``N``,
-   ``Omega = 2 pi / N``) is exactly three plain DFTs::
+1. **Alignment** (:class:`_StreamResampler`, :class:`_GridAligner`). Each stream is interpolated on its own onto
+   one uniform grid ``t_k = t0 + k / sample_rate_hz`` (default 100 Hz; must be >= 5x the highest frequency):
+   cubic Hermite with three-point slopes (Catmull-Rom on uniform samples; a 50 Hz stream read on a 100 Hz grid
+   loses < 0.4 % of magnitude at 5 Hz). Grid values wait in bounded queues until every stream has reached the
+   same instant (``max_lag_s``). A spacing larger than ``max_gap_s`` is a gap: no interpolation across it, the
+   run of data and the manoeuvre in progress end there. Time jumping back (a looped bag) by more than
+   ``max(JUMP_BACK_S, max_gap_s)`` starts a new time base once confirmed; smaller steps back and duplicate stamps
+   are dropped and counted.
+2. **Excited stretches** (:mod:`gap_validation.core.sweeps`): the detector sees the excitation signal (the input,
+   or the injected excitation when there is one); everything else sees the grid samples ``lookahead_samples``
+   later (about 2 s), when it is known whether they are excited. An explicit trigger overrides detection.
+3. **Records** (:mod:`gap_validation.core.records`). An excited stretch is buffered with ``pre_s`` of trim
+   before it and ``post_s`` after it (the response settles), at most ``max_record_s`` (longer excitation is cut
+   into several records), then split into the manoeuvres flown (a second of trim between them, or a restart of
+   the swept frequency) and each is classified (chirp, multisine, multistep, doublet, pulse, broadband, or a trim
+   step, which gives no response).
+4. **Local polynomial estimate** (:mod:`gap_validation.core.spectra`): each record is transformed whole and the
+   response at every analysis frequency is fitted to the DFT bins around it with the record's transient
+   (leakage, initial and final conditions) removed; the fits of all records add up (pooled estimate) and the
+   last ``max_raw_sweeps`` records are kept one by one (raw estimates). A record counts at a frequency only
+   where its input is excited there and its bins resolve it.
 
-       X(w) = 0.5 S(w) - 0.25 e^{-j Omega (s - r)} S(w - Omega/dt) - 0.25 e^{+j Omega (s - r)} S(w + Omega/dt)
-
-   with ``S(v) = sum_n x[n] e^{-j v (n - r) dt}`` over the segment and ``r`` the sweep start. ``S`` of every
-   segment is a difference of two cumulative sums, and the cumulative sums over whole blocks of ``b`` samples
-   are one real matrix product of the block with a precomputed ``b x 6F`` cos/sin table followed by a
-   per-block phase from a precomputed table: about ``2 * 3F`` multiply-adds per sample and stream, no
-   transcendental function per sample. Cumulative sums are re-based after every batch, phases are relative to
-   the sweep start, so float64 precision holds for hours. The segment mean is removed exactly (trim and
-   bias, like ``scipy.signal.csd(detrend='constant')``) with one more running sum.
-4. **Spectra** (Bendat and Piersol, Random Data, 4th ed., ch. 9). Per frequency, averaged over segments:
-   ``Gxx = 2 dt/sum(h^2) |X|^2``, ``Gyy``, ``Gxy = 2 dt/sum(h^2) conj(X) Y`` (one-sided densities, scipy's
-   ``scaling='density'``), ``H = Gxy / Gxx`` (the H1 estimator: unbiased by output noise),
-   ``gamma^2 = |Gxy|^2 / (Gxx Gyy)``, random error of ``|H|``
-   ``eps = sqrt(1 - gamma^2) / (|gamma| sqrt(2 n_d))`` (also the phase error in rad), ``n_d`` = segments.
-
-Why windows of a few cycles, and why coherence means something for one sweep
---------------------------------------------------------------------------
-A single DFT of a whole sweep has coherence exactly 1 (one average), so it cannot say which frequencies are
-noise. Welch-type averaging over overlapping windows inside the sweep gives ``n_d`` > 1 averages per
-frequency and therefore a real coherence and a random error for *each* sweep, as Fig. 4 shows; the same
-segments pooled over all sweeps give the average. Windows are sized to the frequency because one length
-cannot serve 1-60 rad/s: a window long enough for the lowest frequency leaves a 60-90 s sweep one or two
-averages, a window short enough for many averages at high frequency holds less than a cycle at the lowest.
-
-The number of cycles trades random error against *resolution bias*: inside one window a log sweep is nearly
-a tone at its instantaneous frequency, so the estimate at ``w`` is a weighted mean of ``H`` over the window's
-main lobe (about ``w (1 +/- 2 / window_cycles)``). Measured on the paper's pitch model with a 20 ms delay and
-three 60-80 s log sweeps (noise-free): 5 cycles with a 1 s minimum window give up to 5 % error at
-20-45 rad/s, 8 cycles with a 2 s minimum 1.5 % (median 0.4 %), at the cost of 1.6 times fewer averages.
-Hence the defaults 8 cycles in [2, 20] s: the bias stays below the random error of typical flight data.
-
-A log sweep excites each frequency only for part of the sweep; windows without excitation at a frequency add
-output noise to ``Gyy`` and so lower the coherence, while ``n_d`` counts them: the error formula stays
-consistent (the variance of ``H`` is ``(1 - gamma^2)/(gamma^2 n_d)`` either way). Pooling *spectra* over
-sweeps (rather than averaging the responses) is Welch's average over all segments of all sweeps; it keeps the
-H1 estimator unbiased and gives ``n_d`` = total segments. With 50 % overlap of Hann windows neighbouring
-segments are correlated by 1/6, which with the approximate formula makes the actual scatter of ``H`` about
-5-25 % larger than ``random_error`` states (checked in the tests with a 3-sigma band). Where ``n_d < 2``
-coherence is reported as 0 (not meaningful) and the random error as infinite; where ``n_d = 0`` the response
-is NaN.
+Why whole records rather than averaged windows
+-----------------------------------------------
+Averaging short windows (Welch) gives many averages from a long sweep but fails on what flight-test engineers
+also fly: a 3-2-1-1 or a doublet lasts a few seconds, a multisine's lines need whole periods, and short windows
+leak (a window of a few cycles smears the response over its main lobe and, past the end of a sweep, reports the
+response of the last excited frequency with a high coherence). A whole record has the finest resolution the
+record allows and no window; the local polynomial method recovers the degrees of freedom from neighbouring bins
+(not from overlapping windows, which are not independent) and removes the leakage of a record that does not
+start and end at rest. Degrees of freedom are counted honestly: bins minus every coefficient fitted.
 
 Use
 ---
-Feed the streams roughly in time order (live, or a replay in bag order); one stream may run ahead of the
-other by at most ``max_lag_s``; for two whole recorded arrays use
-:meth:`FrequencyResponseEstimator.add_time_histories`. Small calls (one message each) are buffered and
-processed every ``batch_s`` (0.1 s) of data, so a message costs microseconds, not a pass through the pipeline.
-Results cover completed sweeps: a sweep is committed about two seconds (the detector's
-look-ahead) after it ends, or at :meth:`FrequencyResponseEstimator.flush`.
+Feed the streams roughly in time order (live, or a replay in bag order); one stream may run ahead of another by
+at most ``max_lag_s``; for whole recorded arrays use :meth:`FrequencyResponseEstimator.add_time_histories`.
+Small calls are buffered and processed every ``batch_s`` of data. Results cover completed manoeuvres: a
+manoeuvre is committed ``post_s`` plus ``pre_s`` (and the detector's look-ahead) after it ends, or at
+:meth:`FrequencyResponseEstimator.flush`.
 
-Performance (measured by ``benchmarks/bench_estimator.py``): see the README table.
+Performance (``benchmarks/bench_estimator.py``): see the README table.
 """
 from __future__ import annotations
 
 import bisect
 import math
-from dataclasses import dataclass
+from collections import Counter
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.manoeuvres import Manoeuvre, ManoeuvreRecorder
+from gap_validation.core.records import (RESPONSE_KINDS, SWEEP_KINDS, Piece, classify, period, split_record,
+                                         stretch_trim)
+from gap_validation.core.spectra import (SPECTRA_DEFAULTS, BandSums, expected_estimate, record_bands,
+                                         solve_bands)
 from gap_validation.core.sweeps import DETECTOR_DEFAULTS, SweepDetector, TriggerTracker
 
-__all__ = ["FrequencyResponseEstimator", "SpectralEstimate", "ESTIMATOR_DEFAULTS"]
+__all__ = ["FrequencyResponseEstimator", "SpectralEstimate", "ESTIMATOR_DEFAULTS", "RETIRED_OPTIONS",
+           "NOT_ESTIMABLE_REASONS"]
 
 #: Options of :class:`FrequencyResponseEstimator` and their defaults (units in the names).
 ESTIMATOR_DEFAULTS = {
     "sample_rate_hz": 100.0,      # uniform grid the streams are aligned on; >= 5x the top frequency
-    "window_cycles": 8.0,         # Hann window length in periods of each frequency
-    "min_window_s": 2.0,
-    "max_window_s": 20.0,
-    "overlap": 0.5,               # 0, 1/2, 2/3, 3/4, ... (1 - 1/m)
-    "block_s": 0.2,               # segment boundaries are on this block grid
-    "detrend": True,              # remove each segment's mean (trim, bias)
     "cubic_interpolation": True,  # False: linear interpolation onto the grid
     "max_gap_s": 0.5,             # a larger sample spacing breaks the data
-    "max_lag_s": 30.0,            # how far one stream may run ahead of the other before data are dropped
+    "max_lag_s": 30.0,            # how far one stream may run ahead of another before data are dropped
     "batch_s": 0.1,               # samples arriving in small calls are processed in batches of this span
-    "detect_sweeps": True,        # False: only an explicit trigger defines sweeps
+    "detect_sweeps": True,        # False: only an explicit trigger defines manoeuvres
     **DETECTOR_DEFAULTS,          # energy_window_s, hold_s, on_ratio, off_ratio, min_excitation, quiet_window_s
-    "min_sweep_s": 10.0,          # detected excitations shorter than this are not sweeps (doublets, steps)
-    "max_raw_sweeps": 50,         # per-sweep estimates kept (most recent); the average pools all sweeps
+    "min_sweep_s": 0.0,           # excitations shorter than this give no frequency response (time domain only)
+    "max_raw_sweeps": 50,         # per-record estimates kept (most recent); the average pools all records
+    "pre_s": 2.0,                 # trim kept before each manoeuvre [s]
+    "post_s": 4.0,                # kept after it (the response settles) [s]
+    "min_quiet_s": 1.0,           # trim that separates two manoeuvres [s]
+    "max_record_s": 300.0,        # longer excitation is cut into records of this length [s]
+    **SPECTRA_DEFAULTS,           # band_fraction, max_band_fraction, min_bins, order, transient_order
 }
-_BOOL_OPTIONS = ("detrend", "cubic_interpolation", "detect_sweeps")
-_INT_OPTIONS = ("max_raw_sweeps",)
+#: Options of the windowed (Welch) estimator that this one replaced: refused with an explanation.
+RETIRED_OPTIONS = ("window_cycles", "min_window_s", "max_window_s", "overlap", "block_s", "detrend")
+#: Why a frequency has no estimate (:attr:`SpectralEstimate.reasons` counts records per reason).
+NOT_ESTIMABLE_REASONS = ("not_excited", "too_short", "above_grid", "too_few_bins")
+_BOOL_OPTIONS = ("cubic_interpolation", "detect_sweeps")
+_INT_OPTIONS = ("max_raw_sweeps", "min_bins", "order", "transient_order")
 _NONE = -(2 ** 62)               # "no grid index yet"
-_MATMUL_SIZE = 1e6               # multiply-adds per matrix product: below where OpenBLAS goes multi-threaded
-                                 # (on a loaded 2-core machine that was 4-10x slower), large enough to amortise
-_EVENT_CAP = 64                  # pending sweep edges
+_EVENT_CAP = 64                  # pending edges
 _BUFFER_CAP = 256                # samples per stream buffered before processing (amortises per-call cost)
-_ENERGY, _TRIGGER = 0, 1         # source of a sweep
-_STATE_VERSION = 2                 # 2: doublets kept (``man.*``); version 1 checkpoints still load
+_ENERGY, _TRIGGER = 0, 1         # source of a record
+_STATE_VERSION = 3               # 3: records and local polynomial sums (1, 2: windowed spectra, not resumable)
 #: A timestamp more than this [s] (or ``max_gap_s``, if larger) before the stream's latest starts a new time
 #: base instead of being dropped (a looped bag); smaller steps back are reorders or duplicates.
 JUMP_BACK_S = 1.0
@@ -130,50 +105,52 @@ JUMP_BACK_S = 1.0
 JUMP_CONFIRM = 3
 _MAX_ABS_TIME_S = 1e11           # beyond 3000 years from the epoch: a corrupt stamp (also keeps grid indices in int64)
 _MAX_ABS_VALUE = 1e100           # a corrupt value (squares and slopes of larger ones overflow float64)
-
-
-def _upgrade_state(state: dict) -> dict:
-    """A checkpoint written before time bases existed, with their neutral values filled in."""
-    if "epoch" in state:
-        return state
-    st = {"epoch": 0, "epoch_offset": 0.0, **state}
-    for prefix in ("in.", "out."):
-        st.update({prefix + "epoch": 0, prefix + "offset": 0.0, prefix + "pend": np.zeros((2, JUMP_CONFIRM)),
-                   prefix + "pend_n": 0, prefix + "jumps": 0})
-    counts = [int(c) for c in state.get("trig_counts", (0, 0, 0))]
-    st.update({"tbase.last_t": float(state.get("trig_last_t", -np.inf)), "tbase.accepted": counts[0],
-               "tbase.nonfinite": counts[1], "tbase.non_monotonic": counts[2], "tbase.epoch": 0,
-               "tbase.offset": 0.0, "tbase.pend": np.zeros((2, JUMP_CONFIRM)), "tbase.pend_n": 0,
-               "tbase.jumps": 0})
-    return st
+#: A stream sampled at fs resolves frequencies up to this fraction of fs: cubic (Catmull-Rom) interpolation
+#: onto the grid loses < 1 % of magnitude there (2.7 % at 0.2 fs, 6 % at 0.25 fs).
+RESOLVED_FRACTION = 0.15
+#: Manoeuvres up to this long are offered to the time-domain recorder (doublets, pulses, multisteps) [s].
+_SHORT_MANOEUVRE_S = 20.0
 
 
 # ---------------------------------------------------------------------------------------------- results
 @dataclass(frozen=True)
 class SpectralEstimate:
-    """Spectra and frequency response at the channel's frequencies (one sweep, or pooled over sweeps).
+    """Frequency response at the channel's frequencies: one record (raw), or pooled over records.
 
     Attributes
     ----------
     w_rad_s : ndarray
         Frequencies [rad/s].
     gxx, gyy : ndarray
-        One-sided auto-spectral densities of input and output [unit^2/Hz].
+        One-sided auto-spectral densities of input and output near each frequency (mean over the band's bins
+        after the transient is removed) [unit^2/Hz].
     gxy : ndarray
-        One-sided cross-spectral density, ``conj(X) Y`` convention (complex) [unit_x unit_y/Hz].
+        ``H gxx`` (complex) [unit_x unit_y/Hz].
     n_averages : ndarray
-        Number of window segments averaged per frequency (``n_d``).
+        Degrees of freedom of the noise estimate per frequency (bins minus every fitted coefficient); 0 where
+        nothing was estimated.
     response : ndarray
-        ``H = Gxy / Gxx`` (complex; NaN where ``n_averages == 0``).
+        ``H(w)`` (complex; NaN where nothing was estimated).
     coherence : ndarray
-        ``|Gxy|^2 / (Gxx Gyy)`` in [0, 1]; 0 where ``n_averages < 2``.
+        Multiple coherence of the local fit, ``1 - residual / output power`` in [0, 1]; 0 where nothing was
+        estimated.
     random_error : ndarray
-        Normalised random error of ``|H|`` (and phase error in rad), Bendat and Piersol:
-        ``sqrt(1 - gamma^2) / (|gamma| sqrt(2 n_d))``; inf where ``n_averages < 2`` or coherence is 0.
+        Normalised random error of ``|H|`` (and the phase error in rad): ``sqrt(variance / 2) / |H|``; inf where
+        nothing was estimated.
     start_s, end_s : float
-        Time span of the sweep (pooled: first start, last end) [s].
+        Time span (pooled: first start, last end) [s].
     n_sweeps : int
-        Sweeps pooled in this estimate (1 for a raw estimate).
+        Records pooled (1 for a raw estimate).
+    variance : ndarray
+        ``E |H_est - H|^2`` [unit_y^2/unit_x^2] (both components together).
+    kind : str
+        A raw estimate's manoeuvre kind (:data:`gap_validation.core.records.KINDS`); ``""`` when pooled.
+    reasons : dict
+        Per reason in :data:`NOT_ESTIMABLE_REASONS`: how many records did not count, per frequency (arrays).
+    sums : BandSums or None
+        The sufficient statistics (for :meth:`expected`).
+    band_fraction : float
+        The estimator's ``band_fraction``.
     """
 
     w_rad_s: np.ndarray
@@ -187,24 +164,68 @@ class SpectralEstimate:
     start_s: float = float("nan")
     end_s: float = float("nan")
     n_sweeps: int = 1
+    variance: np.ndarray | None = None
+    kind: str = ""
+    reasons: dict = field(default_factory=dict)
+    sums: BandSums | None = None
+    band_fraction: float = SPECTRA_DEFAULTS["band_fraction"]
 
     @classmethod
-    def from_sums(cls, w_rad_s, sum_xx, sum_yy, sum_xy, n, start_s=float("nan"), end_s=float("nan"),
-                  n_sweeps: int = 1) -> "SpectralEstimate":
-        """Estimate from sums over segments of scaled ``|X|^2``, ``|Y|^2``, ``conj(X) Y`` and their count."""
-        n = np.asarray(n, dtype=np.int64)
+    def from_sums(cls, w_rad_s, sums: BandSums, dt: float, band_fraction: float, start_s: float = float("nan"),
+                  end_s: float = float("nan"), n_sweeps: int = 1, kind: str = "",
+                  reasons: dict | None = None) -> "SpectralEstimate":
+        """Solve :class:`~gap_validation.core.spectra.BandSums` into an estimate.
+
+        Parameters
+        ----------
+        w_rad_s : array_like
+            Frequencies [rad/s].
+        sums : BandSums
+            Local polynomial sums (one record or pooled).
+        dt : float
+            Grid step [s] (densities).
+        band_fraction : float
+            The estimator's ``band_fraction``.
+        start_s, end_s : float
+            Time span [s].
+        n_sweeps : int
+            Records in ``sums``.
+        kind : str
+            Manoeuvre kind of a raw estimate.
+        reasons : dict, optional
+            Records not counted, per reason and frequency.
+        """
+        local = solve_bands(sums)
+        bins = np.maximum(sums.bins, 1)
+        ok = np.isfinite(local.response)
+        gxx = np.where(ok, 2.0 * dt * sums.input_power / bins, 0.0)
+        gyy = np.where(ok, 2.0 * dt * sums.yy[:, 0, 0].real / bins, 0.0)
         with np.errstate(divide="ignore", invalid="ignore"):
-            safe_n = np.maximum(n, 1)
-            gxx = np.where(n > 0, np.asarray(sum_xx, float) / safe_n, 0.0)
-            gyy = np.where(n > 0, np.asarray(sum_yy, float) / safe_n, 0.0)
-            gxy = np.where(n > 0, np.asarray(sum_xy, complex) / safe_n, 0.0)
-            response = np.where((n > 0) & (gxx > 0), gxy / gxx, np.nan + 0j)
-            coh = np.abs(gxy) ** 2 / (gxx * gyy)
-            coh = np.where((n >= 2) & np.isfinite(coh), np.clip(coh, 0.0, 1.0), 0.0)
-            err = np.sqrt(1.0 - coh) / (np.sqrt(coh) * np.sqrt(2.0 * safe_n))
-            err = np.where((n >= 2) & (coh > 0), err, np.inf)
-        return cls(np.asarray(w_rad_s, float).copy(), gxx, gyy, gxy, n.copy(), response, coh, err,
-                   float(start_s), float(end_s), int(n_sweeps))
+            err = np.sqrt(local.variance / 2.0) / np.abs(local.response)
+        err = np.where(ok & np.isfinite(err), err, np.inf)
+        return cls(np.asarray(w_rad_s, float).copy(), gxx, gyy, np.where(ok, local.response * gxx, 0.0),
+                   np.where(ok, local.dof, 0), local.response, np.where(ok, local.coherence, 0.0), err,
+                   float(start_s), float(end_s), int(n_sweeps), np.where(ok, local.variance, np.inf), kind,
+                   dict(reasons or {}), sums, float(band_fraction))
+
+    @property
+    def excited(self) -> np.ndarray:
+        """Frequencies at which at least one record counted."""
+        return np.isfinite(self.response)
+
+    def expected(self, model_response) -> tuple[np.ndarray, np.ndarray]:
+        """The estimate a model would give through this estimator (see
+        :func:`~gap_validation.core.spectra.expected_estimate`): ``(expected, expansion_error)``.
+
+        Parameters
+        ----------
+        model_response : callable
+            ``model_response(w_rad_s) -> complex array``.
+        """
+        if self.sums is None:
+            return np.asarray(model_response(self.w_rad_s), complex), np.zeros(self.w_rad_s.shape)
+        expected, error = expected_estimate(self.sums, self.w_rad_s, self.band_fraction, model_response)
+        return np.where(self.excited, expected, np.nan + 0j), error
 
 
 # ---------------------------------------------------------------------------------------------- options
@@ -222,6 +243,11 @@ def _number(name: str, value, positive: bool = True) -> float:
 
 
 def _validate_options(w_rad_s: np.ndarray, options: dict) -> dict:
+    retired = sorted(set(options) & set(RETIRED_OPTIONS))
+    if retired:
+        raise ConfigError(f"estimator option {retired[0]!r} is no longer used: the estimator works on whole "
+                          "manoeuvres now (local polynomial method, docs/ARCHITECTURE.md); remove it "
+                          "(band_fraction and min_bins set the resolution)")
     unknown = sorted(set(options) - set(ESTIMATOR_DEFAULTS))
     if unknown:
         raise ConfigError(f"estimator option {unknown[0]!r} is unknown "
@@ -234,27 +260,32 @@ def _validate_options(w_rad_s: np.ndarray, options: dict) -> dict:
                 raise ConfigError(f"estimator option {name}: expected true or false, got {value!r}")
             out[name] = bool(value)
         elif name in _INT_OPTIONS:
-            number = _number(name, value)
+            number = float(value) if name == "transient_order" and value == -1 else \
+                _number(name, value, positive=name not in ("order", "transient_order"))
             if not number.is_integer():
-                raise ConfigError(f"estimator option {name}: expected a positive integer, got {value!r}")
+                raise ConfigError(f"estimator option {name}: expected a whole number, got {value!r}")
             out[name] = int(number)
-        elif name in ("overlap", "min_sweep_s", "batch_s"):
+        elif name in ("min_sweep_s", "batch_s", "pre_s", "post_s", "min_quiet_s"):
             out[name] = _number(name, value, positive=False)
         else:
             out[name] = _number(name, value)
-    if not out["overlap"] < 1.0:
-        raise ConfigError(f"estimator option overlap: expected 0 <= overlap < 1, got {opts['overlap']!r}")
-    slots = 1.0 / (1.0 - out["overlap"])
-    if abs(slots - round(slots)) > 1e-3:
-        raise ConfigError(f"estimator option overlap: {opts['overlap']!r} is not 1 - 1/m "
-                          f"(use 0, 0.5, 0.6667, 0.75, ...)")
-    if out["max_window_s"] < out["min_window_s"]:
-        raise ConfigError(f"estimator option max_window_s: {opts['max_window_s']!r} is below "
-                          f"min_window_s {opts['min_window_s']!r}")
+    if out["order"] > 3 or out["transient_order"] > 3:
+        raise ConfigError(f"estimator options order / transient_order: expected 0 to 3, got "
+                          f"{opts['order']!r} / {opts['transient_order']!r}")
+    if out["min_bins"] < out["order"] + out["transient_order"] + 3:
+        raise ConfigError(f"estimator option min_bins: {opts['min_bins']!r} leaves no degree of freedom "
+                          f"(needs at least order + transient_order + 3 = "
+                          f"{out['order'] + out['transient_order'] + 3})")
+    if not out["band_fraction"] <= out["max_band_fraction"]:
+        raise ConfigError(f"estimator option max_band_fraction: {opts['max_band_fraction']!r} is below "
+                          f"band_fraction {opts['band_fraction']!r}")
     f_max = float(np.max(w_rad_s)) / (2.0 * math.pi)
     if out["sample_rate_hz"] < 5.0 * f_max:
         raise ConfigError(f"estimator option sample_rate_hz: {opts['sample_rate_hz']!r} Hz is below 5x the "
                           f"highest frequency ({f_max:.4g} Hz)")
+    if out["max_record_s"] < 2.0 * (out["pre_s"] + out["post_s"]):
+        raise ConfigError(f"estimator option max_record_s: {opts['max_record_s']!r} s is shorter than twice "
+                          f"pre_s + post_s")
     return out
 
 
@@ -474,16 +505,17 @@ class _StreamResampler:
 
 
 class _GridAligner:
-    """Pairs the grid values of the two streams by grid index; bounded queues of ``cap`` values each."""
+    """Pairs the grid values of several streams by grid index; bounded queues of ``cap`` values each."""
 
-    def __init__(self, cap: int) -> None:
-        self.cap = cap
-        self.k = [np.empty(0, np.int64), np.empty(0, np.int64)]
-        self.v = [np.empty(0), np.empty(0)]
+    def __init__(self, n_streams: int, cap: int) -> None:
+        self.n, self.cap = n_streams, cap
+        self.k = [np.empty(0, np.int64) for _ in range(n_streams)]
+        self.v = [np.empty(0) for _ in range(n_streams)]
         self.cursor = _NONE               # every grid index below this has been combined or given up
-        self.dropped = [0, 0]
+        self.dropped = [0] * n_streams
 
     def push(self, s: int, k: np.ndarray, v: np.ndarray) -> None:
+        """Queue stream ``s``'s grid values (indices ``k``)."""
         if k.size == 0:
             return
         late = k < self.cursor
@@ -493,249 +525,202 @@ class _GridAligner:
         self.k[s] = np.concatenate((self.k[s], k))
         self.v[s] = np.concatenate((self.v[s], v))
 
-    def combine(self, final_x: int, final_y: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        m = min(final_x, final_y)
-        idx, x, y = np.empty(0, np.int64), np.empty(0), np.empty(0)
+    def combine(self, finals: list[int]) -> tuple[np.ndarray, np.ndarray]:
+        """Grid indices below ``min(finals)`` that every stream has, and the values there (streams x n)."""
+        m = min(finals)
+        idx, vals = np.empty(0, np.int64), np.empty((self.n, 0))
         if m > self.cursor:
-            ix = int(np.searchsorted(self.k[0], m))
-            iy = int(np.searchsorted(self.k[1], m))
-            kx, vx, ky, vy = self.k[0][:ix], self.v[0][:ix], self.k[1][:iy], self.v[1][:iy]
-            if kx.size and ky.size:
-                if kx[-1] - kx[0] == kx.size - 1 and ky[-1] - ky[0] == ky.size - 1:
-                    lo, hi = max(kx[0], ky[0]), min(kx[-1], ky[-1])
+            cut = [int(np.searchsorted(k, m)) for k in self.k]
+            ks = [k[:c] for k, c in zip(self.k, cut)]
+            vs = [v[:c] for v, c in zip(self.v, cut)]
+            if all(k.size for k in ks):
+                if all(k[-1] - k[0] == k.size - 1 for k in ks):          # contiguous: slices
+                    lo, hi = max(int(k[0]) for k in ks), min(int(k[-1]) for k in ks)
                     if lo <= hi:
                         idx = np.arange(lo, hi + 1, dtype=np.int64)
-                        x = vx[lo - kx[0]: hi - kx[0] + 1]
-                        y = vy[lo - ky[0]: hi - ky[0] + 1]
+                        vals = np.stack([v[lo - k[0]: hi - k[0] + 1] for k, v in zip(ks, vs)])
                 else:
-                    idx, ia, ib = np.intersect1d(kx, ky, assume_unique=True, return_indices=True)
-                    x, y = vx[ia], vy[ib]
-            self.k[0], self.v[0] = self.k[0][ix:], self.v[0][ix:]
-            self.k[1], self.v[1] = self.k[1][iy:], self.v[1][iy:]
+                    idx = ks[0]
+                    for k in ks[1:]:
+                        idx = np.intersect1d(idx, k, assume_unique=True)
+                    vals = np.stack([v[np.searchsorted(k, idx)] for k, v in zip(ks, vs)]) if idx.size \
+                        else vals
+            self.k = [k[c:] for k, c in zip(self.k, cut)]
+            self.v = [v[c:] for v, c in zip(self.v, cut)]
             self.cursor = m
-        for s in (0, 1):
+        for s in range(self.n):
             extra = self.k[s].size - self.cap
             if extra > 0:
                 self.dropped[s] += extra
                 self.k[s], self.v[s] = self.k[s][extra:], self.v[s][extra:]
                 self.cursor = max(self.cursor, int(self.k[s][0]))
-        return idx, x, y
+        return idx, vals
 
     def clear(self) -> None:
-        for s in (0, 1):
-            self.k[s], self.v[s] = self.k[s][:0], self.v[s][:0]
+        """Forget the queued values (end of data)."""
+        self.k = [k[:0] for k in self.k]
+        self.v = [v[:0] for v in self.v]
 
     def state_dict(self) -> dict:
+        """Fixed-size state (checkpoints)."""
         st = {"cursor": self.cursor, "dropped": np.array(self.dropped, np.int64)}
-        for s, name in ((0, "x"), (1, "y")):
-            k = np.zeros(self.cap, np.int64)
-            v = np.zeros(self.cap)
-            k[: self.k[s].size] = self.k[s]
-            v[: self.v[s].size] = self.v[s]
-            st.update({f"k_{name}": k, f"v_{name}": v, f"n_{name}": int(self.k[s].size)})
+        k = np.zeros((self.n, self.cap), np.int64)
+        v = np.zeros((self.n, self.cap))
+        for s in range(self.n):
+            k[s, : self.k[s].size] = self.k[s]
+            v[s, : self.v[s].size] = self.v[s]
+        st.update({"k": k, "v": v, "sizes": np.array([q.size for q in self.k], np.int64)})
         return st
 
     def load_state(self, st: dict) -> None:
+        """Inverse of :meth:`state_dict`."""
         self.cursor = int(st["cursor"])
         self.dropped = [int(d) for d in st["dropped"]]
-        for s, name in ((0, "x"), (1, "y")):
-            n = int(st[f"n_{name}"])
-            self.k[s] = np.asarray(st[f"k_{name}"], np.int64)[:n].copy()
-            self.v[s] = np.asarray(st[f"v_{name}"], float)[:n].copy()
+        sizes = np.asarray(st["sizes"], np.int64)
+        self.k = [np.asarray(st["k"][s, : sizes[s]], np.int64).copy() for s in range(self.n)]
+        self.v = [np.asarray(st["v"][s, : sizes[s]], float).copy() for s in range(self.n)]
 
 
-# ---------------------------------------------------------------------------------------------- transform
-class _SegmentTransform:
-    """Hann-windowed DFTs of overlapping segments inside one sweep, by block-wise running sums.
+# ---------------------------------------------------------------------------------------------- records
+class _RecordBuffer:
+    """Grid samples of the manoeuvre in progress, with the trim before it (constant size).
 
-    Parameters
-    ----------
-    w_rad_s : ndarray
-        Frequencies [rad/s] (F).
-    sample_rate_hz : float
-        Grid rate [Hz].
-    block_n : int
-        Samples per block ``b``; segment boundaries lie on blocks counted from the sweep start.
-    window_cycles, min_window_s, max_window_s : float
-        Window length per frequency (see module docstring).
-    n_slots : int
-        Segments overlapping at any time (2 for 50 % overlap).
-    detrend : bool
-        Remove each segment's mean.
+    ``start(k)`` opens a record at ``k - pre_n`` (from a ring of the latest ``pre_n`` samples), ``stop(k)``
+    marks the end of the excitation; the record closes ``post_n`` samples after it once ``post_n + pre_n``
+    samples passed without a new start (energy detection merges nearby excitations: the record is split into
+    manoeuvres afterwards), at once when a trigger starts again (trigger records never merge), when it reaches
+    ``cap`` samples, or at the end of a run. :meth:`feed` returns the closed records as
+    ``(k0, samples, src, act0, act1)``: first grid index, samples (streams x n), source, and the excited span
+    (relative indices) the edges gave. A full buffer calls ``on_full(k0, samples, src, act0)``, which processes
+    what is complete and returns how many leading samples it took; the record goes on with the rest.
     """
 
-    def __init__(self, w_rad_s: np.ndarray, sample_rate_hz: float, block_n: int, window_cycles: float,
-                 min_window_s: float, max_window_s: float, n_slots: int, detrend: bool) -> None:
-        w = np.asarray(w_rad_s, dtype=float)
-        F = w.size
-        dt = 1.0 / sample_rate_hz
-        self.F, self.b, self.n_slots, self.detrend = F, block_n, n_slots, detrend
-        length_s = np.clip(window_cycles * 2.0 * np.pi / w, min_window_s, max_window_s)
-        self.hop_blocks = np.maximum(1, np.rint(length_s / (n_slots * block_n * dt))).astype(np.int64)
-        self.win_n = self.hop_blocks * n_slots * block_n            # samples per segment
-        omega = 2.0 * np.pi / (self.win_n * dt)                      # Hann side-bin spacing [rad/s]
-        nu = np.stack((w - omega, w, w + omega), axis=1).ravel()     # 3F bins
-        tt = np.arange(block_n) * dt
-        tab = np.zeros((block_n, 6 * F + 2))
-        tab[:, 0:6 * F:2] = np.cos(np.outer(tt, nu))
-        tab[:, 1:6 * F:2] = -np.sin(np.outer(tt, nu))
-        tab[:, 6 * F] = 1.0                                          # running sum for the segment mean
-        self._tab = tab
-        self._nu_block = nu * block_n * dt
-        self._kmax = int(np.clip(_MATMUL_SIZE / (2 * tab.shape[1] * block_n), 8, 256))
-        self._ptab = np.exp(-1j * np.outer(np.arange(self._kmax + 1), self._nu_block))
-        self._cols = np.column_stack((3 * np.arange(F), 3 * np.arange(F) + 1, 3 * np.arange(F) + 2,
-                                      np.full(F, 3 * F)))
-        self._wbin = 3 * np.arange(F) + 1
-        wf0 = np.empty(F, complex)
-        for f in range(F):
-            m = np.arange(self.win_n[f])
-            hann = 0.5 - 0.5 * np.cos(2.0 * np.pi * m / self.win_n[f])
-            wf0[f] = np.sum(hann * np.exp(-1j * w[f] * m * dt))
-        self._wf0_per_n = wf0 / self.win_n
-        self.scale = 2.0 * dt / (0.375 * self.win_n)                 # 2 dt / sum(hann^2), periodic Hann
-        self._sig = np.exp(-2j * np.pi * np.arange(n_slots) / n_slots)
-        self.active = False
-        self._pbuf = np.zeros((2, block_n))
-        self._pb_n = 0
-        self._blocks = 0
-        self._ring = np.zeros((F, n_slots, 8), complex)
-        self._ring_ph = np.ones((F, n_slots), complex)
-        self._acc = np.zeros((4, F))                                 # sum xx, yy, Re xy, Im xy
-        self._acc_n = np.zeros(F, np.int64)
+    def __init__(self, n_streams: int, pre_n: int, post_n: int, cap: int, on_full) -> None:
+        self.n, self.pre_n, self.post_n, self.cap = n_streams, pre_n, post_n, cap
+        self.on_full = on_full
+        self.ring = np.zeros((n_streams, 0))
+        self.ring_k = 0
+        self.buf = np.zeros((n_streams, cap))
+        self.buf_n = 0
+        self.k0 = 0
+        self.open = False
+        self.src = _ENERGY
+        self.on_k = _NONE
+        self.off_k = _NONE
 
-    def start(self) -> None:
-        self.active = True
-        self._pb_n = 0
-        self._blocks = 0
-        self._ring[:] = 0.0
-        self._ring_ph[:] = 1.0
-        self._acc[:] = 0.0
-        self._acc_n[:] = 0
+    @property
+    def next_k(self) -> int:
+        """Grid index of the next sample the open record expects."""
+        return self.k0 + self.buf_n
 
-    def end(self) -> tuple[np.ndarray, np.ndarray]:
-        """Close the sweep; return (sums (4, F), counts (F,)) and reset."""
-        self.active = False
-        out = self._acc.copy(), self._acc_n.copy()
-        self._acc[:] = 0.0
-        self._acc_n[:] = 0
-        self._pb_n = 0
+    def start(self, k: int, src: int) -> list:
+        """An excitation starts at ``k`` (edges are applied in time order, before the sample at ``k``)."""
+        closed = []
+        if self.open and self.off_k != _NONE and (src == _TRIGGER or self.src == _TRIGGER):
+            end = max(self.off_k, min(self.off_k + self.post_n, (self.off_k + k) // 2))
+            closed.append(self._close(end))
+        if self.open:
+            self.off_k = _NONE
+            return closed
+        lo = max(k - self.pre_n, self.ring_k)
+        seg = self.ring[:, lo - self.ring_k:]
+        self.buf[:, : seg.shape[1]] = seg
+        self.buf_n, self.k0 = seg.shape[1], lo
+        self.open, self.src, self.on_k, self.off_k = True, src, k, _NONE
+        return closed
+
+    def stop(self, k: int) -> None:
+        """The excitation ends at ``k``."""
+        if self.open:
+            self.off_k = max(k, self.k0)
+
+    def feed(self, k_a: int, block: np.ndarray) -> list:
+        """Contiguous released samples (streams x n) from grid index ``k_a``; returns the records closed."""
+        closed = []
+        pos, n = 0, block.shape[1]
+        while pos < n:
+            if not self.open:
+                break
+            k = k_a + pos
+            limit = n - pos
+            if self.off_k != _NONE:
+                limit = min(limit, self.off_k + self.post_n + self.pre_n - k)
+            limit = min(limit, self.cap - self.buf_n)
+            if limit > 0:
+                self.buf[:, self.buf_n:self.buf_n + limit] = block[:, pos:pos + limit]
+                self.buf_n += limit
+                pos += limit
+            if self.off_k != _NONE and self.next_k >= self.off_k + self.post_n + self.pre_n:
+                closed.append(self._close(self.off_k + self.post_n))
+            elif self.buf_n >= self.cap:                  # full (max_record_s): the owner takes what it can
+                self._drop(self.on_full(self.k0, self.buf[:, : self.buf_n], self.src, max(0, self.on_k - self.k0)))
+        self._remember(k_a, block)
+        return closed
+
+    def _remember(self, k_a: int, block: np.ndarray) -> None:
+        """Keep the latest ``pre_n`` samples (the trim before the next record)."""
+        if self.ring.shape[1] and k_a != self.ring_k + self.ring.shape[1]:
+            self.ring = self.ring[:, :0]
+        if self.ring.shape[1] == 0:
+            self.ring_k = k_a
+        ring = np.concatenate((self.ring, block), axis=1)
+        drop = max(0, ring.shape[1] - self.pre_n)
+        self.ring, self.ring_k = ring[:, drop:].copy(), self.ring_k + drop
+
+    def _drop(self, n: int) -> None:
+        """Forget the first ``n`` samples of the open record (the owner processed them); go on with the rest."""
+        n = max(1, min(int(n), self.buf_n))
+        rest = self.buf_n - n
+        self.buf[:, :rest] = self.buf[:, n:self.buf_n]
+        self.buf_n, self.k0 = rest, self.k0 + n
+        self.on_k = max(self.on_k, self.k0)
+
+    def end_run(self) -> list:
+        """The data break: the open record closes with what it has; the ring is forgotten."""
+        closed = [self._close(self.next_k)] if self.open and self.buf_n else []
+        self.open = False
+        self.buf_n = 0
+        self.ring = self.ring[:, :0]
+        return closed
+
+    def _close(self, end_k: int) -> tuple:
+        n = max(0, min(self.buf_n, end_k - self.k0))
+        act0 = max(0, self.on_k - self.k0)
+        act1 = n if self.off_k == _NONE else max(act0, min(n, self.off_k - self.k0))
+        out = (self.k0, self.buf[:, :n].copy(), self.src, act0, act1)
+        self.open = False
+        self.buf_n = 0
         return out
 
-    def feed(self, x: np.ndarray, y: np.ndarray) -> None:
-        """Contiguous grid samples of the sweep in progress."""
-        b = self.b
-        if self._pb_n:
-            x = np.concatenate((self._pbuf[0, : self._pb_n], x))
-            y = np.concatenate((self._pbuf[1, : self._pb_n], y))
-        nb = x.size // b
-        if nb:
-            xb = x[: nb * b].reshape(nb, b)
-            yb = y[: nb * b].reshape(nb, b)
-            for c in range(0, nb, self._kmax):
-                self._process_blocks(xb[c:c + self._kmax], yb[c:c + self._kmax])
-        rest = x.size - nb * b
-        self._pbuf[0, :rest] = x[nb * b:]
-        self._pbuf[1, :rest] = y[nb * b:]
-        self._pb_n = rest
-
-    def _process_blocks(self, xb: np.ndarray, yb: np.ndarray) -> None:
-        K, F, n = xb.shape[0], self.F, self.n_slots
-        B0 = self._blocks
-        # block sums at 3F bins (+ plain sum), phase relative to the sweep start, cumulative over blocks
-        prod = np.concatenate((xb, yb)) @ self._tab                  # (2K, 6F + 2)
-        blk = prod.view(np.complex128)                               # (2K, 3F + 1)
-        ph = self._ptab[: K + 1] * np.exp(-1j * self._nu_block * B0)  # (K + 1, 3F)
-        blk[:K, : 3 * F] *= ph[:K]
-        blk[K:, : 3 * F] *= ph[:K]
-        cx = np.zeros((K + 1, 3 * F + 1), complex)
-        cy = np.zeros((K + 1, 3 * F + 1), complex)
-        np.cumsum(blk[:K], axis=0, out=cx[1:])
-        np.cumsum(blk[K:], axis=0, out=cy[1:])
-        # segment boundaries (every hop) inside this batch: j = jl .. jh for each frequency
-        H = self.hop_blocks
-        jl = B0 // H + 1
-        jh = (B0 + K) // H
-        cnt = np.maximum(jh - jl + 1, 0)
-        fr = np.arange(F)
-        if cnt.any():
-            E = int(cnt.sum())
-            ev_f = np.repeat(fr, cnt)
-            first = np.cumsum(cnt) - cnt
-            rank = np.arange(E) - np.repeat(first, cnt)
-            ev_j = jl[ev_f] + rank
-            ev_k = ev_j * H[ev_f] - B0
-            cols = self._cols[ev_f]
-            now = np.empty((E, 8), complex)
-            now[:, :4] = cx[ev_k[:, None], cols]
-            now[:, 4:] = cy[ev_k[:, None], cols]
-            now_ph = ph[ev_k, self._wbin[ev_f]]
-            # per frequency: its n_slots stored boundaries followed by this batch's boundaries
-            off = np.cumsum(n + cnt) - (n + cnt)
-            slots = np.arange(n)
-            ring_pos = (off[:, None] + slots).ravel()
-            ring_slot = (jl[:, None] - n + slots) % n
-            ext = np.empty((F * n + E, 8), complex)
-            ext_ph = np.empty(F * n + E, complex)
-            ext[ring_pos] = self._ring[fr[:, None], ring_slot].reshape(F * n, 8)
-            ext_ph[ring_pos] = self._ring_ph[fr[:, None], ring_slot].ravel()
-            ev_pos = off[ev_f] + n + rank
-            ext[ev_pos] = now
-            ext_ph[ev_pos] = now_ph
-            done = ev_j >= n
-            if done.any():
-                self._accumulate(ext, ext_ph, ev_pos[done], ev_f[done], ev_j[done] - n)
-            last_pos = (off[:, None] + cnt[:, None] + slots).ravel()
-            last_slot = (jh[:, None] - n + 1 + slots) % n
-            self._ring[fr[:, None], last_slot] = ext[last_pos].reshape(F, n, 8)
-            self._ring_ph[fr[:, None], last_slot] = ext_ph[last_pos].reshape(F, n)
-        # re-base: cumulative sums restart from zero at the end of this batch
-        self._ring[:, :, :4] -= cx[K, self._cols][:, None, :]
-        self._ring[:, :, 4:] -= cy[K, self._cols][:, None, :]
-        self._blocks = B0 + K
-
-    def _accumulate(self, ext, ext_ph, pos, f, j_start) -> None:
-        d = ext[pos] - ext[pos - self.n_slots]                       # plain DFT sums over each segment
-        sg = self._sig[j_start % self.n_slots]
-        sgc = np.conj(sg)
-        X = 0.5 * d[:, 1] - 0.25 * (sg * d[:, 0] + sgc * d[:, 2])
-        Y = 0.5 * d[:, 5] - 0.25 * (sg * d[:, 4] + sgc * d[:, 6])
-        if self.detrend:
-            w_mean = ext_ph[pos - self.n_slots] * self._wf0_per_n[f]   # DFT of the window / N at start
-            X = X - d[:, 3].real * w_mean
-            Y = Y - d[:, 7].real * w_mean
-        sc = self.scale[f]
-        xy = np.conj(X) * Y
-        F = self.F
-        self._acc[0] += np.bincount(f, (X.real ** 2 + X.imag ** 2) * sc, F)
-        self._acc[1] += np.bincount(f, (Y.real ** 2 + Y.imag ** 2) * sc, F)
-        self._acc[2] += np.bincount(f, xy.real * sc, F)
-        self._acc[3] += np.bincount(f, xy.imag * sc, F)
-        self._acc_n += np.bincount(f, minlength=F)
-
     def state_dict(self) -> dict:
-        return {"active": int(self.active), "pbuf": self._pbuf.copy(), "pb_n": self._pb_n,
-                "blocks": self._blocks, "ring": self._ring.copy(), "ring_ph": self._ring_ph.copy(),
-                "acc": self._acc.copy(), "acc_n": self._acc_n.copy()}
+        """State with the record's filled samples only (bounded by ``cap``)."""
+        return {"ring": self.ring.copy(), "ring_k": self.ring_k, "buf": self.buf[:, : self.buf_n].copy(),
+                "k0": self.k0, "open": int(self.open), "src": self.src, "on_k": self.on_k, "off_k": self.off_k}
 
     def load_state(self, st: dict) -> None:
-        self.active = bool(st["active"])
-        self._pbuf[:] = st["pbuf"]
-        self._pb_n, self._blocks = int(st["pb_n"]), int(st["blocks"])
-        self._ring[:] = st["ring"]
-        self._ring_ph[:] = st["ring_ph"]
-        self._acc[:] = st["acc"]
-        self._acc_n[:] = st["acc_n"]
+        """Inverse of :meth:`state_dict`."""
+        self.ring = np.asarray(st["ring"], float).reshape(self.n, -1).copy()
+        self.ring_k = int(st["ring_k"])
+        buf = np.asarray(st["buf"], float).reshape(self.n, -1)
+        self.buf_n = buf.shape[1]
+        self.buf[:, : self.buf_n] = buf
+        self.k0, self.open, self.src = int(st["k0"]), bool(st["open"]), int(st["src"])
+        self.on_k, self.off_k = int(st["on_k"]), int(st["off_k"])
 
 
 # ---------------------------------------------------------------------------------------------- estimator
 class FrequencyResponseEstimator:
-    """Online frequency response from separate input and output streams, per sweep and pooled (Fig. 4).
+    """Online frequency response from separate input and output streams, per manoeuvre and pooled (Fig. 4).
 
     Parameters
     ----------
     w_rad_s : array_like
         Frequencies to estimate [rad/s] (e.g. log-spaced, ``FrequencyGrid.values()``).
+    streams : sequence of str
+        Names of the signals, inputs first: ``("input", "output")`` by default. ``inputs`` of them are inputs
+        (regressors), then ``outputs`` outputs, then any instruments (injected excitation signals).
+    inputs, outputs : int
+        How many of ``streams`` are inputs and outputs (the rest are instruments).
     **options
         See :data:`ESTIMATOR_DEFAULTS` and the module docstring. Unknown names raise
         :class:`~gap_validation.core.errors.ConfigError` naming the key.
@@ -743,38 +728,45 @@ class FrequencyResponseEstimator:
     Notes
     -----
     Feed the streams roughly interleaved in time (live, or a replay in bag order): one stream may run ahead
-    of the other by at most ``max_lag_s``. For two whole recorded arrays use :meth:`add_time_histories`.
-    Results cover completed sweeps; :meth:`flush` closes the sweep in progress at the end of data.
+    of another by at most ``max_lag_s``. For whole recorded arrays use :meth:`add_time_histories`. Results
+    cover completed manoeuvres; :meth:`flush` closes the one in progress at the end of data.
     """
 
     #: Accepted option names (the config checks them against this).
     OPTIONS = tuple(ESTIMATOR_DEFAULTS)
 
-    def __init__(self, w_rad_s, **options) -> None:
+    def __init__(self, w_rad_s, streams=("input", "output"), inputs: int = 1, outputs: int = 1,
+                 **options) -> None:
         w = np.atleast_1d(np.asarray(w_rad_s, dtype=float))
         if w.ndim != 1 or w.size == 0 or not np.all(np.isfinite(w)) or np.any(w <= 0):
             raise ConfigError(f"estimator frequencies: expected positive finite rad/s values, got {w_rad_s!r}")
+        names = tuple(str(s) for s in streams)
+        if len(set(names)) != len(names) or inputs < 1 or outputs < 1 or inputs + outputs > len(names):
+            raise ConfigError(f"estimator streams {names!r}: need distinct names, at least one input and one "
+                              f"output ({inputs} inputs, {outputs} outputs)")
         opts = _validate_options(w, options)
         self._w = w.copy()
         self._opts = opts
+        self._names = names
+        self._m, self._p = int(inputs), int(outputs)
         fs = opts["sample_rate_hz"]
         self._dt = 1.0 / fs
-        self._n_slots = int(round(1.0 / (1.0 - opts["overlap"])))
-        block_n = max(1, int(round(opts["block_s"] * fs)))
-        self._xf = _SegmentTransform(w, fs, block_n, opts["window_cycles"], opts["min_window_s"],
-                                     opts["max_window_s"], self._n_slots, opts["detrend"])
-        self._det = SweepDetector(fs, **{k: opts[k] for k in DETECTOR_DEFAULTS})
-        self._man = ManoeuvreRecorder(fs, opts["min_sweep_s"])
+        S = len(names)
+        self._det_streams = list(range(self._m + self._p, S)) or list(range(self._m))
+        self._dets = [SweepDetector(fs, **{k: opts[k] for k in DETECTOR_DEFAULTS}) for _ in self._det_streams]
+        self._det_on = [False] * len(self._dets)
+        self._man = ManoeuvreRecorder(fs)
         self._trig = TriggerTracker()
         self._streams = [_StreamResampler(self._dt, opts["max_gap_s"], opts["cubic_interpolation"])
-                         for _ in range(2)]
-        self._align = _GridAligner(max(16, int(math.ceil(opts["max_lag_s"] * fs))))
-        self._delay_n = self._det.lookahead_samples
-        self._dl = np.zeros((2, self._delay_n))
+                         for _ in range(S)]
+        self._align = _GridAligner(S, max(16, int(math.ceil(opts["max_lag_s"] * fs))))
+        self._delay_n = max(d.lookahead_samples for d in self._dets)
+        self._dl = np.zeros((S, self._delay_n))
         self._dl_n = 0
         self._dl_k0 = 0
-        self._buf = np.zeros((2, 2, _BUFFER_CAP))          # stream, (t, value), sample
-        self._buf_n = [0, 0]
+        self._buf = np.zeros((S, 2, _BUFFER_CAP))          # stream, (t, value), sample
+        self._buf_n = [0] * S
+        self._spacing = np.zeros((S, 2))                     # per stream: sum of sample intervals, count
         self._t0 = float("nan")
         self._last_k: int | None = None
         self._trigger_mode = not opts["detect_sweeps"]
@@ -785,18 +777,21 @@ class FrequencyResponseEstimator:
         self._epoch_offset = 0.0
         self._events: list[tuple[int, bool, int]] = []
         self._events_dropped = 0
-        self._desired = False
-        self._desired_src = _ENERGY
-        self._sweep_k0 = 0
-        self._sweep_src = _ENERGY
-        R, F = opts["max_raw_sweeps"], w.size
-        self._raw = np.zeros((R, 4, F))
-        self._raw_n = np.zeros((R, F), np.int64)
-        self._raw_span = np.zeros((R, 2), np.int64)
+        self._rec = _RecordBuffer(S, int(round(opts["pre_s"] * fs)), int(round(opts["post_s"] * fs)),
+                                  max(16, int(round(opts["max_record_s"] * fs))), self._record_full)
+        F = w.size
+        self._spectra_opts = {k: opts[k] for k in SPECTRA_DEFAULTS}
+        self._tot = self._new_sums()
+        self._reasons = np.zeros((len(NOT_ESTIMABLE_REASONS), F), np.int64)
+        self._raw: list[tuple[BandSums, int, int, str]] = []      # sums, k0, k1, kind
         self._n_sweeps = 0
-        self._tot = np.zeros((4, F))
-        self._tot_n = np.zeros(F, np.int64)
         self._span = [0, 0]
+        self._kinds: Counter = Counter()
+        self._counted: Counter = Counter()
+
+    def _new_sums(self) -> BandSums:
+        q = len(self._names) - self._m - self._p
+        return BandSums.zeros(self._w.size, self._m, self._p, q or None, self._opts["order"])
 
     # ------------------------------------------------------------------ properties
     @property
@@ -810,24 +805,36 @@ class FrequencyResponseEstimator:
         return dict(self._opts)
 
     @property
-    def window_s(self) -> np.ndarray:
-        """Hann window length per frequency [s] (after clipping and rounding to blocks)."""
-        return self._xf.win_n * self._dt
-
-    @property
-    def hop_s(self) -> np.ndarray:
-        """Distance between segment starts per frequency [s]."""
-        return self._xf.hop_blocks * self._xf.b * self._dt
+    def streams(self) -> tuple[str, ...]:
+        """Signal names, inputs first."""
+        return self._names
 
     @property
     def n_sweeps(self) -> int:
-        """Sweeps completed and pooled so far (raw estimates kept: at most ``max_raw_sweeps``)."""
+        """Sweeps that gave a frequency response so far (every manoeuvre that did, when none is a sweep; see
+        :attr:`sweeps`)."""
+        sweeps = sum(n for kind, n in self._counted.items() if kind in SWEEP_KINDS)
+        return sweeps or self._n_sweeps
+
+    @property
+    def n_manoeuvres(self) -> int:
+        """Manoeuvres of any kind that gave a frequency response so far."""
         return self._n_sweeps
 
     @property
+    def counted_kinds(self) -> dict[str, int]:
+        """Manoeuvres that gave a frequency response, per kind."""
+        return dict(self._counted)
+
+    @property
+    def kinds(self) -> dict[str, int]:
+        """Manoeuvres seen per kind (:data:`gap_validation.core.records.KINDS`), counted or not."""
+        return dict(self._kinds)
+
+    @property
     def in_sweep(self) -> bool:
-        """True while the transform is inside a sweep (delayed by ``lookahead_samples``)."""
-        return self._xf.active
+        """True while a manoeuvre is being recorded (delayed by ``lookahead_samples``)."""
+        return self._rec.open
 
     @property
     def t0_s(self) -> float:
@@ -835,16 +842,36 @@ class FrequencyResponseEstimator:
         return self._t0
 
     @property
+    def stream_rates_hz(self) -> np.ndarray:
+        """Mean sample rate of each stream so far [Hz] (inf before two samples)."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(self._spacing[:, 0] > 0, self._spacing[:, 1] / self._spacing[:, 0], np.inf)
+
+    @property
+    def resolved_rad_s(self) -> float:
+        """Highest frequency the streams resolve [rad/s]: ``RESOLVED_FRACTION`` of the slowest stream's rate
+        (above it the interpolation onto the grid loses more than 1 % of magnitude)."""
+        return float(2.0 * math.pi * RESOLVED_FRACTION * np.min(self.stream_rates_hz))
+
+    @property
+    def noise_level(self) -> float:
+        """Noise standard deviation of the excitation signal at trim (the detector's quiet level; 0 unknown)."""
+        levels = [d.quiet_level for d in self._dets]
+        finite = [q for q in levels if math.isfinite(q)]
+        return float(min(finite)) if finite else 0.0
+
+    @property
     def bad_sample_counts(self) -> dict:
         """Counts of samples not used, by stream and reason.
 
-        ``nonfinite`` (NaN/inf time or value, or absurd: ``|t| >= 1e11`` s, ``|value| >= 1e100``), ``non_monotonic`` (time not after an earlier sample, within
-        ``max(JUMP_BACK_S, max_gap_s)``, or a stray stamp further back), ``time_jumps_back`` (new time bases
-        started: not samples lost, the data before and after both count), ``dropped_lag`` (grid values given up because the other stream fell more than ``max_lag_s`` behind
-        or had no data), and ``events_dropped`` (sweep edges beyond the bounded queue).
+        ``nonfinite`` (NaN/inf time or value, or absurd: ``|t| >= 1e11`` s, ``|value| >= 1e100``),
+        ``non_monotonic`` (time not after an earlier sample, within ``max(JUMP_BACK_S, max_gap_s)``, or a stray
+        stamp further back), ``time_jumps_back`` (new time bases started: not samples lost, the data before and
+        after both count), ``dropped_lag`` (grid values given up because another stream fell more than
+        ``max_lag_s`` behind or had no data), and ``events_dropped`` (edges beyond the bounded queue).
         """
         out = {}
-        for s, name in ((0, "input"), (1, "output")):
+        for s, name in enumerate(self._names):
             b = self._streams[s].base
             out[name] = {"accepted": b.accepted, "nonfinite": b.nonfinite, "non_monotonic": b.non_monotonic,
                          "time_jumps_back": b.jumps, "dropped_lag": self._align.dropped[s]}
@@ -856,48 +883,61 @@ class FrequencyResponseEstimator:
 
     # ------------------------------------------------------------------ data in
     def add_input(self, t_s, u) -> None:
-        """Feed control-surface samples: times [s] (increasing) and values, any rate, jitter or drops."""
-        self._add_stream(0, t_s, u, "input")
+        """Feed control-surface samples (the first input): times [s] (increasing) and values."""
+        self._add_stream(0, t_s, u, self._names[0])
 
     def add_output(self, t_s, y) -> None:
-        """Feed response (e.g. IMU body-rate) samples: times [s] and values."""
-        self._add_stream(1, t_s, y, "output")
+        """Feed response (e.g. IMU body-rate) samples (the first output): times [s] and values."""
+        self._add_stream(self._m, t_s, y, self._names[self._m])
+
+    def add_samples(self, stream: str, t_s, values) -> None:
+        """Feed samples of the signal named ``stream`` (one of :attr:`streams`)."""
+        try:
+            s = self._names.index(stream)
+        except ValueError:
+            raise ConfigError(f"unknown stream {stream!r} (expected one of {', '.join(self._names)})") from None
+        self._add_stream(s, t_s, values, stream)
 
     def add_time_histories(self, t_input_s, u, t_output_s, y, chunk_s: float | None = None) -> None:
-        """Feed two whole recorded streams, interleaved in chunks of ``chunk_s`` [s].
+        """Feed two whole recorded streams (first input, first output), interleaved in chunks of ``chunk_s``.
 
         The chunk is at most ``max_lag_s / 2`` (default ``max_lag_s / 3``) so that nothing is dropped.
         """
-        t_input_s, u = np.asarray(t_input_s, float).ravel(), np.asarray(u, float).ravel()
-        t_output_s, y = np.asarray(t_output_s, float).ravel(), np.asarray(y, float).ravel()
-        if t_input_s.shape != u.shape or t_output_s.shape != y.shape:
-            raise DataError(f"add_time_histories: {t_input_s.size} input times for {u.size} values, "
-                            f"{t_output_s.size} output times for {y.size} values")
-        finite = np.concatenate((t_input_s[np.isfinite(t_input_s)], t_output_s[np.isfinite(t_output_s)]))
-        if t_input_s.size == 0 or t_output_s.size == 0 or finite.size == 0:
-            self.add_input(t_input_s, u)
-            self.add_output(t_output_s, y)
+        self.add_histories({self._names[0]: (t_input_s, u), self._names[self._m]: (t_output_s, y)}, chunk_s)
+
+    def add_histories(self, histories: dict, chunk_s: float | None = None) -> None:
+        """Feed whole recorded streams ``{name: (t_s, values)}``, interleaved in chunks of ``chunk_s`` [s]."""
+        series = {}
+        for name, (t, v) in histories.items():
+            t, v = np.asarray(t, float).ravel(), np.asarray(v, float).ravel()
+            if t.shape != v.shape:
+                raise DataError(f"add_time_histories: {t.size} {name} times for {v.size} values")
+            series[name] = (t, v)
+        finite = np.concatenate([t[np.isfinite(t)] for t, _ in series.values()] or [np.empty(0)])
+        if finite.size == 0 or any(t.size == 0 for t, _ in series.values()):
+            for name, (t, v) in series.items():
+                self.add_samples(name, t, v)
             return
         lag = self._opts["max_lag_s"]
         step = lag / 3.0 if chunk_s is None else min(_number("chunk_s", chunk_s), lag / 2.0)
         lo = float(finite.min())
-        # only the chunk ends that close a non-empty chunk (empty chunks are no-ops): at most one per sample,
-        # however far apart the timestamps are (a stray zero stamp among epoch times would be 1e8 chunks)
+        # only the chunk ends that close a non-empty chunk (at most one per sample, however far apart the
+        # timestamps are: a stray zero stamp among epoch times would be 1e8 chunks)
         edges = lo + np.unique(np.maximum(np.ceil((finite - lo) / step), 1.0)) * step
-        ia = np.searchsorted(t_input_s, edges, side="right")
-        ib = np.searchsorted(t_output_s, edges, side="right")
-        pa = pb = 0
-        for a, b in zip(ia, ib):
-            self.add_input(t_input_s[pa:a], u[pa:a])
-            self.add_output(t_output_s[pb:b], y[pb:b])
-            pa, pb = a, b
-        self.add_input(t_input_s[pa:], u[pa:])
-        self.add_output(t_output_s[pb:], y[pb:])
+        cuts = {name: np.searchsorted(t, edges, side="right") for name, (t, _) in series.items()}
+        start = {name: 0 for name in series}
+        for j in range(edges.size):
+            for name, (t, v) in series.items():
+                b = cuts[name][j]
+                self.add_samples(name, t[start[name]:b], v[start[name]:b])
+                start[name] = b
+        for name, (t, v) in series.items():
+            self.add_samples(name, t[start[name]:], v[start[name]:])
 
     def add_trigger(self, t_s, active) -> None:
-        """Feed samples of an explicit sweep trigger (``std_msgs/Bool``): sweeps are where it is true.
+        """Feed samples of an explicit sweep trigger (``std_msgs/Bool``): manoeuvres are where it is true.
 
-        The first trigger sample switches sweep detection off for the rest of the flight.
+        The first trigger sample switches detection off for the rest of the flight.
         """
         t = np.atleast_1d(np.asarray(t_s, dtype=float)).ravel()
         a = np.atleast_1d(np.asarray(active)).ravel()
@@ -909,23 +949,24 @@ class FrequencyResponseEstimator:
         self._ensure_t0(t[0])
         k = np.ceil((t - self._t0) / self._dt - 1e-9).astype(np.int64)
         if not self._trigger_mode:
-            self._drain(0)
-            self._drain(1)
+            for s in range(len(self._names)):
+                self._drain(s)
             self._enter_trigger_mode(int(k[0]))
         for kk, on in self._trig.edges(k, a != 0):
             self._push_event(kk, on, _TRIGGER)
 
     def flush(self) -> None:
-        """End of data (or a pause): process everything received and close the sweep in progress."""
-        self._drain(0)
-        self._drain(1)
+        """End of data (or a pause): process everything received and close the manoeuvre in progress."""
+        S = len(self._names)
+        for s in range(S):
+            self._drain(s)
         self._trig_base.drop_pending()
-        for s in (0, 1):
+        for s in range(S):
             self._streams[s].base.drop_pending()
             k, v = self._streams[s].flush()
             self._align.push(s, k, v)
-        idx, x, y = self._align.combine(self._streams[0].k_next, self._streams[1].k_next)
-        self._process_combined(idx, x, y)
+        idx, vals = self._align.combine([st.k_next for st in self._streams])
+        self._process_combined(idx, vals)
         self._align.clear()
         if self._last_k is not None:
             self._end_run()
@@ -933,21 +974,19 @@ class FrequencyResponseEstimator:
     # ------------------------------------------------------------------ results
     @property
     def sweeps(self) -> list[SpectralEstimate]:
-        """Raw estimate of each completed sweep (the most recent ``max_raw_sweeps``), oldest first."""
-        R = self._raw.shape[0]
-        kept = min(self._n_sweeps, R)
-        out = []
-        for i in range(self._n_sweeps - kept, self._n_sweeps):
-            r = i % R
-            acc = self._raw[r]
-            out.append(SpectralEstimate.from_sums(
-                self._w, acc[0], acc[1], acc[2] + 1j * acc[3], self._raw_n[r],
-                self._time(self._raw_span[r, 0]), self._time(self._raw_span[r, 1]), 1))
-        return out
+        """Raw estimate of each sweep (the most recent ``max_raw_sweeps``), oldest first.
+
+        A *sweep* is a manoeuvre of a kind in :data:`~gap_validation.core.records.SWEEP_KINDS` (chirp,
+        multisine, multistep, broadband): an identification experiment. Doublets and pulses add to the pooled
+        estimate but are not sweeps, unless the flight has no sweep at all (then every manoeuvre is one).
+        """
+        raw = [r for r in self._raw if r[3] in SWEEP_KINDS] or self._raw
+        return [SpectralEstimate.from_sums(self._w, sums, self._dt, self._opts["band_fraction"], self._time(k0),
+                                           self._time(k1), 1, kind) for sums, k0, k1, kind in raw]
 
     @property
     def manoeuvres(self) -> list[Manoeuvre]:
-        """Short manoeuvres (doublets) found between sweeps, kept for the time-domain check (largest 3)."""
+        """Short manoeuvres (doublets, pulses, multisteps) kept for the time-domain check (largest 3)."""
         return self._man.manoeuvres(self._t0, self._dt)
 
     @property
@@ -956,13 +995,13 @@ class FrequencyResponseEstimator:
         return self._man.key
 
     def averaged(self) -> SpectralEstimate | None:
-        """Estimate pooled over all completed sweeps (None before the first)."""
+        """Estimate pooled over every manoeuvre so far (None before the first)."""
         if self._n_sweeps == 0:
             return None
-        acc = self._tot
-        return SpectralEstimate.from_sums(self._w, acc[0], acc[1], acc[2] + 1j * acc[3], self._tot_n,
+        reasons = {name: self._reasons[i].copy() for i, name in enumerate(NOT_ESTIMABLE_REASONS)}
+        return SpectralEstimate.from_sums(self._w, self._tot, self._dt, self._opts["band_fraction"],
                                           self._time(self._span[0]), self._time(self._span[1]),
-                                          self._n_sweeps)
+                                          self._n_sweeps, "", reasons)
 
     def _time(self, k: int) -> float:
         return float(self._t0 + k * self._dt)
@@ -1002,11 +1041,14 @@ class FrequencyResponseEstimator:
         t, v = st.base.intake(t, v, self._jump_tol_s, self._new_base, self._jump_tol_s)
         if t.size == 0:
             return
+        steps = np.diff(t)
+        steps = steps[steps <= self._opts["max_gap_s"]]
+        self._spacing[s] += (float(steps.sum()), steps.size)
         self._ensure_t0(t[0])
         k, vals = st.add(t - self._t0, v)
         self._align.push(s, k, vals)
-        idx, x, y = self._align.combine(self._streams[0].k_next, self._streams[1].k_next)
-        self._process_combined(idx, x, y)
+        idx, combined = self._align.combine([q.k_next for q in self._streams])
+        self._process_combined(idx, combined)
 
     def _new_base(self, base: _TimeBase, t_raw: float) -> None:
         """``base``'s time jumped back to ``t_raw`` [s] (confirmed): adopt the new time base another stream
@@ -1014,13 +1056,13 @@ class FrequencyResponseEstimator:
         if self._epoch > base.epoch and t_raw + self._epoch_offset > base.latest_s + self._opts["max_gap_s"]:
             base.epoch, base.offset = self._epoch, self._epoch_offset
             return
-        latest = max(b.latest_s for b in (self._streams[0].base, self._streams[1].base, self._trig_base))
+        latest = max(b.latest_s for b in [st.base for st in self._streams] + [self._trig_base])
         self._epoch += 1
         # a whole number of grid steps: the new base samples the data at the same grid phase as before
         self._epoch_offset = math.ceil((latest + self._jump_gap_s - t_raw) / self._dt) * self._dt
         base.epoch, base.offset = self._epoch, self._epoch_offset
 
-    def _process_combined(self, idx: np.ndarray, x: np.ndarray, y: np.ndarray) -> None:
+    def _process_combined(self, idx: np.ndarray, vals: np.ndarray) -> None:
         if idx.size == 0:
             return
         cuts = np.flatnonzero(np.diff(idx) != 1) + 1
@@ -1030,48 +1072,55 @@ class FrequencyResponseEstimator:
             if self._last_k is not None and k0 != self._last_k + 1:
                 self._end_run()
             if self._last_k is None:
-                self._det.start_run(k0)
-            self._run_chunk(k0, x[a:b], y[a:b])
+                for det in self._dets:
+                    det.start_run(k0)
+            self._run_chunk(k0, vals[:, a:b])
             self._last_k = int(idx[b - 1])
 
-    def _run_chunk(self, k0: int, x: np.ndarray, y: np.ndarray) -> None:
+    def _run_chunk(self, k0: int, block: np.ndarray) -> None:
         if not self._trigger_mode:
-            for k, on in self._det.process(k0, x):
-                self._push_event(k, on, _ENERGY)
+            self._detect([det.process(k0, block[s]) for det, s in zip(self._dets, self._det_streams)])
         D = self._delay_n
         if self._dl_n:
-            xs = np.concatenate((self._dl[0, : self._dl_n], x))
-            ys = np.concatenate((self._dl[1, : self._dl_n], y))
+            block = np.concatenate((self._dl[:, : self._dl_n], block), axis=1)
             ks = self._dl_k0
         else:
-            xs, ys, ks = x, y, k0
-        release = xs.size - D
+            ks = k0
+        release = block.shape[1] - D
         if release > 0:
-            self._consume(ks, xs[:release], ys[:release])
-            self._dl[0], self._dl[1] = xs[release:], ys[release:]
+            self._consume(ks, block[:, :release])
+            self._dl[:] = block[:, release:]
             self._dl_n, self._dl_k0 = D, ks + release
         else:
-            self._dl[0, : xs.size], self._dl[1, : xs.size] = xs, ys
-            self._dl_n, self._dl_k0 = xs.size, ks
+            self._dl[:, : block.shape[1]] = block
+            self._dl_n, self._dl_k0 = block.shape[1], ks
+
+    def _detect(self, edge_lists: list) -> None:
+        """Combine the detectors' edges: excited while any detection signal is."""
+        merged = sorted((k, on, i) for i, edges in enumerate(edge_lists) for k, on in edges)
+        for k, on, i in merged:
+            was = any(self._det_on)
+            self._det_on[i] = on
+            now = any(self._det_on)
+            if now != was:
+                self._push_event(k, now, _ENERGY)
 
     def _end_run(self) -> None:
         """The current run of contiguous data ended (gap or end of data)."""
         k_end = self._last_k + 1
         if not self._trigger_mode:
-            for k, on in self._det.end_run(k_end):
-                self._push_event(k, on, _ENERGY)
+            self._detect([det.end_run(k_end) for det in self._dets])
         if self._dl_n:
-            self._consume(self._dl_k0, self._dl[0, : self._dl_n].copy(), self._dl[1, : self._dl_n].copy())
+            self._consume(self._dl_k0, self._dl[:, : self._dl_n].copy())
             self._dl_n = 0
         while self._events and self._events[0][0] <= k_end:
-            _, on, src = self._events.pop(0)
-            self._desired, self._desired_src = on, src
-        if self._xf.active:
-            self._finish_sweep(k_end)
-        self._man.end_run()
+            k, on, src = self._events.pop(0)
+            self._apply_edge(k, on, src)
+        for record in self._rec.end_run():
+            self._close_record(*record)
         self._last_k = None
 
-    # ------------------------------------------------------------------ internals: sweeps
+    # ------------------------------------------------------------------ internals: manoeuvres
     def _push_event(self, k: int, on: bool, src: int) -> None:
         keys = [e[0] for e in self._events]
         self._events.insert(bisect.bisect_right(keys, k), (int(k), bool(on), int(src)))
@@ -1082,68 +1131,117 @@ class FrequencyResponseEstimator:
     def _enter_trigger_mode(self, k_switch: int) -> None:
         self._trigger_mode = True
         self._events = [e for e in self._events if e[0] < k_switch]
-        on = self._events[-1][1] if self._events else self._desired
+        self._det_on = [False] * len(self._dets)
+        on = self._events[-1][1] if self._events else self._rec.open and self._rec.off_k == _NONE
         if on:
             self._push_event(k_switch, False, _ENERGY)
 
-    def _consume(self, k_a: int, xs: np.ndarray, ys: np.ndarray) -> None:
-        """Released (delayed) contiguous grid samples from index ``k_a``: split at sweep edges, transform."""
-        end = k_a + xs.size
+    def _apply_edge(self, k: int, on: bool, src: int) -> None:
+        records = self._rec.start(k, src) if on else (self._rec.stop(k) or [])
+        for record in records:
+            self._close_record(*record)
+
+    def _consume(self, k_a: int, block: np.ndarray) -> None:
+        """Released (delayed) contiguous grid samples from index ``k_a``: apply the edges, record."""
+        end = k_a + block.shape[1]
         pos = k_a
-        if self._desired and not self._xf.active:
-            self._start_sweep(pos, self._desired_src)
         while self._events and self._events[0][0] < end:
             k, on, src = self._events.pop(0)
             k = max(k, pos)
             if k > pos:
-                self._feed(pos, xs[pos - k_a: k - k_a], ys[pos - k_a: k - k_a])
+                self._feed(pos, block[:, pos - k_a: k - k_a])
             pos = k
-            self._desired, self._desired_src = on, src
-            if on and not self._xf.active:
-                self._start_sweep(k, src)
-            elif not on and self._xf.active:
-                self._finish_sweep(k)
+            self._apply_edge(k, on, src)
         if end > pos:
-            self._feed(pos, xs[pos - k_a:], ys[pos - k_a:])
+            self._feed(pos, block[:, pos - k_a:])
 
-    def _feed(self, k_a: int, xs: np.ndarray, ys: np.ndarray) -> None:
-        """Released samples between two sweep edges: to the manoeuvre ring, and to the transform in a sweep."""
-        self._man.record(k_a, xs, ys)
-        if self._xf.active:
-            self._xf.feed(xs, ys)
+    def _feed(self, k_a: int, block: np.ndarray) -> None:
+        for record in self._rec.feed(k_a, block):
+            self._close_record(*record)
 
-    def _start_sweep(self, k: int, src: int) -> None:
-        self._xf.start()
-        self._sweep_k0, self._sweep_src = int(k), int(src)
-        self._man.cut(self._sweep_k0)
+    def _pieces(self, data: np.ndarray, src: int, act0: int, act1: int) -> tuple[list[Piece], tuple | None]:
+        n = data.shape[1]
+        if src == _TRIGGER:
+            return [Piece(0, n, min(act0, n), max(min(act1, n), min(act0, n)))], None
+        det = data[self._det_streams[0]]
+        pre_n, post_n = self._rec.pre_n, self._rec.post_n
+        return (split_record(det, self._dt, self.noise_level, pre_n, post_n, self._opts["min_quiet_s"]),
+                stretch_trim(det, pre_n, post_n))
 
-    def _finish_sweep(self, k_end: int) -> None:
-        acc, n = self._xf.end()
-        long_enough = (k_end - self._sweep_k0) * self._dt >= self._opts["min_sweep_s"] - 1e-9
-        if self._sweep_src == _ENERGY and not long_enough:
-            self._man.excitation(self._sweep_k0, k_end)       # a doublet, a pulse or a trim step
+    def _record_full(self, k0: int, data: np.ndarray, src: int, act0: int) -> int:
+        """The record buffer is full (``max_record_s``): estimate the manoeuvres it completed and keep the one
+        still going (from its trim on); a single manoeuvre longer than the buffer is cut here."""
+        n = data.shape[1]
+        pieces, trim = self._pieces(data, src, act0, n)
+        going = [p for p in pieces if p.group == pieces[-1].group] if pieces and pieces[-1].end >= n else []
+        if going and len(going) < len(pieces):
+            self._estimate_pieces(k0, data, pieces[:len(pieces) - len(going)], trim)
+            return going[0].start
+        self._estimate_pieces(k0, data, pieces, trim)
+        return n
+
+    def _close_record(self, k0: int, data: np.ndarray, src: int, act0: int, act1: int) -> None:
+        """A buffered record closed: split it into manoeuvres, classify them, estimate their responses."""
+        if data.shape[1] < 4:
             return
-        if n.sum() == 0:
+        pieces, trim = self._pieces(data, src, act0, act1)
+        self._estimate_pieces(k0, data, pieces, trim)
+
+    def _estimate_pieces(self, k0: int, data: np.ndarray, pieces: list[Piece], trim: tuple | None) -> None:
+        det = data[self._det_streams[0]]
+        noise = self.noise_level
+        for piece in pieces:
+            if piece.active_end <= piece.active_start:
+                continue
+            kind = classify(det, self._dt, piece, noise, trim)
+            self._kinds[kind] += 1
+            active_s = (piece.active_end - piece.active_start) * self._dt
+            seg = data[:, piece.start:piece.end]
+            if kind in ("doublet", "pulse", "multistep") and active_s <= _SHORT_MANOEUVRE_S:
+                self._man.offer(k0 + piece.start, seg[0], seg[self._m], k0 + piece.active_start,
+                                k0 + piece.active_end, kind)
+            if kind not in RESPONSE_KINDS or active_s < self._opts["min_sweep_s"]:
+                continue
+            if kind == "multisine":          # whole periods only: its lines do not leak (nor another axis' lines)
+                n_p = period(det[piece.active_start:piece.active_end], self._dt)
+                whole = (piece.active_end - piece.active_start) // n_p * n_p if n_p else 0
+                if whole:
+                    start = piece.active_start + (piece.active_end - piece.active_start - whole) // 2
+                    seg = data[:, start:start + whole]
+                    self._estimate_piece(k0 + start, seg, kind)
+                    continue
+            self._estimate_piece(k0 + piece.start, seg, kind)
+
+    def _estimate_piece(self, k_start: int, seg: np.ndarray, kind: str) -> None:
+        m, p = self._m, self._p
+        instruments = seg[m + p:] if seg.shape[0] > m + p else None
+        sums, status = record_bands(seg[:m], seg[m:m + p], self._dt, self._w, instruments=instruments,
+                                    noise_floor=self.noise_level ** 2, options=self._spectra_opts,
+                                    max_rad_s=self.resolved_rad_s)
+        counted = status == 0
+        for i in range(len(NOT_ESTIMABLE_REASONS)):
+            self._reasons[i] += status == i + 1
+        if not counted.any():
             return
-        R = self._raw.shape[0]
-        r = self._n_sweeps % R
-        self._raw[r] = acc
-        self._raw_n[r] = n
-        self._raw_span[r] = (self._sweep_k0, k_end)
+        self._tot.add(sums, counted)
+        k_end = k_start + seg.shape[1]
         if self._n_sweeps == 0:
-            self._span[0] = self._sweep_k0
+            self._span[0] = k_start
         self._span[1] = k_end
         self._n_sweeps += 1
-        self._tot += acc
-        self._tot_n += n
+        self._counted[kind] += 1
+        self._raw.append((sums, k_start, k_end, kind))
+        if len(self._raw) > self._opts["max_raw_sweeps"]:
+            self._raw.pop(0)
 
     # ------------------------------------------------------------------ checkpoint
     def state_dict(self) -> dict:
-        """Complete state as a flat dict of numpy arrays and numbers (size independent of flight length).
+        """Complete state as a flat dict of numpy arrays and numbers (bounded size, whatever the flight length).
 
         :meth:`from_state` rebuilds an estimator that continues exactly where this one stopped.
         """
-        st: dict = {"version": _STATE_VERSION, "w_rad_s": self._w.copy()}
+        st: dict = {"version": _STATE_VERSION, "w_rad_s": self._w.copy(),
+                    "streams": np.array(self._names), "inputs": self._m, "outputs": self._p}
         for name, value in self._opts.items():
             st["opt." + name] = int(value) if name in _BOOL_OPTIONS + _INT_OPTIONS else float(value)
         ev = np.zeros((_EVENT_CAP, 3), np.int64)
@@ -1153,16 +1251,24 @@ class FrequencyResponseEstimator:
             "t0": self._t0, "last_k": _NONE if self._last_k is None else self._last_k,
             "trigger_mode": int(self._trigger_mode), "epoch": self._epoch, "epoch_offset": self._epoch_offset,
             "events": ev, "n_events": len(self._events), "events_dropped": self._events_dropped,
-            "desired": int(self._desired), "desired_src": self._desired_src,
-            "sweep_k0": self._sweep_k0, "sweep_src": self._sweep_src,
+            "det_on": np.array(self._det_on, np.int64),
             "dl": self._dl.copy(), "dl_n": self._dl_n, "dl_k0": self._dl_k0,
-            "buf": self._buf.copy(), "buf_n": np.array(self._buf_n, np.int64),
-            "raw": self._raw.copy(), "raw_n": self._raw_n.copy(), "raw_span": self._raw_span.copy(),
-            "n_sweeps": self._n_sweeps, "tot": self._tot.copy(), "tot_n": self._tot_n.copy(),
-            "span": np.array(self._span, np.int64),
+            "buf": self._buf.copy(), "buf_n": np.array(self._buf_n, np.int64), "spacing": self._spacing.copy(),
+            "n_sweeps": self._n_sweeps, "span": np.array(self._span, np.int64),
+            "reasons": self._reasons.copy(), "n_raw": len(self._raw),
+            "raw_meta": np.array([(k0, k1) for _, k0, k1, _ in self._raw], np.int64).reshape(-1, 2),
+            "raw_kind": np.array([kind for *_, kind in self._raw] or [""]),
+            "kind_names": np.array(sorted(self._kinds) or [""]),
+            "kind_counts": np.array([self._kinds[k] for k in sorted(self._kinds)] or [0], np.int64),
+            "counted_counts": np.array([self._counted[k] for k in sorted(self._kinds)] or [0], np.int64),
         })
-        parts = {"in": self._streams[0], "out": self._streams[1], "align": self._align, "xf": self._xf,
-                 "det": self._det, "trig": self._trig, "tbase": self._trig_base, "man": self._man}
+        st.update(self._tot.state_dict("tot."))
+        for i, (sums, *_rest) in enumerate(self._raw):
+            st.update(sums.state_dict(f"raw{i}."))
+        parts = {"align": self._align, "trig": self._trig, "tbase": self._trig_base, "man": self._man,
+                 "rec": self._rec}
+        parts.update({f"s{i}": s for i, s in enumerate(self._streams)})
+        parts.update({f"det{i}": d for i, d in enumerate(self._dets)})
         for prefix, part in parts.items():
             for key, value in part.state_dict().items():
                 st[f"{prefix}.{key}"] = value
@@ -1172,7 +1278,10 @@ class FrequencyResponseEstimator:
     def from_state(cls, state: dict) -> "FrequencyResponseEstimator":
         """Rebuild an estimator from :meth:`state_dict` (e.g. a checkpoint loaded from disk)."""
         version = state.get("version") if isinstance(state, dict) else None
-        if version is None or int(version) not in (1, _STATE_VERSION):
+        if version is not None and int(version) in (1, 2):
+            raise DataError(f"estimator state: version {int(version)} holds windowed spectra of an earlier "
+                            f"estimator; they cannot be resumed (start afresh)")
+        if version is None or int(version) != _STATE_VERSION:
             raise DataError(f"estimator state: unsupported version {version!r} (expected {_STATE_VERSION})")
         try:
             opts = {}
@@ -1180,13 +1289,9 @@ class FrequencyResponseEstimator:
                 value = state["opt." + name]
                 opts[name] = (bool(value) if name in _BOOL_OPTIONS else
                               int(value) if name in _INT_OPTIONS else float(value))
-            self = cls(np.asarray(state["w_rad_s"], float), **opts)
-            state = _upgrade_state(state)
-            if int(version) == 1:      # before doublets were kept: none kept yet
-                state = {**{f"man.{k}": v for k, v in self._man.state_dict().items()}, **state}
-            missing = sorted(set(self.state_dict()) - set(state))
-            if missing:
-                raise KeyError(missing[0])
+            names = [str(s) for s in np.atleast_1d(state["streams"])]
+            self = cls(np.asarray(state["w_rad_s"], float), names, int(state["inputs"]), int(state["outputs"]),
+                       **opts)
             self._load(state)
         except KeyError as err:
             raise DataError(f"estimator state: missing key {err.args[0]!r}") from None
@@ -1206,21 +1311,28 @@ class FrequencyResponseEstimator:
         ev = np.asarray(st["events"], np.int64)
         self._events = [(int(k), bool(on), int(src)) for k, on, src in ev[: int(st["n_events"])]]
         self._events_dropped = int(st["events_dropped"])
-        self._desired, self._desired_src = bool(st["desired"]), int(st["desired_src"])
-        self._sweep_k0, self._sweep_src = int(st["sweep_k0"]), int(st["sweep_src"])
+        self._det_on = [bool(v) for v in np.asarray(st["det_on"])]
         self._buf[:] = st["buf"]
         self._buf_n = [int(n) for n in st["buf_n"]]
+        self._spacing[:] = st["spacing"]
         self._dl[:] = st["dl"]
         self._dl_n, self._dl_k0 = int(st["dl_n"]), int(st["dl_k0"])
-        self._raw[:] = st["raw"]
-        self._raw_n[:] = st["raw_n"]
-        self._raw_span[:] = st["raw_span"]
         self._n_sweeps = int(st["n_sweeps"])
-        self._tot[:] = st["tot"]
-        self._tot_n[:] = st["tot_n"]
         self._span = [int(v) for v in st["span"]]
-        parts = {"in": self._streams[0], "out": self._streams[1], "align": self._align, "xf": self._xf,
-                 "det": self._det, "trig": self._trig, "tbase": self._trig_base, "man": self._man}
+        self._reasons[:] = st["reasons"]
+        self._tot = BandSums.from_state(st, "tot.")
+        meta = np.asarray(st["raw_meta"], np.int64).reshape(-1, 2)
+        kinds = [str(k) for k in np.atleast_1d(st["raw_kind"])]
+        self._raw = [(BandSums.from_state(st, f"raw{i}."), int(meta[i, 0]), int(meta[i, 1]), kinds[i])
+                     for i in range(int(st["n_raw"]))]
+        names = [str(k) for k in np.atleast_1d(st["kind_names"])]
+        self._kinds = Counter({k: int(v) for k, v in zip(names, np.atleast_1d(st["kind_counts"])) if k})
+        self._counted = Counter({k: int(v) for k, v in zip(names, np.atleast_1d(st["counted_counts"]))
+                                 if k and int(v)})
+        parts = {"align": self._align, "trig": self._trig, "tbase": self._trig_base, "man": self._man,
+                 "rec": self._rec}
+        parts.update({f"s{i}": s for i, s in enumerate(self._streams)})
+        parts.update({f"det{i}": d for i, d in enumerate(self._dets)})
         for prefix, part in parts.items():
             n = len(prefix) + 1
             part.load_state({k[n:]: v for k, v in st.items() if k.startswith(prefix + ".")})

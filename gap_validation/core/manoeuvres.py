@@ -1,16 +1,14 @@
 """Short manoeuvres (doublets) kept from the flight for the time-domain check (paper Fig. 6, eqs. 1 and 3).
 
-The sweep detector (:mod:`gap_validation.core.sweeps`) also finds short excitations that are not sweeps:
-doublets, pulses and trim steps. The estimator hands each one to a :class:`ManoeuvreRecorder`, which keeps
-the aligned input and output around it (``pre_s`` before, ``post_s`` after, from a short ring of the grid
-samples the estimator releases) and classifies it:
+The estimator splits the flight into manoeuvres (:mod:`gap_validation.core.records`) and offers the short ones
+(doublets, pulses and multisteps such as a 3-2-1-1, at most 20 s of excitation) to a :class:`ManoeuvreRecorder`
+with the aligned input and output around them (the trim before, the response after). It keeps one when it
+**returns to trim** (the input's mean over the last second differs from its trim, the mean before the
+excitation, by less than a quarter of the peak excursion) and there is at least half a second of trim before it
+and a second after.
 
-* it must **return to trim**: the input's mean over the last second differs from its trim (mean over the
-  ``pre_s`` before) by less than a quarter of the peak excursion; a trim step does not;
-* ``doublet`` when the input goes both ways (each sign at least 30 % of the peak), else ``pulse``.
-
-The ``max_kept`` largest (by input RMS about trim) are kept, in fixed-size arrays: the state stays constant
-in size however long the flight, and is part of the estimator checkpoint.
+The ``max_kept`` largest (by input RMS about trim) are kept, in fixed-size arrays: the state stays constant in
+size however long the flight, and is part of the estimator checkpoint.
 """
 from __future__ import annotations
 
@@ -20,8 +18,7 @@ import numpy as np
 
 __all__ = ["Manoeuvre", "ManoeuvreRecorder"]
 
-_KINDS = ("pulse", "doublet")
-_PENDING_CAP = 4
+_KINDS = ("pulse", "doublet", "multistep")
 
 
 @dataclass(frozen=True)
@@ -31,7 +28,7 @@ class Manoeuvre:
     Attributes
     ----------
     kind : str
-        ``doublet`` or ``pulse``.
+        ``doublet``, ``pulse`` or ``multistep``.
     t_s : ndarray
         Sample times [s] (uniform).
     u, y : ndarray
@@ -62,62 +59,44 @@ class ManoeuvreRecorder:
     Parameters
     ----------
     sample_rate_hz : float
-        Grid rate of the samples fed.
-    max_excitation_s : float
-        Longest excited stretch reported (the estimator's ``min_sweep_s``: longer ones are sweeps).
-    pre_s, post_s : float
-        Kept before and after the excited stretch [s].
+        Grid rate of the samples offered.
+    max_s : float
+        Longest record kept (trim and response included) [s].
     max_kept : int
         Manoeuvres kept (largest input RMS first).
     """
 
-    def __init__(self, sample_rate_hz: float, max_excitation_s: float, pre_s: float = 1.0, post_s: float = 3.0,
-                 max_kept: int = 3) -> None:
-        self.pre_n = int(round(pre_s * sample_rate_hz))
-        self.post_n = int(round(post_s * sample_rate_hz))
-        self.cap = self.pre_n + int(round((max_excitation_s + 1.0) * sample_rate_hz)) + self.post_n
+    def __init__(self, sample_rate_hz: float, max_s: float = 30.0, max_kept: int = 3) -> None:
+        self.cap = int(round(max_s * sample_rate_hz))
         self.one_s = int(round(sample_rate_hz))
         self.max_kept = int(max_kept)
-        self._ring_k = 0                                 # grid index of ring[0]
-        self._ring = np.zeros((2, 0))
-        self._pending: list[list[int]] = []              # [k_from, k_run0, k_run1, k_to]
         self._kept = np.zeros((self.max_kept, 2, self.cap))
         self._meta = np.zeros((self.max_kept, 6), np.int64)   # k_from, n, k_run0, k_run1, kind, used
         self._score = np.zeros(self.max_kept)
 
     # ------------------------------------------------------------------ data in
-    def record(self, k_a: int, x: np.ndarray, y: np.ndarray) -> None:
-        """Contiguous released grid samples from index ``k_a`` (in time order)."""
-        if x.size == 0:
-            return
-        if self._ring.shape[1] and k_a != self._ring_k + self._ring.shape[1]:
-            self.end_run()                               # a break in the data: nothing spans it
-        if self._ring.shape[1] == 0:
-            self._ring_k = k_a
-        for lo in range(0, x.size, self.cap):            # pieces: pending captures complete in between
-            hi = min(x.size, lo + self.cap)
-            ring = np.concatenate((self._ring, np.vstack((x[lo:hi], y[lo:hi]))), axis=1)
-            drop = max(0, ring.shape[1] - 2 * self.cap)
-            self._ring, self._ring_k = ring[:, drop:], self._ring_k + drop
-            self._complete(final=False)
-
-    def excitation(self, k_run0: int, k_run1: int) -> None:
-        """The detector found a short excited stretch ``[k_run0, k_run1)`` (not a sweep)."""
-        if k_run1 - k_run0 + self.pre_n + self.post_n > self.cap or len(self._pending) >= _PENDING_CAP:
-            return
-        self._pending.append([k_run0 - self.pre_n, k_run0, k_run1, k_run1 + self.post_n])
-        self._complete(final=False)
-
-    def cut(self, k: int) -> None:
-        """A sweep starts at ``k``: pending manoeuvres end there at the latest."""
-        for p in self._pending:
-            p[3] = min(p[3], max(k, p[2]))
-        self._complete(final=False)
-
-    def end_run(self) -> None:
-        """The data break (gap, end of flight): complete what is pending with what there is."""
-        self._complete(final=True)
-        self._ring = np.zeros((2, 0))
+    def offer(self, k_from: int, u: np.ndarray, y: np.ndarray, k_run0: int, k_run1: int, kind: str) -> bool:
+        """A short manoeuvre: grid samples of input and output from index ``k_from``, excited ``[k_run0,
+        k_run1)``; returns whether it is kept (see the module docstring)."""
+        u, y = np.asarray(u, float), np.asarray(y, float)
+        n = min(u.size, self.cap)
+        trim_n = k_run0 - k_from
+        if kind not in _KINDS or trim_n < self.one_s // 2 or k_from + n < k_run1 + self.one_s:
+            return False                                  # no trim before it, or not enough after
+        du = u[:n] - np.mean(u[:trim_n])
+        run = du[trim_n: k_run1 - k_from]
+        peak = float(np.max(np.abs(run))) if run.size else 0.0
+        if not peak > 0 or abs(float(np.mean(du[n - self.one_s: n]))) > 0.25 * peak:
+            return False                                  # no excitation, or a trim change
+        score = float(np.sqrt(np.mean(run * run)))
+        free = np.flatnonzero(self._meta[:, 5] == 0)
+        slot = int(free[0]) if free.size else int(np.argmin(self._score))
+        if not free.size and self._score[slot] >= score:
+            return False
+        self._kept[slot, 0, :n], self._kept[slot, 1, :n] = u[:n], y[:n]
+        self._meta[slot] = (k_from, n, k_run0, k_run1, _KINDS.index(kind), 1)
+        self._score[slot] = score
+        return True
 
     # ------------------------------------------------------------------ results
     @property
@@ -137,54 +116,13 @@ class ManoeuvreRecorder:
                                  t0_s + k_run0 * dt_s, t0_s + k_run1 * dt_s, k_run0 - k_from))
         return out
 
-    # ------------------------------------------------------------------ internals
-    def _complete(self, final: bool) -> None:
-        ring_end = self._ring_k + self._ring.shape[1]
-        keep = []
-        for p in self._pending:
-            if ring_end >= p[3] or final:
-                self._capture(*p)
-            else:
-                keep.append(p)
-        self._pending = keep
-
-    def _capture(self, k_from: int, k_run0: int, k_run1: int, k_to: int) -> None:
-        lo, hi = max(k_from, self._ring_k), min(k_to, self._ring_k + self._ring.shape[1])
-        if lo > k_run0 - self.one_s // 2 or hi < k_run1 + self.one_s:
-            return                                       # no trim before it, or not enough after
-        seg = self._ring[:, lo - self._ring_k: hi - self._ring_k]
-        trim_n = k_run0 - lo
-        du = seg[0] - np.mean(seg[0, :trim_n])
-        run = du[trim_n: k_run1 - lo]
-        peak = float(np.max(np.abs(run))) if run.size else 0.0
-        if not peak > 0 or abs(float(np.mean(du[-self.one_s:]))) > 0.25 * peak:
-            return                                       # no excitation, or a trim change
-        kind = 1 if run.max() > 0.3 * peak and run.min() < -0.3 * peak else 0
-        score = float(np.sqrt(np.mean(run * run)))
-        free = np.flatnonzero(self._meta[:, 5] == 0)
-        slot = int(free[0]) if free.size else int(np.argmin(self._score))
-        if not free.size and self._score[slot] >= score:
-            return
-        n = seg.shape[1]
-        self._kept[slot, :, :n] = seg
-        self._meta[slot] = (lo, n, k_run0, k_run1, kind, 1)
-        self._score[slot] = score
-
     # ------------------------------------------------------------------ checkpoint
     def state_dict(self) -> dict:
-        ring = np.zeros((2, 2 * self.cap))
-        ring[:, : self._ring.shape[1]] = self._ring
-        pending = np.zeros((_PENDING_CAP, 4), np.int64)
-        for i, p in enumerate(self._pending):
-            pending[i] = p
-        return {"ring_k": self._ring_k, "ring_n": self._ring.shape[1], "ring": ring, "pending": pending,
-                "n_pending": len(self._pending), "kept": self._kept.copy(), "meta": self._meta.copy(),
-                "score": self._score.copy()}
+        """Fixed-size state (checkpoints)."""
+        return {"kept": self._kept.copy(), "meta": self._meta.copy(), "score": self._score.copy()}
 
     def load_state(self, st: dict) -> None:
-        self._ring_k = int(st["ring_k"])
-        self._ring = np.asarray(st["ring"], float)[:, : int(st["ring_n"])].copy()
-        self._pending = [[int(v) for v in row] for row in np.asarray(st["pending"])[: int(st["n_pending"])]]
+        """Inverse of :meth:`state_dict`."""
         self._kept[:] = st["kept"]
         self._meta[:] = st["meta"]
         self._score[:] = st["score"]

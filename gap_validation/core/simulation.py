@@ -36,8 +36,13 @@ from gap_validation.core.fields import FieldPath
 __all__ = [
     "FlightOptions", "Segment", "TopicSeries", "SimulatedFlight", "parse_hidden", "hidden_effects",
     "parse_band_noise", "band_noise", "truth_models", "plan_topics", "simulate_flight", "log_sweep", "doublet",
-    "with_options", "SUPPORTED_TYPES",
+    "with_options", "SUPPORTED_TYPES", "EXCITATIONS", "multisine", "multistep",
 ]
+
+#: Manoeuvres ``FlightOptions.excitation`` can fly.
+EXCITATIONS = ("chirp", "multisine", "multisine-orthogonal", "3211", "doublet")
+#: Segment kinds that are identification manoeuvres (sweeps); ``doublet`` segments after them are checks.
+SWEEP_SEGMENTS = ("sweep", "multisine", "multisine-orthogonal", "3211")
 
 IMU = "sensor_msgs/msg/Imu"
 JOINT_STATE = "sensor_msgs/msg/JointState"
@@ -68,8 +73,12 @@ class FlightOptions:
     Attributes
     ----------
     sweeps_per_channel : int
-        Rounds of the test card; each round sweeps every channel once (in config order) with a doublet after
-        each sweep.
+        Rounds of the test card; each round excites every channel once (in config order).
+    excitation : str
+        The manoeuvre flown (:data:`EXCITATIONS`): ``chirp`` (a log sweep, then a doublet), ``multisine`` (a
+        Schroeder-phased multisine of ``multisine_periods`` periods, then a doublet), ``multisine-orthogonal``
+        (every channel at once, each on its own interleaved harmonics: harmonic k belongs to channel k mod n),
+        ``3211`` (a 3-2-1-1 multistep of ``multistep_unit_s`` units) or ``doublet``.
     sweep_duration_s : float
         Length of one log sweep [s].
     imu_rate_hz, surface_rate_hz : float
@@ -123,9 +132,23 @@ class FlightOptions:
         Rate of the internal simulation grid [Hz] (raised to 4 times the fastest topic).
     start_time_s : float
         Absolute time of the flight start (epoch seconds) for stamps and bag times.
+    trim_s : float, optional
+        Trim before the first manoeuvre [s] (default ``quiet_s``).
+    duration_s : float, optional
+        Length of the flight [s]: the test card is cut there (default: as long as the card).
+    multisine_period_s : float
+        Period of a multisine [s] (its lowest harmonic is ``2 pi / period``).
+    multisine_periods : int
+        Periods flown per multisine.
+    multistep_unit_s : float
+        Unit of the 3-2-1-1 [s] (3, 2, 1, 1 units of alternating sign).
+    step_rise_s : float
+        Transition time of every step of a doublet or multistep (raised cosine; the surface actuator is not
+        infinitely fast, and a measured step sampled at tens of hertz would be ambiguous by half a sample) [s].
     """
 
     sweeps_per_channel: int = 3
+    excitation: str = "chirp"
     sweep_duration_s: float = 120.0
     imu_rate_hz: float = 100.0
     surface_rate_hz: float = 50.0
@@ -154,6 +177,12 @@ class FlightOptions:
     latency_jitter_s: float = 0.0005
     sim_rate_hz: float = 400.0
     start_time_s: float = 1_700_000_000.0
+    trim_s: float | None = None
+    duration_s: float | None = None
+    multisine_period_s: float = 20.0
+    multisine_periods: int = 3
+    multistep_unit_s: float = 0.5
+    step_rise_s: float = 0.04
 
     def check(self) -> "FlightOptions":
         """Raise :class:`ConfigError` naming the first option out of range; return self."""
@@ -171,6 +200,20 @@ class FlightOptions:
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ConfigError(f"simulation option {name}: expected a number >= 0, got {value!r}")
+        if self.excitation not in EXCITATIONS:
+            raise ConfigError(f"simulation option excitation: expected one of {', '.join(EXCITATIONS)}, "
+                              f"got {self.excitation!r}")
+        for name in ("multisine_period_s", "multistep_unit_s"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ConfigError(f"simulation option {name}: expected a number > 0, got {value!r}")
+        for name in ("trim_s", "duration_s", "step_rise_s"):
+            value = getattr(self, name)
+            if value is not None and not (math.isfinite(value) and value >= 0):
+                raise ConfigError(f"simulation option {name}: expected a number >= 0, got {value!r}")
+        if not isinstance(self.multisine_periods, int) or self.multisine_periods < 1:
+            raise ConfigError(f"simulation option multisine_periods: expected an integer >= 1, "
+                              f"got {self.multisine_periods!r}")
         if not isinstance(self.sweeps_per_channel, int) or self.sweeps_per_channel < 1:
             raise ConfigError(f"simulation option sweeps_per_channel: expected an integer >= 1, "
                               f"got {self.sweeps_per_channel!r}")
@@ -204,7 +247,11 @@ class FlightOptions:
 
 @dataclass(frozen=True)
 class Segment:
-    """One manoeuvre of the test card: ``kind`` is ``sweep`` or ``doublet``; times from the flight start [s]."""
+    """One manoeuvre of the test card; times from the flight start [s].
+
+    ``kind`` is ``sweep`` (log chirp), ``multisine``, ``multisine-orthogonal`` (one segment per channel, same
+    times), ``3211`` or ``doublet``.
+    """
 
     channel: str
     kind: str
@@ -285,8 +332,10 @@ class SimulatedFlight:
         return sum(len(s) for s in self.topics.values())
 
     def sweeps(self, channel: str) -> list[Segment]:
-        """The sweep segments of ``channel``."""
-        return [s for s in self.segments if s.channel == channel and s.kind == "sweep"]
+        """The identification manoeuvres of ``channel`` (sweeps, multisines, multisteps; with ``excitation`` =
+        ``doublet``, its doublets)."""
+        kinds = SWEEP_SEGMENTS + (("doublet",) if self.options.excitation == "doublet" else ())
+        return [s for s in self.segments if s.channel == channel and s.kind in kinds]
 
 
 # --------------------------------------------------------------------------------------------- hidden effects
@@ -539,16 +588,33 @@ def doublet(t_s: np.ndarray, half_period_s: float) -> np.ndarray:
 
 def _test_card(config: ValidationConfig, opt: FlightOptions) -> tuple[list[Segment], float]:
     segments: list[Segment] = []
-    t = opt.quiet_s
+    t = opt.quiet_s if opt.trim_s is None else opt.trim_s
+    doublet_s = 2 * opt.doublet_half_period_s
     for _ in range(opt.sweeps_per_channel):
-        for name, ch in config.channels.items():
-            band = (ch.frequencies.min_rad_s * opt.band_low_factor,
-                    ch.frequencies.max_rad_s * opt.band_high_factor)
-            segments.append(Segment(name, "sweep", t, t + opt.sweep_duration_s, band))
-            t += opt.sweep_duration_s + opt.quiet_s
-            segments.append(Segment(name, "doublet", t, t + 2 * opt.doublet_half_period_s))
-            t += 2 * opt.doublet_half_period_s + opt.quiet_s
-    return segments, t
+        bands = {name: (ch.frequencies.min_rad_s * opt.band_low_factor, ch.frequencies.max_rad_s * opt.band_high_factor)
+                 for name, ch in config.channels.items()}
+        if opt.excitation == "multisine-orthogonal":
+            length = opt.multisine_period_s * opt.multisine_periods
+            segments += [Segment(name, "multisine-orthogonal", t, t + length, bands[name]) for name in bands]
+            t += length + opt.quiet_s
+            continue
+        for name in config.channels:
+            if opt.excitation == "doublet":
+                segments.append(Segment(name, "doublet", t, t + doublet_s))
+                t += doublet_s + opt.quiet_s
+                continue
+            kind, length = {"chirp": ("sweep", opt.sweep_duration_s),
+                            "multisine": ("multisine", opt.multisine_period_s * opt.multisine_periods),
+                            "3211": ("3211", 7.0 * opt.multistep_unit_s)}[opt.excitation]
+            segments.append(Segment(name, kind, t, t + length, bands[name]))
+            t += length + opt.quiet_s
+            if opt.excitation in ("chirp", "multisine"):
+                segments.append(Segment(name, "doublet", t, t + doublet_s))
+                t += doublet_s + opt.quiet_s
+    if opt.duration_s is not None:
+        segments = [seg for seg in segments if seg.start_s < opt.duration_s]
+        return segments, float(opt.duration_s)
+    return segments, t + opt.quiet_s
 
 
 def _pilot_trim(t_s: np.ndarray, segments: list[Segment], duration_s: float, opt: FlightOptions,
@@ -676,14 +742,13 @@ def simulate_flight(config: ValidationConfig, hidden: dict[str, list[dict]] | No
     plans = plan_topics(config)
     rng = np.random.default_rng(seed)
     segments, duration_s = _test_card(config, opt)
-    duration_s += opt.quiet_s
     rates = [opt.imu_rate_hz if p.role == "imu" else opt.surface_rate_hz for p in plans.values()]
     fs_hz = max(opt.sim_rate_hz, 4.0 * max(rates))
     t_s = np.arange(0.0, duration_s + 2.0 / fs_hz, 1.0 / fs_hz)
 
     inputs, trim = {}, {}
     for name in config.channels:
-        inputs[name] = _channel_input(name, t_s, segments, opt)
+        inputs[name] = _channel_input(name, t_s, segments, opt, tuple(config.channels))
         trim[name] = _pilot_trim(t_s, segments, duration_s, opt, rng)
     outputs = {name: np.asarray(truth[name].simulate(t_s, inputs[name]), dtype=float).ravel()
                for name in config.channels}
@@ -699,8 +764,9 @@ def simulate_flight(config: ValidationConfig, hidden: dict[str, list[dict]] | No
         measured[(name, "output")] = (disturbed, opt.gyro_noise_rad_s * opt.noise, opt.gyro_lsb_rad_s)
         if ch.trigger is not None:
             active = np.zeros_like(t_s)
+            kinds = SWEEP_SEGMENTS + (("doublet",) if opt.excitation == "doublet" else ())
             for seg in segments:
-                if seg.channel == name and seg.kind == "sweep":
+                if seg.channel == name and seg.kind in kinds:
                     active[(t_s >= seg.start_s) & (t_s <= seg.end_s)] = 1.0
             measured[(name, "trigger")] = (active, 0.0, 0.0)
 
@@ -726,18 +792,78 @@ def simulate_flight(config: ValidationConfig, hidden: dict[str, list[dict]] | No
                            start_time_s=opt.start_time_s, seed=seed, options=opt)
 
 
-def _channel_input(name: str, t_s: np.ndarray, segments: list[Segment], opt: FlightOptions) -> np.ndarray:
-    """Surface deflection deviation of one channel from trim [rad]: its sweeps and doublets."""
+def _channel_input(name: str, t_s: np.ndarray, segments: list[Segment], opt: FlightOptions,
+                   channels: tuple[str, ...] = ()) -> np.ndarray:
+    """Surface deflection deviation of one channel from trim [rad]: its manoeuvres."""
     u = np.zeros_like(t_s)
     for seg in segments:
         if seg.channel != name:
             continue
+        tau, length = t_s - seg.start_s, seg.end_s - seg.start_s
         if seg.kind == "sweep":
             w0, w1 = seg.band_rad_s
-            u += opt.sweep_amplitude_rad * log_sweep(t_s - seg.start_s, seg.end_s - seg.start_s, w0, w1,
-                                                     dwell_cycles=opt.dwell_cycles)
+            u += opt.sweep_amplitude_rad * log_sweep(tau, length, w0, w1, dwell_cycles=opt.dwell_cycles)
+        elif seg.kind in ("multisine", "multisine-orthogonal"):
+            share = (channels.index(name), len(channels)) if seg.kind == "multisine-orthogonal" else (0, 1)
+            u += opt.sweep_amplitude_rad * multisine(tau, opt.multisine_period_s, opt.multisine_periods,
+                                                     *seg.band_rad_s, share=share)
+        elif seg.kind == "3211":
+            u += opt.doublet_amplitude_rad * multistep(tau, opt.multistep_unit_s, (3, 2, 1, 1), opt.step_rise_s)
         else:
-            u += opt.doublet_amplitude_rad * doublet(t_s - seg.start_s, opt.doublet_half_period_s)
+            u += opt.doublet_amplitude_rad * multistep(tau, opt.doublet_half_period_s, (1, 1), opt.step_rise_s)
+    return u
+
+
+def multisine(t_s: np.ndarray, period_s: float, periods: int, w0_rad_s: float, w1_rad_s: float,
+              share: tuple[int, int] = (0, 1), taper_s: float = 0.5) -> np.ndarray:
+    """Schroeder-phased multisine of peak 1 on ``0 <= t < periods * period_s`` (zero outside).
+
+    The harmonics ``k 2 pi / period_s`` within ``[w0, w1]`` of equal amplitude, phases
+    ``-pi j (j - 1) / n`` (Schroeder: low peak factor); ``share = (c, n)`` keeps the harmonics with
+    ``k mod n == c`` only (orthogonal multisines on n axes flown at once). A half-cosine fade of ``taper_s`` at
+    both ends.
+    """
+    t = np.asarray(t_s, dtype=float)
+    length = period_s * periods
+    w_f = 2.0 * math.pi / period_s
+    k = np.arange(max(1, math.ceil(w0_rad_s / w_f)), max(1, math.floor(w1_rad_s / w_f)) + 1)
+    k = k[k % share[1] == share[0]]
+    if k.size == 0:
+        return np.zeros_like(t)
+    j = np.arange(1, k.size + 1)
+    phase = -math.pi * j * (j - 1) / k.size
+    inside = (t >= 0.0) & (t < length)
+    tau = np.where(inside, t, 0.0)
+    one_period = np.linspace(0.0, period_s, 4096, endpoint=False)
+    peak = float(np.max(np.abs(np.cos(np.outer(one_period, k * w_f) + phase).sum(axis=1))))
+    u = np.zeros_like(t)
+    for kk, ph in zip(k, phase):
+        u[inside] += np.cos(kk * w_f * tau[inside] + ph)
+    envelope = np.clip(np.minimum(tau, length - tau) / taper_s, 0.0, 1.0) if taper_s > 0 else 1.0
+    envelope = 0.5 - 0.5 * np.cos(np.pi * envelope)
+    return np.where(inside, u / peak * envelope, 0.0)
+
+
+def multistep(t_s: np.ndarray, unit_s: float, pattern: tuple[int, ...] = (3, 2, 1, 1),
+              rise_s: float = 0.0) -> np.ndarray:
+    """Multistep of unit amplitude: ``pattern[i] * unit_s`` at alternating signs (+1 first), zero outside.
+
+    ``(3, 2, 1, 1)`` is the 3-2-1-1, ``(1, 1)`` a doublet. Each step is a raised-cosine transition of
+    ``rise_s`` centred on its nominal time (0: ideal steps).
+    """
+    t = np.asarray(t_s, dtype=float)
+    edges = np.concatenate(([0.0], np.cumsum(pattern) * unit_s))
+    levels = np.array([(-1.0) ** i for i in range(len(pattern))] + [0.0])
+    u = np.zeros_like(t)
+    previous = 0.0
+    for edge, level in zip(edges, levels):
+        step = level - previous
+        if rise_s > 0:
+            x = np.clip((t - edge + 0.5 * rise_s) / rise_s, 0.0, 1.0)
+            u += step * (0.5 - 0.5 * np.cos(np.pi * x))
+        else:
+            u += step * (t >= edge)
+        previous = level
     return u
 
 

@@ -1,0 +1,326 @@
+"""Manoeuvres as they are flown: where one ends and the next begins, and what kind each is.
+
+The sweep detector (:mod:`gap_validation.core.sweeps`) marks coarse excited stretches of a channel's
+excitation signal (the input, or the injected excitation). The estimator buffers each stretch with the trim
+around it and hands it here, where it is split into the manoeuvres a pilot flew and each is classified.
+
+Splitting (:func:`split_record`)
+--------------------------------
+* **Trim in between.** A stretch of at least ``min_quiet_s`` (1 s) during which the excitation stays at trim --
+  within ``max(4 noise, 10 % of the excursion)`` of the level before the stretch or of the level after it --
+  separates two manoeuvres. A slow sine is not "at trim" for long (it crosses the trim level quickly; its
+  peaks are far from it), so the slow start of a sweep is not split.
+* **A restart of the swept frequency.** Sweeps flown back to back without a pause: the zero crossings of the
+  excitation about trim give its instantaneous frequency; where a monotonic trend (at least eight
+  half-periods rising, or falling) is followed by a half-period at least four times longer (shorter), a new
+  sweep starts -- unless the excitation is periodic: a Schroeder-phased multisine sweeps within each of its
+  periods, and identical sweeps flown back to back *are* a periodic excitation; either stays one record (a
+  multisine of several periods, the best record there is for a frequency response). Fly a second of trim
+  between identical sweeps to have them counted one by one.
+Each manoeuvre keeps the trim around it, up to half of every pause (the response must settle before the
+record ends; the estimator's transient term takes what has not).
+
+Kinds (:func:`classify`)
+------------------------
+``chirp`` (instantaneous frequency monotonic over at least a 3:1 range), ``multisine`` (periodic: the
+excitation repeats with a period of 1 s or more at least twice, correlation >= 0.8), ``multistep`` (at least
+three plateaus, e.g. 3-2-1-1), ``doublet`` (two plateaus of opposite sign), ``pulse`` (one plateau, back to
+trim), ``step`` (a trim change: the level after differs from the level before; not used for frequency
+responses), else ``broadband`` (random or hand-flown excitation).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["Piece", "split_record", "classify", "stretch_trim", "period", "KINDS", "RESPONSE_KINDS", "SWEEP_KINDS",
+           "trim_tolerance"]
+
+#: Every kind :func:`classify` returns.
+KINDS = ("chirp", "multisine", "multistep", "doublet", "pulse", "broadband", "step")
+#: Kinds whose records give frequency responses (a trim step does not: it moves the equilibrium).
+RESPONSE_KINDS = ("chirp", "multisine", "multistep", "doublet", "pulse", "broadband")
+#: Kinds that are identification experiments: *sweeps* (raw estimates, Table 1). Doublets and pulses are
+#: checks; they add to the pooled estimate.
+SWEEP_KINDS = ("chirp", "multisine", "multistep", "broadband")
+_TREND_HALF_PERIODS = 20
+_RESTART_RATIO = 4.0
+_MIN_PLATEAU_S = 0.15
+
+
+@dataclass(frozen=True)
+class Piece:
+    """One manoeuvre inside a buffered stretch (sample indices into the stretch).
+
+    Attributes
+    ----------
+    start, end : int
+        The record: ``[start, end)`` (trim before and after included).
+    active_start, active_end : int
+        The excited part ``[active_start, active_end)``.
+    group : int
+        Manoeuvres flown back to back (split only at a restart of the swept frequency) share a group; trim
+        separates groups.
+    """
+
+    start: int
+    end: int
+    active_start: int
+    active_end: int
+    group: int = 0
+
+
+def trim_tolerance(excursion: float, noise_std: float) -> float:
+    """Half-width of the band about trim that counts as "at trim": ``max(4 noise, 10 % of the excursion)``."""
+    return max(4.0 * max(noise_std, 0.0), 0.1 * excursion)
+
+
+def _levels(u: np.ndarray, pre_n: int, post_n: int) -> tuple[float, float]:
+    head = u[: max(1, min(pre_n, u.size // 4))]
+    tail = u[u.size - max(1, min(post_n, u.size // 4)):]
+    return float(np.median(head)), float(np.median(tail))
+
+
+def _runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Starts and ends (exclusive) of the runs of True in ``mask``."""
+    d = np.diff(np.concatenate(([0], mask.astype(np.int8), [0])))
+    return np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+
+
+def _half_periods(dev: np.ndarray, tol: float) -> np.ndarray:
+    """Sample indices where ``dev`` crosses from beyond ``+tol`` to beyond ``-tol`` or back (hysteresis)."""
+    state = np.where(dev > tol, 1, np.where(dev < -tol, -1, 0))
+    nz = np.flatnonzero(state)
+    if nz.size < 2:
+        return nz[:0]
+    s = state[nz]
+    return nz[1:][s[1:] != s[:-1]]
+
+
+def _rank_trend(values: np.ndarray) -> float:
+    """Spearman correlation of ``values`` with their order (+1: increasing)."""
+    if values.size < 3:
+        return 0.0
+    ranks = np.argsort(np.argsort(values, kind="stable"), kind="stable").astype(float)
+    order = np.arange(values.size, dtype=float)
+    if np.std(ranks) == 0:
+        return 0.0
+    return float(np.corrcoef(order, ranks)[0, 1])
+
+
+def _restarts(dev: np.ndarray, tol: float, lo: int, hi: int) -> list[int]:
+    """Indices in ``[lo, hi)`` where a monotonic sweep starts over (see the module docstring)."""
+    flips = _half_periods(dev[lo:hi], tol)
+    if flips.size < _TREND_HALF_PERIODS + 2:
+        return []
+    half = np.diff(flips).astype(float)
+    out: list[int] = []
+    first = 0                                            # half-periods since the last cut
+    for j in range(_TREND_HALF_PERIODS, half.size):
+        prev = half[first:j]
+        if prev.size < _TREND_HALF_PERIODS:
+            continue
+        recent = float(np.median(prev[-3:]))
+        trend = _rank_trend(prev)
+        if (trend <= -0.8 and half[j] >= _RESTART_RATIO * recent) or \
+                (trend >= 0.8 and half[j] * _RESTART_RATIO <= recent):
+            out.append(lo + int(flips[j]))
+            first = j + 1
+    return out
+
+
+def split_record(u: np.ndarray, dt: float, noise_std: float, pre_n: int, post_n: int,
+                 min_quiet_s: float = 1.0) -> list[Piece]:
+    """Split a buffered excited stretch into the manoeuvres flown (see the module docstring).
+
+    Parameters
+    ----------
+    u : ndarray
+        Excitation signal on the grid: trim (``pre_n`` samples), the excited stretch, trim (``post_n``).
+    dt : float
+        Grid step [s].
+    noise_std : float
+        Standard deviation of the excitation's noise at trim (0 when unknown).
+    pre_n, post_n : int
+        Samples of trim kept before and after each manoeuvre at most.
+    min_quiet_s : float
+        Shortest stretch at trim that separates two manoeuvres [s].
+
+    Returns
+    -------
+    list of Piece
+        In time order; empty when nothing in ``u`` leaves trim.
+    """
+    u = np.asarray(u, float)
+    if u.size < 3:
+        return []
+    before, after = _levels(u, pre_n, post_n)
+    dev = u - before
+    excursion = float(np.percentile(np.abs(dev), 99))
+    tol = trim_tolerance(excursion, noise_std)
+    at_trim = (np.abs(u - before) <= tol) | (np.abs(u - after) <= tol)
+    active = ~at_trim
+    if not active.any():
+        return []
+    starts, ends = _runs(active)
+    min_gap = max(1, int(round(min_quiet_s / dt)))
+    # merge active runs separated by less than min_gap of trim
+    groups = [[int(starts[0]), int(ends[0])]]
+    for a, b in zip(starts[1:], ends[1:]):
+        if a - groups[-1][1] < min_gap:
+            groups[-1][1] = int(b)
+        else:
+            groups.append([int(a), int(b)])
+    # frequency restarts inside a group
+    active_spans = []
+    for g, (a, b) in enumerate(groups):
+        cuts = [a] + _restarts(dev, tol, a, b) + [b]
+        if len(cuts) > 2 and _is_periodic(dev[a:b], dt):
+            cuts = [a, b]                    # a periodic excitation (a Schroeder multisine sweeps every period)
+        active_spans += [(c0, c1, g) for c0, c1 in zip(cuts[:-1], cuts[1:]) if c1 > c0]
+    pieces = []
+    for i, (a, b, g) in enumerate(active_spans):
+        prev_end = active_spans[i - 1][1] if i else 0
+        next_start = active_spans[i + 1][0] if i + 1 < len(active_spans) else u.size
+        start = max(a - pre_n, (prev_end + a + 1) // 2 if i else 0)
+        end = min(b + post_n, (b + next_start) // 2 if i + 1 < len(active_spans) else u.size)
+        pieces.append(Piece(int(start), int(end), int(a), int(b), g))
+    return pieces
+
+
+def stretch_trim(u: np.ndarray, pre_n: int, post_n: int) -> tuple[float, float]:
+    """Trim levels before and after a buffered stretch (medians of its first ``pre_n``, last ``post_n``)."""
+    return _levels(np.asarray(u, float), pre_n, post_n)
+
+
+def _plateaus(dev: np.ndarray, dt: float, tol: float) -> list[float]:
+    """Signed levels of the flat stretches (plateaus) of ``dev`` away from trim, in time order."""
+    n = max(2, int(round(_MIN_PLATEAU_S / dt)))
+    if dev.size < n:
+        return []
+    win = np.lib.stride_tricks.sliding_window_view(dev, n)
+    flat = (win.max(axis=1) - win.min(axis=1) <= max(tol, 0.1 * np.max(np.abs(dev)))) & \
+        (np.abs(win.mean(axis=1)) > 2.0 * tol)
+    starts, ends = _runs(flat)
+    levels = []
+    for a, b in zip(starts, ends):
+        level = float(np.mean(dev[a:b + n - 1]))
+        if levels and np.sign(level) == np.sign(levels[-1]) and abs(level - levels[-1]) <= tol:
+            continue
+        levels.append(level)
+    return levels
+
+
+def _is_chirp(dev: np.ndarray, tol: float) -> bool:
+    half = np.diff(_half_periods(dev, tol)).astype(float)
+    if half.size < 12:
+        return False
+    spread = np.percentile(half, 90) / max(np.percentile(half, 10), 1.0)
+    return bool(abs(_rank_trend(half)) >= 0.8 and spread >= 3.0)
+
+
+def period(dev: np.ndarray, dt: float) -> int:
+    """The period of a periodic excitation in samples (0 when it is not periodic).
+
+    The shortest lag of at least 1 s whose normalised autocorrelation is at least 0.8 and within 0.05 of the
+    highest (the fundamental, not a multiple of it), with at least two periods in ``dev``.
+
+    Parameters
+    ----------
+    dev : ndarray
+        The excitation about trim, on the grid.
+    dt : float
+        Grid step [s].
+    """
+    n = dev.size
+    lo = int(round(1.0 / dt))
+    if n < 2 * lo + 2:
+        return 0
+    x = dev - dev.mean()
+    spec = np.fft.rfft(x, 2 * n)
+    acf = np.fft.irfft(spec * np.conj(spec))[:n]
+    energy = np.concatenate(([0.0], np.cumsum(x * x)))
+    lags = np.arange(lo, n // 2 + 1)
+    with np.errstate(divide="ignore", invalid="ignore"):   # correlation of x[:n-L] with x[L:]
+        rho = acf[lags] / np.sqrt(energy[n - lags] * (energy[n] - energy[lags]))
+    rho = np.where(np.isfinite(rho), rho, 0.0)
+    if not rho.size or rho.max() < 0.8:
+        return 0
+    good = np.flatnonzero(rho >= max(0.8, rho.max() - 0.05))
+    first = good[0]
+    run_end = first
+    while run_end + 1 < rho.size and rho[run_end + 1] >= rho[run_end]:   # climb to the local peak
+        run_end += 1
+    return int(lags[run_end])
+
+
+def _is_periodic(dev: np.ndarray, dt: float) -> bool:
+    return period(dev, dt) > 0
+
+
+def classify(u: np.ndarray, dt: float, piece: Piece, noise_std: float,
+             trim: tuple[float, float] | None = None) -> str:
+    """The kind of one manoeuvre (see the module docstring).
+
+    Parameters
+    ----------
+    u : ndarray
+        The buffered excitation signal the piece indexes.
+    dt : float
+        Grid step [s].
+    piece : Piece
+        The manoeuvre.
+    noise_std : float
+        Noise standard deviation of the excitation at trim.
+    trim : (float, float), optional
+        Trim levels before and after the buffered stretch (default: the piece's own margins).
+
+    Returns
+    -------
+    str
+        One of :data:`KINDS`.
+    """
+    rec = np.asarray(u[piece.start:piece.end], float)
+    a0, a1 = piece.active_start - piece.start, piece.active_end - piece.start
+    pre = rec[:max(1, a0)]
+    post = rec[a1:] if a1 < rec.size else rec[-1:]
+    before, after = (float(np.median(pre)), float(np.median(post))) if trim is None else trim
+    dev = rec[a0:a1] - before
+    if dev.size == 0:
+        return "broadband"
+    excursion = float(np.max(np.abs(dev)))
+    tol = trim_tolerance(excursion, noise_std)
+    if abs(after - before) > max(0.3 * excursion, 2.0 * tol):
+        return "step"
+    if _is_chirp(dev, tol):
+        return "chirp"
+    if _is_periodic(dev, dt):
+        return "multisine"
+    levels = _plateaus(dev, dt, tol)
+    flat = _flat_share(dev, dt, tol)
+    if flat >= 0.6 and levels:
+        if len(levels) == 1:
+            return "pulse"
+        if len(levels) == 2 and np.sign(levels[0]) != np.sign(levels[1]):
+            return "doublet"
+        return "multistep"
+    return "broadband"
+
+
+def _flat_share(dev: np.ndarray, dt: float, tol: float) -> float:
+    """Share of the excursion (samples beyond twice the trim tolerance) that lies on plateaus: most of it for
+    square-wave-like inputs, little for sines; a slow trim ramp next to a doublet is not an excursion."""
+    n = max(2, int(round(_MIN_PLATEAU_S / dt)))
+    away = np.abs(dev) > 2.0 * tol
+    if dev.size < n or not away.any():
+        return 0.0
+    win = np.lib.stride_tricks.sliding_window_view(dev, n)
+    spread = max(tol, 0.1 * float(np.max(np.abs(dev))))
+    flat = (win.max(axis=1) - win.min(axis=1) <= spread) & (np.abs(win.mean(axis=1)) > 2.0 * tol)
+    covered = np.zeros(dev.size, bool)
+    idx = np.flatnonzero(flat)
+    for k in range(n):
+        covered[idx + k] = True
+    return float(np.count_nonzero(covered & away) / np.count_nonzero(away))

@@ -1,0 +1,461 @@
+"""Frequency responses of manoeuvres by the local polynomial method, pooled over manoeuvres.
+
+Every manoeuvre (a sweep, a multisine, a 3-2-1-1, a doublet ...) is one *record*: the grid samples of its
+signals from the trim before it to the trim after it. A record is transformed whole (``numpy.fft.rfft``,
+normalised by ``sqrt(N)`` so that white noise has the same variance per bin whatever the record length) and the
+response at each analysis frequency ``w`` is estimated from the DFT bins around it, the *band*
+``|w_k - w| <= max(band_fraction w, min_bins/2 spacing)``, by the local polynomial method (Pintelon and
+Schoukens, *System Identification: A Frequency Domain Approach*, 2nd ed., ch. 7; Pintelon et al.,
+"Estimation of nonparametric noise and FRF models for multivariable systems", MSSP 24, 2010)::
+
+    Y(w_k) = sum_j H_j(r) X_j(w_k) + T(r) + V(w_k),   r = (w_k - w) / (band_fraction w)
+
+with ``H_j`` (the response from input j) and ``T`` (the transient: initial and final conditions of a record
+that is not periodic, leakage) polynomials in ``r`` of low degree and ``V`` the noise. The transient has its own
+coefficients in every record; the response polynomial is shared by all records, so the normal equations of the
+records add up (the transient is projected out of each record first: Frisch-Waugh-Lovell) and the estimate is the
+pooled least-squares (or, with an excitation signal as instrument, instrumental-variable) solution. What is kept
+per analysis frequency is a handful of small matrices: memory does not grow with the flight.
+
+What it gives per frequency: the response ``H(w)`` (the polynomial at r = 0), the noise variance from the
+residuals with its real degrees of freedom (bins minus every fitted coefficient), the variance of ``H`` and the
+multiple coherence ``1 - RSS / |Y|^2`` (fraction of the output explained, after the transient). A record counts
+at a frequency only where its input is excited there (:func:`band_excited`: power at the band's centre within
+20 dB of the record's in-band level and 20 dB above the input noise floor, and no extrapolation from one side
+of the band) and where the band stays within ``max_band_fraction`` of ``w`` (a short record cannot resolve a low
+frequency: its bins are too far apart).
+
+Bias. The local polynomial follows ``H`` only approximately over a wide band, and a lightly damped mode or a
+short record makes the band wide. :meth:`PooledBands.expected` therefore gives the estimate a *model* would
+produce through the very same estimator (the model expanded as a polynomial of degree ``order + 4`` over the
+bands the records used): comparing the data with that, rather than with the model at ``w``, removes the
+estimator's smoothing bias from the test whether data and model agree (the diagnosis does this).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["SPECTRA_DEFAULTS", "BandSums", "record_bands", "band_excited", "LocalEstimate", "solve_bands",
+           "expected_estimate", "EXTRA_ORDER"]
+
+#: Options of the local polynomial estimate (estimator options of the same names).
+SPECTRA_DEFAULTS = {
+    "band_fraction": 0.1,         # band half-width relative to the frequency (before widening to min_bins)
+    "max_band_fraction": 0.6,     # a wider band (a record too short for this frequency) is not used
+    "min_bins": 7,                # DFT bins per band at least
+    "order": 2,                   # degree of the response polynomial (shared by every record)
+    "transient_order": 0,         # degree of the transient polynomial (one per record; -1: none)
+}
+#: :func:`record_bands` status codes: why a record does not count at a frequency (0: it counts).
+STATUS_NOT_EXCITED, STATUS_TOO_SHORT, STATUS_ABOVE_GRID, STATUS_TOO_FEW_BINS = 1, 2, 3, 4
+#: Extra polynomial degree over which a model is expanded for :func:`expected_estimate`.
+EXTRA_ORDER = 4
+#: A band's centre power must be at least this fraction of the record's in-band level (20 dB) ...
+_RELATIVE_EXCITATION = 1e-2
+#: ... and at least this multiple of the input's noise floor (20 dB), when the floor is known.
+_EXCITATION_SNR = 1e2
+#: Bins with less than this fraction of the largest input power near a frequency carry no input (between a
+#: multisine's lines, another axis' harmonics, the nulls of a doublet): they are left out of its band.
+_BIN_FLOOR = 1e-2
+#: Highest usable bin relative to the Nyquist frequency of the grid (interpolation droop above).
+_NYQUIST_FRACTION = 0.8
+
+
+@dataclass
+class BandSums:
+    """Sufficient statistics of the local polynomial fits at F frequencies (one record, or pooled).
+
+    With ``m`` inputs, ``q`` instruments (the inputs themselves without an excitation signal) and ``p``
+    outputs, ``nh = m (order + 1)`` response coefficients, ``ne = m (order + EXTRA_ORDER + 1)`` extended ones and
+    ``nz = q (order + 1)`` instrument columns, per frequency (after the record's transient is projected out):
+
+    Attributes
+    ----------
+    zf : ndarray, (F, nz, ne) complex
+        Instruments times extended regressors ``Z^H Phi_ext``.
+    zz : ndarray, (F, nz, nz) complex
+        ``Z^H Z``.
+    ff : ndarray, (F, nh, nh) complex
+        ``Phi^H Phi`` (regressors of the response polynomial).
+    zy, fy : ndarray, (F, nz, p) and (F, nh, p) complex
+        ``Z^H Y`` and ``Phi^H Y``.
+    yy : ndarray, (F, p, p) complex
+        ``Y^H Y``.
+    bins : ndarray, (F,) int
+        DFT bins used.
+    dof : ndarray, (F,) int
+        Bins minus the transient coefficients of every record (the response coefficients are subtracted
+        when solving).
+    records : ndarray, (F,) int
+        Records that contributed.
+    r_lo, r_hi : ndarray, (F,)
+        Range of the normalised band coordinate ``r`` over the bins used.
+    input_power : ndarray, (F,)
+        Sum over the bins of ``|X|^2`` of the first input (normalised DFT): spectra for plots.
+    """
+
+    zf: np.ndarray
+    zz: np.ndarray
+    ff: np.ndarray
+    zy: np.ndarray
+    fy: np.ndarray
+    yy: np.ndarray
+    bins: np.ndarray
+    dof: np.ndarray
+    records: np.ndarray
+    r_lo: np.ndarray
+    r_hi: np.ndarray
+    input_power: np.ndarray
+
+    @classmethod
+    def zeros(cls, n_freq: int, inputs: int = 1, outputs: int = 1, instruments: int | None = None,
+              order: int = 1) -> "BandSums":
+        """Empty sums for ``n_freq`` frequencies."""
+        q = inputs if instruments is None else instruments
+        nh, ne, nz = inputs * (order + 1), inputs * (order + EXTRA_ORDER + 1), q * (order + 1)
+        c = complex
+        return cls(np.zeros((n_freq, nz, ne), c), np.zeros((n_freq, nz, nz), c), np.zeros((n_freq, nh, nh), c),
+                   np.zeros((n_freq, nz, outputs), c), np.zeros((n_freq, nh, outputs), c),
+                   np.zeros((n_freq, outputs, outputs), c), np.zeros(n_freq, np.int64), np.zeros(n_freq, np.int64),
+                   np.zeros(n_freq, np.int64), np.full(n_freq, np.inf), np.full(n_freq, -np.inf), np.zeros(n_freq))
+
+    @property
+    def inputs(self) -> int:
+        """Number of inputs m (``ne - nh = m EXTRA_ORDER``)."""
+        return (self.zf.shape[2] - self.ff.shape[1]) // EXTRA_ORDER
+
+    @property
+    def order(self) -> int:
+        """Degree of the response polynomial."""
+        return self.ff.shape[1] // self.inputs - 1
+
+    def h_columns(self) -> np.ndarray:
+        """Columns of the extended regressors that belong to the response polynomial."""
+        per_e, per_h = self.order + EXTRA_ORDER + 1, self.order + 1
+        return np.concatenate([np.arange(j * per_e, j * per_e + per_h) for j in range(self.inputs)])
+
+    def add(self, other: "BandSums", where: np.ndarray | None = None) -> None:
+        """Add another record's sums (at the frequencies ``where`` is True; all by default)."""
+        sel = np.ones(self.bins.size, bool) if where is None else np.asarray(where, bool)
+        for name in ("zf", "zz", "ff", "zy", "fy", "yy", "bins", "dof", "records", "input_power"):
+            getattr(self, name)[sel] += getattr(other, name)[sel]
+        self.r_lo[sel] = np.minimum(self.r_lo[sel], other.r_lo[sel])
+        self.r_hi[sel] = np.maximum(self.r_hi[sel], other.r_hi[sel])
+
+    def copy(self) -> "BandSums":
+        """An independent copy."""
+        return BandSums(*(np.array(getattr(self, f)) for f in self.__dataclass_fields__))
+
+    def state_dict(self, prefix: str = "") -> dict:
+        """The arrays under ``prefix + name`` (checkpoints)."""
+        return {prefix + f: np.array(getattr(self, f)) for f in self.__dataclass_fields__}
+
+    @classmethod
+    def from_state(cls, state: dict, prefix: str = "") -> "BandSums":
+        """Inverse of :meth:`state_dict`."""
+        return cls(*(np.array(state[prefix + f]) for f in cls.__dataclass_fields__))
+
+
+def _line(v: np.ndarray, dt: float) -> np.ndarray:
+    """Straight line through the means of the first and the last half second of each row of ``v``."""
+    n = v.shape[-1]
+    m = max(1, min(n // 4, int(round(0.5 / dt))))
+    a, b = v[..., :m].mean(axis=-1), v[..., -m:].mean(axis=-1)
+    ta, tb = (m - 1) / 2.0, n - 1 - (m - 1) / 2.0
+    t = (np.arange(n) - ta) / max(tb - ta, 1e-12)
+    return a[..., None] + (b - a)[..., None] * t
+
+
+def band_bins(w_bins: np.ndarray, w: float, band_fraction: float, min_bins: int, max_band_fraction: float,
+              power: np.ndarray | None = None) -> np.ndarray:
+    """Indices of the DFT bins of the band around ``w`` (empty when the record is too short for ``w``).
+
+    Parameters
+    ----------
+    w_bins : ndarray
+        Bin frequencies [rad/s], uniformly spaced from 0.
+    w : float
+        Analysis frequency [rad/s].
+    band_fraction, min_bins, max_band_fraction
+        See :data:`SPECTRA_DEFAULTS`.
+    power : ndarray, optional
+        ``|X|^2`` of the excitation per bin: only bins with input (at least 1 % of the largest within
+        ``max_band_fraction``) count, so a multisine's band holds its lines, not the empty bins between them.
+
+    Returns
+    -------
+    ndarray of int
+        The bins with input within ``band_fraction w`` of ``w``, or the nearest ``min_bins`` of them when
+        fewer (positive frequencies only); none when those reach beyond ``max_band_fraction w``.
+    """
+    spacing = w_bins[1] - w_bins[0]
+    reach = max_band_fraction * w
+    lo = max(1, int(math.ceil((w - reach) / spacing - 1e-9)))
+    hi = min(w_bins.size - 1, int(math.floor((w + reach) / spacing + 1e-9)))
+    cand = np.arange(lo, hi + 1)
+    if power is not None and cand.size:
+        cand = cand[power[cand] >= _BIN_FLOOR * np.max(power[cand])]
+    if cand.size < min_bins:
+        return cand[:0]
+    dist = np.abs(w_bins[cand] - w)
+    inside = dist <= band_fraction * w
+    if np.count_nonzero(inside) >= min_bins:
+        return cand[inside]
+    return np.sort(cand[np.argsort(dist, kind="stable")[:min_bins]])
+
+
+def band_excited(power: np.ndarray, r: np.ndarray, reference: float, floor: float) -> bool:
+    """Whether a record excites its input at a band's centre.
+
+    Parameters
+    ----------
+    power : ndarray
+        ``|X_k|^2`` of the excitation (normalised DFT) at the band's bins.
+    r : ndarray
+        Normalised band coordinate of those bins (0 at the analysis frequency).
+    reference : float
+        The record's in-band level of ``|X|^2`` (:func:`record_bands`).
+    floor : float
+        ``|X|^2`` of the input's noise (its variance per sample); 0 when unknown.
+
+    Returns
+    -------
+    bool
+        The mean power of the central bins (``|r| <= 0.25`` of the band, at least the nearest bin) is within
+        20 dB of ``reference`` and 20 dB above ``floor``, and the band's power is not all on one side
+        (power-weighted mean of ``r`` within half the band's extent): no extrapolation past the end of a sweep.
+    """
+    extent = max(float(np.max(np.abs(r))), 1e-12)
+    central = np.abs(r) <= 0.25 * extent
+    if not central.any():
+        central = np.abs(r) == np.min(np.abs(r))
+    level = float(np.mean(power[central]))
+    total = float(np.sum(power))
+    if not (total > 0.0 and level >= _RELATIVE_EXCITATION * reference and level >= _EXCITATION_SNR * floor):
+        return False
+    return abs(float(np.sum(power * r)) / total) <= 0.5 * extent
+
+
+def _vander(r: np.ndarray, degree: int) -> np.ndarray:
+    return np.vander(r, degree + 1, increasing=True)
+
+
+def record_bands(inputs: np.ndarray, outputs: np.ndarray, dt: float, w_rad_s: np.ndarray, *,
+                 instruments: np.ndarray | None = None, noise_floor: float = 0.0,
+                 options: dict | None = None, max_rad_s: float = math.inf) -> tuple[BandSums, np.ndarray]:
+    """Local polynomial sums of one record at every analysis frequency, and where the record is excited.
+
+    Parameters
+    ----------
+    inputs : ndarray, (m, N)
+        Input samples on the uniform grid (m inputs).
+    outputs : ndarray, (p, N)
+        Output samples on the same grid.
+    dt : float
+        Grid step [s].
+    w_rad_s : ndarray, (F,)
+        Analysis frequencies [rad/s].
+    instruments : ndarray, (q, N), optional
+        Excitation signals (instrumental variables); default: the inputs (least squares).
+    noise_floor : float
+        Variance per sample of the excitation's noise (0: unknown); see :func:`band_excited`.
+    options : dict, optional
+        :data:`SPECTRA_DEFAULTS` entries.
+    max_rad_s : float
+        Highest frequency the measured streams resolve [rad/s] (their sample rates): bands reaching above it
+        do not count.
+
+    Returns
+    -------
+    sums : BandSums
+        The record's sums (zero where it does not count).
+    status : ndarray of int, (F,)
+        0 where the record counts, else why not: 1 the input is not excited there (:func:`band_excited`),
+        2 the record is too short to resolve the frequency (band beyond ``max_band_fraction``), 3 the band
+        reaches above what the streams resolve (``max_rad_s``, or 0.8 of the grid's Nyquist frequency), 4 too
+        few bins with input left for a degree of freedom.
+    """
+    opts = {**SPECTRA_DEFAULTS, **(options or {})}
+    order, t_order = int(opts["order"]), int(opts["transient_order"])
+    u = np.atleast_2d(np.asarray(inputs, float))
+    y = np.atleast_2d(np.asarray(outputs, float))
+    z = u if instruments is None else np.atleast_2d(np.asarray(instruments, float))
+    n = u.shape[1]
+    w = np.asarray(w_rad_s, float)
+    m, p, q = u.shape[0], y.shape[0], z.shape[0]
+    sums = BandSums.zeros(w.size, m, p, q if instruments is not None else None, order)
+    status = np.full(w.size, STATUS_TOO_SHORT, np.int64)
+    if n < 2 * int(opts["min_bins"]) + 2:
+        return sums, status
+    scale = 1.0 / math.sqrt(n)
+    fu = np.fft.rfft(u - _line(u, dt), axis=1) * scale
+    fy = np.fft.rfft(y - _line(y, dt), axis=1) * scale
+    fz = fu if instruments is None else np.fft.rfft(z - _line(z, dt), axis=1) * scale
+    w_bins = 2.0 * math.pi * np.fft.rfftfreq(n, dt)
+    usable = w_bins <= min(_NYQUIST_FRACTION * math.pi / dt, max_rad_s)
+    power = np.sum(np.abs(fz) ** 2, axis=0)
+    bands = [band_bins(w_bins, wi, opts["band_fraction"], int(opts["min_bins"]), opts["max_band_fraction"], power)
+             for wi in w]
+    status[:] = [STATUS_TOO_SHORT if b.size == 0 else STATUS_ABOVE_GRID if not usable[b].all() else 0
+                 for b in bands]
+    bands = [b if status[i] == 0 else b[:0] for i, b in enumerate(bands)]
+    centre = [float(np.mean(power[b])) for b in bands if b.size]
+    reference = float(np.median([c for c in centre if c >= 1e-3 * max(centre)])) if centre else 0.0
+    for i, (wi, sel) in enumerate(zip(w, bands)):
+        if sel.size == 0:
+            continue
+        r = (w_bins[sel] - wi) / (opts["band_fraction"] * wi)
+        if not band_excited(power[sel], r, reference, noise_floor):
+            status[i] = STATUS_NOT_EXCITED
+            continue
+        dof = sel.size - (t_order + 1)
+        if dof < 1 + m * (order + 1):
+            status[i] = STATUS_TOO_FEW_BINS
+            continue
+        q_t = np.linalg.qr(_vander(r, t_order))[0] if t_order >= 0 else np.zeros((r.size, 0))
+
+        def project(a: np.ndarray) -> np.ndarray:
+            return a - q_t @ (q_t.T @ a)
+
+        v_ext = _vander(r, order + EXTRA_ORDER)
+        phi_ext = project(np.concatenate([v_ext * fu[j, sel][:, None] for j in range(m)], axis=1))
+        phi = np.concatenate([phi_ext[:, j * (order + EXTRA_ORDER + 1):j * (order + EXTRA_ORDER + 1) + order + 1]
+                              for j in range(m)], axis=1)
+        zeta = phi if instruments is None else project(
+            np.concatenate([_vander(r, order) * fz[j, sel][:, None] for j in range(q)], axis=1))
+        yp = project(fy[:, sel].T)
+        zh = zeta.conj().T
+        sums.zf[i], sums.zz[i] = zh @ phi_ext, zh @ zeta
+        sums.ff[i], sums.zy[i] = phi.conj().T @ phi, zh @ yp
+        sums.fy[i], sums.yy[i] = phi.conj().T @ yp, yp.conj().T @ yp
+        sums.bins[i], sums.dof[i], sums.records[i] = sel.size, dof, 1
+        sums.r_lo[i], sums.r_hi[i] = float(r.min()), float(r.max())
+        sums.input_power[i] = float(np.sum(np.abs(fu[0, sel]) ** 2))
+    return sums, status
+
+
+@dataclass(frozen=True)
+class LocalEstimate:
+    """Responses solved from :class:`BandSums` (SISO view: first input, first output).
+
+    Attributes
+    ----------
+    response : ndarray, (F,) complex
+        ``H(w)``; NaN where nothing was estimated.
+    variance : ndarray, (F,)
+        ``E |H_est - H|^2`` (complex variance, both components together); inf where unknown.
+    dof : ndarray, (F,) int
+        Degrees of freedom of the noise variance (bins minus every fitted coefficient).
+    coherence : ndarray, (F,)
+        Multiple coherence ``1 - RSS / |Y|^2`` of the fit (0 where nothing was estimated).
+    noise : ndarray, (F,)
+        Noise variance per bin (residual sum of squares over the degrees of freedom).
+    """
+
+    response: np.ndarray
+    variance: np.ndarray
+    dof: np.ndarray
+    coherence: np.ndarray
+    noise: np.ndarray
+
+
+def solve_bands(sums: BandSums) -> LocalEstimate:
+    """Solve the pooled local polynomial fits of :class:`BandSums` (least squares or instrumental variables).
+
+    Parameters
+    ----------
+    sums : BandSums
+
+    Returns
+    -------
+    LocalEstimate
+        With ``nh`` response coefficients per frequency the degrees of freedom are ``dof - nh``; a frequency
+        with fewer than one degree of freedom or a singular system is NaN / inf / 0.
+    """
+    n_freq = sums.bins.size
+    nh = sums.ff.shape[1]
+    response = np.full(n_freq, np.nan + 0j)
+    variance = np.full(n_freq, np.inf)
+    dof = np.zeros(n_freq, np.int64)
+    coherence = np.zeros(n_freq)
+    noise = np.full(n_freq, np.inf)
+    cols = sums.h_columns()
+    for i in range(n_freq):
+        d = int(sums.dof[i]) - nh
+        if sums.records[i] == 0 or d < 1:
+            continue
+        try:
+            inv = np.linalg.inv(sums.zf[i][:, cols])
+        except np.linalg.LinAlgError:
+            continue
+        theta = inv @ sums.zy[i]
+        rss = (sums.yy[i] - theta.conj().T @ sums.fy[i] - sums.fy[i].conj().T @ theta
+               + theta.conj().T @ sums.ff[i] @ theta)
+        rss0 = max(float(rss[0, 0].real), 0.0)
+        total = float(sums.yy[i][0, 0].real)
+        sigma2 = rss0 / d
+        cov = inv @ sums.zz[i] @ inv.conj().T
+        response[i] = theta[0, 0]
+        variance[i] = sigma2 * float(cov[0, 0].real)
+        dof[i] = d
+        coherence[i] = min(max(1.0 - rss0 / total, 0.0), 1.0) if total > 0 else 0.0
+        noise[i] = sigma2
+    return LocalEstimate(response, variance, dof, coherence, noise)
+
+
+def expected_estimate(sums: BandSums, w_rad_s: np.ndarray, band_fraction: float, model_response) -> \
+        tuple[np.ndarray, np.ndarray]:
+    """The estimate a model would give through this estimator, and how well the expansion holds.
+
+    Under ``Y = P X + T + V`` the pooled estimate's mean is ``(Z^H Phi)^-1 Z^H (P X)``; with ``P`` expanded as a
+    polynomial of degree ``order + EXTRA_ORDER`` over the bands used (``r`` in ``[r_lo, r_hi]``) this is exact up
+    to the expansion error, which is returned too.
+
+    Parameters
+    ----------
+    sums : BandSums
+    w_rad_s : ndarray, (F,)
+        Analysis frequencies [rad/s].
+    band_fraction : float
+        The ``band_fraction`` the sums were made with.
+    model_response : callable
+        ``model_response(w_rad_s) -> complex array`` (SISO).
+
+    Returns
+    -------
+    expected : ndarray, (F,) complex
+        NaN where nothing was estimated.
+    expansion_error : ndarray, (F,)
+        Largest error of the polynomial expansion over the band, relative to ``|P(w)|``.
+    """
+    w = np.asarray(w_rad_s, float)
+    n_freq = w.size
+    expected = np.full(n_freq, np.nan + 0j)
+    error = np.zeros(n_freq)
+    cols = sums.h_columns()
+    degree = sums.order + EXTRA_ORDER
+    n_nodes = 3 * (degree + 1)
+    cheb = np.cos(np.pi * (np.arange(n_nodes) + 0.5) / n_nodes)
+    fine = np.linspace(-1.0, 1.0, 101)
+    for i in range(n_freq):
+        if sums.records[i] == 0:
+            continue
+        lo, hi = float(sums.r_lo[i]), float(sums.r_hi[i])
+        mid, half = 0.5 * (lo + hi), max(0.5 * (hi - lo), 1e-12)
+        scale = band_fraction * w[i]
+        nodes = mid + half * cheb
+        values = np.asarray(model_response(w[i] + scale * nodes), complex)
+        coef, *_ = np.linalg.lstsq(_vander(nodes, degree), values, rcond=None)
+        points = mid + half * fine
+        fit_err = np.max(np.abs(_vander(points, degree) @ coef - model_response(w[i] + scale * points)))
+        try:
+            theta = np.linalg.solve(sums.zf[i][:, cols], sums.zf[i] @ coef)
+        except np.linalg.LinAlgError:
+            continue
+        expected[i] = theta[0]
+        centre = abs(complex(model_response(np.array([w[i]]))[0]))
+        error[i] = fit_err / centre if centre > 0 else np.inf
+    return expected, error

@@ -24,7 +24,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from gap_validation.core.estimator import ESTIMATOR_DEFAULTS, JUMP_BACK_S
+from gap_validation.core.alignment import JUMP_BACK_S
+from gap_validation.core.estimator import ESTIMATOR_DEFAULTS
 from gap_validation.core.fields import FieldError, FieldPath  # re-exported: the node and replay use both
 
 if TYPE_CHECKING:  # pragma: no cover

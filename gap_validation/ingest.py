@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from gap_validation.core.alignment import JUMP_BACK_S
+from gap_validation.core.alignment import JUMP_BACK_S, increasing, jump_back_s
 from gap_validation.core.estimator import ESTIMATOR_DEFAULTS
 from gap_validation.core.fields import FieldError, FieldPath  # re-exported: the node and replay use both
 
@@ -141,26 +141,6 @@ class _Saturation:
         return out
 
 
-def _increasing(t: np.ndarray, last_t: float, jump_s: float) -> tuple[np.ndarray, int]:
-    """Mask of samples after every earlier one, where a step back of more than ``jump_s`` [s] restarts the
-    comparison (the estimator opens a new time base there); also the number of such jumps."""
-    keep = np.zeros(t.size, bool)
-    start, jumps = 0, 0
-    while start < t.size:
-        seg = t[start:]
-        prev = np.maximum.accumulate(np.concatenate(([last_t], seg[:-1])))
-        back = np.flatnonzero(seg < prev - jump_s)
-        stop = int(back[0]) if back.size else seg.size
-        keep[start:start + stop] = seg[:stop] > prev[:stop]
-        if stop == seg.size:
-            break
-        jumps += 1
-        keep[start + stop] = True
-        last_t = float(seg[stop])
-        start += stop + 1
-    return keep, jumps
-
-
 class MessageRouter:
     """Routes messages of configured topics to :class:`OnlineValidator` as batches of samples.
 
@@ -216,7 +196,7 @@ class MessageRouter:
     def _jump_s(self, channel: str) -> float:
         """The channel estimator's threshold for a jump back in time [s] (see ``core.estimator``)."""
         options = self.config.channels[channel].estimator
-        return max(JUMP_BACK_S, float(options.get("max_gap_s", ESTIMATOR_DEFAULTS["max_gap_s"])))
+        return jump_back_s(options.get("max_gap_s", ESTIMATOR_DEFAULTS["max_gap_s"]))
 
     @property
     def topics(self) -> tuple[str, ...]:
@@ -321,10 +301,10 @@ class MessageRouter:
             t, values = t_all[finite], values[finite]
             if t.size == 0:
                 continue
-            increasing, jumps = _increasing(t, state.last_t, state.jump_s)
-            self._count_bad(route, "time not increasing", int(t.size - np.count_nonzero(increasing)))
+            in_order, jumps = increasing(t, state.last_t, state.jump_s)
+            self._count_bad(route, "time not increasing", int(t.size - np.count_nonzero(in_order)))
             self._count_bad(route, "time jumped back (new segment)", jumps)
-            t, values = t[increasing], values[increasing]
+            t, values = t[in_order], values[in_order]
             if t.size == 0:
                 continue
             state.last_t = float(t[-1])

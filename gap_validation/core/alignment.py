@@ -10,7 +10,9 @@ Moved out of :mod:`gap_validation.core.estimator` (which describes the data path
   ``max_gap_s``.
 * :class:`_GridAligner` pairs the grid values of the input and output streams by grid index in bounded queues.
 
-numpy only; the estimator is the only user.
+The time-order check itself (:func:`ordered_run`, :func:`increasing`, :func:`jump_back_s`) is shared with
+:class:`gap_validation.messages.router.MessageRouter`, which drops reordered samples before batching them.
+numpy only.
 """
 from __future__ import annotations
 
@@ -18,7 +20,8 @@ import math
 
 import numpy as np
 
-__all__ = ["JUMP_BACK_S", "JUMP_CONFIRM", "_NONE", "_TimeBase", "_StreamResampler", "_GridAligner"]
+__all__ = ["JUMP_BACK_S", "JUMP_CONFIRM", "jump_back_s", "ordered_run", "increasing", "_NONE", "_TimeBase",
+           "_StreamResampler", "_GridAligner"]
 
 _NONE = -(2 ** 62)               # "no grid index yet"
 #: A timestamp more than this [s] (or ``max_gap_s``, if larger) before the stream's latest starts a new time
@@ -28,6 +31,83 @@ JUMP_BACK_S = 1.0
 JUMP_CONFIRM = 3
 _MAX_ABS_TIME_S = 1e11           # beyond 3000 years from the epoch: a corrupt stamp (also keeps grid indices in int64)
 _MAX_ABS_VALUE = 1e100           # a corrupt value (squares and slopes of larger ones overflow float64)
+
+
+def jump_back_s(max_gap_s: float) -> float:
+    """How far [s] time must step back to start a new time base rather than be a reordered or duplicate sample:
+    ``max(JUMP_BACK_S, max_gap_s)`` (the estimator's threshold, which the message router applies too).
+
+    Parameters
+    ----------
+    max_gap_s : float
+        The channel's ``max_gap_s`` estimator option [s].
+    """
+    return max(JUMP_BACK_S, float(max_gap_s))
+
+
+def ordered_run(t: np.ndarray, last_t: float, back_s: float,
+                forward_s: float = math.inf) -> tuple[int, np.ndarray, np.ndarray]:
+    """The time-order check, the one implementation the router and the estimator share.
+
+    Parameters
+    ----------
+    t : ndarray
+        Sample times [s] of a batch (finite).
+    last_t : float
+        Latest time accepted before the batch [s] (``-inf`` before any).
+    back_s : float
+        A sample more than this [s] before every earlier one is a jump back (:func:`jump_back_s`).
+    forward_s : float
+        A sample more than this [s] after every earlier one is a jump forward (``inf``: never).
+
+    Returns
+    -------
+    j : int
+        Index of the first jump (``t.size`` when there is none).
+    ok : ndarray of bool
+        For ``t[:j]``: the samples later than every earlier one; the others are out of order or duplicates.
+    prev : ndarray
+        Running maximum of the times before each sample (``last_t`` included).
+    """
+    prev = np.maximum.accumulate(np.concatenate(([last_t], t[:-1])))
+    with np.errstate(invalid="ignore"):
+        jump = np.flatnonzero((t < prev - back_s) | ((t > prev + forward_s) & (prev > -np.inf)))
+    j = int(jump[0]) if jump.size else t.size
+    return j, t[:j] > prev[:j], prev
+
+
+def increasing(t: np.ndarray, last_t: float, back_s: float) -> tuple[np.ndarray, int]:
+    """Mask of samples after every earlier one, where a step back of more than ``back_s`` [s] restarts the
+    comparison (the estimator opens a new time base there); also the number of such jumps.
+
+    Parameters
+    ----------
+    t : ndarray
+        Sample times [s] (finite).
+    last_t : float
+        Latest time accepted before ``t`` [s] (``-inf`` before any).
+    back_s : float
+        Threshold of a jump back [s] (:func:`jump_back_s`).
+
+    Returns
+    -------
+    keep : ndarray of bool
+        Samples in time order; the first sample after each jump is kept (the estimator confirms the jump).
+    jumps : int
+        Jumps back found.
+    """
+    keep = np.zeros(t.size, bool)
+    start, jumps = 0, 0
+    while start < t.size:
+        stop, ok, _ = ordered_run(t[start:], last_t, back_s)
+        keep[start:start + stop] = ok
+        if start + stop == t.size:
+            break
+        jumps += 1
+        keep[start + stop] = True
+        last_t = float(t[start + stop])
+        start += stop + 1
+    return keep, jumps
 
 
 class _TimeBase:
@@ -79,11 +159,7 @@ class _TimeBase:
             return t + self.offset, v
         out_t, out_v = [], []
         while t.size:
-            prev = np.maximum.accumulate(np.concatenate(([self.last_t], t[:-1])))
-            with np.errstate(invalid="ignore"):
-                jump = np.flatnonzero((t < prev - tol_s) | ((t > prev + forward_s) & (prev > -np.inf)))
-            j = int(jump[0]) if jump.size else t.size
-            ok = t[:j] > prev[:j]
+            j, ok, prev = ordered_run(t, self.last_t, tol_s, forward_s)
             self.non_monotonic += int(j - np.count_nonzero(ok))
             if np.any(ok):
                 out_t.append(t[:j][ok] + self.offset)

@@ -90,8 +90,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gap_validation.core.alignment import (JUMP_BACK_S, JUMP_CONFIRM, _NONE, _GridAligner, _StreamResampler,
-                                           _TimeBase)
+from gap_validation.core.alignment import (JUMP_CONFIRM, _NONE, _GridAligner, _StreamResampler, _TimeBase,
+                                           jump_back_s)
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.manoeuvres import Manoeuvre, ManoeuvreRecorder
 from gap_validation.core.sweeps import DETECTOR_DEFAULTS, SweepDetector, TriggerTracker
@@ -487,7 +487,7 @@ class FrequencyResponseEstimator:
         self._last_k: int | None = None
         self._trigger_mode = not opts["detect_sweeps"]
         self._trig_base = _TimeBase()
-        self._jump_tol_s = max(JUMP_BACK_S, opts["max_gap_s"])
+        self._jump_tol_s = jump_back_s(opts["max_gap_s"])
         self._jump_gap_s = 2.0 * opts["max_gap_s"] + 1.0     # between the old and the new time base [s]
         self._epoch = 0
         self._epoch_offset = 0.0

@@ -14,7 +14,7 @@ from scipy import stats
 
 from gap_validation.core import diagnosis, metrics
 from gap_validation.core.diagnosis import analyse_channel
-from gap_validation.core.effects import describe_effect, effect_response
+from gap_validation.core.effects import FitRange, describe_effect, effect_response
 from gap_validation.core.estimator import SpectralEstimate
 from gap_validation.core.models import LinearModel
 
@@ -119,7 +119,7 @@ def test_minimum_averages():
 
 def test_fit_families_agree_with_the_effects_module():
     rng = np.random.default_rng(3)
-    ctx = diagnosis._Context(1.0, 40.0)
+    ctx = FitRange(1.0, 40.0)
     for name, family in diagnosis.FAMILIES.items():
         lo, hi = family.bounds(family.grid(ctx, True)[0], ctx)
         for _ in range(5):

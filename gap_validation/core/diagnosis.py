@@ -55,20 +55,20 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import Sequence
 
 import numpy as np
 from scipy.optimize import least_squares
 
 from gap_validation.core import metrics
-from gap_validation.core.effects import describe_effect, validate_effect
+from gap_validation.core.effects import EFFECTS, EffectFit, EffectType, FitRange, describe_effect, validate_effect
 from gap_validation.core.models import LinearModel
+from gap_validation.core.numbers import significant
 
 __all__ = [
     "ChannelDiagnosis", "analyse_channel", "fit_effects", "FittedCandidate", "cifer_weight", "cifer_cost",
     "bendat_piersol_random_error", "effective_random_error", "epsilon_noise_scale", "minimum_averages",
     "normalised_mismatch", "frequency_flags", "find_bands", "FAMILIES", "PAIRS", "SIGMA_FACTOR", "BIAS_ERROR",
-    "MAX_DELAY_S",
 ]
 
 #: Noise-only epsilon is Rayleigh with scale ``sigma = e/2``; ``P(eps > k sigma) = exp(-k^2/2)``: k = 4 gives
@@ -87,8 +87,6 @@ BIAS_ERROR = 0.03
 #: Probability that noise alone (zero true coherence) gives a coherence estimate above the threshold, used to
 #: set the minimum number of averages of a usable frequency (:func:`minimum_averages`).
 COHERENCE_FALSE_ALARM = 1e-3
-#: Largest delay the fit considers [s].
-MAX_DELAY_S = 0.5
 #: CIFER phase weight per deg^2 (1 dB ~ 7.6 deg).
 _PHASE_WEIGHT = 0.01745
 _DB_PER_NEPER = 20.0 / math.log(10.0)
@@ -415,148 +413,8 @@ def _band(idx, w_rad_s, eps_w, mismatch, coherence, n_averages, flags, coherence
 # ------------------------------------------------------------------------------------------------ effect families
 
 
-@dataclass(frozen=True)
-class _Context:
-    """Range of the usable frequencies the fit sees [rad/s]."""
-
-    w_lo: float
-    w_hi: float
-
-
-@dataclass(frozen=True)
-class _Family:
-    """One effect type, parametrised for fitting.
-
-    ``grid(ctx, coarse)`` gives start points (M, p); ``bounds(x0, ctx)`` the box for the local refinement;
-    ``response(X, w)`` the factor for M parameter rows (M, N); ``spec(x)`` the effect mapping.
-    """
-
-    name: str
-    complexity: int
-    grid: Callable[[_Context, bool], np.ndarray]
-    bounds: Callable[[np.ndarray, _Context], tuple[np.ndarray, np.ndarray]]
-    response: Callable[[np.ndarray, np.ndarray], np.ndarray]
-    spec: Callable[[np.ndarray], dict]
-
-
-def _product(*axes) -> np.ndarray:
-    return np.array(list(itertools.product(*axes)), dtype=float)
-
-
-def _delay_grid(ctx: _Context, coarse: bool) -> np.ndarray:
-    step = (0.6 if coarse else 0.25) / ctx.w_hi          # phase step at the top frequency [rad]
-    count = int(min(MAX_DELAY_S / step, 60 if coarse else 400)) + 1
-    return np.linspace(0.0, MAX_DELAY_S, count)[:, None]
-
-
-def _delay_response(x, w):
-    return np.exp(-1j * np.outer(x[:, 0], w))
-
-
-def _lag1_bounds(x0, ctx):
-    # a corner below the confident band is a gain and phase offset there, not an identifiable lag
-    return np.log([0.5 * ctx.w_lo]), np.log([30.0 * ctx.w_hi])
-
-
-def _lag1_grid(ctx, coarse):
-    lo, hi = _lag1_bounds(None, ctx)
-    return np.linspace(lo[0], hi[0], 12 if coarse else 40)[:, None]
-
-
-def _lag1_response(x, w):
-    a = np.exp(x[:, :1])
-    return a / (1j * w[None, :] + a)
-
-
-_ZETA_RANGE = (0.02, 2.5)
-
-
-def _lag2_bounds(x0, ctx):
-    return (np.array([math.log(0.5 * ctx.w_lo), _ZETA_RANGE[0]]),
-            np.array([math.log(10.0 * ctx.w_hi), _ZETA_RANGE[1]]))
-
-
-def _lag2_grid(ctx, coarse):
-    lo, hi = _lag2_bounds(None, ctx)
-    wn = np.linspace(lo[0], hi[0], 10 if coarse else 28)
-    zeta = [0.1, 0.3, 0.7, 1.5] if coarse else [0.05, 0.1, 0.2, 0.35, 0.5, 0.7, 1.0, 1.5, 2.2]
-    return _product(wn, zeta)
-
-
-def _lag2_response(x, w):
-    wn, zeta = np.exp(x[:, :1]), x[:, 1:2]
-    r = w[None, :] / wn
-    return 1.0 / (1.0 - r ** 2 + 2j * zeta * r)
-
-
-def _gain_bounds(x0, ctx):
-    return (np.array([0.05]), np.array([20.0])) if x0[0] > 0 else (np.array([-20.0]), np.array([-0.05]))
-
-
-def _gain_grid(ctx, coarse):
-    k = np.geomspace(0.1, 10.0, 15 if coarse else 61)
-    return np.concatenate([k, -k])[:, None]
-
-
-def _gain_response(x, w):
-    return np.broadcast_to(x[:, :1].astype(complex), (x.shape[0], w.size))
-
-
-_MODE_ZETA = (0.005, 1.0)
-
-
-def _mode_bounds(x0, ctx):
-    # the mode (poles) must lie inside the confident band: outside it a pole-zero pair is only a gain or a
-    # phase tilt there, which simpler effects explain
-    return (np.array([math.log(ctx.w_lo), _MODE_ZETA[0], math.log(0.5 * ctx.w_lo), _MODE_ZETA[0]]),
-            np.array([math.log(ctx.w_hi), _MODE_ZETA[1], math.log(2.0 * ctx.w_hi), _MODE_ZETA[1]]))
-
-
-def _mode_grid(ctx, coarse):
-    if coarse:
-        wp = np.geomspace(ctx.w_lo, ctx.w_hi, 8)
-        axes = (np.log(wp), [0.05, 0.2], np.log([0.7, 0.9, 1.1, 1.4]), [0.05, 0.3])
-    else:
-        wp = np.geomspace(ctx.w_lo, ctx.w_hi, 18)
-        axes = (np.log(wp), [0.02, 0.05, 0.1, 0.2, 0.4], np.log([0.5, 0.7, 0.8, 0.9, 1.1, 1.25, 1.4, 2.0]),
-                [0.02, 0.07, 0.2, 0.5])
-    grid = _product(*axes)
-    grid[:, 2] += grid[:, 0]                            # zero frequency = ratio x pole frequency
-    lo, hi = _mode_bounds(None, ctx)
-    return np.clip(grid, lo, hi)
-
-
-def _mode_response(x, w):
-    wp, zp, wz, zz = np.exp(x[:, :1]), x[:, 1:2], np.exp(x[:, 2:3]), x[:, 3:4]
-    rp, rz = w[None, :] / wp, w[None, :] / wz
-    return (1.0 - rz ** 2 + 2j * zz * rz) / (1.0 - rp ** 2 + 2j * zp * rp)
-
-
-def _sig(value: float, digits: int = 4) -> float:
-    """``value`` rounded to ``digits`` significant digits (config-friendly numbers)."""
-    return float(f"{float(value):.{digits}g}")
-
-
-FAMILIES: dict[str, _Family] = {
-    "time_delay": _Family(
-        "time_delay", 1, _delay_grid,
-        lambda x0, ctx: (np.array([0.0]), np.array([MAX_DELAY_S])), _delay_response,
-        lambda x: {"type": "time_delay", "seconds": _sig(max(x[0], 0.0))}),
-    "first_order_lag": _Family(
-        "first_order_lag", 1, _lag1_grid, _lag1_bounds, _lag1_response,
-        lambda x: {"type": "first_order_lag", "bandwidth_rad_s": _sig(math.exp(x[0]))}),
-    "second_order_lag": _Family(
-        "second_order_lag", 2, _lag2_grid, _lag2_bounds, _lag2_response,
-        lambda x: {"type": "second_order_lag", "natural_frequency_rad_s": _sig(math.exp(x[0])),
-                   "damping": _sig(x[1], 3)}),
-    "gain": _Family(
-        "gain", 1, _gain_grid, _gain_bounds, _gain_response,
-        lambda x: {"type": "gain", "factor": _sig(x[0])}),
-    "structural_mode": _Family(
-        "structural_mode", 4, _mode_grid, _mode_bounds, _mode_response,
-        lambda x: {"type": "structural_mode", "frequency_rad_s": _sig(math.exp(x[0])), "damping": _sig(x[1], 3),
-                   "zero_frequency_rad_s": _sig(math.exp(x[2])), "zero_damping": _sig(x[3], 3)}),
-}
+#: Effect type -> how it is fitted (:class:`~gap_validation.core.effects.EffectFit`), a view of the registry.
+FAMILIES: dict[str, EffectFit] = {name: e.fit for name, e in EFFECTS.items() if e.fit is not None}
 
 #: Pairs fitted when no single effect explains the mismatch, named by their sorted types joined with "+".
 PAIRS: tuple[tuple[str, str], ...] = tuple(itertools.combinations(sorted(FAMILIES), 2))
@@ -574,7 +432,7 @@ class _FitData:
     p_model: np.ndarray
     sqrt_w: np.ndarray        # sqrt of the CIFER weight
     coherence: np.ndarray
-    ctx: _Context
+    ctx: FitRange
 
     def residuals(self, factor: np.ndarray) -> np.ndarray:
         """CIFER residuals for factors (M, N) -> (M, 2N): sqrt(W) dB error and sqrt(W 0.01745) deg error."""
@@ -591,9 +449,9 @@ class _FitData:
 
 @dataclass
 class _Combo:
-    """A set of families fitted together (one effect, or a pair)."""
+    """A set of effects fitted together (one effect, or a pair)."""
 
-    families: tuple[_Family, ...]
+    families: tuple[EffectType, ...]
 
     @property
     def name(self) -> str:
@@ -611,22 +469,22 @@ class _Combo:
         x = np.atleast_2d(x)
         out = np.ones((x.shape[0], w.size), dtype=complex)
         for fam, part in zip(self.families, self._split(x)):
-            out = out * fam.response(part, w)
+            out = out * fam.fit.response(part, w)
         return out
 
-    def grid(self, ctx: _Context) -> np.ndarray:
+    def grid(self, ctx: FitRange) -> np.ndarray:
         if len(self.families) == 1:
-            return self.families[0].grid(ctx, False)
-        grids = [f.grid(ctx, True) for f in self.families]
+            return self.families[0].fit.grid(ctx, False)
+        grids = [f.fit.grid(ctx, True) for f in self.families]
         rows = [np.concatenate(parts) for parts in itertools.product(*grids)]
         return np.array(rows)
 
-    def bounds(self, x0: np.ndarray, ctx: _Context) -> tuple[np.ndarray, np.ndarray]:
-        parts = [f.bounds(p, ctx) for f, p in zip(self.families, self._split(x0))]
+    def bounds(self, x0: np.ndarray, ctx: FitRange) -> tuple[np.ndarray, np.ndarray]:
+        parts = [f.fit.bounds(p, ctx) for f, p in zip(self.families, self._split(x0))]
         return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
 
     def specs(self, x: np.ndarray) -> list[dict]:
-        return [validate_effect(f.spec(p)) for f, p in zip(self.families, self._split(np.asarray(x, float)))]
+        return [validate_effect(f.fit.spec(p)) for f, p in zip(self.families, self._split(np.asarray(x, float)))]
 
 
 def _distinct_starts(grid: np.ndarray, costs: np.ndarray, span: np.ndarray, count: int) -> list[np.ndarray]:
@@ -689,8 +547,8 @@ def _coefficient_fit(model: LinearModel, data: _FitData) -> LinearModel | None:
     bound = np.full(n_free, math.log(10.0))
     sol = least_squares(residuals, np.zeros(n_free), bounds=(-bound, bound), method="trf", max_nfev=100 * n_free)
     num, den = build(sol.x)
-    num = np.array([_sig(v, 6) for v in num])
-    den = np.array([_sig(v, 6) for v in den])
+    num = np.array([significant(v, 6) for v in num])
+    den = np.array([significant(v, 6) for v in den])
     return LinearModel(num, den, air.delay_s, model.effects)
 
 
@@ -797,7 +655,7 @@ def _fit_data(model: LinearModel, ev: _Evidence) -> _FitData | None:
     wc = ev.w[u]
     return _FitData(w=wc, p_meas=ev.p_meas[u], p_model=model.freqresp(wc),
                     sqrt_w=np.sqrt(cifer_weight(ev.coherence[u])), coherence=ev.coherence[u],
-                    ctx=_Context(float(wc.min()), float(wc.max())))
+                    ctx=FitRange(float(wc.min()), float(wc.max())))
 
 
 def _fit_combo_candidate(combo: _Combo, model: LinearModel, data: _FitData) -> FittedCandidate:
@@ -851,9 +709,9 @@ def _fit_all(model, ev: _Evidence, *, pairs: bool, parameter_error: bool, single
     data = _fit_data(model, ev)
     if data is None:
         return []
-    out = [_fit_combo_candidate(_Combo((fam,)), model, data) for fam in FAMILIES.values()] if singles else []
+    out = [_fit_combo_candidate(_Combo((EFFECTS[name],)), model, data) for name in FAMILIES] if singles else []
     if pairs:
-        out += [_fit_combo_candidate(_Combo((FAMILIES[a], FAMILIES[b])), model, data) for a, b in PAIRS]
+        out += [_fit_combo_candidate(_Combo((EFFECTS[a], EFFECTS[b])), model, data) for a, b in PAIRS]
     if parameter_error:
         refit = _fit_parameter_error(model, data)
         if refit is not None:

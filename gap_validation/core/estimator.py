@@ -87,6 +87,7 @@ from __future__ import annotations
 import bisect
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -94,6 +95,7 @@ from gap_validation.core.alignment import (JUMP_CONFIRM, _NONE, _GridAligner, _S
                                            jump_back_s)
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.manoeuvres import Manoeuvre, ManoeuvreRecorder
+from gap_validation.core.numbers import NON_NEGATIVE, POSITIVE, check_number
 from gap_validation.core.sweeps import DETECTOR_DEFAULTS, SweepDetector, TriggerTracker
 
 __all__ = ["FrequencyResponseEstimator", "SpectralEstimate", "ESTIMATOR_DEFAULTS"]
@@ -202,17 +204,10 @@ class SpectralEstimate:
 
 
 # ---------------------------------------------------------------------------------------------- options
-def _number(name: str, value, positive: bool = True) -> float:
-    if isinstance(value, (bool, np.bool_)):
-        raise ConfigError(f"estimator option {name}: expected a number, got {value!r}")
-    try:
-        out = float(value)
-    except (TypeError, ValueError):
-        raise ConfigError(f"estimator option {name}: expected a number, got {value!r}") from None
-    if not math.isfinite(out) or (out <= 0.0 if positive else out < 0.0):
-        kind = "positive" if positive else "non-negative"
-        raise ConfigError(f"estimator option {name}: expected a {kind} finite number, got {value!r}")
-    return out
+def _number(name: str, value: Any, positive: bool = True) -> float:
+    """An estimator option's number (numeric strings accepted), > 0 or (``positive=False``) >= 0."""
+    return check_number(value, f"estimator option {name}", POSITIVE if positive else NON_NEGATIVE, strings=True,
+                        expected=f"a {'positive' if positive else 'non-negative'} finite number")
 
 
 def _validate_options(w_rad_s: np.ndarray, options: dict) -> dict:

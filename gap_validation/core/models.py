@@ -29,8 +29,9 @@ import numpy as np
 import scipy.linalg
 import scipy.signal
 
-from gap_validation.core.effects import as_number, effect_factor, validate_effect
+from gap_validation.core.effects import EFFECTS, check_plausible, effect_factor, validate_effect
 from gap_validation.core.errors import ConfigError
+from gap_validation.core.numbers import NON_NEGATIVE, check_number
 
 _MODEL_KEYS = ("numerator", "denominator", "zeros", "poles", "gain", "state_space", "delay_s", "effects")
 _SS_KEYS = ("A", "B", "C", "D", "input", "output")
@@ -49,7 +50,7 @@ def _number_list(value, where, allow_empty=False):
         raise ConfigError(f"{where}: expected a list of numbers, got {value!r}")
     if len(value) == 0 and not allow_empty:
         raise ConfigError(f"{where}: expected a non-empty list of numbers, got []")
-    out = np.array([as_number(v, f"{where}[{i}]") for i, v in enumerate(value)], dtype=float)
+    out = np.array([check_number(v, f"{where}[{i}]", strings=True) for i, v in enumerate(value)], dtype=float)
     _check_magnitude(out, where, _MAX_COEFFICIENT)
     return out
 
@@ -72,7 +73,8 @@ def _complex_value(value, where):
     if isinstance(value, (list, tuple)):
         if len(value) != 2:
             raise ConfigError(f"{where}: expected {expected}, got {value!r}")
-        return complex(as_number(value[0], f"{where}[0]"), as_number(value[1], f"{where}[1]"))
+        return complex(check_number(value[0], f"{where}[0]", strings=True),
+                       check_number(value[1], f"{where}[1]", strings=True))
     if isinstance(value, str):
         text = value.strip().replace(" ", "").replace("i", "j")
         try:
@@ -82,7 +84,7 @@ def _complex_value(value, where):
         if not (math.isfinite(root.real) and math.isfinite(root.imag)):
             raise ConfigError(f"{where}: expected {expected}, got {value!r}")
         return root
-    return complex(as_number(value, where, expected), 0.0)
+    return complex(check_number(value, where, strings=True, expected=expected), 0.0)
 
 
 def _roots(value, where):
@@ -205,23 +207,12 @@ def _tf2ss(num, den):
 # ----------------------------------------------------------------------------------------------------------
 
 
-#: Plausible ranges of effect parameters in a config (outside: a typo or wrong units, refused with the key).
-PLAUSIBLE = {"seconds": (0.0, 10.0), "bandwidth_rad_s": (1e-4, 1e5), "natural_frequency_rad_s": (1e-4, 1e5),
-             "frequency_rad_s": (1e-4, 1e5), "zero_frequency_rad_s": (1e-4, 1e5), "damping": (0.0, 100.0),
-             "zero_damping": (0.0, 100.0), "factor": (1e-6, 1e6)}
-
-
-def _check_plausible(delay_s: float, effects: list, where: str) -> None:
-    """ConfigError naming the key for absurd delays [s], frequencies [rad/s], dampings or gains."""
-    items = [(f"{where}.delay_s", "seconds", delay_s)]
-    items += [(f"{where}.effects[{i}].{key}", key, value) for i, e in enumerate(effects)
-              for key, value in e.items() if key != "type"]
-    for path, key, value in items:
-        low, high = PLAUSIBLE.get(key, (-math.inf, math.inf))
-        size = abs(value) if key == "factor" else value
-        if not low <= size <= high:
-            raise ConfigError(f"{path}: {value!r} is outside the plausible range [{low:g}, {high:g}] "
-                              f"(wrong units?)")
+def _check_plausible(delay_s: float, effects: list[dict], where: str) -> None:
+    """ConfigError naming the key for absurd delays [s], frequencies [rad/s], dampings or gains (the plausible
+    ranges of the effects registry; the airframe delay is held to a ``time_delay``'s)."""
+    EFFECTS["time_delay"].parameter("seconds").check_plausible(delay_s, f"{where}.delay_s")
+    for i, effect in enumerate(effects):
+        check_plausible(effect, f"{where}.effects[{i}]")
 
 
 class LinearModel:
@@ -266,9 +257,7 @@ class LinearModel:
                 f"model.numerator: improper model (numerator degree {len(num) - 1} > denominator degree "
                 f"{len(den) - 1}), got {num.tolist()}"
             )
-        delay_s = as_number(delay_s, "model.delay_s", "a number >= 0")
-        if delay_s < 0.0:
-            raise ConfigError(f"model.delay_s: expected a number >= 0, got {delay_s!r}")
+        delay_s = check_number(delay_s, "model.delay_s", NON_NEGATIVE, strings=True, expected="a number >= 0")
         self._air_num = num / den[0]
         self._air_den = den / den[0]
         self._air_delay_s = delay_s
@@ -326,9 +315,8 @@ class LinearModel:
                               f"state_space, got keys {sorted(k for k in spec if k not in ('delay_s', 'effects'))}")
         delay_s = 0.0
         if "delay_s" in spec:
-            delay_s = as_number(spec["delay_s"], f"{where}.delay_s", "a number >= 0")
-            if delay_s < 0.0:
-                raise ConfigError(f"{where}.delay_s: expected a number >= 0, got {spec['delay_s']!r}")
+            delay_s = check_number(spec["delay_s"], f"{where}.delay_s", NON_NEGATIVE, strings=True,
+                                   expected="a number >= 0")
         effects = spec.get("effects", [])
         if effects is None:
             effects = []
@@ -572,7 +560,7 @@ def _parse_zpk(spec, where):
         raise ConfigError(f"{where}: missing key 'poles' (zeros-poles-gain form; use [] for none)")
     zeros = _roots(spec.get("zeros", []), f"{where}.zeros")
     poles = _roots(spec["poles"], f"{where}.poles")
-    gain = as_number(spec.get("gain", 1.0), f"{where}.gain")
+    gain = check_number(spec.get("gain", 1.0), f"{where}.gain", strings=True)
     num = gain * _real_poly(zeros)
     den = _real_poly(poles)
     air_spec = {"zeros": [_root_spec(r) for r in zeros], "poles": [_root_spec(r) for r in poles], "gain": gain}

@@ -32,6 +32,7 @@ from gap_validation.core.config import SignalSpec, ValidationConfig
 from gap_validation.core.effects import validate_effect
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.fields import FieldPath
+from gap_validation.core.numbers import NON_NEGATIVE, POSITIVE, Interval, check_number
 
 __all__ = [
     "FlightOptions", "Segment", "TopicSeries", "SimulatedFlight", "parse_hidden", "hidden_effects",
@@ -161,25 +162,20 @@ class FlightOptions:
                     "gust_bandwidth_rad_s", "sim_rate_hz", "band_low_factor",
                     "band_high_factor")
         for name in positive:
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ConfigError(f"simulation option {name}: expected a number > 0, got {value!r}")
+            check_number(getattr(self, name), f"simulation option {name}", POSITIVE, expected="a number > 0")
         for name in ("sweep_amplitude_rad", "doublet_amplitude_rad", "quiet_s", "noise", "gyro_noise_rad_s",
                      "surface_noise_rad", "gust_rms_rad_s", "trim_step_rad", "trim_offset_rad", "jitter_s",
                      "gyro_lsb_rad_s", "surface_lsb_rad",
                      "latency_s", "latency_jitter_s", "band_noise_rms_rad_s"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0):
-                raise ConfigError(f"simulation option {name}: expected a number >= 0, got {value!r}")
+            check_number(getattr(self, name), f"simulation option {name}", NON_NEGATIVE, expected="a number >= 0")
         if not isinstance(self.sweeps_per_channel, int) or self.sweeps_per_channel < 1:
             raise ConfigError(f"simulation option sweeps_per_channel: expected an integer >= 1, "
                               f"got {self.sweeps_per_channel!r}")
         if self.band_low_factor >= self.band_high_factor:
             raise ConfigError(f"simulation options band_low_factor {self.band_low_factor!r} must be below "
                               f"band_high_factor {self.band_high_factor!r}")
-        if not 0.0 <= self.drop_probability < 0.5:
-            raise ConfigError(f"simulation option drop_probability: expected a number in [0, 0.5), "
-                              f"got {self.drop_probability!r}")
+        check_number(self.drop_probability, "simulation option drop_probability", Interval(0.0, 0.5, high_open=True),
+                     expected="a number in [0, 0.5)")
         self._check_band_noise()
         return self
 

@@ -29,9 +29,12 @@ trigger).
 """
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from gap_validation.core.errors import ConfigError, DataError
+from gap_validation.core.numbers import POSITIVE, check_number
 
 __all__ = ["SweepDetector", "TriggerTracker", "detect_sweeps", "DETECTOR_DEFAULTS"]
 
@@ -49,14 +52,9 @@ _QUIET_BLOCK_S = 1.0        # the quiet level is tracked on one-second means of 
 _CHUNK = 8192               # windowed sums are formed over at most this many samples (float64 precision)
 
 
-def _positive(name: str, value) -> float:
-    try:
-        out = float(value)
-    except (TypeError, ValueError):
-        raise ConfigError(f"estimator option {name}: expected a number, got {value!r}") from None
-    if not np.isfinite(out) or out <= 0.0:
-        raise ConfigError(f"estimator option {name}: expected a positive finite number, got {value!r}")
-    return out
+def _positive(name: str, value: Any) -> float:
+    """A detector option's number, > 0 (numeric strings accepted)."""
+    return check_number(value, f"estimator option {name}", POSITIVE, strings=True, expected="a positive finite number")
 
 
 def detrended_std(x: np.ndarray, window_n: int) -> np.ndarray:

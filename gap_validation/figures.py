@@ -27,15 +27,10 @@ from pathlib import Path
 import numpy as np
 
 from gap_validation.atomic import atomic_open
-from gap_validation.core.margins import margins_from_epsilon
+from gap_validation.core.margins import STANDARD_EPSILON, STANDARD_MARGINS, WARN_EPSILON, margins_from_epsilon
 from gap_validation.core.results import ChannelResult, phase_deg
 from gap_validation.core.uncertainty import monte_carlo_tube, time_domain_check
 
-#: Epsilon of the paper's standard margins (6 dB, 45 deg) and of the node's warning level (4.4 dB, 29 deg).
-STANDARD_EPSILON = 0.38
-#: The traditional Nichols exclusion region: gain [dB] and phase [deg] margins.
-STANDARD_MARGINS = (6.0, 45.0)
-WARN_EPSILON = 0.25
 _FLAG_COLOURS = {"ok": "tab:green", "model": "tab:red", "data": "tab:orange", "excluded": "0.7"}
 _BAND_COLOURS = {"model": "tab:red", "data": "tab:orange"}
 
@@ -231,8 +226,9 @@ def failure_figure(ch: ChannelResult, path: Path) -> None:
         sel = np.array([f == flag for f in flags])
         if np.any(sel):
             ax.scatter(w[sel], ch.epsilon_per_frequency[sel], color=colour, s=18, zorder=3, label=flag)
-    ax.axhline(STANDARD_EPSILON, color="tab:red", ls=":", lw=1, label="0.38: standard margins (6 dB, 45 deg)")
-    ax.axhline(WARN_EPSILON, color="tab:orange", ls=":", lw=1, label="0.25: warning (4.4 dB, 29 deg)")
+    ax.axhline(STANDARD_EPSILON, color="tab:red", ls=":", lw=1,
+               label=f"{STANDARD_EPSILON:g}: standard margins (6 dB, 45 deg)")
+    ax.axhline(WARN_EPSILON, color="tab:orange", ls=":", lw=1, label=f"{WARN_EPSILON:g}: warning (4.4 dB, 29 deg)")
     if ch.worst_frequency_rad_s is not None and ch.epsilon is not None:
         ax.axvline(ch.worst_frequency_rad_s, color="k", lw=0.8, ls="--")
         right = ch.worst_frequency_rad_s > math.sqrt(float(np.min(w)) * float(np.max(w)))
@@ -409,7 +405,7 @@ def history_figure(name: str, versions: list[dict], path: Path) -> None:
     if any(r is not None for r in raw):
         ax.plot(x, [np.nan if r is None else r for r in raw], "s:", color="tab:blue", alpha=0.5,
                 label="epsilon (raw)")
-    ax.axhline(STANDARD_EPSILON, color="tab:red", ls=":", lw=1, label="0.38: standard margins")
+    ax.axhline(STANDARD_EPSILON, color="tab:red", ls=":", lw=1, label=f"{STANDARD_EPSILON:g}: standard margins")
     ax.set_yscale("log")
     ax.set_xticks(x)
     ax.set_xticklabels([_short(v.get("model_description") or f"v{i + 1}") for i, v in enumerate(versions)],

@@ -141,6 +141,7 @@ from gap_validation.config import load_config
 from gap_validation.core.checkpoint import load_state, save_state
 from gap_validation.core.config import ValidationConfig
 from gap_validation.core.errors import ConfigError, DataError, GapValidationError, one_line
+from gap_validation.core.margins import STANDARD_EPSILON, WARN_EPSILON
 from gap_validation.core.results import ChannelResult, ValidationResult
 from gap_validation.core.validator import OnlineValidator
 from gap_validation.ingest import (VERIFY_MESSAGES, FieldError, FieldPath, MessageRouter, fast_values_agree,
@@ -178,8 +179,9 @@ PARAMETERS: dict[str, tuple[Any, bool, str]] = {
     "diagnostic_period": (1.0, True, "period of /diagnostics [s]"),
     "diagnosis_period": (10.0, False, "shortest interval between full diagnoses [s]; <= 0 disables them"),
     "stale_timeout": (3.0, False, "STALE after this long without input or output samples [s]"),
-    "warn_epsilon": (0.25, False, "WARN from this epsilon (0.25: 4.4 dB / 29 deg, eqs. 15-16)"),
-    "error_epsilon": (0.38, False, "ERROR from this epsilon (0.38: the paper's 6 dB / 45 deg point)"),
+    "warn_epsilon": (WARN_EPSILON, False, f"WARN from this epsilon ({WARN_EPSILON:g}: 4.4 dB / 29 deg, eqs. 15-16)"),
+    "error_epsilon": (STANDARD_EPSILON, False,
+                      f"ERROR from this epsilon ({STANDARD_EPSILON:g}: the paper's 6 dB / 45 deg point)"),
     "state_file": ("", True, "checkpoint file of the spectra ('' = off); resumed from at start"),
     "checkpoint_period": (5.0, True, "checkpoint period [s]"),
     "results_dir": ("", False, "directory of ~/save_results ('' = current directory)"),
@@ -288,7 +290,8 @@ class ChannelStatus:
     values: list[tuple[str, str]] = field(default_factory=list)
 
 
-def channel_status(result: ChannelResult, *, warn_epsilon: float = 0.25, error_epsilon: float = 0.38,
+def channel_status(result: ChannelResult, *, warn_epsilon: float = WARN_EPSILON,
+                   error_epsilon: float = STANDARD_EPSILON,
                    stale_reason: str | None = None, waiting_reason: str | None = None,
                    candidate: dict | None = None, diagnosis_state: str = "pending",
                    extra_values: dict | None = None) -> ChannelStatus:

@@ -21,7 +21,7 @@ from typing import Callable
 from gap_validation import figures
 from gap_validation.atomic import atomic_write_text
 from gap_validation.core.errors import DataError, one_line
-from gap_validation.core.margins import margins_from_epsilon
+from gap_validation.core.margins import STANDARD_EPSILON, WARN_EPSILON, margins_from_epsilon
 from gap_validation.core.results import NUGAP_DATA_NOTE, ChannelResult, ValidationResult
 from gap_validation.render import fmt
 
@@ -66,9 +66,9 @@ def verdict(ch: ChannelResult) -> tuple[str, str]:
     else:
         need = (f"a controller with at least {m.gain_margin_db:.2f} dB gain margin and {m.phase_margin_deg:.1f} deg "
                 f"phase margin on the model is guaranteed stable on the aircraft")
-        if eps < figures.WARN_EPSILON:
+        if eps < WARN_EPSILON:
             text, cls = f"validated (epsilon {eps:.3f}): {need}; well within standard margins.", "ok"
-        elif eps < figures.STANDARD_EPSILON:
+        elif eps < STANDARD_EPSILON:
             text, cls = f"validated (epsilon {eps:.3f}): {need}; within standard margins (6 dB, 45 deg).", "ok"
         else:
             text, cls = (f"validated with large margins only (epsilon {eps:.3f}): {need}, more than the standard "

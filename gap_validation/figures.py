@@ -28,7 +28,7 @@ import numpy as np
 
 from gap_validation.atomic import atomic_open
 from gap_validation.core.margins import STANDARD_EPSILON, STANDARD_MARGINS, WARN_EPSILON, margins_from_epsilon
-from gap_validation.core.results import ChannelResult, phase_deg
+from gap_validation.core.results import Candidate, ChannelResult, phase_deg
 from gap_validation.core.uncertainty import monte_carlo_tube, time_domain_check
 
 _FLAG_COLOURS = {"ok": "tab:green", "model": "tab:red", "data": "tab:orange", "excluded": "0.7"}
@@ -207,10 +207,10 @@ def failure_figure(ch: ChannelResult, path: Path) -> None:
     fig, ax = plt.subplots(figsize=(7, 4.0))
     labelled = set()
     for band in ch.bands:
-        kind = band.get("limited_by")
+        kind = band.limited_by
         colour = _BAND_COLOURS.get(kind)
-        if colour and band.get("min_rad_s") is not None:
-            lo, hi = float(band["min_rad_s"]), float(band["max_rad_s"])
+        if colour and band.min_rad_s is not None:
+            lo, hi = float(band.min_rad_s), float(band.max_rad_s)
             if hi <= lo:
                 lo, hi = lo / 1.05, hi * 1.05
             ax.axvspan(lo, hi, color=colour, alpha=0.12, lw=0,
@@ -357,13 +357,13 @@ def time_figure(ch: ChannelResult, path: Path, model, runs: int = 500, seed: int
 
 
 # ------------------------------------------------------------------------------------------ diagnosis, history
-def candidate_model(model, candidate: dict):
+def candidate_model(model, candidate: Candidate):
     """The model with a diagnosis candidate applied (its effects appended, or its refitted model)."""
     from gap_validation.core.models import LinearModel
 
-    if candidate.get("model"):
-        return LinearModel.from_spec(candidate["model"])
-    return model.with_effects(candidate.get("effects") or [])
+    if candidate.model:
+        return LinearModel.from_spec(candidate.model)
+    return model.with_effects(candidate.effects)
 
 
 def diagnosis_figure(ch: ChannelResult, path: Path, model) -> None:
@@ -380,7 +380,7 @@ def diagnosis_figure(ch: ChannelResult, path: Path, model) -> None:
     ax_p.semilogx(wd, phase_deg(p0), "k--", lw=1.5)
     for candidate, colour in zip(ch.diagnosis[:3], ("tab:red", "tab:green", "tab:purple")):
         p = candidate_model(model, candidate).freqresp(wd)
-        label = f"+ {candidate.get('effect', '?')}: epsilon {_fmt(candidate.get('epsilon'))}"
+        label = f"+ {candidate.effect or '?'}: epsilon {_fmt(candidate.epsilon)}"
         ax_m.semilogx(wd, _db(p), color=colour, lw=1.3, label=label)
         ax_p.semilogx(wd, phase_deg(p, p0), color=colour, lw=1.3)
     ax_m.set_ylabel("magnitude [dB]")

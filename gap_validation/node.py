@@ -142,7 +142,7 @@ from gap_validation.core.checkpoint import load_state, save_state
 from gap_validation.core.config import ValidationConfig
 from gap_validation.core.errors import ConfigError, DataError, GapValidationError, one_line
 from gap_validation.core.margins import STANDARD_EPSILON, WARN_EPSILON
-from gap_validation.core.results import ChannelResult, ValidationResult
+from gap_validation.core.results import Candidate, ChannelResult, ValidationResult
 from gap_validation.core.validator import OnlineValidator
 from gap_validation.ingest import (VERIFY_MESSAGES, FieldError, FieldPath, MessageRouter, fast_values_agree,
                                    note_saturation, stamp_seconds)
@@ -211,23 +211,23 @@ def _value_text(value: Any) -> str:
     return json.dumps(value, sort_keys=True)
 
 
-def candidate_sentence(candidate: dict | None) -> str:
+def candidate_sentence(candidate: Candidate | None) -> str:
     """One line about a diagnosis candidate: ``missing: time delay of 45 ms (epsilon would be 0.06)``."""
     if not candidate:
         return ""
-    sentence = candidate.get("sentence")
+    sentence = candidate.sentence
     if not sentence:
         parts = []
         try:
             from gap_validation.core.effects import describe_effect
 
-            parts = [describe_effect(e) for e in candidate.get("effects") or []]
+            parts = [describe_effect(e) for e in candidate.effects]
         except Exception:  # noqa: BLE001 - description is cosmetic; fall back to the effect name
             parts = []
-        what = " + ".join(parts) or str(candidate.get("effect", "unknown effect")).replace("_", " ")
+        what = " + ".join(parts) or str(candidate.effect or "unknown effect").replace("_", " ")
         sentence = f"missing: {what}"
-        if candidate.get("epsilon") is not None:
-            sentence += f" (epsilon would be {candidate['epsilon']:.2f})"
+        if candidate.epsilon is not None:
+            sentence += f" (epsilon would be {candidate.epsilon:.2f})"
     return " ".join(str(sentence).split())
 
 
@@ -235,27 +235,15 @@ def _band_text(result: ChannelResult) -> str:
     """``at 20-40 rad/s`` from the diagnosis band that holds the worst frequency, else ``at 14.9 rad/s``."""
     worst = result.worst_frequency_rad_s
     chosen = None
-    for band in result.bands or []:
-        lo = _first(band, ("min_rad_s", "low_rad_s", "start_rad_s", "from_rad_s"))
-        hi = _first(band, ("max_rad_s", "high_rad_s", "end_rad_s", "to_rad_s"))
-        if lo is None or hi is None:
-            continue
-        if worst is not None and lo <= worst <= hi:
-            chosen = (lo, hi)
+    for band in result.bands:
+        if worst is not None and band.contains(worst):
+            chosen = band
             break
-        if chosen is None and band.get("limited_by") == result.limited_by:
-            chosen = (lo, hi)
+        if chosen is None and band.limited_by == result.limited_by:
+            chosen = band
     if chosen is not None:
-        return f"at {chosen[0]:.3g}-{chosen[1]:.3g} rad/s"
+        return f"at {chosen.min_rad_s:.3g}-{chosen.max_rad_s:.3g} rad/s"
     return f"at {worst:.3g} rad/s" if worst is not None else ""
-
-
-def _first(mapping: dict, keys: tuple[str, ...]) -> float | None:
-    for key in keys:
-        value = mapping.get(key)
-        if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
-            return float(value)
-    return None
 
 
 def _level_for(epsilon: float, warn_epsilon: float, error_epsilon: float) -> str:
@@ -293,7 +281,7 @@ class ChannelStatus:
 def channel_status(result: ChannelResult, *, warn_epsilon: float = WARN_EPSILON,
                    error_epsilon: float = STANDARD_EPSILON,
                    stale_reason: str | None = None, waiting_reason: str | None = None,
-                   candidate: dict | None = None, diagnosis_state: str = "pending",
+                   candidate: Candidate | dict | None = None, diagnosis_state: str = "pending",
                    extra_values: dict | None = None) -> ChannelStatus:
     """The status of one channel from its (cheap) result.
 
@@ -307,8 +295,8 @@ def channel_status(result: ChannelResult, *, warn_epsilon: float = WARN_EPSILON,
         Why the inputs count as stopped ("no data for 4.2 s on /imu (output)"): level STALE, numbers kept.
     waiting_reason : str, optional
         Why there is no data yet ("waiting for data on /imu (output)"): level STALE.
-    candidate : dict, optional
-        Top diagnosis candidate of the last full diagnosis (a ``diagnosis`` entry of the JSON).
+    candidate : Candidate or dict, optional
+        Top diagnosis candidate of the last full diagnosis (or its JSON object, a ``diagnosis`` entry).
     diagnosis_state : {"pending", "done", "off"}
         Whether a full diagnosis has been run for the current model.
     extra_values : dict, optional
@@ -318,6 +306,8 @@ def channel_status(result: ChannelResult, *, warn_epsilon: float = WARN_EPSILON,
     -------
     ChannelStatus
     """
+    if isinstance(candidate, dict):
+        candidate = Candidate.from_json_dict(candidate)
     data = result.to_json_dict(samples=False)
     values = [(key, _value_text(data.get(key))) for key in _JSON_VALUES]
     bad = dict(result.bad_samples)
@@ -331,8 +321,8 @@ def channel_status(result: ChannelResult, *, warn_epsilon: float = WARN_EPSILON,
     else:
         diagnosis_value = "none" if diagnosis_state == "done" else "pending"
     values.append(("diagnosis", diagnosis_value))
-    values.append(("diagnosis_effects", json.dumps(candidate.get("effects", []) if candidate else [])))
-    values.append(("diagnosis_epsilon", _value_text(candidate.get("epsilon") if candidate else None)))
+    values.append(("diagnosis_effects", json.dumps(candidate.effects if candidate else [])))
+    values.append(("diagnosis_epsilon", _value_text(candidate.epsilon if candidate else None)))
     values.append(("nu_gap_frequency_rad_s", _value_text(data.get("nu_gap_frequency_rad_s"))))
     values.append(("coherence_threshold", _value_text(result.coherence_threshold)))
     values.append(("model_description", result.model_description))
@@ -519,7 +509,7 @@ class ValidatorNode(Node):
         self._gaps: dict[str, StampGaps] = {}
         self._last_seen: dict[tuple[str, str], float] = {}
         self._seen_count: dict[tuple[str, str], int] = {}
-        self._top: dict[str, dict | None] = {}
+        self._top: dict[str, Candidate | None] = {}
         self._generation = 0
         self._diagnosed_key: Any = None
         self._force_diagnosis = True

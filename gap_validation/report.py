@@ -75,7 +75,7 @@ def verdict(ch: ChannelResult) -> tuple[str, str]:
                          f"6 dB / 45 deg."), "warn"
     if ch.limited_by == "model" and ch.diagnosis:
         top = ch.diagnosis[0]
-        text += f" Model-limited; the likeliest missing effect: {top.get('sentence') or top.get('effect')}."
+        text += f" Model-limited; the likeliest missing effect: {top.sentence or top.effect}."
     elif ch.limited_by == "model":
         text += " Model-limited: confident data disagree with the model."
     elif ch.limited_by == "data":
@@ -240,7 +240,7 @@ def write_report(result: ValidationResult, directory: str | os.PathLike, *, runs
         if ch.message:
             parts.append(f"<p>{html.escape(ch.message)}</p>")
         if ch.diagnosis:
-            parts.append("<ol>" + "".join(f"<li>{html.escape(str(d.get('sentence') or d.get('effect')))}</li>"
+            parts.append("<ol>" + "".join(f"<li>{html.escape(str(d.sentence or d.effect))}</li>"
                                           for d in ch.diagnosis[:3]) + "</ol>")
         parts += drawer.parts
         problems += drawer.problems

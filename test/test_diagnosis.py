@@ -157,7 +157,7 @@ def test_hidden_effect_is_named_with_its_parameters(name, seed):
     assert np.max(metrics.chordal_distance(fixed, est.response)) == pytest.approx(top["nu_gap"])
     assert top["sentence"] == (f"missing: {describe_effect(top['effects'][0])}; adding it brings epsilon from "
                                f"{top['epsilon_before']:.2f} to {top['epsilon']:.2f}")
-    json.dumps(found.candidates, allow_nan=False)
+    json.dumps([c.to_json_dict() for c in found.candidates], allow_nan=False)
 
 
 def test_delay_sentence_reads_like_the_issue():

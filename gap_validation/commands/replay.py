@@ -197,11 +197,11 @@ def _apply_diagnosis(config, result, out_path: str, history: Path | None) -> Non
             continue
         top = ch.diagnosis[0]
         model = raw["channels"][name]["model"]
-        if top.get("model"):  # parameter error: the refitted model replaces the old one (effects kept in it)
-            raw["channels"][name]["model"] = copy.deepcopy(top["model"])
+        if top.model:  # parameter error: the refitted model replaces the old one (effects kept in it)
+            raw["channels"][name]["model"] = copy.deepcopy(top.model)
         else:
-            model["effects"] = list(model.get("effects") or []) + [dict(e) for e in top["effects"]]
-        applied.append(f"{name}: {top.get('sentence') or top['effect']}")
+            model["effects"] = list(model.get("effects") or []) + [dict(e) for e in top.effects]
+        applied.append(f"{name}: {top.sentence or top.effect}")
     if history is not None:
         raw["history"] = str(history.resolve())
     if not applied:

@@ -64,6 +64,7 @@ from gap_validation.core import metrics
 from gap_validation.core.effects import EFFECTS, EffectFit, EffectType, FitRange, describe_effect, validate_effect
 from gap_validation.core.models import LinearModel
 from gap_validation.core.numbers import significant
+from gap_validation.core.results import Band, Candidate
 
 __all__ = [
     "ChannelDiagnosis", "analyse_channel", "fit_effects", "FittedCandidate", "cifer_weight", "cifer_cost",
@@ -110,25 +111,22 @@ class ChannelDiagnosis:
     frequency_flags : list of str
         Per frequency: ``"ok"`` (epsilon within the threshold), ``"model"``, ``"data"`` or ``"excluded"``
         (coherence below its threshold).
-    bands : list of dict
-        Runs of frequencies flagged ``model`` or ``data``: ``min_rad_s``, ``max_rad_s``, ``peak_rad_s``,
-        ``epsilon`` (at the peak), ``limited_by``, ``reason``, plus ``coherence_min``, ``mismatch_sigma`` (the
-        largest normalised mismatch k in the band) and ``min_averages``.
-    candidates : list of dict
-        JSON ``diagnosis``, best first: ``effect``, ``parameters``, ``effects``, ``epsilon``, ``nu_gap`` plus
-        ``sentence``, ``improvement``, ``epsilon_before``, ``epsilon_raw``, ``worst_frequency_rad_s``,
-        ``complexity`` (fitted parameters), ``cost`` and ``cost_before`` (CIFER J), ``explains`` (True when
-        the mismatch left is within the errors). ``parameter_error`` has empty
-        ``effects`` and the refitted ``model`` mapping (replace the model's airframe; nothing to append) with a
-        ``note`` saying so.
+    bands : list of Band
+        Runs of frequencies flagged ``model`` or ``data`` (:class:`~gap_validation.core.results.Band`: edges,
+        peak, epsilon at the peak, verdict, reason, lowest coherence, largest normalised mismatch, fewest
+        averages).
+    candidates : list of Candidate
+        JSON ``diagnosis``, best first (:class:`~gap_validation.core.results.Candidate`). ``parameter_error``
+        has empty ``effects`` and the refitted ``model`` mapping (replace the model's airframe; nothing to
+        append) with a ``note`` saying so.
     message : str
         One plain sentence for the terminal.
     """
 
     limited_by: str = "none"
     frequency_flags: list[str] = field(default_factory=list)
-    bands: list[dict] = field(default_factory=list)
-    candidates: list[dict] = field(default_factory=list)
+    bands: list[Band] = field(default_factory=list)
+    candidates: list[Candidate] = field(default_factory=list)
     message: str = ""
 
 
@@ -366,7 +364,7 @@ def frequency_flags(eps_w, mismatch, coherent, confident, epsilon_threshold: flo
 
 
 def find_bands(w_rad_s, eps_w, mismatch, coherence, n_averages, flags: Sequence[str], coherence_threshold: float,
-               min_averages: int = 0, sigma_factor: float = SIGMA_FACTOR) -> list[dict]:
+               min_averages: int = 0, sigma_factor: float = SIGMA_FACTOR) -> list[Band]:
     """Runs of adjacent frequencies flagged ``model`` or ``data``, each with its verdict and reason.
 
     A band is model-limited when at least one of its frequencies is; otherwise data-limited. Excluded
@@ -385,7 +383,7 @@ def find_bands(w_rad_s, eps_w, mismatch, coherence, n_averages, flags: Sequence[
 
 
 def _band(idx, w_rad_s, eps_w, mismatch, coherence, n_averages, flags, coherence_threshold, min_averages,
-          sigma_factor) -> dict:
+          sigma_factor) -> Band:
     w, eps = np.asarray(w_rad_s, float), np.asarray(eps_w, float)
     peak = idx[int(np.argmax(eps[idx]))]
     k_max = float(np.max(np.asarray(mismatch, float)[idx]))
@@ -404,10 +402,10 @@ def _band(idx, w_rad_s, eps_w, mismatch, coherence, n_averages, flags, coherence
     else:
         reason = (f"the random error explains the mismatch (at most {k_max:.1f} noise scales, coherence down "
                   f"to {coh_min:.2f}); fly better sweeps there")
-    return {"min_rad_s": float(w[idx[0]]), "max_rad_s": float(w[idx[-1]]), "peak_rad_s": float(w[peak]),
-            "epsilon": float(eps[peak]), "limited_by": "model" if model else "data", "reason": reason,
-            "coherence_min": coh_min, "mismatch_sigma": k_max if math.isfinite(k_max) else None,
-            "min_averages": n_min if math.isfinite(n_min) else None}
+    return Band(min_rad_s=float(w[idx[0]]), max_rad_s=float(w[idx[-1]]), peak_rad_s=float(w[peak]),
+                epsilon=float(eps[peak]), limited_by="model" if model else "data", reason=reason,
+                coherence_min=coh_min, mismatch_sigma=k_max if math.isfinite(k_max) else None,
+                min_averages=n_min if math.isfinite(n_min) else None)
 
 
 # ------------------------------------------------------------------------------------------------ effect families
@@ -772,32 +770,33 @@ def _select(ev: _Evidence, base: _Fit, fitted: list[FittedCandidate]) -> list[Fi
     return ranked[:_MAX_CANDIDATES]
 
 
-def _candidate_dict(c: FittedCandidate, ev: _Evidence, base: _Fit, p_model: np.ndarray, sweeps: Sequence,
-                    coherence_threshold: float) -> dict:
+def _candidate(c: FittedCandidate, ev: _Evidence, base: _Fit, p_model: np.ndarray, sweeps: Sequence,
+               coherence_threshold: float) -> Candidate:
     conf = ev.confident
     p_fit = c.model.freqresp(ev.w)
     score = c.score
-    out = {
-        "effect": c.name,
-        "parameters": _parameters(c),
-        "effects": [dict(e) for e in c.effects],
-        "epsilon": score.eps,
-        "nu_gap": float(np.max(metrics.chordal_distance(p_fit[conf], ev.p_meas[conf]))),
-        "sentence": _sentence(c, base, ev),
-        "improvement": base.eps - score.eps,
-        "epsilon_before": base.eps,
-        "epsilon_raw": _raw_epsilon(c.model, sweeps, coherence_threshold, ev.confident),
-        "worst_frequency_rad_s": float(ev.w[score.worst]),
-        "complexity": c.complexity,
-        "explains": bool(score.k_max <= ev.sigma_factor),
-        "cost": cifer_cost(p_fit[conf], ev.p_meas[conf], ev.coherence[conf]),
-        "cost_before": cifer_cost(p_model[conf], ev.p_meas[conf], ev.coherence[conf]),
-    }
+    replacement = {}
     if c.replacement:
-        out["model"] = c.model.to_spec()
-        out["note"] = ("parameter error: the model's own coefficients refitted (same structure); nothing to "
-                       "append to effects: replace the model by 'model'")
-    return out
+        replacement = {"model": c.model.to_spec(),
+                       "note": ("parameter error: the model's own coefficients refitted (same structure); nothing "
+                                "to append to effects: replace the model by 'model'")}
+    return Candidate(
+        effect=c.name,
+        parameters=_parameters(c),
+        effects=[dict(e) for e in c.effects],
+        epsilon=score.eps,
+        nu_gap=float(np.max(metrics.chordal_distance(p_fit[conf], ev.p_meas[conf]))),
+        sentence=_sentence(c, base, ev),
+        improvement=base.eps - score.eps,
+        epsilon_before=base.eps,
+        epsilon_raw=_raw_epsilon(c.model, sweeps, coherence_threshold, ev.confident),
+        worst_frequency_rad_s=float(ev.w[score.worst]),
+        complexity=c.complexity,
+        explains=bool(score.k_max <= ev.sigma_factor),
+        cost=cifer_cost(p_fit[conf], ev.p_meas[conf], ev.coherence[conf]),
+        cost_before=cifer_cost(p_model[conf], ev.p_meas[conf], ev.coherence[conf]),
+        **replacement,
+    )
 
 
 def _parameters(c: FittedCandidate) -> dict:
@@ -881,7 +880,7 @@ def analyse_channel(model: LinearModel, estimate, sweeps: list, coherence_thresh
     result = ChannelDiagnosis(limited_by=_limited_by(ev, base, bands), frequency_flags=flags, bands=bands)
     if fit and base.worst >= 0 and base.k_max > sigma_factor:
         chosen = _select(ev, base, _diagnose(model, ev))
-        result.candidates = [_candidate_dict(c, ev, base, p_model, sweeps, coherence_threshold) for c in chosen]
+        result.candidates = [_candidate(c, ev, base, p_model, sweeps, coherence_threshold) for c in chosen]
     result.message = _message(ev, base, result, coherence_threshold, epsilon_threshold, channel)
     return result
 
@@ -895,19 +894,19 @@ def _diagnose(model: LinearModel, ev: _Evidence) -> list[FittedCandidate]:
     return fitted
 
 
-def _limited_by(ev: _Evidence, base: _Fit, bands: list[dict]) -> str:
+def _limited_by(ev: _Evidence, base: _Fit, bands: list[Band]) -> str:
     """``model`` when any band is model-limited (the model must change there whatever else the data say),
     else ``data`` when any band is data-limited or nothing is confident, else ``none``."""
     if base.worst < 0:
         return "data"
-    verdicts = {band["limited_by"] for band in bands}
+    verdicts = {band.limited_by for band in bands}
     return "model" if "model" in verdicts else "data" if verdicts else "none"
 
 
-def _lead_band(bands: list[dict]) -> dict | None:
+def _lead_band(bands: list[Band]) -> Band | None:
     """The band the message leads with: the worst model-limited band, else the worst band."""
-    model = [b for b in bands if b["limited_by"] == "model"]
-    return max(model or bands, key=lambda b: b["epsilon"], default=None)
+    model = [b for b in bands if b.limited_by == "model"]
+    return max(model or bands, key=lambda b: b.epsilon, default=None)
 
 
 def _range(lo: float, hi: float) -> str:
@@ -924,19 +923,19 @@ def _message(ev: _Evidence, base: _Fit, result: ChannelDiagnosis, coherence_thre
     if band is None:
         text = (f"{prefix}model fits: epsilon {base.eps:.2f} at {ev.w[base.worst]:.3g} rad/s, within "
                 f"{epsilon_threshold:g} at every confident frequency")
-    elif band["limited_by"] == "model":
-        text = (f"{prefix}model-limited at {_range(band['min_rad_s'], band['max_rad_s'])}: epsilon "
-                f"{band['epsilon']:.2f} at {band['peak_rad_s']:.3g} rad/s is well outside the random error")
+    elif band.limited_by == "model":
+        text = (f"{prefix}model-limited at {_range(band.min_rad_s, band.max_rad_s)}: epsilon "
+                f"{band.epsilon:.2f} at {band.peak_rad_s:.3g} rad/s is well outside the random error")
     else:
-        text = (f"{prefix}data-limited at {_range(band['min_rad_s'], band['max_rad_s'])}: epsilon "
-                f"{band['epsilon']:.2f} at {band['peak_rad_s']:.3g} rad/s; {band['reason']}")
+        text = (f"{prefix}data-limited at {_range(band.min_rad_s, band.max_rad_s)}: epsilon "
+                f"{band.epsilon:.2f} at {band.peak_rad_s:.3g} rad/s; {band.reason}")
     others = [b for b in result.bands if b is not band]
     if others:
-        text += "; also " + ", ".join(f"{b['limited_by']}-limited at {_range(b['min_rad_s'], b['max_rad_s'])}"
+        text += "; also " + ", ".join(f"{b.limited_by}-limited at {_range(b.min_rad_s, b.max_rad_s)}"
                                       for b in others)
     if result.candidates:
         text += ("; " if band is not None else "; the data still resolve a difference: ") + \
-            result.candidates[0]["sentence"]
+            result.candidates[0].sentence
     excluded = int(np.count_nonzero(~ev.confident))
     if excluded:
         low = int(np.count_nonzero(ev.coherence < coherence_threshold))

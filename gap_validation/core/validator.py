@@ -256,8 +256,8 @@ class OnlineValidator:
             self._diagnosis_cache[name] = (key, found)
         result.limited_by = found.limited_by
         result.frequency_flags = list(found.frequency_flags)
-        result.bands = [dict(b) for b in found.bands]
-        result.diagnosis = [dict(c) for c in found.candidates]
+        result.bands = list(found.bands)
+        result.diagnosis = list(found.candidates)
         if found.message:
             result.message = found.message
 

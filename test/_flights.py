@@ -6,7 +6,7 @@ from pathlib import Path
 
 import yaml
 
-from gap_validation.bagio import write_flight
+from gap_validation.bag.writer import write_flight
 from gap_validation.config import load_config
 from gap_validation.core.config import parse_config
 from gap_validation.core.simulation import FlightOptions, hidden_effects, simulate_flight, with_options

@@ -7,10 +7,12 @@ from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
 
 from _flights import SHORT, make_bag, ultrastick
-from gap_validation.bagio import FastDecodeError, fast_decoder, open_bag
+from gap_validation.bag.reader import open_bag
+from gap_validation.messages.cdr import FastDecodeError, fast_decoder
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.simulation import simulate_flight, with_options
-from gap_validation.ingest import FieldPath, stamp_seconds
+from gap_validation.core.fields import FieldPath
+from gap_validation.messages.router import stamp_seconds
 
 TS = get_typestore(Stores.ROS2_JAZZY)
 T = TS.types
@@ -24,7 +26,7 @@ def flight():
 
 @pytest.fixture(scope="module")
 def mcap_bag(tmp_path_factory, flight):
-    from gap_validation.bagio import write_flight
+    from gap_validation.bag.writer import write_flight
 
     path = tmp_path_factory.mktemp("bags") / "flight"
     write_flight(flight, path)
@@ -61,7 +63,7 @@ def test_mcap_round_trip_is_exact(mcap_bag, flight):
 
 @pytest.mark.parametrize("name, storage", [("flight_sql", "sqlite3"), ("bare.mcap", None), ("bare.db3", None)])
 def test_other_storages_round_trip(tmp_path, flight, name, storage):
-    from gap_validation.bagio import write_flight
+    from gap_validation.bag.writer import write_flight
 
     out = write_flight(flight, tmp_path / name, storage)
     assert out.exists()
@@ -88,7 +90,7 @@ def test_same_seed_same_bytes(tmp_path):
 
 
 def test_refuses_to_overwrite(mcap_bag, flight):
-    from gap_validation.bagio import write_flight
+    from gap_validation.bag.writer import write_flight
 
     with pytest.raises(ConfigError, match="exists already"):
         write_flight(flight, mcap_bag)

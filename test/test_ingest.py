@@ -11,7 +11,8 @@ from rosbags.typesys import Stores, get_typestore
 from gap_validation.core.config import ChannelConfig, SignalSpec, ValidationConfig
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.models import LinearModel
-from gap_validation.ingest import FieldError, FieldPath, MessageRouter, stamp_seconds
+from gap_validation.core.fields import FieldError, FieldPath
+from gap_validation.messages.router import MessageRouter, stamp_seconds
 
 TS = get_typestore(Stores.ROS2_JAZZY)
 T = TS.types

@@ -37,12 +37,15 @@ from sensor_msgs.msg import Imu, JointState  # noqa: E402
 from std_msgs.msg import Float64  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
-from gap_validation.bagio import open_bag  # noqa: E402
+from gap_validation.bag.reader import open_bag  # noqa: E402
 from gap_validation.config import load_config  # noqa: E402
 from gap_validation.core.checkpoint import load_state  # noqa: E402
-from gap_validation.ingest import stamp_seconds  # noqa: E402
-from gap_validation.node import PARAMETERS, ValidatorNode, channel_status, message_class  # noqa: E402
-from gap_validation.replay import replay  # noqa: E402
+from gap_validation.messages.router import stamp_seconds  # noqa: E402
+from gap_validation.ros.message_types import message_class  # noqa: E402
+from gap_validation.ros.node import ValidatorNode  # noqa: E402
+from gap_validation.ros.parameters import PARAMETERS  # noqa: E402
+from gap_validation.ros.status import channel_status  # noqa: E402
+from gap_validation.bag.replay import replay  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "config" / "ultrastick25e.yaml"
@@ -617,7 +620,7 @@ def test_services_reload_reset_save_results(flight, typed, fed, ros, tmp_path):
         assert isinstance(saved["channels"][name]["diagnosis"], list)
     report = path.with_suffix("") / "index.html"
     try:
-        import gap_validation.report  # noqa: F401
+        import gap_validation.report.html  # noqa: F401
     except ImportError:
         pass
     else:
@@ -672,7 +675,7 @@ def test_full_diagnosis_runs_in_the_background_and_fills_the_message(typed, fed,
     assert found >= 1
     # unchanged results: no new diagnosis is started
     node.publish_diagnostics()
-    assert node._job is None
+    assert node._diagnosis.job is None
 
 
 # ------------------------------------------------------------------------------------------------ discovery
@@ -711,7 +714,7 @@ def test_params_file_matches_the_declared_parameters(ros):
 
 def _run_main(*args, env_extra=None):
     env = dict(os.environ, **(env_extra or {}))
-    return subprocess.run([sys.executable, "-m", "gap_validation.node", *args], env=env, cwd=ROOT,
+    return subprocess.run([sys.executable, "-m", "gap_validation.ros.main", *args], env=env, cwd=ROOT,
                           capture_output=True, text=True, timeout=120)
 
 
@@ -742,7 +745,7 @@ def test_console_script_runs_publishes_answers_and_checkpoints_on_sigint(ros, ty
 
     state = tmp_path / "state.npz"
     env = dict(os.environ)
-    child = subprocess.Popen([sys.executable, "-m", "gap_validation.node", "--ros-args", "-p",
+    child = subprocess.Popen([sys.executable, "-m", "gap_validation.ros.main", "--ros-args", "-p",
                               f"config_file:={typed}", "-p", "diagnostic_period:=0.1", "-p",
                               f"state_file:={state}", "-p", f"results_dir:={tmp_path}", "-p",
                               f"executor:={executor}"],

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gap_validation.node import StampGaps
+from gap_validation.ros.stamp_gaps import StampGaps
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -96,7 +96,7 @@ def test_message_callbacks_publish_diagnostics_when_the_timer_is_late(bench, tmp
     from rclpy.parameter import Parameter
     from sensor_msgs.msg import Imu
 
-    from gap_validation.node import ValidatorNode
+    from gap_validation.ros.node import ValidatorNode
 
     context = Context()
     rclpy.init(context=context)

@@ -1,5 +1,5 @@
-"""Synthetic flights: time histories of a sweep flight, ROS-free (arrays only; :mod:`gap_validation.bagio` writes
-them as a rosbag2).
+"""Synthetic flights: time histories of a sweep flight, ROS-free (arrays only; :mod:`gap_validation.bag.writer`
+writes them as a rosbag2).
 
 The "true aircraft" of each channel is the config's model (with its effects) with *hidden* effects in series
 (:meth:`LinearModel.with_effects`), so a replay of the flight measures the truth and the validation sees how far
@@ -32,34 +32,19 @@ from gap_validation.core.config import SignalSpec, ValidationConfig
 from gap_validation.core.effects import validate_effect
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.fields import FieldPath
+from gap_validation.core.layouts import JOINT_STATE, LAYOUTS, infer_type
 from gap_validation.core.numbers import NON_NEGATIVE, POSITIVE, Interval, check_number
 
 __all__ = [
     "FlightOptions", "Segment", "TopicSeries", "SimulatedFlight", "parse_hidden", "hidden_effects",
     "parse_band_noise", "band_noise", "truth_models", "plan_topics", "simulate_flight", "log_sweep", "doublet",
-    "with_options", "SUPPORTED_TYPES",
+    "with_options",
 ]
-
-IMU = "sensor_msgs/msg/Imu"
-JOINT_STATE = "sensor_msgs/msg/JointState"
-FLOAT64 = "std_msgs/msg/Float64"
-FLOAT32 = "std_msgs/msg/Float32"
-BOOL = "std_msgs/msg/Bool"
 
 #: Spawn key of the band-noise random stream (independent of the main stream of the same seed).
 _BAND_NOISE_STREAM = 1
 #: Order of the band-pass filter of the band noise (Butterworth; the band-pass doubles it).
 _BAND_NOISE_ORDER = 4
-
-#: Message types a simulated flight can publish -> the fields it can fill (``None``: see the type's rule).
-SUPPORTED_TYPES = {
-    IMU: {("orientation", c) for c in "xyzw"} | {("angular_velocity", c) for c in "xyz"}
-         | {("linear_acceleration", c) for c in "xyz"},
-    JOINT_STATE: {("position",), ("velocity",), ("effort",)},
-    FLOAT64: {("data",)},
-    FLOAT32: {("data",)},
-    BOOL: {("data",)},
-}
 
 
 @dataclass(frozen=True)
@@ -417,24 +402,11 @@ class _TopicPlan:
 
 
 def _infer_type(spec: SignalSpec, path: FieldPath, stream: str) -> str | None:
-    if spec.type:
-        return spec.type
-    attrs = path.attributes
-    if not attrs:
-        return None
-    if stream == "trigger" and attrs == ("data",):
-        return BOOL
-    if attrs[0] in ("angular_velocity", "linear_acceleration", "orientation"):
-        return IMU
-    if attrs[0] in ("position", "velocity", "effort") and (path.key is not None or path.index is not None):
-        return JOINT_STATE
-    if attrs == ("data",):
-        return FLOAT64
-    return None
+    return spec.type or infer_type(path, stream)
 
 
 def _check_field(plan_topic: str, msgtype: str, path: FieldPath) -> None:
-    allowed = SUPPORTED_TYPES[msgtype]
+    allowed = LAYOUTS[msgtype]
     attrs = path.attributes
     ok = attrs in allowed and all(s.kind == "attr" for s in path.steps)
     if msgtype == JOINT_STATE:
@@ -448,7 +420,7 @@ def _check_field(plan_topic: str, msgtype: str, path: FieldPath) -> None:
 def _supported_text(msgtype: str) -> str:
     if msgtype == JOINT_STATE:
         return "position[name], velocity[name], effort[name] or [index]"
-    return ", ".join(sorted(".".join(a) for a in SUPPORTED_TYPES[msgtype]))
+    return ", ".join(sorted(".".join(a) for a in LAYOUTS[msgtype]))
 
 
 def plan_topics(config: ValidationConfig) -> dict[str, _TopicPlan]:
@@ -469,14 +441,14 @@ def plan_topics(config: ValidationConfig) -> dict[str, _TopicPlan]:
         types = {t for ch, stream, spec, path in parsed if (t := _infer_type(spec, path, stream)) is not None}
         if not types:
             raise ConfigError(f"cannot infer the message type of topic {topic} from field "
-                              f"{parsed[0][3].text!r}; set 'type' ({', '.join(SUPPORTED_TYPES)})")
+                              f"{parsed[0][3].text!r}; set 'type' ({', '.join(LAYOUTS)})")
         if len(types) > 1:
             raise ConfigError(f"topic {topic}: its signals need different message types "
                               f"({', '.join(sorted(types))})")
         msgtype = types.pop()
-        if msgtype not in SUPPORTED_TYPES:
+        if msgtype not in LAYOUTS:
             raise ConfigError(f"cannot simulate topic {topic} of type {msgtype} "
-                              f"(supported: {', '.join(SUPPORTED_TYPES)})")
+                              f"(supported: {', '.join(LAYOUTS)})")
         for _, _, _, path in parsed:
             _check_field(topic, msgtype, path)
         role = "imu" if any(stream == "output" for _, stream, _, _ in parsed) else "surface"

@@ -1,8 +1,9 @@
-"""From messages to samples: field paths and the router that feeds :class:`OnlineValidator`.
+"""From messages to samples: the router that feeds :class:`OnlineValidator`.
 
 One data path (docs/ARCHITECTURE.md): bag replay (rosbags message objects) and the ROS 2 node (rclpy message
-objects) both hand their messages to :class:`MessageRouter`, which extracts every configured signal with
-:class:`FieldPath`, applies the signal's ``scale``, stamps it with ``header.stamp`` (or the receive time) and
+objects) both hand their messages to :class:`MessageRouter` (after the one decoding step of
+:mod:`gap_validation.messages.decoding`), which extracts every configured signal with
+:class:`~gap_validation.core.fields.FieldPath`, applies the signal's ``scale``, stamps it with ``header.stamp`` (or the receive time) and
 pushes time-ordered batches to the validator. Nothing here imports rclpy or rosbags: messages are only read
 through attributes, indexing and ``len``, which both kinds of message objects support (rclpy arrays may be
 ``array.array`` or numpy arrays, rosbags arrays are numpy arrays).
@@ -26,19 +27,13 @@ import numpy as np
 
 from gap_validation.core.alignment import JUMP_BACK_S, increasing, jump_back_s
 from gap_validation.core.estimator import ESTIMATOR_DEFAULTS
-from gap_validation.core.fields import FieldError, FieldPath  # re-exported: the node and replay use both
+from gap_validation.core.fields import FieldError, FieldPath
 
 if TYPE_CHECKING:  # pragma: no cover
     from gap_validation.core.config import ValidationConfig
     from gap_validation.core.validator import OnlineValidator
 
-__all__ = ["FieldError", "FieldPath", "MessageRouter", "Route", "stamp_seconds", "note_saturation", "VERIFY_MESSAGES",
-           "fast_values_agree"]
-
-#: Messages per topic decoded both ways (fast field decoder and full deserialisation) before replay and the
-#: node trust the fast decoder.
-VERIFY_MESSAGES = 8
-
+__all__ = ["MessageRouter", "Route", "stamp_seconds", "note_saturation"]
 
 def stamp_seconds(msg: Any) -> float | None:
     """``header.stamp`` of ``msg`` in seconds, or None when there is no header or the stamp is zero (unset).
@@ -56,17 +51,6 @@ def stamp_seconds(msg: Any) -> float | None:
     if not sec and not nanosec:
         return None
     return sec + nanosec * 1e-9
-
-
-def fast_values_agree(routes, msg: Any, stamp: float | None, values) -> bool:
-    """Whether a fast decoder's ``(stamp, values)`` equal what ``routes`` extract from the fully decoded ``msg``
-    (NaN equals NaN); replay and the node stop using the fast decoder of a topic on the first difference."""
-    try:
-        full = [route.path.extract(msg) for route in routes]
-    except FieldError:
-        return False
-    return (len(full) == len(values) and stamp == stamp_seconds(msg)
-            and all(a == b or (math.isnan(a) and math.isnan(b)) for a, b in zip(values, full)))
 
 
 @dataclass(frozen=True)
@@ -251,7 +235,7 @@ class MessageRouter:
     def on_values(self, topic: str, t_s: float, values: Any) -> None:
         """Queue already extracted raw values (one per route of ``topic``, in :attr:`routes` order).
 
-        The fast decoders of :mod:`gap_validation.bagio` use this entry; ``t_s`` is the message time (stamp
+        The fast decoders of :mod:`gap_validation.messages.cdr` use this entry; ``t_s`` is the message time (stamp
         or receive time) before :attr:`time_offset_s`, values are before ``scale``.
         """
         if topic in self.routes:

@@ -17,8 +17,8 @@ from gap_validation.config import dump_config, load_config
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.history import (append_history, default_history_path, epsilon_versions, format_trend,
                                     load_history, model_hash, previous_epsilon)
-from gap_validation.render import format_table, write_json
-from gap_validation.replay import replay
+from gap_validation.report.terminal import format_table, write_json
+from gap_validation.bag.replay import replay
 
 
 def register(sub) -> None:
@@ -71,13 +71,13 @@ class ProgressBar:
 
 
 def _report_writer():
-    """``gap_validation.report.write_report`` or a one-line error when the report module is not installed."""
-    if importlib.util.find_spec("gap_validation.report") is None:
-        raise ConfigError("--report: report not available (gap_validation.report is not installed)")
-    module = importlib.import_module("gap_validation.report")
+    """``gap_validation.report.html.write_report`` or a one-line error when the report module is not installed."""
+    if importlib.util.find_spec("gap_validation.report.html") is None:
+        raise ConfigError("--report: report not available (gap_validation.report.html is not installed)")
+    module = importlib.import_module("gap_validation.report.html")
     writer = getattr(module, "write_report", None)
     if writer is None:
-        raise ConfigError("--report: report not available (gap_validation.report has no write_report)")
+        raise ConfigError("--report: report not available (gap_validation.report.html has no write_report)")
     return writer
 
 

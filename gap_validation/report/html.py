@@ -3,7 +3,7 @@
 ``write_report(result, directory)`` writes ``directory/index.html`` (opens offline: plain HTML and PNG files
 beside it) with, at the top, the summary in the form of the paper's Table 1 (raw and averaged epsilon, gain,
 phase and disk margins per channel) and the verdict per channel in words; then per channel the figures of
-:mod:`gap_validation.figures` (Figs. 1, 2, 4, 5 and 6 of the paper, where the model fails, the diagnosis
+:mod:`gap_validation.report.figures` (Figs. 1, 2, 4, 5 and 6 of the paper, where the model fails, the diagnosis
 candidates before and after, and epsilon over model versions). Every name that comes from a bag or a config
 is HTML-escaped. A figure that cannot be drawn is replaced by a one-line note: the rest of the report is
 still written. Files are written atomically (temporary file, then rename).
@@ -18,12 +18,12 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable
 
-from gap_validation import figures
+from gap_validation.report import figures
 from gap_validation.atomic import atomic_write_text
 from gap_validation.core.errors import DataError, one_line
 from gap_validation.core.margins import STANDARD_EPSILON, WARN_EPSILON, margins_from_epsilon
 from gap_validation.core.results import NUGAP_DATA_NOTE, ChannelResult, ValidationResult
-from gap_validation.render import fmt
+from gap_validation.report.terminal import fmt
 
 log = logging.getLogger(__name__)
 

@@ -65,7 +65,13 @@ class ChannelConfig:
     estimator: dict = field(default_factory=dict)
 
     def signal(self, stream: str) -> SignalSpec | None:
-        """The :class:`SignalSpec` of ``stream`` (``input``, ``output`` or ``trigger``)."""
+        """The :class:`SignalSpec` of ``stream`` (``input``, ``output`` or ``trigger``).
+
+        Parameters
+        ----------
+        stream : {"input", "output", "trigger"}
+            The stream.
+        """
         return {"input": self.input, "output": self.output, "trigger": self.trigger}[stream]
 
 
@@ -88,7 +94,15 @@ class ValidationConfig:
         return out
 
     def with_channel_effects(self, channel: str, effects: list[dict]) -> "ValidationConfig":
-        """A copy with ``effects`` appended to ``channels.<channel>.model.effects`` (for --apply-diagnosis)."""
+        """A copy with ``effects`` appended to ``channels.<channel>.model.effects`` (for --apply-diagnosis).
+
+        Parameters
+        ----------
+        channel : str
+            A channel of the config.
+        effects : list of dict
+            Effect mappings (:mod:`gap_validation.core.effects`), appended in series.
+        """
         if channel not in self.channels:
             raise ConfigError(f"{self.source or '<config>'}: no channel {channel!r}")
         raw = copy.deepcopy(self.raw)

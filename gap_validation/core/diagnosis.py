@@ -55,9 +55,10 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.optimize import least_squares
 
 from gap_validation.core import metrics
@@ -65,6 +66,9 @@ from gap_validation.core.effects import EFFECTS, EffectFit, EffectType, FitRange
 from gap_validation.core.models import LinearModel
 from gap_validation.core.numbers import significant
 from gap_validation.core.results import Band, Candidate
+
+if TYPE_CHECKING:  # pragma: no cover
+    from gap_validation.core.estimator import SpectralEstimate
 
 __all__ = [
     "ChannelDiagnosis", "analyse_channel", "fit_effects", "FittedCandidate", "cifer_weight", "cifer_cost",
@@ -133,7 +137,7 @@ class ChannelDiagnosis:
 # ------------------------------------------------------------------------------------------------ statistics
 
 
-def cifer_weight(coherence) -> np.ndarray:
+def cifer_weight(coherence: ArrayLike) -> np.ndarray:
     """CIFER coherence weighting ``W_g = [1.58 (1 - exp(-g^2))]^2`` (Tischler & Remple, ch. 11).
 
     Parameters
@@ -156,7 +160,7 @@ def _log_ratio(p_fit, p_meas) -> np.ndarray:
         return np.log(p_fit / p_meas)
 
 
-def cifer_cost(p_fit, p_meas, coherence) -> float:
+def cifer_cost(p_fit: ArrayLike, p_meas: ArrayLike, coherence: ArrayLike) -> float:
     """CIFER cost ``J = 20/n sum W_g [dB error^2 + 0.01745 deg error^2]`` (Tischler & Remple, ch. 11).
 
     Parameters
@@ -177,7 +181,7 @@ def cifer_cost(p_fit, p_meas, coherence) -> float:
     return float(20.0 / max(len(w_g), 1) * np.sum(w_g * err))
 
 
-def bendat_piersol_random_error(coherence, n_averages) -> np.ndarray:
+def bendat_piersol_random_error(coherence: ArrayLike, n_averages: ArrayLike) -> np.ndarray:
     """Normalised random error of |H|: ``e_r = sqrt(1 - g^2) / (|g| sqrt(2 n_d))`` (Bendat & Piersol, ch. 9).
 
     The phase error is about ``e_r`` rad. Infinite where the coherence is zero.
@@ -236,8 +240,8 @@ def _sweep_scatter_error(estimate, sweeps: Sequence, coherence_threshold: float)
     return np.where(m >= 3, e, out)
 
 
-def effective_random_error(estimate, sweeps: Sequence = (), coherence_threshold: float = 0.0,
-                           bias_error: float = 0.0) -> np.ndarray:
+def effective_random_error(estimate: SpectralEstimate, sweeps: Sequence[SpectralEstimate] = (),
+                           coherence_threshold: float = 0.0, bias_error: float = 0.0) -> np.ndarray:
     """Relative error of the averaged response the diagnosis allows for.
 
     The larger of the estimate's random error (Bendat & Piersol) and the scatter between sweeps (where at
@@ -265,11 +269,16 @@ def effective_random_error(estimate, sweeps: Sequence = (), coherence_threshold:
     return np.hypot(e_r, bias_error)
 
 
-def epsilon_noise_scale(relative_error) -> np.ndarray:
+def epsilon_noise_scale(relative_error: ArrayLike) -> np.ndarray:
     """Scale ``sigma = e / 2`` of epsilon(w) between a model and noisy data that equal it.
 
     With ``P2 = P1 (1 + d)``, ``d`` complex with components of standard deviation ``e``,
     ``epsilon = |d| / |2 + d| ~ |d| / 2`` (eq. 14): Rayleigh with scale ``e / 2``.
+
+    Parameters
+    ----------
+    relative_error : array_like
+        Relative error ``e`` of the measured response per frequency (:func:`effective_random_error`).
     """
     return 0.5 * np.asarray(relative_error, dtype=float)
 
@@ -280,13 +289,20 @@ def minimum_averages(coherence_threshold: float, false_alarm: float = COHERENCE_
     With ``n_d`` averages and zero true coherence, ``P(g^2_est > c) = (1 - c)^(n_d - 1)`` (Bendat & Piersol,
     ch. 9); the result is the smallest ``n_d`` making that at most ``false_alarm`` (9 for c = 0.6), within
     [4, 16].
+
+    Parameters
+    ----------
+    coherence_threshold : float
+        Coherence (squared) a usable frequency must reach.
+    false_alarm : float
+        Accepted probability that noise alone passes the threshold.
     """
     c = min(max(float(coherence_threshold), 1e-6), 0.999)
     n = 1.0 + math.log(false_alarm) / math.log(1.0 - c)
     return int(min(max(math.ceil(n), 4), 16))
 
 
-def confident_points(estimate, coherence_threshold: float) -> np.ndarray:
+def confident_points(estimate: SpectralEstimate, coherence_threshold: float) -> np.ndarray:
     """Frequencies whose estimate counts for epsilon, the nu-gap and the diagnosis (the one definition).
 
     A point is confident when its coherence passes the threshold *and* it has at least
@@ -294,6 +310,13 @@ def confident_points(estimate, coherence_threshold: float) -> np.ndarray:
     noise exceeds a coherence of 0.6 with probability 2.6 %), and its response is finite and nonzero. Points
     with too few averages are also the ones where a short sweep leaves the windows too few cycles: their
     estimate is smeared over a wide band (resolution bias).
+
+    Parameters
+    ----------
+    estimate : SpectralEstimate
+        Averaged estimate (``response``, ``coherence``, ``n_averages``).
+    coherence_threshold : float
+        The channel's coherence threshold.
     """
     p_meas = np.asarray(estimate.response, complex)
     coherence = np.asarray(estimate.coherence, float)
@@ -301,17 +324,27 @@ def confident_points(estimate, coherence_threshold: float) -> np.ndarray:
             & (_n_averages(estimate) >= minimum_averages(coherence_threshold)))
 
 
-def sweep_points(sweep, average_confident: np.ndarray, coherence_threshold: float) -> np.ndarray:
+def sweep_points(sweep: SpectralEstimate, average_confident: np.ndarray, coherence_threshold: float) -> np.ndarray:
     """Frequencies of one sweep's (raw) estimate that count for the raw epsilon: those confident in the average
     (the validation's frequency set) where the sweep itself is coherent. A single sweep has fewer averages than
     the pool, so the minimum-averages rule applies to the average only; raw epsilon is then the sup over the
-    same frequencies as the averaged one, and not smaller for want of points (paper, Table 1)."""
+    same frequencies as the averaged one, and not smaller for want of points (paper, Table 1).
+
+    Parameters
+    ----------
+    sweep : SpectralEstimate
+        One sweep's (raw) estimate.
+    average_confident : ndarray of bool
+        Confident points of the averaged estimate (:func:`confident_points`).
+    coherence_threshold : float
+        The channel's coherence threshold.
+    """
     p = np.asarray(sweep.response, complex)
     return (np.asarray(average_confident, bool) & (np.asarray(sweep.coherence, float) >= coherence_threshold)
             & np.isfinite(p) & (np.abs(p) > 0))
 
 
-def normalised_mismatch(eps_w, sigma, n_averages=np.inf) -> np.ndarray:
+def normalised_mismatch(eps_w: ArrayLike, sigma: ArrayLike, n_averages: ArrayLike = np.inf) -> np.ndarray:
     """How many noise scales the mismatch is: the Rayleigh-equivalent ``k`` of ``epsilon / sigma``.
 
     With ``n_d`` averages the H1 error follows ``F(2, 2 n_d - 2)`` (Goodman; Bendat & Piersol's confidence
@@ -336,7 +369,8 @@ def normalised_mismatch(eps_w, sigma, n_averages=np.inf) -> np.ndarray:
 # ------------------------------------------------------------------------------------------------ where it fails
 
 
-def frequency_flags(eps_w, mismatch, coherent, confident, epsilon_threshold: float,
+def frequency_flags(eps_w: ArrayLike, mismatch: ArrayLike, coherent: ArrayLike, confident: ArrayLike,
+                    epsilon_threshold: float,
                     sigma_factor: float = SIGMA_FACTOR) -> list[str]:
     """Per-frequency verdict.
 
@@ -346,6 +380,21 @@ def frequency_flags(eps_w, mismatch, coherent, confident, epsilon_threshold: flo
     ``sigma_factor`` at a confident frequency) or ``"data"`` (above it, but low coherence, too few averages or
     within the errors: the data cannot tell, fly better sweeps there). Only confident frequencies count for
     epsilon; a ``"data"`` flag at low coherence marks where a mismatch may hide in the noise.
+
+    Parameters
+    ----------
+    eps_w : array_like
+        epsilon(w) of the model against the averaged data (eq. 14).
+    mismatch : array_like
+        Normalised mismatch k per frequency (:func:`normalised_mismatch`).
+    coherent : array_like of bool
+        Coherence passes the threshold.
+    confident : array_like of bool
+        Also enough averages (:func:`confident_points`).
+    epsilon_threshold : float
+        epsilon(w) above it is flagged ``model`` or ``data``.
+    sigma_factor : float
+        Normalised mismatch beyond which a confident frequency is model-limited.
     """
     flags = []
     for e, k, c, u in zip(np.asarray(eps_w, float), np.asarray(mismatch, float), np.asarray(coherent, bool),
@@ -363,12 +412,30 @@ def frequency_flags(eps_w, mismatch, coherent, confident, epsilon_threshold: flo
     return flags
 
 
-def find_bands(w_rad_s, eps_w, mismatch, coherence, n_averages, flags: Sequence[str], coherence_threshold: float,
-               min_averages: int = 0, sigma_factor: float = SIGMA_FACTOR) -> list[Band]:
+def find_bands(w_rad_s: ArrayLike, eps_w: ArrayLike, mismatch: ArrayLike, coherence: ArrayLike, n_averages: ArrayLike,
+               flags: Sequence[str], coherence_threshold: float, min_averages: int = 0,
+               sigma_factor: float = SIGMA_FACTOR) -> list[Band]:
     """Runs of adjacent frequencies flagged ``model`` or ``data``, each with its verdict and reason.
 
     A band is model-limited when at least one of its frequencies is; otherwise data-limited. Excluded
     frequencies end a band.
+
+    Parameters
+    ----------
+    w_rad_s : array_like
+        Frequencies [rad/s].
+    eps_w, mismatch : array_like
+        epsilon(w) and the normalised mismatch k per frequency.
+    coherence, n_averages : array_like
+        Coherence and averages per frequency.
+    flags : sequence of str
+        Per-frequency verdicts (:func:`frequency_flags`).
+    coherence_threshold : float
+        The channel's coherence threshold (for the reasons).
+    min_averages : int
+        Averages a usable frequency needs (:func:`minimum_averages`).
+    sigma_factor : float
+        As for :func:`frequency_flags`.
     """
     bands, start = [], None
     for i, flag in enumerate(list(flags) + ["ok"]):
@@ -672,7 +739,8 @@ def _fit_parameter_error(model: LinearModel, data: _FitData) -> FittedCandidate 
     return FittedCandidate("parameter_error", n_free, [], refit, replacement=True)
 
 
-def fit_effects(model: LinearModel, estimate, coherence_threshold: float = 0.6, *, sweeps: Sequence = (),
+def fit_effects(model: LinearModel, estimate: SpectralEstimate, coherence_threshold: float = 0.6, *,
+                sweeps: Sequence[SpectralEstimate] = (),
                 pairs: bool = False, parameter_error: bool = True,
                 bias_error: float = BIAS_ERROR) -> list[FittedCandidate]:
     """Fit every effect of the vocabulary (optionally all pairs, and the coefficient refit) to the data.
@@ -836,7 +904,8 @@ def _raw_epsilon(model: LinearModel, sweeps: Sequence, coherence_threshold: floa
 # ------------------------------------------------------------------------------------------------ analysis
 
 
-def analyse_channel(model: LinearModel, estimate, sweeps: list, coherence_threshold: float, *, fit: bool = True,
+def analyse_channel(model: LinearModel, estimate: SpectralEstimate, sweeps: Sequence[SpectralEstimate],
+                    coherence_threshold: float, *, fit: bool = True,
                     epsilon_threshold: float = 0.15, sigma_factor: float = SIGMA_FACTOR,
                     bias_error: float = BIAS_ERROR, channel: str = "") -> ChannelDiagnosis:
     """Where the model fails (model- or data-limited bands) and which effects would explain it.

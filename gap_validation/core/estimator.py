@@ -90,6 +90,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from gap_validation.core.alignment import (JUMP_CONFIRM, _NONE, _GridAligner, _StreamResampler, _TimeBase,
                                            jump_back_s)
@@ -185,9 +186,26 @@ class SpectralEstimate:
     n_sweeps: int = 1
 
     @classmethod
-    def from_sums(cls, w_rad_s, sum_xx, sum_yy, sum_xy, n, start_s=float("nan"), end_s=float("nan"),
+    def from_sums(cls, w_rad_s: ArrayLike, sum_xx: ArrayLike, sum_yy: ArrayLike, sum_xy: ArrayLike, n: ArrayLike,
+                  start_s: float = float("nan"), end_s: float = float("nan"),
                   n_sweeps: int = 1) -> "SpectralEstimate":
-        """Estimate from sums over segments of scaled ``|X|^2``, ``|Y|^2``, ``conj(X) Y`` and their count."""
+        """Estimate from sums over segments of scaled ``|X|^2``, ``|Y|^2``, ``conj(X) Y`` and their count.
+
+        Parameters
+        ----------
+        w_rad_s : array_like
+            Frequencies [rad/s].
+        sum_xx, sum_yy : array_like
+            Sums of the scaled ``|X|^2`` and ``|Y|^2`` per frequency.
+        sum_xy : array_like of complex
+            Sum of the scaled ``conj(X) Y`` per frequency.
+        n : array_like of int
+            Segments summed per frequency (``n_d``).
+        start_s, end_s : float
+            Time span of the sweep(s) [s].
+        n_sweeps : int
+            Sweeps pooled.
+        """
         n = np.asarray(n, dtype=np.int64)
         with np.errstate(divide="ignore", invalid="ignore"):
             safe_n = np.maximum(n, 1)
@@ -453,7 +471,7 @@ class FrequencyResponseEstimator:
     #: Accepted option names (the config checks them against this).
     OPTIONS = tuple(ESTIMATOR_DEFAULTS)
 
-    def __init__(self, w_rad_s, **options) -> None:
+    def __init__(self, w_rad_s: ArrayLike, **options: Any) -> None:
         w = np.atleast_1d(np.asarray(w_rad_s, dtype=float))
         if w.ndim != 1 or w.size == 0 or not np.all(np.isfinite(w)) or np.any(w <= 0):
             raise ConfigError(f"estimator frequencies: expected positive finite rad/s values, got {w_rad_s!r}")
@@ -558,18 +576,44 @@ class FrequencyResponseEstimator:
         return out
 
     # ------------------------------------------------------------------ data in
-    def add_input(self, t_s, u) -> None:
-        """Feed control-surface samples: times [s] (increasing) and values, any rate, jitter or drops."""
+    def add_input(self, t_s: ArrayLike, u: ArrayLike) -> None:
+        """Feed control-surface samples: times [s] (increasing) and values, any rate, jitter or drops.
+
+        Parameters
+        ----------
+        t_s : array_like
+            Sample times [s], increasing.
+        u : array_like
+            Surface deflections [rad].
+        """
         self._add_stream(0, t_s, u, "input")
 
-    def add_output(self, t_s, y) -> None:
-        """Feed response (e.g. IMU body-rate) samples: times [s] and values."""
+    def add_output(self, t_s: ArrayLike, y: ArrayLike) -> None:
+        """Feed response (e.g. IMU body-rate) samples: times [s] and values.
+
+        Parameters
+        ----------
+        t_s : array_like
+            Sample times [s], increasing.
+        y : array_like
+            Body rates [rad/s].
+        """
         self._add_stream(1, t_s, y, "output")
 
-    def add_time_histories(self, t_input_s, u, t_output_s, y, chunk_s: float | None = None) -> None:
+    def add_time_histories(self, t_input_s: ArrayLike, u: ArrayLike, t_output_s: ArrayLike, y: ArrayLike,
+                           chunk_s: float | None = None) -> None:
         """Feed two whole recorded streams, interleaved in chunks of ``chunk_s`` [s].
 
         The chunk is at most ``max_lag_s / 2`` (default ``max_lag_s / 3``) so that nothing is dropped.
+
+        Parameters
+        ----------
+        t_input_s, u : array_like
+            Input sample times [s] and values.
+        t_output_s, y : array_like
+            Output sample times [s] and values.
+        chunk_s : float, optional
+            Interleaving chunk [s] (default ``max_lag_s / 3``).
         """
         t_input_s, u = np.asarray(t_input_s, float).ravel(), np.asarray(u, float).ravel()
         t_output_s, y = np.asarray(t_output_s, float).ravel(), np.asarray(y, float).ravel()
@@ -597,10 +641,17 @@ class FrequencyResponseEstimator:
         self.add_input(t_input_s[pa:], u[pa:])
         self.add_output(t_output_s[pb:], y[pb:])
 
-    def add_trigger(self, t_s, active) -> None:
+    def add_trigger(self, t_s: ArrayLike, active: ArrayLike) -> None:
         """Feed samples of an explicit sweep trigger (``std_msgs/Bool``): sweeps are where it is true.
 
         The first trigger sample switches sweep detection off for the rest of the flight.
+
+        Parameters
+        ----------
+        t_s : array_like
+            Sample times [s].
+        active : array_like of bool
+            True inside a sweep.
         """
         t = np.atleast_1d(np.asarray(t_s, dtype=float)).ravel()
         a = np.atleast_1d(np.asarray(active)).ravel()
@@ -873,7 +924,13 @@ class FrequencyResponseEstimator:
 
     @classmethod
     def from_state(cls, state: dict) -> "FrequencyResponseEstimator":
-        """Rebuild an estimator from :meth:`state_dict` (e.g. a checkpoint loaded from disk)."""
+        """Rebuild an estimator from :meth:`state_dict` (e.g. a checkpoint loaded from disk).
+
+        Parameters
+        ----------
+        state : dict
+            From :meth:`state_dict` (version 1 or 2).
+        """
         version = state.get("version") if isinstance(state, dict) else None
         if version is None or int(version) not in (1, _STATE_VERSION):
             raise DataError(f"estimator state: unsupported version {version!r} (expected {_STATE_VERSION})")

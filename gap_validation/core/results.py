@@ -33,7 +33,15 @@ def _list(values: Any) -> list:
 
 def phase_deg(response: np.ndarray, reference: np.ndarray | None = None) -> np.ndarray:
     """Unwrapped phase [deg]; with ``reference``, on the same branch as the reference's unwrapped phase
-    (phase of the reference plus the unwrapped phase of response/reference), so that curves overlay."""
+    (phase of the reference plus the unwrapped phase of response/reference), so that curves overlay.
+
+    Parameters
+    ----------
+    response : array_like of complex
+        A frequency response.
+    reference : array_like of complex, optional
+        A response whose branch the phase follows (e.g. the model's).
+    """
     response = np.asarray(response, dtype=complex)
     if reference is None:
         return np.degrees(_unwrap_finite(np.angle(response)))
@@ -62,7 +70,7 @@ def _complex(mag_phase: dict | None) -> np.ndarray | None:
     return 10.0 ** (mag / 20.0) * np.exp(1j * np.radians(phase))
 
 
-def _array(values) -> np.ndarray | None:
+def _array(values: Any) -> np.ndarray | None:
     """A float array from a JSON list (null -> NaN); None for a missing or empty list."""
     if not values:
         return None
@@ -263,16 +271,24 @@ class SweepResult:
     points_used: int
 
     def to_json_dict(self) -> dict:
+        """The JSON object of a ``raw_sweeps`` entry (non-finite numbers are null)."""
         return {"start_s": _num(self.start_s), "end_s": _num(self.end_s), "epsilon": _num(self.epsilon),
                 "worst_frequency_rad_s": _num(self.worst_frequency_rad_s), "points_used": self.points_used}
 
     @classmethod
     def from_json_dict(cls, data: dict) -> "SweepResult":
+        """Rebuild a sweep's result from its JSON object.
+
+        Parameters
+        ----------
+        data : dict
+            A ``raw_sweeps`` entry of the JSON results.
+        """
         return cls(_float(data.get("start_s")), _float(data.get("end_s")), data.get("epsilon"),
                    data.get("worst_frequency_rad_s"), int(data.get("points_used") or 0))
 
 
-def _float(value) -> float:
+def _float(value: Any) -> float:
     return float("nan") if value is None else float(value)
 
 
@@ -342,13 +358,17 @@ class ChannelResult:
 
     @property
     def points_used(self) -> int:
+        """Confident frequencies (those epsilon and the nu-gap are taken over)."""
         return int(np.count_nonzero(self.confident)) if self.confident is not None else 0
 
     def to_json_dict(self, samples: bool = True) -> dict:
         """The channel's JSON object (DESIGN.md keys first, extensions after).
 
-        ``samples=False`` leaves out the bulky parts only figures need (each raw sweep's response, the doublets'
-        samples): the node's 1 Hz diagnostics read a few numbers.
+        Parameters
+        ----------
+        samples : bool
+            ``False`` leaves out the bulky parts only figures need (each raw sweep's response, the doublets'
+            samples): the node's 1 Hz diagnostics read a few numbers.
         """
         out = {
             "nu_gap": _num(self.nu_gap),
@@ -395,7 +415,15 @@ class ChannelResult:
 
     @classmethod
     def from_json_dict(cls, name: str, data: dict) -> "ChannelResult":
-        """Rebuild a channel's result from its JSON object (e.g. to draw a report from saved results)."""
+        """Rebuild a channel's result from its JSON object (e.g. to draw a report from saved results).
+
+        Parameters
+        ----------
+        name : str
+            Channel name.
+        data : dict
+            The channel's object of the JSON results.
+        """
         ch = cls(name=name, sweeps=int(data.get("sweeps") or 0), nu_gap=data.get("nu_gap"),
                  nu_gap_frequency_rad_s=data.get("nu_gap_frequency_rad_s"), epsilon=data.get("epsilon"),
                  worst_frequency_rad_s=data.get("worst_frequency_rad_s"), epsilon_raw=data.get("epsilon_raw"),
@@ -437,6 +465,8 @@ class ValidationResult:
     history: dict[str, list[dict]] = field(default_factory=dict)   # per channel: epsilon per model version
 
     def to_json_dict(self) -> dict:
+        """DESIGN.md's JSON results: ``channels`` (each :meth:`ChannelResult.to_json_dict`), config, sources,
+        notes and history."""
         return {
             "channels": {name: ch.to_json_dict() for name, ch in self.channels.items()},
             "config": self.config_source,
@@ -447,7 +477,18 @@ class ValidationResult:
 
     @classmethod
     def from_json_dict(cls, data: dict) -> "ValidationResult":
-        """Rebuild results from :meth:`to_json_dict` output (``gap-validate report RESULTS.json``)."""
+        """Rebuild results from :meth:`to_json_dict` output (``gap-validate report RESULTS.json``).
+
+        Parameters
+        ----------
+        data : dict
+            The JSON results.
+
+        Raises
+        ------
+        ValueError
+            When there is no ``channels`` object.
+        """
         channels = data.get("channels")
         if not isinstance(channels, dict):
             raise ValueError("no 'channels' object")

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import Any, Sequence
 
 import numpy as np
 from scipy import signal
@@ -266,7 +267,13 @@ class SimulatedFlight:
         return sum(len(s) for s in self.topics.values())
 
     def sweeps(self, channel: str) -> list[Segment]:
-        """The sweep segments of ``channel``."""
+        """The sweep segments of ``channel``.
+
+        Parameters
+        ----------
+        channel : str
+            A channel of the flight's config.
+        """
         return [s for s in self.segments if s.channel == channel and s.kind == "sweep"]
 
 
@@ -327,8 +334,16 @@ def parse_hidden(text: str, channels: list[str] | tuple[str, ...] | None = None)
     return channel, validate_effect(effect, where=f"--hidden {text!r}")
 
 
-def hidden_effects(texts, config: ValidationConfig) -> dict[str, list[dict]]:
-    """Parse every ``--hidden`` text; channel -> effects in the order given."""
+def hidden_effects(texts: Sequence[str] | None, config: ValidationConfig) -> dict[str, list[dict]]:
+    """Parse every ``--hidden`` text; channel -> effects in the order given.
+
+    Parameters
+    ----------
+    texts : sequence of str or None
+        ``--hidden`` texts (``CHANNEL:EFFECT:key=value[,key=value]``).
+    config : ValidationConfig
+        The config whose channels they name.
+    """
     out: dict[str, list[dict]] = {}
     for text in texts or ():
         channel, effect = parse_hidden(text, tuple(config.channels))
@@ -337,7 +352,15 @@ def hidden_effects(texts, config: ValidationConfig) -> dict[str, list[dict]]:
 
 
 def truth_models(config: ValidationConfig, hidden: dict[str, list[dict]] | None = None) -> dict:
-    """Channel -> the true model: the config's model (with its effects) and the hidden effects in series."""
+    """Channel -> the true model: the config's model (with its effects) and the hidden effects in series.
+
+    Parameters
+    ----------
+    config : ValidationConfig
+        The config (models with their effects).
+    hidden : dict, optional
+        Channel -> effects in series with its model.
+    """
     hidden = hidden or {}
     unknown = sorted(set(hidden) - set(config.channels))
     if unknown:
@@ -430,6 +453,11 @@ def plan_topics(config: ValidationConfig) -> dict[str, _TopicPlan]:
     friends -> ``sensor_msgs/msg/Imu``, ``position[name]`` -> ``sensor_msgs/msg/JointState``, ``data`` ->
     ``std_msgs/msg/Float64`` (``std_msgs/msg/Bool`` for a trigger).
 
+    Parameters
+    ----------
+    config : ValidationConfig
+        The config whose signals the flight publishes.
+
     Raises
     ------
     ConfigError
@@ -480,6 +508,19 @@ def log_sweep(t_s: np.ndarray, duration_s: float, w0_rad_s: float, w1_rad_s: flo
     starts a sweep with a couple of long-period cycles), then sweeps exponentially:
     ``phi(t) = w0 T_d + w0 T_s / ln(k) (k^((t - T_d)/T_s) - 1)``, ``k = w1/w0``, ``T_s = T - T_d``, so the
     instantaneous frequency is ``w0 k^((t - T_d)/T_s)`` and every octave gets the same time.
+
+    Parameters
+    ----------
+    t_s : ndarray
+        Times from the sweep start [s].
+    duration_s : float
+        Sweep length T [s].
+    w0_rad_s, w1_rad_s : float
+        Start and end frequencies [rad/s].
+    taper_s : float
+        Half-cosine fade-in and fade-out [s] (at most T / 4).
+    dwell_cycles : float
+        Periods at ``w0`` before the sweep.
     """
     t = np.asarray(t_s, dtype=float)
     inside = (t >= 0.0) & (t <= duration_s)
@@ -499,7 +540,15 @@ def log_sweep(t_s: np.ndarray, duration_s: float, w0_rad_s: float, w1_rad_s: flo
 
 
 def doublet(t_s: np.ndarray, half_period_s: float) -> np.ndarray:
-    """Unit doublet: +1 for ``0 <= t < h``, -1 for ``h <= t < 2h``, zero elsewhere."""
+    """Unit doublet: +1 for ``0 <= t < h``, -1 for ``h <= t < 2h``, zero elsewhere.
+
+    Parameters
+    ----------
+    t_s : ndarray
+        Times from the doublet start [s].
+    half_period_s : float
+        Length h of each half [s].
+    """
     t = np.asarray(t_s, dtype=float)
     return np.where((t >= 0) & (t < half_period_s), 1.0, 0.0) - np.where(
         (t >= half_period_s) & (t < 2 * half_period_s), 1.0, 0.0)
@@ -709,7 +758,15 @@ def _channel_input(name: str, t_s: np.ndarray, segments: list[Segment], opt: Fli
     return u
 
 
-def with_options(options: FlightOptions | None = None, **changes) -> FlightOptions:
-    """A copy of ``options`` (default options when None) with ``changes`` (None values are ignored)."""
+def with_options(options: FlightOptions | None = None, **changes: Any) -> FlightOptions:
+    """A copy of ``options`` (default options when None) with ``changes`` (None values are ignored).
+
+    Parameters
+    ----------
+    options : FlightOptions, optional
+        The options to change (default: :class:`FlightOptions()`).
+    **changes
+        Option name -> value.
+    """
     base = options or FlightOptions()
     return replace(base, **{k: v for k, v in changes.items() if v is not None})

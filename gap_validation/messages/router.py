@@ -3,10 +3,10 @@
 One data path (docs/ARCHITECTURE.md): bag replay (rosbags message objects) and the ROS 2 node (rclpy message
 objects) both hand their messages to :class:`MessageRouter` (after the one decoding step of
 :mod:`gap_validation.messages.decoding`), which extracts every configured signal with
-:class:`~gap_validation.core.fields.FieldPath`, applies the signal's ``scale``, stamps it with ``header.stamp`` (or the receive time) and
-pushes time-ordered batches to the validator. Nothing here imports rclpy or rosbags: messages are only read
-through attributes, indexing and ``len``, which both kinds of message objects support (rclpy arrays may be
-``array.array`` or numpy arrays, rosbags arrays are numpy arrays).
+:class:`~gap_validation.core.fields.FieldPath`, applies the signal's ``scale``, stamps it with ``header.stamp``
+(or the receive time) and pushes time-ordered batches to the validator. Nothing here imports rclpy or
+rosbags: messages are only read through attributes, indexing and ``len``, which both kinds of message objects
+support (rclpy arrays may be ``array.array`` or numpy arrays, rosbags arrays are numpy arrays).
 
 Field path syntax (DESIGN.md, "Validation config"):
 
@@ -34,6 +34,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from gap_validation.core.validator import OnlineValidator
 
 __all__ = ["MessageRouter", "Route", "stamp_seconds", "note_saturation"]
+
 
 def stamp_seconds(msg: Any) -> float | None:
     """``header.stamp`` of ``msg`` in seconds, or None when there is no header or the stamp is zero (unset).

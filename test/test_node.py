@@ -1,7 +1,7 @@
 """Tests of the ROS 2 node ``gap_validator`` (in-process rclpy with an explicit context).
 
 Data path: the bundled flight (``bags/``; a simulated flight with the same hidden effects when none is
-bundled) is read with :mod:`gap_validation.bagio`, each raw CDR record is deserialised into an rclpy message
+bundled) is read with :mod:`gap_validation.bag.reader`, each raw CDR record is deserialised into an rclpy message
 and handed to the node's subscription callback ``ValidatorNode.on_message`` -- the function its
 subscriptions call. That is the robust route for the full flight (no timing, no DDS queue to pace); a
 separate test sends the first part of the flight through real DDS publishers (RELIABLE, paced below the
@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import copy
 import json
-import math
 import os
 import random
 import shutil
@@ -44,7 +43,6 @@ from gap_validation.messages.router import stamp_seconds  # noqa: E402
 from gap_validation.ros.message_types import message_class  # noqa: E402
 from gap_validation.ros.node import ValidatorNode  # noqa: E402
 from gap_validation.ros.parameters import PARAMETERS  # noqa: E402
-from gap_validation.ros.status import channel_status  # noqa: E402
 from gap_validation.bag.replay import replay  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -509,41 +507,6 @@ def test_diagnostics_published_on_the_topic_before_any_data(ros):
             assert key in values, key
         assert values["sweeps"] == "0" and values["epsilon"] == "null"
     assert node.get_fully_qualified_name() == "/gap_validator"
-
-
-def test_channel_status_levels_and_messages():
-    from gap_validation.core.results import ChannelResult
-    from gap_validation.core.margins import margins_from_epsilon
-
-    ch = ChannelResult(name="pitch", sweeps=3, epsilon=0.62, epsilon_previous=0.71, nu_gap=0.4,
-                       worst_frequency_rad_s=25.0, limited_by="model",
-                       bands=[{"min_rad_s": 20.0, "max_rad_s": 40.0, "limited_by": "model"}],
-                       margins=margins_from_epsilon(0.62), bad_samples={"input: not finite": 2})
-    top = {"effect": "time_delay", "effects": [{"type": "time_delay", "seconds": 0.045}], "epsilon": 0.06,
-           "sentence": "missing: time delay of 45 ms; adding it brings epsilon from 0.62 to 0.06"}
-    status = channel_status(ch, candidate=top, diagnosis_state="done")
-    assert status.level == "ERROR"
-    assert status.message == ("epsilon 0.62 (was 0.71): ERROR, model-limited at 20-40 rad/s; missing: time delay "
-                              "of 45 ms; adding it brings epsilon from 0.62 to 0.06")
-    values = dict(status.values)
-    assert values["bad_samples"] == "2" and json.loads(values["bad_samples_by_reason"]) == {"input: not finite": 2}
-    assert json.loads(values["diagnosis_effects"]) == [{"type": "time_delay", "seconds": 0.045}]
-    assert float(values["phase_margin_deg"]) == pytest.approx(2 * math.degrees(math.asin(0.62)))
-    ch.epsilon = 0.3
-    assert channel_status(ch).level == "WARN"
-    ch.epsilon = 0.1
-    assert channel_status(ch).level == "OK"
-    assert channel_status(ch, warn_epsilon=0.05, error_epsilon=0.08).level == "ERROR"
-    ch.epsilon = 1.2
-    ch.margins = margins_from_epsilon(1.2)
-    values = dict(channel_status(ch).values)
-    assert values["gain_margin_db"] == "null" and values["phase_margin_deg"] == "null"
-    empty = ChannelResult(name="roll")
-    assert channel_status(empty).level == "STALE"
-    assert "waiting for a sweep" in channel_status(empty).message
-    assert dict(channel_status(empty).values)["diagnosis"] == "pending"
-    flat = ChannelResult(name="roll", sweeps=2, message="no frequency with coherence >= 0.6 yet")
-    assert channel_status(flat).level == "WARN" and "data-limited" in channel_status(flat).message
 
 
 # ------------------------------------------------------------------------------------------------ bad messages

@@ -1,4 +1,4 @@
-"""Replay (gap_validation.replay and ``gap-validate replay|simulate``): simulate -> bag -> replay round trips."""
+"""Replay (gap_validation.bag.replay and ``gap-validate replay|simulate``): simulate -> bag -> replay round trips."""
 import io
 import json
 import math

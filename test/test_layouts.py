@@ -1,13 +1,8 @@
 """Message-type layouts (gap_validation.core.layouts): the fields of the types the package reads and writes."""
-import dataclasses
-
 import pytest
 
-from _messages import make_config
-from gap_validation.core.config import SignalSpec, ValidationConfig
-from gap_validation.core.errors import ConfigError
 from gap_validation.core.fields import FieldPath
-from gap_validation.core.layouts import BOOL, FLOAT64, IMU, JOINT_STATE, LAYOUTS, infer_type, topic_types
+from gap_validation.core.layouts import BOOL, FLOAT64, IMU, JOINT_STATE, LAYOUTS, infer_type
 
 
 @pytest.mark.parametrize("field, stream, expected", [
@@ -23,14 +18,3 @@ def test_layouts_hold_the_imu_vectors_and_joint_arrays():
     assert ("angular_velocity", "z") in LAYOUTS[IMU] and ("orientation", "w") in LAYOUTS[IMU]
     assert LAYOUTS[JOINT_STATE] == {("position",), ("velocity",), ("effort",)}
     assert list(LAYOUTS)[:2] == [IMU, JOINT_STATE]
-
-
-def test_topic_types_from_the_config():
-    config = make_config()
-    assert topic_types(config) == {"/control_surfaces": None, "/imu": None}
-    pitch = config.channels["pitch"]
-    pitch = dataclasses.replace(pitch, output=SignalSpec("/imu", "angular_velocity.y", type=IMU))
-    roll = dataclasses.replace(pitch, name="roll", output=SignalSpec("/imu", "angular_velocity.x", type=FLOAT64))
-    assert topic_types(ValidationConfig({"pitch": pitch}))["/imu"] == IMU
-    with pytest.raises(ConfigError, match="cfg.yaml: topic /imu: conflicting types"):
-        topic_types(ValidationConfig({"pitch": pitch, "roll": roll}, source="cfg.yaml"))

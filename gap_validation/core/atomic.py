@@ -107,21 +107,14 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
 
 
 def atomic_write_text(path: str | os.PathLike, text: str, encoding: str = "utf-8") -> Path:
-    """Replace ``path`` with ``text`` atomically (see :func:`atomic_open`); returns ``path``.
+    """Replace ``path`` with ``text`` atomically, as :func:`atomic_write_bytes` does with bytes.
 
     Parameters
     ----------
     path : str or PathLike
         Target file; its directory must exist.
-    text : str
-        The new content.
-    encoding : str
-        Text encoding.
-
-    Raises
-    ------
-    OSError
-        When it cannot be written (the old file is kept).
+    text, encoding : str
+        The new content and its encoding.
     """
     with atomic_open(path, "w", encoding=encoding) as handle:
         handle.write(text)

@@ -91,14 +91,6 @@ class Parameter:
 
 
 @dataclass(frozen=True)
-class FitRange:
-    """Range of the usable frequencies a fit sees [rad/s]."""
-
-    w_lo: float
-    w_hi: float
-
-
-@dataclass(frozen=True)
 class EffectFit:
     """How the diagnosis fits one effect, in fit coordinates ``x`` (one row per parameter set).
 
@@ -256,6 +248,14 @@ def _mode_words(p: Mapping[str, float]) -> str:
 
 
 # ------------------------------------------------------------------------------------------------ fits
+@dataclass(frozen=True)
+class FitRange:
+    """Range of the usable frequencies a fit sees [rad/s]."""
+
+    w_lo: float
+    w_hi: float
+
+
 def _product(*axes: Sequence[float]) -> np.ndarray:
     return np.array(list(itertools.product(*axes)), dtype=float)
 

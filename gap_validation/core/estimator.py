@@ -589,14 +589,12 @@ class FrequencyResponseEstimator:
         self._add_stream(0, t_s, u, "input")
 
     def add_output(self, t_s: ArrayLike, y: ArrayLike) -> None:
-        """Feed response (e.g. IMU body-rate) samples: times [s] and values.
+        """Feed response (e.g. IMU body-rate) samples: times [s] and values, as :meth:`add_input`.
 
         Parameters
         ----------
-        t_s : array_like
-            Sample times [s], increasing.
-        y : array_like
-            Body rates [rad/s].
+        t_s, y : array_like
+            Sample times [s] (increasing) and body rates [rad/s].
         """
         self._add_stream(1, t_s, y, "output")
 

@@ -2,22 +2,15 @@
 
 One definition of what ``sensor_msgs/msg/Imu``, ``sensor_msgs/msg/JointState`` and ``std_msgs/msg/Float64 |
 Float32 | Bool`` carry, read by the simulator (which topics a config's fields imply), the fast CDR decoders of
-:mod:`gap_validation.messages.cdr` and the bag writer of :mod:`gap_validation.bag.writer`; and the message type
-of each topic of a config (:func:`topic_types`, for the node). It lives in the core, below
-:mod:`gap_validation.messages`, because the core's simulator needs it. No ROS import.
+:mod:`gap_validation.messages.cdr` and the bag writer of :mod:`gap_validation.bag.writer`. It lives in the core,
+below :mod:`gap_validation.messages`, because the core's simulator needs it. No ROS import.
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
-from gap_validation.core.errors import ConfigError
 from gap_validation.core.fields import FieldPath
 
-if TYPE_CHECKING:  # pragma: no cover
-    from gap_validation.core.config import ValidationConfig
-
 __all__ = ["IMU", "JOINT_STATE", "FLOAT64", "FLOAT32", "BOOL", "IMU_VECTORS", "JOINT_ARRAYS", "SCALAR_TYPES",
-           "STAMPED_TYPES", "LAYOUTS", "infer_type", "topic_types"]
+           "STAMPED_TYPES", "LAYOUTS", "infer_type"]
 
 IMU = "sensor_msgs/msg/Imu"
 JOINT_STATE = "sensor_msgs/msg/JointState"
@@ -67,25 +60,3 @@ def infer_type(path: FieldPath, stream: str) -> str | None:
     if attrs == ("data",):
         return FLOAT64
     return None
-
-
-def topic_types(config: "ValidationConfig") -> dict[str, str | None]:
-    """Topic -> message type from the config's ``type`` keys (None: discover it from the bag or the graph).
-
-    Parameters
-    ----------
-    config : ValidationConfig
-        The validation config.
-
-    Raises
-    ------
-    ConfigError
-        When two signals on one topic name different types.
-    """
-    out: dict[str, str | None] = {}
-    for topic, entries in config.topics().items():
-        types = {spec.type for _, _, spec in entries if spec.type}
-        if len(types) > 1:
-            raise ConfigError(f"{config.source}: topic {topic}: conflicting types {', '.join(sorted(types))}")
-        out[topic] = types.pop() if types else None
-    return out

@@ -133,10 +133,8 @@ def epsilon_frequency_data(w_rad_s: ArrayLike, p1: ArrayLike, p2: ArrayLike) -> 
 
     Parameters
     ----------
-    w_rad_s : array_like
-        Frequencies [rad/s].
-    p1, p2 : array_like of complex
-        Model and measured responses at those frequencies.
+    w_rad_s, p1, p2 : array_like
+        As for :func:`nugap_frequency_data`.
 
     Returns
     -------

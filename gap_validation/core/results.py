@@ -6,7 +6,7 @@ added, never renamed. Non-finite numbers become ``null``.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
@@ -86,8 +86,35 @@ def _mag_phase(response: np.ndarray | None, reference: np.ndarray | None = None)
     return {"magnitude_db": _list(mag), "phase_deg": _list(phase_deg(response, reference))}
 
 
+class _JsonView:
+    """A result dataclass that reads like its JSON object and is rebuilt from it (fields in JSON key order)."""
+
+    def to_json_dict(self) -> dict:
+        """The JSON object (defined by each result)."""
+        raise NotImplementedError
+
+    @classmethod
+    def from_json_dict(cls, data: dict) -> Any:
+        """Rebuild from the JSON object (missing keys take the defaults).
+
+        Parameters
+        ----------
+        data : dict
+            The object as :meth:`to_json_dict` wrote it (a ``bands`` or ``diagnosis`` entry).
+        """
+        return cls(**{f.name: data[f.name] for f in fields(cls) if f.name in data})
+
+    def __getitem__(self, key: str) -> Any:
+        """The value of JSON key ``key`` (KeyError for any other key)."""
+        return self.to_json_dict()[key]
+
+    def __contains__(self, key: object) -> bool:
+        """Whether the JSON object has key ``key``."""
+        return key in self.to_json_dict()
+
+
 @dataclass(frozen=True)
-class Band:
+class Band(_JsonView):
     """A run of adjacent frequencies where epsilon(w) passes the diagnosis threshold, and why (JSON ``bands``).
 
     Attributes
@@ -137,32 +164,9 @@ class Band:
                 "coherence_min": self.coherence_min, "mismatch_sigma": self.mismatch_sigma,
                 "min_averages": self.min_averages}
 
-    @classmethod
-    def from_json_dict(cls, data: dict) -> "Band":
-        """Rebuild a band from its JSON object (missing keys take the defaults).
-
-        Parameters
-        ----------
-        data : dict
-            A ``bands`` entry of the JSON results.
-        """
-        return cls(**{key: data[key] for key in _BAND_KEYS if key in data})
-
-    def __getitem__(self, key: str) -> Any:
-        """The value of JSON key ``key`` (a band reads like its JSON object; KeyError for other keys)."""
-        return self.to_json_dict()[key]
-
-    def __contains__(self, key: object) -> bool:
-        """Whether the band's JSON object has key ``key``."""
-        return key in self.to_json_dict()
-
-
-_BAND_KEYS = ("min_rad_s", "max_rad_s", "peak_rad_s", "epsilon", "limited_by", "reason", "coherence_min",
-              "mismatch_sigma", "min_averages")
-
 
 @dataclass(frozen=True)
-class Candidate:
+class Candidate(_JsonView):
     """A diagnosis candidate: an effect (or pair, or refitted coefficients) and what it would leave (JSON
     ``diagnosis`` entries, best first).
 
@@ -226,30 +230,6 @@ class Candidate:
             out["model"] = self.model
             out["note"] = self.note
         return out
-
-    @classmethod
-    def from_json_dict(cls, data: dict) -> "Candidate":
-        """Rebuild a candidate from its JSON object (missing keys take the defaults).
-
-        Parameters
-        ----------
-        data : dict
-            A ``diagnosis`` entry of the JSON results.
-        """
-        return cls(**{key: data[key] for key in _CANDIDATE_KEYS if key in data})
-
-    def __getitem__(self, key: str) -> Any:
-        """The value of JSON key ``key`` (a candidate reads like its JSON object; KeyError for other keys)."""
-        return self.to_json_dict()[key]
-
-    def __contains__(self, key: object) -> bool:
-        """Whether the candidate's JSON object has key ``key``."""
-        return key in self.to_json_dict()
-
-
-_CANDIDATE_KEYS = ("effect", "parameters", "effects", "epsilon", "nu_gap", "sentence", "improvement",
-                   "epsilon_before", "epsilon_raw", "worst_frequency_rad_s", "complexity", "explains", "cost",
-                   "cost_before", "model", "note")
 
 
 def _band(value: Band | dict) -> Band:

@@ -175,7 +175,7 @@ def filter_uniform(num: ArrayLike, den: ArrayLike, dt_s: float, x: ArrayLike) ->
     Parameters
     ----------
     num, den : array_like
-        Numerator and denominator, descending powers of s.
+        Transfer function coefficients (descending powers of s).
     dt_s : float
         Sample step [s].
     x : array_like

@@ -54,6 +54,15 @@ def _save(fig, path: Path) -> None:
         pyplot().close(fig)
 
 
+def _finish(fig, ax, path: Path, title: str, fontsize: float = 6.5, **legend) -> None:
+    """Grid, legend and title of a one-axes figure, then save it."""
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=fontsize, **legend)
+    ax.set_title(title)
+    fig.tight_layout()
+    _save(fig, path)
+
+
 def _db(x) -> np.ndarray:
     with np.errstate(divide="ignore"):
         return 20.0 * np.log10(np.abs(x))
@@ -192,11 +201,8 @@ def disk_figure(ch: ChannelResult, path: Path) -> None:
     _square_limits(ax, np.concatenate(shown + [np.array([1.0 + 0j])]))
     ax.set_xlabel("Re P2/P1 [-]")
     ax.set_ylabel("Im P2/P1 [-]")
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0))
-    ax.set_title(f"{ch.name}: perturbations and epsilon disks")
-    fig.tight_layout()
-    _save(fig, path)
+    _finish(fig, ax, path, f"{ch.name}: perturbations and epsilon disks", fontsize=7, loc="upper left",
+            bbox_to_anchor=(1.02, 1.0))
 
 
 # ------------------------------------------------------------------------------------------ where it fails
@@ -279,11 +285,7 @@ def nichols_figure(ch: ChannelResult, path: Path) -> None:
     ax.set_ylim(-2 * gm, 2 * gm)
     ax.set_xlabel("loop phase [deg]")
     ax.set_ylabel("loop gain [dB]")
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=6.5, loc="upper left")
-    ax.set_title(f"{ch.name}: required margins in the Nichols plane")
-    fig.tight_layout()
-    _save(fig, path)
+    _finish(fig, ax, path, f"{ch.name}: required margins in the Nichols plane", loc="upper left")
 
 
 def nyquist_figure(ch: ChannelResult, path: Path, model=None) -> None:
@@ -316,11 +318,7 @@ def nyquist_figure(ch: ChannelResult, path: Path, model=None) -> None:
     _square_limits(ax, np.concatenate((p1, ch.measured[ok], [-1.0 + 0j])), minimum=1.0)
     ax.set_xlabel("Re P [(rad/s)/rad]")
     ax.set_ylabel("Im P [(rad/s)/rad]")
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=6.5, loc="best")
-    ax.set_title(f"{ch.name}: robust Nyquist diagram")
-    fig.tight_layout()
-    _save(fig, path)
+    _finish(fig, ax, path, f"{ch.name}: robust Nyquist diagram", loc="best")
 
 
 # ------------------------------------------------------------------------------------------ Fig. 6

@@ -13,7 +13,6 @@ from typing import Iterable
 from gap_validation.core.config import SignalSpec, ValidationConfig
 from gap_validation.core.errors import ConfigError, one_line
 from gap_validation.core.fields import FieldError, FieldPath
-from gap_validation.core.layouts import topic_types
 
 __all__ = ["message_class", "check_fields", "resolve_types"]
 
@@ -65,7 +64,8 @@ def check_fields(topic: str, cls: type, entries: Iterable[tuple[str, str, Signal
 
 
 def resolve_types(config: ValidationConfig) -> dict[str, str | None]:
-    """Topic -> type from the config (None: discover it), with classes importable and fields present.
+    """Topic -> type from the config's ``type`` keys (None: discover it from the graph), each type installed and
+    carrying the configured fields.
 
     Parameters
     ----------
@@ -75,11 +75,16 @@ def resolve_types(config: ValidationConfig) -> dict[str, str | None]:
     Raises
     ------
     ConfigError
-        A type that is not installed or lacks a configured field; conflicting types on one topic.
+        Two signals of a topic naming different types; a type not installed or lacking a configured field.
     """
-    types = topic_types(config)
     topics = config.topics()
-    for topic, type_name in types.items():
+    out: dict[str, str | None] = {}
+    for topic, entries in topics.items():
+        types = {spec.type for _, _, spec in entries if spec.type}
+        if len(types) > 1:
+            raise ConfigError(f"{config.source}: topic {topic}: conflicting types {', '.join(sorted(types))}")
+        out[topic] = types.pop() if types else None
+    for topic, type_name in out.items():
         if type_name is not None:
             check_fields(topic, message_class(type_name), topics[topic])
-    return types
+    return out

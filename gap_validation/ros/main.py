@@ -37,7 +37,7 @@ def _parser() -> argparse.ArgumentParser:
                f"parameters:\n{lines}")
 
 
-def _executor(node: ValidatorNode):
+def _executor(node: ValidatorNode) -> "rclpy.executors.Executor":
     """The executor the ``executor`` parameter asks for (EventsExecutor when rclpy has it)."""
     if node.get_parameter("use_sim_time").value:
         # rclpy Jazzy's EventsExecutor fires ROS-time timers wrongly when /clock drives them

@@ -76,8 +76,19 @@ class ManoeuvreRecorder:
 
     # ------------------------------------------------------------------ data in
     def offer(self, k_from: int, u: np.ndarray, y: np.ndarray, k_run0: int, k_run1: int, kind: str) -> bool:
-        """A short manoeuvre: grid samples of input and output from index ``k_from``, excited ``[k_run0,
-        k_run1)``; returns whether it is kept (see the module docstring)."""
+        """Offer a short manoeuvre; returns whether it is kept (see the module docstring).
+
+        Parameters
+        ----------
+        k_from : int
+            Grid index of the first sample.
+        u, y : ndarray
+            Input and output grid samples (trim before, response after).
+        k_run0, k_run1 : int
+            Grid indices of the start and end (exclusive) of the excitation.
+        kind : str
+            ``doublet``, ``pulse`` or ``multistep``.
+        """
         u, y = np.asarray(u, float), np.asarray(y, float)
         n = min(u.size, self.cap)
         trim_n = k_run0 - k_from
@@ -105,7 +116,15 @@ class ManoeuvreRecorder:
         return self._meta.tobytes()
 
     def manoeuvres(self, t0_s: float, dt_s: float) -> list[Manoeuvre]:
-        """Kept manoeuvres, in time order, with times ``t0_s + k dt_s``."""
+        """Kept manoeuvres, in time order, with times ``t0_s + k dt_s``.
+
+        Parameters
+        ----------
+        t0_s : float
+            Time of grid index 0 [s].
+        dt_s : float
+            Grid step [s].
+        """
         out = []
         for i in np.argsort(self._meta[:, 0]):
             k_from, n, k_run0, k_run1, kind, used = (int(v) for v in self._meta[i])
@@ -118,11 +137,17 @@ class ManoeuvreRecorder:
 
     # ------------------------------------------------------------------ checkpoint
     def state_dict(self) -> dict:
-        """Fixed-size state (checkpoints)."""
+        """The recorder's state: numpy arrays of a size independent of flight length."""
         return {"kept": self._kept.copy(), "meta": self._meta.copy(), "score": self._score.copy()}
 
     def load_state(self, st: dict) -> None:
-        """Inverse of :meth:`state_dict`."""
+        """Continue from :meth:`state_dict`.
+
+        Parameters
+        ----------
+        st : dict
+            From :meth:`state_dict`.
+        """
         self._kept[:] = st["kept"]
         self._meta[:] = st["meta"]
         self._score[:] = st["score"]

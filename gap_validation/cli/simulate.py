@@ -13,7 +13,8 @@ import argparse
 import shutil
 from pathlib import Path
 
-from gap_validation.bagio import BAG_SUFFIXES, STORAGES, write_flight
+from gap_validation.bag.reader import BAG_SUFFIXES
+from gap_validation.bag.writer import STORAGES, write_flight
 from gap_validation.config import load_config
 from gap_validation.core.effects import describe_effect
 from gap_validation.core.errors import ConfigError

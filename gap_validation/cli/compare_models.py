@@ -9,7 +9,7 @@ from gap_validation.config import load_config
 from gap_validation.core import metrics
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.margins import margins_from_epsilon, margins_note
-from gap_validation.render import fmt, table, write_json
+from gap_validation.report.terminal import fmt, table, write_json
 
 
 def register(sub) -> None:

@@ -1,11 +1,12 @@
-"""From messages to samples: field paths and the router that feeds :class:`OnlineValidator`.
+"""From messages to samples: the router that feeds :class:`OnlineValidator`.
 
 One data path (docs/ARCHITECTURE.md): bag replay (rosbags message objects) and the ROS 2 node (rclpy message
-objects) both hand their messages to :class:`MessageRouter`, which extracts every configured signal with
-:class:`FieldPath`, applies the signal's ``scale``, stamps it with ``header.stamp`` (or the receive time) and
-pushes time-ordered batches to the validator. Nothing here imports rclpy or rosbags: messages are only read
-through attributes, indexing and ``len``, which both kinds of message objects support (rclpy arrays may be
-``array.array`` or numpy arrays, rosbags arrays are numpy arrays).
+objects) both hand their messages to :class:`MessageRouter` (after the one decoding step of
+:mod:`gap_validation.messages.decoding`), which extracts every configured signal with
+:class:`~gap_validation.core.fields.FieldPath`, applies the signal's ``scale``, stamps it with ``header.stamp``
+(or the receive time) and pushes time-ordered batches to the validator. Nothing here imports rclpy or
+rosbags: messages are only read through attributes, indexing and ``len``, which both kinds of message objects
+support (rclpy arrays may be ``array.array`` or numpy arrays, rosbags arrays are numpy arrays).
 
 Field path syntax (DESIGN.md, "Validation config"):
 
@@ -24,19 +25,15 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from gap_validation.core.estimator import ESTIMATOR_DEFAULTS, JUMP_BACK_S
-from gap_validation.core.fields import FieldError, FieldPath  # re-exported: the node and replay use both
+from gap_validation.core.alignment import JUMP_BACK_S, increasing, jump_back_s
+from gap_validation.core.estimator import ESTIMATOR_DEFAULTS
+from gap_validation.core.fields import FieldError, FieldPath
 
 if TYPE_CHECKING:  # pragma: no cover
     from gap_validation.core.config import ValidationConfig
     from gap_validation.core.validator import OnlineValidator
 
-__all__ = ["FieldError", "FieldPath", "MessageRouter", "Route", "stamp_seconds", "note_saturation", "VERIFY_MESSAGES",
-           "fast_values_agree"]
-
-#: Messages per topic decoded both ways (fast field decoder and full deserialisation) before replay and the
-#: node trust the fast decoder.
-VERIFY_MESSAGES = 8
+__all__ = ["MessageRouter", "Route", "stamp_seconds", "note_saturation"]
 
 
 def stamp_seconds(msg: Any) -> float | None:
@@ -55,17 +52,6 @@ def stamp_seconds(msg: Any) -> float | None:
     if not sec and not nanosec:
         return None
     return sec + nanosec * 1e-9
-
-
-def fast_values_agree(routes, msg: Any, stamp: float | None, values) -> bool:
-    """Whether a fast decoder's ``(stamp, values)`` equal what ``routes`` extract from the fully decoded ``msg``
-    (NaN equals NaN); replay and the node stop using the fast decoder of a topic on the first difference."""
-    try:
-        full = [route.path.extract(msg) for route in routes]
-    except FieldError:
-        return False
-    return (len(full) == len(values) and stamp == stamp_seconds(msg)
-            and all(a == b or (math.isnan(a) and math.isnan(b)) for a, b in zip(values, full)))
 
 
 @dataclass(frozen=True)
@@ -140,26 +126,6 @@ class _Saturation:
         return out
 
 
-def _increasing(t: np.ndarray, last_t: float, jump_s: float) -> tuple[np.ndarray, int]:
-    """Mask of samples after every earlier one, where a step back of more than ``jump_s`` [s] restarts the
-    comparison (the estimator opens a new time base there); also the number of such jumps."""
-    keep = np.zeros(t.size, bool)
-    start, jumps = 0, 0
-    while start < t.size:
-        seg = t[start:]
-        prev = np.maximum.accumulate(np.concatenate(([last_t], seg[:-1])))
-        back = np.flatnonzero(seg < prev - jump_s)
-        stop = int(back[0]) if back.size else seg.size
-        keep[start:start + stop] = seg[:stop] > prev[:stop]
-        if stop == seg.size:
-            break
-        jumps += 1
-        keep[start + stop] = True
-        last_t = float(seg[stop])
-        start += stop + 1
-    return keep, jumps
-
-
 class MessageRouter:
     """Routes messages of configured topics to :class:`OnlineValidator` as batches of samples.
 
@@ -215,7 +181,7 @@ class MessageRouter:
     def _jump_s(self, channel: str) -> float:
         """The channel estimator's threshold for a jump back in time [s] (see ``core.estimator``)."""
         options = self.config.channels[channel].estimator
-        return max(JUMP_BACK_S, float(options.get("max_gap_s", ESTIMATOR_DEFAULTS["max_gap_s"])))
+        return jump_back_s(options.get("max_gap_s", ESTIMATOR_DEFAULTS["max_gap_s"]))
 
     @property
     def topics(self) -> tuple[str, ...]:
@@ -270,7 +236,7 @@ class MessageRouter:
     def on_values(self, topic: str, t_s: float, values: Any) -> None:
         """Queue already extracted raw values (one per route of ``topic``, in :attr:`routes` order).
 
-        The fast decoders of :mod:`gap_validation.bagio` use this entry; ``t_s`` is the message time (stamp
+        The fast decoders of :mod:`gap_validation.messages.cdr` use this entry; ``t_s`` is the message time (stamp
         or receive time) before :attr:`time_offset_s`, values are before ``scale``.
         """
         if topic in self.routes:
@@ -320,10 +286,10 @@ class MessageRouter:
             t, values = t_all[finite], values[finite]
             if t.size == 0:
                 continue
-            increasing, jumps = _increasing(t, state.last_t, state.jump_s)
-            self._count_bad(route, "time not increasing", int(t.size - np.count_nonzero(increasing)))
+            in_order, jumps = increasing(t, state.last_t, state.jump_s)
+            self._count_bad(route, "time not increasing", int(t.size - np.count_nonzero(in_order)))
             self._count_bad(route, "time jumped back (new segment)", jumps)
-            t, values = t[increasing], values[increasing]
+            t, values = t[in_order], values[in_order]
             if t.size == 0:
                 continue
             state.last_t = float(t[-1])

@@ -56,7 +56,7 @@ def run(args) -> int:
     if args.history:
         records = load_history(args.history)
         result.history = {name: epsilon_versions(records, name) for name in result.channels}
-    from gap_validation.report import write_report
+    from gap_validation.report.html import write_report
 
     index = write_report(result, out, runs=args.runs, seed=args.seed,
                          warn=lambda m: print(f"gap-validate: warning: {m}", file=sys.stderr))

@@ -55,7 +55,7 @@ def channel_sentences(ch: ChannelResult) -> list[str]:
         out.append(ch.message)
     if ch.diagnosis:
         top = ch.diagnosis[0]
-        text = top.get("sentence") or f"missing: {top.get('effect')}"
+        text = top.sentence or f"missing: {top.effect}"
         if text not in ch.message:
             out.append(text)
     bad = sum(ch.bad_samples.values())

@@ -27,15 +27,10 @@ from pathlib import Path
 import numpy as np
 
 from gap_validation.atomic import atomic_open
-from gap_validation.core.margins import margins_from_epsilon
-from gap_validation.core.results import ChannelResult, phase_deg
+from gap_validation.core.margins import STANDARD_EPSILON, STANDARD_MARGINS, WARN_EPSILON, margins_from_epsilon
+from gap_validation.core.results import Candidate, ChannelResult, phase_deg
 from gap_validation.core.uncertainty import monte_carlo_tube, time_domain_check
 
-#: Epsilon of the paper's standard margins (6 dB, 45 deg) and of the node's warning level (4.4 dB, 29 deg).
-STANDARD_EPSILON = 0.38
-#: The traditional Nichols exclusion region: gain [dB] and phase [deg] margins.
-STANDARD_MARGINS = (6.0, 45.0)
-WARN_EPSILON = 0.25
 _FLAG_COLOURS = {"ok": "tab:green", "model": "tab:red", "data": "tab:orange", "excluded": "0.7"}
 _BAND_COLOURS = {"model": "tab:red", "data": "tab:orange"}
 
@@ -57,6 +52,15 @@ def _save(fig, path: Path) -> None:
             fig.savefig(handle, dpi=90, format="png")
     finally:
         pyplot().close(fig)
+
+
+def _finish(fig, ax, path: Path, title: str, fontsize: float = 6.5, **legend) -> None:
+    """Grid, legend and title of a one-axes figure, then save it."""
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=fontsize, **legend)
+    ax.set_title(title)
+    fig.tight_layout()
+    _save(fig, path)
 
 
 def _db(x) -> np.ndarray:
@@ -197,11 +201,8 @@ def disk_figure(ch: ChannelResult, path: Path) -> None:
     _square_limits(ax, np.concatenate(shown + [np.array([1.0 + 0j])]))
     ax.set_xlabel("Re P2/P1 [-]")
     ax.set_ylabel("Im P2/P1 [-]")
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0))
-    ax.set_title(f"{ch.name}: perturbations and epsilon disks")
-    fig.tight_layout()
-    _save(fig, path)
+    _finish(fig, ax, path, f"{ch.name}: perturbations and epsilon disks", fontsize=7, loc="upper left",
+            bbox_to_anchor=(1.02, 1.0))
 
 
 # ------------------------------------------------------------------------------------------ where it fails
@@ -212,10 +213,10 @@ def failure_figure(ch: ChannelResult, path: Path) -> None:
     fig, ax = plt.subplots(figsize=(7, 4.0))
     labelled = set()
     for band in ch.bands:
-        kind = band.get("limited_by")
+        kind = band.limited_by
         colour = _BAND_COLOURS.get(kind)
-        if colour and band.get("min_rad_s") is not None:
-            lo, hi = float(band["min_rad_s"]), float(band["max_rad_s"])
+        if colour and band.min_rad_s is not None:
+            lo, hi = float(band.min_rad_s), float(band.max_rad_s)
             if hi <= lo:
                 lo, hi = lo / 1.05, hi * 1.05
             ax.axvspan(lo, hi, color=colour, alpha=0.12, lw=0,
@@ -231,8 +232,9 @@ def failure_figure(ch: ChannelResult, path: Path) -> None:
         sel = np.array([f == flag for f in flags])
         if np.any(sel):
             ax.scatter(w[sel], ch.epsilon_per_frequency[sel], color=colour, s=18, zorder=3, label=flag)
-    ax.axhline(STANDARD_EPSILON, color="tab:red", ls=":", lw=1, label="0.38: standard margins (6 dB, 45 deg)")
-    ax.axhline(WARN_EPSILON, color="tab:orange", ls=":", lw=1, label="0.25: warning (4.4 dB, 29 deg)")
+    ax.axhline(STANDARD_EPSILON, color="tab:red", ls=":", lw=1,
+               label=f"{STANDARD_EPSILON:g}: standard margins (6 dB, 45 deg)")
+    ax.axhline(WARN_EPSILON, color="tab:orange", ls=":", lw=1, label=f"{WARN_EPSILON:g}: warning (4.4 dB, 29 deg)")
     if ch.worst_frequency_rad_s is not None and ch.epsilon is not None:
         ax.axvline(ch.worst_frequency_rad_s, color="k", lw=0.8, ls="--")
         right = ch.worst_frequency_rad_s > math.sqrt(float(np.min(w)) * float(np.max(w)))
@@ -283,11 +285,7 @@ def nichols_figure(ch: ChannelResult, path: Path) -> None:
     ax.set_ylim(-2 * gm, 2 * gm)
     ax.set_xlabel("loop phase [deg]")
     ax.set_ylabel("loop gain [dB]")
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=6.5, loc="upper left")
-    ax.set_title(f"{ch.name}: required margins in the Nichols plane")
-    fig.tight_layout()
-    _save(fig, path)
+    _finish(fig, ax, path, f"{ch.name}: required margins in the Nichols plane", loc="upper left")
 
 
 def nyquist_figure(ch: ChannelResult, path: Path, model=None) -> None:
@@ -320,11 +318,7 @@ def nyquist_figure(ch: ChannelResult, path: Path, model=None) -> None:
     _square_limits(ax, np.concatenate((p1, ch.measured[ok], [-1.0 + 0j])), minimum=1.0)
     ax.set_xlabel("Re P [(rad/s)/rad]")
     ax.set_ylabel("Im P [(rad/s)/rad]")
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=6.5, loc="best")
-    ax.set_title(f"{ch.name}: robust Nyquist diagram")
-    fig.tight_layout()
-    _save(fig, path)
+    _finish(fig, ax, path, f"{ch.name}: robust Nyquist diagram", loc="best")
 
 
 # ------------------------------------------------------------------------------------------ Fig. 6
@@ -361,13 +355,13 @@ def time_figure(ch: ChannelResult, path: Path, model, runs: int = 500, seed: int
 
 
 # ------------------------------------------------------------------------------------------ diagnosis, history
-def candidate_model(model, candidate: dict):
+def candidate_model(model, candidate: Candidate):
     """The model with a diagnosis candidate applied (its effects appended, or its refitted model)."""
     from gap_validation.core.models import LinearModel
 
-    if candidate.get("model"):
-        return LinearModel.from_spec(candidate["model"])
-    return model.with_effects(candidate.get("effects") or [])
+    if candidate.model:
+        return LinearModel.from_spec(candidate.model)
+    return model.with_effects(candidate.effects)
 
 
 def diagnosis_figure(ch: ChannelResult, path: Path, model) -> None:
@@ -384,7 +378,7 @@ def diagnosis_figure(ch: ChannelResult, path: Path, model) -> None:
     ax_p.semilogx(wd, phase_deg(p0), "k--", lw=1.5)
     for candidate, colour in zip(ch.diagnosis[:3], ("tab:red", "tab:green", "tab:purple")):
         p = candidate_model(model, candidate).freqresp(wd)
-        label = f"+ {candidate.get('effect', '?')}: epsilon {_fmt(candidate.get('epsilon'))}"
+        label = f"+ {candidate.effect or '?'}: epsilon {_fmt(candidate.epsilon)}"
         ax_m.semilogx(wd, _db(p), color=colour, lw=1.3, label=label)
         ax_p.semilogx(wd, phase_deg(p, p0), color=colour, lw=1.3)
     ax_m.set_ylabel("magnitude [dB]")
@@ -409,7 +403,7 @@ def history_figure(name: str, versions: list[dict], path: Path) -> None:
     if any(r is not None for r in raw):
         ax.plot(x, [np.nan if r is None else r for r in raw], "s:", color="tab:blue", alpha=0.5,
                 label="epsilon (raw)")
-    ax.axhline(STANDARD_EPSILON, color="tab:red", ls=":", lw=1, label="0.38: standard margins")
+    ax.axhline(STANDARD_EPSILON, color="tab:red", ls=":", lw=1, label=f"{STANDARD_EPSILON:g}: standard margins")
     ax.set_yscale("log")
     ax.set_xticks(x)
     ax.set_xticklabels([_short(v.get("model_description") or f"v{i + 1}") for i, v in enumerate(versions)],

@@ -1,6 +1,6 @@
 """``gap-validate``: the command-line front end (DESIGN.md, CLI contract).
 
-Each subcommand lives in ``gap_validation/commands/<name>.py`` with ``register(subparsers)`` (adds its parser
+Each subcommand lives in ``gap_validation/cli/<name>.py`` with ``register(subparsers)`` (adds its parser
 and sets ``func``) and ``run(args) -> int``. Errors are one line on stderr; ``--debug`` shows the traceback.
 Exit status: 0 success, 2 bad usage or config, 1 unreadable data.
 """
@@ -31,9 +31,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMANDS:
         try:
-            module = importlib.import_module(f"gap_validation.commands.{name}")
+            module = importlib.import_module(f"gap_validation.cli.{name}")
         except ModuleNotFoundError as err:
-            if err.name == f"gap_validation.commands.{name}":
+            if err.name == f"gap_validation.cli.{name}":
                 continue  # subcommand not built yet
             raise
         module.register(sub)

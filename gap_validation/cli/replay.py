@@ -17,8 +17,8 @@ from gap_validation.config import dump_config, load_config
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.history import (append_history, default_history_path, epsilon_versions, format_trend,
                                     load_history, model_hash, previous_epsilon)
-from gap_validation.render import format_table, write_json
-from gap_validation.replay import replay
+from gap_validation.report.terminal import format_table, write_json
+from gap_validation.bag.replay import replay
 
 
 def register(sub) -> None:
@@ -71,13 +71,13 @@ class ProgressBar:
 
 
 def _report_writer():
-    """``gap_validation.report.write_report`` or a one-line error when the report module is not installed."""
-    if importlib.util.find_spec("gap_validation.report") is None:
-        raise ConfigError("--report: report not available (gap_validation.report is not installed)")
-    module = importlib.import_module("gap_validation.report")
+    """``gap_validation.report.html.write_report`` or a one-line error when the report module is not installed."""
+    if importlib.util.find_spec("gap_validation.report.html") is None:
+        raise ConfigError("--report: report not available (gap_validation.report.html is not installed)")
+    module = importlib.import_module("gap_validation.report.html")
     writer = getattr(module, "write_report", None)
     if writer is None:
-        raise ConfigError("--report: report not available (gap_validation.report has no write_report)")
+        raise ConfigError("--report: report not available (gap_validation.report.html has no write_report)")
     return writer
 
 
@@ -197,11 +197,11 @@ def _apply_diagnosis(config, result, out_path: str, history: Path | None) -> Non
             continue
         top = ch.diagnosis[0]
         model = raw["channels"][name]["model"]
-        if top.get("model"):  # parameter error: the refitted model replaces the old one (effects kept in it)
-            raw["channels"][name]["model"] = copy.deepcopy(top["model"])
+        if top.model:  # parameter error: the refitted model replaces the old one (effects kept in it)
+            raw["channels"][name]["model"] = copy.deepcopy(top.model)
         else:
-            model["effects"] = list(model.get("effects") or []) + [dict(e) for e in top["effects"]]
-        applied.append(f"{name}: {top.get('sentence') or top['effect']}")
+            model["effects"] = list(model.get("effects") or []) + [dict(e) for e in top.effects]
+        applied.append(f"{name}: {top.sentence or top.effect}")
     if history is not None:
         raw["history"] = str(history.resolve())
     if not applied:

@@ -3,7 +3,7 @@
 ``write_report(result, directory)`` writes ``directory/index.html`` (opens offline: plain HTML and PNG files
 beside it) with, at the top, the summary in the form of the paper's Table 1 (raw and averaged epsilon, gain,
 phase and disk margins per channel) and the verdict per channel in words; then per channel the figures of
-:mod:`gap_validation.figures` (Figs. 1, 2, 4, 5 and 6 of the paper, where the model fails, the diagnosis
+:mod:`gap_validation.report.figures` (Figs. 1, 2, 4, 5 and 6 of the paper, where the model fails, the diagnosis
 candidates before and after, and epsilon over model versions). Every name that comes from a bag or a config
 is HTML-escaped. A figure that cannot be drawn is replaced by a one-line note: the rest of the report is
 still written. Files are written atomically (temporary file, then rename).
@@ -18,12 +18,12 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable
 
-from gap_validation import figures
+from gap_validation.report import figures
 from gap_validation.atomic import atomic_write_text
 from gap_validation.core.errors import DataError, one_line
-from gap_validation.core.margins import margins_from_epsilon
+from gap_validation.core.margins import STANDARD_EPSILON, WARN_EPSILON, margins_from_epsilon
 from gap_validation.core.results import NUGAP_DATA_NOTE, ChannelResult, ValidationResult
-from gap_validation.render import fmt
+from gap_validation.report.terminal import fmt
 
 log = logging.getLogger(__name__)
 
@@ -66,16 +66,16 @@ def verdict(ch: ChannelResult) -> tuple[str, str]:
     else:
         need = (f"a controller with at least {m.gain_margin_db:.2f} dB gain margin and {m.phase_margin_deg:.1f} deg "
                 f"phase margin on the model is guaranteed stable on the aircraft")
-        if eps < figures.WARN_EPSILON:
+        if eps < WARN_EPSILON:
             text, cls = f"validated (epsilon {eps:.3f}): {need}; well within standard margins.", "ok"
-        elif eps < figures.STANDARD_EPSILON:
+        elif eps < STANDARD_EPSILON:
             text, cls = f"validated (epsilon {eps:.3f}): {need}; within standard margins (6 dB, 45 deg).", "ok"
         else:
             text, cls = (f"validated with large margins only (epsilon {eps:.3f}): {need}, more than the standard "
                          f"6 dB / 45 deg."), "warn"
     if ch.limited_by == "model" and ch.diagnosis:
         top = ch.diagnosis[0]
-        text += f" Model-limited; the likeliest missing effect: {top.get('sentence') or top.get('effect')}."
+        text += f" Model-limited; the likeliest missing effect: {top.sentence or top.effect}."
     elif ch.limited_by == "model":
         text += " Model-limited: confident data disagree with the model."
     elif ch.limited_by == "data":
@@ -240,7 +240,7 @@ def write_report(result: ValidationResult, directory: str | os.PathLike, *, runs
         if ch.message:
             parts.append(f"<p>{html.escape(ch.message)}</p>")
         if ch.diagnosis:
-            parts.append("<ol>" + "".join(f"<li>{html.escape(str(d.get('sentence') or d.get('effect')))}</li>"
+            parts.append("<ol>" + "".join(f"<li>{html.escape(str(d.sentence or d.effect))}</li>"
                                           for d in ch.diagnosis[:3]) + "</ol>")
         parts += drawer.parts
         problems += drawer.problems

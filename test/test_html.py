@@ -10,10 +10,11 @@ import numpy as np
 import pytest
 from matplotlib import image
 
-from gap_validation import figures, report
-from gap_validation.cli import main
+from gap_validation.report import figures
+from gap_validation.report import html as report
+from gap_validation.cli.main import main
 from gap_validation.core.results import ValidationResult
-from gap_validation.report import write_report
+from gap_validation.report.html import write_report
 
 ROOT = Path(__file__).resolve().parents[1]
 BAG = str(ROOT / "bags" / "ultrastick25e_flight")

@@ -1,7 +1,8 @@
 """Replay recorded flights (rosbag2) into the online validator: the offline front end of the one data path.
 
-Every bag is streamed message by message (only the config's topics), each message goes through
-:class:`~gap_validation.ingest.MessageRouter` into :class:`~gap_validation.core.validator.OnlineValidator` --
+Every bag is streamed message by message (only the config's topics), each record goes through the one decoding
+step (:class:`~gap_validation.messages.decoding.TopicDecoder`, as in the node) and
+:class:`~gap_validation.messages.router.MessageRouter` into :class:`~gap_validation.core.validator.OnlineValidator` --
 the same objects the ROS 2 node uses -- and the result is the validator's :class:`ValidationResult`.
 
 Several bags add up: sweeps from all of them count. Bags are replayed in order of their start time; when a
@@ -18,20 +19,22 @@ import logging
 import math
 import time
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
-from gap_validation.bagio import Bag, fast_decoder, open_bag
+from gap_validation.bag.reader import Bag, open_bag
 from gap_validation.core.config import ValidationConfig
 from gap_validation.core.errors import DataError
+from gap_validation.core.fields import FieldError
 from gap_validation.core.results import ValidationResult
 from gap_validation.core.validator import OnlineValidator
-from gap_validation.ingest import (VERIFY_MESSAGES, FieldError, MessageRouter, fast_values_agree, note_saturation,
-                                   stamp_seconds)
+from gap_validation.messages.decoding import TopicDecoder, Undecodable
+from gap_validation.messages.router import MessageRouter, note_saturation, stamp_seconds
 
 log = logging.getLogger(__name__)
 
-__all__ = ["replay", "ReplayOutcome", "BagReport", "BAG_GAP_S", "VERIFY_MESSAGES"]
+__all__ = ["replay", "ReplayOutcome", "BagReport", "BAG_GAP_S"]
 
 #: Gap inserted between bags whose clocks overlap [s].
 BAG_GAP_S = 60.0
@@ -82,15 +85,13 @@ class ReplayOutcome:
 
 
 class _TopicState:
-    """Per-topic decoding state within one bag."""
+    """Per-topic state within one bag: its decoding step, whether it is skipped, damaged records."""
 
-    __slots__ = ("routes", "decoder", "verify_left", "disabled", "msgtype", "damaged", "first_damage")
+    __slots__ = ("routes", "decoding", "disabled", "damaged", "first_damage")
 
-    def __init__(self, routes, msgtype: str, fast: bool):
-        self.routes = routes
-        self.msgtype = msgtype
-        self.decoder = fast_decoder(msgtype, [r.path for r in routes]) if fast else None
-        self.verify_left = VERIFY_MESSAGES
+    def __init__(self, decoding: TopicDecoder):
+        self.routes = decoding.routes
+        self.decoding = decoding
         self.disabled = False
         self.damaged = 0
         self.first_damage = ""
@@ -160,7 +161,9 @@ class _BagReplay:
     def run(self) -> None:
         present = _check_topics(self.bag, self.router, self.report)
         for topic, msgtype in present.items():
-            self.states[topic] = _TopicState(self.router.routes[topic], msgtype, self.fast)
+            deserialize = partial(self.bag.deserialize, msgtype=msgtype, topic=topic)
+            self.states[topic] = _TopicState(TopicDecoder(self.router, topic, msgtype, deserialize, fast=self.fast,
+                                                          errors=(DataError,), on_disagree=_disagree))
         count = 0
         try:
             for topic, msgtype, t_ns, raw in self.bag.records(list(present)):
@@ -179,7 +182,7 @@ class _BagReplay:
                     self.report.errors.append(f"{self.bag.path}: topic {topic}: {state.damaged} damaged "
                                               f"record(s) skipped (first: {state.first_damage})")
             self.report.fast_topics = sorted(t for t, s in self.states.items()
-                                             if s.decoder is not None and not s.disabled)
+                                             if s.decoding.decoder is not None and not s.disabled)
 
     def _set_offset(self, t_s: float) -> None:
         latest = self.router.latest_time_s()
@@ -191,28 +194,18 @@ class _BagReplay:
         self.offset_set = True
 
     def _route(self, topic: str, state: _TopicState, bag_time_s: float, raw: Any) -> None:
-        stamp, values = None, None
-        if state.decoder is not None:
-            try:
-                stamp, values = state.decoder(raw)
-            except Exception:  # noqa: BLE001 - any surprise in the fast path: decode this record fully
-                stamp, values = None, None
-            if values is not None and state.verify_left <= 0:
-                t_s = bag_time_s if stamp is None else stamp
-                if not self.offset_set:
-                    self._set_offset(t_s)
-                self.router.on_values(topic, t_s, values)
-                return
         try:
-            msg = self.bag.deserialize(raw, state.msgtype, topic)
-        except DataError as err:  # a damaged record: count it, keep reading the bag
+            stamp, values, msg = state.decoding.decode(raw)
+        except Undecodable as err:  # a damaged record (counted): note it, keep reading the bag
             state.damaged += 1
-            state.first_damage = state.first_damage or _after_topic(str(err), topic)
-            self.router.count_bad_message(topic, "undecodable")
+            state.first_damage = state.first_damage or _after_topic(str(err.error), topic)
             return
-        if values is not None:
-            state.verify_left -= 1
-            self._verify(topic, state, msg, stamp, values)
+        if msg is None:
+            t_s = bag_time_s if stamp is None else stamp
+            if not self.offset_set:
+                self._set_offset(t_s)
+            self.router.on_values(topic, t_s, values)
+            return
         if not self.offset_set:
             stamp = stamp_seconds(msg)
             self._set_offset(bag_time_s if stamp is None else stamp)
@@ -226,11 +219,9 @@ class _BagReplay:
                           if self.router.broken[key] == str(err)), broken[-1])
             self.report.errors.append(f"{self.bag.path}: {err}; {which} skipped")
 
-    def _verify(self, topic: str, state: _TopicState, msg: Any, stamp, values) -> None:
-        """Compare the fast decoder with full deserialisation (``msg``); on any difference stop using it."""
-        if not fast_values_agree(state.routes, msg, stamp, values):
-            log.debug("fast decoder of %s disagrees with rosbags; decoding fully", topic)
-            state.decoder = None
+
+def _disagree(topic: str) -> None:
+    log.debug("fast decoder of %s disagrees with rosbags; decoding fully", topic)
 
 
 def _open_all(paths: Sequence[str | Path], reports: list[BagReport]) -> list[tuple[Bag, BagReport]]:

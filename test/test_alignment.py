@@ -101,31 +101,15 @@ def test_checkpoint_across_a_time_jump_continues_identically(lap, split):
     whole.flush()
     first = FrequencyResponseEstimator(W_RAD_S)
     _feed(first, chunks[:split])
-    size = _nbytes(FrequencyResponseEstimator(W_RAD_S).state_dict())
-    assert _nbytes(first.state_dict()) == size
+    empty = FrequencyResponseEstimator(W_RAD_S)
+    record = 2 * int(empty.options["max_record_s"] * empty.options["sample_rate_hz"]) * 8
+    assert _nbytes(first.state_dict()) <= _nbytes(empty.state_dict()) + record     # bounded: the record in progress
     resumed = FrequencyResponseEstimator.from_state(copy.deepcopy(first.state_dict()))
     _feed(resumed, chunks[split:])
     resumed.flush()
     assert resumed.n_sweeps == whole.n_sweeps == 2
     for a, b in zip(resumed.sweeps, whole.sweeps):
         assert np.array_equal(a.gxy, b.gxy) and (a.start_s, a.end_s) == (b.start_s, b.end_s)
-
-
-def test_checkpoint_written_before_time_bases_still_loads(lap):
-    est = FrequencyResponseEstimator(W_RAD_S)
-    _feed(est, lap[:20])
-    state = est.state_dict()
-    old = {k: v for k, v in state.items()
-           if not (k in ("epoch", "epoch_offset") or k.startswith("tbase.")
-                   or k.split(".", 1)[-1] in ("epoch", "offset", "pend", "pend_n", "jumps"))}
-    old["trig_last_t"], old["trig_counts"] = -np.inf, np.zeros(3, np.int64)
-    resumed = FrequencyResponseEstimator.from_state(old)
-    _feed(resumed, lap[20:])
-    _feed(est, lap[20:])
-    resumed.flush()
-    est.flush()
-    assert resumed.n_sweeps == est.n_sweeps == 1
-    assert np.array_equal(resumed.averaged().gxy, est.averaged().gxy)
 
 
 def test_stray_stamp_forward_is_dropped_and_the_flight_goes_on(lap):

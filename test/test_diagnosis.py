@@ -44,8 +44,9 @@ def estimate(response, coherence, n_averages, n_sweeps=1):
     coherence = np.broadcast_to(np.asarray(coherence, float), response.shape).copy()
     n = np.broadcast_to(np.asarray(n_averages), response.shape).astype(np.int64)
     gxx = np.ones(response.shape)
+    error = diagnosis.bendat_piersol_random_error(coherence, n)
     return SpectralEstimate(W.copy(), gxx, np.abs(response) ** 2 / coherence, response * gxx, n, response,
-                            coherence, diagnosis.bendat_piersol_random_error(coherence, n), n_sweeps=n_sweeps)
+                            coherence, error, n_sweeps=n_sweeps, variance=2.0 * (error * np.abs(response)) ** 2)
 
 
 def flight(truth, rng, coherence=0.95, n_per_sweep=20, n_sweeps=3):
@@ -102,19 +103,19 @@ def test_noise_only_epsilon_is_rayleigh_with_scale_half_the_random_error():
 @pytest.mark.parametrize("n", [3, 9, 40, 500])
 @pytest.mark.parametrize("ratio", [1.0, 3.0, 6.0])
 def test_normalised_mismatch_matches_the_f_distribution(n, ratio):
-    # H1 error with n averages: T = r^2 (n - 1) / (2 n) ~ F(2, 2n - 2); k = sqrt(-2 ln P)
-    p = stats.f.sf(ratio ** 2 * (n - 1) / (2 * n), 2, 2 * n - 2)
+    # noise variance on n degrees of freedom: |d|^2 / (2 e^2) = r^2 / 2 ~ F(2, 2n); k = sqrt(-2 ln P)
+    p = stats.f.sf(ratio ** 2 / 2, 2, 2 * n)
     k = diagnosis.normalised_mismatch(ratio, 1.0, n)
     assert k == pytest.approx(math.sqrt(-2 * math.log(p)), rel=1e-6)
     assert k <= ratio
     assert diagnosis.normalised_mismatch(ratio, 1.0, np.inf) == pytest.approx(ratio)
 
 
-def test_minimum_averages():
-    # (1 - 0.6)^(n - 1) <= 1e-3  ->  n >= 8.54
-    assert diagnosis.minimum_averages(0.6) == 9
-    assert diagnosis.minimum_averages(0.9) == 4
-    assert diagnosis.minimum_averages(0.3) == 16
+@pytest.mark.parametrize("threshold, coefficients", [(0.6, 2), (0.6, 3), (0.9, 3), (0.3, 3)])
+def test_minimum_averages_is_where_noise_passes_the_threshold_once_in_a_thousand(threshold, coefficients):
+    # pure noise: the coherence of a fit with nh coefficients and d degrees of freedom is Beta(nh, d)
+    d = diagnosis.minimum_averages(threshold, coefficients=coefficients)
+    assert stats.beta.sf(threshold, coefficients, d) <= 1e-3 < stats.beta.sf(threshold, coefficients, d - 1)
 
 
 def test_fit_families_agree_with_the_effects_module():
@@ -259,8 +260,9 @@ def test_noisy_band_is_data_limited():
 
 
 def test_low_coherence_is_excluded_and_too_few_averages_is_data_limited():
-    coherence = np.where(W < 3.0, 0.3, 0.97)
     n = np.where((W > 10.0) & (W < 15.0), 4, 60)
+    # a coherence of 0.7 on 4 degrees of freedom is what noise gives 3 % of the time: it means little
+    coherence = np.where(W < 3.0, 0.3, np.where(n == 4, 0.7, 0.97))
     truth = PITCH.freqresp(W)
     measured = np.where(n == 4, truth * 3.0, truth)         # garbage where only 4 averages were taken
     found = analyse_channel(PITCH, estimate(measured, coherence, n), [], THRESHOLD)
@@ -270,7 +272,7 @@ def test_low_coherence_is_excluded_and_too_few_averages_is_data_limited():
     assert np.all(flags[(W >= 3.0) & (n == 60)] == "ok")
     assert len(found.bands) == 1
     band = found.bands[0]
-    assert band["limited_by"] == "data" and band["min_averages"] == 4 and "too few averages" in band["reason"]
+    assert band["limited_by"] == "data" and band["min_averages"] == 4 and "too few degrees of freedom" in band["reason"]
     assert found.limited_by == "data" and found.candidates == []
     # the same mismatch with enough averages is model-limited; fit=False reports where, not why
     found = analyse_channel(PITCH, estimate(measured, coherence, 60), [], THRESHOLD, fit=False)
@@ -283,7 +285,7 @@ def test_no_confident_frequency_is_data_limited():
     found = analyse_channel(PITCH, est, [], THRESHOLD)
     assert found.limited_by == "data"
     assert set(found.frequency_flags) == {"excluded"}
-    assert found.candidates == [] and "no frequency with coherence >= 0.6" in found.message
+    assert found.candidates == [] and "coherence below 0.6 everywhere (at most 0.20)" in found.message
 
 
 def test_within_threshold_says_so():
@@ -321,7 +323,7 @@ def test_full_fit_is_fast():
 
 def _fit(eps, chi2, k_max=10.0, worst=0):
     eps_w = np.full(W.size, eps)
-    return diagnosis._Fit(eps_w, eps, worst, k_max, chi2)
+    return diagnosis._Fit(eps_w, eps, worst, k_max, chi2, np.full(W.size, k_max))
 
 
 def _evidence(sigma=0.001):

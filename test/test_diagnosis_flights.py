@@ -130,7 +130,7 @@ def test_history_follows_the_fix(tmp_path):
 #: pitch response there is about 4 rad/s per rad, the sweep 0.06 rad), where the short flight's windows give
 #: 8-13 averages. The median coherence there falls from about 0.97 to 0.75: the noisiest frequencies drop below
 #: 0.6 (excluded), the others keep enough coherence to count but a random error large enough to push epsilon(w)
-#: past 0.15 at some of them (with 8 averages: "too few averages", seed 1; with 9 or more: "the random error
+#: past 0.15 at some of them (with few degrees of freedom: "too few degrees of freedom"; with more: "the random error
 #: explains the mismatch", seed 8). Checked by hand on seeds 0-29: never a model-limited frequency, never a
 #: candidate; a data-limited band in 26 of 30 (in the other 4 every frequency where epsilon(w) passes 0.15 has
 #: coherence < 0.6: all excluded, and the channel says "none").
@@ -164,7 +164,7 @@ def test_band_noise_is_data_limited_and_a_hidden_effect_model_limited(seed, tmp_
         assert low / 1.25 <= band["min_rad_s"] <= band["max_rad_s"] <= high * 1.25, band
         inside = (w >= band["min_rad_s"]) & (w <= band["max_rad_s"])
         assert np.all(flags[inside] == "data"), band
-        assert "too few averages" in band["reason"] or "the random error explains" in band["reason"], band
+        assert "too few degrees of freedom" in band["reason"] or "the random error explains" in band["reason"], band
     assert found.message.startswith("data-limited at "), found.message
     noisy_coherence = np.median(found.coherence[near])
 

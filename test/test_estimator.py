@@ -1,7 +1,9 @@
-"""Tests of gap_validation.core.estimator: recursive spectra, accuracy, timing, memory, checkpoints, bad data.
+"""Tests of gap_validation.core.estimator: manoeuvres to frequency responses, accuracy, timing, memory,
+checkpoints, bad data.
 
-The known system is the paper's pitch-rate model with a 20 ms delay (``_pitch_flights``); the estimator's time
-alignment (time bases, jumps back, stray stamps) is tested in ``test_alignment.py``.
+The known system is the paper's pitch-rate model with a 20 ms delay (``_pitch_flights``); the local polynomial
+estimate itself is tested in ``test_spectra.py``, the splitting into manoeuvres in ``test_records.py``, the time
+alignment (time bases, jumps back, stray stamps) in ``test_alignment.py``.
 """
 import copy
 
@@ -10,77 +12,12 @@ import pytest
 from hypothesis import given, settings, strategies as st
 from scipy import signal
 
-from _pitch_flights import (FINE_HZ, PITCH_DEN, PITCH_NUM, SWEEPS, W_RAD_S, _chunks, _feed, _nbytes, estimate,
-                            flight, fraction_within, log_sweep, measure, simulate, true_response)
+from _pitch_flights import (FINE_HZ, PITCH_DEN, PITCH_NUM, SWEEPS, W_RAD_S, _chunks, _feed, _nbytes, doublet,
+                            estimate, flight, fraction_within, log_sweep, measure, simulate, true_response)
 from gap_validation.core.errors import ConfigError, DataError
-from gap_validation.core.estimator import FrequencyResponseEstimator, SpectralEstimate
-
-
-# ---------------------------------------------------------------------------------------------- equivalence
-def direct_spectra(x, y, dt, w_rad_s, window_n, hop_n, start, stop, detrend):
-    """Explicit sums of hann * x * exp(-j w t) over every segment in [start, stop) (reference)."""
-    out = np.zeros((4, w_rad_s.size), complex)
-    for f, w in enumerate(w_rad_s):
-        n_win, hop = int(window_n[f]), int(hop_n[f])
-        m = np.arange(n_win)
-        hann = 0.5 - 0.5 * np.cos(2 * np.pi * m / n_win)
-        scale = 2 * dt / np.sum(hann ** 2)
-        for s in range(start, stop - n_win + 1, hop):
-            xs, ys = x[s:s + n_win], y[s:s + n_win]
-            if detrend:
-                xs, ys = xs - xs.mean(), ys - ys.mean()
-            e = np.exp(-1j * w * (s + m) * dt)
-            X, Y = np.sum(hann * xs * e), np.sum(hann * ys * e)
-            out[:, f] += (scale * abs(X) ** 2, scale * abs(Y) ** 2, scale * np.conj(X) * Y, 1.0)
-    return out
-
-
-@pytest.mark.parametrize("detrend, overlap", [(True, 0.5), (False, 0.5), (True, 0.0), (True, 0.75)])
-def test_recursive_transform_equals_direct_dft(detrend, overlap):
-    fs = 100.0
-    rng = np.random.default_rng(2)
-    k = np.arange(9000)
-    t = k / fs
-    x = rng.normal(size=k.size) + 0.3 + 0.01 * t
-    y = np.convolve(x, [0.4, 0.3, -0.2, 0.1], "same") + 0.2 * rng.normal(size=k.size) - 1.0
-    w = np.logspace(np.log10(0.7), np.log10(55.0), 17)
-    est = FrequencyResponseEstimator(w, detrend=detrend, overlap=overlap, detect_sweeps=False)
-    est.add_trigger([3.0, 81.23], [True, False])                # a sweep over samples 300 .. 8122
-    for a in range(0, k.size, 777):
-        est.add_input(t[a:a + 777], x[a:a + 777])
-        est.add_output(t[a:a + 777], y[a:a + 777])
-    est.flush()
-    (got,) = est.sweeps
-    ref = direct_spectra(x, y, 1 / fs, w, np.rint(est.window_s * fs), np.rint(est.hop_s * fs), 300, 8123,
-                         detrend)
-    assert np.array_equal(got.n_averages, ref[3].real.astype(int))
-    assert np.all(got.n_averages >= 2)
-    for ours, theirs in ((got.gxx, ref[0].real), (got.gyy, ref[1].real), (got.gxy, ref[2])):
-        assert np.max(np.abs(ours * got.n_averages - theirs) / np.abs(theirs)) < 1e-9
-    assert (got.start_s, got.end_s) == pytest.approx((3.0, 81.23))
-
-
-def test_equals_scipy_welch_csd_on_fft_bins():
-    """Independent check: with one window length and frequencies on its FFT bins, scipy.signal.csd agrees."""
-    fs, n_win = 100.0, 400
-    w = 2 * np.pi * np.arange(5, 31) * fs / n_win
-    rng = np.random.default_rng(3)
-    t = np.arange(12345) / fs
-    x = rng.normal(size=t.size) + 0.3
-    y = np.convolve(x, [0.5, 0.3, -0.2], "same") + 0.1 * rng.normal(size=t.size) + 5.0
-    est = FrequencyResponseEstimator(w, detect_sweeps=False, min_window_s=4.0, max_window_s=4.0)
-    est.add_trigger([0.0], [True])
-    est.add_time_histories(t, x, t, y, chunk_s=7.3)
-    est.flush()
-    got = est.averaged()
-    kw = dict(fs=fs, window="hann", nperseg=n_win, noverlap=n_win // 2, detrend="constant")
-    bins = np.arange(5, 31)
-    assert np.all(got.n_averages == (t.size - n_win) // (n_win // 2) + 1)
-    np.testing.assert_allclose(got.gxy, signal.csd(x, y, **kw)[1][bins], rtol=1e-10)
-    np.testing.assert_allclose(got.gxx, signal.welch(x, **kw)[1][bins], rtol=1e-10)
-    np.testing.assert_allclose(got.gyy, signal.welch(y, **kw)[1][bins], rtol=1e-10)
-    _, coh = signal.coherence(x, y, **kw)
-    np.testing.assert_allclose(got.coherence, coh[bins], rtol=1e-9)
+from gap_validation.core.estimator import RETIRED_OPTIONS, FrequencyResponseEstimator, SpectralEstimate
+from gap_validation.core.simulation import multisine, multistep
+from gap_validation.core.spectra import interpolation_gain
 
 
 @settings(max_examples=10, deadline=None)
@@ -137,16 +74,16 @@ def test_known_system_within_error_bounds(nominal):
     assert est.n_sweeps == 3
     h_true = true_response(W_RAD_S)
     avg = est.averaged()
-    assert avg.n_sweeps == 3
-    assert fraction_within(avg.response, h_true, avg.random_error) >= 0.9
+    assert avg.n_sweeps == est.n_manoeuvres == 5             # three sweeps and two doublets pooled
+    assert fraction_within(avg.response, h_true, avg.random_error, dof=avg.n_averages) >= 0.9
     for raw in est.sweeps:
-        assert fraction_within(raw.response, h_true, raw.random_error) >= 0.85
-        # coherence means something for a single sweep: several averages, not trivially 1
-        assert np.all(raw.n_averages >= 4)
-        assert np.min(raw.coherence) < 0.9
-    # averaging three sweeps lowers the random error about sqrt(3) times (Fig. 4: the dark curve is smooth)
+        assert fraction_within(raw.response, h_true, raw.random_error, dof=raw.n_averages) >= 0.85
+        # coherence and error mean something for a single sweep: degrees of freedom, coherence not trivially 1
+        assert np.all(raw.n_averages >= 3)
+        assert np.min(raw.coherence) < 0.95
+    # pooling three sweeps lowers the random error about sqrt(3) times (Fig. 4: the dark curve is smooth)
     ratio = avg.random_error / np.mean([s.random_error for s in est.sweeps], axis=0)
-    assert np.median(ratio) < 0.7 and np.all(ratio < 1.0)
+    assert np.median(ratio) < 0.7 and np.all(ratio < 1.05)
     # the stated error is not vacuous: it is a few per cent where coherence is high
     assert np.median(avg.random_error) < 0.05
 
@@ -154,11 +91,15 @@ def test_known_system_within_error_bounds(nominal):
 def test_sweeps_counted_and_dated_between_doublets_and_trim(nominal):
     *_, est = nominal
     spans = [(s.start_s, s.end_s) for s in est.sweeps]
-    for (start, end), (t0, length) in zip(spans, SWEEPS):
-        assert start == pytest.approx(t0, abs=1.5)
-        assert end == pytest.approx(t0 + length, abs=2.5)
+    assert [s.kind for s in est.sweeps] == ["chirp"] * 3
+    for (start, end), (t0, length) in zip(spans, SWEEPS):      # the record keeps trim around the sweep
+        assert t0 - 2.5 <= start <= t0
+        assert t0 + length <= end <= t0 + length + 4.5
+    # the doublets count for the pooled estimate (not sweeps); the trim step and the trim ramp count for nothing
+    assert est.counted_kinds == {"chirp": 3, "doublet": 2}
+    assert est.n_sweeps == 3 and est.n_manoeuvres == 5 and est.excitation == "chirp"
     avg = est.averaged()
-    assert (avg.start_s, avg.end_s) == (spans[0][0], spans[-1][1])
+    assert avg.start_s == spans[0][0] and avg.end_s >= spans[-1][1]
 
 
 def test_coherence_falls_where_a_gust_dominates():
@@ -171,7 +112,8 @@ def test_coherence_falls_where_a_gust_dominates():
     assert np.all(avg.random_error[band] > 2 * np.max(avg.random_error[calm]))
     # the widened bounds still hold there
     h_true = true_response(W_RAD_S)
-    assert fraction_within(avg.response[band], h_true[band], avg.random_error[band]) >= 0.75
+    assert fraction_within(avg.response[band], h_true[band], avg.random_error[band],
+                           dof=avg.n_averages[band]) >= 0.75
 
 
 def test_more_noise_lowers_coherence_and_widens_bounds(nominal):
@@ -190,14 +132,15 @@ def test_trigger_overrides_detection(nominal):
     est.add_time_histories(*streams)
     est.flush()
     assert est.n_sweeps == 2                        # the sweep at 128 s is not triggered: not a sweep
-    assert [(s.start_s, s.end_s) for s in est.sweeps] == [pytest.approx((15.0, 95.0)),
-                                                          pytest.approx((235.0, 325.0))]
-    # a trigger around a doublet makes it a sweep (the user said so), without detection's minimum length
+    # each record is the triggered span with the trim kept before (2 s) and after (4 s) it
+    assert [(s.start_s, s.end_s) for s in est.sweeps] == [pytest.approx((13.0, 99.0)),
+                                                          pytest.approx((233.0, 329.0))]
+    # a trigger around a doublet makes it a manoeuvre (the user said so): its response counts
     est = FrequencyResponseEstimator(W_RAD_S)
     est.add_trigger([96.0, 103.0], [True, False])
     est.add_time_histories(*streams)
     est.flush()
-    assert est.n_sweeps == 1 and est.sweeps[0].end_s - est.sweeps[0].start_s == pytest.approx(7.0)
+    assert est.n_manoeuvres == 1 and est.averaged() is not None
 
 
 def test_trigger_only_mode_without_trigger_finds_nothing(nominal):
@@ -206,20 +149,21 @@ def test_trigger_only_mode_without_trigger_finds_nothing(nominal):
     assert est.n_sweeps == 0 and est.averaged() is None and est.sweeps == []
 
 
-def test_cubic_interpolation_of_a_50hz_surface_keeps_magnitude_within_1_percent():
-    """Identity system: surface at 50 Hz, the same signal at 1 kHz: |H| = 1 up to 5 Hz within 1 %."""
+def test_a_50hz_surface_keeps_its_magnitude_within_1_percent():
+    """Identity system: surface at 50 Hz, the same signal at 1 kHz: |H| = 1 up to 8 Hz within 1 %. The
+    interpolation onto the grid loses magnitude (linear: 8 % at 8 Hz, cubic 1.2 %); the estimator restores it
+    from each stream's rate (spectra.interpolation_gain, the mean over the grid's phases: exact enough for
+    cubic interpolation, 2 % off for linear on a grid that meets every other sample)."""
     t = np.arange(0.0, 100.0, 1.0 / FINE_HZ)
-    x = log_sweep(t - 5.0, 0.3, 8.0, 90.0, 0.05)
-    w = np.logspace(np.log10(3.0), np.log10(2 * np.pi * 5.0), 12)
-    err = {}
+    x = log_sweep(t - 5.0, 0.3, 10.0, 90.0, 0.05)
+    w = np.logspace(np.log10(3.0), np.log10(2 * np.pi * 8.0), 12)
     for cubic in (True, False):
         est = FrequencyResponseEstimator(w, cubic_interpolation=cubic)
         est.add_trigger([0.0], [True])
         est.add_time_histories(t[::20], x[::20], t, x)
         est.flush()
-        err[cubic] = np.max(np.abs(np.abs(est.averaged().response) - 1.0))
-    assert err[True] < 0.01
-    assert err[False] > 0.01
+        assert np.max(np.abs(np.abs(est.averaged().response) - 1.0)) < (0.01 if cubic else 0.03)
+        assert 1.0 - interpolation_gain(w[-1:], 50.0, cubic)[0] > (0.01 if cubic else 0.07)
 
 
 # ---------------------------------------------------------------------------------------------- timing
@@ -230,7 +174,7 @@ def test_irregular_rates_jitter_and_drops_give_the_same_response(nominal):
     a, b = fast.averaged(), slow.averaged()
     sigma = np.hypot(a.random_error, b.random_error)
     assert fraction_within(b.response, a.response, sigma) >= 0.9
-    assert fraction_within(b.response, true_response(W_RAD_S), b.random_error) >= 0.9
+    assert fraction_within(b.response, true_response(W_RAD_S), b.random_error, dof=b.n_averages) >= 0.9
     counts = slow.bad_sample_counts
     assert counts["input"]["nonfinite"] == counts["input"]["non_monotonic"] == 0
 
@@ -242,18 +186,18 @@ def test_gap_breaks_the_sweep(nominal):
     spans = [(s.start_s, s.end_s) for s in est.sweeps]
     assert est.n_sweeps == 4
     assert spans[1][1] == pytest.approx(155.0, abs=0.02)     # ends at the last sample before the gap
-    assert 157.0 <= spans[2][0] <= 160.0
+    assert 157.0 <= spans[2][0] <= 158.0                    # the rest starts with the first sample after it
 
 
 def test_one_stream_far_ahead_is_bounded_and_counted(nominal):
     *_, (ti, ui, to, yo), _ = nominal
     est = FrequencyResponseEstimator(W_RAD_S)
-    size = sum(np.asarray(v).nbytes for v in est.state_dict().values())
+    size = _nbytes(est.state_dict())
     est.add_input(ti, ui)                                 # the whole flight of one stream first
     est.add_output(to, yo)
     est.flush()
     assert est.bad_sample_counts["input"]["dropped_lag"] > 0
-    assert sum(np.asarray(v).nbytes for v in est.state_dict().values()) == size
+    assert _nbytes(est.state_dict()) == size              # fixed-size state; the record buffer is empty
 
 
 # ---------------------------------------------------------------------------------------------- memory
@@ -271,17 +215,20 @@ def _long_flight(minutes):
 def test_state_size_is_independent_of_flight_length():
     t, u, y = _long_flight(100)
     est = FrequencyResponseEstimator(W_RAD_S, max_raw_sweeps=50)
-    sizes = {0: _nbytes(est.state_dict())}
+    empty = _nbytes(est.state_dict())
+    # the only part that varies is the record in progress: at most max_record_s of every stream
+    bound = empty + 2 * int(est.options["max_record_s"] * est.options["sample_rate_hz"]) * 8
+    sizes = {}
     step = 60000                                          # 10 min per batch
     for a in range(0, t.size, step):
         est.add_time_histories(t[a:a + step], u[a:a + step], t[a:a + step], y[a:a + step], chunk_s=60.0)
         sizes[(a + step) // 6000] = _nbytes(est.state_dict())
     est.flush()
-    assert sizes[10] == sizes[100] == sizes[0]
+    assert max(sizes.values()) <= bound and _nbytes(est.state_dict()) == empty
     assert est.n_sweeps == 67                             # 66 whole sweeps + the one cut at 100 min by flush
     assert len(est.sweeps) == 50 and est.averaged().n_sweeps == 67
     assert est.sweeps[-1].end_s == pytest.approx(6000.0)  # the kept raw estimates are the most recent
-    assert est.sweeps[0].start_s == pytest.approx(17 * 90.0 + 20.0, abs=1.0)
+    assert est.sweeps[0].start_s == pytest.approx(17 * 90.0 + 18.0, abs=1.5)
     assert np.all(est.averaged().n_averages >= 66 * 2)
 
 
@@ -297,7 +244,7 @@ def test_restored_estimator_continues_identically(nominal, split):
     _feed(first, chunks[:split])
     state = first.state_dict()
     for key, value in state.items():
-        assert isinstance(value, (np.ndarray, int, float)), key
+        assert isinstance(value, (np.ndarray, int, float, np.integer, np.floating)), key
     resumed = FrequencyResponseEstimator.from_state(copy.deepcopy(state))
     _feed(resumed, chunks[split:])
     resumed.flush()
@@ -310,8 +257,8 @@ def test_restored_estimator_continues_identically(nominal, split):
 
 def test_state_with_missing_key_is_a_data_error():
     state = FrequencyResponseEstimator(W_RAD_S).state_dict()
-    del state["xf.ring"]
-    with pytest.raises(DataError, match="xf.ring"):
+    del state["rec.buf"]
+    with pytest.raises(DataError, match="missing key 'buf'"):
         FrequencyResponseEstimator.from_state(state)
 
 
@@ -332,7 +279,7 @@ def test_nan_inf_and_non_monotonic_samples_are_dropped_and_counted(nominal):
     assert counts["output"]["nonfinite"] == 3 and counts["output"]["non_monotonic"] == 3
     assert est.n_sweeps == 3
     a, b = est.averaged(), clean.averaged()
-    assert np.max(np.abs(a.response - b.response) / np.abs(b.response)) < 0.01
+    assert np.all(np.abs(a.response - b.response) / np.abs(b.response) < np.maximum(0.01, 2 * b.random_error))
 
 
 def test_odd_calls_never_crash():
@@ -360,8 +307,9 @@ def test_whole_arrays_with_a_stray_timestamp_are_fed_in_few_chunks(monkeypatch):
     t_in[0] = 0.0                                             # unset header stamp
     est = FrequencyResponseEstimator(W_RAD_S)
     calls = []
-    original = est.add_input
-    monkeypatch.setattr(est, "add_input", lambda ts, u: (calls.append(len(ts)), original(ts, u)))
+    original = est.add_samples
+    monkeypatch.setattr(est, "add_samples", lambda name, ts, u: (name == "input" and calls.append(len(ts)),
+                                                                 original(name, ts, u)))
     est.add_time_histories(t_in, np.zeros(t.size), t, np.zeros(t.size))
     assert sum(calls) == t.size and len(calls) <= 4
     for chunk_s in (0.0, -1.0, float("nan")):
@@ -375,11 +323,18 @@ def test_unknown_option_is_a_config_error_naming_it():
         FrequencyResponseEstimator(W_RAD_S, window_cylces=5)
 
 
-@pytest.mark.parametrize("key, value", [("sample_rate_hz", 15.0), ("overlap", 0.6), ("max_raw_sweeps", 0),
-                                        ("min_window_s", -1.0), ("detrend", "yes"), ("on_ratio", 1.0)])
+@pytest.mark.parametrize("key, value", [("sample_rate_hz", 15.0), ("max_raw_sweeps", 0), ("band_fraction", -1.0),
+                                        ("min_bins", 3), ("order", 7), ("cubic_interpolation", "yes"),
+                                        ("max_record_s", 5.0), ("on_ratio", 1.0)])
 def test_bad_option_values_name_the_key(key, value):
     with pytest.raises(ConfigError, match=key if key != "on_ratio" else "off_ratio"):
         FrequencyResponseEstimator(W_RAD_S, **{key: value})
+
+
+@pytest.mark.parametrize("key", RETIRED_OPTIONS)
+def test_options_of_the_windowed_estimator_are_refused_with_the_reason(key):
+    with pytest.raises(ConfigError, match=f"{key}.*no longer used.*whole manoeuvres"):
+        FrequencyResponseEstimator(W_RAD_S, **{key: 1.0})
 
 
 def test_options_listed_for_the_config():
@@ -388,21 +343,89 @@ def test_options_listed_for_the_config():
 
 
 # ---------------------------------------------------------------------------------------------- formulas
-def test_random_error_is_bendat_piersol():
-    n = np.array([10, 10, 1, 0])
-    est = SpectralEstimate.from_sums([1.0, 2.0, 3.0, 4.0], sum_xx=n * 1.0, sum_yy=n * 1.25,
-                                     sum_xy=n * (0.6 + 0.8j), n=n)
-    # coherence |Gxy|^2 / (Gxx Gyy) = 1 / 1.25 = 0.8; error sqrt(1 - 0.8) / (sqrt(0.8) sqrt(2 * 10))
-    assert est.coherence[0] == pytest.approx(0.8)
-    assert est.random_error[0] == pytest.approx(0.1118034, rel=1e-6)
+def test_random_error_is_half_the_complex_variance_per_component():
+    # each component of the complex error has variance var / 2: the relative error of |H| is sqrt(var / 2) / |H|
+    rows = np.array([[0.6, 0.6], [0.8, 0.8], [0.02, np.inf], [12, 0], [0.9, 0.0], [1.0, 1.0], [1.0, 1.0]])
+    est = SpectralEstimate.from_rows([1.0, 2.0], rows, 0.0, 10.0, "chirp", 0.1, 3)
     assert est.response[0] == pytest.approx(0.6 + 0.8j)
-    assert est.coherence[2] == 0.0 and est.random_error[2] == np.inf      # one average: not meaningful
-    assert np.isnan(est.response[3]) and est.random_error[3] == np.inf
+    assert est.random_error[0] == pytest.approx(0.1)
+    assert est.random_error[1] == np.inf
+    assert np.array_equal(SpectralEstimate.from_rows([1.0, 2.0], est.rows(), 0, 10, "chirp", 0.1, 3).rows(),
+                          est.rows())
 
 
-def test_windows_have_the_documented_length():
-    est = FrequencyResponseEstimator(W_RAD_S)
-    cycles = est.window_s * W_RAD_S / (2 * np.pi)
-    assert np.all(est.window_s >= 2.0 - 1e-9) and np.all(est.window_s <= 20.0 + 1e-9)
-    assert np.all((cycles >= 7.0) | (est.window_s >= 19.9) | (est.window_s <= 2.1))
-    np.testing.assert_allclose(est.hop_s, est.window_s / 2)
+def test_an_older_checkpoint_of_windowed_spectra_is_refused_with_the_reason():
+    state = FrequencyResponseEstimator(W_RAD_S).state_dict()
+    state["version"] = 2
+    with pytest.raises(DataError, match="version 2 holds windowed spectra.*cannot be resumed"):
+        FrequencyResponseEstimator.from_state(state)
+
+
+# ---------------------------------------------------------------------------------------------- manoeuvres
+def _grid_flight(u, noise_out=0.02, seed=5):
+    """Grid-rate (100 Hz) input ``u`` and the pitch rate it makes, both with noise."""
+    t = np.arange(u.size) / 100.0
+    fine = np.arange(0.0, t[-1], 1.0 / FINE_HZ)
+    y = np.interp(t, fine, simulate(np.interp(fine, t, u)))
+    rng = np.random.default_rng(seed)
+    return t, u + 3e-4 * rng.standard_normal(u.size), t, y + noise_out * rng.standard_normal(u.size)
+
+
+def test_three_chirps_three_seconds_apart_are_three_sweeps():
+    t = np.arange(0.0, 215.0, 0.01)
+    u = sum(log_sweep(t - start, 0.1, 9.0, 60.0, 0.05) for start in (5.0, 68.0, 131.0 + 0.0))
+    est = estimate(*_grid_flight(u))
+    assert est.n_sweeps == 3 and [s.kind for s in est.sweeps] == ["chirp"] * 3
+    starts = [s.start_s for s in est.sweeps]
+    assert starts[1] > est.sweeps[0].end_s - 1e-9 and starts[2] > est.sweeps[1].end_s - 1e-9
+
+
+def test_above_the_end_of_a_sweep_nothing_is_estimated():
+    # a chirp to 50 rad/s, the grid to 60 rad/s: the points above the excitation are not estimated (no
+    # smeared estimate of the last excited frequency, with a high coherence, as short windows gave)
+    t = np.arange(0.0, 100.0, 0.01)
+    u = log_sweep(t - 5.0, 1.0 / (2 * np.pi), 50.0 / (2 * np.pi), 90.0, 0.05)
+    est = estimate(*_grid_flight(u))
+    avg = est.averaged()
+    assert not np.any(avg.excited[W_RAD_S > 52.0])
+    assert np.all(avg.excited[(W_RAD_S > 2.0) & (W_RAD_S < 45.0)])
+    assert avg.reasons["not_excited"][W_RAD_S > 55.0].sum() >= 1
+
+
+@pytest.mark.parametrize("name, u", [
+    ("multisine", lambda t: 0.04 * multisine(t - 5.0, 20.0, 4, 1.0, 55.0)),
+    ("multistep", lambda t: sum(0.05 * multistep(t - s, 0.4, (3, 2, 1, 1), 0.04) for s in (5.0, 20.0, 35.0, 50.0))),
+    ("doublet", lambda t: sum(0.05 * multistep(t - s, 0.3, (1, 1), 0.04) for s in np.arange(5.0, 65.0, 6.0))),
+])
+def test_any_manoeuvre_gives_a_response_within_its_error_bounds(name, u):
+    t = np.arange(0.0, 100.0, 0.01)
+    est = estimate(*_grid_flight(u(t)))
+    avg = est.averaged()
+    assert est.excitation == name
+    ok = avg.excited & np.isfinite(avg.random_error)
+    assert ok.sum() >= 8
+    # the error bounds hold for what the estimator measures (the system seen through its local polynomial),
+    # and that is within a few per cent of the system itself
+    through, _ = avg.expected(true_response)
+    assert fraction_within(avg.response[ok], through[ok], avg.random_error[ok], dof=avg.n_averages[ok]) >= 0.9
+    assert np.median(np.abs(through[ok] / true_response(W_RAD_S[ok]) - 1.0)) < 0.02
+
+
+def test_a_slow_stream_limits_the_band():
+    t, u, y = flight()
+    ti, ui, to, yo = measure(t, u, y, 10.0, 200.0, seed=2)            # surfaces at 10 Hz
+    est = estimate(ti, ui, to, yo)
+    assert est.resolved_rad_s == pytest.approx(2 * np.pi * 2.5, rel=0.01)
+    avg = est.averaged()
+    assert not np.any(avg.excited[W_RAD_S > 15.8])
+    assert np.all(avg.excited[(W_RAD_S > 2.0) & (W_RAD_S < 14.0)])
+
+
+def test_a_full_record_buffer_keeps_the_manoeuvre_in_progress():
+    # two sweeps 3 s apart, the buffer holds 100 s: the first is estimated when the buffer fills, the second
+    # is kept whole (not cut where the buffer happened to fill)
+    t = np.arange(0.0, 150.0, 0.01)
+    u = log_sweep(t - 5.0, 0.2, 9.0, 60.0, 0.05) + log_sweep(t - 68.0, 0.2, 9.0, 60.0, 0.05)
+    est = estimate(*_grid_flight(u), max_record_s=100.0)
+    assert [s.kind for s in est.sweeps] == ["chirp", "chirp"]
+    assert est.sweeps[1].end_s - est.sweeps[1].start_s >= 60.0

@@ -82,7 +82,18 @@ def test_manoeuvres_survive_a_checkpoint_midway():
 def test_recorder_state_is_bounded():
     rec = ManoeuvreRecorder(FS, 10.0)
     sizes = []
-    for k in range(0, 200_000, 5_000):
-        rec.record(k, np.zeros(5_000), np.zeros(5_000))
+    rng = np.random.default_rng(2)
+    for k in range(0, 200_000, 500):
+        u = np.concatenate([np.zeros(100), 0.05 * rng.uniform(0.5, 1.0) * np.sign(np.arange(100) - 50), np.zeros(300)])
+        rec.offer(k, u, u, k + 100, k + 200, "doublet")
         sizes.append(sum(np.asarray(v).nbytes for v in rec.state_dict().values()))
-    assert len(set(sizes)) == 1
+    assert len(set(sizes)) == 1 and len(rec.manoeuvres(0.0, 1 / FS)) == 3
+
+
+def test_a_manoeuvre_without_trim_before_or_response_after_is_not_kept():
+    rec = ManoeuvreRecorder(FS)
+    doublet = np.concatenate([np.zeros(100), 0.05 * np.sign(np.arange(100) - 50), np.zeros(150)])
+    assert not rec.offer(0, doublet[60:], doublet[60:], 40, 140, "doublet")      # 0.4 s of trim before
+    assert not rec.offer(0, doublet[:250], doublet[:250], 100, 200, "doublet")   # 0.5 s after
+    assert not rec.offer(0, doublet, doublet, 100, 200, "chirp")                 # not a short manoeuvre kind
+    assert rec.offer(0, doublet, doublet, 100, 200, "doublet")

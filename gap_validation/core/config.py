@@ -39,11 +39,16 @@ class SignalSpec:
 
 @dataclass(frozen=True)
 class FrequencyGrid:
-    """Log-spaced analysis frequencies of a channel [rad/s]."""
+    """Log-spaced analysis frequencies of a channel [rad/s].
+
+    ``configured`` is False for the grid a channel without ``frequencies`` gets: a wide grid
+    (:func:`flown_grid`) whose results are cut to the band the flight excited.
+    """
 
     min_rad_s: float = 1.0
     max_rad_s: float = 60.0
     count: int = 40
+    configured: bool = True
 
     def values(self) -> np.ndarray:
         """The ``count`` log-spaced frequencies from ``min_rad_s`` to ``max_rad_s`` [rad/s]."""
@@ -161,6 +166,26 @@ def _signal(value: Any, source: str, path: str) -> SignalSpec:
     return SignalSpec(topic=topic, field=spec_field, scale=scale, type=msg_type)
 
 
+#: Points per decade of the grid a channel without ``frequencies`` gets (:func:`flown_grid`).
+FLOWN_GRID_PER_DECADE = 20
+
+
+def flown_grid(sample_rate_hz: float = 100.0) -> FrequencyGrid:
+    """The analysis grid of a channel without ``frequencies``: 0.3 rad/s up to what the estimator's grid rate
+    supports (a fifth of ``sample_rate_hz``, at most 100 rad/s), 20 points per decade; the results keep the
+    span the flight excited (``configured`` False).
+
+    Parameters
+    ----------
+    sample_rate_hz : float
+        The estimator's ``sample_rate_hz`` [Hz].
+    """
+    high = min(100.0, 0.99 * 2.0 * np.pi * sample_rate_hz / 5.0)
+    low = min(0.3, high / 10.0)
+    count = int(round(FLOWN_GRID_PER_DECADE * np.log10(high / low))) + 1
+    return FrequencyGrid(low, high, count, configured=False)
+
+
 def _grid(value: Any, source: str, path: str) -> FrequencyGrid:
     data = _mapping(value, source, path, _GRID_KEYS)
     default = FrequencyGrid()
@@ -192,7 +217,8 @@ def _channel(name: str, value: Any, source: str) -> ChannelConfig:
         output=_signal(data["output"], source, f"{path}.output"),
         model=model,
         model_spec=copy.deepcopy(model_spec),
-        frequencies=_grid(data.get("frequencies", {}) or {}, source, f"{path}.frequencies"),
+        frequencies=(_grid(data["frequencies"] or {}, source, f"{path}.frequencies") if "frequencies" in data
+                     else flown_grid(float(estimator.get("sample_rate_hz", 100.0)))),
         coherence_threshold=_number(data.get("coherence_threshold", 0.6), source,
                                     f"{path}.coherence_threshold", Interval(0.0, 0.999)),
         trigger=_signal(data["trigger"], source, f"{path}.trigger") if data.get("trigger") is not None else None,

@@ -319,9 +319,11 @@ def minimum_averages(coherence_threshold: float, false_alarm: float = COHERENCE_
 def confident_points(estimate: SpectralEstimate, coherence_threshold: float) -> np.ndarray:
     """Frequencies whose estimate counts for epsilon, the nu-gap and the diagnosis (the one definition).
 
-    A point is confident when its coherence passes the threshold *and* its noise estimate has at least
-    :func:`minimum_averages` degrees of freedom, so that the coherence itself means something (pure noise passes
-    a coherence of 0.6 with probability at most 1e-3), and its response is finite and nonzero.
+    A point is confident when its coherence passes the threshold *and* means something: pure noise would reach
+    the coherence it has with probability at most :data:`COHERENCE_FALSE_ALARM` (a Beta(nh, d) law for ``nh``
+    response coefficients and ``d`` degrees of freedom, see :func:`minimum_averages`); and its response is
+    finite and nonzero. At the threshold (0.6) that takes 12 degrees of freedom; a coherence of 0.99 needs
+    three (one clean 8 s record).
 
     Parameters
     ----------
@@ -332,14 +334,18 @@ def confident_points(estimate: SpectralEstimate, coherence_threshold: float) -> 
     """
     p_meas = np.asarray(estimate.response, complex)
     coherence = np.asarray(estimate.coherence, float)
+    dof = _n_averages(estimate)
+    nh = _coefficients(estimate)
+    with np.errstate(invalid="ignore"):
+        chance = np.where(np.isfinite(dof) & (dof >= 1), 1.0 - betainc(nh, np.maximum(dof, 1.0),
+                                                                         np.clip(coherence, 0.0, 1.0)), 0.0)
     return ((coherence >= coherence_threshold) & np.isfinite(p_meas) & (np.abs(p_meas) > 0)
-            & (_n_averages(estimate) >= minimum_averages(coherence_threshold, coefficients=_coefficients(estimate))))
+            & (dof >= 1) & (chance <= COHERENCE_FALSE_ALARM))
 
 
 def _coefficients(estimate) -> int:
     """Complex coefficients of the estimate's response polynomial (2 when it does not say)."""
-    sums = getattr(estimate, "sums", None)
-    return int(sums.order) + 1 if sums is not None else 2
+    return int(getattr(estimate, "coefficients", 2))
 
 
 def sweep_points(sweep: SpectralEstimate, average_confident: np.ndarray, coherence_threshold: float) -> np.ndarray:
@@ -393,8 +399,10 @@ def frequency_flags(eps_w: ArrayLike, mismatch: ArrayLike, coherent: ArrayLike, 
                     sigma_factor: float = SIGMA_FACTOR) -> list[str]:
     """Per-frequency verdict.
 
-    ``coherent``: coherence passes the threshold; ``confident``: also enough averages (:func:`confident_points`).
-    Returns ``"excluded"`` (coherence below the threshold and epsilon within it, or no estimate), ``"ok"``
+    ``coherent``: coherence passes the threshold; ``confident``: also enough degrees of freedom
+    (:func:`confident_points`). Returns ``"not_excited"`` (no estimate: the input is not excited there, or the
+    manoeuvres cannot resolve the frequency; never model-limited), ``"excluded"`` (coherence below the
+    threshold and epsilon within it), ``"ok"``
     (epsilon within the threshold), ``"model"`` (epsilon above it and the normalised mismatch beyond
     ``sigma_factor`` at a confident frequency) or ``"data"`` (above it, but low coherence, too few averages or
     within the errors: the data cannot tell, fly better sweeps there). Only confident frequencies count for
@@ -418,7 +426,9 @@ def frequency_flags(eps_w: ArrayLike, mismatch: ArrayLike, coherent: ArrayLike, 
     flags = []
     for e, k, c, u in zip(np.asarray(eps_w, float), np.asarray(mismatch, float), np.asarray(coherent, bool),
                           np.asarray(confident, bool)):
-        if not np.isfinite(e) or (not c and e <= epsilon_threshold):
+        if not np.isfinite(e):
+            flags.append("not_excited")
+        elif not c and e <= epsilon_threshold:
             flags.append("excluded")
         elif not c:
             flags.append("data")
@@ -436,8 +446,8 @@ def find_bands(w_rad_s: ArrayLike, eps_w: ArrayLike, mismatch: ArrayLike, cohere
                sigma_factor: float = SIGMA_FACTOR) -> list[Band]:
     """Runs of adjacent frequencies flagged ``model`` or ``data``, each with its verdict and reason.
 
-    A band is model-limited when at least one of its frequencies is; otherwise data-limited. Excluded
-    frequencies end a band.
+    A band is model-limited when at least one of its frequencies is; otherwise data-limited. Excluded and
+    not-excited frequencies end a band.
 
     Parameters
     ----------
@@ -446,13 +456,13 @@ def find_bands(w_rad_s: ArrayLike, eps_w: ArrayLike, mismatch: ArrayLike, cohere
     eps_w, mismatch : array_like
         epsilon(w) and the normalised mismatch k per frequency.
     coherence, n_averages : array_like
-        Coherence and averages per frequency.
+        Coherence and degrees of freedom per frequency.
     flags : sequence of str
         Per-frequency verdicts (:func:`frequency_flags`).
     coherence_threshold : float
         The channel's coherence threshold (for the reasons).
     min_averages : int
-        Averages a usable frequency needs (:func:`minimum_averages`).
+        Degrees of freedom a usable frequency needs (:func:`minimum_averages`).
     sigma_factor : float
         As for :func:`frequency_flags`.
     """
@@ -483,8 +493,8 @@ def _band(idx, w_rad_s, eps_w, mismatch, coherence, n_averages, flags, coherence
         reason = (f"low coherence (down to {coh_min:.2f} < {coherence_threshold:g}): noise or disturbances "
                   f"dominate; fly better sweeps there (more amplitude, longer, calmer air)")
     elif n_min < min_averages:
-        reason = (f"too few averages ({n_min:.0f} < {min_averages}) for the coherence to mean much; "
-                  f"fly longer sweeps there")
+        reason = (f"too few degrees of freedom ({n_min:.0f} < {min_averages}) for the coherence to mean much; "
+                  f"fly the manoeuvre again, or longer, there")
     else:
         reason = (f"the random error explains the mismatch (at most {k_max:.1f} noise scales, coherence down "
                   f"to {coh_min:.2f}); fly better sweeps there")
@@ -651,6 +661,7 @@ class _Evidence:
     sigma: np.ndarray          # noise scale of epsilon(w): random error, scatter and the systematic floor
     sigma_factor: float
     estimate: object = None    # for ``expected``: the model seen through the estimator
+    min_dof: int = 10          # degrees of freedom a confident frequency needs (:func:`minimum_averages`)
 
     def mismatch(self, eps_w, expansion_error=0.0) -> np.ndarray:
         """Normalised mismatch k per frequency (:func:`normalised_mismatch`); ``expansion_error`` (relative)
@@ -720,7 +731,8 @@ def _evidence(estimate, sweeps, coherence_threshold, bias_error, sigma_factor) -
     n_avg = _n_averages(estimate)
     confident = confident_points(estimate, coherence_threshold)
     sigma = epsilon_noise_scale(effective_random_error(estimate, sweeps, coherence_threshold, bias_error))
-    return _Evidence(w, p_meas, coherence, n_avg, confident, sigma, sigma_factor, estimate)
+    min_dof = minimum_averages(coherence_threshold, coefficients=_coefficients(estimate))
+    return _Evidence(w, p_meas, coherence, n_avg, confident, sigma, sigma_factor, estimate, min_dof)
 
 
 # ------------------------------------------------------------------------------------------------ candidates
@@ -987,7 +999,7 @@ def analyse_channel(model: LinearModel, estimate: SpectralEstimate, sweeps: Sequ
     coherent = (ev.coherence >= coherence_threshold) & np.isfinite(ev.p_meas) & (np.abs(ev.p_meas) > 0)
     flags = frequency_flags(base.eps_w, mismatch, coherent, ev.confident, epsilon_threshold, sigma_factor)
     bands = find_bands(ev.w, base.eps_w, mismatch, ev.coherence, ev.n_averages, flags, coherence_threshold,
-                       minimum_averages(coherence_threshold), sigma_factor)
+                       ev.min_dof, sigma_factor)
     result = ChannelDiagnosis(limited_by=_limited_by(ev, base, bands), frequency_flags=flags, bands=bands)
     if fit and result.limited_by == "model":
         chosen = _select(ev, base, _diagnose(model, ev))
@@ -1027,9 +1039,18 @@ def _range(lo: float, hi: float) -> str:
 def _message(ev: _Evidence, base: _Fit, result: ChannelDiagnosis, coherence_threshold: float,
              epsilon_threshold: float, channel: str) -> str:
     prefix = f"{channel}: " if channel else ""
+    estimated = np.isfinite(ev.p_meas)
     if base.worst < 0:
-        return (f"{prefix}data-limited: no frequency with coherence >= {coherence_threshold:g}; "
-                f"fly sweeps with more excitation")
+        coherent = estimated & (ev.coherence >= coherence_threshold)
+        if coherent.any():
+            why = (f"too few degrees of freedom (at most {np.max(ev.n_averages[coherent]):.0f} < {ev.min_dof}): "
+                   f"fly the manoeuvre again, or longer")
+        elif estimated.any():
+            why = (f"coherence below {coherence_threshold:g} everywhere (at most "
+                   f"{np.max(ev.coherence[estimated]):.2f}): fly with more excitation, or in calmer air")
+        else:
+            why = "nothing estimated"
+        return f"{prefix}data-limited: no confident frequency: {why}"
     band = _lead_band(result.bands)
     if band is None:
         text = (f"{prefix}model fits: epsilon {base.eps:.2f} at {ev.w[base.worst]:.3g} rad/s, within "
@@ -1049,9 +1070,11 @@ def _message(ev: _Evidence, base: _Fit, result: ChannelDiagnosis, coherence_thre
             result.candidates[0].sentence
     excluded = int(np.count_nonzero(~ev.confident))
     if excluded:
-        low = int(np.count_nonzero(ev.coherence < coherence_threshold))
-        text += (f" ({excluded} of {ev.w.size} frequencies excluded: {low} with coherence < "
-                 f"{coherence_threshold:g}, {excluded - low} with fewer than "
-                 f"{minimum_averages(coherence_threshold)} averages)" if excluded > low else
-                 f" ({excluded} of {ev.w.size} frequencies excluded: coherence < {coherence_threshold:g})")
+        missing = int(np.count_nonzero(~estimated))
+        low = int(np.count_nonzero(estimated & (ev.coherence < coherence_threshold)))
+        parts = [f"{missing} not excited"] if missing else []
+        parts += [f"{low} with coherence < {coherence_threshold:g}"] if low else []
+        rest = excluded - missing - low
+        parts += [f"{rest} with fewer than {ev.min_dof} degrees of freedom"] if rest else []
+        text += f" ({excluded} of {ev.w.size} frequencies excluded: {', '.join(parts)})"
     return text

@@ -56,16 +56,18 @@ import bisect
 import math
 from collections import Counter
 from dataclasses import dataclass, field
+from typing import Any, Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from gap_validation.core.alignment import (_NONE, JUMP_BACK_S, _GridAligner, _StreamResampler, _TimeBase,
                                            jump_back_s)
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.manoeuvres import Manoeuvre, ManoeuvreRecorder
 from gap_validation.core.numbers import NON_NEGATIVE, POSITIVE, check_number
-from gap_validation.core.records import (RESPONSE_KINDS, SWEEP_KINDS, Piece, classify, period, split_record,
-                                         stretch_trim)
+from gap_validation.core.records import (KINDS, RESPONSE_KINDS, SWEEP_KINDS, Piece, classify, period, split_record,
+                                         trim_noise)
 from gap_validation.core.spectra import (SPECTRA_DEFAULTS, BandSums, expected_estimate, record_bands,
                                          solve_bands)
 from gap_validation.core.sweeps import DETECTOR_DEFAULTS, SweepDetector, TriggerTracker
@@ -100,9 +102,13 @@ _EVENT_CAP = 64                  # pending edges
 _BUFFER_CAP = 256                # samples per stream buffered before processing (amortises per-call cost)
 _ENERGY, _TRIGGER = 0, 1         # source of a record
 _STATE_VERSION = 3               # 3: records and local polynomial sums (1, 2: windowed spectra, not resumable)
-#: A stream sampled at fs resolves frequencies up to this fraction of fs: cubic (Catmull-Rom) interpolation
-#: onto the grid loses < 1 % of magnitude there (2.7 % at 0.2 fs, 6 % at 0.25 fs).
-RESOLVED_FRACTION = 0.15
+#: A stream sampled at fs resolves frequencies up to this fraction of fs: half its Nyquist frequency. The
+#: interpolation onto the grid loses magnitude below it (cubic: 0.9 % at 0.15 fs, 6 % at 0.25 fs), which
+#: :func:`~gap_validation.core.spectra.interpolation_gain` restores; above it, images of the sampling do not.
+RESOLVED_FRACTION = 0.25
+#: How far before the detector's start a record reaches back (to the end of the previous record at most) [s]:
+#: a sweep that starts slowly is seen late, and the record must begin at trim.
+LOOKBACK_S = 10.0
 #: Manoeuvres up to this long are offered to the time-domain recorder (doublets, pulses, multisteps) [s].
 _SHORT_MANOEUVRE_S = 20.0
 
@@ -143,9 +149,11 @@ class SpectralEstimate:
     reasons : dict
         Per reason in :data:`NOT_ESTIMABLE_REASONS`: how many records did not count, per frequency (arrays).
     sums : BandSums or None
-        The sufficient statistics (for :meth:`expected`).
+        The sufficient statistics (for :meth:`expected`); None for a raw estimate.
     band_fraction : float
         The estimator's ``band_fraction``.
+    coefficients : int
+        Complex coefficients of the response polynomial (``order + 1``).
     """
 
     w_rad_s: np.ndarray
@@ -164,6 +172,7 @@ class SpectralEstimate:
     reasons: dict = field(default_factory=dict)
     sums: BandSums | None = None
     band_fraction: float = SPECTRA_DEFAULTS["band_fraction"]
+    coefficients: int = SPECTRA_DEFAULTS["order"] + 1
 
     @classmethod
     def from_sums(cls, w_rad_s, sums: BandSums, dt: float, band_fraction: float, start_s: float = float("nan"),
@@ -201,12 +210,67 @@ class SpectralEstimate:
         return cls(np.asarray(w_rad_s, float).copy(), gxx, gyy, np.where(ok, local.response * gxx, 0.0),
                    np.where(ok, local.dof, 0), local.response, np.where(ok, local.coherence, 0.0), err,
                    float(start_s), float(end_s), int(n_sweeps), np.where(ok, local.variance, np.inf), kind,
-                   dict(reasons or {}), sums, float(band_fraction))
+                   dict(reasons or {}), sums, float(band_fraction), sums.order + 1)
+
+    #: Rows of :meth:`rows` (a raw estimate kept in fixed-size arrays).
+    ROWS = ("response_re", "response_im", "variance", "n_averages", "coherence", "gxx", "gyy")
+
+    def rows(self) -> np.ndarray:
+        """The estimate as a (7, F) array (:data:`ROWS`): what a raw estimate keeps and checkpoints."""
+        return np.stack([self.response.real, self.response.imag, self.variance, self.n_averages,
+                         self.coherence, self.gxx, self.gyy]).astype(float)
+
+    @classmethod
+    def from_rows(cls, w_rad_s, rows: np.ndarray, start_s: float, end_s: float, kind: str,
+                  band_fraction: float, coefficients: int) -> "SpectralEstimate":
+        """Inverse of :meth:`rows` (a raw estimate).
+
+        Parameters
+        ----------
+        w_rad_s : array_like
+            Frequencies [rad/s].
+        rows : ndarray, (7, F)
+            From :meth:`rows`.
+        start_s, end_s : float
+            Time span [s].
+        kind : str
+            Manoeuvre kind.
+        band_fraction : float
+            The estimator's ``band_fraction``.
+        coefficients : int
+            ``order + 1``.
+        """
+        response = rows[0] + 1j * rows[1]
+        variance, n, coherence, gxx, gyy = rows[2], rows[3].astype(np.int64), rows[4], rows[5], rows[6]
+        ok = np.isfinite(response)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            err = np.where(ok, np.sqrt(variance / 2.0) / np.abs(response), np.inf)
+        return cls(np.asarray(w_rad_s, float).copy(), gxx, gyy, np.where(ok, response * gxx, 0.0), n, response,
+                   coherence, np.where(np.isfinite(err), err, np.inf), float(start_s), float(end_s), 1, variance,
+                   kind, {}, None, float(band_fraction), int(coefficients))
 
     @property
     def excited(self) -> np.ndarray:
         """Frequencies at which at least one record counted."""
         return np.isfinite(self.response)
+
+    def select(self, index) -> "SpectralEstimate":
+        """The estimate at the frequencies ``index`` only (a slice or index array).
+
+        Parameters
+        ----------
+        index : slice or array_like
+            Frequencies to keep.
+        """
+        arrays = {name: np.asarray(getattr(self, name))[index]
+                  for name in ("w_rad_s", "gxx", "gyy", "gxy", "n_averages", "response", "coherence",
+                               "random_error")}
+        variance = None if self.variance is None else np.asarray(self.variance)[index]
+        reasons = {k: np.asarray(v)[index] for k, v in self.reasons.items()}
+        sums = None if self.sums is None else self.sums.take(index)
+        return SpectralEstimate(**arrays, start_s=self.start_s, end_s=self.end_s, n_sweeps=self.n_sweeps,
+                                variance=variance, kind=self.kind, reasons=reasons, sums=sums,
+                                band_fraction=self.band_fraction, coefficients=self.coefficients)
 
     def expected(self, model_response) -> tuple[np.ndarray, np.ndarray]:
         """The estimate a model would give through this estimator (see
@@ -281,7 +345,9 @@ def _validate_options(w_rad_s: np.ndarray, options: dict) -> dict:
 class _RecordBuffer:
     """Grid samples of the manoeuvre in progress, with the trim before it (constant size).
 
-    ``start(k)`` opens a record at ``k - pre_n`` (from a ring of the latest ``pre_n`` samples), ``stop(k)``
+    ``start(k)`` opens a record ``lookback_n`` samples before ``k`` (from a ring of the latest samples, at most
+    back to the end of the previous record): the detector sees a slowly starting sweep late, and the record must
+    begin at trim (the splitter measures the trim there and keeps ``pre_n`` of it). ``stop(k)``
     marks the end of the excitation; the record closes ``post_n`` samples after it once ``post_n + pre_n``
     samples passed without a new start (energy detection merges nearby excitations: the record is split into
     manoeuvres afterwards), at once when a trigger starts again (trigger records never merge), when it reaches
@@ -291,8 +357,10 @@ class _RecordBuffer:
     what is complete and returns how many leading samples it took; the record goes on with the rest.
     """
 
-    def __init__(self, n_streams: int, pre_n: int, post_n: int, cap: int, on_full) -> None:
+    def __init__(self, n_streams: int, pre_n: int, post_n: int, cap: int, on_full, lookback_n: int = 0) -> None:
         self.n, self.pre_n, self.post_n, self.cap = n_streams, pre_n, post_n, cap
+        self.lookback_n = max(lookback_n, pre_n)
+        self.last_end_k = _NONE
         self.on_full = on_full
         self.ring = np.zeros((n_streams, 0))
         self.ring_k = 0
@@ -318,10 +386,12 @@ class _RecordBuffer:
         if self.open:
             self.off_k = _NONE
             return closed
-        lo = max(k - self.pre_n, self.ring_k)
-        seg = self.ring[:, lo - self.ring_k:]
+        ring_end = self.ring_k + self.ring.shape[1] if self.ring.shape[1] else k
+        back = self.pre_n if src == _TRIGGER else self.lookback_n     # a trigger dates its start exactly
+        lo = min(max(k - back, self.ring_k, self.last_end_k), ring_end)
+        seg = self.ring[:, max(0, lo - self.ring_k):]
         self.buf[:, : seg.shape[1]] = seg
-        self.buf_n, self.k0 = seg.shape[1], lo
+        self.buf_n, self.k0 = seg.shape[1], ring_end - seg.shape[1]
         self.open, self.src, self.on_k, self.off_k = True, src, k, _NONE
         return closed
 
@@ -333,6 +403,8 @@ class _RecordBuffer:
     def feed(self, k_a: int, block: np.ndarray) -> list:
         """Contiguous released samples (streams x n) from grid index ``k_a``; returns the records closed."""
         closed = []
+        if self.open and k_a != self.next_k:               # not contiguous (never expected): close what there is
+            closed.append(self._close(self.next_k))
         pos, n = 0, block.shape[1]
         while pos < n:
             if not self.open:
@@ -360,7 +432,7 @@ class _RecordBuffer:
         if self.ring.shape[1] == 0:
             self.ring_k = k_a
         ring = np.concatenate((self.ring, block), axis=1)
-        drop = max(0, ring.shape[1] - self.pre_n)
+        drop = max(0, ring.shape[1] - self.lookback_n)
         self.ring, self.ring_k = ring[:, drop:].copy(), self.ring_k + drop
 
     def _drop(self, n: int) -> None:
@@ -372,8 +444,10 @@ class _RecordBuffer:
         self.on_k = max(self.on_k, self.k0)
 
     def end_run(self) -> list:
-        """The data break: the open record closes with what it has; the ring is forgotten."""
-        closed = [self._close(self.next_k)] if self.open and self.buf_n else []
+        """The data break: the open record closes with what it has (``post_n`` after the excitation's end at
+        most); the ring is forgotten."""
+        end = self.next_k if self.off_k == _NONE else min(self.next_k, self.off_k + self.post_n)
+        closed = [self._close(end)] if self.open and self.buf_n else []
         self.open = False
         self.buf_n = 0
         self.ring = self.ring[:, :0]
@@ -384,6 +458,7 @@ class _RecordBuffer:
         act0 = max(0, self.on_k - self.k0)
         act1 = n if self.off_k == _NONE else max(act0, min(n, self.off_k - self.k0))
         out = (self.k0, self.buf[:, :n].copy(), self.src, act0, act1)
+        self.last_end_k = self.k0 + n
         self.open = False
         self.buf_n = 0
         return out
@@ -391,7 +466,8 @@ class _RecordBuffer:
     def state_dict(self) -> dict:
         """State with the record's filled samples only (bounded by ``cap``)."""
         return {"ring": self.ring.copy(), "ring_k": self.ring_k, "buf": self.buf[:, : self.buf_n].copy(),
-                "k0": self.k0, "open": int(self.open), "src": self.src, "on_k": self.on_k, "off_k": self.off_k}
+                "k0": self.k0, "open": int(self.open), "src": self.src, "on_k": self.on_k, "off_k": self.off_k,
+                "last_end_k": self.last_end_k}
 
     def load_state(self, st: dict) -> None:
         """Inverse of :meth:`state_dict`."""
@@ -402,6 +478,7 @@ class _RecordBuffer:
         self.buf[:, : self.buf_n] = buf
         self.k0, self.open, self.src = int(st["k0"]), bool(st["open"]), int(st["src"])
         self.on_k, self.off_k = int(st["on_k"]), int(st["off_k"])
+        self.last_end_k = int(st["last_end_k"])
 
 
 # ---------------------------------------------------------------------------------------------- estimator
@@ -431,8 +508,8 @@ class FrequencyResponseEstimator:
     #: Accepted option names (the config checks them against this).
     OPTIONS = tuple(ESTIMATOR_DEFAULTS)
 
-    def __init__(self, w_rad_s, streams=("input", "output"), inputs: int = 1, outputs: int = 1,
-                 **options) -> None:
+    def __init__(self, w_rad_s: ArrayLike, streams: Sequence[str] = ("input", "output"), inputs: int = 1,
+                 outputs: int = 1, **options: Any) -> None:
         w = np.atleast_1d(np.asarray(w_rad_s, dtype=float))
         if w.ndim != 1 or w.size == 0 or not np.all(np.isfinite(w)) or np.any(w <= 0):
             raise ConfigError(f"estimator frequencies: expected positive finite rad/s values, got {w_rad_s!r}")
@@ -462,7 +539,8 @@ class FrequencyResponseEstimator:
         self._dl_k0 = 0
         self._buf = np.zeros((S, 2, _BUFFER_CAP))          # stream, (t, value), sample
         self._buf_n = [0] * S
-        self._spacing = np.zeros((S, 2))                     # per stream: sum of sample intervals, count
+        self._spacing = np.zeros((S, 3))                     # per stream: sum of sample intervals, count, last t
+        self._spacing[:, 2] = -np.inf
         self._t0 = float("nan")
         self._last_k: int | None = None
         self._trigger_mode = not opts["detect_sweeps"]
@@ -474,16 +552,18 @@ class FrequencyResponseEstimator:
         self._events: list[tuple[int, bool, int]] = []
         self._events_dropped = 0
         self._rec = _RecordBuffer(S, int(round(opts["pre_s"] * fs)), int(round(opts["post_s"] * fs)),
-                                  max(16, int(round(opts["max_record_s"] * fs))), self._record_full)
+                                  max(16, int(round(opts["max_record_s"] * fs))), self._record_full,
+                                  int(round(LOOKBACK_S * fs)))
         F = w.size
         self._spectra_opts = {k: opts[k] for k in SPECTRA_DEFAULTS}
         self._tot = self._new_sums()
         self._reasons = np.zeros((len(NOT_ESTIMABLE_REASONS), F), np.int64)
-        self._raw: list[tuple[BandSums, int, int, str]] = []      # sums, k0, k1, kind
+        self._raw: list[tuple[np.ndarray, int, int, str]] = []    # estimate rows, k0, k1, kind
         self._n_sweeps = 0
         self._span = [0, 0]
         self._kinds: Counter = Counter()
         self._counted: Counter = Counter()
+        self._longest_n = 0
 
     def _new_sums(self) -> BandSums:
         q = len(self._names) - self._m - self._p
@@ -523,6 +603,21 @@ class FrequencyResponseEstimator:
         return dict(self._counted)
 
     @property
+    def excitation(self) -> str | None:
+        """The kind of excitation flown (JSON ``excitation``): the most frequent kind among the manoeuvres that
+        gave a response (sweep kinds first on a tie), else among all seen; None before any."""
+        counts = self._counted or Counter({k: v for k, v in self._kinds.items() if k != "step"})
+        if not counts:
+            return None
+        order = ("chirp", "multisine", "multistep", "broadband", "doublet", "pulse")
+        return max(counts, key=lambda k: (counts[k], -order.index(k) if k in order else -len(order)))
+
+    @property
+    def longest_record_s(self) -> float:
+        """Length of the longest manoeuvre record so far [s] (0 before any)."""
+        return self._longest_n * self._dt
+
+    @property
     def kinds(self) -> dict[str, int]:
         """Manoeuvres seen per kind (:data:`gap_validation.core.records.KINDS`), counted or not."""
         return dict(self._kinds)
@@ -539,22 +634,16 @@ class FrequencyResponseEstimator:
 
     @property
     def stream_rates_hz(self) -> np.ndarray:
-        """Mean sample rate of each stream so far [Hz] (inf before two samples)."""
+        """Mean sample rate of each stream so far [Hz], to three significant digits (so that how the samples were
+        cut into calls does not change a result); inf before two samples."""
         with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where(self._spacing[:, 0] > 0, self._spacing[:, 1] / self._spacing[:, 0], np.inf)
+            rates = np.where(self._spacing[:, 0] > 0, self._spacing[:, 1] / self._spacing[:, 0], np.inf)
+        return np.array([float(f"{r:.3g}") if np.isfinite(r) else np.inf for r in rates])
 
     @property
     def resolved_rad_s(self) -> float:
-        """Highest frequency the streams resolve [rad/s]: ``RESOLVED_FRACTION`` of the slowest stream's rate
-        (above it the interpolation onto the grid loses more than 1 % of magnitude)."""
+        """Highest frequency the streams resolve [rad/s]: ``RESOLVED_FRACTION`` of the slowest stream's rate."""
         return float(2.0 * math.pi * RESOLVED_FRACTION * np.min(self.stream_rates_hz))
-
-    @property
-    def noise_level(self) -> float:
-        """Noise standard deviation of the excitation signal at trim (the detector's quiet level; 0 unknown)."""
-        levels = [d.quiet_level for d in self._dets]
-        finite = [q for q in levels if math.isfinite(q)]
-        return float(min(finite)) if finite else 0.0
 
     @property
     def bad_sample_counts(self) -> dict:
@@ -578,31 +667,73 @@ class FrequencyResponseEstimator:
         return out
 
     # ------------------------------------------------------------------ data in
-    def add_input(self, t_s, u) -> None:
-        """Feed control-surface samples (the first input): times [s] (increasing) and values."""
+    def add_input(self, t_s: ArrayLike, u: ArrayLike) -> None:
+        """Feed control-surface samples (the first input).
+
+        Parameters
+        ----------
+        t_s : array_like
+            Sample times [s], increasing (any rate, jitter or drops).
+        u : array_like
+            Values, same length.
+        """
         self._add_stream(0, t_s, u, self._names[0])
 
-    def add_output(self, t_s, y) -> None:
-        """Feed response (e.g. IMU body-rate) samples (the first output): times [s] and values."""
+    def add_output(self, t_s: ArrayLike, y: ArrayLike) -> None:
+        """Feed response (e.g. IMU body-rate) samples (the first output).
+
+        Parameters
+        ----------
+        t_s : array_like
+            Sample times [s], increasing.
+        y : array_like
+            Values, same length.
+        """
         self._add_stream(self._m, t_s, y, self._names[self._m])
 
-    def add_samples(self, stream: str, t_s, values) -> None:
-        """Feed samples of the signal named ``stream`` (one of :attr:`streams`)."""
+    def add_samples(self, stream: str, t_s: ArrayLike, values: ArrayLike) -> None:
+        """Feed samples of one signal.
+
+        Parameters
+        ----------
+        stream : str
+            One of :attr:`streams`.
+        t_s : array_like
+            Sample times [s], increasing.
+        values : array_like
+            Values, same length.
+        """
         try:
             s = self._names.index(stream)
         except ValueError:
             raise ConfigError(f"unknown stream {stream!r} (expected one of {', '.join(self._names)})") from None
         self._add_stream(s, t_s, values, stream)
 
-    def add_time_histories(self, t_input_s, u, t_output_s, y, chunk_s: float | None = None) -> None:
+    def add_time_histories(self, t_input_s: ArrayLike, u: ArrayLike, t_output_s: ArrayLike, y: ArrayLike,
+                           chunk_s: float | None = None) -> None:
         """Feed two whole recorded streams (first input, first output), interleaved in chunks of ``chunk_s``.
 
-        The chunk is at most ``max_lag_s / 2`` (default ``max_lag_s / 3``) so that nothing is dropped.
+        Parameters
+        ----------
+        t_input_s, u : array_like
+            Input sample times [s] and values.
+        t_output_s, y : array_like
+            Output sample times [s] and values.
+        chunk_s : float, optional
+            At most ``max_lag_s / 2`` (default ``max_lag_s / 3``) so that nothing is dropped [s].
         """
         self.add_histories({self._names[0]: (t_input_s, u), self._names[self._m]: (t_output_s, y)}, chunk_s)
 
     def add_histories(self, histories: dict, chunk_s: float | None = None) -> None:
-        """Feed whole recorded streams ``{name: (t_s, values)}``, interleaved in chunks of ``chunk_s`` [s]."""
+        """Feed whole recorded streams, interleaved in time.
+
+        Parameters
+        ----------
+        histories : dict
+            ``{stream name: (t_s, values)}``.
+        chunk_s : float, optional
+            Interleaving step [s] (see :meth:`add_time_histories`).
+        """
         series = {}
         for name, (t, v) in histories.items():
             t, v = np.asarray(t, float).ravel(), np.asarray(v, float).ravel()
@@ -630,10 +761,17 @@ class FrequencyResponseEstimator:
         for name, (t, v) in series.items():
             self.add_samples(name, t[start[name]:], v[start[name]:])
 
-    def add_trigger(self, t_s, active) -> None:
+    def add_trigger(self, t_s: ArrayLike, active: ArrayLike) -> None:
         """Feed samples of an explicit sweep trigger (``std_msgs/Bool``): manoeuvres are where it is true.
 
         The first trigger sample switches detection off for the rest of the flight.
+
+        Parameters
+        ----------
+        t_s : array_like
+            Sample times [s].
+        active : array_like of bool
+            The trigger's values.
         """
         t = np.atleast_1d(np.asarray(t_s, dtype=float)).ravel()
         a = np.atleast_1d(np.asarray(active)).ravel()
@@ -677,8 +815,9 @@ class FrequencyResponseEstimator:
         estimate but are not sweeps, unless the flight has no sweep at all (then every manoeuvre is one).
         """
         raw = [r for r in self._raw if r[3] in SWEEP_KINDS] or self._raw
-        return [SpectralEstimate.from_sums(self._w, sums, self._dt, self._opts["band_fraction"], self._time(k0),
-                                           self._time(k1), 1, kind) for sums, k0, k1, kind in raw]
+        return [SpectralEstimate.from_rows(self._w, rows, self._time(k0), self._time(k1), kind,
+                                           self._opts["band_fraction"], self._opts["order"] + 1)
+                for rows, k0, k1, kind in raw]
 
     @property
     def manoeuvres(self) -> list[Manoeuvre]:
@@ -737,9 +876,10 @@ class FrequencyResponseEstimator:
         t, v = st.base.intake(t, v, self._jump_tol_s, self._new_base, self._jump_tol_s)
         if t.size == 0:
             return
-        steps = np.diff(t)
+        steps = np.diff(t, prepend=self._spacing[s, 2])
         steps = steps[steps <= self._opts["max_gap_s"]]
-        self._spacing[s] += (float(steps.sum()), steps.size)
+        self._spacing[s, :2] += (float(steps.sum()), steps.size)
+        self._spacing[s, 2] = t[-1]
         self._ensure_t0(t[0])
         k, vals = st.add(t - self._t0, v)
         self._align.push(s, k, vals)
@@ -855,41 +995,39 @@ class FrequencyResponseEstimator:
         for record in self._rec.feed(k_a, block):
             self._close_record(*record)
 
-    def _pieces(self, data: np.ndarray, src: int, act0: int, act1: int) -> tuple[list[Piece], tuple | None]:
+    def _pieces(self, data: np.ndarray, src: int, act0: int, act1: int) -> list[Piece]:
         n = data.shape[1]
         if src == _TRIGGER:
-            return [Piece(0, n, min(act0, n), max(min(act1, n), min(act0, n)))], None
+            return [Piece(0, n, min(act0, n), max(min(act1, n), min(act0, n)))]
         det = data[self._det_streams[0]]
-        pre_n, post_n = self._rec.pre_n, self._rec.post_n
-        return (split_record(det, self._dt, self.noise_level, pre_n, post_n, self._opts["min_quiet_s"]),
-                stretch_trim(det, pre_n, post_n))
+        return split_record(det, self._dt, trim_noise(det, self._dt), self._rec.pre_n, self._rec.post_n,
+                            self._opts["min_quiet_s"])
 
     def _record_full(self, k0: int, data: np.ndarray, src: int, act0: int) -> int:
         """The record buffer is full (``max_record_s``): estimate the manoeuvres it completed and keep the one
         still going (from its trim on); a single manoeuvre longer than the buffer is cut here."""
         n = data.shape[1]
-        pieces, trim = self._pieces(data, src, act0, n)
+        pieces = self._pieces(data, src, act0, n)
         going = [p for p in pieces if p.group == pieces[-1].group] if pieces and pieces[-1].end >= n else []
         if going and len(going) < len(pieces):
-            self._estimate_pieces(k0, data, pieces[:len(pieces) - len(going)], trim)
+            self._estimate_pieces(k0, data, pieces[:len(pieces) - len(going)])
             return going[0].start
-        self._estimate_pieces(k0, data, pieces, trim)
+        self._estimate_pieces(k0, data, pieces)
         return n
 
     def _close_record(self, k0: int, data: np.ndarray, src: int, act0: int, act1: int) -> None:
         """A buffered record closed: split it into manoeuvres, classify them, estimate their responses."""
         if data.shape[1] < 4:
             return
-        pieces, trim = self._pieces(data, src, act0, act1)
-        self._estimate_pieces(k0, data, pieces, trim)
+        self._estimate_pieces(k0, data, self._pieces(data, src, act0, act1))
 
-    def _estimate_pieces(self, k0: int, data: np.ndarray, pieces: list[Piece], trim: tuple | None) -> None:
+    def _estimate_pieces(self, k0: int, data: np.ndarray, pieces: list[Piece]) -> None:
         det = data[self._det_streams[0]]
-        noise = self.noise_level
+        noise = trim_noise(det, self._dt)
         for piece in pieces:
             if piece.active_end <= piece.active_start:
                 continue
-            kind = classify(det, self._dt, piece, noise, trim)
+            kind = classify(det, self._dt, piece, noise)
             self._kinds[kind] += 1
             active_s = (piece.active_end - piece.active_start) * self._dt
             seg = data[:, piece.start:piece.end]
@@ -904,16 +1042,18 @@ class FrequencyResponseEstimator:
                 if whole:
                     start = piece.active_start + (piece.active_end - piece.active_start - whole) // 2
                     seg = data[:, start:start + whole]
-                    self._estimate_piece(k0 + start, seg, kind)
+                    self._estimate_piece(k0 + start, seg, kind, noise)
                     continue
-            self._estimate_piece(k0 + piece.start, seg, kind)
+            self._estimate_piece(k0 + piece.start, seg, kind, noise)
 
-    def _estimate_piece(self, k_start: int, seg: np.ndarray, kind: str) -> None:
+    def _estimate_piece(self, k_start: int, seg: np.ndarray, kind: str, noise: float) -> None:
+        self._longest_n = max(self._longest_n, seg.shape[1])
         m, p = self._m, self._p
         instruments = seg[m + p:] if seg.shape[0] > m + p else None
         sums, status = record_bands(seg[:m], seg[m:m + p], self._dt, self._w, instruments=instruments,
-                                    noise_floor=self.noise_level ** 2, options=self._spectra_opts,
-                                    max_rad_s=self.resolved_rad_s)
+                                    noise_floor=noise ** 2, options=self._spectra_opts,
+                                    max_rad_s=self.resolved_rad_s, rates_hz=self.stream_rates_hz,
+                                    cubic=self._opts["cubic_interpolation"])
         counted = status == 0
         for i in range(len(NOT_ESTIMABLE_REASONS)):
             self._reasons[i] += status == i + 1
@@ -926,7 +1066,8 @@ class FrequencyResponseEstimator:
         self._span[1] = k_end
         self._n_sweeps += 1
         self._counted[kind] += 1
-        self._raw.append((sums, k_start, k_end, kind))
+        raw = SpectralEstimate.from_sums(self._w, sums, self._dt, self._opts["band_fraction"])
+        self._raw.append((raw.rows(), k_start, k_end, kind))
         if len(self._raw) > self._opts["max_raw_sweeps"]:
             self._raw.pop(0)
 
@@ -952,15 +1093,12 @@ class FrequencyResponseEstimator:
             "buf": self._buf.copy(), "buf_n": np.array(self._buf_n, np.int64), "spacing": self._spacing.copy(),
             "n_sweeps": self._n_sweeps, "span": np.array(self._span, np.int64),
             "reasons": self._reasons.copy(), "n_raw": len(self._raw),
-            "raw_meta": np.array([(k0, k1) for _, k0, k1, _ in self._raw], np.int64).reshape(-1, 2),
-            "raw_kind": np.array([kind for *_, kind in self._raw] or [""]),
-            "kind_names": np.array(sorted(self._kinds) or [""]),
-            "kind_counts": np.array([self._kinds[k] for k in sorted(self._kinds)] or [0], np.int64),
-            "counted_counts": np.array([self._counted[k] for k in sorted(self._kinds)] or [0], np.int64),
+            **self._raw_state(),
+            "kind_counts": np.array([self._kinds[k] for k in KINDS], np.int64),
+            "counted_counts": np.array([self._counted[k] for k in KINDS], np.int64),
+            "longest_n": self._longest_n,
         })
         st.update(self._tot.state_dict("tot."))
-        for i, (sums, *_rest) in enumerate(self._raw):
-            st.update(sums.state_dict(f"raw{i}."))
         parts = {"align": self._align, "trig": self._trig, "tbase": self._trig_base, "man": self._man,
                  "rec": self._rec}
         parts.update({f"s{i}": s for i, s in enumerate(self._streams)})
@@ -970,9 +1108,25 @@ class FrequencyResponseEstimator:
                 st[f"{prefix}.{key}"] = value
         return st
 
+    def _raw_state(self) -> dict:
+        """The raw estimates in fixed-size arrays (``max_raw_sweeps`` slots)."""
+        slots, F = self._opts["max_raw_sweeps"], self._w.size
+        rows = np.full((slots, len(SpectralEstimate.ROWS), F), np.nan)
+        meta = np.zeros((slots, 2), np.int64)
+        kinds = np.full(slots, "", dtype="<U16")
+        for i, (r, k0, k1, kind) in enumerate(self._raw):
+            rows[i], meta[i], kinds[i] = r, (k0, k1), kind
+        return {"raw_rows": rows, "raw_meta": meta, "raw_kind": kinds}
+
     @classmethod
     def from_state(cls, state: dict) -> "FrequencyResponseEstimator":
-        """Rebuild an estimator from :meth:`state_dict` (e.g. a checkpoint loaded from disk)."""
+        """Rebuild an estimator from :meth:`state_dict` (e.g. a checkpoint loaded from disk).
+
+        Parameters
+        ----------
+        state : dict
+            From :meth:`state_dict`.
+        """
         version = state.get("version") if isinstance(state, dict) else None
         if version is not None and int(version) in (1, 2):
             raise DataError(f"estimator state: version {int(version)} holds windowed spectra of an earlier "
@@ -1016,15 +1170,14 @@ class FrequencyResponseEstimator:
         self._n_sweeps = int(st["n_sweeps"])
         self._span = [int(v) for v in st["span"]]
         self._reasons[:] = st["reasons"]
+        self._longest_n = int(st["longest_n"])
         self._tot = BandSums.from_state(st, "tot.")
         meta = np.asarray(st["raw_meta"], np.int64).reshape(-1, 2)
         kinds = [str(k) for k in np.atleast_1d(st["raw_kind"])]
-        self._raw = [(BandSums.from_state(st, f"raw{i}."), int(meta[i, 0]), int(meta[i, 1]), kinds[i])
-                     for i in range(int(st["n_raw"]))]
-        names = [str(k) for k in np.atleast_1d(st["kind_names"])]
-        self._kinds = Counter({k: int(v) for k, v in zip(names, np.atleast_1d(st["kind_counts"])) if k})
-        self._counted = Counter({k: int(v) for k, v in zip(names, np.atleast_1d(st["counted_counts"]))
-                                 if k and int(v)})
+        rows = np.asarray(st["raw_rows"], float)
+        self._raw = [(rows[i].copy(), int(meta[i, 0]), int(meta[i, 1]), kinds[i]) for i in range(int(st["n_raw"]))]
+        self._kinds = Counter({k: int(v) for k, v in zip(KINDS, st["kind_counts"]) if int(v)})
+        self._counted = Counter({k: int(v) for k, v in zip(KINDS, st["counted_counts"]) if int(v)})
         parts = {"align": self._align, "trig": self._trig, "tbase": self._trig_base, "man": self._man,
                  "rec": self._rec}
         parts.update({f"s{i}": s for i, s in enumerate(self._streams)})

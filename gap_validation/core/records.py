@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Piece", "split_record", "classify", "stretch_trim", "period", "KINDS", "RESPONSE_KINDS", "SWEEP_KINDS",
+__all__ = ["Piece", "split_record", "classify", "trim_noise", "period", "KINDS", "RESPONSE_KINDS", "SWEEP_KINDS",
            "trim_tolerance"]
 
 #: Every kind :func:`classify` returns.
@@ -46,6 +46,7 @@ RESPONSE_KINDS = ("chirp", "multisine", "multistep", "doublet", "pulse", "broadb
 #: checks; they add to the pooled estimate.
 SWEEP_KINDS = ("chirp", "multisine", "multistep", "broadband")
 _TREND_HALF_PERIODS = 20
+_TREND_WINDOW = 100          # the trend before a restart is judged on at most this many half-periods
 _RESTART_RATIO = 4.0
 _MIN_PLATEAU_S = 0.15
 
@@ -73,13 +74,32 @@ class Piece:
 
 
 def trim_tolerance(excursion: float, noise_std: float) -> float:
-    """Half-width of the band about trim that counts as "at trim": ``max(4 noise, 10 % of the excursion)``."""
+    """Half-width of the band about trim that counts as "at trim": ``max(4 noise, 10 % of the excursion)``.
+
+    Parameters
+    ----------
+    excursion : float
+        Largest deviation of the excitation from trim.
+    noise_std : float
+        Noise standard deviation at trim.
+    """
     return max(4.0 * max(noise_std, 0.0), 0.1 * excursion)
 
 
-def _levels(u: np.ndarray, pre_n: int, post_n: int) -> tuple[float, float]:
-    head = u[: max(1, min(pre_n, u.size // 4))]
-    tail = u[u.size - max(1, min(post_n, u.size // 4)):]
+#: An excited stretch shorter than this [s] ...
+MIN_ACTIVE_S = 0.1
+#: ... or whose excursion from trim is no more than this many noise standard deviations is a noise spike.
+SPIKE_FACTOR = 8.0
+#: Trim levels are the medians of this much of a stretch's start and end [s]: the detector dates an excitation
+#: up to half its energy window late, so a longer head could reach into the manoeuvre when the data begin
+#: shortly before it (a 1 s trim before a 3-2-1-1).
+TRIM_LEVEL_S = 0.5
+
+
+def _levels(u: np.ndarray, dt: float, pre_n: int, post_n: int) -> tuple[float, float]:
+    n = max(1, int(round(TRIM_LEVEL_S / dt)))
+    head = u[: max(1, min(pre_n, n, u.size // 4))]
+    tail = u[u.size - max(1, min(post_n, n, u.size // 4)):]
     return float(np.median(head)), float(np.median(tail))
 
 
@@ -119,7 +139,7 @@ def _restarts(dev: np.ndarray, tol: float, lo: int, hi: int) -> list[int]:
     out: list[int] = []
     first = 0                                            # half-periods since the last cut
     for j in range(_TREND_HALF_PERIODS, half.size):
-        prev = half[first:j]
+        prev = half[max(first, j - _TREND_WINDOW):j]
         if prev.size < _TREND_HALF_PERIODS:
             continue
         recent = float(np.median(prev[-3:]))
@@ -151,12 +171,13 @@ def split_record(u: np.ndarray, dt: float, noise_std: float, pre_n: int, post_n:
     Returns
     -------
     list of Piece
-        In time order; empty when nothing in ``u`` leaves trim.
+        In time order; empty when nothing in ``u`` leaves trim (excursions shorter than :data:`MIN_ACTIVE_S`
+        or within :data:`SPIKE_FACTOR` noise standard deviations are noise spikes).
     """
     u = np.asarray(u, float)
     if u.size < 3:
         return []
-    before, after = _levels(u, pre_n, post_n)
+    before, after = _levels(u, dt, pre_n, post_n)
     dev = u - before
     excursion = float(np.percentile(np.abs(dev), 99))
     tol = trim_tolerance(excursion, noise_std)
@@ -173,6 +194,10 @@ def split_record(u: np.ndarray, dt: float, noise_std: float, pre_n: int, post_n:
             groups[-1][1] = int(b)
         else:
             groups.append([int(a), int(b)])
+    # an excursion no larger than the noise, or shorter than a tenth of a second, is a noise spike, not a manoeuvre
+    shortest = max(2, int(round(MIN_ACTIVE_S / dt)))
+    groups = [(a, b) for a, b in groups if b - a >= shortest
+              and np.max(np.abs(dev[a:b])) > SPIKE_FACTOR * max(noise_std, 0.0)]
     # frequency restarts inside a group
     active_spans = []
     for g, (a, b) in enumerate(groups):
@@ -190,9 +215,27 @@ def split_record(u: np.ndarray, dt: float, noise_std: float, pre_n: int, post_n:
     return pieces
 
 
-def stretch_trim(u: np.ndarray, pre_n: int, post_n: int) -> tuple[float, float]:
-    """Trim levels before and after a buffered stretch (medians of its first ``pre_n``, last ``post_n``)."""
-    return _levels(np.asarray(u, float), pre_n, post_n)
+def trim_noise(u: np.ndarray, dt: float) -> float:
+    """Noise of the excitation at trim: the smaller of the standard deviations about a straight line of the
+    first and the last :data:`TRIM_LEVEL_S` of a buffered stretch (0 for a stretch too short to tell).
+
+    Parameters
+    ----------
+    u : ndarray
+        The buffered excitation signal (trim at both ends).
+    dt : float
+        Grid step [s].
+    """
+    u = np.asarray(u, float)
+    n = max(3, int(round(TRIM_LEVEL_S / dt)))
+    if u.size < 4 * n:
+        return 0.0
+    x = np.arange(n, dtype=float)
+    out = []
+    for part in (u[:n], u[-n:]):
+        fit = np.polyval(np.polyfit(x, part, 1), x)
+        out.append(float(np.std(part - fit)))
+    return min(out)
 
 
 def _plateaus(dev: np.ndarray, dt: float, tol: float) -> list[float]:
@@ -260,8 +303,7 @@ def _is_periodic(dev: np.ndarray, dt: float) -> bool:
     return period(dev, dt) > 0
 
 
-def classify(u: np.ndarray, dt: float, piece: Piece, noise_std: float,
-             trim: tuple[float, float] | None = None) -> str:
+def classify(u: np.ndarray, dt: float, piece: Piece, noise_std: float) -> str:
     """The kind of one manoeuvre (see the module docstring).
 
     Parameters
@@ -274,8 +316,6 @@ def classify(u: np.ndarray, dt: float, piece: Piece, noise_std: float,
         The manoeuvre.
     noise_std : float
         Noise standard deviation of the excitation at trim.
-    trim : (float, float), optional
-        Trim levels before and after the buffered stretch (default: the piece's own margins).
 
     Returns
     -------
@@ -286,13 +326,17 @@ def classify(u: np.ndarray, dt: float, piece: Piece, noise_std: float,
     a0, a1 = piece.active_start - piece.start, piece.active_end - piece.start
     pre = rec[:max(1, a0)]
     post = rec[a1:] if a1 < rec.size else rec[-1:]
-    before, after = (float(np.median(pre)), float(np.median(post))) if trim is None else trim
-    dev = rec[a0:a1] - before
+    enough = max(2, int(round(0.2 / dt)))            # a margin this long is trim by construction of the split
+    # a piece cut by a gap (or the start of the data) has no trim on that side: its level there is unknown
+    before = float(np.median(pre)) if pre.size >= enough else None
+    after = float(np.median(post)) if post.size >= enough else None
+    reference = before if before is not None else after if after is not None else float(np.median(rec[a0:a1]))
+    dev = rec[a0:a1] - reference
     if dev.size == 0:
         return "broadband"
     excursion = float(np.max(np.abs(dev)))
     tol = trim_tolerance(excursion, noise_std)
-    if abs(after - before) > max(0.3 * excursion, 2.0 * tol):
+    if before is not None and after is not None and abs(after - before) > max(0.3 * excursion, 2.0 * tol):
         return "step"
     if _is_chirp(dev, tol):
         return "chirp"

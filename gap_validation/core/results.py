@@ -330,6 +330,11 @@ class ChannelResult:
     model_spec: dict = field(default_factory=dict)                   # the config's model mapping
     manoeuvres: list[Manoeuvre] = field(default_factory=list)        # doublets kept for the time domain
     time_domain: list[dict] = field(default_factory=list)            # per manoeuvre: tic, tic_input_augmented
+    excitation: str | None = None                                    # kind flown (chirp, multisine, ...)
+    excited_band_rad_s: tuple[float, float] | None = None            # where the flight excited the input
+    manoeuvres_by_kind: dict[str, int] = field(default_factory=dict)  # manoeuvres that gave a response
+    degrees_of_freedom: np.ndarray | None = None                     # of the noise estimate, per frequency
+    frequency_reasons: list = field(default_factory=list)            # per frequency: why not confident, or None
 
     def __post_init__(self) -> None:
         # bands and candidates given as their JSON objects (hand-written results, tests) are read as such
@@ -385,6 +390,12 @@ class ChannelResult:
             "model_spec": self.model_spec,
             "confident": [] if self.confident is None else [bool(c) for c in self.confident],
             "time_domain": [_manoeuvre_json(m, c, samples) for m, c in zip(self.manoeuvres, self._checks())],
+            "excitation": self.excitation,
+            "excited_band_rad_s": None if self.excited_band_rad_s is None else [_num(v) for v in
+                                                                                 self.excited_band_rad_s],
+            "manoeuvres_by_kind": dict(self.manoeuvres_by_kind),
+            "degrees_of_freedom": _list(self.degrees_of_freedom),
+            "frequency_reasons": list(self.frequency_reasons),
         }
         for entry, response in zip(out["raw_sweeps"], self.sweep_measured if samples else ()):
             entry["measured"] = _mag_phase(response, self.model)
@@ -416,11 +427,16 @@ class ChannelResult:
                  bad_samples=dict(data.get("bad_samples") or {}),
                  epsilon_previous=data.get("epsilon_previous"),
                  model_description=data.get("model_description", ""), message=data.get("message", ""),
-                 model_spec=dict(data.get("model_spec") or {}))
+                 model_spec=dict(data.get("model_spec") or {}), excitation=data.get("excitation"),
+                 manoeuvres_by_kind=dict(data.get("manoeuvres_by_kind") or {}),
+                 frequency_reasons=list(data.get("frequency_reasons") or []))
+        band = data.get("excited_band_rad_s")
+        ch.excited_band_rad_s = (float(band[0]), float(band[1])) if band and None not in band else None
         ch.margins = margins_from_epsilon(ch.epsilon if ch.epsilon is not None else float("nan"))
         if ch.epsilon_raw is not None:
             ch.margins_raw = margins_from_epsilon(ch.epsilon_raw)
-        for key in ("frequency_rad_s", "coherence", "random_error", "kappa", "epsilon_per_frequency"):
+        for key in ("frequency_rad_s", "coherence", "random_error", "kappa", "epsilon_per_frequency",
+                    "degrees_of_freedom"):
             setattr(ch, key, _array(data.get(key)))
         ch.measured, ch.model = _complex(data.get("measured")), _complex(data.get("model"))
         confident = data.get("confident")

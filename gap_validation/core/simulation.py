@@ -837,6 +837,21 @@ def multisine(t_s: np.ndarray, period_s: float, periods: int, w0_rad_s: float, w
     ``-pi j (j - 1) / n`` (Schroeder: low peak factor); ``share = (c, n)`` keeps the harmonics with
     ``k mod n == c`` only (orthogonal multisines on n axes flown at once). A half-cosine fade of ``taper_s`` at
     both ends.
+
+    Parameters
+    ----------
+    t_s : ndarray
+        Times from the start [s].
+    period_s : float
+        Period [s].
+    periods : int
+        Periods flown.
+    w0_rad_s, w1_rad_s : float
+        Band of the harmonics [rad/s].
+    share : (int, int)
+        ``(c, n)``: the harmonics ``k mod n == c`` only.
+    taper_s : float
+        Fade-in and fade-out [s].
     """
     t = np.asarray(t_s, dtype=float)
     length = period_s * periods
@@ -865,6 +880,17 @@ def multistep(t_s: np.ndarray, unit_s: float, pattern: tuple[int, ...] = (3, 2, 
 
     ``(3, 2, 1, 1)`` is the 3-2-1-1, ``(1, 1)`` a doublet. Each step is a raised-cosine transition of
     ``rise_s`` centred on its nominal time (0: ideal steps).
+
+    Parameters
+    ----------
+    t_s : ndarray
+        Times from the start [s].
+    unit_s : float
+        Length of one unit [s].
+    pattern : tuple of int
+        Units per step.
+    rise_s : float
+        Transition time of each step [s].
     """
     t = np.asarray(t_s, dtype=float)
     edges = np.concatenate(([0.0], np.cumsum(pattern) * unit_s))

@@ -35,10 +35,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Callable, Sequence
 
 import numpy as np
 
-__all__ = ["SPECTRA_DEFAULTS", "BandSums", "record_bands", "band_excited", "LocalEstimate", "solve_bands",
+__all__ = ["SPECTRA_DEFAULTS", "BandSums", "record_bands", "interpolation_gain", "band_excited", "LocalEstimate", "solve_bands",
            "expected_estimate", "EXTRA_ORDER"]
 
 #: Options of the local polynomial estimate (estimator options of the same names).
@@ -113,7 +114,19 @@ class BandSums:
     @classmethod
     def zeros(cls, n_freq: int, inputs: int = 1, outputs: int = 1, instruments: int | None = None,
               order: int = 1) -> "BandSums":
-        """Empty sums for ``n_freq`` frequencies."""
+        """Empty sums.
+
+        Parameters
+        ----------
+        n_freq : int
+            Frequencies.
+        inputs, outputs : int
+            Inputs m and outputs p.
+        instruments : int, optional
+            Instruments q (None: the inputs are their own instruments).
+        order : int
+            Degree of the response polynomial.
+        """
         q = inputs if instruments is None else instruments
         nh, ne, nz = inputs * (order + 1), inputs * (order + EXTRA_ORDER + 1), q * (order + 1)
         c = complex
@@ -138,24 +151,56 @@ class BandSums:
         return np.concatenate([np.arange(j * per_e, j * per_e + per_h) for j in range(self.inputs)])
 
     def add(self, other: "BandSums", where: np.ndarray | None = None) -> None:
-        """Add another record's sums (at the frequencies ``where`` is True; all by default)."""
+        """Add another record's sums.
+
+        Parameters
+        ----------
+        other : BandSums
+            The record's sums (same shapes).
+        where : ndarray of bool, optional
+            Frequencies to add at (default all).
+        """
         sel = np.ones(self.bins.size, bool) if where is None else np.asarray(where, bool)
         for name in ("zf", "zz", "ff", "zy", "fy", "yy", "bins", "dof", "records", "input_power"):
             getattr(self, name)[sel] += getattr(other, name)[sel]
         self.r_lo[sel] = np.minimum(self.r_lo[sel], other.r_lo[sel])
         self.r_hi[sel] = np.maximum(self.r_hi[sel], other.r_hi[sel])
 
+    def take(self, index) -> "BandSums":
+        """The sums at the frequencies ``index`` (a slice or index array).
+
+        Parameters
+        ----------
+        index : slice or array_like
+            Frequencies to keep.
+        """
+        return BandSums(*(np.array(getattr(self, f)[index]) for f in self.__dataclass_fields__))
+
     def copy(self) -> "BandSums":
         """An independent copy."""
         return BandSums(*(np.array(getattr(self, f)) for f in self.__dataclass_fields__))
 
     def state_dict(self, prefix: str = "") -> dict:
-        """The arrays under ``prefix + name`` (checkpoints)."""
+        """The arrays under ``prefix + name`` (checkpoints).
+
+        Parameters
+        ----------
+        prefix : str
+            Key prefix.
+        """
         return {prefix + f: np.array(getattr(self, f)) for f in self.__dataclass_fields__}
 
     @classmethod
     def from_state(cls, state: dict, prefix: str = "") -> "BandSums":
-        """Inverse of :meth:`state_dict`."""
+        """Inverse of :meth:`state_dict`.
+
+        Parameters
+        ----------
+        state : dict
+            A checkpoint's arrays.
+        prefix : str
+            Key prefix.
+        """
         return cls(*(np.array(state[prefix + f]) for f in cls.__dataclass_fields__))
 
 
@@ -239,13 +284,53 @@ def band_excited(power: np.ndarray, r: np.ndarray, reference: float, floor: floa
     return abs(float(np.sum(power * r)) / total) <= 0.5 * extent
 
 
+def _kernel_gain_table(cubic: bool) -> tuple[np.ndarray, np.ndarray]:
+    t = np.linspace(-2.0, 2.0, 4001)
+    a = np.abs(t)
+    if cubic:        # Keys' cubic convolution with a = -1/2 (Catmull-Rom on uniform samples)
+        h = np.where(a < 1, 1.5 * a ** 3 - 2.5 * a ** 2 + 1, np.where(a < 2, -0.5 * a ** 3 + 2.5 * a ** 2 - 4 * a + 2, 0))
+    else:            # linear interpolation: the triangle
+        h = np.clip(1.0 - a, 0.0, None)
+    nu = np.linspace(0.0, 0.5, 501)
+    return nu, np.trapezoid(h[None, :] * np.cos(2.0 * np.pi * nu[:, None] * t[None, :]), t, axis=1)
+
+
+_GAIN_TABLES: dict[bool, tuple[np.ndarray, np.ndarray]] = {}
+
+
+def interpolation_gain(w_rad_s: np.ndarray, rate_hz: float, cubic: bool = True) -> np.ndarray:
+    """Magnitude a stream sampled at ``rate_hz`` keeps at ``w_rad_s`` once interpolated onto the grid.
+
+    The Fourier transform of the interpolation kernel (Catmull-Rom, or linear) at ``nu = w / (2 pi rate)``
+    cycles per sample: the mean over the phases at which the grid falls between samples (0.991 at nu = 0.15,
+    0.939 at 0.25). 1 for a stream of unknown rate.
+
+    Parameters
+    ----------
+    w_rad_s : ndarray
+        Frequencies [rad/s].
+    rate_hz : float
+        The stream's mean sample rate [Hz].
+    cubic : bool
+        Cubic (the estimator's default) or linear interpolation.
+    """
+    w = np.asarray(w_rad_s, float)
+    if not math.isfinite(rate_hz) or rate_hz <= 0:
+        return np.ones(w.shape)
+    if cubic not in _GAIN_TABLES:
+        _GAIN_TABLES[cubic] = _kernel_gain_table(cubic)
+    nu, gain = _GAIN_TABLES[cubic]
+    return np.interp(w / (2.0 * math.pi * rate_hz), nu, gain)
+
+
 def _vander(r: np.ndarray, degree: int) -> np.ndarray:
     return np.vander(r, degree + 1, increasing=True)
 
 
 def record_bands(inputs: np.ndarray, outputs: np.ndarray, dt: float, w_rad_s: np.ndarray, *,
                  instruments: np.ndarray | None = None, noise_floor: float = 0.0,
-                 options: dict | None = None, max_rad_s: float = math.inf) -> tuple[BandSums, np.ndarray]:
+                 options: dict | None = None, max_rad_s: float = math.inf, rates_hz: Sequence[float] | None = None,
+                 cubic: bool = True) -> tuple[BandSums, np.ndarray]:
     """Local polynomial sums of one record at every analysis frequency, and where the record is excited.
 
     Parameters
@@ -267,6 +352,11 @@ def record_bands(inputs: np.ndarray, outputs: np.ndarray, dt: float, w_rad_s: np
     max_rad_s : float
         Highest frequency the measured streams resolve [rad/s] (their sample rates): bands reaching above it
         do not count.
+    rates_hz : sequence of float, optional
+        Mean sample rate of each signal (inputs, outputs, instruments) [Hz]: each spectrum is divided by its
+        :func:`interpolation_gain`, so streams sampled at different rates do not bias the response.
+    cubic : bool
+        The interpolation onto the grid was cubic (else linear).
 
     Returns
     -------
@@ -295,6 +385,16 @@ def record_bands(inputs: np.ndarray, outputs: np.ndarray, dt: float, w_rad_s: np
     fy = np.fft.rfft(y - _line(y, dt), axis=1) * scale
     fz = fu if instruments is None else np.fft.rfft(z - _line(z, dt), axis=1) * scale
     w_bins = 2.0 * math.pi * np.fft.rfftfreq(n, dt)
+    if rates_hz is not None:
+        rates = list(rates_hz)
+        for j in range(m):
+            fu[j] /= interpolation_gain(w_bins, rates[j], cubic)
+        for j in range(p):
+            fy[j] /= interpolation_gain(w_bins, rates[m + j], cubic)
+        if instruments is not None:
+            fz = fz.copy()
+            for j in range(q):
+                fz[j] /= interpolation_gain(w_bins, rates[m + p + j], cubic)
     usable = w_bins <= min(_NYQUIST_FRACTION * math.pi / dt, max_rad_s)
     power = np.sum(np.abs(fz) ** 2, axis=0)
     bands = [band_bins(w_bins, wi, opts["band_fraction"], int(opts["min_bins"]), opts["max_band_fraction"], power)
@@ -406,7 +506,8 @@ def solve_bands(sums: BandSums) -> LocalEstimate:
     return LocalEstimate(response, variance, dof, coherence, noise)
 
 
-def expected_estimate(sums: BandSums, w_rad_s: np.ndarray, band_fraction: float, model_response) -> \
+def expected_estimate(sums: BandSums, w_rad_s: np.ndarray, band_fraction: float,
+                      model_response: Callable[[np.ndarray], np.ndarray]) -> \
         tuple[np.ndarray, np.ndarray]:
     """The estimate a model would give through this estimator, and how well the expansion holds.
 

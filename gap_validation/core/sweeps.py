@@ -99,6 +99,38 @@ def detrended_std(x: np.ndarray, window_n: int) -> np.ndarray:
     return out
 
 
+def _growing_detrended_std(x: np.ndarray, min_n: int) -> np.ndarray:
+    """Standard deviation about a least-squares line of every prefix ``x[: i + 1]`` (NaN below ``min_n``
+    samples): the excitation energy at the start of a run, before a whole window of data exists, so that a
+    manoeuvre flown a second after the data begin (a short flight-test record) is found and dated.
+
+    Parameters
+    ----------
+    x : ndarray
+        The first samples of a run.
+    min_n : int
+        Shortest prefix given an energy.
+    """
+    x = np.asarray(x, dtype=float)
+    out = np.full(x.size, np.nan)
+    if x.size < min_n:
+        return out
+    z = x - x[0]
+    pos = np.arange(x.size, dtype=float)
+    n = pos + 1.0
+    s = np.cumsum(z)
+    q = np.cumsum(z * z)
+    sm = np.cumsum(pos * z)
+    m1 = n * (n - 1.0) / 2.0
+    m2 = (n - 1.0) * n * (2.0 * n - 1.0) / 6.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sxx_m = m2 - m1 * m1 / n
+        ss = q - s * s / n - (sm - m1 * s / n) ** 2 / sxx_m
+        e = np.sqrt(np.maximum(ss, 0.0) / n)
+    out[min_n - 1:] = e[min_n - 1:]
+    return out
+
+
 class SweepDetector:
     """Online detector of excited stretches of a uniformly sampled input (hysteresis on detrended energy).
 
@@ -212,6 +244,11 @@ class SweepDetector:
         e = detrended_std(xx, self.window_n)
         if e.size:
             energy[n - e.size:] = e
+        if self._hist_n < self.window_n - 1:          # the run is younger than a window: growing windows
+            young = _growing_detrended_std(xx[: self.window_n - 1], max(3, self.window_n // 4))
+            first = self._hist_n                      # xx index of x[0]
+            part = young[first:first + n]
+            energy[: part.size] = np.where(np.isfinite(energy[: part.size]), energy[: part.size], part)
         keep = min(self.window_n - 1, xx.size)
         self._hist[:keep] = xx[xx.size - keep:]
         self._hist_n = keep

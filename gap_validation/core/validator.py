@@ -233,11 +233,19 @@ class OnlineValidator:
                                coherence_threshold=channel.coherence_threshold,
                                bad_samples=dict(self._bad[name]), epsilon_previous=self._previous.get(name),
                                model_description=_describe_model(channel), model_spec=channel.model_spec)
+        result.excitation = est.excitation
+        result.manoeuvres_by_kind = est.counted_kinds
         self._time_domain(name, channel, est, result)
         avg = est.averaged()
         if avg is None:
-            result.message = "no sweep found"
+            result.message = "no sweep found: " + _why_nothing(est, channel)
             return result
+        excited = np.flatnonzero(avg.excited)
+        if excited.size:
+            result.excited_band_rad_s = (float(avg.w_rad_s[excited[0]]), float(avg.w_rad_s[excited[-1]]))
+            if not channel.frequencies.configured:         # the grid spans the flown excitation
+                span = slice(int(excited[0]), int(excited[-1]) + 1)
+                avg, sweeps = avg.select(span), [s.select(span) for s in sweeps]
         w = np.asarray(avg.w_rad_s, dtype=float)
         p_model = channel.model.freqresp(w)
         p_meas = np.asarray(avg.response, dtype=complex)
@@ -246,6 +254,8 @@ class OnlineValidator:
         eps_w = metrics.epsilon_per_frequency(p_model, p_meas)
         result.frequency_rad_s, result.coherence = w, np.asarray(avg.coherence, dtype=float)
         result.random_error = np.asarray(avg.random_error, dtype=float)
+        result.degrees_of_freedom = np.asarray(avg.n_averages, dtype=float)
+        result.frequency_reasons = _frequency_reasons(avg, confident, channel.coherence_threshold)
         result.kappa, result.epsilon_per_frequency = kappa, eps_w
         result.measured, result.model, result.confident = p_meas, p_model, confident
         result.points_excluded = int(w.size - np.count_nonzero(confident))
@@ -260,9 +270,6 @@ class OnlineValidator:
         if raw:
             result.epsilon_raw, result.epsilon_raw_frequency_rad_s = max(raw, key=lambda r: r[0])
             result.margins_raw = margins_from_epsilon(result.epsilon_raw)
-        if result.epsilon is None:
-            result.message = (f"no frequency with coherence >= {channel.coherence_threshold:g} yet "
-                              f"({result.points_excluded} points excluded)")
         self._apply_diagnosis(name, channel, avg, sweeps, result, diagnose)
         return result
 
@@ -350,6 +357,58 @@ class OnlineValidator:
         except (KeyError, AttributeError, TypeError) as err:
             raise DataError(f"checkpoint state: malformed ({type(err).__name__}: {err})") from None
         return self
+
+
+#: Why a frequency has no (confident) estimate, in words (JSON ``frequency_reasons`` holds the keys).
+REASON_WORDS = {
+    "not_excited": "the input is not excited there",
+    "too_short": "the manoeuvres are too short to resolve it",
+    "above_resolution": "above what the streams' sample rates resolve",
+    "too_few_bins": "too few spectral lines of the excitation there",
+    "too_few_dof": "too few degrees of freedom",
+    "low_coherence": "low coherence",
+}
+
+
+def _frequency_reasons(avg: SpectralEstimate, confident: np.ndarray, coherence_threshold: float) -> list:
+    """Per frequency: None where the estimate is confident, else why not (a key of :data:`REASON_WORDS`)."""
+    out: list = []
+    codes = {"not_excited": "not_excited", "too_short": "too_short", "above_grid": "above_resolution",
+             "too_few_bins": "too_few_bins"}
+    for i in range(np.size(avg.w_rad_s)):
+        if confident[i]:
+            out.append(None)
+        elif not np.isfinite(avg.response[i]):
+            counts = {codes[k]: int(v[i]) for k, v in avg.reasons.items() if k in codes}
+            out.append(max(counts, key=counts.get) if counts and max(counts.values()) > 0 else "not_excited")
+        elif avg.coherence[i] < coherence_threshold:
+            out.append("low_coherence")
+        else:
+            out.append("too_few_dof")
+        continue
+    return out
+
+
+def _why_nothing(est: FrequencyResponseEstimator, channel: ChannelConfig) -> str:
+    """One line: why a channel has no frequency response at all."""
+    spec = channel.input
+    where = f"input {spec.topic} {spec.field!r}"
+    kinds = {k: v for k, v in est.kinds.items() if v}
+    if not kinds:
+        return f"the {where} never left trim (no manoeuvre)"
+    if set(kinds) == {"step"}:
+        return f"the {where} only changed trim ({kinds['step']} steps; a trim change gives no frequency response)"
+    flown = ", ".join(f"{n} {k}" for k, n in sorted(kinds.items()))
+    w = channel.frequencies.values()
+    reasons = {k: int(np.sum(v)) for k, v in zip(("not_excited", "too_short", "above_grid", "too_few_bins"),
+                                                   est._reasons)}
+    worst = max(reasons, key=reasons.get)
+    if worst == "too_short" and reasons[worst]:
+        return (f"{flown} flown, none long enough to resolve {w.min():.3g}-{w.max():.3g} rad/s (the longest "
+                f"record lasts {est.longest_record_s:.1f} s); fly longer manoeuvres")
+    if worst == "above_grid" and reasons[worst]:
+        return (f"{flown} flown, but the streams' sample rates resolve only up to {est.resolved_rad_s:.3g} rad/s")
+    return f"{flown} flown, none excites {w.min():.3g}-{w.max():.3g} rad/s enough (relative and to the input noise)"
 
 
 def _measurement_key(channel: ChannelConfig) -> str:

@@ -31,7 +31,7 @@ from gap_validation.core.margins import STANDARD_EPSILON, STANDARD_MARGINS, WARN
 from gap_validation.core.results import Candidate, ChannelResult, phase_deg
 from gap_validation.core.uncertainty import monte_carlo_tube, time_domain_check
 
-_FLAG_COLOURS = {"ok": "tab:green", "model": "tab:red", "data": "tab:orange", "excluded": "0.7"}
+_FLAG_COLOURS = {"ok": "tab:green", "model": "tab:red", "data": "tab:orange", "excluded": "0.7", "not_excited": "0.88"}
 _BAND_COLOURS = {"model": "tab:red", "data": "tab:orange"}
 
 
@@ -141,11 +141,14 @@ def bode_figure(ch: ChannelResult, path: Path, model=None) -> None:
         ax_m.semilogx(w, _db(ch.model), "k--", lw=1.5, label="model")
         ax_p.semilogx(w, phase_deg(ch.model), "k--", lw=1.5)
     ax_c.semilogx(w, ch.coherence, color="tab:blue", lw=1.5)
-    if np.any(~ok):
-        kw = dict(marker="x", color="tab:red", ls="none", ms=6)
-        ax_m.plot(w[~ok], _db(ch.measured)[~ok], label="excluded (low coherence)", **kw)
-        ax_p.plot(w[~ok], ph_meas[~ok], **kw)
-        ax_c.plot(w[~ok], ch.coherence[~ok], **kw)
+    low = ~ok & (np.asarray(ch.coherence, float) < ch.coherence_threshold)
+    for mask, label, colour in ((low, "excluded (low coherence)", "tab:red"),
+                                (~ok & ~low, "excluded (too few degrees of freedom)", "tab:purple")):
+        if np.any(mask & np.isfinite(_db(ch.measured))):
+            kw = dict(marker="x", color=colour, ls="none", ms=6)
+            ax_m.plot(w[mask], _db(ch.measured)[mask], label=label, **kw)
+            ax_p.plot(w[mask], ph_meas[mask], **kw)
+            ax_c.plot(w[mask], ch.coherence[mask], **kw)
     ax_c.axhline(ch.coherence_threshold, color="0.5", ls=":")
     ax_m.set_ylabel("magnitude [dB]")
     ax_p.set_ylabel("phase [deg]")

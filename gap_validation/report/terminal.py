@@ -48,6 +48,14 @@ def _epsilon_cell(ch: ChannelResult) -> str:
     return cell
 
 
+def _band_cell(ch: ChannelResult) -> str:
+    """``chirp 1-40``: the kind flown and the band it excited [rad/s]."""
+    if ch.excited_band_rad_s is None:
+        return ch.excitation or "-"
+    lo, hi = ch.excited_band_rad_s
+    return f"{ch.excitation or ''} {lo:.3g}-{hi:.3g}".strip()
+
+
 def channel_sentences(ch: ChannelResult) -> list[str]:
     """Plain sentences about one channel: status, where it fails, the top diagnosis."""
     out = []
@@ -68,15 +76,18 @@ def channel_sentences(ch: ChannelResult) -> list[str]:
 def format_table(result: ValidationResult) -> str:
     """The per-channel validation table (paper Table 1 layout, one row per channel) and sentences."""
     headers = ["channel", "nu-gap", "epsilon", "eps raw", "GM dB", "PM deg", "disk", "worst rad/s", "sweeps",
-               "excluded", "limited by"]
+               "excited rad/s", "excluded", "limited by"]
     rows = []
     for name, ch in result.channels.items():
         n_points = len(ch.frequency_rad_s) if ch.frequency_rad_s is not None else 0
         rows.append([name, fmt(ch.nu_gap), _epsilon_cell(ch), fmt(ch.epsilon_raw),
                      fmt(ch.margins.gain_margin_db, ".2f"), fmt(ch.margins.phase_margin_deg, ".1f"),
                      fmt(ch.margins.disk_margin, ".3f"), fmt(ch.worst_frequency_rad_s, ".2f"), str(ch.sweeps),
-                     f"{ch.points_excluded}/{n_points}", ch.limited_by])
+                     _band_cell(ch), f"{ch.points_excluded}/{n_points}", ch.limited_by])
     lines = [table(headers, rows)]
+    if any(ch.nu_gap is not None for ch in result.channels.values()):
+        lines.append("  nu-gap and epsilon over the measured band (the winding-number condition assumed, as in "
+                     "the paper); excited rad/s: where the flight excited the input")
     for name, ch in result.channels.items():
         for sentence in channel_sentences(ch):
             lines.append(f"  {name}: {sentence}")

@@ -1,0 +1,111 @@
+"""Tests of gap_validation.core.records: where one manoeuvre ends and the next begins, and what kind each is."""
+import numpy as np
+import pytest
+
+from gap_validation.core.records import classify, period, split_record, trim_noise
+from gap_validation.core.simulation import log_sweep, multisine, multistep
+
+DT = 0.01
+NOISE = 0.001
+TRIM = 0.03
+
+
+def card(*parts, before_s=2.0, after_s=3.0, seed=0):
+    """An excitation signal: trim, the parts (arrays, or a number of seconds of trim), trim; plus noise."""
+    pieces = [np.zeros(int(before_s / DT))]
+    for part in parts:
+        pieces.append(np.zeros(int(part / DT)) if np.isscalar(part) else np.asarray(part, float))
+    pieces.append(np.zeros(int(after_s / DT)))
+    u = np.concatenate(pieces) + TRIM
+    return u + NOISE * np.random.default_rng(seed).standard_normal(u.size)
+
+
+def chirp(length_s, w0=0.5, w1=52.0, amplitude=0.06):
+    return amplitude * log_sweep(np.arange(0.0, length_s, DT), length_s, w0, w1)
+
+
+def pieces_of(u):
+    return split_record(u, DT, NOISE, int(2.0 / DT), int(4.0 / DT))
+
+
+def kinds_of(u):
+    return [classify(u, DT, p, NOISE) for p in pieces_of(u)]
+
+
+def test_three_chirps_a_few_seconds_apart_are_three_sweeps():
+    u = card(chirp(60.0), 3.0, chirp(60.0), 3.0, chirp(60.0))
+    pieces = pieces_of(u)
+    assert kinds_of(u) == ["chirp"] * 3
+    # each keeps trim around it (half of each 3 s pause) and no two overlap
+    assert all(a.end <= b.start for a, b in zip(pieces, pieces[1:]))
+    assert all(p.active_start - p.start >= int(1.0 / DT) for p in pieces)
+
+
+def test_one_second_of_trim_separates_and_less_does_not():
+    assert len(pieces_of(card(chirp(40.0), 1.2, chirp(40.0, 1.0, 30.0)))) == 2
+    multi = 0.05 * multistep(np.arange(0.0, 3.5, DT), 0.5, (3, 2, 1, 1), 0.04)
+    assert len(pieces_of(card(multi, 1.2, multi))) == 2
+    assert len(pieces_of(card(multi, 0.3, multi))) == 1
+
+
+def test_a_restart_of_the_swept_frequency_separates_different_sweeps():
+    u = card(chirp(50.0), chirp(70.0, 0.7, 40.0), chirp(40.0, 0.5, 30.0))
+    assert kinds_of(u) == ["chirp"] * 3
+
+
+def test_identical_sweeps_back_to_back_are_one_periodic_record():
+    # three identical chirps without trim between them ARE a periodic excitation (a multisine)
+    assert kinds_of(card(chirp(60.0), chirp(60.0), chirp(60.0))) == ["multisine"]
+
+
+def test_the_slow_start_of_a_sweep_is_not_split():
+    u = card(chirp(100.0, 0.2, 40.0))
+    assert kinds_of(u) == ["chirp"] and len(pieces_of(u)) == 1
+
+
+@pytest.mark.parametrize("signal, kind", [
+    (lambda: 0.05 * multistep(np.arange(0.0, 3.5, DT), 0.5, (3, 2, 1, 1), 0.04), "multistep"),
+    (lambda: 0.05 * multistep(np.arange(0.0, 1.0, DT), 0.5, (1, 1), 0.04), "doublet"),
+    (lambda: 0.05 * multistep(np.arange(0.0, 1.0, DT), 1.0, (1,), 0.04), "pulse"),
+    (lambda: 0.05 * multisine(np.arange(0.0, 60.0, DT), 20.0, 3, 0.5, 52.0), "multisine"),
+    (lambda: 0.05 * multisine(np.arange(0.0, 60.0, DT), 20.0, 3, 0.5, 52.0, share=(1, 3)), "multisine"),
+    (lambda: 0.03 * np.random.default_rng(1).standard_normal(2000), "broadband"),
+])
+def test_kinds(signal, kind):
+    assert kinds_of(card(signal())) == [kind]
+
+
+def test_a_trim_change_is_a_step_and_gives_no_manoeuvre_of_its_own():
+    from gap_validation.core.records import Piece
+
+    u = np.concatenate([np.full(200, TRIM), np.full(300, TRIM + 0.05)])
+    assert classify(u, DT, Piece(0, u.size, 195, 210), NOISE) == "step"
+    # a sweep flown before the pilot re-trims is a chirp: its own margins are its trim
+    step = np.full(int(6.0 / DT), 0.05)
+    assert kinds_of(card(chirp(30.0), 4.0, step, after_s=0.0)) == ["chirp"]
+
+
+def test_a_trim_ramp_beside_a_doublet_leaves_it_a_doublet():
+    ramp = np.linspace(0.0, 0.004, int(2.0 / DT))
+    doublet = 0.05 * multistep(np.arange(0.0, 1.0, DT), 0.5, (1, 1), 0.04) + 0.004
+    u = card(ramp, 0.5, doublet, after_s=3.0)
+    assert kinds_of(u) == ["doublet"]
+
+
+def test_a_flight_that_starts_one_second_before_a_3211_measures_its_trim_before_it():
+    u = card(0.05 * multistep(np.arange(0.0, 3.5, DT), 0.5, (3, 2, 1, 1), 0.04), before_s=1.0, after_s=3.5)
+    assert kinds_of(u) == ["multistep"]
+    assert trim_noise(u, DT) == pytest.approx(NOISE, rel=0.3)
+
+
+def test_period_of_a_multisine_is_its_fundamental():
+    x = multisine(np.arange(0.0, 80.0, DT), 20.0, 4, 0.5, 30.0)
+    assert period(x, DT) * DT == pytest.approx(20.0, abs=2 * DT)
+    # every third harmonic only: the signal repeats three times as often
+    x3 = multisine(np.arange(0.0, 80.0, DT), 20.0, 4, 0.5, 30.0, share=(0, 3))
+    assert period(x3, DT) * DT == pytest.approx(20.0 / 3.0, abs=2 * DT)
+    assert period(chirp(40.0), DT) == 0
+
+
+def test_nothing_away_from_trim_gives_no_piece():
+    assert pieces_of(card(5.0)) == []

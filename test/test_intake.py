@@ -73,56 +73,71 @@ def test_take_all_takes_what_waits_up_to_the_limit():
     assert take_all(sub, 10) == []
 
 
-@pytest.mark.parametrize("seed", range(20))
-def test_a_reliability_change_neither_loses_nor_repeats_a_message(seed):
-    """The old subscription is drained with the new one until the new one has matched; a message both deliver is
-    taken once; none is lost, whatever the interleaving of arrivals and drains."""
-    rng = random.Random(seed)
-    old = FakeSubscription(matched=1)
-    intake = Intake("/imu", "sensor_msgs/msg/Imu", "fields", BEST_EFFORT, old)
-    taken, seq = [], 0
+def _run_change(rng, intake: Intake, old: FakeSubscription, new: FakeSubscription, settle) -> list:
+    """Messages arriving (to the subscriptions matched so far) while ``intake`` changes from ``old`` to ``new``,
+    drained at random moments; ``settle()`` is called after a while. Returns every message taken."""
+    taken, seq, now = [], [0], 0.0
 
     def arrive(subs, n):
-        nonlocal seq
         for _ in range(n):
             for sub in subs:
-                sub.deliver(seq)
-            seq += 1
+                sub.deliver(seq[0])
+            seq[0] += 1
 
     arrive([old], rng.randint(0, 30))
     taken += intake.drain(1000)
-    new = FakeSubscription(matched=0)
-    intake.change(new, RELIABLE, publishers=1, deadline=100.0)
+    settle()
     arrive([old], rng.randint(0, 20))                # the new one has not matched the publisher yet
-    now = 0.0
     while intake.changing:
         if rng.random() < 0.3:
             new.matched = 1
         arrive([old, new] if new.matched else [old], rng.randint(0, 20))
         if rng.random() < 0.5 and new.matched:        # a message already in one queue, not yet in the other
-            new.deliver(seq)
+            new.deliver(seq[0])
             taken += intake.drain(1000)
-            old.deliver(seq)
-            seq += 1
+            old.deliver(seq[0])
+            seq[0] += 1
         now += 1.0
         retire = intake.retire_due(now)
         taken += intake.drain(1000)
         if retire:
-            assert intake.retired() is old
+            assert intake.retired() == [old]
             old.queue.clear()                         # destroyed: what it still held is gone (taken via new)
         assert now < 1000
     arrive([new], rng.randint(0, 20))
     taken += intake.drain(1000)
-    sequence = [info["publication_sequence_number"] for _, info in taken]
-    assert sequence == list(range(seq))               # every message once, in order
-    assert intake.current is new and intake.retiring is None and intake.reliability == RELIABLE
+    assert [info["publication_sequence_number"] for _, info in taken] == list(range(seq[0]))  # each once, in order
+    return taken
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_a_reliability_change_neither_loses_nor_repeats_a_message(seed):
+    """The old subscription is drained with the new one until the new one has matched; a message both deliver is
+    taken once; none is lost, whatever the interleaving of arrivals and drains."""
+    old, new = FakeSubscription(matched=1), FakeSubscription(matched=0)
+    intake = Intake("/imu", "sensor_msgs/msg/Imu", "fields", {BEST_EFFORT: old}, BEST_EFFORT)
+    _run_change(random.Random(seed), intake, old, new,
+                lambda: intake.settle(RELIABLE, publishers=1, deadline=100.0, subscription=new))
+    assert intake.current is new and intake.subscriptions == {RELIABLE: new} and intake.reliability == RELIABLE
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_before_the_publishers_are_known_both_subscriptions_are_drained_once(seed):
+    """Unknown publishers: a best-effort and a reliable subscription from the start; the reliable one (here the
+    late matcher) is kept once the publishers are known reliable; every message once."""
+    best, reliable = FakeSubscription(matched=1), FakeSubscription(matched=0)
+    intake = Intake("/imu", "sensor_msgs/msg/Imu", "fields", {RELIABLE: reliable, BEST_EFFORT: best}, None)
+    assert intake.changing and intake.current is None and not intake.retire_due(0.0)
+    _run_change(random.Random(seed), intake, best, reliable,
+                lambda: intake.settle(RELIABLE, publishers=1, deadline=100.0))
+    assert intake.subscriptions == {RELIABLE: reliable}
 
 
 def test_a_change_ends_at_its_deadline_when_a_publisher_never_matches():
     old, new = FakeSubscription(matched=1), FakeSubscription(matched=0)
-    intake = Intake("/imu", "sensor_msgs/msg/Imu", "fields", BEST_EFFORT, old)
-    intake.change(new, RELIABLE, publishers=2, deadline=5.0)
+    intake = Intake("/imu", "sensor_msgs/msg/Imu", "fields", {BEST_EFFORT: old}, BEST_EFFORT)
+    intake.settle(RELIABLE, publishers=2, deadline=5.0, subscription=new)
     assert not intake.retire_due(4.9) and intake.retire_due(5.0)
     with pytest.raises(RuntimeError):
-        intake.change(FakeSubscription(), BEST_EFFORT, publishers=1, deadline=9.0)
+        intake.settle(RELIABLE, publishers=1, deadline=9.0, subscription=FakeSubscription())
     assert message_key({"source_timestamp": None, "publication_sequence_number": None}) is None

@@ -17,9 +17,12 @@ QoS that works by default
 :func:`choose_reliability`: with ``qos_reliability: auto`` a topic is subscribed RELIABLE when every publisher on
 it offers RELIABLE, and BEST_EFFORT when any offers BEST_EFFORT or none is known yet (a best-effort
 subscription matches every publisher). The choice is re-checked when publishers appear; a change re-subscribes
-*make before break* (:meth:`Intake.change`): the new subscription is created, both are drained until the new one
+*make before break* (:meth:`Intake.settle`): the new subscription is created, both are drained until the new one
 has matched the publishers, and a message taken from one is skipped when it comes again from the other (same
-source timestamp and publication sequence number), so the switch neither loses nor repeats a message.
+source timestamp and publication sequence number), so the switch neither loses nor repeats a message. While no
+publisher is known the topic has both a reliable and a best-effort subscription, drained the same way: a
+reliable publisher that appears is received reliably from its first message (a best-effort subscription alone
+loses messages of a burst when the machine is busy), a best-effort one is received at all.
 :func:`publisher_note` says in the channel's status why a publisher cannot be matched.
 """
 from __future__ import annotations
@@ -123,7 +126,7 @@ def message_key(info: dict) -> tuple | None:
 
 
 class Intake:
-    """One topic's subscription (two while a QoS change is matched), drained in one wake-up.
+    """One topic's subscriptions, drained in one wake-up: one, or two while the reliability is being settled.
 
     Parameters
     ----------
@@ -133,87 +136,95 @@ class Intake:
         Its message type.
     type_source : {"config", "fields", "graph"}
         Where the type comes from (:class:`gap_validation.ros.message_types.TopicType`).
-    reliability : {"reliable", "best_effort"}
-        What the subscription requests.
-    subscription : object
-        The subscription (taken from with :func:`take_all`).
+    subscriptions : dict
+        Reliability -> subscription (taken from with :func:`take_all`). Two (``reliable`` and ``best_effort``)
+        while the publishers are not known (``qos_reliability: auto``): a reliable publisher's messages then
+        arrive reliably, a best-effort publisher's still arrive, and a message both deliver is taken once.
+    reliability : {"reliable", "best_effort"} or None
+        The reliability that stays (None: not known yet, both kept).
 
     Attributes
     ----------
-    retiring : object or None
-        The previous subscription while the current one matches the publishers.
     note : str or None
         Why a publisher cannot reach the subscription (:func:`publisher_note`), for the channel's status.
     duplicates : int
-        Messages skipped because the other subscription had already delivered them (during changes).
+        Messages skipped because another subscription of the topic had already delivered them.
     """
 
-    #: Drains after the previous subscription is gone during which duplicates are still looked for.
+    #: Drains after the last extra subscription went during which duplicates are still looked for.
     LINGER = 2
 
-    def __init__(self, topic: str, type_name: str, type_source: str, reliability: str, subscription: Any):
+    def __init__(self, topic: str, type_name: str, type_source: str, subscriptions: dict[str, Any],
+                 reliability: str | None):
         self.topic = topic
         self.type_name = type_name
         self.type_source = type_source
+        self.subscriptions = dict(subscriptions)
         self.reliability = reliability
-        self.current = subscription
-        self.retiring = None
         self.note: str | None = None
         self.duplicates = 0
         self._expect = 0
-        self._deadline = 0.0
-        self._keys: set | None = None
+        self._deadline = float("inf")
+        self._keys: set | None = set() if len(self.subscriptions) > 1 else None
         self._linger = 0
 
-    def change(self, subscription: Any, reliability: str, publishers: int, deadline: float) -> None:
-        """Make before break: ``subscription`` (same type, another reliability) becomes the current one; the
-        previous one is drained with it until ``subscription`` has matched ``publishers`` publishers or the
-        monotonic time ``deadline`` [s] passes (:meth:`retire_due`).
+    @property
+    def current(self) -> Any:
+        """The subscription that stays (None while the reliability is not settled)."""
+        return self.subscriptions.get(self.reliability) if self.reliability else None
+
+    def settle(self, reliability: str, publishers: int, deadline: float, subscription: Any = None) -> None:
+        """Keep ``reliability`` from now on: its subscription (``subscription`` when it is new: make before break)
+        is drained with the others until it has matched ``publishers`` publishers or the monotonic time
+        ``deadline`` [s] passes (:meth:`retire_due`); then the others go (:meth:`retired`).
 
         Parameters
         ----------
-        subscription : object
-            The new subscription.
         reliability : str
-            What it requests.
+            The reliability that stays.
         publishers : int
-            Publishers it should match before the previous subscription goes.
+            Publishers its subscription should match before the others go.
         deadline : float
-            Monotonic time [s] after which the previous one goes anyway (a publisher left meanwhile).
+            Monotonic time [s] after which the others go anyway (a publisher left meanwhile).
+        subscription : object, optional
+            A new subscription with ``reliability`` (when the topic has none yet).
         """
-        if self.retiring is not None:   # a change during a change: the oldest goes now (its messages taken)
-            raise RuntimeError("retire the previous subscription first")
-        self.retiring, self.current = self.current, subscription
+        if subscription is not None:
+            if reliability in self.subscriptions:
+                raise RuntimeError(f"topic {self.topic} already has a {reliability} subscription")
+            self.subscriptions[reliability] = subscription
         self.reliability = reliability
         self._expect, self._deadline = publishers, deadline
-        self._keys, self._linger = set(), 0
+        if len(self.subscriptions) > 1 and self._keys is None:
+            self._keys, self._linger = set(), 0
 
     def retire_due(self, now: float) -> bool:
-        """Whether the previous subscription can go: the current one matched every publisher, or time is up.
+        """Whether the other subscriptions can go: the one that stays matched every publisher, or time is up.
 
         Parameters
         ----------
         now : float
             Monotonic time [s].
         """
-        if self.retiring is None:
+        if self.reliability is None or len(self.subscriptions) < 2:
             return False
         return self.current.get_publisher_count() >= self._expect or now >= self._deadline
 
-    def retired(self) -> Any:
-        """The previous subscription, to destroy now (after a last :meth:`drain`); duplicates are looked for
-        in :attr:`LINGER` more drains."""
-        old, self.retiring = self.retiring, None
+    def retired(self) -> list:
+        """The subscriptions that go, to destroy now (after a last :meth:`drain`); duplicates are looked for in
+        :attr:`LINGER` more drains."""
+        gone = [sub for reliability, sub in self.subscriptions.items() if reliability != self.reliability]
+        self.subscriptions = {self.reliability: self.current}
         self._linger = self.LINGER
-        return old
+        return gone
 
     @property
     def changing(self) -> bool:
-        """A change is being matched (or its duplicates still looked for)."""
+        """More than one subscription is drained (or duplicates of one just gone are still looked for)."""
         return self._keys is not None
 
     def drain(self, limit: int) -> list:
-        """Every waiting message, ``[(message or bytes, info), ...]``, in the order they came.
+        """Every waiting message, ``[(message or bytes, info), ...]``, each once, in the order they came.
 
         Parameters
         ----------
@@ -221,8 +232,14 @@ class Intake:
             Most messages taken per subscription.
         """
         if self._keys is None:
-            return take_all(self.current, limit)
-        got = (take_all(self.retiring, limit) if self.retiring is not None else []) + take_all(self.current, limit)
+            (only,) = self.subscriptions.values()
+            return take_all(only, limit)
+        got = []
+        for reliability, sub in self.subscriptions.items():   # the one that stays last
+            if reliability != self.reliability:
+                got += take_all(sub, limit)
+        if self.current is not None:
+            got += take_all(self.current, limit)
         keys, out = self._keys, []
         for item in got:
             key = message_key(item[1])
@@ -233,7 +250,7 @@ class Intake:
             else:
                 keys.add(key)
                 out.append(item)
-        if self.retiring is None:
+        if len(self.subscriptions) == 1:
             self._linger -= 1
             if self._linger <= 0:
                 self._keys = None

@@ -364,12 +364,16 @@ class ValidatorNode(Node):
         return sub
 
     def _subscribe(self, topic: str, wanted: TopicType) -> None:
-        reliability = choose_reliability(self._param("qos_reliability"),
-                                         [r for t, r in self._publishers_on(topic) if t == wanted.name])
-        sub = self._create(topic, wanted.name, reliability)
-        self._intakes[topic] = Intake(topic, wanted.name, wanted.source, reliability, sub)
+        """Subscribe now; with ``qos_reliability: auto`` and no publisher known yet, both reliable and best effort
+        (:class:`~gap_validation.ros.intake.Intake`: nothing missed from the first message, nothing twice)."""
+        mode = self._param("qos_reliability")
+        offered = [r for t, r in self._publishers_on(topic) if t == wanted.name]
+        reliability = choose_reliability(mode, offered) if offered or mode != "auto" else None
+        kinds = [reliability] if reliability else [RELIABLE, BEST_EFFORT]
+        subs = {kind: self._create(topic, wanted.name, kind) for kind in kinds}
+        self._intakes[topic] = Intake(topic, wanted.name, wanted.source, subs, reliability)
         self.get_logger().info(f"topic {topic}: subscribed as {wanted.name} ({_SOURCES[wanted.source]}), "
-                               f"{reliability.upper()}")
+                               f"{(reliability or 'reliable and best_effort until the publishers are known').upper()}")
 
     def _destroy(self, sub: Any) -> None:
         self._polled.discard(sub)
@@ -377,9 +381,8 @@ class ValidatorNode(Node):
 
     def _unsubscribe(self, topic: str) -> None:
         intake = self._intakes.pop(topic)
-        if intake.retiring is not None:
-            self._destroy(intake.retired())
-        self._destroy(intake.current)
+        for sub in intake.subscriptions.values():
+            self._destroy(sub)
         self._raw.pop(topic, None)
 
     def _decoding(self, topic: str, type_name: str) -> TopicDecoder:
@@ -417,10 +420,11 @@ class ValidatorNode(Node):
                 if intake is None:
                     continue
             offered = [r for t, r in publishers if t == intake.type_name]
-            want = choose_reliability(mode, offered)
-            if want != intake.reliability and not intake.changing:
-                self._change_reliability(intake, want, len(offered))
-            note = publisher_note(topic, mode, intake.reliability, intake.type_name, intake.type_source, publishers)
+            want = choose_reliability(mode, offered) if offered or mode != "auto" else intake.reliability
+            if want is not None and want != intake.reliability:   # (two kinds only: a new one replaces a lone one)
+                self._settle(intake, want, len(offered))
+            note = publisher_note(topic, mode, intake.reliability, intake.type_name, intake.type_source,
+                                  publishers) if intake.reliability else None
             if note and note != intake.note:
                 self._log_once(f"note:{topic}:{note}", "warning", note)
             intake.note = note
@@ -444,11 +448,14 @@ class ValidatorNode(Node):
         self._types[topic] = TopicType(type_name, "graph")
         self._subscribe(topic, self._types[topic])
 
-    def _change_reliability(self, intake: Intake, reliability: str, publishers: int) -> None:
-        """Make before break: a subscription with ``reliability`` beside the current one (:meth:`Intake.change`)."""
-        sub = self._create(intake.topic, intake.type_name, reliability)
-        intake.change(sub, reliability, publishers, time.monotonic() + self.CHANGE_TIMEOUT_S)
-        self.get_logger().info(f"topic {intake.topic}: publishers offer {reliability.upper()}, re-subscribing")
+    def _settle(self, intake: Intake, reliability: str, publishers: int) -> None:
+        """Keep ``reliability``: its subscription (new, make before break, when the topic has none) is drained with
+        the others until it has matched the publishers (:meth:`Intake.settle`)."""
+        new = None if reliability in intake.subscriptions else self._create(intake.topic, intake.type_name,
+                                                                            reliability)
+        intake.settle(reliability, publishers, time.monotonic() + self.CHANGE_TIMEOUT_S, subscription=new)
+        self.get_logger().info(f"topic {intake.topic}: publishers offer {reliability.upper()}"
+                               f"{', re-subscribing' if new is not None else ''}")
 
     # ---------------------------------------------------------------- taking messages
     def _now_s(self) -> float:
@@ -468,7 +475,8 @@ class ValidatorNode(Node):
                 self._log_once(f"take:{topic}:{type(err).__name__}", "error", f"topic {topic}: {one_line(err)}")
                 continue
             if retire:
-                self._destroy(intake.retired())
+                for sub in intake.retired():
+                    self._destroy(sub)
             if got:
                 self.take_messages(topic, got, now_s, offset_s)
         if self._graph_due:

@@ -14,7 +14,6 @@ import copy
 import gc
 import json
 import os
-import random
 import shutil
 import subprocess
 import sys
@@ -23,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _ros import domain_id
 import yaml
 
 rclpy = pytest.importorskip("rclpy")
@@ -62,7 +62,7 @@ def ros_environment():
     """Isolated DDS traffic: random domain, localhost only, strict field checks (restored afterwards)."""
     keys = ("ROS_PYTHON_CHECK_FIELDS", "ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")
     saved = {k: os.environ.get(k) for k in keys}
-    os.environ.update({"ROS_PYTHON_CHECK_FIELDS": "1", "ROS_DOMAIN_ID": str(random.randint(0, 101)),
+    os.environ.update({"ROS_PYTHON_CHECK_FIELDS": "1", "ROS_DOMAIN_ID": domain_id(),
                        "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"})
     yield
     for key, value in saved.items():

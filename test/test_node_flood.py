@@ -13,12 +13,12 @@ from __future__ import annotations
 
 import importlib.util
 import os
-import random
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from _ros import domain_id
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -28,7 +28,7 @@ def bench():
     pytest.importorskip("rclpy")
     keys = ("ROS_PYTHON_CHECK_FIELDS", "ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")
     saved = {k: os.environ.get(k) for k in keys}
-    os.environ.update({"ROS_PYTHON_CHECK_FIELDS": "1", "ROS_DOMAIN_ID": str(random.randint(0, 101)),
+    os.environ.update({"ROS_PYTHON_CHECK_FIELDS": "1", "ROS_DOMAIN_ID": domain_id(),
                        "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"})
     spec = importlib.util.spec_from_file_location("bench_node_flood", ROOT / "benchmarks" / "bench_node_flood.py")
     module = importlib.util.module_from_spec(spec)

@@ -104,3 +104,15 @@ def test_launch_file_loads_with_launch(tmp_path, monkeypatch):
     description = get_launch_description_from_python_launch_file(str(LAUNCH))
     names = {argument.name for argument in description.get_launch_arguments()}
     assert names == _launch_tree()[1]
+
+
+def test_run_tests_runs_what_its_arguments_say():
+    """``scripts/run-tests test/test_x.py`` runs that file only (it used to append the whole test folder)."""
+    import subprocess
+
+    proc = subprocess.run(["bash", str(ROOT / "scripts" / "run-tests"), "--collect-only", "-q", "--noconftest",
+                           "test/test_layouts.py"],
+                          cwd=ROOT, env=dict(os.environ), capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    ids = [line for line in proc.stdout.splitlines() if "::" in line]
+    assert ids and all(line.startswith("test/test_layouts.py::") for line in ids), proc.stdout[-2000:]

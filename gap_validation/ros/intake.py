@@ -16,7 +16,8 @@ QoS that works by default
 -------------------------
 :func:`choose_reliability`: with ``qos_reliability: auto`` a topic is subscribed RELIABLE when every publisher on
 it offers RELIABLE, and BEST_EFFORT when any offers BEST_EFFORT or none is known yet (a best-effort
-subscription matches every publisher). The choice is re-checked when publishers appear; a change re-subscribes
+subscription matches every publisher). The choice is re-checked when publishers appear (the node's graph check, every ``discovery_period``); a change
+re-subscribes
 *make before break* (:meth:`Intake.settle`): the new subscription is created, both are drained until the new one
 has matched the publishers, and a message taken from one is skipped when it comes again from the other (same
 source timestamp and publication sequence number), so the switch neither loses nor repeats a message. While no
@@ -85,7 +86,7 @@ def publisher_note(topic: str, mode: str, reliability: str, type_name: str | Non
     other = sorted({t for t, _ in publishers if type_name is not None and t != type_name})
     if other:
         whose = "the config says" if type_source == "config" else "subscribed as"
-        return (f"publisher on {topic} offers {', '.join(other)}; {whose} {type_name} (set the topic's type: "
+        return (f"publisher on {topic} offers {', '.join(other)}; {whose} {type_name} (set the topic's `type:` "
                 "in the config)")
     if reliability == RELIABLE and any(r == BEST_EFFORT for _, r in publishers):
         n = sum(1 for _, r in publishers if r == BEST_EFFORT)

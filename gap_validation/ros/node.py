@@ -22,11 +22,11 @@ Taking messages
 ---------------
 Every topic is subscribed at start-up (type from the config, else implied by its field paths,
 :func:`~gap_validation.ros.message_types.topic_types`; only topics whose fields imply nothing wait for the graph),
-with the reliability the publishers offer (``qos_reliability: auto``, re-checked every ``discovery_period`` and
-when a publisher matches or is incompatible). The subscriptions are kept out of the executor's wait set: one
-timer (``intake_period``, steady clock, so it runs before ``/clock`` does with ``use_sim_time``) drains every
-queue in one wake-up (:mod:`gap_validation.ros.intake`), which costs a fraction of one executor callback per
-message. A sample's time is its ``header.stamp``, else its reception time (DDS's, on the node clock).
+with the reliability the publishers offer (``qos_reliability: auto``: both reliable and best effort until they
+are known, then theirs; re-checked every ``discovery_period``). The subscriptions are kept out of the executor's
+wait set: one timer (``intake_period``, steady clock, so it runs before ``/clock`` does with ``use_sim_time``)
+drains every queue in one wake-up (:mod:`gap_validation.ros.intake`), which costs a fraction of one executor
+callback per message. A sample's time is its ``header.stamp``, else its reception time (DDS's, on the node clock).
 
 Time
 ----
@@ -297,9 +297,11 @@ class ValidatorNode(Node):
         """Checkpoint timer: snapshot now, write in the background (skipped while the previous one writes)."""
         self._checkpoint_in_background()
 
-    def _checkpoint_in_background(self) -> None:
+    def _checkpoint_in_background(self, force: bool = False) -> None:
+        """Snapshot now, write in the background thread (after the writes before it); skipped while the previous
+        checkpoint is still being written, unless ``force`` (a reset must reach the file)."""
         path = self._param("state_file")
-        if not path or self._background.busy("checkpoint"):
+        if not path or (self._background.busy("checkpoint") and not force):
             return
         self._flush()
         snap = background.snapshot(self.config, self.validator, None, self._generation, self._checkpoint_meta())
@@ -317,7 +319,7 @@ class ValidatorNode(Node):
         for topic in list(self._intakes):
             wanted = self._types.get(topic)
             intake = self._intakes[topic]
-            if wanted is None or (wanted.name and wanted.source == "config" and wanted.name != intake.type_name):
+            if wanted is None or (wanted.name is not None and wanted.name != intake.type_name):
                 self._unsubscribe(topic)
         for topic in list(self._raw):  # the fields may have changed (reload): new decoding steps
             self._raw[topic] = self._decoding(topic, self._intakes[topic].type_name)
@@ -355,8 +357,10 @@ class ValidatorNode(Node):
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=int(self._param("qos_depth")),
                          reliability=ReliabilityPolicy.RELIABLE if reliability == RELIABLE
                          else ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
-        events = SubscriptionEventCallbacks(incompatible_qos=partial(self._on_incompatible, topic),
-                                            matched=self._on_matched)
+        # no QoS event handlers: they are waitables the executor would wait on, and rmw wakes those with every
+        # message of the subscription (the SingleThreadedExecutor spun at 82 % of a core); the graph check
+        # (discovery_period) sees matches and incompatible publishers instead
+        events = SubscriptionEventCallbacks(use_default_callbacks=False)
         sub = self.create_subscription(message_class(type_name), topic, partial(self._on_executor_message, topic),
                                        qos, event_callbacks=events, raw=raw)
         self._polled.add(sub)
@@ -394,14 +398,6 @@ class ValidatorNode(Node):
     def _disagree(self, topic: str) -> None:
         self._log_once(f"fast:{topic}", "info", f"topic {topic}: fast decoding disagrees with rclpy; "
                                                 "deserialising instead")
-
-    def _on_incompatible(self, topic: str, event: Any) -> None:
-        """QoS event: a publisher on ``topic`` offers what the subscription cannot match: check the graph now."""
-        self._graph_due = True
-
-    def _on_matched(self, event: Any) -> None:
-        """QoS event: a publisher matched or left: check the graph now (``qos_reliability: auto``)."""
-        self._graph_due = True
 
     def _check_graph(self) -> None:
         """Graph check: discover pending types, follow the publishers' type and reliability, note mismatches."""
@@ -745,7 +741,7 @@ class ValidatorNode(Node):
         self._generation += 1
         self._forget_diagnoses()
         self._diagnosis.forget()
-        self._checkpoint_in_background()
+        self._checkpoint_in_background(force=True)
         return "spectra cleared"
 
     def _note_saturation(self, result: ValidationResult) -> None:

@@ -14,10 +14,10 @@ hardware_id : str, "" (the config's ``aircraft`` key, else the node's fully qual
     (``config_file``, ``~/reload``) does not change it; setting the parameter does.
 qos_reliability : {"auto", "reliable", "best_effort"}, "auto"
     Reliability of the subscriptions (read-only). ``auto`` matches what the publishers offer: RELIABLE when every
-    publisher on the topic is reliable, BEST_EFFORT when any is best effort or none is known yet (a best-effort
-    subscription matches every publisher, so nothing is missed from the first message on), re-checked every
-    ``discovery_period`` and at once when a publisher matches or offers an incompatible QoS; a change
-    re-subscribes make-before-break (no message lost, none taken twice: :mod:`gap_validation.ros.intake`).
+    publisher on the topic is reliable, BEST_EFFORT when any is best effort; while none is known the topic has
+    both subscriptions, drained as one (nothing missed from the first message on, nothing taken twice).
+    Re-checked every ``discovery_period``; a change re-subscribes make-before-break
+    (:mod:`gap_validation.ros.intake`).
     ``reliable`` or ``best_effort`` fix it; a publisher the fixed choice cannot match is named in the channel's
     status ("publisher on /imu offers BEST_EFFORT; set qos_reliability to auto or best_effort").
 qos_depth : int, 1000

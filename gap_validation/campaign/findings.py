@@ -1,0 +1,160 @@
+"""Fleet findings: per aircraft and channel, epsilon and each diagnosed parameter over date, and the trends
+that are real against the flights' random error, in words ("UAV-3 pitch: delay grows 6.1 ms per week, from 20
+to 45 ms").
+
+Quantities: ``epsilon`` of every validated flight, and every parameter of the flight's *top* diagnosis
+candidate, named ``<effect type>.<parameter>`` (``time_delay.seconds``); a flight whose top candidate lacks the
+parameter (or has no diagnosis) is left out of that series. Statistics: :mod:`gap_validation.campaign.trends`
+(least squares over date, slope against the residual scatter, Holm over every trend of the campaign).
+No matplotlib, no Dask.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from datetime import datetime
+from typing import Sequence
+
+from gap_validation.campaign.results import FAILED, FlightOutcome
+from gap_validation.campaign.trends import FAMILY_ALPHA, MIN_FLIGHTS, Trend, holm_significant, linear_trend
+
+__all__ = ["Series", "Finding", "fleet_series", "find_trends", "quantity_label", "format_value", "EPSILON"]
+
+EPSILON = "epsilon"
+
+#: Words and display units of the effects' parameters: ``<type>.<parameter>`` -> (label, unit, scale).
+_LABELS = {
+    EPSILON: ("epsilon", "", 1.0),
+    "time_delay.seconds": ("delay", "ms", 1e3),
+    "first_order_lag.bandwidth_rad_s": ("lag bandwidth", "rad/s", 1.0),
+    "second_order_lag.natural_frequency_rad_s": ("actuator natural frequency", "rad/s", 1.0),
+    "second_order_lag.damping": ("actuator damping", "", 1.0),
+    "gain.factor": ("gain factor", "", 1.0),
+    "structural_mode.frequency_rad_s": ("structural mode frequency", "rad/s", 1.0),
+    "structural_mode.damping": ("structural mode damping", "", 1.0),
+    "structural_mode.zero_frequency_rad_s": ("structural mode zero frequency", "rad/s", 1.0),
+    "structural_mode.zero_damping": ("structural mode zero damping", "", 1.0),
+    "rate_limit.rad_s": ("rate limit", "rad/s", 1.0),
+    "backlash.width_rad": ("backlash width", "mrad", 1e3),
+}
+
+
+def quantity_label(quantity: str) -> tuple[str, str, float]:
+    """(words, display unit, scale from SI to the display unit) of a quantity name."""
+    if quantity in _LABELS:
+        return _LABELS[quantity]
+    kind, _, parameter = quantity.partition(".")
+    for suffix, unit, scale in (("_rad_s", "rad/s", 1.0), ("seconds", "ms", 1e3), ("_s", "ms", 1e3),
+                                ("_rad", "mrad", 1e3)):
+        if parameter.endswith(suffix):
+            words = parameter[: -len(suffix)].rstrip("_")
+            return f"{kind.replace('_', ' ')} {words.replace('_', ' ')}".strip(), unit, scale
+    return f"{kind.replace('_', ' ')} {parameter.replace('_', ' ')}".strip(), "", 1.0
+
+
+def format_value(value: float) -> str:
+    """A value for a sentence: two significant figures, whole numbers from 10 up (``21``, ``6.1``, ``0.45``)."""
+    if not math.isfinite(value):
+        return str(value)
+    if abs(value) >= 10:
+        return f"{value:.0f}"
+    return f"{value:.2g}" if abs(value) < 1 else f"{value:.1f}"
+
+
+@dataclass
+class Series:
+    """One quantity of one aircraft's channel over the campaign's flights (date order)."""
+
+    aircraft: str
+    channel: str
+    quantity: str
+    dates: list[datetime] = field(default_factory=list)
+    values: list[float] = field(default_factory=list)
+    flights: list[str] = field(default_factory=list)
+
+    def days(self, origin: datetime) -> list[float]:
+        return [(d - origin).total_seconds() / 86400.0 for d in self.dates]
+
+
+@dataclass
+class Finding:
+    """A series, its trend (None with fewer than :data:`MIN_FLIGHTS` flights) and whether the trend is real."""
+
+    series: Series
+    trend: Trend | None
+    significant: bool = False
+
+    @property
+    def label(self) -> tuple[str, str, float]:
+        return quantity_label(self.series.quantity)
+
+    def sentence(self) -> str:
+        """The trend in words: ``UAV-3 pitch: delay grows 6.1 ms per week, from 20 to 45 ms (6 flights, ...)``."""
+        s, t = self.series, self.trend
+        words, unit, scale = self.label
+        head = f"{s.aircraft} {s.channel}: {words}"
+        if t is None:
+            return f"{head}: {len(s.values)} flights, too few for a trend (at least {MIN_FLIGHTS})"
+        unit_text = f" {unit}" if unit else ""
+        stats = f"{t.n} flights, {s.dates[0]:%Y-%m-%d} to {s.dates[-1]:%Y-%m-%d}, p = {t.p_value:.1g}"
+        if not self.significant:
+            return (f"{head}: no real trend ({format_value(t.slope_per_week * scale)}{unit_text} per week "
+                    f"+- {format_value(t.slope_error_per_day * 7 * scale)}, {stats})")
+        verb = "grows" if t.slope_per_day > 0 else "falls"
+        return (f"{head} {verb} {format_value(abs(t.slope_per_week) * scale)}{unit_text} per week, from "
+                f"{format_value(t.start_value * scale)} to {format_value(t.end_value * scale)}{unit_text} ({stats})")
+
+    def to_json_dict(self) -> dict:
+        s = self.series
+        return {"aircraft": s.aircraft, "channel": s.channel, "quantity": s.quantity, "flights": len(s.values),
+                "significant": self.significant, "sentence": self.sentence(),
+                "trend": self.trend.to_json_dict() if self.trend is not None else None}
+
+
+def _top_parameters(summary: dict) -> dict[str, float]:
+    """``<type>.<parameter>`` -> value of the top candidate's effects (scalars only; the first of a type)."""
+    out: dict[str, float] = {}
+    top = summary.get("diagnosis") or {}
+    for effect in top.get("effects") or []:
+        kind = effect.get("type")
+        for key, value in effect.items():
+            if key == "type" or isinstance(value, bool) or not isinstance(value, (int, float)):
+                continue
+            out.setdefault(f"{kind}.{key}", float(value))
+    return out
+
+
+def fleet_series(outcomes: Sequence[FlightOutcome]) -> list[Series]:
+    """Every (aircraft, channel, quantity) series of the validated flights, flights in date order; epsilon first."""
+    table: dict[tuple[str, str, str], Series] = {}
+    for outcome in sorted((o for o in outcomes if o.status != FAILED and o.channels), key=lambda o: o.flight.date):
+        f = outcome.flight
+        for channel, summary in outcome.channels.items():
+            values = {EPSILON: summary.get("epsilon"), **_top_parameters(summary)}
+            for quantity, value in values.items():
+                if value is None or not math.isfinite(value):
+                    continue
+                series = table.setdefault((f.aircraft, channel, quantity), Series(f.aircraft, channel, quantity))
+                series.dates.append(f.date)
+                series.values.append(float(value))
+                series.flights.append(f.name)
+    return list(table.values())
+
+
+def find_trends(series: Sequence[Series], alpha: float = FAMILY_ALPHA) -> list[Finding]:
+    """A :class:`Finding` per series: its trend, and whether it is real (Holm over all trends, ``alpha``).
+
+    Order: aircraft and channel as first met, epsilon first within each.
+    """
+    if not series:
+        return []
+    origin = min(d for s in series for d in s.dates)
+    findings = [Finding(s, linear_trend(s.days(origin), s.values)) for s in series]
+    tested = [f for f in findings if f.trend is not None]
+    for finding, real in zip(tested, holm_significant([f.trend.p_value for f in tested], alpha)):
+        finding.significant = real
+    order = {}
+    for f in findings:
+        order.setdefault((f.series.aircraft, f.series.channel), len(order))
+    return sorted(findings, key=lambda f: (order[(f.series.aircraft, f.series.channel)],
+                                           f.series.quantity != EPSILON, f.series.quantity))

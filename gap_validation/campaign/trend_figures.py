@@ -1,0 +1,90 @@
+"""Figures of a campaign's trends (front end: matplotlib, Agg backend, PNG written atomically).
+
+* :func:`trend_figure`: one aircraft's channel over date, a panel per quantity (epsilon, then each diagnosed
+  parameter), each flight a point, the least-squares line red when the trend is real, grey and dashed when it
+  is within the flights' random error;
+* :func:`fleet_figure`: epsilon over date of every aircraft for one channel.
+"""
+from __future__ import annotations
+
+from datetime import datetime, timedelta
+from pathlib import Path
+from typing import Sequence
+
+from gap_validation.atomic import atomic_open
+from gap_validation.campaign.findings import Finding, format_value
+from gap_validation.figures import pyplot
+
+__all__ = ["trend_figure", "fleet_figure"]
+
+
+def _save(fig, path: Path) -> None:
+    plt = pyplot()
+    try:
+        with atomic_open(path, "wb") as handle:
+            fig.savefig(handle, dpi=90, format="png")
+    finally:
+        plt.close(fig)
+
+
+def _ylabel(finding: Finding) -> str:
+    words, unit, _ = finding.label
+    return f"{words} [{unit}]" if unit else words
+
+
+def _line(ax, finding: Finding, origin: datetime) -> None:
+    trend = finding.trend
+    if trend is None:
+        return
+    _, unit, scale = finding.label
+    days = (trend.first_day, trend.last_day)
+    dates = [origin + timedelta(days=d) for d in days]
+    values = [(trend.intercept + trend.slope_per_day * d) * scale for d in days]
+    rate = f"{'+' if trend.slope_per_day >= 0 else '-'}{format_value(abs(trend.slope_per_week) * scale)}"
+    label = f"{rate}{' ' + unit if unit else ''}/week (p = {trend.p_value:.1g})"
+    if finding.significant:
+        ax.plot(dates, values, "-", color="tab:red", lw=2, label=f"trend {label}")
+    else:
+        ax.plot(dates, values, "--", color="0.6", lw=1, label=f"no real trend ({label})")
+
+
+def trend_figure(findings: Sequence[Finding], origin: datetime, path: Path) -> None:
+    """One panel per finding (same aircraft and channel), shared date axis; saved to ``path``."""
+    plt = pyplot()
+    n = len(findings)
+    fig, axes = plt.subplots(n, 1, figsize=(7.5, 1.2 + 2.1 * n), sharex=True, squeeze=False)
+    first = findings[0].series
+    fig.suptitle(f"{first.aircraft} {first.channel}: over the campaign")
+    for ax, finding in zip(axes[:, 0], findings):
+        _, _, scale = finding.label
+        s = finding.series
+        ax.plot(s.dates, [v * scale for v in s.values], "o", color="tab:red" if finding.significant else "tab:blue",
+                ms=5, label="flights")
+        _line(ax, finding, origin)
+        ax.set_ylabel(_ylabel(finding))
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="best", fontsize=8)
+    axes[-1, 0].set_xlabel("date")
+    fig.autofmt_xdate()
+    fig.tight_layout()
+    _save(fig, path)
+
+
+def fleet_figure(findings: Sequence[Finding], channel: str, path: Path) -> None:
+    """Epsilon over date of every aircraft (``findings``: epsilon findings of ``channel``); saved to ``path``."""
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(7.5, 3.6))
+    for finding in findings:
+        s = finding.series
+        style = dict(lw=2.2, color="tab:red") if finding.significant else dict(lw=1, alpha=0.8)
+        ax.plot(s.dates, s.values, "o-", ms=4, label=s.aircraft + (" (trend)" if finding.significant else ""),
+                **style)
+    ax.set_title(f"{channel}: epsilon over date, every aircraft")
+    ax.set_ylabel("epsilon")
+    ax.set_xlabel("date")
+    ax.grid(True, alpha=0.3)
+    if len(findings) <= 12:
+        ax.legend(loc="best", fontsize=8, ncol=2)
+    fig.autofmt_xdate()
+    fig.tight_layout()
+    _save(fig, path)

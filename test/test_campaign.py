@@ -174,6 +174,10 @@ def test_a_rerun_redoes_only_what_changed(fleet, cluster, campaign, tmp_path):
     assert status.pop(changed.name) == VALIDATED and set(status.values()) == {REUSED}
     redone = next(f for f in data["flights"] if f["name"] == changed.name)["channels"]["pitch"]["epsilon"]
     assert redone == pytest.approx(campaign.flights[2].channels["pitch"]["epsilon"], abs=1e-12)
+    # figures are named by their content: the changed aircraft's and the fleet's are new, the others kept
+    old, new = ({p.name for p in d.glob("*.png")} for d in (campaign.out_dir, out))
+    assert len(new) == 1 + AIRCRAFT and {n for n in old & new} == {n for n in old if "UAV_1" not in n
+                                                                   and not n.startswith("fleet")}
 
 
 def test_a_failing_flight_is_one_line_and_the_others_complete(fleet, tmp_path, capsys):

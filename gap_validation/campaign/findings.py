@@ -125,26 +125,33 @@ def _top_parameters(summary: dict) -> dict[str, float]:
 
 
 def fleet_series(outcomes: Sequence[FlightOutcome]) -> list[Series]:
-    """Every (aircraft, channel, quantity) series of the validated flights, flights in date order; epsilon first."""
+    """Every (aircraft, channel, quantity) series of the validated flights: aircraft and channels in the order
+    of the flights given (the manifest's), each series' flights in date order."""
     table: dict[tuple[str, str, str], Series] = {}
-    for outcome in sorted((o for o in outcomes if o.status != FAILED and o.channels), key=lambda o: o.flight.date):
+    done = [o for o in outcomes if o.status != FAILED and o.channels]
+    for outcome in done:                   # series in manifest order of aircraft and channels ...
+        for channel, summary in outcome.channels.items():
+            for quantity in (EPSILON, *_top_parameters(summary)):
+                key = (outcome.flight.aircraft, channel, quantity)
+                table.setdefault(key, Series(*key))
+    for outcome in sorted(done, key=lambda o: o.flight.date):        # ... values in date order
         f = outcome.flight
         for channel, summary in outcome.channels.items():
             values = {EPSILON: summary.get("epsilon"), **_top_parameters(summary)}
             for quantity, value in values.items():
                 if value is None or not math.isfinite(value):
                     continue
-                series = table.setdefault((f.aircraft, channel, quantity), Series(f.aircraft, channel, quantity))
+                series = table[(f.aircraft, channel, quantity)]
                 series.dates.append(f.date)
                 series.values.append(float(value))
                 series.flights.append(f.name)
-    return list(table.values())
+    return [s for s in table.values() if s.values]
 
 
 def find_trends(series: Sequence[Series], alpha: float = FAMILY_ALPHA) -> list[Finding]:
     """A :class:`Finding` per series: its trend, and whether it is real (Holm over all trends, ``alpha``).
 
-    Order: aircraft and channel as first met, epsilon first within each.
+    Order: aircraft and channel as in ``series``, epsilon first within each, then the parameters by name.
     """
     if not series:
         return []

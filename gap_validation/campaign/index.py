@@ -9,7 +9,9 @@ and a warning). Files are written atomically.
 """
 from __future__ import annotations
 
+import hashlib
 import html
+import json
 import logging
 import re
 from datetime import datetime, timezone
@@ -43,22 +45,47 @@ def _slug(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9]+", "_", text).strip("_")[:40] or "x"
 
 
+#: Changes when the figures' drawing changes (every figure is then drawn again once).
+FIGURE_VERSION = 1
+_FIGURE_FILE = re.compile(r"^(trend|fleet)_[A-Za-z0-9_]*-[0-9a-f]{12}\.png$")
+
+
+def _figure_key(findings: list[Finding], *extra: str) -> str:
+    """12 hex of a hash of everything a figure shows: a figure whose data did not change is not drawn again."""
+    data = [FIGURE_VERSION, *extra] + [dict(f.to_json_dict(), dates=[d.isoformat() for d in f.series.dates],
+                                            values=f.series.values) for f in findings]
+    return hashlib.sha256(json.dumps(data, sort_keys=True, default=str).encode()).hexdigest()[:12]
+
+
 class _Figures:
-    """Draws figures into the campaign directory; a failure becomes a note and a warning."""
+    """Draws figures into the campaign directory, named by their content (a re-run reuses the unchanged ones);
+    a failure becomes a note and a warning."""
 
     def __init__(self, directory: Path):
         self.directory = directory
         self.problems: list[str] = []
+        self.names: set[str] = set()
+        self.drawn = 0
 
-    def draw(self, name: str, caption: str, draw: Callable[[Path], None]) -> str:
+    def draw(self, stem: str, caption: str, findings: list[Finding], draw: Callable[[Path], None]) -> str:
+        name = f"{stem}-{_figure_key(findings, stem, caption)}.png"
         path = self.directory / name
         try:
-            draw(path)
+            if not path.is_file():
+                draw(path)
+                self.drawn += 1
         except Exception as err:  # noqa: BLE001 -- one figure never costs the page
             self.problems.append(f"{path}: figure not drawn ({one_line(err)})")
             return f"<p class='note'>{_e(caption)}: figure not drawn ({_e(one_line(err))}).</p>"
+        self.names.add(name)
         return (f"<figure><img src='{_e(name)}' alt='{_e(caption)}'>"
                 f"<figcaption>{_e(caption)}</figcaption></figure>")
+
+    def prune(self) -> None:
+        """Remove the figures of earlier runs that the page no longer shows."""
+        for path in self.directory.glob("*.png"):
+            if _FIGURE_FILE.match(path.name) and path.name not in self.names:
+                path.unlink(missing_ok=True)
 
 
 def _groups(findings: list[Finding]) -> dict[tuple[str, str], list[Finding]]:
@@ -168,8 +195,8 @@ def _aircraft_sections(outcome: CampaignOutcome, groups, figures: _Figures, orig
             parts.append("</ul>")
             caption = (f"{name} {channel}: epsilon and each diagnosed parameter over date; red line: a real trend, "
                        f"grey dashes: within the flights' random error")
-            png = f"trend_{i}_{j}_{_slug(name)}_{_slug(channel)}.png"
-            parts.append(figures.draw(png, caption,
+            stem = f"trend_{i}_{j}_{_slug(name)}_{_slug(channel)}"
+            parts.append(figures.draw(stem, caption, findings,
                                       lambda p, fs=findings: trend_figures.trend_figure(fs, origin, p)))
     return parts
 
@@ -204,8 +231,8 @@ def write_index(outcome: CampaignOutcome, warn: Callable[[str], None] | None = N
     for k, channel in enumerate(channels):
         eps = [f for f in findings if f.series.channel == channel and f.series.quantity == EPSILON]
         if eps:
-            parts.append(figures.draw(f"fleet_{k}_{_slug(channel)}.png", f"{channel}: epsilon over date, every aircraft",
-                                      lambda p, fs=eps, c=channel: trend_figures.fleet_figure(fs, c, p)))
+            parts.append(figures.draw(f"fleet_{k}_{_slug(channel)}", f"{channel}: epsilon over date, every aircraft",
+                                      eps, lambda p, fs=eps, c=channel: trend_figures.fleet_figure(fs, c, p)))
     parts += _aircraft_sections(outcome, groups, figures, origin)
     parts += ["<h2 id='flights'>Flights</h2>", _flight_rows(outcome), "</body></html>"]
     index = directory / "index.html"
@@ -213,6 +240,7 @@ def write_index(outcome: CampaignOutcome, warn: Callable[[str], None] | None = N
         atomic_write_text(index, "\n".join(parts))
     except OSError as err:
         raise DataError(f"{index}: cannot write the campaign index ({err.strerror or err})") from None
+    figures.prune()
     for problem in figures.problems:
         (warn or log.warning)(problem)
     return index

@@ -62,6 +62,7 @@ class FlightOutcome:
     results_path: Path | None = None
     channels: dict[str, dict] = field(default_factory=dict)
     elapsed_s: float | None = None
+    cpu_s: float | None = None
     worker: str | None = None
     unsaved: dict | None = None          # the replay JSON when its results file could not be written
 
@@ -141,7 +142,7 @@ def _entry(outcome: FlightOutcome, out_dir: Path, channels: dict) -> dict:
     return {**outcome.flight.metadata(), "channels": channels, "status": outcome.status,
             "errors": list(outcome.errors), "warnings": list(outcome.warnings), "fingerprint": outcome.fingerprint,
             "results": outcome.results_path.relative_to(out_dir).as_posix() if outcome.results_path else None,
-            "elapsed_s": outcome.elapsed_s, "worker": outcome.worker}
+            "elapsed_s": outcome.elapsed_s, "cpu_s": outcome.cpu_s, "worker": outcome.worker}
 
 
 def _write_entries(handle, outcomes: Iterable[FlightOutcome], out_dir: Path) -> None:

@@ -109,14 +109,14 @@ def _adopt(outcome: FlightOutcome, data: dict, path: Path) -> None:
     outcome.channels = {name: channel_summary(ch) for name, ch in data["channels"].items() if isinstance(ch, dict)}
     outcome.errors = list(meta.get("errors") or [])
     outcome.warnings = list(meta.get("warnings") or [])
-    outcome.elapsed_s = meta.get("elapsed_s")
+    outcome.elapsed_s, outcome.cpu_s = meta.get("elapsed_s"), meta.get("cpu_s")
     outcome.worker = meta.get("worker")
 
 
 def _store(outcome: FlightOutcome, done: dict, out_dir: Path) -> None:
     """Write a finished task's results to ``DIR/flights/`` (atomically) and take them into ``outcome``."""
     if done.get("results") is None:
-        outcome.elapsed_s, outcome.worker = done.get("elapsed_s"), done.get("worker")
+        outcome.elapsed_s, outcome.cpu_s, outcome.worker = done.get("elapsed_s"), done.get("cpu_s"), done.get("worker")
         for error in done.get("errors") or ["nothing validated"]:
             _fail(outcome, error)
         return
@@ -124,6 +124,7 @@ def _store(outcome: FlightOutcome, done: dict, out_dir: Path) -> None:
     data["campaign"] = {**outcome.flight.metadata(), "fingerprint": outcome.fingerprint,
                         "errors": list(done.get("errors") or []), "warnings": list(done.get("warnings") or []),
                         "messages": done.get("messages"), "elapsed_s": done.get("elapsed_s"),
+                        "cpu_s": done.get("cpu_s"),
                         "worker": done.get("worker"),
                         "finished": datetime.now(timezone.utc).isoformat(timespec="seconds")}
     path = flight_file(out_dir, outcome.flight)

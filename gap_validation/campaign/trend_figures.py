@@ -27,6 +27,14 @@ def _save(fig, path: Path) -> None:
         plt.close(fig)
 
 
+def _margins(fig, top_in: float) -> None:
+    """Fixed margins in inches (room for the title, the y label and the slanted dates): a tenth of the time of
+    ``tight_layout``, which draws the figure twice."""
+    width, height = fig.get_size_inches()
+    fig.subplots_adjust(left=0.85 / width, right=1 - 0.15 / width, top=1 - top_in / height, bottom=0.85 / height,
+                        hspace=0.5 / max(1.0, (height - 1.2) / len(fig.axes)))
+
+
 def _ylabel(finding: Finding) -> str:
     words, unit, _ = finding.label
     return f"{words} [{unit}]" if unit else words
@@ -66,7 +74,7 @@ def trend_figure(findings: Sequence[Finding], origin: datetime, path: Path) -> N
         ax.legend(loc="best", fontsize=8)
     axes[-1, 0].set_xlabel("date")
     fig.autofmt_xdate()
-    fig.tight_layout()
+    _margins(fig, top_in=0.5)
     _save(fig, path)
 
 
@@ -86,5 +94,5 @@ def fleet_figure(findings: Sequence[Finding], channel: str, path: Path) -> None:
     if len(findings) <= 12:
         ax.legend(loc="best", fontsize=8, ncol=2)
     fig.autofmt_xdate()
-    fig.tight_layout()
+    _margins(fig, top_in=0.35)
     _save(fig, path)

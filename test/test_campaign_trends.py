@@ -1,5 +1,6 @@
 """Trend statistics (campaign.trends) and the fleet findings in words (campaign.findings): least squares pinned
 against scipy's linregress, false alarms at the family-wise rate, drifts found, sentences."""
+import re
 from datetime import datetime, timedelta
 
 import numpy as np
@@ -104,8 +105,23 @@ def test_fleet_findings_name_the_drifting_airframe_in_words():
     text = real[1].sentence()
     assert text.startswith("UAV-3 pitch: delay grows 5.")
     assert "ms per week, from 21 to 48 ms (6 flights, 2025-03-05 to 2025-04-09, p = " in text
-    assert findings[0].sentence().startswith("UAV-1 pitch: epsilon: no real trend (")
+    assert re.fullmatch(r"UAV-3 pitch: epsilon grows 1\d % per week, from 0\.4\d? to 0\.[67]\d? \(6 flights, .*\)",
+                        real[0].sentence()), real[0].sentence()
+    assert re.fullmatch(r"UAV-1 pitch: epsilon: no real trend \(-?[\d.e-]+ \+- [\d.e-]+ % per week, 7 flights, .*\)",
+                        findings[0].sentence()), findings[0].sentence()
     assert len(findings[1].series.values) == 6 and len(findings[0].series.values) == 7
+
+
+def test_epsilon_trends_are_relative():
+    """Epsilon is fitted on a log scale: growing by a fifth each week is "20 % per week", whatever its size."""
+    flights = [_outcome("UAV-7", 7 * week, 0.3 * 1.2 ** week * (1 + 0.01 * (-1) ** week), None) for week in range(6)]
+    finding = find_trends(fleet_series(flights))[0]
+    assert finding.significant and finding.log
+    rate, error, unit = finding.rate_per_week()
+    assert unit == "%" and rate == pytest.approx(20, abs=0.5) and error < 1
+    assert re.match(r"UAV-7 pitch: epsilon grows 20 % per week, from 0\.3 to 0\.7[45] \(6 flights", finding.sentence())
+    data = finding.to_json_dict()
+    assert data["fitted_to"] == "log" and data["start"] == pytest.approx(0.3, rel=0.02)
 
 
 def test_words_and_units():

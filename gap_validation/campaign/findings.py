@@ -1,11 +1,12 @@
 """Fleet findings: per aircraft and channel, epsilon and each diagnosed parameter over date, and the trends
 that are real against the flights' random error, in words ("UAV-3 pitch: delay grows 6.1 ms per week, from 20
-to 45 ms").
+to 45 ms"; "UAV-3 pitch: epsilon grows 29 % per week, from 0.41 to 1.5").
 
 Quantities: ``epsilon`` of every validated flight, and every parameter of the flight's *top* diagnosis
 candidate, named ``<effect type>.<parameter>`` (``time_delay.seconds``); a flight whose top candidate lacks the
 parameter (or has no diagnosis) is left out of that series. Statistics: :mod:`gap_validation.campaign.trends`
-(least squares over date, slope against the residual scatter, Holm over every trend of the campaign).
+(least squares over date, slope against the residual scatter, Holm over every trend of the campaign), on
+``log(epsilon)`` for epsilon.
 No matplotlib, no Dask.
 """
 from __future__ import annotations
@@ -18,7 +19,8 @@ from typing import Sequence
 from gap_validation.campaign.results import FAILED, FlightOutcome
 from gap_validation.campaign.trends import FAMILY_ALPHA, MIN_FLIGHTS, Trend, holm_significant, linear_trend
 
-__all__ = ["Series", "Finding", "fleet_series", "find_trends", "quantity_label", "format_value", "EPSILON"]
+__all__ = ["Series", "Finding", "fleet_series", "find_trends", "fits_log", "quantity_label", "format_value",
+           "EPSILON"]
 
 EPSILON = "epsilon"
 
@@ -78,7 +80,13 @@ class Series:
 
 @dataclass
 class Finding:
-    """A series, its trend (None with fewer than :data:`MIN_FLIGHTS` flights) and whether the trend is real."""
+    """A series, its trend (None with fewer than :data:`MIN_FLIGHTS` flights) and whether the trend is real.
+
+    Epsilon's trend is fitted to ``log(epsilon)`` (:func:`fits_log`): epsilon is a ratio, its changes are
+    relative (a delay growing steadily makes it grow ever faster, ``tan(w T/2)`` for a pure delay at the worst
+    frequency w) and its random error grows with it. Its rate is then a percentage per week. Parameters are
+    fitted as they are.
+    """
 
     series: Series
     trend: Trend | None
@@ -88,27 +96,61 @@ class Finding:
     def label(self) -> tuple[str, str, float]:
         return quantity_label(self.series.quantity)
 
+    @property
+    def log(self) -> bool:
+        return fits_log(self.series.quantity)
+
+    def fitted(self, day: float) -> float:
+        """The trend line at ``day`` in display units (on the log scale for epsilon)."""
+        t = self.trend
+        line = t.intercept + t.slope_per_day * day
+        return math.exp(line) if self.log else line * self.label[2]
+
+    def rate_per_week(self) -> tuple[float, float, str]:
+        """(rate, standard error, unit) per week in display units: ``%`` for epsilon."""
+        t = self.trend
+        if self.log:   # exp(b) - 1, its error by the delta method
+            return (100 * math.expm1(t.slope_per_week), 100 * math.exp(t.slope_per_week) * 7 * t.slope_error_per_day,
+                    "%")
+        _, unit, scale = self.label
+        return t.slope_per_week * scale, 7 * t.slope_error_per_day * scale, unit
+
     def sentence(self) -> str:
         """The trend in words: ``UAV-3 pitch: delay grows 6.1 ms per week, from 20 to 45 ms (6 flights, ...)``."""
         s, t = self.series, self.trend
-        words, unit, scale = self.label
+        words, unit, _ = self.label
         head = f"{s.aircraft} {s.channel}: {words}"
         if t is None:
             return f"{head}: {len(s.values)} flights, too few for a trend (at least {MIN_FLIGHTS})"
-        unit_text = f" {unit}" if unit else ""
+        rate, error, rate_unit = self.rate_per_week()
         stats = f"{t.n} flights, {s.dates[0]:%Y-%m-%d} to {s.dates[-1]:%Y-%m-%d}, p = {t.p_value:.1g}"
         if not self.significant:
-            return (f"{head}: no real trend ({format_value(t.slope_per_week * scale)}{unit_text} per week "
-                    f"+- {format_value(t.slope_error_per_day * 7 * scale)}, {stats})")
-        verb = "grows" if t.slope_per_day > 0 else "falls"
-        return (f"{head} {verb} {format_value(abs(t.slope_per_week) * scale)}{unit_text} per week, from "
-                f"{format_value(t.start_value * scale)} to {format_value(t.end_value * scale)}{unit_text} ({stats})")
+            return (f"{head}: no real trend ({_with_unit(f'{format_value(rate)} +- {format_value(error)}', rate_unit)} "
+                    f"per week, {stats})")
+        verb = "grows" if rate > 0 else "falls"
+        span = f"{format_value(self.fitted(t.first_day))} to {format_value(self.fitted(t.last_day))}"
+        return (f"{head} {verb} {_with_unit(format_value(abs(rate)), rate_unit)} per week, from "
+                f"{_with_unit(span, unit)} ({stats})")
 
     def to_json_dict(self) -> dict:
         s = self.series
-        return {"aircraft": s.aircraft, "channel": s.channel, "quantity": s.quantity, "flights": len(s.values),
-                "significant": self.significant, "sentence": self.sentence(),
-                "trend": self.trend.to_json_dict() if self.trend is not None else None}
+        out = {"aircraft": s.aircraft, "channel": s.channel, "quantity": s.quantity, "flights": len(s.values),
+               "significant": self.significant, "sentence": self.sentence(), "fitted_to": "log" if self.log else
+               "value", "trend": self.trend.to_json_dict() if self.trend is not None else None}
+        if self.trend is not None:
+            rate, error, unit = self.rate_per_week()
+            out.update(rate_per_week=rate, rate_error_per_week=error, rate_unit=unit,
+                       start=self.fitted(self.trend.first_day), end=self.fitted(self.trend.last_day))
+        return out
+
+
+def _with_unit(text: str, unit: str) -> str:
+    return f"{text} {unit}" if unit else text
+
+
+def fits_log(quantity: str) -> bool:
+    """Whether a quantity's trend is fitted to its logarithm (epsilon: see :class:`Finding`)."""
+    return quantity == EPSILON
 
 
 def _top_parameters(summary: dict) -> dict[str, float]:
@@ -156,7 +198,10 @@ def find_trends(series: Sequence[Series], alpha: float = FAMILY_ALPHA) -> list[F
     if not series:
         return []
     origin = min(d for s in series for d in s.dates)
-    findings = [Finding(s, linear_trend(s.days(origin), s.values)) for s in series]
+    findings = []
+    for s in series:
+        values = [math.log(v) if v > 0 else math.nan for v in s.values] if fits_log(s.quantity) else s.values
+        findings.append(Finding(s, linear_trend(s.days(origin), values)))
     tested = [f for f in findings if f.trend is not None]
     for finding, real in zip(tested, holm_significant([f.trend.p_value for f in tested], alpha)):
         finding.significant = real

@@ -46,7 +46,7 @@ def _slug(text: str) -> str:
 
 
 #: Changes when the figures' drawing changes (every figure is then drawn again once).
-FIGURE_VERSION = 1
+FIGURE_VERSION = 3
 _FIGURE_FILE = re.compile(r"^(trend|fleet)_[A-Za-z0-9_]*-[0-9a-f]{12}\.png$")
 
 
@@ -106,11 +106,9 @@ def _latest(outcomes: list[FlightOutcome], aircraft: str, channel: str) -> tuple
 def _trend_cell(finding: Finding | None) -> str:
     if finding is None or finding.trend is None:
         return f"<td class='note'>fewer than {MIN_FLIGHTS} flights</td>"
-    t = finding.trend
-    _, unit, scale = finding.label
-    text = (f"{'+' if t.slope_per_day >= 0 else '-'}{format_value(abs(t.slope_per_week) * scale)} "
-            f"&plusmn; {format_value(t.slope_error_per_day * 7 * scale)}{' ' + unit if unit else ''} "
-            f"(p = {t.p_value:.1g})")
+    rate, error, unit = finding.rate_per_week()
+    text = (f"{'+' if rate >= 0 else '-'}{format_value(abs(rate))} &plusmn; {format_value(error)}"
+            f"{' ' + _e(unit) if unit else ''} (p = {finding.trend.p_value:.1g})")
     return f"<td class='{'bad' if finding.significant else 'ok'}'>{text}</td>"
 
 

@@ -102,7 +102,7 @@ def _fail(outcome: FlightOutcome, message: str) -> None:
     outcome.errors.append(message)
 
 
-def _adopt(outcome: FlightOutcome, data: dict, path: Path) -> None:
+def _adopt(outcome: FlightOutcome, data: dict, path: Path | None) -> None:
     """Take a flight's results (its replay JSON with the ``campaign`` object) into its outcome."""
     meta = data.get("campaign") or {}
     outcome.results_path = path
@@ -116,16 +116,15 @@ def _adopt(outcome: FlightOutcome, data: dict, path: Path) -> None:
 def _store(outcome: FlightOutcome, done: dict, out_dir: Path) -> None:
     """Write a finished task's results to ``DIR/flights/`` (atomically) and take them into ``outcome``."""
     if done.get("results") is None:
-        outcome.elapsed_s, outcome.cpu_s, outcome.worker = done.get("elapsed_s"), done.get("cpu_s"), done.get("worker")
+        outcome.elapsed_s, outcome.cpu_s = done.get("elapsed_s"), done.get("cpu_s")
+        outcome.worker = done.get("worker")
         for error in done.get("errors") or ["nothing validated"]:
             _fail(outcome, error)
         return
     data = dict(done["results"])
     data["campaign"] = {**outcome.flight.metadata(), "fingerprint": outcome.fingerprint,
                         "errors": list(done.get("errors") or []), "warnings": list(done.get("warnings") or []),
-                        "messages": done.get("messages"), "elapsed_s": done.get("elapsed_s"),
-                        "cpu_s": done.get("cpu_s"),
-                        "worker": done.get("worker"),
+                        **{k: done.get(k) for k in ("messages", "elapsed_s", "cpu_s", "worker")},
                         "finished": datetime.now(timezone.utc).isoformat(timespec="seconds")}
     path = flight_file(out_dir, outcome.flight)
     try:

@@ -1,15 +1,17 @@
 """Figures of a campaign's trends (front end: matplotlib, Agg backend, PNG written atomically).
 
-* :func:`trend_figure`: one aircraft's channel over date, a panel per quantity (epsilon, then each diagnosed
-  parameter), each flight a point, the least-squares line red when the trend is real, grey and dashed when it
-  is within the flights' random error;
-* :func:`fleet_figure`: epsilon over date of every aircraft for one channel.
+* :func:`trend_figure`: one aircraft's channel over date, a panel per quantity (epsilon on a log axis, then each
+  diagnosed parameter), each flight a point, the least-squares line red when the trend is real, grey and dashed
+  when it is within the flights' random error;
+* :func:`fleet_figure`: epsilon over date of every aircraft for one channel (log axis).
 """
 from __future__ import annotations
 
 from datetime import datetime, timedelta
 from pathlib import Path
 from typing import Sequence
+
+import numpy as np
 
 from gap_validation.atomic import atomic_open
 from gap_validation.campaign.findings import Finding, format_value
@@ -35,6 +37,17 @@ def _margins(fig, top_in: float) -> None:
                         hspace=0.5 / max(1.0, (height - 1.2) / len(fig.axes)))
 
 
+def _log_axis(ax) -> None:
+    """A log y axis labelled 0.4, 0.6, 1, 2 (not 4x10^-1); minor ticks labelled when it spans under a decade."""
+    from matplotlib import ticker
+
+    ax.set_yscale("log")
+    plain = ticker.FuncFormatter(lambda value, _: f"{value:g}")
+    low, high = ax.get_ylim()
+    ax.yaxis.set_major_formatter(plain)
+    ax.yaxis.set_minor_formatter(plain if high < 10 * low else ticker.NullFormatter())
+
+
 def _ylabel(finding: Finding) -> str:
     words, unit, _ = finding.label
     return f"{words} [{unit}]" if unit else words
@@ -44,12 +57,12 @@ def _line(ax, finding: Finding, origin: datetime) -> None:
     trend = finding.trend
     if trend is None:
         return
-    _, unit, scale = finding.label
-    days = (trend.first_day, trend.last_day)
-    dates = [origin + timedelta(days=d) for d in days]
-    values = [(trend.intercept + trend.slope_per_day * d) * scale for d in days]
-    rate = f"{'+' if trend.slope_per_day >= 0 else '-'}{format_value(abs(trend.slope_per_week) * scale)}"
-    label = f"{rate}{' ' + unit if unit else ''}/week (p = {trend.p_value:.1g})"
+    days = np.linspace(trend.first_day, trend.last_day, 50)
+    dates = [origin + timedelta(days=float(d)) for d in days]
+    values = [finding.fitted(float(d)) for d in days]
+    rate, _, unit = finding.rate_per_week()
+    label = f"{'+' if rate >= 0 else '-'}{format_value(abs(rate))}{' ' + unit if unit else ''}/week " \
+            f"(p = {trend.p_value:.1g})"
     if finding.significant:
         ax.plot(dates, values, "-", color="tab:red", lw=2, label=f"trend {label}")
     else:
@@ -69,6 +82,8 @@ def trend_figure(findings: Sequence[Finding], origin: datetime, path: Path) -> N
         ax.plot(s.dates, [v * scale for v in s.values], "o", color="tab:red" if finding.significant else "tab:blue",
                 ms=5, label="flights")
         _line(ax, finding, origin)
+        if finding.log:
+            _log_axis(ax)
         ax.set_ylabel(_ylabel(finding))
         ax.grid(True, alpha=0.3)
         ax.legend(loc="best", fontsize=8)
@@ -87,6 +102,7 @@ def fleet_figure(findings: Sequence[Finding], channel: str, path: Path) -> None:
         style = dict(lw=2.2, color="tab:red") if finding.significant else dict(lw=1, alpha=0.8)
         ax.plot(s.dates, s.values, "o-", ms=4, label=s.aircraft + (" (trend)" if finding.significant else ""),
                 **style)
+    _log_axis(ax)
     ax.set_title(f"{channel}: epsilon over date, every aircraft")
     ax.set_ylabel("epsilon")
     ax.set_xlabel("date")

@@ -34,7 +34,8 @@ from gap_validation.campaign.manifest import Flight, Manifest
 from gap_validation.core.errors import ConfigError, DataError
 
 __all__ = ["FlightOutcome", "CampaignOutcome", "channel_summary", "flight_file", "load_flight_file",
-           "write_campaign_json", "write_campaign_csv", "ensure_directory", "CSV_COLUMNS", "FLIGHTS_DIR", "VALIDATED", "REUSED",
+           "write_campaign_json", "write_campaign_csv", "ensure_directory", "CSV_COLUMNS", "FLIGHTS_DIR", "VALIDATED",
+           "REUSED",
            "FAILED"]
 
 FLIGHTS_DIR = "flights"

@@ -53,7 +53,8 @@ def dask_client(scheduler: str | None = None, workers: int | None = None, quiet:
     """A ``distributed.Client``: connected to ``scheduler``, or to a new local cluster of ``workers`` processes.
 
     Local workers are spawned processes that inherit this process' environment (``os.environ``, e.g. the
-    ``LD_LIBRARY_PATH`` the ROS 2 wheels set up), one thread each, the HTTP endpoints on a free port. Both are closed on exit.
+    ``LD_LIBRARY_PATH`` the ROS 2 wheels set up), one thread each, the HTTP endpoints on a free port. Both are
+    closed on exit.
     ``quiet`` hides Dask's own log lines (cluster start, worker restarts) below ERROR.
 
     Raises

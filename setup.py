@@ -26,8 +26,8 @@ setup(
     tests_require=["pytest"],
     entry_points={
         "console_scripts": [
-            "gap-validate = gap_validation.cli:main",
-            "validator_node = gap_validation.node:main",
+            "gap-validate = gap_validation.cli.main:main",
+            "validator_node = gap_validation.ros.main:main",
         ],
     },
 )

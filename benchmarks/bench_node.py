@@ -14,7 +14,7 @@ the figure; the ratio to the 5 % goal is printed (below 1 meets it). Not counted
 executor (see ``--live``). An extra line gives the callback cost of ``raw_decoding:=false`` (rclpy
 deserialisation, then ``ValidatorNode.on_message``) on the same messages, deserialisation included.
 
-``--live S`` additionally runs the real console script (``python -m gap_validation.node``) for S seconds of
+``--live S`` additionally runs the real console script (``python -m gap_validation.ros.main``) for S seconds of
 wall time while a child process publishes Imu at 1 kHz and JointState at 100 Hz (a chirp, so sweeps are
 detected) over DDS, and reports the CPU of the node's whole process (``/proc/<pid>/stat``): rclpy's
 executor, transport and deserialisation included -- once per executor.
@@ -49,7 +49,8 @@ from sensor_msgs.msg import Imu, JointState  # noqa: E402
 
 from gap_validation.config import load_config  # noqa: E402
 from gap_validation.core.simulation import FlightOptions, hidden_effects, simulate_flight  # noqa: E402
-from gap_validation.node import ValidatorNode  # noqa: E402
+from gap_validation.ros.message_types import message_class  # noqa: E402
+from gap_validation.ros.node import ValidatorNode  # noqa: E402
 
 GOAL_FRACTION = 0.05
 CONFIG = ROOT / "config" / "ultrastick25e.yaml"
@@ -128,7 +129,7 @@ def run(minutes: float, imu_rate_hz: float, surface_rate_hz: float) -> dict:
                           parameter_overrides=[Parameter("config_file", value=config),
                                                Parameter("raw_decoding", value=False)])
     assert node._raw and not other._raw
-    classes = {topic: raw.cls for topic, raw in node._raw.items()}
+    classes = {topic: message_class(node._sub_types[topic]) for topic in node._raw}
     message_path_s = 0.0
     diag_period = node.get_parameter("diagnostic_period").value
     ckpt_period = node.get_parameter("checkpoint_period").value
@@ -160,7 +161,7 @@ def run(minutes: float, imu_rate_hz: float, surface_rate_hz: float) -> dict:
                 node.publish_diagnostics()
                 cpu["diagnostics"] += time.process_time() - start
                 counts["diagnostics"] += 1
-                if node._job is not None:
+                if node._diagnosis.job is not None:
                     start = time.process_time()
                     node.wait_for_diagnosis(timeout_s=600.0)
                     cpu["diagnosis"] += time.process_time() - start
@@ -230,7 +231,7 @@ def live(seconds: float, imu_rate_hz: float, surface_rate_hz: float, executor: s
 
     tmp = Path(tempfile.mkdtemp(prefix="bench_node_live_"))
     env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(0, 101)))
-    node = subprocess.Popen([sys.executable, "-m", "gap_validation.node", "--ros-args", "-p",
+    node = subprocess.Popen([sys.executable, "-m", "gap_validation.ros.main", "--ros-args", "-p",
                              f"config_file:={typed_config(tmp / 'cfg.yaml')}", "-p",
                              f"state_file:={tmp / 'state.npz'}", "-p", f"executor:={executor}"],
                             cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

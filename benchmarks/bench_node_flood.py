@@ -47,7 +47,7 @@ from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import Imu, JointState  # noqa: E402
 
-from gap_validation.node import ValidatorNode  # noqa: E402
+from gap_validation.ros.node import ValidatorNode  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_node import typed_config  # noqa: E402  (the same typed config as the CPU benchmark)

@@ -2,7 +2,7 @@
 """Replay speed against plain rosbags reading of the same bag, in the same run.
 
 *plain*: ``rosbags.rosbag2.Reader`` over the config's topics and ``Typestore.deserialize_cdr`` of every
-message (what any rosbags-based tool must at least do). *replay*: ``gap_validation.replay.replay`` -- reading,
+message (what any rosbags-based tool must at least do). *replay*: ``gap_validation.bag.replay.replay`` -- reading,
 field extraction, batching and the online estimator -- with the fast field decoders (default) and with full
 deserialisation (``--full-decode`` path). The ratio ``replay msgs/s / plain msgs/s`` is the figure of merit
 (goal >= 0.7; above 1 when decoding only the needed fields saves more than the estimator costs).
@@ -28,10 +28,10 @@ sys.path.insert(0, str(ROOT))
 from rosbags.rosbag2 import Reader  # noqa: E402
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
-from gap_validation.bagio import write_flight  # noqa: E402
+from gap_validation.bag.writer import write_flight  # noqa: E402
 from gap_validation.config import load_config  # noqa: E402
 from gap_validation.core.simulation import FlightOptions, simulate_flight  # noqa: E402
-from gap_validation.replay import replay  # noqa: E402
+from gap_validation.bag.replay import replay  # noqa: E402
 
 
 def plain_read(bag: Path, topics) -> tuple[int, float]:

@@ -4,7 +4,7 @@
 Peak RSS is the child's ``VmHWM`` (``ru_maxrss`` survives exec on Linux and would report the parent's peak).
 Two flights of the same test card are simulated from the config (``--short`` and ``--long`` minutes, IMU
 ``--imu-rate-hz``, surfaces ``--surface-rate-hz``), written as mcap bags in the temporary directory (``/tmp``), and
-each is replayed (``gap_validation.replay.replay``, no diagnosis) in a
+each is replayed (``gap_validation.bag.replay.replay``, no diagnosis) in a
 fresh child process that reports its own peak resident set size. Streaming replay keeps memory flat: the figure of
 merit is ``(peak RSS long - baseline) / (peak RSS short - baseline)`` against the bag size ratio, where the baseline
 is a child that imports the same modules and replays nothing. Constant memory means a ratio near 1 however large the
@@ -29,7 +29,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from gap_validation.bagio import write_flight  # noqa: E402
+from gap_validation.bag.writer import write_flight  # noqa: E402
 from gap_validation.config import load_config  # noqa: E402
 from gap_validation.core.simulation import FlightOptions, simulate_flight  # noqa: E402
 
@@ -38,7 +38,7 @@ import json, sys, time, warnings
 warnings.filterwarnings("ignore")
 sys.path.insert(0, {root!r})
 from gap_validation.config import load_config
-from gap_validation.replay import replay
+from gap_validation.bag.replay import replay
 config = load_config({config!r})
 messages, elapsed = 0, 0.0
 if {bag!r}:

@@ -24,7 +24,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "config" / "ultrastick25e.yaml"
-CLI = [sys.executable, "-c", "import sys; from gap_validation.cli import main; sys.exit(main())"]
+CLI = [sys.executable, "-c", "import sys; from gap_validation.cli.main import main; sys.exit(main())"]
 
 
 def random_case(rng: random.Random) -> tuple[str, list[dict]]:

@@ -33,7 +33,7 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from gap_validation.bagio import write_flight  # noqa: E402
+from gap_validation.bag.writer import write_flight  # noqa: E402
 from gap_validation.core.config import parse_config  # noqa: E402
 from gap_validation.core.simulation import FlightOptions, simulate_flight  # noqa: E402
 

@@ -1,7 +1,19 @@
 """gap_validation: validate linear aircraft models against flight data in the nu-gap metric.
 
-The math lives in :mod:`gap_validation.core` (numpy/scipy only); replay (rosbags), the ROS 2 node (rclpy),
-the CLI and the report are thin front ends around :class:`gap_validation.core.validator.OnlineValidator`.
+The house, by what each part depends on (docs/ARCHITECTURE.md):
+
+* :mod:`gap_validation.core`: the math (numpy/scipy only): models and effects, metrics, margins, estimator,
+  validator, diagnosis, simulation;
+* :mod:`gap_validation.messages`: serialized messages to samples (fast CDR decoders, the one decoding step,
+  the message router), no rclpy, no rosbags;
+* :mod:`gap_validation.bag`: rosbag2 files through rosbags (reader, salvage, writer, replay);
+* :mod:`gap_validation.ros`: the ROS 2 node ``gap_validator`` (rclpy);
+* :mod:`gap_validation.report`: figures (matplotlib), HTML report, terminal table;
+* :mod:`gap_validation.cli`: ``gap-validate``;
+* :mod:`gap_validation.config`, :mod:`gap_validation.history`, :mod:`gap_validation.atomic`: YAML configs,
+  validation history, atomic writes.
+
+Replay, node and library feed the same :class:`gap_validation.core.validator.OnlineValidator`.
 """
 
 __version__ = "0.1.0"

@@ -91,7 +91,7 @@ def describe_model(spec: dict) -> str:
 def _channel_record(channel_result, channel_config) -> dict:
     out = {key: _plain(getattr(channel_result, key, None)) for key in _RESULT_KEYS}
     diagnosis = list(getattr(channel_result, "diagnosis", None) or [])
-    out["diagnosis"] = _plain(diagnosis[0]) if diagnosis else None
+    out["diagnosis"] = _plain(diagnosis[0].to_json_dict()) if diagnosis else None
     if channel_config is not None:
         spec = _plain(channel_config.model.to_spec())
         out["model"] = spec

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import yaml
 
-from gap_validation.bagio import write_flight
+from gap_validation.bag.writer import write_flight
 from gap_validation.config import load_config
 from gap_validation.core.config import parse_config
 from gap_validation.core.simulation import FlightOptions, hidden_effects, simulate_flight, with_options
@@ -16,6 +16,8 @@ CONFIG_PATH = ROOT / "config" / "ultrastick25e.yaml"
 
 #: A short test card: two 40 s sweeps per channel (about 5 minutes of flight), IMU 100 Hz, surfaces 50 Hz.
 SHORT = FlightOptions(sweeps_per_channel=2, sweep_duration_s=40.0, quiet_s=3.0)
+#: A tiny one: one 10 s sweep per channel (bag I/O tests).
+TINY = with_options(SHORT, sweeps_per_channel=1, sweep_duration_s=10.0, quiet_s=1.0)
 
 
 def ultrastick():

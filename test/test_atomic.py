@@ -29,7 +29,7 @@ from gap_validation.core import atomic as core_atomic
 from gap_validation.core.checkpoint import load_state
 from gap_validation.core.errors import DataError
 from gap_validation.history import load_history
-from gap_validation.render import write_json
+from gap_validation.report.terminal import write_json
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -43,7 +43,7 @@ from gap_validation.core.checkpoint import save_state
 from gap_validation.core.config import parse_config
 from gap_validation.core.results import ChannelResult, ValidationResult
 from gap_validation.history import append_history
-from gap_validation.render import write_json
+from gap_validation.report.terminal import write_json
 
 CONFIG = parse_config({"channels": {"pitch": {
     "input": {"topic": "/control_surfaces", "field": "position[elevator]"},

@@ -21,9 +21,9 @@ import yaml
 from gap_validation.campaign.manifest import load_manifest
 from gap_validation.campaign.results import REUSED, VALIDATED
 from gap_validation.campaign.runner import run_campaign
-from gap_validation.cli import main
+from gap_validation.cli.main import main
 from gap_validation.config import load_config
-from gap_validation.replay import replay
+from gap_validation.bag.replay import replay
 
 distributed = pytest.importorskip("distributed")
 
@@ -253,19 +253,9 @@ def test_bad_options_are_one_line_exit_2(fleet, tmp_path, capsys, args, needle):
 
 
 def test_index_renders_in_headless_chromium(campaign, tmp_path):
-    from test_report import _IMAGE_PROBE, _chromium, assert_real_plot, run_chromium
+    from test_html import assert_page_renders, assert_real_plot
 
-    chromium = _chromium()
-    probe = campaign.out_dir / "_probe.html"
-    probe.write_text((campaign.out_dir / "index.html").read_text() + _IMAGE_PROBE)
-    try:
-        console, errors = run_chromium(chromium, probe, tmp_path / "shot.png", tmp_path / "profile")
-    finally:
-        probe.unlink()
-    assert errors == []
-    loaded = [line for line in console if "IMAGES " in line]
-    assert loaded and f"IMAGES {1 + AIRCRAFT} BROKEN []" in loaded[0], console   # fleet figure + one per aircraft
-    assert_real_plot(tmp_path / "shot.png")
+    assert_page_renders(campaign.out_dir, 1 + AIRCRAFT, tmp_path)   # fleet figure + one per aircraft
     for png in campaign.out_dir.glob("*.png"):
         assert_real_plot(png)
 
@@ -275,7 +265,7 @@ def test_progress_bar_counts_flights():
 
     from gap_validation.campaign.manifest import Flight
     from gap_validation.campaign.results import FAILED, FlightOutcome
-    from gap_validation.commands.campaign import FlightProgress
+    from gap_validation.cli.campaign import FlightProgress
 
     stream = io.StringIO()
     bar = FlightProgress(stream)

@@ -10,7 +10,7 @@ from scipy import stats
 from gap_validation.campaign.findings import Finding, Series, find_trends, fleet_series, format_value, quantity_label
 from gap_validation.campaign.manifest import Flight
 from gap_validation.campaign.results import FlightOutcome, VALIDATED
-from gap_validation.campaign.trends import MIN_FLIGHTS, holm_significant, linear_trend
+from gap_validation.core.trends import MIN_FLIGHTS, holm_significant, linear_trend
 
 
 def test_ordinary_least_squares_matches_linregress():

@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from gap_validation.cli import main
+from gap_validation.cli.main import main
 
 P1 = "config/paper_example_p1.yaml"
 P2 = "config/paper_example_p2.yaml"
@@ -67,7 +67,7 @@ def test_console_script_runs():
 
 
 def test_ctrl_c_while_starting_up_is_one_line_exit_130(capsys, monkeypatch):
-    import gap_validation.cli as cli
+    import gap_validation.cli.main as cli
 
     def interrupted():
         raise KeyboardInterrupt

@@ -14,7 +14,7 @@ from scipy import stats
 
 from gap_validation.core import diagnosis, metrics
 from gap_validation.core.diagnosis import analyse_channel
-from gap_validation.core.effects import describe_effect, effect_response
+from gap_validation.core.effects import FitRange, describe_effect, effect_response
 from gap_validation.core.estimator import SpectralEstimate
 from gap_validation.core.models import LinearModel
 
@@ -119,7 +119,7 @@ def test_minimum_averages():
 
 def test_fit_families_agree_with_the_effects_module():
     rng = np.random.default_rng(3)
-    ctx = diagnosis._Context(1.0, 40.0)
+    ctx = FitRange(1.0, 40.0)
     for name, family in diagnosis.FAMILIES.items():
         lo, hi = family.bounds(family.grid(ctx, True)[0], ctx)
         for _ in range(5):
@@ -157,7 +157,7 @@ def test_hidden_effect_is_named_with_its_parameters(name, seed):
     assert np.max(metrics.chordal_distance(fixed, est.response)) == pytest.approx(top["nu_gap"])
     assert top["sentence"] == (f"missing: {describe_effect(top['effects'][0])}; adding it brings epsilon from "
                                f"{top['epsilon_before']:.2f} to {top['epsilon']:.2f}")
-    json.dumps(found.candidates, allow_nan=False)
+    json.dumps([c.to_json_dict() for c in found.candidates], allow_nan=False)
 
 
 def test_delay_sentence_reads_like_the_issue():

@@ -10,7 +10,7 @@ import numpy as np
 
 from _flights import SHORT, config_from, make_bag, raw_config, single_channel
 from gap_validation.history import append_history, format_trend, load_history
-from gap_validation.replay import replay
+from gap_validation.bag.replay import replay
 
 pytestmark = pytest.mark.slow
 

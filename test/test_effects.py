@@ -5,8 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from gap_validation.core.effects import EFFECT_TYPES, describe_effect, effect_factor, effect_response, validate_effect
+from gap_validation.core.effects import (EFFECT_TYPES, EFFECTS, EffectType, Parameter, check_plausible, describe_effect,
+                                         effect_factor, effect_response, validate_effect)
 from gap_validation.core.errors import ConfigError
+from gap_validation.core.numbers import POSITIVE, Interval
 
 W = np.geomspace(0.1, 300.0, 57)
 S = 1j * W
@@ -97,3 +99,40 @@ def test_describe_structural_mode_names_both_frequencies():
                             "zero_frequency_rad_s": 55.0, "zero_damping": 0.03})
     assert text.startswith("structural mode at 60.0 rad/s (9.5 Hz)")
     assert "55.0 rad/s" in text
+
+
+# ------------------------------------------------------------------------------------------------ the registry
+def test_one_registry_entry_per_effect_serves_every_reader():
+    from gap_validation.core import diagnosis
+
+    assert EFFECT_TYPES == {name: entry.names for name, entry in EFFECTS.items()}
+    assert all(diagnosis.FAMILIES[name] is entry.fit for name, entry in EFFECTS.items())
+    for name, entry in EFFECTS.items():
+        spec = {"type": name, **{p.name: 0.5 for p in entry.parameters}}
+        np.testing.assert_array_equal(entry.response(spec, W), effect_response(spec, W))
+        assert entry.complexity == len(entry.parameters)
+
+
+@pytest.mark.parametrize("spec, key, value", [
+    ({"type": "time_delay", "seconds": 45.0}, "seconds", 45.0),
+    ({"type": "gain", "factor": -1e9}, "factor", -1e9),
+    ({"type": "second_order_lag", "natural_frequency_rad_s": 30.0, "damping": 1e4}, "damping", 1e4),
+])
+def test_plausible_ranges_name_the_key(spec, key, value):
+    with pytest.raises(ConfigError, match=rf"^model.effects\[0\]\.{key}: {value!r} is outside the plausible range"):
+        check_plausible(validate_effect(spec), "model.effects[0]")
+    check_plausible(validate_effect({"type": "gain", "factor": -2.0}), "model.effects[0]")  # |k| counts
+
+
+def test_an_amplitude_dependent_effect_is_one_more_entry():
+    """A describing function (e.g. a rate limit, N(A, w)) needs no factor: the response takes the amplitude."""
+    rate_limit = EffectType(
+        "rate_limit", (Parameter("rad_s", POSITIVE, Interval(1e-3, 1e3)),), factor=None,
+        describe=lambda p: f"rate limit of {p['rad_s']:.3g} rad/s",
+        describing_function=lambda p, w, a: np.minimum(1.0, p["rad_s"] / (np.asarray(a) * w)) + 0j)
+    params = {"rad_s": 2.0}
+    response = rate_limit.response(params, W, amplitude=0.1)
+    assert response.shape == W.shape and np.all(np.abs(response) <= 1.0)
+    assert response[0] == 1.0 and abs(response[-1]) < 0.1        # slow inputs pass, fast ones are limited
+    with pytest.raises(ConfigError, match="depends on the input amplitude"):
+        rate_limit.response(params, W)

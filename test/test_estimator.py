@@ -1,7 +1,7 @@
 """Tests of gap_validation.core.estimator: recursive spectra, accuracy, timing, memory, checkpoints, bad data.
 
-The known system is the paper's pitch-rate model (DESIGN.md example: -133.7 s - 990.76 over
-s^2 + 23.37 s + 235.93) with a 20 ms delay, simulated with scipy.signal on a 1 kHz grid.
+The known system is the paper's pitch-rate model with a 20 ms delay (``_pitch_flights``); the estimator's time
+alignment (time bases, jumps back, stray stamps) is tested in ``test_alignment.py``.
 """
 import copy
 
@@ -10,104 +10,10 @@ import pytest
 from hypothesis import given, settings, strategies as st
 from scipy import signal
 
+from _pitch_flights import (FINE_HZ, PITCH_DEN, PITCH_NUM, SWEEPS, W_RAD_S, _chunks, _feed, _nbytes, estimate,
+                            flight, fraction_within, log_sweep, measure, simulate, true_response)
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.estimator import FrequencyResponseEstimator, SpectralEstimate
-
-PITCH_NUM = [-133.7, -990.76]
-PITCH_DEN = [1.0, 23.37, 235.93]
-DELAY_S = 0.02
-FINE_HZ = 1000.0
-W_RAD_S = np.logspace(0.0, np.log10(60.0), 40)        # the config's default grid (1-60 rad/s, 40 points)
-SWEEPS = ((20.0, 70.0), (128.0, 60.0), (240.0, 80.0))  # (start_s, length_s)
-
-
-# ---------------------------------------------------------------------------------------------- flights
-def log_sweep(t_s, f0_hz, f1_hz, length_s, amplitude, taper_s=1.0):
-    t = np.asarray(t_s, dtype=float)
-    rate = np.log(f1_hz / f0_hz) / length_s
-    phase = 2.0 * np.pi * f0_hz * np.expm1(rate * t) / rate
-    taper = np.clip(np.minimum(t, length_s - t) / taper_s, 0.0, 1.0)
-    return np.where((t >= 0) & (t <= length_s),
-                    amplitude * np.sin(phase) * (0.5 - 0.5 * np.cos(np.pi * taper)), 0.0)
-
-
-def doublet(t_s, start_s, half_s, amplitude):
-    t = np.asarray(t_s, dtype=float)
-    return (amplitude * ((t >= start_s) & (t < start_s + half_s))
-            - amplitude * ((t >= start_s + half_s) & (t < start_s + 2 * half_s)))
-
-
-def true_response(w_rad_s):
-    return signal.freqs(PITCH_NUM, PITCH_DEN, w_rad_s)[1] * np.exp(-1j * w_rad_s * DELAY_S)
-
-
-def simulate(u, fine_hz=FINE_HZ):
-    """Pitch rate for elevator ``u`` sampled at ``fine_hz``, starting in trim."""
-    bd, ad, _ = signal.cont2discrete((PITCH_NUM, PITCH_DEN), 1.0 / fine_hz, method="foh")
-    dc = PITCH_NUM[-1] / PITCH_DEN[-1]
-    y = signal.lfilter(np.ravel(bd), ad, u - u[0]) + dc * u[0]
-    lag = int(round(DELAY_S * fine_hz))
-    return np.concatenate((np.full(lag, y[0]), y[:-lag]))
-
-
-def flight(duration_s=330.0, sweeps=SWEEPS, gust_std=0.0, gust_band_rad_s=(20.0, 30.0), seed=0):
-    """Noise-free 1 kHz flight: log sweeps 0.1-12 Hz; between them doublets, a trim step and a trim ramp.
-
-    Returns t [s], elevator u [rad], pitch rate y [rad/s] (including an optional band-limited gust).
-    """
-    t = np.arange(0.0, duration_s, 1.0 / FINE_HZ)
-    u = np.full(t.size, -0.02)
-    for start, length in sweeps:
-        u += log_sweep(t - start, 0.1, 12.0, length, 0.05)
-    u += doublet(t, 98.0, 1.0, 0.05) + 0.01 * (t >= 110.0) + doublet(t, 200.0, 1.5, 0.04)
-    u += np.clip((t - 212.0) / 12.0, 0.0, 1.0) * -0.015
-    y = simulate(u) + 0.01                                      # + gyro bias
-    if gust_std:
-        rng = np.random.default_rng(seed + 1000)
-        sos = signal.butter(4, np.array(gust_band_rad_s) / (2 * np.pi), btype="bandpass", fs=FINE_HZ,
-                            output="sos")
-        gust = signal.sosfilt(sos, rng.normal(size=t.size))
-        y = y + gust_std * gust / gust.std()
-    return t, u, y
-
-
-def measure(t, u, y, rate_in_hz, rate_out_hz, seed, noise_in=3e-4, noise_out=0.1, jitter_s=0.0, drop=0.0):
-    """Sample the 1 kHz flight as two sensor streams (noise, timestamp jitter, dropped samples)."""
-    rng = np.random.default_rng(seed)
-
-    def times(rate):
-        ts = np.arange(t[0], t[-1], 1.0 / rate)
-        if jitter_s:
-            ts = ts + rng.uniform(-jitter_s, jitter_s, ts.size)
-        ts = ts[(ts >= t[0]) & (ts <= t[-1])]
-        if drop:
-            ts = ts[rng.random(ts.size) >= drop]
-        return ts
-
-    ti, to = times(rate_in_hz), times(rate_out_hz)
-    ui = np.interp(ti, t, u) + rng.normal(0.0, noise_in, ti.size)
-    yo = np.interp(to, t, y) + rng.normal(0.0, noise_out, to.size)
-    return ti, ui, to, yo
-
-
-def estimate(ti, ui, to, yo, **options):
-    est = FrequencyResponseEstimator(W_RAD_S, **options)
-    est.add_time_histories(ti, ui, to, yo)
-    est.flush()
-    return est
-
-
-def fraction_within(est_h, ref_h, sigma, k=3.0):
-    """Fraction of frequencies where |H - H_ref| / |H_ref| <= k sigma."""
-    return float(np.mean(np.abs(est_h - ref_h) / np.abs(ref_h) <= k * sigma))
-
-
-@pytest.fixture(scope="module")
-def nominal():
-    """The flight measured at 100 Hz (surfaces) and 1 kHz (IMU), and its estimate."""
-    t, u, y = flight()
-    streams = measure(t, u, y, 100.0, 1000.0, seed=1)
-    return t, u, y, streams, estimate(*streams)
 
 
 # ---------------------------------------------------------------------------------------------- equivalence
@@ -362,10 +268,6 @@ def _long_flight(minutes):
     return t, u, y
 
 
-def _nbytes(state):
-    return sum(np.asarray(v).nbytes for v in state.values())
-
-
 def test_state_size_is_independent_of_flight_length():
     t, u, y = _long_flight(100)
     est = FrequencyResponseEstimator(W_RAD_S, max_raw_sweeps=50)
@@ -384,20 +286,6 @@ def test_state_size_is_independent_of_flight_length():
 
 
 # ---------------------------------------------------------------------------------------------- checkpoint
-def _chunks(streams, step_s=7.0):
-    ti, ui, to, yo = streams
-    edges = np.arange(0.0, max(ti[-1], to[-1]) + step_s, step_s)
-    ia, ib = np.searchsorted(ti, edges), np.searchsorted(to, edges)
-    return [(ti[a0:a1], ui[a0:a1], to[b0:b1], yo[b0:b1])
-            for a0, a1, b0, b1 in zip(ia[:-1], ia[1:], ib[:-1], ib[1:])]
-
-
-def _feed(est, chunks):
-    for ti, ui, to, yo in chunks:
-        est.add_input(ti, ui)
-        est.add_output(to, yo)
-
-
 @pytest.mark.parametrize("split", [7, 21, 40])            # 49 s (mid sweep), 147 s, 280 s
 def test_restored_estimator_continues_identically(nominal, split):
     *_, streams, _ = nominal
@@ -518,117 +406,3 @@ def test_windows_have_the_documented_length():
     assert np.all(est.window_s >= 2.0 - 1e-9) and np.all(est.window_s <= 20.0 + 1e-9)
     assert np.all((cycles >= 7.0) | (est.window_s >= 19.9) | (est.window_s <= 2.1))
     np.testing.assert_allclose(est.hop_s, est.window_s / 2)
-
-
-# ---------------------------------------------------------------------------------------------- time jumping back
-@pytest.fixture(scope="module")
-def lap():
-    """One 110 s lap with one sweep, measured at 100 Hz / 1 kHz, as 2 s interleaved chunks (replay-like)."""
-    t, u, y = flight(duration_s=110.0, sweeps=((10.0, 70.0),))
-    return _chunks(measure(t, u, y, 100.0, 1000.0, seed=1), step_s=2.0)
-
-
-def test_time_jumping_back_starts_a_new_segment_and_both_laps_count(lap):
-    once = FrequencyResponseEstimator(W_RAD_S)
-    _feed(once, lap)
-    once.flush()
-    looped = FrequencyResponseEstimator(W_RAD_S)
-    _feed(looped, lap + lap)                              # a looped bag: the same stamps again
-    looped.flush()
-    assert once.n_sweeps == 1 and looped.n_sweeps == 2
-    counts = looped.bad_sample_counts
-    for stream in ("input", "output"):
-        assert counts[stream]["time_jumps_back"] == 1
-        assert counts[stream]["non_monotonic"] == counts[stream]["dropped_lag"] == 0
-    first, second = looped.sweeps
-    ref = once.sweeps[0]
-    for est in (first, second):                           # the new base keeps the grid phase: same numbers
-        assert np.allclose(est.response, ref.response, rtol=1e-9)
-        assert np.array_equal(est.n_averages, ref.n_averages)
-    assert second.start_s > first.end_s                   # the second lap on a continued time axis
-
-
-def test_stray_stamp_back_is_dropped_not_a_new_segment(lap):
-    est = FrequencyResponseEstimator(W_RAD_S)
-    stray = []
-    for i, (ti, ui, to, yo) in enumerate(lap):
-        if i == 20:                                       # one IMU sample stamped 30 s in the past
-            to = np.insert(to, 5, to[4] - 30.0)
-            yo = np.insert(yo, 5, 99.0)
-            stray.append(True)
-        est.add_input(ti, ui)
-        est.add_output(to, yo)
-    est.flush()
-    counts = est.bad_sample_counts["output"]
-    assert stray and counts["time_jumps_back"] == 0 and counts["non_monotonic"] == 1
-    assert est.n_sweeps == 1
-
-
-def test_small_step_back_and_duplicates_are_dropped_and_counted(lap):
-    est = FrequencyResponseEstimator(W_RAD_S)
-    ti, ui, to, yo = lap[10]
-    est.add_input(ti, ui)
-    est.add_output(to, yo)
-    est.add_output(to[-50:] - 0.2, yo[-50:])              # 0.2 s back: a reorder, not a new time base
-    est.add_output(to[-1:], yo[-1:])                      # a duplicate stamp
-    assert est.bad_sample_counts["output"]["non_monotonic"] == 51
-    assert est.bad_sample_counts["output"]["time_jumps_back"] == 0
-
-
-@pytest.mark.parametrize("split", [50, 56, 57, 60])      # before, at and after the jump (lap: 55 chunks)
-def test_checkpoint_across_a_time_jump_continues_identically(lap, split):
-    chunks = lap + lap
-    whole = FrequencyResponseEstimator(W_RAD_S)
-    _feed(whole, chunks)
-    whole.flush()
-    first = FrequencyResponseEstimator(W_RAD_S)
-    _feed(first, chunks[:split])
-    size = _nbytes(FrequencyResponseEstimator(W_RAD_S).state_dict())
-    assert _nbytes(first.state_dict()) == size
-    resumed = FrequencyResponseEstimator.from_state(copy.deepcopy(first.state_dict()))
-    _feed(resumed, chunks[split:])
-    resumed.flush()
-    assert resumed.n_sweeps == whole.n_sweeps == 2
-    for a, b in zip(resumed.sweeps, whole.sweeps):
-        assert np.array_equal(a.gxy, b.gxy) and (a.start_s, a.end_s) == (b.start_s, b.end_s)
-
-
-def test_checkpoint_written_before_time_bases_still_loads(lap):
-    est = FrequencyResponseEstimator(W_RAD_S)
-    _feed(est, lap[:20])
-    state = est.state_dict()
-    old = {k: v for k, v in state.items()
-           if not (k in ("epoch", "epoch_offset") or k.startswith("tbase.")
-                   or k.split(".", 1)[-1] in ("epoch", "offset", "pend", "pend_n", "jumps"))}
-    old["trig_last_t"], old["trig_counts"] = -np.inf, np.zeros(3, np.int64)
-    resumed = FrequencyResponseEstimator.from_state(old)
-    _feed(resumed, lap[20:])
-    _feed(est, lap[20:])
-    resumed.flush()
-    est.flush()
-    assert resumed.n_sweeps == est.n_sweeps == 1
-    assert np.array_equal(resumed.averaged().gxy, est.averaged().gxy)
-
-
-def test_stray_stamp_forward_is_dropped_and_the_flight_goes_on(lap):
-    """One IMU stamp 500 s in the future: dropped (not confirmed), the samples after it still count."""
-    est = FrequencyResponseEstimator(W_RAD_S)
-    for i, (ti, ui, to, yo) in enumerate(lap):
-        if i == 20:
-            to = to.copy()
-            to[5] += 500.0
-        est.add_input(ti, ui)
-        est.add_output(to, yo)
-    est.flush()
-    counts = est.bad_sample_counts["output"]
-    assert counts["non_monotonic"] == 1 and counts["dropped_lag"] == 0 and counts["time_jumps_back"] == 0
-    assert est.n_sweeps == 1
-
-
-def test_real_gap_is_confirmed_and_kept(nominal):
-    """A 2 s silence is a gap (confirmed by the samples after it): nothing after it is lost."""
-    *_, (ti, ui, to, yo), _ = nominal
-    keep = (to < 155.0) | (to > 157.0)
-    est = estimate(ti, ui, to[keep], yo[keep])
-    counts = est.bad_sample_counts["output"]
-    assert counts["accepted"] == np.count_nonzero(keep) and counts["non_monotonic"] == 0

@@ -1,7 +1,7 @@
 """Tests of the ROS 2 node ``gap_validator`` (in-process rclpy with an explicit context).
 
 Data path: the bundled flight (``bags/``; a simulated flight with the same hidden effects when none is
-bundled) is read with :mod:`gap_validation.bagio`, each raw CDR record is deserialised into an rclpy message
+bundled) is read with :mod:`gap_validation.bag.reader`, each raw CDR record is deserialised into an rclpy message
 and handed to the node's subscription callback ``ValidatorNode.on_message`` -- the function its
 subscriptions call. That is the robust route for the full flight (no timing, no DDS queue to pace); a
 separate test sends the first part of the flight through real DDS publishers (RELIABLE, paced below the
@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import copy
 import json
-import math
 import os
 import random
 import shutil
@@ -37,12 +36,14 @@ from sensor_msgs.msg import Imu, JointState  # noqa: E402
 from std_msgs.msg import Float64  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
-from gap_validation.bagio import open_bag  # noqa: E402
+from gap_validation.bag.reader import open_bag  # noqa: E402
 from gap_validation.config import load_config  # noqa: E402
 from gap_validation.core.checkpoint import load_state  # noqa: E402
-from gap_validation.ingest import stamp_seconds  # noqa: E402
-from gap_validation.node import PARAMETERS, ValidatorNode, channel_status, message_class  # noqa: E402
-from gap_validation.replay import replay  # noqa: E402
+from gap_validation.messages.router import stamp_seconds  # noqa: E402
+from gap_validation.ros.message_types import message_class  # noqa: E402
+from gap_validation.ros.node import ValidatorNode  # noqa: E402
+from gap_validation.ros.parameters import PARAMETERS  # noqa: E402
+from gap_validation.bag.replay import replay  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "config" / "ultrastick25e.yaml"
@@ -508,41 +509,6 @@ def test_diagnostics_published_on_the_topic_before_any_data(ros):
     assert node.get_fully_qualified_name() == "/gap_validator"
 
 
-def test_channel_status_levels_and_messages():
-    from gap_validation.core.results import ChannelResult
-    from gap_validation.core.margins import margins_from_epsilon
-
-    ch = ChannelResult(name="pitch", sweeps=3, epsilon=0.62, epsilon_previous=0.71, nu_gap=0.4,
-                       worst_frequency_rad_s=25.0, limited_by="model",
-                       bands=[{"min_rad_s": 20.0, "max_rad_s": 40.0, "limited_by": "model"}],
-                       margins=margins_from_epsilon(0.62), bad_samples={"input: not finite": 2})
-    top = {"effect": "time_delay", "effects": [{"type": "time_delay", "seconds": 0.045}], "epsilon": 0.06,
-           "sentence": "missing: time delay of 45 ms; adding it brings epsilon from 0.62 to 0.06"}
-    status = channel_status(ch, candidate=top, diagnosis_state="done")
-    assert status.level == "ERROR"
-    assert status.message == ("epsilon 0.62 (was 0.71): ERROR, model-limited at 20-40 rad/s; missing: time delay "
-                              "of 45 ms; adding it brings epsilon from 0.62 to 0.06")
-    values = dict(status.values)
-    assert values["bad_samples"] == "2" and json.loads(values["bad_samples_by_reason"]) == {"input: not finite": 2}
-    assert json.loads(values["diagnosis_effects"]) == [{"type": "time_delay", "seconds": 0.045}]
-    assert float(values["phase_margin_deg"]) == pytest.approx(2 * math.degrees(math.asin(0.62)))
-    ch.epsilon = 0.3
-    assert channel_status(ch).level == "WARN"
-    ch.epsilon = 0.1
-    assert channel_status(ch).level == "OK"
-    assert channel_status(ch, warn_epsilon=0.05, error_epsilon=0.08).level == "ERROR"
-    ch.epsilon = 1.2
-    ch.margins = margins_from_epsilon(1.2)
-    values = dict(channel_status(ch).values)
-    assert values["gain_margin_db"] == "null" and values["phase_margin_deg"] == "null"
-    empty = ChannelResult(name="roll")
-    assert channel_status(empty).level == "STALE"
-    assert "waiting for a sweep" in channel_status(empty).message
-    assert dict(channel_status(empty).values)["diagnosis"] == "pending"
-    flat = ChannelResult(name="roll", sweeps=2, message="no frequency with coherence >= 0.6 yet")
-    assert channel_status(flat).level == "WARN" and "data-limited" in channel_status(flat).message
-
-
 # ------------------------------------------------------------------------------------------------ bad messages
 @pytest.mark.parametrize("path", ["raw", "message"])
 def test_bad_messages_are_counted_and_survived(ros, typed, path):
@@ -617,7 +583,7 @@ def test_services_reload_reset_save_results(flight, typed, fed, ros, tmp_path):
         assert isinstance(saved["channels"][name]["diagnosis"], list)
     report = path.with_suffix("") / "index.html"
     try:
-        import gap_validation.report  # noqa: F401
+        import gap_validation.report.html  # noqa: F401
     except ImportError:
         pass
     else:
@@ -672,7 +638,7 @@ def test_full_diagnosis_runs_in_the_background_and_fills_the_message(typed, fed,
     assert found >= 1
     # unchanged results: no new diagnosis is started
     node.publish_diagnostics()
-    assert node._job is None
+    assert node._diagnosis.job is None
 
 
 # ------------------------------------------------------------------------------------------------ discovery
@@ -711,7 +677,7 @@ def test_params_file_matches_the_declared_parameters(ros):
 
 def _run_main(*args, env_extra=None):
     env = dict(os.environ, **(env_extra or {}))
-    return subprocess.run([sys.executable, "-m", "gap_validation.node", *args], env=env, cwd=ROOT,
+    return subprocess.run([sys.executable, "-m", "gap_validation.ros.main", *args], env=env, cwd=ROOT,
                           capture_output=True, text=True, timeout=120)
 
 
@@ -742,7 +708,7 @@ def test_console_script_runs_publishes_answers_and_checkpoints_on_sigint(ros, ty
 
     state = tmp_path / "state.npz"
     env = dict(os.environ)
-    child = subprocess.Popen([sys.executable, "-m", "gap_validation.node", "--ros-args", "-p",
+    child = subprocess.Popen([sys.executable, "-m", "gap_validation.ros.main", "--ros-args", "-p",
                               f"config_file:={typed}", "-p", "diagnostic_period:=0.1", "-p",
                               f"state_file:={state}", "-p", f"results_dir:={tmp_path}", "-p",
                               f"executor:={executor}"],

@@ -1,6 +1,6 @@
 """``kill -9`` of the node: it restarts from its checkpoint with identical spectra and carries on.
 
-The console script runs as a child process (``python -m gap_validation.node``, checkpoint every 0.3 s); the test
+The console script runs as a child process (``python -m gap_validation.ros.main``, checkpoint every 0.3 s); the test
 publishes the bundled flight over DDS from its own rclpy Context: the first 60 s (in the middle of the first
 sweep), waits until /diagnostics show every sample arrived and a checkpoint was written after that, SIGKILLs the
 node, restarts it on the same ``state_file`` and checks that its state equals the checkpoint (bit for bit) and its
@@ -30,12 +30,12 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from rclpy.serialization import deserialize_message  # noqa: E402
 
-from gap_validation.bagio import open_bag  # noqa: E402
+from gap_validation.bag.reader import open_bag  # noqa: E402
 from gap_validation.config import load_config  # noqa: E402
 from gap_validation.core.checkpoint import load_state  # noqa: E402
 from gap_validation.core.validator import OnlineValidator  # noqa: E402
-from gap_validation.ingest import MessageRouter, stamp_seconds  # noqa: E402
-from gap_validation.node import message_class  # noqa: E402
+from gap_validation.messages.router import MessageRouter, stamp_seconds  # noqa: E402
+from gap_validation.ros.message_types import message_class  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 BAG = ROOT / "bags" / "ultrastick25e_flight"
@@ -90,7 +90,7 @@ def _messages(until_s: float):
 
 
 def _start(config: Path, state: Path) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "gap_validation.node", "--ros-args", "-p",
+    return subprocess.Popen([sys.executable, "-m", "gap_validation.ros.main", "--ros-args", "-p",
                              f"config_file:={config}", "-p", f"state_file:={state}", "-p", "checkpoint_period:=0.3",
                              "-p", "diagnostic_period:=0.2", "-p", "diagnosis_period:=0.0"],
                             env=dict(os.environ), cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,

@@ -6,8 +6,8 @@ import json
 import pytest
 
 from _flights import SHORT, config_from, make_bag, raw_config, single_channel, write_config, with_options
-from gap_validation.cli import main
-from gap_validation.replay import replay
+from gap_validation.cli.main import main
+from gap_validation.bag.replay import replay
 
 ONE = with_options(SHORT, sweeps_per_channel=1, sweep_duration_s=40.0, quiet_s=3.0)
 

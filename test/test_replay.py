@@ -1,4 +1,4 @@
-"""Replay (gap_validation.replay and ``gap-validate replay|simulate``): simulate -> bag -> replay round trips."""
+"""Replay (gap_validation.bag.replay and ``gap-validate replay|simulate``): simulate -> bag -> replay round trips."""
 import io
 import json
 import math
@@ -8,13 +8,14 @@ import pytest
 from scipy import interpolate, signal
 
 from _flights import CONFIG_PATH, SHORT, config_from, make_bag, single_channel, ultrastick, write_config
-from gap_validation.bagio import open_bag
-from gap_validation.cli import main
+from gap_validation.bag.reader import open_bag
+from gap_validation.cli.main import main
 from gap_validation.core.errors import DataError
 from gap_validation.core.estimator import FrequencyResponseEstimator
 from gap_validation.core.simulation import FlightOptions, with_options
-from gap_validation.ingest import FieldPath, stamp_seconds
-from gap_validation.replay import replay
+from gap_validation.core.fields import FieldPath
+from gap_validation.messages.router import stamp_seconds
+from gap_validation.bag.replay import replay
 
 #: The full test card (3 sweeps of 120 s per axis, about 20 minutes) with the IMU at 50 Hz like the paper's lab.
 FULL = FlightOptions(imu_rate_hz=50.0)
@@ -130,7 +131,7 @@ def test_replay_agrees_with_scipy_welch_on_the_same_samples(bags, clean_outcome)
 # ------------------------------------------------------------------------------------------- storages, variants
 def test_mcap_sqlite3_bare_files_and_full_decode_agree(tmp_path, pitch_config, pitch_bag):
     path, flight = pitch_bag
-    from gap_validation.bagio import write_flight
+    from gap_validation.bag.writer import write_flight
 
     reference = replay([path], pitch_config).result.to_json_dict()
     assert reference["channels"]["pitch"]["epsilon"] < 0.15
@@ -311,7 +312,7 @@ def test_cli_replay_bad_bag_exit_1_results_kept(tmp_path, pitch_bag, capsys):
 ])
 def test_cli_unwritable_output_is_refused_before_the_replay(tmp_path, pitch_bag, capsys, monkeypatch, option,
                                                             target, needle):
-    import gap_validation.commands.replay as command
+    import gap_validation.cli.replay as command
 
     path, _ = pitch_bag
     config = write_config(single_channel("pitch"), tmp_path / "pitch.yaml")
@@ -334,13 +335,13 @@ def test_cli_bad_config_exit_2(tmp_path, pitch_bag, capsys):
 def test_cli_report_hook(tmp_path, pitch_bag, capsys, monkeypatch):
     import importlib.util
 
-    from gap_validation.commands import replay as command
+    from gap_validation.cli import replay as command
 
     path, _ = pitch_bag
     config = write_config(single_channel("pitch"), tmp_path / "pitch.yaml")
     real = importlib.util.find_spec
     monkeypatch.setattr(importlib.util, "find_spec",
-                        lambda name, *a: None if name == "gap_validation.report" else real(name, *a))
+                        lambda name, *a: None if name == "gap_validation.report.html" else real(name, *a))
     assert main(["replay", str(path), "--config", str(config), "--report", str(tmp_path / "r")]) == 2
     assert "report not available" in capsys.readouterr().err
     monkeypatch.undo()
@@ -351,7 +352,7 @@ def test_cli_report_hook(tmp_path, pitch_bag, capsys, monkeypatch):
 
 
 def test_progress_bar_draws_on_a_stream():
-    from gap_validation.commands.replay import ProgressBar
+    from gap_validation.cli.replay import ProgressBar
 
     stream = io.StringIO()
     bar = ProgressBar(stream)

@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 
 from _flights import SHORT, config_from, single_channel, ultrastick, write_config
-from gap_validation.bagio import write_flight
-from gap_validation.cli import main
+from gap_validation.bag.writer import write_flight
+from gap_validation.cli.main import main
 from gap_validation.core.simulation import simulate_flight, with_options
-from gap_validation.replay import replay
+from gap_validation.bag.replay import replay
 
 PITCH = with_options(SHORT, sweeps_per_channel=2, sweep_duration_s=40.0, quiet_s=5.0)
 #: The three channels, one sweep each: short enough for the many variants below.
@@ -175,7 +175,7 @@ def test_truncated_mcap_validates_what_was_recorded_before(pitch, tmp_path, caps
 
 def test_truncated_mcap_recovers_exactly_the_records_before_the_cut(pitch, tmp_path):
     """The salvaged records are the intact file's first records, byte for byte, and then a DataError."""
-    from gap_validation.bagio import open_bag
+    from gap_validation.bag.reader import open_bag
     from gap_validation.core.errors import DataError
 
     data = pitch["mcap"].read_bytes()

@@ -301,7 +301,7 @@ def test_band_noise_unknown_channel(config):
 
 def test_cli_band_noise(tmp_path, capsys):
     from _flights import CONFIG_PATH
-    from gap_validation.cli import main
+    from gap_validation.cli.main import main
 
     base = ["simulate", "--config", str(CONFIG_PATH), "--sweeps", "1", "--sweep-duration", "10", "--seed", "2"]
     assert main(base + ["--out", str(tmp_path / "a"), "--band-noise", "5:10:0.05:pitch"]) == 0

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import yaml
 
-from gap_validation.cli import main
+from gap_validation.cli.main import main
 
 ROOT = Path(__file__).resolve().parents[1]
 BAG = str(ROOT / "bags" / "ultrastick25e_flight")

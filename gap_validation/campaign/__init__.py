@@ -5,9 +5,9 @@
 * :mod:`~gap_validation.campaign.task`: one flight's replay, the function a worker runs;
 * :mod:`~gap_validation.campaign.runner`: the Dask orchestration (local cluster or a scheduler);
 * :mod:`~gap_validation.campaign.results`: per-flight outcomes, ``campaign.json`` and ``campaign.csv``;
-* :mod:`~gap_validation.campaign.trends`: regression over date and its significance (numpy/scipy only);
-* :mod:`~gap_validation.campaign.findings`: the series per aircraft, channel and quantity, and trends in words;
+* :mod:`~gap_validation.campaign.findings`: the series per aircraft, channel and quantity, and trends in words
+  (the statistics, regression over date and its significance, are the core's :mod:`~gap_validation.core.trends`);
 * :mod:`~gap_validation.campaign.index`, :mod:`~gap_validation.campaign.trend_figures`: ``index.html`` and figures.
 
-Nothing here is imported by the core; Dask is imported only when a campaign runs.
+Nothing here is imported by the core, messages, bag, ros or report; Dask is imported only when a campaign runs.
 """

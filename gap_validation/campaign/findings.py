@@ -4,7 +4,7 @@ to 45 ms"; "UAV-3 pitch: epsilon grows 29 % per week, from 0.41 to 1.5").
 
 Quantities: ``epsilon`` of every validated flight, and every parameter of the flight's *top* diagnosis
 candidate, named ``<effect type>.<parameter>`` (``time_delay.seconds``); a flight whose top candidate lacks the
-parameter (or has no diagnosis) is left out of that series. Statistics: :mod:`gap_validation.campaign.trends`
+parameter (or has no diagnosis) is left out of that series. Statistics: :mod:`gap_validation.core.trends`
 (least squares over date, slope against the residual scatter, Holm over every trend of the campaign), on
 ``log(epsilon)`` for epsilon.
 No matplotlib, no Dask.
@@ -17,7 +17,7 @@ from datetime import datetime
 from typing import Sequence
 
 from gap_validation.campaign.results import FAILED, FlightOutcome
-from gap_validation.campaign.trends import FAMILY_ALPHA, MIN_FLIGHTS, Trend, holm_significant, linear_trend
+from gap_validation.core.trends import FAMILY_ALPHA, MIN_FLIGHTS, Trend, holm_significant, linear_trend
 
 __all__ = ["Series", "Finding", "fleet_series", "find_trends", "fits_log", "quantity_label", "format_value",
            "EPSILON"]

@@ -22,9 +22,9 @@ from gap_validation.atomic import atomic_write_text
 from gap_validation.campaign import trend_figures
 from gap_validation.campaign.findings import EPSILON, Finding, format_value
 from gap_validation.campaign.results import CampaignOutcome, FlightOutcome
-from gap_validation.campaign.trends import FAMILY_ALPHA, MIN_FLIGHTS
+from gap_validation.core.trends import FAMILY_ALPHA, MIN_FLIGHTS
 from gap_validation.core.errors import DataError, one_line
-from gap_validation.render import fmt
+from gap_validation.report.terminal import fmt
 
 log = logging.getLogger(__name__)
 

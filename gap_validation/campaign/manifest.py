@@ -22,8 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
-
+from gap_validation.config import read_yaml
 from gap_validation.core.errors import ConfigError
 
 __all__ = ["Flight", "Manifest", "load_manifest", "parse_manifest", "FLIGHT_KEYS", "REQUIRED_KEYS"]
@@ -191,22 +190,5 @@ def load_manifest(path: str | os.PathLike) -> Manifest:
         One line naming the file and the problem (missing file, YAML syntax with line number, bad key or value).
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: manifest not found") from None
-    except UnicodeDecodeError as err:
-        raise ConfigError(f"{path}: not a text (UTF-8) file (byte {err.start}: {err.reason})") from None
-    except IsADirectoryError:
-        raise ConfigError(f"{path}: is a directory, not a manifest") from None
-    except OSError as err:
-        raise ConfigError(f"{path}: cannot read manifest ({err.strerror or err})") from None
-    try:
-        data = yaml.safe_load(text)
-    except RecursionError:
-        raise ConfigError(f"{path}: YAML error: nested too deeply") from None
-    except yaml.YAMLError as err:
-        mark = getattr(err, "problem_mark", None)
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        raise ConfigError(f"{path}: YAML error{where}: {getattr(err, 'problem', None) or 'invalid YAML'}") from None
+    data = read_yaml(path, "manifest")
     return parse_manifest(data, str(path), base=path.resolve().parent)

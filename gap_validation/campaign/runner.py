@@ -34,7 +34,7 @@ from gap_validation.campaign.results import (FAILED, REUSED, VALIDATED, Campaign
 from gap_validation.campaign.task import TASK_OPTIONS, validate_flight
 from gap_validation.config import load_config
 from gap_validation.core.errors import ConfigError, DataError, one_line
-from gap_validation.render import write_json
+from gap_validation.report.terminal import write_json
 
 log = logging.getLogger(__name__)
 

@@ -1,7 +1,7 @@
 """One flight of a campaign: the function a Dask worker runs (plain Python, no Dask import).
 
 It is exactly ``gap-validate replay BAG... --config CFG --json``: :func:`gap_validation.config.load_config` and
-:func:`gap_validation.replay.replay` (the diagnosis included), and the result is the replay JSON
+:func:`gap_validation.bag.replay.replay` (the diagnosis included), and the result is the replay JSON
 (:meth:`ValidationResult.to_json_dict`), so a campaign's epsilons are a single replay's.
 """
 from __future__ import annotations
@@ -13,7 +13,7 @@ from typing import Sequence
 
 from gap_validation.config import load_config
 from gap_validation.core.errors import GapValidationError, one_line
-from gap_validation.replay import replay
+from gap_validation.bag.replay import replay
 
 __all__ = ["validate_flight", "TASK_OPTIONS"]
 

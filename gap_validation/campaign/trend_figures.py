@@ -15,7 +15,7 @@ import numpy as np
 
 from gap_validation.atomic import atomic_open
 from gap_validation.campaign.findings import Finding, format_value
-from gap_validation.figures import pyplot
+from gap_validation.report.figures import pyplot
 
 __all__ = ["trend_figure", "fleet_figure"]
 

@@ -89,6 +89,13 @@ def atomic_open(path: str | os.PathLike, mode: str = "w", encoding: str | None =
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
     """Replace ``path`` with ``data`` atomically (see :func:`atomic_open`); returns ``path``.
 
+    Parameters
+    ----------
+    path : str or PathLike
+        Target file; its directory must exist.
+    data : bytes
+        The new content.
+
     Raises
     ------
     OSError
@@ -100,12 +107,14 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
 
 
 def atomic_write_text(path: str | os.PathLike, text: str, encoding: str = "utf-8") -> Path:
-    """Replace ``path`` with ``text`` atomically (see :func:`atomic_open`); returns ``path``.
+    """Replace ``path`` with ``text`` atomically, as :func:`atomic_write_bytes` does with bytes.
 
-    Raises
-    ------
-    OSError
-        When it cannot be written (the old file is kept).
+    Parameters
+    ----------
+    path : str or PathLike
+        Target file; its directory must exist.
+    text, encoding : str
+        The new content and its encoding.
     """
     with atomic_open(path, "w", encoding=encoding) as handle:
         handle.write(text)

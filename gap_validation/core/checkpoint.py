@@ -103,6 +103,12 @@ class _Encoder:
 def encode_state(state: Any) -> tuple[dict, dict[str, np.ndarray]]:
     """Split a state tree into its tagged JSON tree and the arrays it refers to.
 
+    Parameters
+    ----------
+    state : object
+        A state tree: dicts with string keys, lists, tuples, numbers, strings, None and numpy arrays
+        (:meth:`OnlineValidator.state_dict <gap_validation.core.validator.OnlineValidator.state_dict>`).
+
     Returns
     -------
     tree : dict
@@ -122,6 +128,13 @@ def encode_state(state: Any) -> tuple[dict, dict[str, np.ndarray]]:
 
 def decode_state(tree: Any, arrays: dict[str, np.ndarray]) -> Any:
     """Inverse of :func:`encode_state`.
+
+    Parameters
+    ----------
+    tree : dict
+        Tagged JSON tree from :func:`encode_state`.
+    arrays : dict
+        Member name -> array, as :func:`encode_state` returned them.
 
     Raises
     ------

@@ -8,7 +8,6 @@ Unknown keys are errors (a typo must not silently fall back to a default).
 from __future__ import annotations
 
 import copy
-import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -16,6 +15,7 @@ import numpy as np
 
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.models import LinearModel
+from gap_validation.core.numbers import FINITE, NONZERO, POSITIVE, Interval, check_number
 
 #: Streams a channel has: the surface (input), the rate (output) and the optional sweep trigger.
 STREAMS = ("input", "output", "trigger")
@@ -65,7 +65,13 @@ class ChannelConfig:
     estimator: dict = field(default_factory=dict)
 
     def signal(self, stream: str) -> SignalSpec | None:
-        """The :class:`SignalSpec` of ``stream`` (``input``, ``output`` or ``trigger``)."""
+        """The :class:`SignalSpec` of ``stream`` (``input``, ``output`` or ``trigger``).
+
+        Parameters
+        ----------
+        stream : {"input", "output", "trigger"}
+            The stream.
+        """
         return {"input": self.input, "output": self.output, "trigger": self.trigger}[stream]
 
 
@@ -88,7 +94,15 @@ class ValidationConfig:
         return out
 
     def with_channel_effects(self, channel: str, effects: list[dict]) -> "ValidationConfig":
-        """A copy with ``effects`` appended to ``channels.<channel>.model.effects`` (for --apply-diagnosis)."""
+        """A copy with ``effects`` appended to ``channels.<channel>.model.effects`` (for --apply-diagnosis).
+
+        Parameters
+        ----------
+        channel : str
+            A channel of the config.
+        effects : list of dict
+            Effect mappings (:mod:`gap_validation.core.effects`), appended in series.
+        """
         if channel not in self.channels:
             raise ConfigError(f"{self.source or '<config>'}: no channel {channel!r}")
         raw = copy.deepcopy(self.raw)
@@ -112,16 +126,8 @@ def _mapping(value: Any, source: str, path: str, allowed: set[str] | None) -> di
     return value
 
 
-def _number(value: Any, source: str, path: str, *, low: float | None = None, high: float | None = None,
-            low_open: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise _fail(source, path, f"expected a finite number, got {value!r}")
-    value = float(value)
-    if low is not None and (value < low or (low_open and value == low)):
-        raise _fail(source, path, f"expected a number {'>' if low_open else '>='} {low:g}, got {value:g}")
-    if high is not None and value > high:
-        raise _fail(source, path, f"expected a number <= {high:g}, got {value:g}")
-    return value
+def _number(value: Any, source: str, path: str, allowed: Interval = FINITE) -> float:
+    return check_number(value, f"{source}: {path}", allowed)
 
 
 def _string(value: Any, source: str, path: str) -> str:
@@ -145,9 +151,7 @@ def _signal(value: Any, source: str, path: str) -> SignalSpec:
         FieldPath.parse(spec_field)
     except ConfigError as err:
         raise _fail(source, f"{path}.field", str(err)) from None
-    scale = _number(data.get("scale", 1.0), source, f"{path}.scale")
-    if scale == 0.0:
-        raise _fail(source, f"{path}.scale", "expected a nonzero number, got 0")
+    scale = _number(data.get("scale", 1.0), source, f"{path}.scale", NONZERO)
     msg_type = data.get("type")
     if msg_type is not None:
         msg_type = _string(msg_type, source, f"{path}.type")
@@ -160,9 +164,9 @@ def _signal(value: Any, source: str, path: str) -> SignalSpec:
 def _grid(value: Any, source: str, path: str) -> FrequencyGrid:
     data = _mapping(value, source, path, _GRID_KEYS)
     default = FrequencyGrid()
-    low = _number(data.get("min_rad_s", default.min_rad_s), source, f"{path}.min_rad_s", low=0.0, low_open=True)
-    high = _number(data.get("max_rad_s", default.max_rad_s), source, f"{path}.max_rad_s", low=low,
-                   low_open=True)
+    low = _number(data.get("min_rad_s", default.min_rad_s), source, f"{path}.min_rad_s", POSITIVE)
+    high = _number(data.get("max_rad_s", default.max_rad_s), source, f"{path}.max_rad_s",
+                   Interval(low, low_open=True))
     count = data.get("count", default.count)
     if isinstance(count, bool) or not isinstance(count, int) or not 2 <= count <= 1000:
         raise _fail(source, f"{path}.count", f"expected an integer from 2 to 1000, got {count!r}")
@@ -190,7 +194,7 @@ def _channel(name: str, value: Any, source: str) -> ChannelConfig:
         model_spec=copy.deepcopy(model_spec),
         frequencies=_grid(data.get("frequencies", {}) or {}, source, f"{path}.frequencies"),
         coherence_threshold=_number(data.get("coherence_threshold", 0.6), source,
-                                    f"{path}.coherence_threshold", low=0.0, high=0.999),
+                                    f"{path}.coherence_threshold", Interval(0.0, 0.999)),
         trigger=_signal(data["trigger"], source, f"{path}.trigger") if data.get("trigger") is not None else None,
         estimator=dict(estimator),
     )
@@ -204,8 +208,8 @@ def _check_estimator_options(options: dict, source: str, path: str) -> None:
     if allowed:
         _mapping(options, source, path, allowed)
     for key, value in options.items():
-        if not isinstance(value, (int, float, bool)) or (isinstance(value, float) and not math.isfinite(value)):
-            raise _fail(source, f"{path}.{key}", f"expected a finite number or boolean, got {value!r}")
+        if not isinstance(value, bool):
+            check_number(value, f"{source}: {path}.{key}", expected="a finite number or boolean")
 
 
 def parse_config(data: Any, source: str = "<config>") -> ValidationConfig:

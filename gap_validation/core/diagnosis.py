@@ -55,20 +55,25 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.optimize import least_squares
 
 from gap_validation.core import metrics
-from gap_validation.core.effects import describe_effect, validate_effect
+from gap_validation.core.effects import EFFECTS, EffectFit, EffectType, FitRange, describe_effect, validate_effect
 from gap_validation.core.models import LinearModel
+from gap_validation.core.numbers import significant
+from gap_validation.core.results import Band, Candidate
+
+if TYPE_CHECKING:  # pragma: no cover
+    from gap_validation.core.estimator import SpectralEstimate
 
 __all__ = [
     "ChannelDiagnosis", "analyse_channel", "fit_effects", "FittedCandidate", "cifer_weight", "cifer_cost",
     "bendat_piersol_random_error", "effective_random_error", "epsilon_noise_scale", "minimum_averages",
     "normalised_mismatch", "frequency_flags", "find_bands", "FAMILIES", "PAIRS", "SIGMA_FACTOR", "BIAS_ERROR",
-    "MAX_DELAY_S",
 ]
 
 #: Noise-only epsilon is Rayleigh with scale ``sigma = e/2``; ``P(eps > k sigma) = exp(-k^2/2)``: k = 4 gives
@@ -87,8 +92,6 @@ BIAS_ERROR = 0.03
 #: Probability that noise alone (zero true coherence) gives a coherence estimate above the threshold, used to
 #: set the minimum number of averages of a usable frequency (:func:`minimum_averages`).
 COHERENCE_FALSE_ALARM = 1e-3
-#: Largest delay the fit considers [s].
-MAX_DELAY_S = 0.5
 #: CIFER phase weight per deg^2 (1 dB ~ 7.6 deg).
 _PHASE_WEIGHT = 0.01745
 _DB_PER_NEPER = 20.0 / math.log(10.0)
@@ -112,32 +115,29 @@ class ChannelDiagnosis:
     frequency_flags : list of str
         Per frequency: ``"ok"`` (epsilon within the threshold), ``"model"``, ``"data"`` or ``"excluded"``
         (coherence below its threshold).
-    bands : list of dict
-        Runs of frequencies flagged ``model`` or ``data``: ``min_rad_s``, ``max_rad_s``, ``peak_rad_s``,
-        ``epsilon`` (at the peak), ``limited_by``, ``reason``, plus ``coherence_min``, ``mismatch_sigma`` (the
-        largest normalised mismatch k in the band) and ``min_averages``.
-    candidates : list of dict
-        JSON ``diagnosis``, best first: ``effect``, ``parameters``, ``effects``, ``epsilon``, ``nu_gap`` plus
-        ``sentence``, ``improvement``, ``epsilon_before``, ``epsilon_raw``, ``worst_frequency_rad_s``,
-        ``complexity`` (fitted parameters), ``cost`` and ``cost_before`` (CIFER J), ``explains`` (True when
-        the mismatch left is within the errors). ``parameter_error`` has empty
-        ``effects`` and the refitted ``model`` mapping (replace the model's airframe; nothing to append) with a
-        ``note`` saying so.
+    bands : list of Band
+        Runs of frequencies flagged ``model`` or ``data`` (:class:`~gap_validation.core.results.Band`: edges,
+        peak, epsilon at the peak, verdict, reason, lowest coherence, largest normalised mismatch, fewest
+        averages).
+    candidates : list of Candidate
+        JSON ``diagnosis``, best first (:class:`~gap_validation.core.results.Candidate`). ``parameter_error``
+        has empty ``effects`` and the refitted ``model`` mapping (replace the model's airframe; nothing to
+        append) with a ``note`` saying so.
     message : str
         One plain sentence for the terminal.
     """
 
     limited_by: str = "none"
     frequency_flags: list[str] = field(default_factory=list)
-    bands: list[dict] = field(default_factory=list)
-    candidates: list[dict] = field(default_factory=list)
+    bands: list[Band] = field(default_factory=list)
+    candidates: list[Candidate] = field(default_factory=list)
     message: str = ""
 
 
 # ------------------------------------------------------------------------------------------------ statistics
 
 
-def cifer_weight(coherence) -> np.ndarray:
+def cifer_weight(coherence: ArrayLike) -> np.ndarray:
     """CIFER coherence weighting ``W_g = [1.58 (1 - exp(-g^2))]^2`` (Tischler & Remple, ch. 11).
 
     Parameters
@@ -160,7 +160,7 @@ def _log_ratio(p_fit, p_meas) -> np.ndarray:
         return np.log(p_fit / p_meas)
 
 
-def cifer_cost(p_fit, p_meas, coherence) -> float:
+def cifer_cost(p_fit: ArrayLike, p_meas: ArrayLike, coherence: ArrayLike) -> float:
     """CIFER cost ``J = 20/n sum W_g [dB error^2 + 0.01745 deg error^2]`` (Tischler & Remple, ch. 11).
 
     Parameters
@@ -181,7 +181,7 @@ def cifer_cost(p_fit, p_meas, coherence) -> float:
     return float(20.0 / max(len(w_g), 1) * np.sum(w_g * err))
 
 
-def bendat_piersol_random_error(coherence, n_averages) -> np.ndarray:
+def bendat_piersol_random_error(coherence: ArrayLike, n_averages: ArrayLike) -> np.ndarray:
     """Normalised random error of |H|: ``e_r = sqrt(1 - g^2) / (|g| sqrt(2 n_d))`` (Bendat & Piersol, ch. 9).
 
     The phase error is about ``e_r`` rad. Infinite where the coherence is zero.
@@ -240,8 +240,8 @@ def _sweep_scatter_error(estimate, sweeps: Sequence, coherence_threshold: float)
     return np.where(m >= 3, e, out)
 
 
-def effective_random_error(estimate, sweeps: Sequence = (), coherence_threshold: float = 0.0,
-                           bias_error: float = 0.0) -> np.ndarray:
+def effective_random_error(estimate: SpectralEstimate, sweeps: Sequence[SpectralEstimate] = (),
+                           coherence_threshold: float = 0.0, bias_error: float = 0.0) -> np.ndarray:
     """Relative error of the averaged response the diagnosis allows for.
 
     The larger of the estimate's random error (Bendat & Piersol) and the scatter between sweeps (where at
@@ -269,11 +269,16 @@ def effective_random_error(estimate, sweeps: Sequence = (), coherence_threshold:
     return np.hypot(e_r, bias_error)
 
 
-def epsilon_noise_scale(relative_error) -> np.ndarray:
+def epsilon_noise_scale(relative_error: ArrayLike) -> np.ndarray:
     """Scale ``sigma = e / 2`` of epsilon(w) between a model and noisy data that equal it.
 
     With ``P2 = P1 (1 + d)``, ``d`` complex with components of standard deviation ``e``,
     ``epsilon = |d| / |2 + d| ~ |d| / 2`` (eq. 14): Rayleigh with scale ``e / 2``.
+
+    Parameters
+    ----------
+    relative_error : array_like
+        Relative error ``e`` of the measured response per frequency (:func:`effective_random_error`).
     """
     return 0.5 * np.asarray(relative_error, dtype=float)
 
@@ -284,13 +289,20 @@ def minimum_averages(coherence_threshold: float, false_alarm: float = COHERENCE_
     With ``n_d`` averages and zero true coherence, ``P(g^2_est > c) = (1 - c)^(n_d - 1)`` (Bendat & Piersol,
     ch. 9); the result is the smallest ``n_d`` making that at most ``false_alarm`` (9 for c = 0.6), within
     [4, 16].
+
+    Parameters
+    ----------
+    coherence_threshold : float
+        Coherence (squared) a usable frequency must reach.
+    false_alarm : float
+        Accepted probability that noise alone passes the threshold.
     """
     c = min(max(float(coherence_threshold), 1e-6), 0.999)
     n = 1.0 + math.log(false_alarm) / math.log(1.0 - c)
     return int(min(max(math.ceil(n), 4), 16))
 
 
-def confident_points(estimate, coherence_threshold: float) -> np.ndarray:
+def confident_points(estimate: SpectralEstimate, coherence_threshold: float) -> np.ndarray:
     """Frequencies whose estimate counts for epsilon, the nu-gap and the diagnosis (the one definition).
 
     A point is confident when its coherence passes the threshold *and* it has at least
@@ -298,6 +310,13 @@ def confident_points(estimate, coherence_threshold: float) -> np.ndarray:
     noise exceeds a coherence of 0.6 with probability 2.6 %), and its response is finite and nonzero. Points
     with too few averages are also the ones where a short sweep leaves the windows too few cycles: their
     estimate is smeared over a wide band (resolution bias).
+
+    Parameters
+    ----------
+    estimate : SpectralEstimate
+        Averaged estimate (``response``, ``coherence``, ``n_averages``).
+    coherence_threshold : float
+        The channel's coherence threshold.
     """
     p_meas = np.asarray(estimate.response, complex)
     coherence = np.asarray(estimate.coherence, float)
@@ -305,17 +324,27 @@ def confident_points(estimate, coherence_threshold: float) -> np.ndarray:
             & (_n_averages(estimate) >= minimum_averages(coherence_threshold)))
 
 
-def sweep_points(sweep, average_confident: np.ndarray, coherence_threshold: float) -> np.ndarray:
+def sweep_points(sweep: SpectralEstimate, average_confident: np.ndarray, coherence_threshold: float) -> np.ndarray:
     """Frequencies of one sweep's (raw) estimate that count for the raw epsilon: those confident in the average
     (the validation's frequency set) where the sweep itself is coherent. A single sweep has fewer averages than
     the pool, so the minimum-averages rule applies to the average only; raw epsilon is then the sup over the
-    same frequencies as the averaged one, and not smaller for want of points (paper, Table 1)."""
+    same frequencies as the averaged one, and not smaller for want of points (paper, Table 1).
+
+    Parameters
+    ----------
+    sweep : SpectralEstimate
+        One sweep's (raw) estimate.
+    average_confident : ndarray of bool
+        Confident points of the averaged estimate (:func:`confident_points`).
+    coherence_threshold : float
+        The channel's coherence threshold.
+    """
     p = np.asarray(sweep.response, complex)
     return (np.asarray(average_confident, bool) & (np.asarray(sweep.coherence, float) >= coherence_threshold)
             & np.isfinite(p) & (np.abs(p) > 0))
 
 
-def normalised_mismatch(eps_w, sigma, n_averages=np.inf) -> np.ndarray:
+def normalised_mismatch(eps_w: ArrayLike, sigma: ArrayLike, n_averages: ArrayLike = np.inf) -> np.ndarray:
     """How many noise scales the mismatch is: the Rayleigh-equivalent ``k`` of ``epsilon / sigma``.
 
     With ``n_d`` averages the H1 error follows ``F(2, 2 n_d - 2)`` (Goodman; Bendat & Piersol's confidence
@@ -340,7 +369,8 @@ def normalised_mismatch(eps_w, sigma, n_averages=np.inf) -> np.ndarray:
 # ------------------------------------------------------------------------------------------------ where it fails
 
 
-def frequency_flags(eps_w, mismatch, coherent, confident, epsilon_threshold: float,
+def frequency_flags(eps_w: ArrayLike, mismatch: ArrayLike, coherent: ArrayLike, confident: ArrayLike,
+                    epsilon_threshold: float,
                     sigma_factor: float = SIGMA_FACTOR) -> list[str]:
     """Per-frequency verdict.
 
@@ -350,6 +380,21 @@ def frequency_flags(eps_w, mismatch, coherent, confident, epsilon_threshold: flo
     ``sigma_factor`` at a confident frequency) or ``"data"`` (above it, but low coherence, too few averages or
     within the errors: the data cannot tell, fly better sweeps there). Only confident frequencies count for
     epsilon; a ``"data"`` flag at low coherence marks where a mismatch may hide in the noise.
+
+    Parameters
+    ----------
+    eps_w : array_like
+        epsilon(w) of the model against the averaged data (eq. 14).
+    mismatch : array_like
+        Normalised mismatch k per frequency (:func:`normalised_mismatch`).
+    coherent : array_like of bool
+        Coherence passes the threshold.
+    confident : array_like of bool
+        Also enough averages (:func:`confident_points`).
+    epsilon_threshold : float
+        epsilon(w) above it is flagged ``model`` or ``data``.
+    sigma_factor : float
+        Normalised mismatch beyond which a confident frequency is model-limited.
     """
     flags = []
     for e, k, c, u in zip(np.asarray(eps_w, float), np.asarray(mismatch, float), np.asarray(coherent, bool),
@@ -367,12 +412,30 @@ def frequency_flags(eps_w, mismatch, coherent, confident, epsilon_threshold: flo
     return flags
 
 
-def find_bands(w_rad_s, eps_w, mismatch, coherence, n_averages, flags: Sequence[str], coherence_threshold: float,
-               min_averages: int = 0, sigma_factor: float = SIGMA_FACTOR) -> list[dict]:
+def find_bands(w_rad_s: ArrayLike, eps_w: ArrayLike, mismatch: ArrayLike, coherence: ArrayLike, n_averages: ArrayLike,
+               flags: Sequence[str], coherence_threshold: float, min_averages: int = 0,
+               sigma_factor: float = SIGMA_FACTOR) -> list[Band]:
     """Runs of adjacent frequencies flagged ``model`` or ``data``, each with its verdict and reason.
 
     A band is model-limited when at least one of its frequencies is; otherwise data-limited. Excluded
     frequencies end a band.
+
+    Parameters
+    ----------
+    w_rad_s : array_like
+        Frequencies [rad/s].
+    eps_w, mismatch : array_like
+        epsilon(w) and the normalised mismatch k per frequency.
+    coherence, n_averages : array_like
+        Coherence and averages per frequency.
+    flags : sequence of str
+        Per-frequency verdicts (:func:`frequency_flags`).
+    coherence_threshold : float
+        The channel's coherence threshold (for the reasons).
+    min_averages : int
+        Averages a usable frequency needs (:func:`minimum_averages`).
+    sigma_factor : float
+        As for :func:`frequency_flags`.
     """
     bands, start = [], None
     for i, flag in enumerate(list(flags) + ["ok"]):
@@ -387,7 +450,7 @@ def find_bands(w_rad_s, eps_w, mismatch, coherence, n_averages, flags: Sequence[
 
 
 def _band(idx, w_rad_s, eps_w, mismatch, coherence, n_averages, flags, coherence_threshold, min_averages,
-          sigma_factor) -> dict:
+          sigma_factor) -> Band:
     w, eps = np.asarray(w_rad_s, float), np.asarray(eps_w, float)
     peak = idx[int(np.argmax(eps[idx]))]
     k_max = float(np.max(np.asarray(mismatch, float)[idx]))
@@ -406,157 +469,17 @@ def _band(idx, w_rad_s, eps_w, mismatch, coherence, n_averages, flags, coherence
     else:
         reason = (f"the random error explains the mismatch (at most {k_max:.1f} noise scales, coherence down "
                   f"to {coh_min:.2f}); fly better sweeps there")
-    return {"min_rad_s": float(w[idx[0]]), "max_rad_s": float(w[idx[-1]]), "peak_rad_s": float(w[peak]),
-            "epsilon": float(eps[peak]), "limited_by": "model" if model else "data", "reason": reason,
-            "coherence_min": coh_min, "mismatch_sigma": k_max if math.isfinite(k_max) else None,
-            "min_averages": n_min if math.isfinite(n_min) else None}
+    return Band(min_rad_s=float(w[idx[0]]), max_rad_s=float(w[idx[-1]]), peak_rad_s=float(w[peak]),
+                epsilon=float(eps[peak]), limited_by="model" if model else "data", reason=reason,
+                coherence_min=coh_min, mismatch_sigma=k_max if math.isfinite(k_max) else None,
+                min_averages=n_min if math.isfinite(n_min) else None)
 
 
 # ------------------------------------------------------------------------------------------------ effect families
 
 
-@dataclass(frozen=True)
-class _Context:
-    """Range of the usable frequencies the fit sees [rad/s]."""
-
-    w_lo: float
-    w_hi: float
-
-
-@dataclass(frozen=True)
-class _Family:
-    """One effect type, parametrised for fitting.
-
-    ``grid(ctx, coarse)`` gives start points (M, p); ``bounds(x0, ctx)`` the box for the local refinement;
-    ``response(X, w)`` the factor for M parameter rows (M, N); ``spec(x)`` the effect mapping.
-    """
-
-    name: str
-    complexity: int
-    grid: Callable[[_Context, bool], np.ndarray]
-    bounds: Callable[[np.ndarray, _Context], tuple[np.ndarray, np.ndarray]]
-    response: Callable[[np.ndarray, np.ndarray], np.ndarray]
-    spec: Callable[[np.ndarray], dict]
-
-
-def _product(*axes) -> np.ndarray:
-    return np.array(list(itertools.product(*axes)), dtype=float)
-
-
-def _delay_grid(ctx: _Context, coarse: bool) -> np.ndarray:
-    step = (0.6 if coarse else 0.25) / ctx.w_hi          # phase step at the top frequency [rad]
-    count = int(min(MAX_DELAY_S / step, 60 if coarse else 400)) + 1
-    return np.linspace(0.0, MAX_DELAY_S, count)[:, None]
-
-
-def _delay_response(x, w):
-    return np.exp(-1j * np.outer(x[:, 0], w))
-
-
-def _lag1_bounds(x0, ctx):
-    # a corner below the confident band is a gain and phase offset there, not an identifiable lag
-    return np.log([0.5 * ctx.w_lo]), np.log([30.0 * ctx.w_hi])
-
-
-def _lag1_grid(ctx, coarse):
-    lo, hi = _lag1_bounds(None, ctx)
-    return np.linspace(lo[0], hi[0], 12 if coarse else 40)[:, None]
-
-
-def _lag1_response(x, w):
-    a = np.exp(x[:, :1])
-    return a / (1j * w[None, :] + a)
-
-
-_ZETA_RANGE = (0.02, 2.5)
-
-
-def _lag2_bounds(x0, ctx):
-    return (np.array([math.log(0.5 * ctx.w_lo), _ZETA_RANGE[0]]),
-            np.array([math.log(10.0 * ctx.w_hi), _ZETA_RANGE[1]]))
-
-
-def _lag2_grid(ctx, coarse):
-    lo, hi = _lag2_bounds(None, ctx)
-    wn = np.linspace(lo[0], hi[0], 10 if coarse else 28)
-    zeta = [0.1, 0.3, 0.7, 1.5] if coarse else [0.05, 0.1, 0.2, 0.35, 0.5, 0.7, 1.0, 1.5, 2.2]
-    return _product(wn, zeta)
-
-
-def _lag2_response(x, w):
-    wn, zeta = np.exp(x[:, :1]), x[:, 1:2]
-    r = w[None, :] / wn
-    return 1.0 / (1.0 - r ** 2 + 2j * zeta * r)
-
-
-def _gain_bounds(x0, ctx):
-    return (np.array([0.05]), np.array([20.0])) if x0[0] > 0 else (np.array([-20.0]), np.array([-0.05]))
-
-
-def _gain_grid(ctx, coarse):
-    k = np.geomspace(0.1, 10.0, 15 if coarse else 61)
-    return np.concatenate([k, -k])[:, None]
-
-
-def _gain_response(x, w):
-    return np.broadcast_to(x[:, :1].astype(complex), (x.shape[0], w.size))
-
-
-_MODE_ZETA = (0.005, 1.0)
-
-
-def _mode_bounds(x0, ctx):
-    # the mode (poles) must lie inside the confident band: outside it a pole-zero pair is only a gain or a
-    # phase tilt there, which simpler effects explain
-    return (np.array([math.log(ctx.w_lo), _MODE_ZETA[0], math.log(0.5 * ctx.w_lo), _MODE_ZETA[0]]),
-            np.array([math.log(ctx.w_hi), _MODE_ZETA[1], math.log(2.0 * ctx.w_hi), _MODE_ZETA[1]]))
-
-
-def _mode_grid(ctx, coarse):
-    if coarse:
-        wp = np.geomspace(ctx.w_lo, ctx.w_hi, 8)
-        axes = (np.log(wp), [0.05, 0.2], np.log([0.7, 0.9, 1.1, 1.4]), [0.05, 0.3])
-    else:
-        wp = np.geomspace(ctx.w_lo, ctx.w_hi, 18)
-        axes = (np.log(wp), [0.02, 0.05, 0.1, 0.2, 0.4], np.log([0.5, 0.7, 0.8, 0.9, 1.1, 1.25, 1.4, 2.0]),
-                [0.02, 0.07, 0.2, 0.5])
-    grid = _product(*axes)
-    grid[:, 2] += grid[:, 0]                            # zero frequency = ratio x pole frequency
-    lo, hi = _mode_bounds(None, ctx)
-    return np.clip(grid, lo, hi)
-
-
-def _mode_response(x, w):
-    wp, zp, wz, zz = np.exp(x[:, :1]), x[:, 1:2], np.exp(x[:, 2:3]), x[:, 3:4]
-    rp, rz = w[None, :] / wp, w[None, :] / wz
-    return (1.0 - rz ** 2 + 2j * zz * rz) / (1.0 - rp ** 2 + 2j * zp * rp)
-
-
-def _sig(value: float, digits: int = 4) -> float:
-    """``value`` rounded to ``digits`` significant digits (config-friendly numbers)."""
-    return float(f"{float(value):.{digits}g}")
-
-
-FAMILIES: dict[str, _Family] = {
-    "time_delay": _Family(
-        "time_delay", 1, _delay_grid,
-        lambda x0, ctx: (np.array([0.0]), np.array([MAX_DELAY_S])), _delay_response,
-        lambda x: {"type": "time_delay", "seconds": _sig(max(x[0], 0.0))}),
-    "first_order_lag": _Family(
-        "first_order_lag", 1, _lag1_grid, _lag1_bounds, _lag1_response,
-        lambda x: {"type": "first_order_lag", "bandwidth_rad_s": _sig(math.exp(x[0]))}),
-    "second_order_lag": _Family(
-        "second_order_lag", 2, _lag2_grid, _lag2_bounds, _lag2_response,
-        lambda x: {"type": "second_order_lag", "natural_frequency_rad_s": _sig(math.exp(x[0])),
-                   "damping": _sig(x[1], 3)}),
-    "gain": _Family(
-        "gain", 1, _gain_grid, _gain_bounds, _gain_response,
-        lambda x: {"type": "gain", "factor": _sig(x[0])}),
-    "structural_mode": _Family(
-        "structural_mode", 4, _mode_grid, _mode_bounds, _mode_response,
-        lambda x: {"type": "structural_mode", "frequency_rad_s": _sig(math.exp(x[0])), "damping": _sig(x[1], 3),
-                   "zero_frequency_rad_s": _sig(math.exp(x[2])), "zero_damping": _sig(x[3], 3)}),
-}
+#: Effect type -> how it is fitted (:class:`~gap_validation.core.effects.EffectFit`), a view of the registry.
+FAMILIES: dict[str, EffectFit] = {name: e.fit for name, e in EFFECTS.items() if e.fit is not None}
 
 #: Pairs fitted when no single effect explains the mismatch, named by their sorted types joined with "+".
 PAIRS: tuple[tuple[str, str], ...] = tuple(itertools.combinations(sorted(FAMILIES), 2))
@@ -574,7 +497,7 @@ class _FitData:
     p_model: np.ndarray
     sqrt_w: np.ndarray        # sqrt of the CIFER weight
     coherence: np.ndarray
-    ctx: _Context
+    ctx: FitRange
 
     def residuals(self, factor: np.ndarray) -> np.ndarray:
         """CIFER residuals for factors (M, N) -> (M, 2N): sqrt(W) dB error and sqrt(W 0.01745) deg error."""
@@ -591,9 +514,9 @@ class _FitData:
 
 @dataclass
 class _Combo:
-    """A set of families fitted together (one effect, or a pair)."""
+    """A set of effects fitted together (one effect, or a pair)."""
 
-    families: tuple[_Family, ...]
+    families: tuple[EffectType, ...]
 
     @property
     def name(self) -> str:
@@ -611,22 +534,22 @@ class _Combo:
         x = np.atleast_2d(x)
         out = np.ones((x.shape[0], w.size), dtype=complex)
         for fam, part in zip(self.families, self._split(x)):
-            out = out * fam.response(part, w)
+            out = out * fam.fit.response(part, w)
         return out
 
-    def grid(self, ctx: _Context) -> np.ndarray:
+    def grid(self, ctx: FitRange) -> np.ndarray:
         if len(self.families) == 1:
-            return self.families[0].grid(ctx, False)
-        grids = [f.grid(ctx, True) for f in self.families]
+            return self.families[0].fit.grid(ctx, False)
+        grids = [f.fit.grid(ctx, True) for f in self.families]
         rows = [np.concatenate(parts) for parts in itertools.product(*grids)]
         return np.array(rows)
 
-    def bounds(self, x0: np.ndarray, ctx: _Context) -> tuple[np.ndarray, np.ndarray]:
-        parts = [f.bounds(p, ctx) for f, p in zip(self.families, self._split(x0))]
+    def bounds(self, x0: np.ndarray, ctx: FitRange) -> tuple[np.ndarray, np.ndarray]:
+        parts = [f.fit.bounds(p, ctx) for f, p in zip(self.families, self._split(x0))]
         return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
 
     def specs(self, x: np.ndarray) -> list[dict]:
-        return [validate_effect(f.spec(p)) for f, p in zip(self.families, self._split(np.asarray(x, float)))]
+        return [validate_effect(f.fit.spec(p)) for f, p in zip(self.families, self._split(np.asarray(x, float)))]
 
 
 def _distinct_starts(grid: np.ndarray, costs: np.ndarray, span: np.ndarray, count: int) -> list[np.ndarray]:
@@ -689,8 +612,8 @@ def _coefficient_fit(model: LinearModel, data: _FitData) -> LinearModel | None:
     bound = np.full(n_free, math.log(10.0))
     sol = least_squares(residuals, np.zeros(n_free), bounds=(-bound, bound), method="trf", max_nfev=100 * n_free)
     num, den = build(sol.x)
-    num = np.array([_sig(v, 6) for v in num])
-    den = np.array([_sig(v, 6) for v in den])
+    num = np.array([significant(v, 6) for v in num])
+    den = np.array([significant(v, 6) for v in den])
     return LinearModel(num, den, air.delay_s, model.effects)
 
 
@@ -797,7 +720,7 @@ def _fit_data(model: LinearModel, ev: _Evidence) -> _FitData | None:
     wc = ev.w[u]
     return _FitData(w=wc, p_meas=ev.p_meas[u], p_model=model.freqresp(wc),
                     sqrt_w=np.sqrt(cifer_weight(ev.coherence[u])), coherence=ev.coherence[u],
-                    ctx=_Context(float(wc.min()), float(wc.max())))
+                    ctx=FitRange(float(wc.min()), float(wc.max())))
 
 
 def _fit_combo_candidate(combo: _Combo, model: LinearModel, data: _FitData) -> FittedCandidate:
@@ -816,7 +739,8 @@ def _fit_parameter_error(model: LinearModel, data: _FitData) -> FittedCandidate 
     return FittedCandidate("parameter_error", n_free, [], refit, replacement=True)
 
 
-def fit_effects(model: LinearModel, estimate, coherence_threshold: float = 0.6, *, sweeps: Sequence = (),
+def fit_effects(model: LinearModel, estimate: SpectralEstimate, coherence_threshold: float = 0.6, *,
+                sweeps: Sequence[SpectralEstimate] = (),
                 pairs: bool = False, parameter_error: bool = True,
                 bias_error: float = BIAS_ERROR) -> list[FittedCandidate]:
     """Fit every effect of the vocabulary (optionally all pairs, and the coefficient refit) to the data.
@@ -851,9 +775,9 @@ def _fit_all(model, ev: _Evidence, *, pairs: bool, parameter_error: bool, single
     data = _fit_data(model, ev)
     if data is None:
         return []
-    out = [_fit_combo_candidate(_Combo((fam,)), model, data) for fam in FAMILIES.values()] if singles else []
+    out = [_fit_combo_candidate(_Combo((EFFECTS[name],)), model, data) for name in FAMILIES] if singles else []
     if pairs:
-        out += [_fit_combo_candidate(_Combo((FAMILIES[a], FAMILIES[b])), model, data) for a, b in PAIRS]
+        out += [_fit_combo_candidate(_Combo((EFFECTS[a], EFFECTS[b])), model, data) for a, b in PAIRS]
     if parameter_error:
         refit = _fit_parameter_error(model, data)
         if refit is not None:
@@ -914,32 +838,33 @@ def _select(ev: _Evidence, base: _Fit, fitted: list[FittedCandidate]) -> list[Fi
     return ranked[:_MAX_CANDIDATES]
 
 
-def _candidate_dict(c: FittedCandidate, ev: _Evidence, base: _Fit, p_model: np.ndarray, sweeps: Sequence,
-                    coherence_threshold: float) -> dict:
+def _candidate(c: FittedCandidate, ev: _Evidence, base: _Fit, p_model: np.ndarray, sweeps: Sequence,
+               coherence_threshold: float) -> Candidate:
     conf = ev.confident
     p_fit = c.model.freqresp(ev.w)
     score = c.score
-    out = {
-        "effect": c.name,
-        "parameters": _parameters(c),
-        "effects": [dict(e) for e in c.effects],
-        "epsilon": score.eps,
-        "nu_gap": float(np.max(metrics.chordal_distance(p_fit[conf], ev.p_meas[conf]))),
-        "sentence": _sentence(c, base, ev),
-        "improvement": base.eps - score.eps,
-        "epsilon_before": base.eps,
-        "epsilon_raw": _raw_epsilon(c.model, sweeps, coherence_threshold, ev.confident),
-        "worst_frequency_rad_s": float(ev.w[score.worst]),
-        "complexity": c.complexity,
-        "explains": bool(score.k_max <= ev.sigma_factor),
-        "cost": cifer_cost(p_fit[conf], ev.p_meas[conf], ev.coherence[conf]),
-        "cost_before": cifer_cost(p_model[conf], ev.p_meas[conf], ev.coherence[conf]),
-    }
+    replacement = {}
     if c.replacement:
-        out["model"] = c.model.to_spec()
-        out["note"] = ("parameter error: the model's own coefficients refitted (same structure); nothing to "
-                       "append to effects: replace the model by 'model'")
-    return out
+        replacement = {"model": c.model.to_spec(),
+                       "note": ("parameter error: the model's own coefficients refitted (same structure); nothing "
+                                "to append to effects: replace the model by 'model'")}
+    return Candidate(
+        effect=c.name,
+        parameters=_parameters(c),
+        effects=[dict(e) for e in c.effects],
+        epsilon=score.eps,
+        nu_gap=float(np.max(metrics.chordal_distance(p_fit[conf], ev.p_meas[conf]))),
+        sentence=_sentence(c, base, ev),
+        improvement=base.eps - score.eps,
+        epsilon_before=base.eps,
+        epsilon_raw=_raw_epsilon(c.model, sweeps, coherence_threshold, ev.confident),
+        worst_frequency_rad_s=float(ev.w[score.worst]),
+        complexity=c.complexity,
+        explains=bool(score.k_max <= ev.sigma_factor),
+        cost=cifer_cost(p_fit[conf], ev.p_meas[conf], ev.coherence[conf]),
+        cost_before=cifer_cost(p_model[conf], ev.p_meas[conf], ev.coherence[conf]),
+        **replacement,
+    )
 
 
 def _parameters(c: FittedCandidate) -> dict:
@@ -979,7 +904,8 @@ def _raw_epsilon(model: LinearModel, sweeps: Sequence, coherence_threshold: floa
 # ------------------------------------------------------------------------------------------------ analysis
 
 
-def analyse_channel(model: LinearModel, estimate, sweeps: list, coherence_threshold: float, *, fit: bool = True,
+def analyse_channel(model: LinearModel, estimate: SpectralEstimate, sweeps: Sequence[SpectralEstimate],
+                    coherence_threshold: float, *, fit: bool = True,
                     epsilon_threshold: float = 0.15, sigma_factor: float = SIGMA_FACTOR,
                     bias_error: float = BIAS_ERROR, channel: str = "") -> ChannelDiagnosis:
     """Where the model fails (model- or data-limited bands) and which effects would explain it.
@@ -1023,7 +949,7 @@ def analyse_channel(model: LinearModel, estimate, sweeps: list, coherence_thresh
     result = ChannelDiagnosis(limited_by=_limited_by(ev, base, bands), frequency_flags=flags, bands=bands)
     if fit and base.worst >= 0 and base.k_max > sigma_factor:
         chosen = _select(ev, base, _diagnose(model, ev))
-        result.candidates = [_candidate_dict(c, ev, base, p_model, sweeps, coherence_threshold) for c in chosen]
+        result.candidates = [_candidate(c, ev, base, p_model, sweeps, coherence_threshold) for c in chosen]
     result.message = _message(ev, base, result, coherence_threshold, epsilon_threshold, channel)
     return result
 
@@ -1037,19 +963,19 @@ def _diagnose(model: LinearModel, ev: _Evidence) -> list[FittedCandidate]:
     return fitted
 
 
-def _limited_by(ev: _Evidence, base: _Fit, bands: list[dict]) -> str:
+def _limited_by(ev: _Evidence, base: _Fit, bands: list[Band]) -> str:
     """``model`` when any band is model-limited (the model must change there whatever else the data say),
     else ``data`` when any band is data-limited or nothing is confident, else ``none``."""
     if base.worst < 0:
         return "data"
-    verdicts = {band["limited_by"] for band in bands}
+    verdicts = {band.limited_by for band in bands}
     return "model" if "model" in verdicts else "data" if verdicts else "none"
 
 
-def _lead_band(bands: list[dict]) -> dict | None:
+def _lead_band(bands: list[Band]) -> Band | None:
     """The band the message leads with: the worst model-limited band, else the worst band."""
-    model = [b for b in bands if b["limited_by"] == "model"]
-    return max(model or bands, key=lambda b: b["epsilon"], default=None)
+    model = [b for b in bands if b.limited_by == "model"]
+    return max(model or bands, key=lambda b: b.epsilon, default=None)
 
 
 def _range(lo: float, hi: float) -> str:
@@ -1066,19 +992,19 @@ def _message(ev: _Evidence, base: _Fit, result: ChannelDiagnosis, coherence_thre
     if band is None:
         text = (f"{prefix}model fits: epsilon {base.eps:.2f} at {ev.w[base.worst]:.3g} rad/s, within "
                 f"{epsilon_threshold:g} at every confident frequency")
-    elif band["limited_by"] == "model":
-        text = (f"{prefix}model-limited at {_range(band['min_rad_s'], band['max_rad_s'])}: epsilon "
-                f"{band['epsilon']:.2f} at {band['peak_rad_s']:.3g} rad/s is well outside the random error")
+    elif band.limited_by == "model":
+        text = (f"{prefix}model-limited at {_range(band.min_rad_s, band.max_rad_s)}: epsilon "
+                f"{band.epsilon:.2f} at {band.peak_rad_s:.3g} rad/s is well outside the random error")
     else:
-        text = (f"{prefix}data-limited at {_range(band['min_rad_s'], band['max_rad_s'])}: epsilon "
-                f"{band['epsilon']:.2f} at {band['peak_rad_s']:.3g} rad/s; {band['reason']}")
+        text = (f"{prefix}data-limited at {_range(band.min_rad_s, band.max_rad_s)}: epsilon "
+                f"{band.epsilon:.2f} at {band.peak_rad_s:.3g} rad/s; {band.reason}")
     others = [b for b in result.bands if b is not band]
     if others:
-        text += "; also " + ", ".join(f"{b['limited_by']}-limited at {_range(b['min_rad_s'], b['max_rad_s'])}"
+        text += "; also " + ", ".join(f"{b.limited_by}-limited at {_range(b.min_rad_s, b.max_rad_s)}"
                                       for b in others)
     if result.candidates:
         text += ("; " if band is not None else "; the data still resolve a difference: ") + \
-            result.candidates[0]["sentence"]
+            result.candidates[0].sentence
     excluded = int(np.count_nonzero(~ev.confident))
     if excluded:
         low = int(np.count_nonzero(ev.coherence < coherence_threshold))

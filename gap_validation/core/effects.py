@@ -1,4 +1,4 @@
-"""Physical effects that are added to a model in series (DESIGN.md, "Effects vocabulary").
+"""Physical effects that are added to a model in series (DESIGN.md, "Effects vocabulary"): one registry.
 
 Each effect is a plain mapping such as ``{"type": "time_delay", "seconds": 0.05}``. Its *factor* in series
 with the model is a rational part (numerator, denominator in descending powers of s) times a pure delay
@@ -17,75 +17,392 @@ structural_mode     frequency_rad_s, damping, zero_frequency_rad_s, zero_damping
 
 All factors except ``gain`` have unit gain at s = 0. The names and parameters are a user contract: they are
 written in configs and reported by the diagnosis, so they are never renamed.
-"""
 
+The registry
+------------
+:data:`EFFECTS` holds one :class:`EffectType` per effect, the one place that knows it: its parameters with the
+values a config may give (:attr:`Parameter.valid`, checked by :func:`validate_effect`) and the values that make
+physical sense (:attr:`Parameter.plausible`, checked by :func:`check_plausible` when a model is read from a
+config), its factor ``(num, den, delay_s)`` and response, its words (:func:`describe_effect`) and how the
+diagnosis fits it (:class:`EffectFit`: start grid, bounds and vectorised response in fit coordinates, e.g. log
+frequencies). :mod:`gap_validation.core.models`, the config checks and :mod:`gap_validation.core.diagnosis` all
+read it.
+
+An amplitude-dependent (nonlinear) effect, such as a surface rate limit or free play, is one more entry with
+``factor=None`` and a ``describing_function(params, w_rad_s, amplitude)``: :meth:`EffectType.response` then
+needs the flown amplitude, and a :class:`~gap_validation.core.models.LinearModel` (which needs a factor)
+refuses it with a one-line error.
+"""
+from __future__ import annotations
+
+import itertools
 import math
-from numbers import Real
+from dataclasses import dataclass
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
 from gap_validation.core.errors import ConfigError
+from gap_validation.core.numbers import NON_NEGATIVE, NONZERO, POSITIVE, Interval, check_number, significant
 
-#: Effect type -> required parameter names, in the order of DESIGN.md's table.
-EFFECT_TYPES = {
-    "time_delay": ("seconds",),
-    "first_order_lag": ("bandwidth_rad_s",),
-    "second_order_lag": ("natural_frequency_rad_s", "damping"),
-    "gain": ("factor",),
-    "structural_mode": ("frequency_rad_s", "damping", "zero_frequency_rad_s", "zero_damping"),
-}
+__all__ = ["Parameter", "FitRange", "EffectFit", "EffectType", "EFFECTS", "EFFECT_TYPES", "MAX_DELAY_S",
+           "validate_effect", "check_plausible", "effect_factor", "effect_response", "describe_effect"]
 
-# Parameter name -> (test, description used in "expected ..." messages).
-_RULES = {
-    "seconds": (lambda v: v >= 0.0, "a number >= 0"),
-    "bandwidth_rad_s": (lambda v: v > 0.0, "a number > 0"),
-    "natural_frequency_rad_s": (lambda v: v > 0.0, "a number > 0"),
-    "frequency_rad_s": (lambda v: v > 0.0, "a number > 0"),
-    "zero_frequency_rad_s": (lambda v: v > 0.0, "a number > 0"),
-    "damping": (lambda v: v >= 0.0, "a number >= 0"),
-    "zero_damping": (lambda v: v >= 0.0, "a number >= 0"),
-    "factor": (lambda v: v != 0.0, "a nonzero number"),
-}
+#: Largest delay the diagnosis fits [s].
+MAX_DELAY_S = 0.5
+
+Factor = tuple[np.ndarray, np.ndarray, float]
 
 
-def _fail(where, expected, value):
-    raise ConfigError(f"{where}: expected {expected}, got {value!r}")
+@dataclass(frozen=True)
+class Parameter:
+    """One parameter of an effect.
 
-
-def as_number(value, where, expected="a finite number"):
-    """Convert a config value to a finite float, or raise a one-line ConfigError.
-
-    Parameters
+    Attributes
     ----------
-    value : object
-        The raw config value. Booleans are rejected; numeric strings (``"5e-2"``, which YAML 1.1 loads as a
-        string) are accepted.
-    where : str
-        Path of the value in the config, e.g. ``"model.effects[1].seconds"``.
-    expected : str
-        Description of what is expected, used in the message.
-
-    Returns
-    -------
-    float
+    name : str
+        Key in the effect mapping (with its unit: ``seconds``, ``bandwidth_rad_s``).
+    valid : Interval
+        Values a config may give (:func:`validate_effect`).
+    plausible : Interval
+        Values that make physical sense; outside, a typo or wrong units (:func:`check_plausible`).
+    magnitude : bool
+        The plausible range applies to the magnitude (a gain factor may be negative).
     """
-    if isinstance(value, bool):
-        _fail(where, expected, value)
-    if isinstance(value, Real):
-        number = float(value)
-    elif isinstance(value, str):
-        try:
-            number = float(value.strip())
-        except ValueError:
-            _fail(where, expected, value)
+
+    name: str
+    valid: Interval
+    plausible: Interval
+    magnitude: bool = False
+
+    def check_plausible(self, value: float, where: str) -> None:
+        """ConfigError naming ``where`` when ``value`` is outside the plausible range.
+
+        Parameters
+        ----------
+        value : float
+            A valid value of the parameter.
+        where : str
+            Path of the value in the config.
+        """
+        if (abs(value) if self.magnitude else value) not in self.plausible:
+            raise ConfigError(f"{where}: {value!r} is outside the plausible range [{self.plausible.low:g}, "
+                              f"{self.plausible.high:g}] (wrong units?)")
+
+
+@dataclass(frozen=True)
+class EffectFit:
+    """How the diagnosis fits one effect, in fit coordinates ``x`` (one row per parameter set).
+
+    Attributes
+    ----------
+    grid : callable
+        ``grid(fit_range, coarse) -> (M, p)`` start points (coarse: for pairs of effects).
+    bounds : callable
+        ``bounds(x0, fit_range) -> (lo, hi)``, the box of the local refinement from ``x0``.
+    response : callable
+        ``response(X, w_rad_s) -> (M, N)`` complex factor for M parameter rows.
+    spec : callable
+        ``spec(x) -> dict``, the effect mapping of one row (parameters rounded for the config).
+    """
+
+    grid: Callable[[FitRange, bool], np.ndarray]
+    bounds: Callable[[np.ndarray, FitRange], tuple[np.ndarray, np.ndarray]]
+    response: Callable[[np.ndarray, np.ndarray], np.ndarray]
+    spec: Callable[[np.ndarray], dict]
+
+
+@dataclass(frozen=True)
+class EffectType:
+    """One entry of the effects vocabulary: everything the package knows about an effect.
+
+    Attributes
+    ----------
+    name : str
+        The ``type`` of the effect mapping.
+    parameters : tuple of Parameter
+        In the order of DESIGN.md's table.
+    factor : callable or None
+        ``factor(params) -> (num, den, delay_s)``, the linear factor in series with the model; None for an
+        amplitude-dependent effect.
+    describe : callable
+        ``describe(params) -> str``, the words of the diagnosis sentence.
+    fit : EffectFit or None
+        How the diagnosis fits it (None: never proposed by the diagnosis).
+    describing_function : callable or None
+        ``describing_function(params, w_rad_s, amplitude) -> complex array`` of an amplitude-dependent effect.
+    """
+
+    name: str
+    parameters: tuple[Parameter, ...]
+    factor: Callable[[Mapping[str, float]], Factor] | None
+    describe: Callable[[Mapping[str, float]], str]
+    fit: EffectFit | None = None
+    describing_function: Callable[[Mapping[str, float], np.ndarray, Any], np.ndarray] | None = None
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Parameter names, in order."""
+        return tuple(p.name for p in self.parameters)
+
+    @property
+    def complexity(self) -> int:
+        """Number of parameters (what a fit of this effect adjusts)."""
+        return len(self.parameters)
+
+    def parameter(self, name: str) -> Parameter:
+        """The :class:`Parameter` called ``name``.
+
+        Parameters
+        ----------
+        name : str
+            A parameter name of this effect.
+        """
+        return next(p for p in self.parameters if p.name == name)
+
+    def response(self, params: Mapping[str, float], w_rad_s: Any, amplitude: Any = None) -> np.ndarray:
+        """Complex factor at s = j w (delay included exactly), or the describing function at ``amplitude``.
+
+        Parameters
+        ----------
+        params : mapping
+            Parameter values (a validated effect mapping).
+        w_rad_s : array_like
+            Frequencies [rad/s].
+        amplitude : array_like, optional
+            Amplitude of the flown input at each frequency, for an amplitude-dependent effect (ignored by the
+            linear ones).
+
+        Returns
+        -------
+        ndarray of complex
+            Same shape as ``w_rad_s``.
+        """
+        w = np.asarray(w_rad_s, dtype=float)
+        if self.factor is None:
+            if amplitude is None or self.describing_function is None:
+                raise ConfigError(f"effect {self.name}: depends on the input amplitude, which is not given")
+            return self.describing_function(params, w, amplitude)
+        num, den, delay_s = self.factor(params)
+        s = 1j * w
+        return np.polyval(num, s) / np.polyval(den, s) * np.exp(-s * delay_s)
+
+
+# ------------------------------------------------------------------------------------------------ factors, words
+def _hz(w_rad_s: float) -> float:
+    return w_rad_s / (2.0 * math.pi)
+
+
+def _delay_factor(p: Mapping[str, float]) -> Factor:
+    return np.array([1.0]), np.array([1.0]), p["seconds"]
+
+
+def _delay_words(p: Mapping[str, float]) -> str:
+    ms = p["seconds"] * 1e3
+    return f"time delay of {ms:.3g} ms" if ms < 10.0 else f"time delay of {ms:.0f} ms"
+
+
+def _lag1_factor(p: Mapping[str, float]) -> Factor:
+    a = p["bandwidth_rad_s"]
+    return np.array([a]), np.array([1.0, a]), 0.0
+
+
+def _lag1_words(p: Mapping[str, float]) -> str:
+    a = p["bandwidth_rad_s"]
+    return f"first-order lag at {a:.1f} rad/s ({_hz(a):.1f} Hz)"
+
+
+def _lag2_factor(p: Mapping[str, float]) -> Factor:
+    wn, zeta = p["natural_frequency_rad_s"], p["damping"]
+    return np.array([wn * wn]), np.array([1.0, 2.0 * zeta * wn, wn * wn]), 0.0
+
+
+def _lag2_words(p: Mapping[str, float]) -> str:
+    wn, zeta = p["natural_frequency_rad_s"], p["damping"]
+    return f"second-order lag at {wn:.1f} rad/s ({_hz(wn):.1f} Hz), damping {zeta:.2f}"
+
+
+def _gain_factor(p: Mapping[str, float]) -> Factor:
+    return np.array([p["factor"]]), np.array([1.0]), 0.0
+
+
+def _gain_words(p: Mapping[str, float]) -> str:
+    return f"gain error x{p['factor']:.3g}"
+
+
+def _mode_factor(p: Mapping[str, float]) -> Factor:
+    wp, zp = p["frequency_rad_s"], p["damping"]
+    wz, zz = p["zero_frequency_rad_s"], p["zero_damping"]
+    # (s^2/wz^2 + 2 zz s/wz + 1)/(s^2/wp^2 + 2 zp s/wp + 1), multiplied through by wp^2 (monic denominator).
+    scale = (wp / wz) ** 2
+    return scale * np.array([1.0, 2.0 * zz * wz, wz * wz]), np.array([1.0, 2.0 * zp * wp, wp * wp]), 0.0
+
+
+def _mode_words(p: Mapping[str, float]) -> str:
+    wp, zp = p["frequency_rad_s"], p["damping"]
+    wz, zz = p["zero_frequency_rad_s"], p["zero_damping"]
+    return (
+        f"structural mode at {wp:.1f} rad/s ({_hz(wp):.1f} Hz), damping {zp:.3g}, "
+        f"with zeros at {wz:.1f} rad/s ({_hz(wz):.1f} Hz), damping {zz:.3g}"
+    )
+
+
+# ------------------------------------------------------------------------------------------------ fits
+@dataclass(frozen=True)
+class FitRange:
+    """Range of the usable frequencies a fit sees [rad/s]."""
+
+    w_lo: float
+    w_hi: float
+
+
+def _product(*axes: Sequence[float]) -> np.ndarray:
+    return np.array(list(itertools.product(*axes)), dtype=float)
+
+
+def _delay_grid(ctx: FitRange, coarse: bool) -> np.ndarray:
+    step = (0.6 if coarse else 0.25) / ctx.w_hi          # phase step at the top frequency [rad]
+    count = int(min(MAX_DELAY_S / step, 60 if coarse else 400)) + 1
+    return np.linspace(0.0, MAX_DELAY_S, count)[:, None]
+
+
+def _delay_bounds(x0: np.ndarray, ctx: FitRange) -> tuple[np.ndarray, np.ndarray]:
+    return np.array([0.0]), np.array([MAX_DELAY_S])
+
+
+def _delay_response(x: np.ndarray, w: np.ndarray) -> np.ndarray:
+    return np.exp(-1j * np.outer(x[:, 0], w))
+
+
+def _delay_spec(x: np.ndarray) -> dict:
+    return {"type": "time_delay", "seconds": significant(max(x[0], 0.0))}
+
+
+def _lag1_bounds(x0: np.ndarray | None, ctx: FitRange) -> tuple[np.ndarray, np.ndarray]:
+    # a corner below the confident band is a gain and phase offset there, not an identifiable lag
+    return np.log([0.5 * ctx.w_lo]), np.log([30.0 * ctx.w_hi])
+
+
+def _lag1_grid(ctx: FitRange, coarse: bool) -> np.ndarray:
+    lo, hi = _lag1_bounds(None, ctx)
+    return np.linspace(lo[0], hi[0], 12 if coarse else 40)[:, None]
+
+
+def _lag1_response(x: np.ndarray, w: np.ndarray) -> np.ndarray:
+    a = np.exp(x[:, :1])
+    return a / (1j * w[None, :] + a)
+
+
+def _lag1_spec(x: np.ndarray) -> dict:
+    return {"type": "first_order_lag", "bandwidth_rad_s": significant(math.exp(x[0]))}
+
+
+_ZETA_RANGE = (0.02, 2.5)
+
+
+def _lag2_bounds(x0: np.ndarray | None, ctx: FitRange) -> tuple[np.ndarray, np.ndarray]:
+    return (np.array([math.log(0.5 * ctx.w_lo), _ZETA_RANGE[0]]),
+            np.array([math.log(10.0 * ctx.w_hi), _ZETA_RANGE[1]]))
+
+
+def _lag2_grid(ctx: FitRange, coarse: bool) -> np.ndarray:
+    lo, hi = _lag2_bounds(None, ctx)
+    wn = np.linspace(lo[0], hi[0], 10 if coarse else 28)
+    zeta = [0.1, 0.3, 0.7, 1.5] if coarse else [0.05, 0.1, 0.2, 0.35, 0.5, 0.7, 1.0, 1.5, 2.2]
+    return _product(wn, zeta)
+
+
+def _lag2_response(x: np.ndarray, w: np.ndarray) -> np.ndarray:
+    wn, zeta = np.exp(x[:, :1]), x[:, 1:2]
+    r = w[None, :] / wn
+    return 1.0 / (1.0 - r ** 2 + 2j * zeta * r)
+
+
+def _lag2_spec(x: np.ndarray) -> dict:
+    return {"type": "second_order_lag", "natural_frequency_rad_s": significant(math.exp(x[0])),
+            "damping": significant(x[1], 3)}
+
+
+def _gain_bounds(x0: np.ndarray, ctx: FitRange) -> tuple[np.ndarray, np.ndarray]:
+    return (np.array([0.05]), np.array([20.0])) if x0[0] > 0 else (np.array([-20.0]), np.array([-0.05]))
+
+
+def _gain_grid(ctx: FitRange, coarse: bool) -> np.ndarray:
+    k = np.geomspace(0.1, 10.0, 15 if coarse else 61)
+    return np.concatenate([k, -k])[:, None]
+
+
+def _gain_response(x: np.ndarray, w: np.ndarray) -> np.ndarray:
+    return np.broadcast_to(x[:, :1].astype(complex), (x.shape[0], w.size))
+
+
+def _gain_spec(x: np.ndarray) -> dict:
+    return {"type": "gain", "factor": significant(x[0])}
+
+
+_MODE_ZETA = (0.005, 1.0)
+
+
+def _mode_bounds(x0: np.ndarray | None, ctx: FitRange) -> tuple[np.ndarray, np.ndarray]:
+    # the mode (poles) must lie inside the confident band: outside it a pole-zero pair is only a gain or a
+    # phase tilt there, which simpler effects explain
+    return (np.array([math.log(ctx.w_lo), _MODE_ZETA[0], math.log(0.5 * ctx.w_lo), _MODE_ZETA[0]]),
+            np.array([math.log(ctx.w_hi), _MODE_ZETA[1], math.log(2.0 * ctx.w_hi), _MODE_ZETA[1]]))
+
+
+def _mode_grid(ctx: FitRange, coarse: bool) -> np.ndarray:
+    if coarse:
+        wp = np.geomspace(ctx.w_lo, ctx.w_hi, 8)
+        axes = (np.log(wp), [0.05, 0.2], np.log([0.7, 0.9, 1.1, 1.4]), [0.05, 0.3])
     else:
-        _fail(where, expected, value)
-    if not math.isfinite(number):
-        _fail(where, expected, value)
-    return number
+        wp = np.geomspace(ctx.w_lo, ctx.w_hi, 18)
+        axes = (np.log(wp), [0.02, 0.05, 0.1, 0.2, 0.4], np.log([0.5, 0.7, 0.8, 0.9, 1.1, 1.25, 1.4, 2.0]),
+                [0.02, 0.07, 0.2, 0.5])
+    grid = _product(*axes)
+    grid[:, 2] += grid[:, 0]                            # zero frequency = ratio x pole frequency
+    lo, hi = _mode_bounds(None, ctx)
+    return np.clip(grid, lo, hi)
 
 
-def validate_effect(spec, where="effects[0]"):
+def _mode_response(x: np.ndarray, w: np.ndarray) -> np.ndarray:
+    wp, zp, wz, zz = np.exp(x[:, :1]), x[:, 1:2], np.exp(x[:, 2:3]), x[:, 3:4]
+    rp, rz = w[None, :] / wp, w[None, :] / wz
+    return (1.0 - rz ** 2 + 2j * zz * rz) / (1.0 - rp ** 2 + 2j * zp * rp)
+
+
+def _mode_spec(x: np.ndarray) -> dict:
+    return {"type": "structural_mode", "frequency_rad_s": significant(math.exp(x[0])),
+            "damping": significant(x[1], 3), "zero_frequency_rad_s": significant(math.exp(x[2])),
+            "zero_damping": significant(x[3], 3)}
+
+
+# ------------------------------------------------------------------------------------------------ the registry
+_FREQUENCY = dict(valid=POSITIVE, plausible=Interval(1e-4, 1e5))
+_DAMPING = dict(valid=NON_NEGATIVE, plausible=Interval(0.0, 100.0))
+
+#: Effect type -> its :class:`EffectType`, in the order of DESIGN.md's table.
+EFFECTS: dict[str, EffectType] = {e.name: e for e in (
+    EffectType("time_delay", (Parameter("seconds", NON_NEGATIVE, Interval(0.0, 10.0)),),
+               _delay_factor, _delay_words, EffectFit(_delay_grid, _delay_bounds, _delay_response, _delay_spec)),
+    EffectType("first_order_lag", (Parameter("bandwidth_rad_s", **_FREQUENCY),),
+               _lag1_factor, _lag1_words, EffectFit(_lag1_grid, _lag1_bounds, _lag1_response, _lag1_spec)),
+    EffectType("second_order_lag", (Parameter("natural_frequency_rad_s", **_FREQUENCY),
+                                    Parameter("damping", **_DAMPING)),
+               _lag2_factor, _lag2_words, EffectFit(_lag2_grid, _lag2_bounds, _lag2_response, _lag2_spec)),
+    EffectType("gain", (Parameter("factor", NONZERO, Interval(1e-6, 1e6), magnitude=True),),
+               _gain_factor, _gain_words, EffectFit(_gain_grid, _gain_bounds, _gain_response, _gain_spec)),
+    EffectType("structural_mode", (Parameter("frequency_rad_s", **_FREQUENCY), Parameter("damping", **_DAMPING),
+                                   Parameter("zero_frequency_rad_s", **_FREQUENCY),
+                                   Parameter("zero_damping", **_DAMPING)),
+               _mode_factor, _mode_words, EffectFit(_mode_grid, _mode_bounds, _mode_response, _mode_spec)),
+)}
+
+#: Effect type -> required parameter names, in the order of DESIGN.md's table (a view of :data:`EFFECTS`).
+EFFECT_TYPES: dict[str, tuple[str, ...]] = {name: e.names for name, e in EFFECTS.items()}
+
+
+# ------------------------------------------------------------------------------------------------ effect mappings
+def validate_effect(spec: Any, where: str = "effects[0]") -> dict:
     """Check one effect mapping and return a normalised copy.
 
     Parameters
@@ -110,11 +427,12 @@ def validate_effect(spec, where="effects[0]"):
     if not isinstance(spec, dict):
         raise ConfigError(f"{where}: expected a mapping with a 'type' key, got {spec!r}")
     if "type" not in spec:
-        raise ConfigError(f"{where}: missing key 'type' (one of {', '.join(EFFECT_TYPES)})")
+        raise ConfigError(f"{where}: missing key 'type' (one of {', '.join(EFFECTS)})")
     kind = spec["type"]
-    if not isinstance(kind, str) or kind not in EFFECT_TYPES:
-        raise ConfigError(f"{where}.type: unknown effect type {kind!r} (expected one of {', '.join(EFFECT_TYPES)})")
-    names = EFFECT_TYPES[kind]
+    if not isinstance(kind, str) or kind not in EFFECTS:
+        raise ConfigError(f"{where}.type: unknown effect type {kind!r} (expected one of {', '.join(EFFECTS)})")
+    entry = EFFECTS[kind]
+    names = entry.names
     unknown = [key for key in spec if key != "type" and key not in names]
     if unknown:
         raise ConfigError(
@@ -124,17 +442,28 @@ def validate_effect(spec, where="effects[0]"):
     missing = [name for name in names if name not in spec]
     if missing:
         raise ConfigError(f"{where}: missing parameter {missing[0]!r} for {kind} (needs {', '.join(names)})")
-    result = {"type": kind}
-    for name in names:
-        test, expected = _RULES[name]
-        value = as_number(spec[name], f"{where}.{name}", f"{expected}")
-        if not test(value):
-            _fail(f"{where}.{name}", expected, spec[name])
-        result[name] = value
+    result: dict = {"type": kind}
+    for p in entry.parameters:
+        result[p.name] = check_number(spec[p.name], f"{where}.{p.name}", p.valid, strings=True,
+                                      expected=p.valid.text())
     return result
 
 
-def effect_factor(spec):
+def check_plausible(spec: Mapping[str, Any], where: str) -> None:
+    """ConfigError naming the key when a validated effect has an absurd parameter (a typo or wrong units).
+
+    Parameters
+    ----------
+    spec : mapping
+        An effect validated by :func:`validate_effect`.
+    where : str
+        Path of the effect in the config (``model.effects[1]``).
+    """
+    for p in EFFECTS[spec["type"]].parameters:
+        p.check_plausible(spec[p.name], f"{where}.{p.name}")
+
+
+def effect_factor(spec: Any) -> Factor:
     """Rational part and delay of an effect's factor.
 
     Parameters
@@ -150,28 +479,21 @@ def effect_factor(spec):
         Denominator coefficients, descending powers of s, monic.
     delay_s : float
         Pure delay T [s] of the factor ``exp(-s T)`` (zero except for ``time_delay``).
+
+    Raises
+    ------
+    ConfigError
+        For an amplitude-dependent effect, which has no linear factor.
     """
     spec = validate_effect(spec, where="effect")
-    kind = spec["type"]
-    if kind == "time_delay":
-        return np.array([1.0]), np.array([1.0]), spec["seconds"]
-    if kind == "first_order_lag":
-        a = spec["bandwidth_rad_s"]
-        return np.array([a]), np.array([1.0, a]), 0.0
-    if kind == "second_order_lag":
-        wn, zeta = spec["natural_frequency_rad_s"], spec["damping"]
-        return np.array([wn * wn]), np.array([1.0, 2.0 * zeta * wn, wn * wn]), 0.0
-    if kind == "gain":
-        return np.array([spec["factor"]]), np.array([1.0]), 0.0
-    wp, zp = spec["frequency_rad_s"], spec["damping"]
-    wz, zz = spec["zero_frequency_rad_s"], spec["zero_damping"]
-    # (s^2/wz^2 + 2 zz s/wz + 1)/(s^2/wp^2 + 2 zp s/wp + 1), multiplied through by wp^2 (monic denominator).
-    scale = (wp / wz) ** 2
-    return scale * np.array([1.0, 2.0 * zz * wz, wz * wz]), np.array([1.0, 2.0 * zp * wp, wp * wp]), 0.0
+    entry = EFFECTS[spec["type"]]
+    if entry.factor is None:
+        raise ConfigError(f"effect {entry.name}: depends on the input amplitude and has no linear factor")
+    return entry.factor(spec)
 
 
-def effect_response(spec, w_rad_s):
-    """Complex factor of an effect at s = j w, delay included exactly.
+def effect_response(spec: Any, w_rad_s: Any, amplitude: Any = None) -> np.ndarray:
+    """Complex factor of an effect at s = j w, delay included exactly (:meth:`EffectType.response`).
 
     Parameters
     ----------
@@ -179,23 +501,19 @@ def effect_response(spec, w_rad_s):
         An effect.
     w_rad_s : array_like
         Frequencies [rad/s].
+    amplitude : array_like, optional
+        Flown input amplitude, for an amplitude-dependent effect.
 
     Returns
     -------
     ndarray of complex
         Same shape as ``w_rad_s``.
     """
-    num, den, delay_s = effect_factor(spec)
-    w = np.asarray(w_rad_s, dtype=float)
-    s = 1j * w
-    return np.polyval(num, s) / np.polyval(den, s) * np.exp(-s * delay_s)
+    spec = validate_effect(spec, where="effect")
+    return EFFECTS[spec["type"]].response(spec, w_rad_s, amplitude)
 
 
-def _hz(w_rad_s):
-    return w_rad_s / (2.0 * math.pi)
-
-
-def describe_effect(spec):
+def describe_effect(spec: Any) -> str:
     """Human text for an effect, used in the diagnosis sentence.
 
     Parameters
@@ -209,21 +527,4 @@ def describe_effect(spec):
         e.g. ``"time delay of 45 ms"``, ``"first-order lag at 37.7 rad/s (6.0 Hz)"``, ``"gain error x1.25"``.
     """
     spec = validate_effect(spec, where="effect")
-    kind = spec["type"]
-    if kind == "time_delay":
-        ms = spec["seconds"] * 1e3
-        return f"time delay of {ms:.3g} ms" if ms < 10.0 else f"time delay of {ms:.0f} ms"
-    if kind == "first_order_lag":
-        a = spec["bandwidth_rad_s"]
-        return f"first-order lag at {a:.1f} rad/s ({_hz(a):.1f} Hz)"
-    if kind == "second_order_lag":
-        wn, zeta = spec["natural_frequency_rad_s"], spec["damping"]
-        return f"second-order lag at {wn:.1f} rad/s ({_hz(wn):.1f} Hz), damping {zeta:.2f}"
-    if kind == "gain":
-        return f"gain error x{spec['factor']:.3g}"
-    wp, zp = spec["frequency_rad_s"], spec["damping"]
-    wz, zz = spec["zero_frequency_rad_s"], spec["zero_damping"]
-    return (
-        f"structural mode at {wp:.1f} rad/s ({_hz(wp):.1f} Hz), damping {zp:.3g}, "
-        f"with zeros at {wz:.1f} rad/s ({_hz(wz):.1f} Hz), damping {zz:.3g}"
-    )
+    return EFFECTS[spec["type"]].describe(spec)

@@ -2,11 +2,17 @@
 
 
 class GapValidationError(Exception):
-    """Base class; ``str(err)`` is a single line suitable for the terminal."""
+    """Base class; ``str(err)`` is a single line suitable for the terminal.
+
+    Parameters
+    ----------
+    *args : object
+        As for :class:`Exception`; a single message string has its line breaks escaped.
+    """
 
     exit_code = 1
 
-    def __init__(self, *args):
+    def __init__(self, *args: object) -> None:
         # names from files (keys, topics, values) may hold line breaks: keep the message on one line
         if len(args) == 1 and isinstance(args[0], str):
             args = (args[0].replace("\r", "\\r").replace("\n", "\\n"),)
@@ -26,6 +32,12 @@ class DataError(GapValidationError):
 
 
 def one_line(err: BaseException) -> str:
-    """The text of an exception on one line (whitespace collapsed, no trailing period), or its type name."""
+    """The text of an exception on one line (whitespace collapsed, no trailing period), or its type name.
+
+    Parameters
+    ----------
+    err : BaseException
+        Any exception.
+    """
     text = " ".join(str(err).split()) or type(err).__name__
     return text.rstrip(".")

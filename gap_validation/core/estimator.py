@@ -7,8 +7,8 @@ and random error per frequency. Nothing grows with flight length: the state is a
 
 Data path (one pass, bounded delay)
 -----------------------------------
-1. **Alignment** (:class:`_StreamResampler`, :class:`_GridAligner`). Each stream is interpolated on its own
-   onto one uniform grid ``t_k = t0 + k / sample_rate_hz`` (default 100 Hz; must be >= 5x the highest
+1. **Alignment** (:mod:`gap_validation.core.alignment`). Each stream is interpolated on its own onto one
+   uniform grid ``t_k = t0 + k / sample_rate_hz`` (default 100 Hz; must be >= 5x the highest
    frequency). Cubic Hermite interpolation with three-point (parabola) slopes, which on uniform samples is
    Catmull-Rom: a 50 Hz surface stream read on the 100 Hz grid loses < 0.4 % of magnitude at 5 Hz (linear:
    5 %). Only the last three samples per stream are kept. Grid values wait in a bounded queue until the other
@@ -16,7 +16,7 @@ Data path (one pass, bounded delay)
    counted). A spacing larger than ``max_gap_s`` (default 0.5 s) is a gap: no interpolation across it; the
    run of data, its open segments and its sweep end there. Time jumping *back* (a looped bag, two recordings
    with overlapping clocks fed in sequence) by more than ``max(JUMP_BACK_S, max_gap_s)`` starts a new time
-   base (:class:`_TimeBase`): once :data:`JUMP_CONFIRM` increasing samples confirm it, the stream's times are
+   base (``_TimeBase``): once ``JUMP_CONFIRM`` increasing samples confirm it, the stream's times are
    shifted to continue just after the latest sample of any stream (a gap, so the run and its sweep end), and
    the other streams adopt the same shift when they jump too; each jump is counted (``time_jumps_back``).
    Smaller steps back and duplicate stamps are dropped and counted (``non_monotonic``), and so is a single
@@ -87,11 +87,16 @@ from __future__ import annotations
 import bisect
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
+from gap_validation.core.alignment import (JUMP_CONFIRM, _NONE, _GridAligner, _StreamResampler, _TimeBase,
+                                           jump_back_s)
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.manoeuvres import Manoeuvre, ManoeuvreRecorder
+from gap_validation.core.numbers import NON_NEGATIVE, POSITIVE, check_number
 from gap_validation.core.sweeps import DETECTOR_DEFAULTS, SweepDetector, TriggerTracker
 
 __all__ = ["FrequencyResponseEstimator", "SpectralEstimate", "ESTIMATOR_DEFAULTS"]
@@ -116,20 +121,12 @@ ESTIMATOR_DEFAULTS = {
 }
 _BOOL_OPTIONS = ("detrend", "cubic_interpolation", "detect_sweeps")
 _INT_OPTIONS = ("max_raw_sweeps",)
-_NONE = -(2 ** 62)               # "no grid index yet"
 _MATMUL_SIZE = 1e6               # multiply-adds per matrix product: below where OpenBLAS goes multi-threaded
                                  # (on a loaded 2-core machine that was 4-10x slower), large enough to amortise
 _EVENT_CAP = 64                  # pending sweep edges
 _BUFFER_CAP = 256                # samples per stream buffered before processing (amortises per-call cost)
 _ENERGY, _TRIGGER = 0, 1         # source of a sweep
 _STATE_VERSION = 2                 # 2: doublets kept (``man.*``); version 1 checkpoints still load
-#: A timestamp more than this [s] (or ``max_gap_s``, if larger) before the stream's latest starts a new time
-#: base instead of being dropped (a looped bag); smaller steps back are reorders or duplicates.
-JUMP_BACK_S = 1.0
-#: Consecutive increasing samples after a jump back that confirm it (fewer: stray stamps, dropped).
-JUMP_CONFIRM = 3
-_MAX_ABS_TIME_S = 1e11           # beyond 3000 years from the epoch: a corrupt stamp (also keeps grid indices in int64)
-_MAX_ABS_VALUE = 1e100           # a corrupt value (squares and slopes of larger ones overflow float64)
 
 
 def _upgrade_state(state: dict) -> dict:
@@ -189,9 +186,26 @@ class SpectralEstimate:
     n_sweeps: int = 1
 
     @classmethod
-    def from_sums(cls, w_rad_s, sum_xx, sum_yy, sum_xy, n, start_s=float("nan"), end_s=float("nan"),
+    def from_sums(cls, w_rad_s: ArrayLike, sum_xx: ArrayLike, sum_yy: ArrayLike, sum_xy: ArrayLike, n: ArrayLike,
+                  start_s: float = float("nan"), end_s: float = float("nan"),
                   n_sweeps: int = 1) -> "SpectralEstimate":
-        """Estimate from sums over segments of scaled ``|X|^2``, ``|Y|^2``, ``conj(X) Y`` and their count."""
+        """Estimate from sums over segments of scaled ``|X|^2``, ``|Y|^2``, ``conj(X) Y`` and their count.
+
+        Parameters
+        ----------
+        w_rad_s : array_like
+            Frequencies [rad/s].
+        sum_xx, sum_yy : array_like
+            Sums of the scaled ``|X|^2`` and ``|Y|^2`` per frequency.
+        sum_xy : array_like of complex
+            Sum of the scaled ``conj(X) Y`` per frequency.
+        n : array_like of int
+            Segments summed per frequency (``n_d``).
+        start_s, end_s : float
+            Time span of the sweep(s) [s].
+        n_sweeps : int
+            Sweeps pooled.
+        """
         n = np.asarray(n, dtype=np.int64)
         with np.errstate(divide="ignore", invalid="ignore"):
             safe_n = np.maximum(n, 1)
@@ -208,17 +222,10 @@ class SpectralEstimate:
 
 
 # ---------------------------------------------------------------------------------------------- options
-def _number(name: str, value, positive: bool = True) -> float:
-    if isinstance(value, (bool, np.bool_)):
-        raise ConfigError(f"estimator option {name}: expected a number, got {value!r}")
-    try:
-        out = float(value)
-    except (TypeError, ValueError):
-        raise ConfigError(f"estimator option {name}: expected a number, got {value!r}") from None
-    if not math.isfinite(out) or (out <= 0.0 if positive else out < 0.0):
-        kind = "positive" if positive else "non-negative"
-        raise ConfigError(f"estimator option {name}: expected a {kind} finite number, got {value!r}")
-    return out
+def _number(name: str, value: Any, positive: bool = True) -> float:
+    """An estimator option's number (numeric strings accepted), > 0 or (``positive=False``) >= 0."""
+    return check_number(value, f"estimator option {name}", POSITIVE if positive else NON_NEGATIVE, strings=True,
+                        expected=f"a {'positive' if positive else 'non-negative'} finite number")
 
 
 def _validate_options(w_rad_s: np.ndarray, options: dict) -> dict:
@@ -256,292 +263,6 @@ def _validate_options(w_rad_s: np.ndarray, options: dict) -> dict:
         raise ConfigError(f"estimator option sample_rate_hz: {opts['sample_rate_hz']!r} Hz is below 5x the "
                           f"highest frequency ({f_max:.4g} Hz)")
     return out
-
-
-# ---------------------------------------------------------------------------------------------- alignment
-class _TimeBase:
-    """Intake of one stream's timestamps: drops bad samples, detects time jumping back, applies the shift.
-
-    Times are kept raw (``last_t``: the latest accepted raw time of the current base); accepted samples are
-    returned as ``raw + offset``. ``epoch`` counts the time bases this stream has entered; samples after a
-    jump back wait in ``pend`` (at most :data:`JUMP_CONFIRM` - 1) until the jump is confirmed or refuted.
-    """
-
-    KEYS = ("last_t", "accepted", "nonfinite", "non_monotonic", "epoch", "offset", "pend", "pend_n", "jumps")
-
-    def __init__(self) -> None:
-        self.last_t = -np.inf
-        self.accepted = self.nonfinite = self.non_monotonic = self.jumps = 0
-        self.epoch = 0
-        self.offset = 0.0
-        self.pend = np.zeros((2, JUMP_CONFIRM))
-        self.pend_n = 0
-
-    @property
-    def latest_s(self) -> float:
-        """Latest accepted time on the shifted (continuous) time axis [s], -inf before any."""
-        return self.last_t + self.offset
-
-    def intake(self, t: np.ndarray, v: np.ndarray, tol_s: float, new_base,
-               forward_s: float = math.inf) -> tuple[np.ndarray, np.ndarray]:
-        """Accepted samples of a batch on the shifted axis.
-
-        A step back of more than ``tol_s`` [s] that :data:`JUMP_CONFIRM` increasing samples confirm is a new
-        time base (``new_base(self, t_raw)`` sets ``epoch``/``offset``); a step forward of more than
-        ``forward_s`` [s] (a gap) needs the same confirmation, so one stray stamp far in the future does not
-        hide the samples after it. Unconfirmed jumps are dropped as ``non_monotonic``.
-        """
-        finite = (np.abs(t) < _MAX_ABS_TIME_S) & (np.abs(v) < _MAX_ABS_VALUE)    # False for NaN too
-        n_bad = int(t.size - np.count_nonzero(finite))
-        if n_bad:
-            self.nonfinite += n_bad
-            t, v = t[finite], v[finite]
-        if self.pend_n:
-            t = np.concatenate((self.pend[0, : self.pend_n], t))
-            v = np.concatenate((self.pend[1, : self.pend_n], v))
-            self.pend_n = 0
-        if t.size and self.last_t < t[0] and (t[0] <= self.last_t + forward_s or self.last_t == -np.inf) \
-                and np.all(t[1:] > t[:-1]) \
-                and (forward_s == math.inf or np.all(t[1:] - t[:-1] <= forward_s)):   # the usual case
-            self.last_t = float(t[-1])
-            self.accepted += t.size
-            return t + self.offset, v
-        out_t, out_v = [], []
-        while t.size:
-            prev = np.maximum.accumulate(np.concatenate(([self.last_t], t[:-1])))
-            with np.errstate(invalid="ignore"):
-                jump = np.flatnonzero((t < prev - tol_s) | ((t > prev + forward_s) & (prev > -np.inf)))
-            j = int(jump[0]) if jump.size else t.size
-            ok = t[:j] > prev[:j]
-            self.non_monotonic += int(j - np.count_nonzero(ok))
-            if np.any(ok):
-                out_t.append(t[:j][ok] + self.offset)
-                out_v.append(v[:j][ok])
-                self.accepted += int(np.count_nonzero(ok))
-                self.last_t = float(t[:j][ok][-1])
-            if j == t.size:
-                break
-            back = t[j] < prev[j]
-            n = self._confirmed(t[j:], -math.inf if back else prev[j] + forward_s,
-                                prev[j] - tol_s if back else math.inf)
-            if n == JUMP_CONFIRM and back:              # a new time base from sample j on
-                self.jumps += 1
-                new_base(self, float(t[j]))
-                self.last_t = -np.inf
-                t, v = t[j:], v[j:]
-            elif n == JUMP_CONFIRM:                     # a real gap: accept the sample after it
-                out_t.append(t[j:j + 1] + self.offset)
-                out_v.append(v[j:j + 1])
-                self.accepted += 1
-                self.last_t = float(t[j])
-                t, v = t[j + 1:], v[j + 1:]
-            elif n == t.size - j:                       # undecided at the end of the batch: wait
-                self.pend[0, :n], self.pend[1, :n] = t[j:], v[j:]
-                self.pend_n = n
-                break
-            else:                                       # stray stamps: the next sample went back
-                n = max(n, 1)
-                self.non_monotonic += n
-                t, v = t[j + n:], v[j + n:]
-        if not out_t:
-            return np.empty(0), np.empty(0)
-        return np.concatenate(out_t), np.concatenate(out_v)
-
-    @staticmethod
-    def _confirmed(t: np.ndarray, above: float, below: float) -> int:
-        """How many leading samples of ``t`` (at most JUMP_CONFIRM) increase and stay in (above, below)."""
-        c = t[:JUMP_CONFIRM]
-        good = (c > above) & (c < below) & np.concatenate(([True], c[1:] > c[:-1]))
-        return int(np.argmin(good)) if not good.all() else int(c.size)
-
-    def drop_pending(self) -> None:
-        """End of data: samples still waiting for a confirmation are dropped (counted)."""
-        self.non_monotonic += self.pend_n
-        self.pend_n = 0
-
-    def state_dict(self) -> dict:
-        return {"last_t": self.last_t, "accepted": self.accepted, "nonfinite": self.nonfinite,
-                "non_monotonic": self.non_monotonic, "epoch": self.epoch, "offset": self.offset,
-                "pend": self.pend.copy(), "pend_n": self.pend_n, "jumps": self.jumps}
-
-    def load_state(self, st: dict) -> None:
-        self.last_t, self.offset = float(st["last_t"]), float(st.get("offset", 0.0))
-        self.accepted, self.nonfinite = int(st["accepted"]), int(st["nonfinite"])
-        self.non_monotonic, self.jumps = int(st["non_monotonic"]), int(st.get("jumps", 0))
-        self.epoch, self.pend_n = int(st.get("epoch", 0)), int(st.get("pend_n", 0))
-        self.pend[:] = st.get("pend", 0.0)
-
-
-class _StreamResampler:
-    """One stream onto the grid ``k * dt`` (times relative to ``t0``), keeping only three trailing samples.
-
-    Every grid instant is either emitted (interpolated) or skipped (it lies in a gap); all instants below
-    ``k_next`` are decided.
-    """
-
-    def __init__(self, dt: float, max_gap_s: float, cubic: bool) -> None:
-        self.dt, self.max_gap, self.cubic = dt, max_gap_s, cubic
-        self.ht = np.zeros(3)
-        self.hv = np.zeros(3)
-        self.hn = 0
-        self.k_next = _NONE
-        self.base = _TimeBase()
-
-    def add(self, t_rel: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        T = np.concatenate((self.ht[: self.hn], t_rel))
-        V = np.concatenate((self.hv[: self.hn], v))
-        out = self._emit(T, V)
-        self.hn = min(3, T.size)
-        self.ht[: self.hn] = T[T.size - self.hn:]
-        self.hv[: self.hn] = V[V.size - self.hn:]
-        return out
-
-    def flush(self) -> tuple[np.ndarray, np.ndarray]:
-        """End of data: emit up to the last sample (one-sided slope there), then forget the history."""
-        if self.hn < 2:
-            self.hn = 0
-            return np.empty(0, np.int64), np.empty(0)
-        t_last, v_last = self.ht[self.hn - 1], self.hv[self.hn - 1]
-        T = np.concatenate((self.ht[: self.hn], [t_last + 2.0 * self.max_gap + 1.0]))
-        V = np.concatenate((self.hv[: self.hn], [0.0]))
-        k, val = self._emit(T, V)
-        k_last = int(round(t_last / self.dt))
-        if k_last >= self.k_next and abs(k_last * self.dt - t_last) <= 1e-9 * self.dt:
-            k, val = np.append(k, k_last), np.append(val, v_last)     # the last sample is on the grid
-            self.k_next = k_last + 1
-        self.hn = 0
-        return k, val
-
-    def _emit(self, T: np.ndarray, V: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        n = T.size
-        empty = (np.empty(0, np.int64), np.empty(0))
-        if n < 3:
-            return empty
-        dt = self.dt
-        m = n - 2                                   # intervals 0..m-1 have a known right neighbour
-        h = np.diff(T)
-        gap = h > self.max_gap
-        k_ceil = np.ceil(T[: m + 1] * (1.0 / dt)).astype(np.int64)
-        k_lo = np.maximum(k_ceil[:m], self.k_next)
-        cnt = np.maximum(k_ceil[1:] - k_lo, 0)
-        cnt[gap[:m]] = 0
-        self.k_next = max(self.k_next, int(k_ceil[m]))
-        if cnt.size == 0 or cnt.max() <= 1:         # at most one grid instant per interval (fast streams)
-            iv = np.flatnonzero(cnt)
-            k = k_lo[iv]
-        else:
-            total = int(cnt.sum())
-            iv = np.repeat(np.arange(m), cnt)
-            k = np.repeat(k_lo, cnt) + (np.arange(total) - np.repeat(np.cumsum(cnt) - cnt, cnt))
-        if k.size == 0:
-            return empty
-        hi = h[iv]
-        s = (k * dt - T[iv]) / hi
-        v0, v1 = V[iv], V[iv + 1]
-        if not self.cubic:
-            return k, v0 + s * (v1 - v0)
-        if 4 * k.size >= m:                          # slopes at every node, or only where needed
-            slope = self._slopes(V, h, gap, np.arange(m + 1))
-            m0, m1 = slope[iv], slope[iv + 1]
-        else:
-            m0, m1 = self._slopes(V, h, gap, iv), self._slopes(V, h, gap, iv + 1)
-        s2 = s * s
-        s3 = s2 * s
-        val = ((2 * s3 - 3 * s2 + 1) * v0 + (s3 - 2 * s2 + s) * (m0 * hi) + (3 * s2 - 2 * s3) * v1
-               + (s3 - s2) * (m1 * hi))
-        return k, val
-
-    @staticmethod
-    def _slopes(V: np.ndarray, h: np.ndarray, gap: np.ndarray, nodes: np.ndarray) -> np.ndarray:
-        """Slope at each node: derivative of the parabola through it and its neighbours (one-sided at gaps)."""
-        left_node = np.maximum(nodes - 1, 0)
-        hl, hr = h[left_node], h[nodes]
-        dl = (V[nodes] - V[left_node]) / hl
-        dr = (V[nodes + 1] - V[nodes]) / hr
-        left = (nodes >= 1) & ~gap[left_node]
-        right = ~gap[nodes]
-        return np.where(left & right, (hr * dl + hl * dr) / (hl + hr), np.where(right, dr, dl))
-
-    def state_dict(self) -> dict:
-        return {"ht": self.ht.copy(), "hv": self.hv.copy(), "hn": self.hn, "k_next": self.k_next,
-                **self.base.state_dict()}
-
-    def load_state(self, st: dict) -> None:
-        self.ht[:] = st["ht"]
-        self.hv[:] = st["hv"]
-        self.hn, self.k_next = int(st["hn"]), int(st["k_next"])
-        self.base.load_state(st)
-
-
-class _GridAligner:
-    """Pairs the grid values of the two streams by grid index; bounded queues of ``cap`` values each."""
-
-    def __init__(self, cap: int) -> None:
-        self.cap = cap
-        self.k = [np.empty(0, np.int64), np.empty(0, np.int64)]
-        self.v = [np.empty(0), np.empty(0)]
-        self.cursor = _NONE               # every grid index below this has been combined or given up
-        self.dropped = [0, 0]
-
-    def push(self, s: int, k: np.ndarray, v: np.ndarray) -> None:
-        if k.size == 0:
-            return
-        late = k < self.cursor
-        if late.any():
-            self.dropped[s] += int(np.count_nonzero(late))
-            k, v = k[~late], v[~late]
-        self.k[s] = np.concatenate((self.k[s], k))
-        self.v[s] = np.concatenate((self.v[s], v))
-
-    def combine(self, final_x: int, final_y: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        m = min(final_x, final_y)
-        idx, x, y = np.empty(0, np.int64), np.empty(0), np.empty(0)
-        if m > self.cursor:
-            ix = int(np.searchsorted(self.k[0], m))
-            iy = int(np.searchsorted(self.k[1], m))
-            kx, vx, ky, vy = self.k[0][:ix], self.v[0][:ix], self.k[1][:iy], self.v[1][:iy]
-            if kx.size and ky.size:
-                if kx[-1] - kx[0] == kx.size - 1 and ky[-1] - ky[0] == ky.size - 1:
-                    lo, hi = max(kx[0], ky[0]), min(kx[-1], ky[-1])
-                    if lo <= hi:
-                        idx = np.arange(lo, hi + 1, dtype=np.int64)
-                        x = vx[lo - kx[0]: hi - kx[0] + 1]
-                        y = vy[lo - ky[0]: hi - ky[0] + 1]
-                else:
-                    idx, ia, ib = np.intersect1d(kx, ky, assume_unique=True, return_indices=True)
-                    x, y = vx[ia], vy[ib]
-            self.k[0], self.v[0] = self.k[0][ix:], self.v[0][ix:]
-            self.k[1], self.v[1] = self.k[1][iy:], self.v[1][iy:]
-            self.cursor = m
-        for s in (0, 1):
-            extra = self.k[s].size - self.cap
-            if extra > 0:
-                self.dropped[s] += extra
-                self.k[s], self.v[s] = self.k[s][extra:], self.v[s][extra:]
-                self.cursor = max(self.cursor, int(self.k[s][0]))
-        return idx, x, y
-
-    def clear(self) -> None:
-        for s in (0, 1):
-            self.k[s], self.v[s] = self.k[s][:0], self.v[s][:0]
-
-    def state_dict(self) -> dict:
-        st = {"cursor": self.cursor, "dropped": np.array(self.dropped, np.int64)}
-        for s, name in ((0, "x"), (1, "y")):
-            k = np.zeros(self.cap, np.int64)
-            v = np.zeros(self.cap)
-            k[: self.k[s].size] = self.k[s]
-            v[: self.v[s].size] = self.v[s]
-            st.update({f"k_{name}": k, f"v_{name}": v, f"n_{name}": int(self.k[s].size)})
-        return st
-
-    def load_state(self, st: dict) -> None:
-        self.cursor = int(st["cursor"])
-        self.dropped = [int(d) for d in st["dropped"]]
-        for s, name in ((0, "x"), (1, "y")):
-            n = int(st[f"n_{name}"])
-            self.k[s] = np.asarray(st[f"k_{name}"], np.int64)[:n].copy()
-            self.v[s] = np.asarray(st[f"v_{name}"], float)[:n].copy()
 
 
 # ---------------------------------------------------------------------------------------------- transform
@@ -750,7 +471,7 @@ class FrequencyResponseEstimator:
     #: Accepted option names (the config checks them against this).
     OPTIONS = tuple(ESTIMATOR_DEFAULTS)
 
-    def __init__(self, w_rad_s, **options) -> None:
+    def __init__(self, w_rad_s: ArrayLike, **options: Any) -> None:
         w = np.atleast_1d(np.asarray(w_rad_s, dtype=float))
         if w.ndim != 1 or w.size == 0 or not np.all(np.isfinite(w)) or np.any(w <= 0):
             raise ConfigError(f"estimator frequencies: expected positive finite rad/s values, got {w_rad_s!r}")
@@ -779,7 +500,7 @@ class FrequencyResponseEstimator:
         self._last_k: int | None = None
         self._trigger_mode = not opts["detect_sweeps"]
         self._trig_base = _TimeBase()
-        self._jump_tol_s = max(JUMP_BACK_S, opts["max_gap_s"])
+        self._jump_tol_s = jump_back_s(opts["max_gap_s"])
         self._jump_gap_s = 2.0 * opts["max_gap_s"] + 1.0     # between the old and the new time base [s]
         self._epoch = 0
         self._epoch_offset = 0.0
@@ -855,18 +576,42 @@ class FrequencyResponseEstimator:
         return out
 
     # ------------------------------------------------------------------ data in
-    def add_input(self, t_s, u) -> None:
-        """Feed control-surface samples: times [s] (increasing) and values, any rate, jitter or drops."""
+    def add_input(self, t_s: ArrayLike, u: ArrayLike) -> None:
+        """Feed control-surface samples: times [s] (increasing) and values, any rate, jitter or drops.
+
+        Parameters
+        ----------
+        t_s : array_like
+            Sample times [s], increasing.
+        u : array_like
+            Surface deflections [rad].
+        """
         self._add_stream(0, t_s, u, "input")
 
-    def add_output(self, t_s, y) -> None:
-        """Feed response (e.g. IMU body-rate) samples: times [s] and values."""
+    def add_output(self, t_s: ArrayLike, y: ArrayLike) -> None:
+        """Feed response (e.g. IMU body-rate) samples: times [s] and values, as :meth:`add_input`.
+
+        Parameters
+        ----------
+        t_s, y : array_like
+            Sample times [s] (increasing) and body rates [rad/s].
+        """
         self._add_stream(1, t_s, y, "output")
 
-    def add_time_histories(self, t_input_s, u, t_output_s, y, chunk_s: float | None = None) -> None:
+    def add_time_histories(self, t_input_s: ArrayLike, u: ArrayLike, t_output_s: ArrayLike, y: ArrayLike,
+                           chunk_s: float | None = None) -> None:
         """Feed two whole recorded streams, interleaved in chunks of ``chunk_s`` [s].
 
         The chunk is at most ``max_lag_s / 2`` (default ``max_lag_s / 3``) so that nothing is dropped.
+
+        Parameters
+        ----------
+        t_input_s, u : array_like
+            Input sample times [s] and values.
+        t_output_s, y : array_like
+            Output sample times [s] and values.
+        chunk_s : float, optional
+            Interleaving chunk [s] (default ``max_lag_s / 3``).
         """
         t_input_s, u = np.asarray(t_input_s, float).ravel(), np.asarray(u, float).ravel()
         t_output_s, y = np.asarray(t_output_s, float).ravel(), np.asarray(y, float).ravel()
@@ -894,10 +639,17 @@ class FrequencyResponseEstimator:
         self.add_input(t_input_s[pa:], u[pa:])
         self.add_output(t_output_s[pb:], y[pb:])
 
-    def add_trigger(self, t_s, active) -> None:
+    def add_trigger(self, t_s: ArrayLike, active: ArrayLike) -> None:
         """Feed samples of an explicit sweep trigger (``std_msgs/Bool``): sweeps are where it is true.
 
         The first trigger sample switches sweep detection off for the rest of the flight.
+
+        Parameters
+        ----------
+        t_s : array_like
+            Sample times [s].
+        active : array_like of bool
+            True inside a sweep.
         """
         t = np.atleast_1d(np.asarray(t_s, dtype=float)).ravel()
         a = np.atleast_1d(np.asarray(active)).ravel()
@@ -1170,7 +922,13 @@ class FrequencyResponseEstimator:
 
     @classmethod
     def from_state(cls, state: dict) -> "FrequencyResponseEstimator":
-        """Rebuild an estimator from :meth:`state_dict` (e.g. a checkpoint loaded from disk)."""
+        """Rebuild an estimator from :meth:`state_dict` (e.g. a checkpoint loaded from disk).
+
+        Parameters
+        ----------
+        state : dict
+            From :meth:`state_dict` (version 1 or 2).
+        """
         version = state.get("version") if isinstance(state, dict) else None
         if version is None or int(version) not in (1, _STATE_VERSION):
             raise DataError(f"estimator state: unsupported version {version!r} (expected {_STATE_VERSION})")

@@ -28,9 +28,18 @@ class FieldError(DataError):
     ``reason`` is a short tag for bad-sample counts (``missing field``, ``missing joint``,
     ``index out of range``, ``not a number``); ``structural`` is True when the *message type* lacks the field
     (every message will fail: a config or type mismatch), False when only this message is bad.
+
+    Parameters
+    ----------
+    message : str
+        The one-line message (names the field, joint or index).
+    reason : str
+        Short tag for bad-sample counts.
+    structural : bool
+        The message type lacks the field.
     """
 
-    def __init__(self, message: str, reason: str, structural: bool = False):
+    def __init__(self, message: str, reason: str, structural: bool = False) -> None:
         super().__init__(message)
         self.reason = reason
         self.structural = structural
@@ -109,13 +118,25 @@ def _first_missing(obj: Any, names: list[str]) -> tuple[str, Any]:
 
 
 def type_name(obj: Any) -> str:
-    """ROS-style name of a message's type: ``sensor_msgs/msg/Imu`` for rosbags classes, else the class name."""
+    """ROS-style name of a message's type: ``sensor_msgs/msg/Imu`` for rosbags classes, else the class name.
+
+    Parameters
+    ----------
+    obj : object
+        A message object.
+    """
     name = type(obj).__name__
     return name.replace("__", "/") if name.count("__") == 2 else name
 
 
 def field_names(obj: Any) -> list[str]:
-    """The fields of a message object: rosbags dataclasses, rclpy messages, or plain objects."""
+    """The fields of a message object: rosbags dataclasses, rclpy messages, or plain objects.
+
+    Parameters
+    ----------
+    obj : object
+        A message object.
+    """
     fields = getattr(type(obj), "__dataclass_fields__", None)
     if fields:
         return [name for name in fields if not name.startswith("_")]
@@ -148,7 +169,7 @@ def _index_getter(index: int, text: str) -> Callable[[Any], Any]:
 class _NameLookup:
     """``parent.<array>[name]``: index of ``name`` in ``parent.name`` (cached while the order is unchanged)."""
 
-    def __init__(self, array: str, key: str, text: str):
+    def __init__(self, array: str, key: str, text: str) -> None:
         self.array = array
         self.key = key
         self.text = text
@@ -192,6 +213,8 @@ class FieldPath:
     ----------
     text : str
         The path as written in the config (see the module docstring for the syntax).
+    steps : tuple
+        Its parsed steps (attribute, index or name lookup).
 
     Notes
     -----
@@ -201,7 +224,7 @@ class FieldPath:
 
     __slots__ = ("text", "steps", "_getters")
 
-    def __init__(self, text: str, steps: tuple[_Step, ...]):
+    def __init__(self, text: str, steps: tuple[_Step, ...]) -> None:
         self.text = text
         self.steps = steps
         self._getters = self._compile()
@@ -209,6 +232,11 @@ class FieldPath:
     @classmethod
     def parse(cls, text: str) -> "FieldPath":
         """Parse ``text``.
+
+        Parameters
+        ----------
+        text : str
+            A field path (``angular_velocity.y``, ``position[elevator]``, ``[2]``, ``data``).
 
         Raises
         ------
@@ -267,6 +295,11 @@ class FieldPath:
 
     def extract(self, msg: Any) -> float:
         """The value at this path in ``msg`` as a float.
+
+        Parameters
+        ----------
+        msg : object
+            A rosbags or rclpy message object (or any object with attributes).
 
         Raises
         ------

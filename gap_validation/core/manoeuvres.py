@@ -87,7 +87,15 @@ class ManoeuvreRecorder:
 
     # ------------------------------------------------------------------ data in
     def record(self, k_a: int, x: np.ndarray, y: np.ndarray) -> None:
-        """Contiguous released grid samples from index ``k_a`` (in time order)."""
+        """Contiguous released grid samples from index ``k_a`` (in time order).
+
+        Parameters
+        ----------
+        k_a : int
+            Grid index of the first sample.
+        x, y : ndarray
+            Input and output grid samples.
+        """
         if x.size == 0:
             return
         if self._ring.shape[1] and k_a != self._ring_k + self._ring.shape[1]:
@@ -102,14 +110,26 @@ class ManoeuvreRecorder:
             self._complete(final=False)
 
     def excitation(self, k_run0: int, k_run1: int) -> None:
-        """The detector found a short excited stretch ``[k_run0, k_run1)`` (not a sweep)."""
+        """The detector found a short excited stretch ``[k_run0, k_run1)`` (not a sweep).
+
+        Parameters
+        ----------
+        k_run0, k_run1 : int
+            Grid indices of the start and end (exclusive) of the excitation.
+        """
         if k_run1 - k_run0 + self.pre_n + self.post_n > self.cap or len(self._pending) >= _PENDING_CAP:
             return
         self._pending.append([k_run0 - self.pre_n, k_run0, k_run1, k_run1 + self.post_n])
         self._complete(final=False)
 
     def cut(self, k: int) -> None:
-        """A sweep starts at ``k``: pending manoeuvres end there at the latest."""
+        """A sweep starts at ``k``: pending manoeuvres end there at the latest.
+
+        Parameters
+        ----------
+        k : int
+            Grid index where the sweep starts.
+        """
         for p in self._pending:
             p[3] = min(p[3], max(k, p[2]))
         self._complete(final=False)
@@ -126,7 +146,15 @@ class ManoeuvreRecorder:
         return self._meta.tobytes()
 
     def manoeuvres(self, t0_s: float, dt_s: float) -> list[Manoeuvre]:
-        """Kept manoeuvres, in time order, with times ``t0_s + k dt_s``."""
+        """Kept manoeuvres, in time order, with times ``t0_s + k dt_s``.
+
+        Parameters
+        ----------
+        t0_s : float
+            Time of grid index 0 [s].
+        dt_s : float
+            Grid step [s].
+        """
         out = []
         for i in np.argsort(self._meta[:, 0]):
             k_from, n, k_run0, k_run1, kind, used = (int(v) for v in self._meta[i])
@@ -172,6 +200,7 @@ class ManoeuvreRecorder:
 
     # ------------------------------------------------------------------ checkpoint
     def state_dict(self) -> dict:
+        """The recorder's state: numpy arrays and numbers of a size independent of flight length."""
         ring = np.zeros((2, 2 * self.cap))
         ring[:, : self._ring.shape[1]] = self._ring
         pending = np.zeros((_PENDING_CAP, 4), np.int64)
@@ -182,6 +211,13 @@ class ManoeuvreRecorder:
                 "score": self._score.copy()}
 
     def load_state(self, st: dict) -> None:
+        """Continue from :meth:`state_dict`.
+
+        Parameters
+        ----------
+        st : dict
+            From :meth:`state_dict`.
+        """
         self._ring_k = int(st["ring_k"])
         self._ring = np.asarray(st["ring"], float)[:, : int(st["ring_n"])].copy()
         self._pending = [[int(v) for v in row] for row in np.asarray(st["pending"])[: int(st["n_pending"])]]

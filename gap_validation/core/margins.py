@@ -6,8 +6,22 @@ guaranteed to stabilise the real aircraft. For epsilon >= 1 nothing is guarantee
 and no number is ever printed for it.
 """
 
+from __future__ import annotations
+
 import math
 from dataclasses import asdict, dataclass
+
+__all__ = ["Margins", "margins_from_epsilon", "margins_note", "STANDARD_EPSILON", "WARN_EPSILON",
+           "STANDARD_MARGINS"]
+
+#: epsilon of the paper's "standard stability margins of a 6 dB gain margin and a 45 deg phase margin" (Section
+#: III, eqs. 15-16: 2 asin(0.38) = 44.7 deg): below it a controller with standard margins on the model is
+#: guaranteed stable on the aircraft. The node's ERROR level, the figures' and the report's standard line.
+STANDARD_EPSILON = 0.38
+#: epsilon of the warning level (eqs. 15-16: 4.4 dB, 29 deg guaranteed), before :data:`STANDARD_EPSILON` is reached.
+WARN_EPSILON = 0.25
+#: The traditional Nichols exclusion region the standard margins draw: gain [dB] and phase [deg] margins.
+STANDARD_MARGINS = (6.0, 45.0)
 
 
 @dataclass(frozen=True)
@@ -40,19 +54,26 @@ class Margins:
     epsilon: float | None = None
 
     @property
-    def guaranteed(self):
+    def guaranteed(self) -> bool:
         """True when margins exist (epsilon < 1)."""
         return self.gain_margin_db is not None
 
-    def to_json_dict(self):
+    def to_json_dict(self) -> dict:
         """JSON keys of DESIGN.md: ``gain_margin_db``, ``phase_margin_deg``, ``disk_margin`` (None -> null)."""
         data = asdict(self)
         return {key: data[key] for key in ("gain_margin_db", "phase_margin_deg", "disk_margin")}
 
 
-def margins_note(eps):
+def margins_note(eps: float | None) -> str | None:
     """Why no margins are given for ``eps`` (one line), or None when they are (``0 <= eps < 1``).
 
+    Parameters
+    ----------
+    eps : float or None
+        epsilon (None or NaN: no frequency passed the coherence threshold).
+
+    Examples
+    --------
     >>> margins_note(1.2)
     'epsilon 1.2 >= 1: the disk around the model contains -P (eq. 14), no stability guarantee, margins not given'
     """
@@ -69,7 +90,7 @@ def margins_note(eps):
     return None
 
 
-def margins_from_epsilon(eps):
+def margins_from_epsilon(eps: float | None) -> Margins:
     """Gain, phase and disk margins guaranteed by an epsilon-disk validation (paper eqs. 15-17).
 
     Parameters

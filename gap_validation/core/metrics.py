@@ -15,11 +15,21 @@ two :class:`~gap_validation.core.models.LinearModel` the results are exact:
 Conventions: ``P1`` is the model, ``P2`` the measurement (or the second model), as in the paper.
 """
 
+from __future__ import annotations
+
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.optimize import minimize_scalar
+
+if TYPE_CHECKING:  # pragma: no cover
+    from gap_validation.core.models import LinearModel
+
+#: A real function of frequency [rad/s], vectorised (kappa(w) or epsilon(w) of two models).
+Response = Callable[[np.ndarray], np.ndarray]
 
 _AXIS_RTOL = 1e-8  # roots closer than this (relative) to the imaginary axis are on it
 _CANCEL_RTOL = 1e-6  # numerator and denominator roots closer than this (relative) cancel
@@ -35,7 +45,7 @@ _HUGE_EPSILON = 1e10  # a refined epsilon peak above this is a crossing of P2 = 
 # ----------------------------------------------------------------------------------------------------------
 
 
-def chordal_distance(p1, p2):
+def chordal_distance(p1: ArrayLike, p2: ArrayLike) -> np.ndarray:
     """Chordal distance between two frequency responses (paper eq. 13, pointwise).
 
     ``kappa = |P2 - P1| / sqrt((1 + |P1|^2) (1 + |P2|^2))``, between 0 and 1; an infinite response (a pole
@@ -63,7 +73,7 @@ def chordal_distance(p1, p2):
     return np.minimum(kappa, 1.0)
 
 
-def epsilon_per_frequency(p1, p2):
+def epsilon_per_frequency(p1: ArrayLike, p2: ArrayLike) -> np.ndarray:
     """Smallest overbounding-disk radius per frequency (paper eq. 14): ``|P2 - P1| / |P2 + P1|``.
 
     The radius epsilon is the smallest with ``P2 = P1 (1 + d1)/(1 - d2)``, ``|d1|, |d2| <= epsilon``.
@@ -88,7 +98,7 @@ def epsilon_per_frequency(p1, p2):
     return np.where((total == 0.0) & (diff > 0.0), np.inf, eps)
 
 
-def _sup_over_points(w_rad_s, values):
+def _sup_over_points(w_rad_s: ArrayLike, values: np.ndarray) -> tuple[float, float]:
     w = np.asarray(w_rad_s, dtype=float).ravel()
     values = np.asarray(values, dtype=float).ravel()
     valid = ~np.isnan(values)
@@ -98,7 +108,7 @@ def _sup_over_points(w_rad_s, values):
     return float(values[index]), float(w[index])
 
 
-def nugap_frequency_data(w_rad_s, p1, p2):
+def nugap_frequency_data(w_rad_s: ArrayLike, p1: ArrayLike, p2: ArrayLike) -> tuple[float, float]:
     """nu-gap over frequency points: sup of the chordal distance (eq. 13), condition assumed.
 
     Parameters
@@ -118,8 +128,13 @@ def nugap_frequency_data(w_rad_s, p1, p2):
     return _sup_over_points(w_rad_s, chordal_distance(p1, p2))
 
 
-def epsilon_frequency_data(w_rad_s, p1, p2):
+def epsilon_frequency_data(w_rad_s: ArrayLike, p1: ArrayLike, p2: ArrayLike) -> tuple[float, float]:
     """epsilon over frequency points: sup of :func:`epsilon_per_frequency` (eq. 14).
+
+    Parameters
+    ----------
+    w_rad_s, p1, p2 : array_like
+        As for :func:`nugap_frequency_data`.
 
     Returns
     -------
@@ -136,25 +151,25 @@ def epsilon_frequency_data(w_rad_s, p1, p2):
 # ----------------------------------------------------------------------------------------------------------
 
 
-def _strip(poly):
+def _strip(poly: ArrayLike) -> np.ndarray:
     poly = np.atleast_1d(np.asarray(poly, dtype=float))
     nonzero = np.flatnonzero(poly)
     return poly[nonzero[0]:] if nonzero.size else np.array([0.0])
 
 
-def _mirror(poly):
+def _mirror(poly: ArrayLike) -> np.ndarray:
     """Coefficients of p(-s) from those of p(s) (descending powers)."""
     poly = np.asarray(poly, dtype=float)
     signs = (-1.0) ** np.arange(len(poly) - 1, -1, -1)
     return poly * signs
 
 
-def _roots(poly):
+def _roots(poly: ArrayLike) -> np.ndarray:
     poly = _strip(poly)
     return np.roots(poly) if len(poly) > 1 and poly[0] != 0.0 else np.array([], dtype=complex)
 
 
-def _coprime(num, den):
+def _coprime(num: ArrayLike, den: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """Cancel common roots of num and den (relative tolerance); P = 0 becomes 0/1."""
     num, den = _strip(num), _strip(den)
     if not np.any(num):
@@ -176,7 +191,7 @@ def _coprime(num, den):
         np.real(np.poly(poles)) if poles else np.array([1.0])
 
 
-def _eval_nd(model, w):
+def _eval_nd(model: LinearModel, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Numerator (delay included) and denominator of a model at s = j w, scaled per point.
 
     The common positive scale keeps products finite at high frequency; ratios are unchanged.
@@ -191,7 +206,7 @@ def _eval_nd(model, w):
     return n / scale, d / scale
 
 
-def _kappa_models(m1, m2, w):
+def _kappa_models(m1: LinearModel, m2: LinearModel, w: np.ndarray) -> np.ndarray:
     n1, d1 = _eval_nd(m1, w)
     n2, d2 = _eval_nd(m2, w)
     num = np.abs(n2 * d1 - n1 * d2)
@@ -199,13 +214,13 @@ def _kappa_models(m1, m2, w):
     return np.minimum(num / den, 1.0)
 
 
-def _epsilon_models(m1, m2, w):
+def _epsilon_models(m1: LinearModel, m2: LinearModel, w: np.ndarray) -> np.ndarray:
     n1, d1 = _eval_nd(m1, w)
     n2, d2 = _eval_nd(m2, w)
     return epsilon_per_frequency(n1 * d2, n2 * d1)
 
 
-def _high_frequency_form(model):
+def _high_frequency_form(model: LinearModel) -> tuple[float, int]:
     """(k, m): P(s) ~ k s^-m exp(-s T) as s -> infinity (k = 0 for P = 0)."""
     num, den = _strip(model.num), _strip(model.den)
     if not np.any(num):
@@ -213,7 +228,7 @@ def _high_frequency_form(model):
     return float(num[0] / den[0]), len(den) - len(num)
 
 
-def _kappa_at_infinity(m1, m2):
+def _kappa_at_infinity(m1: LinearModel, m2: LinearModel) -> float:
     """lim sup of kappa as w -> infinity."""
     (k1, r1), (k2, r2) = _high_frequency_form(m1), _high_frequency_form(m2)
     c1 = k1 if r1 == 0 else 0.0
@@ -224,7 +239,7 @@ def _kappa_at_infinity(m1, m2):
     return abs(c2 - c1) / norm
 
 
-def _low_frequency_form(model):
+def _low_frequency_form(model: LinearModel) -> tuple[float, int]:
     """(k, m): P(s) ~ k s^-m as s -> 0 (m > 0: poles at the origin; k = 0 for P = 0)."""
     num, den = _strip(model.num), _strip(model.den)
     if not np.any(num):
@@ -234,7 +249,7 @@ def _low_frequency_form(model):
     return float(num[len(num) - 1 - num_zeros] / den[len(den) - 1 - den_zeros]), den_zeros - num_zeros
 
 
-def _epsilon_at_zero(m1, m2):
+def _epsilon_at_zero(m1: LinearModel, m2: LinearModel) -> float:
     """lim of epsilon(w) as w -> 0 (defined also when both models have poles or zeros at the origin)."""
     (k1, r1), (k2, r2) = _low_frequency_form(m1), _low_frequency_form(m2)
     if k1 == 0.0 and k2 == 0.0:
@@ -244,7 +259,7 @@ def _epsilon_at_zero(m1, m2):
     return math.inf if k2 == -k1 else abs(k2 - k1) / abs(k2 + k1)
 
 
-def _epsilon_at_infinity(m1, m2):
+def _epsilon_at_infinity(m1: LinearModel, m2: LinearModel) -> float:
     """lim sup of epsilon(w) as w -> infinity."""
     (k1, r1), (k2, r2) = _high_frequency_form(m1), _high_frequency_form(m2)
     if k1 == 0.0 and k2 == 0.0:
@@ -287,7 +302,7 @@ class WindingCheck:
     method: str = "algebraic"
 
 
-def winding_condition(m1, m2):
+def winding_condition(m1: LinearModel, m2: LinearModel) -> WindingCheck:
     """Check Vinnicombe's winding-number condition of the nu-gap for two SISO models.
 
     With coprime P_i = n_i/d_i (delays aside), the condition is that the normalised coprime factors satisfy
@@ -320,7 +335,7 @@ def winding_condition(m1, m2):
     return _winding_numerical(n1, d1, n2, d2, delta_s)
 
 
-def _winding_algebraic(n1, d1, n2, d2):
+def _winding_algebraic(n1: np.ndarray, d1: np.ndarray, n2: np.ndarray, d2: np.ndarray) -> WindingCheck:
     deg1, deg2 = len(d1) - 1, len(d2) - 1
     d_term = np.polymul(_mirror(d2), d1)
     n_term = np.polymul(_mirror(n2), n1)
@@ -342,7 +357,8 @@ def _winding_algebraic(n1, d1, n2, d2):
                                          f"(unstable pole/zero counts do not match)")
 
 
-def _winding_numerical(n1, d1, n2, d2, delta_s):
+def _winding_numerical(n1: np.ndarray, d1: np.ndarray, n2: np.ndarray, d2: np.ndarray,
+                       delta_s: float) -> WindingCheck:
     deg1, deg2 = len(d1) - 1, len(d2) - 1
     k1 = n1[0] / d1[0] if len(n1) == len(d1) else 0.0
     k2 = n2[0] / d2[0] if len(n2) == len(d2) else 0.0
@@ -356,7 +372,7 @@ def _winding_numerical(n1, d1, n2, d2, delta_s):
     w_hi = 1e3 * w_top
     limit = 0.5 * (1.0 + abs(k1 * k2))
 
-    def rho_x(w):
+    def rho_x(w: ArrayLike) -> np.ndarray:
         s = 1j * np.asarray(w, dtype=float)
         dd = np.polyval(d_a, s) * np.polyval(d_b, s)
         nn = np.polyval(n_a, s) * np.polyval(n_b, s) * np.exp(s * delta_s)
@@ -403,11 +419,11 @@ def _winding_numerical(n1, d1, n2, d2, delta_s):
                         "numerical")
 
 
-def _wrap(angle):
+def _wrap(angle: ArrayLike) -> np.ndarray:
     return (np.asarray(angle) + math.pi) % (2.0 * math.pi) - math.pi
 
 
-def _resonance_points(roots):
+def _resonance_points(roots: np.ndarray) -> np.ndarray:
     """Frequencies around every complex root: |Im| +- a few multiples of |Re|."""
     points = []
     for root in roots:
@@ -427,7 +443,7 @@ def _resonance_points(roots):
 # ----------------------------------------------------------------------------------------------------------
 
 
-def _analysis_grid(m1, m2, extra_roots=()):
+def _analysis_grid(m1: LinearModel, m2: LinearModel, extra_roots: ArrayLike = ()) -> np.ndarray:
     roots = np.concatenate([m1.poles(), m1.zeros(), m2.poles(), m2.zeros(), np.asarray(extra_roots, complex)])
     magnitudes = np.abs(roots)
     magnitudes = magnitudes[magnitudes > 0.0]
@@ -447,7 +463,7 @@ def _analysis_grid(m1, m2, extra_roots=()):
     return w[(w >= w_lo) & (w <= w_hi)]
 
 
-def _grid_peaks(fun, w):
+def _grid_peaks(fun: Response, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Values of fun on the grid and the indices of its local maxima (NaN counts as -inf)."""
     values = fun(w)
     values = np.where(np.isnan(values), -np.inf, values)
@@ -457,7 +473,7 @@ def _grid_peaks(fun, w):
     return values, np.flatnonzero(is_peak)
 
 
-def _refine(fun, w, values, k):
+def _refine(fun: Response, w: np.ndarray, values: np.ndarray, k: int) -> tuple[float, float]:
     """Maximise fun between the grid neighbours of index k (bounded scalar search in ln w).
 
     The bracket reaches out to the nearest neighbours with a lower value on each side: with equal neighbours
@@ -480,7 +496,7 @@ def _refine(fun, w, values, k):
     return value, where
 
 
-def _refined_sup(fun, w):
+def _refined_sup(fun: Response, w: np.ndarray) -> tuple[float, float]:
     """Sup of fun over the grid's range: local maxima refined by bounded scalar maximisation in ln(w).
 
     The grid local maxima within 30 % of the highest are refined (the 40 highest and the 10 lowest in
@@ -501,7 +517,7 @@ def _refined_sup(fun, w):
     return best_value, min(ties)
 
 
-def _first_huge(fun, w, threshold):
+def _first_huge(fun: Response, w: np.ndarray, threshold: float) -> float:
     """Lowest frequency where a refined local maximum of fun reaches ``threshold`` (nan if none)."""
     values, peaks = _grid_peaks(fun, w)
     for k in peaks[values[peaks] >= 1e3]:  # ascending frequency
@@ -511,7 +527,7 @@ def _first_huge(fun, w, threshold):
     return math.nan
 
 
-def _sup_with_ends(fun, at_zero, at_infinity, w):
+def _sup_with_ends(fun: Response, at_zero: float, at_infinity: float, w: np.ndarray) -> tuple[float, float]:
     value, where = _refined_sup(fun, w)
     if not math.isnan(at_zero) and at_zero >= value - _TIE_RTOL * max(1.0, abs(value)):
         value, where = max(at_zero, value), 0.0
@@ -520,7 +536,7 @@ def _sup_with_ends(fun, at_zero, at_infinity, w):
     return value, where
 
 
-def nugap(m1, m2):
+def nugap(m1: LinearModel, m2: LinearModel) -> tuple[float, float]:
     """Exact nu-gap of two LTI models (Vinnicombe; paper eq. 13 with the winding-number condition).
 
     Parameters
@@ -545,7 +561,7 @@ def nugap(m1, m2):
     return min(max(value, 0.0), 1.0), where
 
 
-def epsilon(m1, m2):
+def epsilon(m1: LinearModel, m2: LinearModel) -> tuple[float, float]:
     """Exact sup over frequency of the overbounding-disk radius ``|P2 - P1| / |P2 + P1|`` (eq. 14).
 
     Parameters
@@ -584,7 +600,7 @@ def epsilon(m1, m2):
 # ----------------------------------------------------------------------------------------------------------
 
 
-def tic(y1, y2):
+def tic(y1: ArrayLike, y2: ArrayLike) -> float:
     """Theil inequality coefficient of two sampled time histories (paper eqs. 1-2).
 
     ``TIC = sqrt(mean((y1 - y2)^2)) / (sqrt(mean(y1^2)) + sqrt(mean(y2^2)))``, between 0 (identical) and 1.
@@ -609,7 +625,7 @@ def tic(y1, y2):
     return float(math.sqrt(np.mean((y1 - y2) ** 2)) / denominator)
 
 
-def tic_input_augmented(y1, y2, u):
+def tic_input_augmented(y1: ArrayLike, y2: ArrayLike, u: ArrayLike) -> float:
     """TIC of the input-output pairs [u; y1] and [u; y2] (paper eq. 3).
 
     ``||y1 - y2|| / (||[u; y1]|| + ||[u; y2]||)``: the common input only enlarges the denominator.

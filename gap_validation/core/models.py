@@ -22,15 +22,20 @@ plus optional ``delay_s`` (airframe transport delay [s], default 0) and ``effect
 ``B[:, 0] - B[:, 1]``, a symmetric aileron from left and right surfaces).
 """
 
+from __future__ import annotations
+
 import copy
 import math
+from typing import Any, Sequence
 
 import numpy as np
 import scipy.linalg
 import scipy.signal
+from numpy.typing import ArrayLike
 
-from gap_validation.core.effects import as_number, effect_factor, validate_effect
+from gap_validation.core.effects import EFFECTS, check_plausible, effect_factor, validate_effect
 from gap_validation.core.errors import ConfigError
+from gap_validation.core.numbers import NON_NEGATIVE, check_number
 
 _MODEL_KEYS = ("numerator", "denominator", "zeros", "poles", "gain", "state_space", "delay_s", "effects")
 _SS_KEYS = ("A", "B", "C", "D", "input", "output")
@@ -38,18 +43,23 @@ _TRIM_RTOL = 1e-10  # leading numerator coefficients below this (frequency-scale
 _UNIFORM_RTOL = 1e-8  # steps equal to this relative tolerance are treated as one uniform grid
 _BLOCK = 256  # block length of the uniform-grid simulation
 
+#: A real realization (A, B, C, D) as 2-D arrays.
+StateSpace = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+#: A parsed airframe: numerator, denominator, its config mapping and its own state space (or None).
+Airframe = tuple[np.ndarray, np.ndarray, dict, StateSpace | None]
+
 
 # ----------------------------------------------------------------------------------------------------------
 # parsing helpers (one-line ConfigError naming the path, key and value)
 # ----------------------------------------------------------------------------------------------------------
 
 
-def _number_list(value, where, allow_empty=False):
+def _number_list(value: Any, where: str, allow_empty: bool = False) -> np.ndarray:
     if not isinstance(value, (list, tuple, np.ndarray)) or isinstance(value, str):
         raise ConfigError(f"{where}: expected a list of numbers, got {value!r}")
     if len(value) == 0 and not allow_empty:
         raise ConfigError(f"{where}: expected a non-empty list of numbers, got []")
-    out = np.array([as_number(v, f"{where}[{i}]") for i, v in enumerate(value)], dtype=float)
+    out = np.array([check_number(v, f"{where}[{i}]", strings=True) for i, v in enumerate(value)], dtype=float)
     _check_magnitude(out, where, _MAX_COEFFICIENT)
     return out
 
@@ -66,13 +76,14 @@ def _check_magnitude(values: np.ndarray, where: str, limit: float) -> None:
         raise ConfigError(f"{where}: {values.ravel()[big[0]]!r} is beyond {limit:g} in magnitude (wrong units?)")
 
 
-def _complex_value(value, where):
+def _complex_value(value: Any, where: str) -> complex:
     """A root given as a number, a ``[re, im]`` pair or a string like ``"-1+2j"`` (``i`` accepted too)."""
     expected = "a number, [re, im] or a string like '-1+2j'"
     if isinstance(value, (list, tuple)):
         if len(value) != 2:
             raise ConfigError(f"{where}: expected {expected}, got {value!r}")
-        return complex(as_number(value[0], f"{where}[0]"), as_number(value[1], f"{where}[1]"))
+        return complex(check_number(value[0], f"{where}[0]", strings=True),
+                       check_number(value[1], f"{where}[1]", strings=True))
     if isinstance(value, str):
         text = value.strip().replace(" ", "").replace("i", "j")
         try:
@@ -82,10 +93,10 @@ def _complex_value(value, where):
         if not (math.isfinite(root.real) and math.isfinite(root.imag)):
             raise ConfigError(f"{where}: expected {expected}, got {value!r}")
         return root
-    return complex(as_number(value, where, expected), 0.0)
+    return complex(check_number(value, where, strings=True, expected=expected), 0.0)
 
 
-def _roots(value, where):
+def _roots(value: Any, where: str) -> np.ndarray:
     if not isinstance(value, (list, tuple)):
         raise ConfigError(f"{where}: expected a list of roots, got {value!r}")
     roots = np.array([_complex_value(v, f"{where}[{i}]") for i, v in enumerate(value)], dtype=complex)
@@ -93,7 +104,7 @@ def _roots(value, where):
     return roots
 
 
-def _check_conjugates(roots, where):
+def _check_conjugates(roots: np.ndarray, where: str) -> None:
     """Complex roots of a real model come in conjugate pairs; raise ConfigError naming the first lone one."""
     scale = max(1.0, float(np.max(np.abs(roots)))) if roots.size else 1.0
     tol = 1e-9 * scale
@@ -109,15 +120,15 @@ def _check_conjugates(roots, where):
         unused.pop(match[0])
 
 
-def _format_root(root):
+def _format_root(root: complex) -> str:
     return f"{root.real:g}{root.imag:+g}j"
 
 
-def _real_poly(roots):
+def _real_poly(roots: np.ndarray) -> np.ndarray:
     return np.real(np.poly(roots)) if roots.size else np.array([1.0])
 
 
-def _matrix(value, where, rows=None, cols=None):
+def _matrix(value: Any, where: str, rows: int | None = None, cols: int | None = None) -> np.ndarray:
     """A 2-D matrix from nested lists; a flat list is a row when ``rows == 1``, a column when ``cols == 1``."""
     try:
         array = np.array(value, dtype=float)
@@ -140,7 +151,7 @@ def _matrix(value, where, rows=None, cols=None):
     return array
 
 
-def _selector(value, count, where, what):
+def _selector(value: Any, count: int, where: str, what: str) -> np.ndarray:
     """Index or weight vector selecting one of ``count`` inputs/outputs."""
     if value is None:
         if count == 1:
@@ -158,13 +169,13 @@ def _selector(value, count, where, what):
     return weights
 
 
-def _strip(poly):
+def _strip(poly: ArrayLike) -> np.ndarray:
     poly = np.atleast_1d(np.asarray(poly, dtype=float))
     nonzero = np.flatnonzero(poly)
     return poly[nonzero[0]:] if nonzero.size else np.array([0.0])
 
 
-def _trim_leading(num, den):
+def _trim_leading(num: np.ndarray, den: np.ndarray) -> np.ndarray:
     """Drop leading numerator coefficients that are round-off relative to the model's frequency scale."""
     num = _strip(num)
     roots = np.roots(den) if len(den) > 1 else np.array([])
@@ -178,7 +189,7 @@ def _trim_leading(num, den):
     return num[first:]
 
 
-def _series(first, second):
+def _series(first: StateSpace, second: StateSpace) -> StateSpace:
     """State-space series connection: ``second`` driven by the output of ``first``."""
     a1, b1, c1, d1 = first
     a2, b2, c2, d2 = second
@@ -192,7 +203,7 @@ def _series(first, second):
     return a, b, c, d2 @ d1
 
 
-def _tf2ss(num, den):
+def _tf2ss(num: np.ndarray, den: np.ndarray) -> StateSpace:
     """Real realization (A, B, C, D) of a proper num/den with 2-D arrays (also for static gains)."""
     if len(den) == 1:
         return np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), np.array([[num[-1] / den[0]]])
@@ -205,23 +216,12 @@ def _tf2ss(num, den):
 # ----------------------------------------------------------------------------------------------------------
 
 
-#: Plausible ranges of effect parameters in a config (outside: a typo or wrong units, refused with the key).
-PLAUSIBLE = {"seconds": (0.0, 10.0), "bandwidth_rad_s": (1e-4, 1e5), "natural_frequency_rad_s": (1e-4, 1e5),
-             "frequency_rad_s": (1e-4, 1e5), "zero_frequency_rad_s": (1e-4, 1e5), "damping": (0.0, 100.0),
-             "zero_damping": (0.0, 100.0), "factor": (1e-6, 1e6)}
-
-
-def _check_plausible(delay_s: float, effects: list, where: str) -> None:
-    """ConfigError naming the key for absurd delays [s], frequencies [rad/s], dampings or gains."""
-    items = [(f"{where}.delay_s", "seconds", delay_s)]
-    items += [(f"{where}.effects[{i}].{key}", key, value) for i, e in enumerate(effects)
-              for key, value in e.items() if key != "type"]
-    for path, key, value in items:
-        low, high = PLAUSIBLE.get(key, (-math.inf, math.inf))
-        size = abs(value) if key == "factor" else value
-        if not low <= size <= high:
-            raise ConfigError(f"{path}: {value!r} is outside the plausible range [{low:g}, {high:g}] "
-                              f"(wrong units?)")
+def _check_plausible(delay_s: float, effects: list[dict], where: str) -> None:
+    """ConfigError naming the key for absurd delays [s], frequencies [rad/s], dampings or gains (the plausible
+    ranges of the effects registry; the airframe delay is held to a ``time_delay``'s)."""
+    EFFECTS["time_delay"].parameter("seconds").check_plausible(delay_s, f"{where}.delay_s")
+    for i, effect in enumerate(effects):
+        check_plausible(effect, f"{where}.effects[{i}]")
 
 
 class LinearModel:
@@ -253,7 +253,8 @@ class LinearModel:
     __slots__ = ("_air_num", "_air_den", "_air_delay_s", "_air_ss", "_air_spec", "_effects", "_num", "_den",
                  "_delay_s", "_realization")
 
-    def __init__(self, num, den, delay_s=0.0, effects=(), *, _airframe_spec=None, _airframe_ss=None):
+    def __init__(self, num: ArrayLike, den: ArrayLike, delay_s: float = 0.0, effects: Sequence[dict] = (), *,
+                 _airframe_spec: dict | None = None, _airframe_ss: StateSpace | None = None) -> None:
         num = _strip(np.asarray(num, dtype=float))
         den = _strip(np.asarray(den, dtype=float))
         if not (np.all(np.isfinite(num)) and np.all(np.isfinite(den))):
@@ -266,9 +267,7 @@ class LinearModel:
                 f"model.numerator: improper model (numerator degree {len(num) - 1} > denominator degree "
                 f"{len(den) - 1}), got {num.tolist()}"
             )
-        delay_s = as_number(delay_s, "model.delay_s", "a number >= 0")
-        if delay_s < 0.0:
-            raise ConfigError(f"model.delay_s: expected a number >= 0, got {delay_s!r}")
+        delay_s = check_number(delay_s, "model.delay_s", NON_NEGATIVE, strings=True, expected="a number >= 0")
         self._air_num = num / den[0]
         self._air_den = den / den[0]
         self._air_delay_s = delay_s
@@ -289,7 +288,7 @@ class LinearModel:
     # -- construction from / to the config mapping ----------------------------------------------------------
 
     @classmethod
-    def from_spec(cls, spec, where="model"):
+    def from_spec(cls, spec: Any, where: str = "model") -> LinearModel:
         """Build a model from the config ``model:`` mapping (DESIGN.md).
 
         Parameters
@@ -326,9 +325,8 @@ class LinearModel:
                               f"state_space, got keys {sorted(k for k in spec if k not in ('delay_s', 'effects'))}")
         delay_s = 0.0
         if "delay_s" in spec:
-            delay_s = as_number(spec["delay_s"], f"{where}.delay_s", "a number >= 0")
-            if delay_s < 0.0:
-                raise ConfigError(f"{where}.delay_s: expected a number >= 0, got {spec['delay_s']!r}")
+            delay_s = check_number(spec["delay_s"], f"{where}.delay_s", NON_NEGATIVE, strings=True,
+                                   expected="a number >= 0")
         effects = spec.get("effects", [])
         if effects is None:
             effects = []
@@ -346,11 +344,22 @@ class LinearModel:
         return cls(num, den, delay_s, effects, _airframe_spec=air_spec, _airframe_ss=air_ss)
 
     @classmethod
-    def from_tf(cls, num, den, delay_s=0.0, effects=()):
-        """Model from numerator/denominator coefficients (descending powers of s) and a delay [s]."""
+    def from_tf(cls, num: ArrayLike, den: ArrayLike, delay_s: float = 0.0,
+                effects: Sequence[dict] = ()) -> LinearModel:
+        """Model from numerator/denominator coefficients (descending powers of s) and a delay [s].
+
+        Parameters
+        ----------
+        num, den : array_like
+            Numerator and denominator, descending powers of s.
+        delay_s : float
+            Airframe delay [s].
+        effects : sequence of dict
+            Effects in series.
+        """
         return cls(num, den, delay_s, effects)
 
-    def to_spec(self):
+    def to_spec(self) -> dict:
         """Config ``model:`` mapping that :meth:`from_spec` turns back into this model.
 
         Returns
@@ -370,14 +379,20 @@ class LinearModel:
             spec["effects"] = [dict(e) for e in self._effects]
         return spec
 
-    def with_effects(self, effects):
-        """A copy with ``effects`` appended in series (validated; ConfigError on problems)."""
+    def with_effects(self, effects: Sequence[dict]) -> LinearModel:
+        """A copy with ``effects`` appended in series (validated; ConfigError on problems).
+
+        Parameters
+        ----------
+        effects : sequence of dict
+            Effect mappings (:mod:`gap_validation.core.effects`), appended after the model's own.
+        """
         effects = list(self._effects) + list(effects)
         return LinearModel(self._air_num, self._air_den, self._air_delay_s, effects,
                            _airframe_spec=self._air_spec, _airframe_ss=self._air_ss)
 
     @property
-    def airframe(self):
+    def airframe(self) -> LinearModel:
         """The model without its effects (airframe delay kept)."""
         return LinearModel(self._air_num, self._air_den, self._air_delay_s, (),
                            _airframe_spec=self._air_spec, _airframe_ss=self._air_ss)
@@ -385,44 +400,44 @@ class LinearModel:
     # -- attributes -----------------------------------------------------------------------------------------
 
     @property
-    def num(self):
+    def num(self) -> np.ndarray:
         """Numerator of the rational part incl. rational effects, descending powers of s."""
         return self._num
 
     @property
-    def den(self):
+    def den(self) -> np.ndarray:
         """Monic denominator of the rational part incl. rational effects, descending powers of s."""
         return self._den
 
     @property
-    def delay_s(self):
+    def delay_s(self) -> float:
         """Total pure delay [s] (airframe delay + ``time_delay`` effects)."""
         return self._delay_s
 
     @property
-    def effects(self):
+    def effects(self) -> tuple[dict, ...]:
         """The validated effects, in series order."""
         return self._effects
 
     @property
-    def order(self):
+    def order(self) -> int:
         """Number of poles of the rational part."""
         return len(self._den) - 1
 
-    def poles(self):
+    def poles(self) -> np.ndarray:
         """Poles of the rational part [rad/s] (common factors with the numerator are not cancelled)."""
         return np.roots(self._den) if len(self._den) > 1 else np.array([], dtype=complex)
 
-    def zeros(self):
+    def zeros(self) -> np.ndarray:
         """Finite zeros of the rational part [rad/s]."""
         return np.roots(self._num) if len(self._num) > 1 else np.array([], dtype=complex)
 
-    def dc_gain(self):
+    def dc_gain(self) -> float:
         """P(0) (inf when a pole is at the origin)."""
         with np.errstate(divide="ignore", invalid="ignore"):
             return float(self._num[-1] / self._den[-1]) if self._den[-1] != 0 else math.inf
 
-    def __repr__(self):
+    def __repr__(self) -> str:
         parts = [f"num={np.array2string(self._num, precision=6)}", f"den={np.array2string(self._den, precision=6)}"]
         if self._delay_s:
             parts.append(f"delay_s={self._delay_s:g}")
@@ -432,7 +447,7 @@ class LinearModel:
 
     # -- frequency response ---------------------------------------------------------------------------------
 
-    def freqresp(self, w_rad_s):
+    def freqresp(self, w_rad_s: ArrayLike) -> np.ndarray:
         """Complex frequency response P(j w), the delay included exactly as exp(-j w T).
 
         Parameters
@@ -455,7 +470,7 @@ class LinearModel:
 
     # -- time response --------------------------------------------------------------------------------------
 
-    def state_space(self):
+    def state_space(self) -> StateSpace:
         """Real realization (A, B, C, D) of the rational part: airframe states, then each effect's states.
 
         The airframe uses the config's own state-space matrices when it was given that way (reduced to the
@@ -471,7 +486,7 @@ class LinearModel:
             self._realization = tuple(np.array(m, dtype=float) for m in system)
         return self._realization
 
-    def simulate(self, t_s, u, x0=None, hold="linear"):
+    def simulate(self, t_s: ArrayLike, u: ArrayLike, x0: ArrayLike | None = None, hold: str = "linear") -> np.ndarray:
         """Output for input samples ``u`` at times ``t_s`` (possibly irregular), delay applied exactly.
 
         The input between samples is linear (first-order hold, as ``scipy.signal.lsim``) or constant
@@ -530,7 +545,7 @@ class LinearModel:
         return y
 
 
-def delayed_input(t_s, u, delay_s, hold="linear"):
+def delayed_input(t_s: np.ndarray, u: np.ndarray, delay_s: float, hold: str = "linear") -> np.ndarray:
     """Samples of u(t - T) at the times ``t_s``: interpolated input, zero before the first sample.
 
     Parameters
@@ -555,7 +570,7 @@ def delayed_input(t_s, u, delay_s, hold="linear"):
 # ----------------------------------------------------------------------------------------------------------
 
 
-def _parse_tf(spec, where):
+def _parse_tf(spec: dict, where: str) -> Airframe:
     for key in ("numerator", "denominator"):
         if key not in spec:
             raise ConfigError(f"{where}: missing key {key!r} (a transfer function needs numerator and denominator)")
@@ -567,23 +582,23 @@ def _parse_tf(spec, where):
     return num, den, air_spec, None
 
 
-def _parse_zpk(spec, where):
+def _parse_zpk(spec: dict, where: str) -> Airframe:
     if "poles" not in spec:
         raise ConfigError(f"{where}: missing key 'poles' (zeros-poles-gain form; use [] for none)")
     zeros = _roots(spec.get("zeros", []), f"{where}.zeros")
     poles = _roots(spec["poles"], f"{where}.poles")
-    gain = as_number(spec.get("gain", 1.0), f"{where}.gain")
+    gain = check_number(spec.get("gain", 1.0), f"{where}.gain", strings=True)
     num = gain * _real_poly(zeros)
     den = _real_poly(poles)
     air_spec = {"zeros": [_root_spec(r) for r in zeros], "poles": [_root_spec(r) for r in poles], "gain": gain}
     return num, den, air_spec, None
 
 
-def _root_spec(root):
+def _root_spec(root: complex) -> float | list[float]:
     return float(root.real) if root.imag == 0.0 else [float(root.real), float(root.imag)]
 
 
-def _parse_ss(spec, where):
+def _parse_ss(spec: Any, where: str) -> Airframe:
     if not isinstance(spec, dict):
         raise ConfigError(f"{where}: expected a mapping with A, B, C (D, input, output optional), got {spec!r}")
     unknown = [key for key in spec if key not in _SS_KEYS]
@@ -619,13 +634,13 @@ def _parse_ss(spec, where):
     return num, den, air_spec, (a, b1, c1, d1)
 
 
-def _plain(value):
+def _plain(value: Any) -> Any:
     if isinstance(value, np.ndarray):
         return value.tolist()
     return copy.deepcopy(value)
 
 
-def _check_proper(num, den, where):
+def _check_proper(num: np.ndarray, den: np.ndarray, where: str) -> None:
     num, den = _strip(num), _strip(den)
     if len(num) > len(den) and np.any(num):
         raise ConfigError(f"{where}: improper model (numerator degree {len(num) - 1} > denominator degree "
@@ -637,7 +652,7 @@ def _check_proper(num, den, where):
 # ----------------------------------------------------------------------------------------------------------
 
 
-def _uniform_runs(steps, min_steps=32):
+def _uniform_runs(steps: np.ndarray, min_steps: int = 32) -> list[tuple[int, int]]:
     """Split samples into runs: (first, last) sample indices, consecutive runs sharing their end sample.
 
     Runs of at least ``min_steps`` (nearly) equal steps are simulated in blocks; shorter irregular stretches
@@ -658,7 +673,7 @@ def _uniform_runs(steps, min_steps=32):
     return [(first, last) for first, last, _ in runs]
 
 
-def _discretise(a, b, h, hold):
+def _discretise(a: np.ndarray, b: np.ndarray, h: float, hold: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Exact discretisation for input held (``zero``) or linear (``linear``) over a step h [s].
 
     Returns Phi, Ga, Gb with x[k+1] = Phi x[k] + Ga u[k] + Gb u[k+1].
@@ -679,7 +694,8 @@ def _discretise(a, b, h, hold):
     return phi, gamma1 - gamma2, gamma2
 
 
-def _simulate_run(a, b, c, d, t, u, x, hold, y_out):
+def _simulate_run(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray, t: np.ndarray, u: np.ndarray,
+                  x: np.ndarray, hold: str, y_out: np.ndarray) -> np.ndarray:
     """Simulate samples t[0..] starting from state x at t[0]; writes y_out, returns the state at t[-1]."""
     count = t.size
     if count == 1:
@@ -695,7 +711,8 @@ def _simulate_run(a, b, c, d, t, u, x, hold, y_out):
     return _simulate_steps(a, b, c, d, t, u, x, hold, y_out)
 
 
-def _simulate_steps(a, b, c, d, t, u, x, hold, y_out):
+def _simulate_steps(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray, t: np.ndarray, u: np.ndarray,
+                    x: np.ndarray, hold: str, y_out: np.ndarray) -> np.ndarray:
     """Per-step recursion with exact matrices for each distinct step (any A; slow: tens of us per step)."""
     count = t.size
     steps = np.diff(t)
@@ -712,7 +729,7 @@ def _simulate_steps(a, b, c, d, t, u, x, hold, y_out):
     return x
 
 
-def _phi_functions(z):
+def _phi_functions(z: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """phi1(z) = (e^z - 1)/z and phi2(z) = (e^z - 1 - z)/z^2 for complex arrays, accurate near z = 0."""
     z = np.asarray(z, dtype=complex)
     small = np.abs(z) < 0.1
@@ -732,7 +749,8 @@ def _phi_functions(z):
     return phi1, phi2
 
 
-def _simulate_modal(a, b, c, d, t, u, x, hold, y_out, max_condition=1e6):
+def _simulate_modal(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray, t: np.ndarray, u: np.ndarray,
+                    x: np.ndarray, hold: str, y_out: np.ndarray, max_condition: float = 1e6) -> np.ndarray | None:
     """Irregular steps in modal coordinates, vectorised; None when A is not safely diagonalisable.
 
     With A = V diag(lam) V^-1 every mode obeys z[k+1] = exp(lam h_k) z[k] + f_k (f from the phi functions
@@ -761,7 +779,7 @@ def _simulate_modal(a, b, c, d, t, u, x, hold, y_out, max_condition=1e6):
     return (vec @ z_end).real
 
 
-def _scalar_scan(root, t, forcing, z0):
+def _scalar_scan(root: complex, t: np.ndarray, forcing: np.ndarray, z0: complex) -> np.ndarray:
     """z[0] = z0, z[k+1] = exp(root (t[k+1] - t[k])) z[k] + forcing[k], vectorised in blocks.
 
     Within a block z = exp(root s) cumsum(exp(-root s) f), s the time from the block start; the block length
@@ -789,7 +807,8 @@ def _scalar_scan(root, t, forcing, z0):
     return np.concatenate([[z0], z])
 
 
-def _simulate_uniform(a, b, c, d, h, u, x0, hold, y_out):
+def _simulate_uniform(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray, h: float, u: np.ndarray,
+                      x0: np.ndarray, hold: str, y_out: np.ndarray) -> np.ndarray:
     """Uniform-step simulation in blocks of L samples with matrix products.
 
     With w[k] = x[k] - Gb u[k] the discrete system is w[k+1] = Phi w[k] + Bd u[k], y[k] = C w[k] + Dd u[k].

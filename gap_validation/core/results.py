@@ -6,7 +6,7 @@ added, never renamed. Non-finite numbers become ``null``.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
@@ -33,7 +33,15 @@ def _list(values: Any) -> list:
 
 def phase_deg(response: np.ndarray, reference: np.ndarray | None = None) -> np.ndarray:
     """Unwrapped phase [deg]; with ``reference``, on the same branch as the reference's unwrapped phase
-    (phase of the reference plus the unwrapped phase of response/reference), so that curves overlay."""
+    (phase of the reference plus the unwrapped phase of response/reference), so that curves overlay.
+
+    Parameters
+    ----------
+    response : array_like of complex
+        A frequency response.
+    reference : array_like of complex, optional
+        A response whose branch the phase follows (e.g. the model's).
+    """
     response = np.asarray(response, dtype=complex)
     if reference is None:
         return np.degrees(_unwrap_finite(np.angle(response)))
@@ -62,7 +70,7 @@ def _complex(mag_phase: dict | None) -> np.ndarray | None:
     return 10.0 ** (mag / 20.0) * np.exp(1j * np.radians(phase))
 
 
-def _array(values) -> np.ndarray | None:
+def _array(values: Any) -> np.ndarray | None:
     """A float array from a JSON list (null -> NaN); None for a missing or empty list."""
     if not values:
         return None
@@ -78,6 +86,160 @@ def _mag_phase(response: np.ndarray | None, reference: np.ndarray | None = None)
     return {"magnitude_db": _list(mag), "phase_deg": _list(phase_deg(response, reference))}
 
 
+class _JsonView:
+    """A result dataclass that reads like its JSON object and is rebuilt from it (fields in JSON key order)."""
+
+    def to_json_dict(self) -> dict:
+        """The JSON object (defined by each result)."""
+        raise NotImplementedError
+
+    @classmethod
+    def from_json_dict(cls, data: dict) -> Any:
+        """Rebuild from the JSON object (missing keys take the defaults).
+
+        Parameters
+        ----------
+        data : dict
+            The object as :meth:`to_json_dict` wrote it (a ``bands`` or ``diagnosis`` entry).
+        """
+        return cls(**{f.name: data[f.name] for f in fields(cls) if f.name in data})
+
+    def __getitem__(self, key: str) -> Any:
+        """The value of JSON key ``key`` (KeyError for any other key)."""
+        return self.to_json_dict()[key]
+
+    def __contains__(self, key: object) -> bool:
+        """Whether the JSON object has key ``key``."""
+        return key in self.to_json_dict()
+
+
+@dataclass(frozen=True)
+class Band(_JsonView):
+    """A run of adjacent frequencies where epsilon(w) passes the diagnosis threshold, and why (JSON ``bands``).
+
+    Attributes
+    ----------
+    min_rad_s, max_rad_s : float
+        Edges of the band [rad/s] (grid frequencies).
+    peak_rad_s : float
+        Frequency of the largest epsilon(w) in the band [rad/s].
+    epsilon : float
+        epsilon(w) at the peak (eq. 14).
+    limited_by : {"model", "data"}
+        Model-limited (confident data disagree) or data-limited (low coherence, too few averages, noise).
+    reason : str
+        One sentence saying why.
+    coherence_min : float
+        Lowest coherence in the band.
+    mismatch_sigma : float or None
+        Largest normalised mismatch k in the band (noise scales).
+    min_averages : float or None
+        Fewest averages in the band.
+    """
+
+    min_rad_s: float
+    max_rad_s: float
+    peak_rad_s: float | None = None
+    epsilon: float | None = None
+    limited_by: str = "data"
+    reason: str = ""
+    coherence_min: float | None = None
+    mismatch_sigma: float | None = None
+    min_averages: float | None = None
+
+    def contains(self, w_rad_s: float) -> bool:
+        """Whether ``w_rad_s`` lies in the band (edges included).
+
+        Parameters
+        ----------
+        w_rad_s : float
+            A frequency [rad/s].
+        """
+        return self.min_rad_s <= w_rad_s <= self.max_rad_s
+
+    def to_json_dict(self) -> dict:
+        """The JSON object of DESIGN.md's ``bands`` entries (keys in this order)."""
+        return {"min_rad_s": self.min_rad_s, "max_rad_s": self.max_rad_s, "peak_rad_s": self.peak_rad_s,
+                "epsilon": self.epsilon, "limited_by": self.limited_by, "reason": self.reason,
+                "coherence_min": self.coherence_min, "mismatch_sigma": self.mismatch_sigma,
+                "min_averages": self.min_averages}
+
+
+@dataclass(frozen=True)
+class Candidate(_JsonView):
+    """A diagnosis candidate: an effect (or pair, or refitted coefficients) and what it would leave (JSON
+    ``diagnosis`` entries, best first).
+
+    Attributes
+    ----------
+    effect : str
+        Effect type, ``"a+b"`` for a pair (sorted names) or ``"parameter_error"``.
+    parameters : dict
+        Fitted parameters by name (``type.name`` when a pair repeats a name; numerator and denominator for
+        ``parameter_error``).
+    effects : list of dict
+        The effects to append to ``model.effects`` in the config, as is (empty for ``parameter_error``).
+    epsilon, nu_gap : float
+        What the model with the candidate leaves on the averaged data (eqs. 13-14).
+    sentence : str
+        ``missing: time delay of 45 ms; adding it brings epsilon from 0.62 to 0.06``.
+    improvement, epsilon_before : float
+        epsilon gained, and epsilon of the current model.
+    epsilon_raw : float or None
+        Raw epsilon (sup over the sweeps) with the candidate.
+    worst_frequency_rad_s : float
+        Where the candidate's epsilon peaks [rad/s].
+    complexity : int
+        Fitted parameters.
+    explains : bool
+        The mismatch left is within the errors.
+    cost, cost_before : float
+        CIFER cost J with and without the candidate.
+    model : dict or None
+        ``parameter_error`` only: the refitted ``model`` mapping that replaces the config's.
+    note : str or None
+        ``parameter_error`` only: says so.
+    """
+
+    effect: str
+    parameters: dict = field(default_factory=dict)
+    effects: list = field(default_factory=list)
+    epsilon: float | None = None
+    nu_gap: float | None = None
+    sentence: str = ""
+    improvement: float | None = None
+    epsilon_before: float | None = None
+    epsilon_raw: float | None = None
+    worst_frequency_rad_s: float | None = None
+    complexity: int = 0
+    explains: bool = False
+    cost: float | None = None
+    cost_before: float | None = None
+    model: dict | None = None
+    note: str | None = None
+
+    def to_json_dict(self) -> dict:
+        """The JSON object of DESIGN.md's ``diagnosis`` entries (``model`` and ``note`` only when refitted)."""
+        out = {"effect": self.effect, "parameters": self.parameters, "effects": [dict(e) for e in self.effects],
+               "epsilon": self.epsilon, "nu_gap": self.nu_gap, "sentence": self.sentence,
+               "improvement": self.improvement, "epsilon_before": self.epsilon_before,
+               "epsilon_raw": self.epsilon_raw, "worst_frequency_rad_s": self.worst_frequency_rad_s,
+               "complexity": self.complexity, "explains": self.explains, "cost": self.cost,
+               "cost_before": self.cost_before}
+        if self.model is not None:
+            out["model"] = self.model
+            out["note"] = self.note
+        return out
+
+
+def _band(value: Band | dict) -> Band:
+    return value if isinstance(value, Band) else Band.from_json_dict(value)
+
+
+def _candidate(value: Candidate | dict) -> Candidate:
+    return value if isinstance(value, Candidate) else Candidate.from_json_dict(value)
+
+
 @dataclass
 class SweepResult:
     """Validation of one sweep's (raw) estimate."""
@@ -89,16 +251,24 @@ class SweepResult:
     points_used: int
 
     def to_json_dict(self) -> dict:
+        """The JSON object of a ``raw_sweeps`` entry (non-finite numbers are null)."""
         return {"start_s": _num(self.start_s), "end_s": _num(self.end_s), "epsilon": _num(self.epsilon),
                 "worst_frequency_rad_s": _num(self.worst_frequency_rad_s), "points_used": self.points_used}
 
     @classmethod
     def from_json_dict(cls, data: dict) -> "SweepResult":
+        """Rebuild a sweep's result from its JSON object.
+
+        Parameters
+        ----------
+        data : dict
+            A ``raw_sweeps`` entry of the JSON results.
+        """
         return cls(_float(data.get("start_s")), _float(data.get("end_s")), data.get("epsilon"),
                    data.get("worst_frequency_rad_s"), int(data.get("points_used") or 0))
 
 
-def _float(value) -> float:
+def _float(value: Any) -> float:
     return float("nan") if value is None else float(value)
 
 
@@ -149,8 +319,8 @@ class ChannelResult:
     points_excluded: int = 0
     limited_by: str = "none"
     frequency_flags: list[str] = field(default_factory=list)
-    bands: list[dict] = field(default_factory=list)
-    diagnosis: list[dict] = field(default_factory=list)
+    bands: list[Band] = field(default_factory=list)
+    diagnosis: list[Candidate] = field(default_factory=list)
     sweep_results: list[SweepResult] = field(default_factory=list)
     sweep_measured: list[np.ndarray] = field(default_factory=list)   # complex raw estimate per sweep (plots)
     bad_samples: dict[str, int] = field(default_factory=dict)
@@ -161,15 +331,24 @@ class ChannelResult:
     manoeuvres: list[Manoeuvre] = field(default_factory=list)        # doublets kept for the time domain
     time_domain: list[dict] = field(default_factory=list)            # per manoeuvre: tic, tic_input_augmented
 
+    def __post_init__(self) -> None:
+        # bands and candidates given as their JSON objects (hand-written results, tests) are read as such
+        self.bands = [_band(b) for b in self.bands]
+        self.diagnosis = [_candidate(c) for c in self.diagnosis]
+
     @property
     def points_used(self) -> int:
+        """Confident frequencies (those epsilon and the nu-gap are taken over)."""
         return int(np.count_nonzero(self.confident)) if self.confident is not None else 0
 
     def to_json_dict(self, samples: bool = True) -> dict:
         """The channel's JSON object (DESIGN.md keys first, extensions after).
 
-        ``samples=False`` leaves out the bulky parts only figures need (each raw sweep's response, the doublets'
-        samples): the node's 1 Hz diagnostics read a few numbers.
+        Parameters
+        ----------
+        samples : bool
+            ``False`` leaves out the bulky parts only figures need (each raw sweep's response, the doublets'
+            samples): the node's 1 Hz diagnostics read a few numbers.
         """
         out = {
             "nu_gap": _num(self.nu_gap),
@@ -185,7 +364,7 @@ class ChannelResult:
             "epsilon_per_frequency": _list(self.epsilon_per_frequency),
             "measured": _mag_phase(self.measured, self.model),
             "model": _mag_phase(self.model),
-            "diagnosis": list(self.diagnosis),
+            "diagnosis": [c.to_json_dict() for c in self.diagnosis],
             # extensions
             "nu_gap_frequency_rad_s": _num(self.nu_gap_frequency_rad_s),
             "epsilon_raw_frequency_rad_s": _num(self.epsilon_raw_frequency_rad_s),
@@ -196,7 +375,7 @@ class ChannelResult:
             "points_excluded": int(self.points_excluded),
             "random_error": _list(self.random_error),
             "frequency_flags": list(self.frequency_flags),
-            "bands": list(self.bands),
+            "bands": [b.to_json_dict() for b in self.bands],
             "raw_sweeps": [s.to_json_dict() for s in self.sweep_results],
             "bad_samples": dict(self.bad_samples),
             "epsilon_previous": _num(self.epsilon_previous),
@@ -216,15 +395,25 @@ class ChannelResult:
 
     @classmethod
     def from_json_dict(cls, name: str, data: dict) -> "ChannelResult":
-        """Rebuild a channel's result from its JSON object (e.g. to draw a report from saved results)."""
+        """Rebuild a channel's result from its JSON object (e.g. to draw a report from saved results).
+
+        Parameters
+        ----------
+        name : str
+            Channel name.
+        data : dict
+            The channel's object of the JSON results.
+        """
         ch = cls(name=name, sweeps=int(data.get("sweeps") or 0), nu_gap=data.get("nu_gap"),
                  nu_gap_frequency_rad_s=data.get("nu_gap_frequency_rad_s"), epsilon=data.get("epsilon"),
                  worst_frequency_rad_s=data.get("worst_frequency_rad_s"), epsilon_raw=data.get("epsilon_raw"),
                  epsilon_raw_frequency_rad_s=data.get("epsilon_raw_frequency_rad_s"),
                  coherence_threshold=float(data.get("coherence_threshold", 0.6)),
                  points_excluded=int(data.get("points_excluded") or 0), limited_by=data.get("limited_by", "none"),
-                 frequency_flags=list(data.get("frequency_flags") or []), bands=list(data.get("bands") or []),
-                 diagnosis=list(data.get("diagnosis") or []), bad_samples=dict(data.get("bad_samples") or {}),
+                 frequency_flags=list(data.get("frequency_flags") or []),
+                 bands=[Band.from_json_dict(b) for b in data.get("bands") or []],
+                 diagnosis=[Candidate.from_json_dict(c) for c in data.get("diagnosis") or []],
+                 bad_samples=dict(data.get("bad_samples") or {}),
                  epsilon_previous=data.get("epsilon_previous"),
                  model_description=data.get("model_description", ""), message=data.get("message", ""),
                  model_spec=dict(data.get("model_spec") or {}))
@@ -256,6 +445,8 @@ class ValidationResult:
     history: dict[str, list[dict]] = field(default_factory=dict)   # per channel: epsilon per model version
 
     def to_json_dict(self) -> dict:
+        """DESIGN.md's JSON results: ``channels`` (each :meth:`ChannelResult.to_json_dict`), config, sources,
+        notes and history."""
         return {
             "channels": {name: ch.to_json_dict() for name, ch in self.channels.items()},
             "config": self.config_source,
@@ -266,7 +457,18 @@ class ValidationResult:
 
     @classmethod
     def from_json_dict(cls, data: dict) -> "ValidationResult":
-        """Rebuild results from :meth:`to_json_dict` output (``gap-validate report RESULTS.json``)."""
+        """Rebuild results from :meth:`to_json_dict` output (``gap-validate report RESULTS.json``).
+
+        Parameters
+        ----------
+        data : dict
+            The JSON results.
+
+        Raises
+        ------
+        ValueError
+            When there is no ``channels`` object.
+        """
         channels = data.get("channels")
         if not isinstance(channels, dict):
             raise ValueError("no 'channels' object")

@@ -1,5 +1,5 @@
-"""Synthetic flights: time histories of a sweep flight, ROS-free (arrays only; :mod:`gap_validation.bagio` writes
-them as a rosbag2).
+"""Synthetic flights: time histories of a sweep flight, ROS-free (arrays only; :mod:`gap_validation.bag.writer`
+writes them as a rosbag2).
 
 The "true aircraft" of each channel is the config's model (with its effects) with *hidden* effects in series
 (:meth:`LinearModel.with_effects`), so a replay of the flight measures the truth and the validation sees how far
@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import Any, Sequence
 
 import numpy as np
 from scipy import signal
@@ -32,33 +33,19 @@ from gap_validation.core.config import SignalSpec, ValidationConfig
 from gap_validation.core.effects import validate_effect
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.fields import FieldPath
+from gap_validation.core.layouts import JOINT_STATE, LAYOUTS, infer_type
+from gap_validation.core.numbers import NON_NEGATIVE, POSITIVE, Interval, check_number
 
 __all__ = [
     "FlightOptions", "Segment", "TopicSeries", "SimulatedFlight", "parse_hidden", "hidden_effects",
     "parse_band_noise", "band_noise", "truth_models", "plan_topics", "simulate_flight", "log_sweep", "doublet",
-    "with_options", "SUPPORTED_TYPES",
+    "with_options",
 ]
-
-IMU = "sensor_msgs/msg/Imu"
-JOINT_STATE = "sensor_msgs/msg/JointState"
-FLOAT64 = "std_msgs/msg/Float64"
-FLOAT32 = "std_msgs/msg/Float32"
-BOOL = "std_msgs/msg/Bool"
 
 #: Spawn key of the band-noise random stream (independent of the main stream of the same seed).
 _BAND_NOISE_STREAM = 1
 #: Order of the band-pass filter of the band noise (Butterworth; the band-pass doubles it).
 _BAND_NOISE_ORDER = 4
-
-#: Message types a simulated flight can publish -> the fields it can fill (``None``: see the type's rule).
-SUPPORTED_TYPES = {
-    IMU: {("orientation", c) for c in "xyzw"} | {("angular_velocity", c) for c in "xyz"}
-         | {("linear_acceleration", c) for c in "xyz"},
-    JOINT_STATE: {("position",), ("velocity",), ("effort",)},
-    FLOAT64: {("data",)},
-    FLOAT32: {("data",)},
-    BOOL: {("data",)},
-}
 
 
 @dataclass(frozen=True)
@@ -161,25 +148,20 @@ class FlightOptions:
                     "gust_bandwidth_rad_s", "sim_rate_hz", "band_low_factor",
                     "band_high_factor")
         for name in positive:
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ConfigError(f"simulation option {name}: expected a number > 0, got {value!r}")
+            check_number(getattr(self, name), f"simulation option {name}", POSITIVE, expected="a number > 0")
         for name in ("sweep_amplitude_rad", "doublet_amplitude_rad", "quiet_s", "noise", "gyro_noise_rad_s",
                      "surface_noise_rad", "gust_rms_rad_s", "trim_step_rad", "trim_offset_rad", "jitter_s",
                      "gyro_lsb_rad_s", "surface_lsb_rad",
                      "latency_s", "latency_jitter_s", "band_noise_rms_rad_s"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0):
-                raise ConfigError(f"simulation option {name}: expected a number >= 0, got {value!r}")
+            check_number(getattr(self, name), f"simulation option {name}", NON_NEGATIVE, expected="a number >= 0")
         if not isinstance(self.sweeps_per_channel, int) or self.sweeps_per_channel < 1:
             raise ConfigError(f"simulation option sweeps_per_channel: expected an integer >= 1, "
                               f"got {self.sweeps_per_channel!r}")
         if self.band_low_factor >= self.band_high_factor:
             raise ConfigError(f"simulation options band_low_factor {self.band_low_factor!r} must be below "
                               f"band_high_factor {self.band_high_factor!r}")
-        if not 0.0 <= self.drop_probability < 0.5:
-            raise ConfigError(f"simulation option drop_probability: expected a number in [0, 0.5), "
-                              f"got {self.drop_probability!r}")
+        check_number(self.drop_probability, "simulation option drop_probability", Interval(0.0, 0.5, high_open=True),
+                     expected="a number in [0, 0.5)")
         self._check_band_noise()
         return self
 
@@ -285,7 +267,13 @@ class SimulatedFlight:
         return sum(len(s) for s in self.topics.values())
 
     def sweeps(self, channel: str) -> list[Segment]:
-        """The sweep segments of ``channel``."""
+        """The sweep segments of ``channel``.
+
+        Parameters
+        ----------
+        channel : str
+            A channel of the flight's config.
+        """
         return [s for s in self.segments if s.channel == channel and s.kind == "sweep"]
 
 
@@ -346,8 +334,16 @@ def parse_hidden(text: str, channels: list[str] | tuple[str, ...] | None = None)
     return channel, validate_effect(effect, where=f"--hidden {text!r}")
 
 
-def hidden_effects(texts, config: ValidationConfig) -> dict[str, list[dict]]:
-    """Parse every ``--hidden`` text; channel -> effects in the order given."""
+def hidden_effects(texts: Sequence[str] | None, config: ValidationConfig) -> dict[str, list[dict]]:
+    """Parse every ``--hidden`` text; channel -> effects in the order given.
+
+    Parameters
+    ----------
+    texts : sequence of str or None
+        ``--hidden`` texts (``CHANNEL:EFFECT:key=value[,key=value]``).
+    config : ValidationConfig
+        The config whose channels they name.
+    """
     out: dict[str, list[dict]] = {}
     for text in texts or ():
         channel, effect = parse_hidden(text, tuple(config.channels))
@@ -356,7 +352,15 @@ def hidden_effects(texts, config: ValidationConfig) -> dict[str, list[dict]]:
 
 
 def truth_models(config: ValidationConfig, hidden: dict[str, list[dict]] | None = None) -> dict:
-    """Channel -> the true model: the config's model (with its effects) and the hidden effects in series."""
+    """Channel -> the true model: the config's model (with its effects) and the hidden effects in series.
+
+    Parameters
+    ----------
+    config : ValidationConfig
+        The config (models with their effects).
+    hidden : dict, optional
+        Channel -> effects in series with its model.
+    """
     hidden = hidden or {}
     unknown = sorted(set(hidden) - set(config.channels))
     if unknown:
@@ -421,24 +425,11 @@ class _TopicPlan:
 
 
 def _infer_type(spec: SignalSpec, path: FieldPath, stream: str) -> str | None:
-    if spec.type:
-        return spec.type
-    attrs = path.attributes
-    if not attrs:
-        return None
-    if stream == "trigger" and attrs == ("data",):
-        return BOOL
-    if attrs[0] in ("angular_velocity", "linear_acceleration", "orientation"):
-        return IMU
-    if attrs[0] in ("position", "velocity", "effort") and (path.key is not None or path.index is not None):
-        return JOINT_STATE
-    if attrs == ("data",):
-        return FLOAT64
-    return None
+    return spec.type or infer_type(path, stream)
 
 
 def _check_field(plan_topic: str, msgtype: str, path: FieldPath) -> None:
-    allowed = SUPPORTED_TYPES[msgtype]
+    allowed = LAYOUTS[msgtype]
     attrs = path.attributes
     ok = attrs in allowed and all(s.kind == "attr" for s in path.steps)
     if msgtype == JOINT_STATE:
@@ -452,7 +443,7 @@ def _check_field(plan_topic: str, msgtype: str, path: FieldPath) -> None:
 def _supported_text(msgtype: str) -> str:
     if msgtype == JOINT_STATE:
         return "position[name], velocity[name], effort[name] or [index]"
-    return ", ".join(sorted(".".join(a) for a in SUPPORTED_TYPES[msgtype]))
+    return ", ".join(sorted(".".join(a) for a in LAYOUTS[msgtype]))
 
 
 def plan_topics(config: ValidationConfig) -> dict[str, _TopicPlan]:
@@ -461,6 +452,11 @@ def plan_topics(config: ValidationConfig) -> dict[str, _TopicPlan]:
     The type is the signal's ``type`` when given, else inferred from the field: ``angular_velocity.*`` and
     friends -> ``sensor_msgs/msg/Imu``, ``position[name]`` -> ``sensor_msgs/msg/JointState``, ``data`` ->
     ``std_msgs/msg/Float64`` (``std_msgs/msg/Bool`` for a trigger).
+
+    Parameters
+    ----------
+    config : ValidationConfig
+        The config whose signals the flight publishes.
 
     Raises
     ------
@@ -473,14 +469,14 @@ def plan_topics(config: ValidationConfig) -> dict[str, _TopicPlan]:
         types = {t for ch, stream, spec, path in parsed if (t := _infer_type(spec, path, stream)) is not None}
         if not types:
             raise ConfigError(f"cannot infer the message type of topic {topic} from field "
-                              f"{parsed[0][3].text!r}; set 'type' ({', '.join(SUPPORTED_TYPES)})")
+                              f"{parsed[0][3].text!r}; set 'type' ({', '.join(LAYOUTS)})")
         if len(types) > 1:
             raise ConfigError(f"topic {topic}: its signals need different message types "
                               f"({', '.join(sorted(types))})")
         msgtype = types.pop()
-        if msgtype not in SUPPORTED_TYPES:
+        if msgtype not in LAYOUTS:
             raise ConfigError(f"cannot simulate topic {topic} of type {msgtype} "
-                              f"(supported: {', '.join(SUPPORTED_TYPES)})")
+                              f"(supported: {', '.join(LAYOUTS)})")
         for _, _, _, path in parsed:
             _check_field(topic, msgtype, path)
         role = "imu" if any(stream == "output" for _, stream, _, _ in parsed) else "surface"
@@ -512,6 +508,19 @@ def log_sweep(t_s: np.ndarray, duration_s: float, w0_rad_s: float, w1_rad_s: flo
     starts a sweep with a couple of long-period cycles), then sweeps exponentially:
     ``phi(t) = w0 T_d + w0 T_s / ln(k) (k^((t - T_d)/T_s) - 1)``, ``k = w1/w0``, ``T_s = T - T_d``, so the
     instantaneous frequency is ``w0 k^((t - T_d)/T_s)`` and every octave gets the same time.
+
+    Parameters
+    ----------
+    t_s : ndarray
+        Times from the sweep start [s].
+    duration_s : float
+        Sweep length T [s].
+    w0_rad_s, w1_rad_s : float
+        Start and end frequencies [rad/s].
+    taper_s : float
+        Half-cosine fade-in and fade-out [s] (at most T / 4).
+    dwell_cycles : float
+        Periods at ``w0`` before the sweep.
     """
     t = np.asarray(t_s, dtype=float)
     inside = (t >= 0.0) & (t <= duration_s)
@@ -531,7 +540,15 @@ def log_sweep(t_s: np.ndarray, duration_s: float, w0_rad_s: float, w1_rad_s: flo
 
 
 def doublet(t_s: np.ndarray, half_period_s: float) -> np.ndarray:
-    """Unit doublet: +1 for ``0 <= t < h``, -1 for ``h <= t < 2h``, zero elsewhere."""
+    """Unit doublet: +1 for ``0 <= t < h``, -1 for ``h <= t < 2h``, zero elsewhere.
+
+    Parameters
+    ----------
+    t_s : ndarray
+        Times from the doublet start [s].
+    half_period_s : float
+        Length h of each half [s].
+    """
     t = np.asarray(t_s, dtype=float)
     return np.where((t >= 0) & (t < half_period_s), 1.0, 0.0) - np.where(
         (t >= half_period_s) & (t < 2 * half_period_s), 1.0, 0.0)
@@ -741,7 +758,15 @@ def _channel_input(name: str, t_s: np.ndarray, segments: list[Segment], opt: Fli
     return u
 
 
-def with_options(options: FlightOptions | None = None, **changes) -> FlightOptions:
-    """A copy of ``options`` (default options when None) with ``changes`` (None values are ignored)."""
+def with_options(options: FlightOptions | None = None, **changes: Any) -> FlightOptions:
+    """A copy of ``options`` (default options when None) with ``changes`` (None values are ignored).
+
+    Parameters
+    ----------
+    options : FlightOptions, optional
+        The options to change (default: :class:`FlightOptions()`).
+    **changes
+        Option name -> value.
+    """
     base = options or FlightOptions()
     return replace(base, **{k: v for k, v in changes.items() if v is not None})

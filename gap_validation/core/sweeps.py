@@ -29,9 +29,13 @@ trigger).
 """
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
+from numpy.typing import ArrayLike
 
 from gap_validation.core.errors import ConfigError, DataError
+from gap_validation.core.numbers import POSITIVE, check_number
 
 __all__ = ["SweepDetector", "TriggerTracker", "detect_sweeps", "DETECTOR_DEFAULTS"]
 
@@ -49,14 +53,9 @@ _QUIET_BLOCK_S = 1.0        # the quiet level is tracked on one-second means of 
 _CHUNK = 8192               # windowed sums are formed over at most this many samples (float64 precision)
 
 
-def _positive(name: str, value) -> float:
-    try:
-        out = float(value)
-    except (TypeError, ValueError):
-        raise ConfigError(f"estimator option {name}: expected a number, got {value!r}") from None
-    if not np.isfinite(out) or out <= 0.0:
-        raise ConfigError(f"estimator option {name}: expected a positive finite number, got {value!r}")
-    return out
+def _positive(name: str, value: Any) -> float:
+    """A detector option's number, > 0 (numeric strings accepted)."""
+    return check_number(value, f"estimator option {name}", POSITIVE, strings=True, expected="a positive finite number")
 
 
 def detrended_std(x: np.ndarray, window_n: int) -> np.ndarray:
@@ -158,7 +157,13 @@ class SweepDetector:
 
     # ------------------------------------------------------------------ processing
     def start_run(self, k0: int) -> None:
-        """Begin a contiguous run of samples at grid index ``k0`` (after a gap or at the start)."""
+        """Begin a contiguous run of samples at grid index ``k0`` (after a gap or at the start).
+
+        Parameters
+        ----------
+        k0 : int
+            Grid index of the first sample of the run.
+        """
         self._hist_n = 0
         self._blk_sum, self._blk_def, self._blk_len = 0.0, 0, 0
         self._active = False
@@ -166,7 +171,13 @@ class SweepDetector:
         self._run_start_k = int(k0)
 
     def end_run(self, k_end: int) -> list[tuple[int, bool]]:
-        """Data stops before grid index ``k_end``: an excitation in progress ends there."""
+        """Data stops before grid index ``k_end``: an excitation in progress ends there.
+
+        Parameters
+        ----------
+        k_end : int
+            Grid index after the last sample of the run.
+        """
         edges = []
         if self._active:
             edges.append((max(int(k_end), self._last_edge_k), False))
@@ -326,7 +337,13 @@ class SweepDetector:
         }
 
     def load_state(self, state: dict) -> None:
-        """Restore :meth:`state_dict` (of a detector with the same options)."""
+        """Restore :meth:`state_dict` (of a detector with the same options).
+
+        Parameters
+        ----------
+        state : dict
+            From :meth:`state_dict`.
+        """
         self._hist[:] = np.asarray(state["hist"], dtype=float)
         self._quiet[:] = np.asarray(state["quiet"], dtype=float)
         self._hist_n = int(state["hist_n"])
@@ -353,7 +370,15 @@ class TriggerTracker:
         self.seen = False
 
     def edges(self, k: np.ndarray, active: np.ndarray) -> list[tuple[int, bool]]:
-        """Edges in the time-ordered samples ``active`` at grid indices ``k`` (first index at/after each)."""
+        """Edges in the time-ordered samples ``active`` at grid indices ``k`` (first index at/after each).
+
+        Parameters
+        ----------
+        k : ndarray of int
+            Grid indices of the samples.
+        active : ndarray of bool
+            Trigger values (True: in a sweep).
+        """
         k = np.asarray(k, dtype=np.int64)
         active = np.asarray(active, dtype=bool)
         if k.size == 0:
@@ -365,14 +390,23 @@ class TriggerTracker:
         return [(int(k[i]), bool(active[i])) for i in change]
 
     def state_dict(self) -> dict:
+        """State as numbers (whether the trigger is on, whether any sample was seen)."""
         return {"state": int(self.state), "seen": int(self.seen)}
 
     def load_state(self, state: dict) -> None:
+        """Restore :meth:`state_dict`.
+
+        Parameters
+        ----------
+        state : dict
+            From :meth:`state_dict`.
+        """
         self.state = bool(state["state"])
         self.seen = bool(state["seen"])
 
 
-def detect_sweeps(t_s, u, min_sweep_s: float = 10.0, **options) -> list[tuple[float, float]]:
+def detect_sweeps(t_s: ArrayLike, u: ArrayLike, min_sweep_s: float = 10.0,
+                  **options: Any) -> list[tuple[float, float]]:
     """Sweeps in a uniformly sampled input record (offline use of :class:`SweepDetector`).
 
     Parameters

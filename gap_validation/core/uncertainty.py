@@ -23,12 +23,18 @@ the validated band.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy import signal
 
 from gap_validation.core.errors import DataError
 from gap_validation.core.metrics import tic, tic_input_augmented
+
+if TYPE_CHECKING:  # pragma: no cover
+    from gap_validation.core.manoeuvres import Manoeuvre
+    from gap_validation.core.models import LinearModel
 
 __all__ = ["AllPassPerturbation", "sample_perturbations", "MonteCarloTube", "monte_carlo_tube", "TimeDomainCheck",
            "time_domain_check"]
@@ -60,8 +66,14 @@ class AllPassPerturbation:
         """Denominator of M(s): ``den_A - e num_A`` (Hurwitz for e < 1)."""
         return np.polysub(self.allpass_den, self.epsilon * self.allpass_num)
 
-    def freqresp(self, w_rad_s) -> np.ndarray:
-        """M(jw)."""
+    def freqresp(self, w_rad_s: ArrayLike) -> np.ndarray:
+        """M(jw).
+
+        Parameters
+        ----------
+        w_rad_s : array_like
+            Frequencies [rad/s].
+        """
         s = 1j * np.asarray(w_rad_s, dtype=float)
         return np.polyval(self.num, s) / np.polyval(self.den, s)
 
@@ -140,23 +152,41 @@ class MonteCarloTube:
     upper: np.ndarray
     epsilon: float
 
-    def fraction_inside(self, measured, tolerance: float = 0.0) -> float:
-        """Fraction of the samples of ``measured`` (same times) inside the tube widened by ``tolerance``."""
+    def fraction_inside(self, measured: ArrayLike, tolerance: float = 0.0) -> float:
+        """Fraction of the samples of ``measured`` (same times) inside the tube widened by ``tolerance``.
+
+        Parameters
+        ----------
+        measured : array_like
+            Measured output at the tube's times.
+        tolerance : float
+            Widening of the tube on both sides (output units).
+        """
         measured = np.asarray(measured, dtype=float)
         inside = (measured >= self.lower - tolerance) & (measured <= self.upper + tolerance)
         return float(np.mean(inside)) if inside.size else float("nan")
 
 
-def filter_uniform(num, den, dt_s: float, x) -> np.ndarray:
+def filter_uniform(num: ArrayLike, den: ArrayLike, dt_s: float, x: ArrayLike) -> np.ndarray:
     """Response of ``num/den`` (proper, stable) from rest to samples ``x`` on a uniform grid.
 
     Discretised exactly for a piecewise-linear input (first-order hold, as ``scipy.signal.lsim``).
+
+    Parameters
+    ----------
+    num, den : array_like
+        Transfer function coefficients (descending powers of s).
+    dt_s : float
+        Sample step [s].
+    x : array_like
+        Input samples.
     """
     bd, ad, _ = signal.cont2discrete((np.atleast_1d(num), np.atleast_1d(den)), dt_s, method="foh")
     return signal.lfilter(np.ravel(bd), np.ravel(ad), x)
 
 
-def monte_carlo_tube(model, epsilon: float, t_s, u, *, count: int = 500, band_rad_s=None,
+def monte_carlo_tube(model: LinearModel, epsilon: float, t_s: ArrayLike, u: ArrayLike, *, count: int = 500,
+                     band_rad_s: tuple[float, float] | None = None,
                      rng: np.random.Generator | int | None = 0) -> MonteCarloTube:
     """Simulate the model and ``count`` perturbed models (on the epsilon-disk boundary) for input ``u``.
 
@@ -172,6 +202,8 @@ def monte_carlo_tube(model, epsilon: float, t_s, u, *, count: int = 500, band_ra
         Number of Monte Carlo runs (the paper: 500).
     band_rad_s : (float, float), optional
         Band for the all-pass corner frequencies (default 0.5 to 100 rad/s).
+    rng : numpy Generator or int seed
+        Random source (reproducible by default).
 
     Returns
     -------
@@ -215,7 +247,7 @@ class TimeDomainCheck:
     tic_input_augmented: float
 
 
-def time_domain_check(model, manoeuvre) -> TimeDomainCheck:
+def time_domain_check(model: LinearModel, manoeuvre: Manoeuvre) -> TimeDomainCheck:
     """Simulate ``model`` for a recorded manoeuvre's input and compare with the flight output (TIC).
 
     Parameters

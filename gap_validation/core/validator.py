@@ -13,6 +13,7 @@ from collections import Counter
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from gap_validation.core import metrics
 from gap_validation.core.config import STREAMS, ChannelConfig, ValidationConfig
@@ -57,7 +58,7 @@ class OnlineValidator:
         Run the diagnosis (effect fitting) in :meth:`results` by default.
     """
 
-    def __init__(self, config: ValidationConfig, *, diagnose: bool = True):
+    def __init__(self, config: ValidationConfig, *, diagnose: bool = True) -> None:
         self._config = config
         self._diagnose = diagnose
         self._estimators = {name: _estimator_for(ch) for name, ch in config.channels.items()}
@@ -71,9 +72,10 @@ class OnlineValidator:
     # ------------------------------------------------------------------ data in
     @property
     def config(self) -> ValidationConfig:
+        """The config whose models are validated (replaced by :meth:`set_config`)."""
         return self._config
 
-    def add_samples(self, channel: str, stream: str, t_s, values) -> None:
+    def add_samples(self, channel: str, stream: str, t_s: ArrayLike, values: ArrayLike) -> None:
         """Feed a time-ordered batch of samples of one stream of one channel.
 
         Parameters
@@ -104,11 +106,21 @@ class OnlineValidator:
             raise ConfigError(f"unknown stream {stream!r} (expected one of {', '.join(STREAMS)})")
         self._versions[channel] += 1
 
-    def add_time_histories(self, channel: str, t_input_s, u, t_output_s, y) -> None:
+    def add_time_histories(self, channel: str, t_input_s: ArrayLike, u: ArrayLike, t_output_s: ArrayLike,
+                           y: ArrayLike) -> None:
         """Feed whole recorded time histories of one channel at once (library use: arrays already in memory).
 
         Equivalent to feeding both streams interleaved in time order; the streams may have different,
         irregular sample times.
+
+        Parameters
+        ----------
+        channel : str
+            Channel name from the config.
+        t_input_s, u : array_like
+            Input sample times [s] and surface deflections [rad].
+        t_output_s, y : array_like
+            Output sample times [s] and body rates [rad/s].
         """
         est = self._estimators.get(channel)
         if est is None:
@@ -118,7 +130,19 @@ class OnlineValidator:
         self._versions[channel] += 1
 
     def count_bad(self, channel: str, stream: str, reason: str, count: int = 1) -> None:
-        """Count samples that could not be used (NaN, missing joint, wrong length ...), per reason."""
+        """Count samples that could not be used (NaN, missing joint, wrong length ...), per reason.
+
+        Parameters
+        ----------
+        channel : str
+            Channel name (others are ignored).
+        stream : {"input", "output", "trigger"}
+            The stream.
+        reason : str
+            Short tag (``not finite``, ``missing joint`` ...).
+        count : int
+            Samples.
+        """
         if channel in self._bad:
             self._bad[channel][f"{stream}: {reason}"] += int(count)
 
@@ -142,6 +166,11 @@ class OnlineValidator:
 
         The epsilon of the old model becomes ``epsilon_previous`` in the next results. Returns the channels
         whose spectra had to be restarted (their topics, fields, frequencies or estimator options changed).
+
+        Parameters
+        ----------
+        config : ValidationConfig
+            The new config (models, and possibly topics, fields or analysis settings).
         """
         old = self.results(diagnose=False)
         restarted = []
@@ -166,15 +195,33 @@ class OnlineValidator:
 
     # ------------------------------------------------------------------ results
     def estimate(self, channel: str) -> SpectralEstimate | None:
-        """The averaged spectral estimate of ``channel`` so far (None before the first sweep)."""
+        """The averaged spectral estimate of ``channel`` so far (None before the first sweep).
+
+        Parameters
+        ----------
+        channel : str
+            Channel name.
+        """
         return self._estimators[channel].averaged()
 
     def sweep_estimates(self, channel: str) -> list[SpectralEstimate]:
-        """The per-sweep (raw) estimates of ``channel`` kept so far."""
+        """The per-sweep (raw) estimates of ``channel`` kept so far.
+
+        Parameters
+        ----------
+        channel : str
+            Channel name.
+        """
         return list(self._estimators[channel].sweeps)
 
     def results(self, diagnose: bool | None = None) -> ValidationResult:
-        """Validate every channel's model against the spectra gathered so far."""
+        """Validate every channel's model against the spectra gathered so far.
+
+        Parameters
+        ----------
+        diagnose : bool, optional
+            Run the diagnosis (effect fitting); default: as constructed.
+        """
         diagnose = self._diagnose if diagnose is None else diagnose
         channels = {name: self._channel_result(name, ch, diagnose) for name, ch in self._config.channels.items()}
         return ValidationResult(channels=channels, config_source=self._config.source, sources=list(self.sources))
@@ -256,8 +303,8 @@ class OnlineValidator:
             self._diagnosis_cache[name] = (key, found)
         result.limited_by = found.limited_by
         result.frequency_flags = list(found.frequency_flags)
-        result.bands = [dict(b) for b in found.bands]
-        result.diagnosis = [dict(c) for c in found.candidates]
+        result.bands = list(found.bands)
+        result.diagnosis = list(found.candidates)
         if found.message:
             result.message = found.message
 
@@ -273,9 +320,19 @@ class OnlineValidator:
         }
 
     @classmethod
-    def from_state(cls, config: ValidationConfig, state: dict, **kwargs) -> "OnlineValidator":
+    def from_state(cls, config: ValidationConfig, state: dict, **kwargs: Any) -> "OnlineValidator":
         """A validator for ``config`` resuming from :meth:`state_dict`; channels whose measurement settings
-        changed since the checkpoint start empty."""
+        changed since the checkpoint start empty.
+
+        Parameters
+        ----------
+        config : ValidationConfig
+            The config to validate.
+        state : dict
+            From :meth:`state_dict` (e.g. a checkpoint).
+        **kwargs
+            Passed to the constructor (``diagnose``).
+        """
         if not isinstance(state, dict) or state.get("version") != STATE_VERSION:
             raise ConfigError(f"checkpoint state has version {state.get('version') if isinstance(state, dict) else None!r}, "
                               f"expected {STATE_VERSION}")

@@ -1,0 +1,331 @@
+"""Replay recorded flights (rosbag2) into the online validator: the offline front end of the one data path.
+
+Every bag is streamed message by message (only the config's topics), each record goes through the one decoding
+step (:class:`~gap_validation.messages.decoding.TopicDecoder`, as in the node) and
+:class:`~gap_validation.messages.router.MessageRouter` into :class:`~gap_validation.core.validator.OnlineValidator` --
+the same objects the ROS 2 node uses -- and the result is the validator's :class:`ValidationResult`.
+
+Several bags add up: sweeps from all of them count. Bags are replayed in order of their start time; when a
+bag's clock overlaps the data already replayed (e.g. two simulated flights that both start at the same epoch),
+its times are shifted to start :data:`BAG_GAP_S` after the last sample, so the estimator always sees
+increasing time.
+
+A bad input never discards what was computed: an unreadable bag, a topic of the wrong type or a damaged record
+is reported (one line naming the file and topic) and the other bags, topics and records are still validated.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+from functools import partial
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+from gap_validation.bag.reader import Bag, open_bag
+from gap_validation.core.config import ValidationConfig
+from gap_validation.core.errors import DataError
+from gap_validation.core.fields import FieldError
+from gap_validation.core.results import ValidationResult
+from gap_validation.core.validator import OnlineValidator
+from gap_validation.messages.decoding import TopicDecoder, Undecodable
+from gap_validation.messages.router import MessageRouter, note_saturation, stamp_seconds
+
+log = logging.getLogger(__name__)
+
+__all__ = ["replay", "ReplayOutcome", "BagReport", "BAG_GAP_S"]
+
+#: Gap inserted between bags whose clocks overlap [s].
+BAG_GAP_S = 60.0
+#: Router batching for replay: messages per topic and time span [s] per push (well inside the estimator's
+#: ``max_lag_s`` of 30 s; larger pushes amortise its per-call cost).
+REPLAY_BATCH = 8192
+REPLAY_BATCH_S = 10.0
+#: Messages between two progress callbacks.
+PROGRESS_EVERY = 4096
+
+ProgressCallback = Callable[[int, int], None]
+
+
+@dataclass
+class BagReport:
+    """What happened to one bag: messages routed, time shift applied, problems found."""
+
+    path: str
+    messages: int = 0
+    time_offset_s: float = 0.0
+    fast_topics: list[str] = field(default_factory=list)
+    errors: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return not self.errors
+
+
+@dataclass
+class ReplayOutcome:
+    """Result of a replay: the validation result (None when no bag could be read) and every problem.
+
+    ``errors`` make the CLI exit with status 1 (results, if any, are still printed and written).
+    """
+
+    result: ValidationResult | None
+    bags: list[BagReport]
+    errors: list[str]
+    warnings: list[str]
+    messages: int
+    elapsed_s: float
+    validator: OnlineValidator | None = None
+
+    @property
+    def ok(self) -> bool:
+        return not self.errors
+
+
+class _TopicState:
+    """Per-topic state within one bag: its decoding step, whether it is skipped, damaged records."""
+
+    __slots__ = ("routes", "decoding", "disabled", "damaged", "first_damage")
+
+    def __init__(self, decoding: TopicDecoder):
+        self.routes = decoding.routes
+        self.decoding = decoding
+        self.disabled = False
+        self.damaged = 0
+        self.first_damage = ""
+
+
+def _check_topics(bag: Bag, router: MessageRouter, report: BagReport) -> dict[str, _TopicState]:
+    """Topics to read from ``bag``: warn per missing topic, error on type mismatches, DataError if none."""
+    info = bag.topics
+    wanted = router.topics
+    present = {}
+    for topic in wanted:
+        routes = router.routes[topic]
+        feeds = ", ".join(f"{r.channel}.{r.stream}" for r in routes)
+        if topic not in info:
+            report.warnings.append(f"{bag.path}: topic {topic} ({feeds}) is not in the bag "
+                                   f"(it has: {', '.join(sorted(info)) or 'none'})")
+            continue
+        msgtype = info[topic].msgtype
+        expected = {r.spec.type for r in routes if r.spec is not None and r.spec.type}
+        if msgtype is None:
+            report.errors.append(f"{bag.path}: topic {topic} has several message types; skipped")
+            continue
+        if expected and msgtype not in expected:
+            report.errors.append(f"{bag.path}: topic {topic} has type {msgtype}, the config expects "
+                                 f"{', '.join(sorted(expected))}")
+            continue
+        try:
+            bag.ensure_type(msgtype)
+        except DataError as err:               # every record would fail: one line for the topic, not per record
+            report.errors.append(f"{_after_path(str(err), bag)} (topic {topic}, {feeds}); topic skipped")
+            continue
+        if info[topic].count == 0:
+            report.warnings.append(f"{bag.path}: topic {topic} ({feeds}) has no messages")
+        present[topic] = msgtype
+    if not present and not report.errors:
+        have = ", ".join(sorted(info)) or "none"
+        raise DataError(f"{bag.path}: none of the configured topics ({', '.join(wanted)}) is in the bag "
+                        f"(it has: {have})")
+    return present
+
+
+def _after_path(text: str, bag: Bag) -> str:
+    """``text`` with exactly one ``<bag>: `` prefix."""
+    prefix = f"{bag.path}: "
+    return text if text.startswith(prefix) else prefix + text
+
+
+def _after_topic(text: str, topic: str) -> str:
+    """``text`` without its ``<bag>: topic <topic>: `` prefix (the report line names both already)."""
+    marker = f"topic {topic}: "
+    return text.split(marker, 1)[1] if marker in text else text
+
+
+class _BagReplay:
+    """Streams one bag into the router."""
+
+    def __init__(self, bag: Bag, router: MessageRouter, report: BagReport, fast: bool,
+                 progress: Callable[[int], None]):
+        self.bag = bag
+        self.router = router
+        self.report = report
+        self.fast = fast
+        self.progress = progress
+        self.states: dict[str, _TopicState] = {}
+        self.offset_set = False
+
+    def run(self) -> None:
+        present = _check_topics(self.bag, self.router, self.report)
+        for topic, msgtype in present.items():
+            deserialize = partial(self.bag.deserialize, msgtype=msgtype, topic=topic)
+            self.states[topic] = _TopicState(TopicDecoder(self.router, topic, msgtype, deserialize, fast=self.fast,
+                                                          errors=(DataError,), on_disagree=_disagree))
+        count = 0
+        try:
+            for topic, msgtype, t_ns, raw in self.bag.records(list(present)):
+                count += 1
+                if count % PROGRESS_EVERY == 0:
+                    self.progress(PROGRESS_EVERY)
+                state = self.states[topic]
+                if state.disabled:
+                    continue
+                self._route(topic, state, t_ns * 1e-9, raw)
+        finally:
+            self.progress(count % PROGRESS_EVERY)
+            self.report.messages = count
+            for topic, state in self.states.items():
+                if state.damaged:
+                    self.report.errors.append(f"{self.bag.path}: topic {topic}: {state.damaged} damaged "
+                                              f"record(s) skipped (first: {state.first_damage})")
+            self.report.fast_topics = sorted(t for t, s in self.states.items()
+                                             if s.decoding.decoder is not None and not s.disabled)
+
+    def _set_offset(self, t_s: float) -> None:
+        latest = self.router.latest_time_s()
+        offset = 0.0
+        if math.isfinite(latest) and t_s < latest + BAG_GAP_S:
+            offset = latest + BAG_GAP_S - t_s
+        self.router.time_offset_s = offset
+        self.report.time_offset_s = offset
+        self.offset_set = True
+
+    def _route(self, topic: str, state: _TopicState, bag_time_s: float, raw: Any) -> None:
+        try:
+            stamp, values, msg = state.decoding.decode(raw)
+        except Undecodable as err:  # a damaged record (counted): note it, keep reading the bag
+            state.damaged += 1
+            state.first_damage = state.first_damage or _after_topic(str(err.error), topic)
+            return
+        if msg is None:
+            t_s = bag_time_s if stamp is None else stamp
+            if not self.offset_set:
+                self._set_offset(t_s)
+            self.router.on_values(topic, t_s, values)
+            return
+        if not self.offset_set:
+            stamp = stamp_seconds(msg)
+            self._set_offset(bag_time_s if stamp is None else stamp)
+        try:
+            self.router.on_message(topic, msg, bag_time_s)
+        except FieldError as err:                # one signal skipped; the topic's other signals still count
+            feeds = [(r.channel, r.stream) for r in state.routes]
+            broken = [f"{c}.{s}" for c, s in feeds if (c, s) in self.router.broken]
+            state.disabled = len(broken) == len(feeds)
+            which = next((b for b, key in zip(broken, [k for k in feeds if k in self.router.broken])
+                          if self.router.broken[key] == str(err)), broken[-1])
+            self.report.errors.append(f"{self.bag.path}: {err}; {which} skipped")
+
+
+def _disagree(topic: str) -> None:
+    log.debug("fast decoder of %s disagrees with rosbags; decoding fully", topic)
+
+
+def _open_all(paths: Sequence[str | Path], reports: list[BagReport]) -> list[tuple[Bag, BagReport]]:
+    opened = []
+    for path in paths:
+        report = BagReport(str(path))
+        reports.append(report)
+        try:
+            opened.append((open_bag(path), report))
+        except DataError as err:
+            report.errors.append(str(err))
+    opened.sort(key=lambda item: item[0].start_time_s)
+    return opened
+
+
+def _channel_checks(config: ValidationConfig, router: MessageRouter) -> tuple[list[str], list[str]]:
+    """Errors for streams that received messages but no usable sample; warnings for streams without data."""
+    errors, warnings = [], []
+    for name, channel in config.channels.items():
+        for stream in ("input", "output"):
+            spec = channel.signal(stream)
+            if router.samples(name, stream):
+                continue
+            bad = router.bad.get((name, stream), {})
+            where = f"channel {name}: {stream} {spec.topic} {spec.field!r}"
+            if bad:
+                first = router.first_error.get((name, stream))
+                reasons = ", ".join(f"{n} {reason}" for reason, n in sorted(bad.items()))
+                errors.append(f"{where}: no usable sample ({reasons})" + (f": {first}" if first else ""))
+            else:
+                warnings.append(f"{where}: no samples")
+    if not any(router.samples(name, "input") and router.samples(name, "output") for name in config.channels):
+        errors.append("no channel has both input and output samples in the data: nothing to validate "
+                      "(check the config's topics and fields against the bag)")
+    return errors, warnings
+
+
+def replay(bags: Sequence[str | Path], config: ValidationConfig, *, progress: ProgressCallback | None = None,
+           fast: bool = True, validator: OnlineValidator | None = None, diagnose: bool = True) -> ReplayOutcome:
+    """Validate the config's models against recorded flights.
+
+    Parameters
+    ----------
+    bags : sequence of path
+        rosbag2 directories, ``.mcap`` or ``.db3`` files; sweeps from all of them count.
+    config : ValidationConfig
+        Channels, models, topics and fields.
+    progress : callable, optional
+        ``progress(done, total)`` in messages of the configured topics, called every few thousand messages.
+    fast : bool
+        Use the fast CDR field decoders where they apply (verified against full deserialisation).
+    validator : OnlineValidator, optional
+        Continue an existing validator (default: a new one for ``config``).
+    diagnose : bool
+        Let the new validator run the diagnosis (effect fitting) in its results.
+
+    Returns
+    -------
+    ReplayOutcome
+        The validation result and every error and warning (one line each).
+
+    Raises
+    ------
+    DataError
+        When no bag could be read at all (the message names the first problem).
+    """
+    start = time.perf_counter()
+    validator = validator or OnlineValidator(config, diagnose=diagnose)
+    router = MessageRouter(config, validator, batch=REPLAY_BATCH, max_batch_s=REPLAY_BATCH_S)
+    reports: list[BagReport] = []
+    opened = _open_all(bags, reports)
+    total = sum(bag.message_count(router.topics) for bag, _ in opened)
+    done = [0]
+
+    def advance(n: int) -> None:
+        done[0] += n
+        if progress is not None and n:
+            progress(min(done[0], total), total)
+
+    for bag, report in opened:
+        try:
+            _BagReplay(bag, router, report, fast, advance).run()
+            if report.messages:
+                validator.sources.append(str(bag.path))
+        except DataError as err:
+            report.errors.append(str(err))
+        finally:
+            bag.close()
+        router.flush()
+    errors = [e for r in reports for e in r.errors]
+    warnings = [w for r in reports for w in r.warnings]
+    read = [r for r in reports if r.messages]
+    if not read:
+        raise DataError(errors[0] + (f" (and {len(errors) - 1} more problems)" if len(errors) > 1 else "")
+                        if errors else "no messages of the configured topics in " + ", ".join(map(str, bags)))
+    router.flush()
+    validator.finish()
+    channel_errors, channel_warnings = _channel_checks(config, router)
+    errors += channel_errors
+    warnings += channel_warnings
+    result = validator.results()
+    warnings += note_saturation(config, router, result)
+    result.sources = [r.path for r in read]
+    result.notes = list(result.notes) + [f"error: {e}" for e in errors] + [f"warning: {w}" for w in warnings]
+    return ReplayOutcome(result=result, bags=reports, errors=errors, warnings=warnings,
+                         messages=sum(r.messages for r in reports), elapsed_s=time.perf_counter() - start,
+                         validator=validator)

@@ -1,0 +1,155 @@
+"""``gap-validate simulate --config CFG --out BAG [--hidden CHANNEL:EFFECT:key=value[,key=value]]...``
+
+Writes a synthetic sweep flight as a rosbag2: the true aircraft of each channel is the config's model with
+the hidden effects in series; sweeps per axis (roll, pitch, yaw in turn), doublets, pilot trim inputs, gusts,
+sensor noise, message rates with jitter and drops. The same seed gives the same bag.
+``--band-noise LOW:HIGH:RMS[:CHANNEL[,CHANNEL]]`` adds a narrow-band output disturbance (band-pass filtered noise
+between LOW and HIGH rad/s, RMS rad/s) to the measured rates: the coherence drops there and the diagnosis
+should call that band data-limited.
+"""
+from __future__ import annotations
+
+import argparse
+import shutil
+from pathlib import Path
+
+from gap_validation.bag.reader import BAG_SUFFIXES
+from gap_validation.bag.writer import STORAGES, write_flight
+from gap_validation.config import load_config
+from gap_validation.core.effects import describe_effect
+from gap_validation.core.errors import ConfigError
+from gap_validation.core.simulation import (FlightOptions, hidden_effects, parse_band_noise, simulate_flight,
+                                            with_options)
+
+
+def _positive(kind):
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a {'whole ' if kind is int else ''}number > 0, "
+                                             f"got {text!r}") from None
+        if not value > 0:
+            raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
+        return value
+    return parse
+
+
+def _non_negative(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
+    if not value >= 0:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
+    return value
+
+
+def _seed(text: str) -> int:
+    """``--seed``: a non-negative integer (numpy's generators refuse others)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
+    return value
+
+
+def register(sub) -> None:
+    d = FlightOptions()
+    p = sub.add_parser("simulate", help="write a synthetic sweep flight (truth = model + hidden effects)",
+                       description=__doc__.split("\n\n")[0])
+    p.add_argument("--config", required=True, metavar="CFG", help="validation config (YAML): models and topics")
+    p.add_argument("--out", required=True, metavar="BAG",
+                   help="new rosbag2 directory (or a bare .mcap / .db3 file)")
+    p.add_argument("--hidden", action="append", default=[], metavar="CHANNEL:EFFECT:key=value[,key=value]",
+                   help="effect in series with the channel's model in the truth (repeatable), "
+                        "e.g. pitch:time_delay:seconds=0.04")
+    p.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
+    p.add_argument("--storage", choices=STORAGES, default=None, help="storage plugin (default mcap)")
+    p.add_argument("--sweeps", type=_positive(int), default=d.sweeps_per_channel, metavar="N",
+                   help=f"sweeps per channel (default {d.sweeps_per_channel})")
+    p.add_argument("--sweep-duration", type=_positive(float), default=d.sweep_duration_s, metavar="S",
+                   help=f"length of one sweep [s] (default {d.sweep_duration_s:g})")
+    p.add_argument("--imu-rate-hz", type=_positive(float), default=d.imu_rate_hz,
+                   help=f"rate of the output (IMU) topics [Hz] (default {d.imu_rate_hz:g})")
+    p.add_argument("--surface-rate-hz", type=_positive(float), default=d.surface_rate_hz,
+                   help=f"rate of the input (surface) topics [Hz] (default {d.surface_rate_hz:g})")
+    p.add_argument("--amplitude-deg", type=_positive(float), default=None,
+                   help="sweep amplitude [deg] (default 3.4)")
+    p.add_argument("--noise", type=_non_negative, default=d.noise, metavar="SCALE",
+                   help="multiplies sensor noise and gust levels (default 1; 0: noise-free)")
+    p.add_argument("--drop-probability", type=_non_negative, default=d.drop_probability,
+                   help=f"probability of a lost message (default {d.drop_probability:g})")
+    p.add_argument("--band-noise", default=None, metavar="LOW:HIGH:RMS[:CHANNEL[,CHANNEL]]",
+                   help="band-pass filtered noise between LOW and HIGH rad/s with RMS rad/s added to the measured "
+                        "rate of every channel (or of the channels named), e.g. 8:14:0.05 (default: none)")
+    p.add_argument("--no-compression", action="store_true", help="no zstd chunk compression (mcap)")
+    p.add_argument("--force", action="store_true", help="replace BAG if it exists and is a bag")
+    p.set_defaults(func=run)
+
+
+def _remove_existing(out: Path) -> None:
+    if not out.exists():
+        return
+    if out.is_dir() and (out / "metadata.yaml").exists() and all(
+            p.suffix in (*BAG_SUFFIXES, ".yaml", ".zstd") for p in out.iterdir()):
+        shutil.rmtree(out)
+    elif out.is_file() and out.suffix in BAG_SUFFIXES:
+        out.unlink()
+    else:
+        raise ConfigError(f"--out {out}: exists and is not a bag; not replacing it")
+
+
+def _check_out(out: Path) -> None:
+    """Refuse an ``--out`` that cannot be written before simulating (ConfigError, one line)."""
+    existing = next((p for p in out.parents if p.exists()), None)
+    if existing is not None and not existing.is_dir():
+        raise ConfigError(f"--out {out}: {existing} is a file, not a directory")
+    if out.suffix in BAG_SUFFIXES and not out.parent.is_dir():
+        raise ConfigError(f"--out {out}: directory {out.parent} does not exist")
+
+
+def options_from_args(args, channels: tuple[str, ...] | None = None) -> FlightOptions:
+    """The :class:`FlightOptions` the command-line arguments ask for (``channels``: the config's, to check the
+    ones ``--band-noise`` names)."""
+    import math
+
+    band = {}
+    if getattr(args, "band_noise", None) is not None:
+        band_rad_s, rms, chosen = parse_band_noise(args.band_noise, channels)
+        band = {"band_noise_rad_s": band_rad_s, "band_noise_rms_rad_s": rms, "band_noise_channels": chosen}
+    return with_options(
+        sweeps_per_channel=args.sweeps, sweep_duration_s=args.sweep_duration, imu_rate_hz=args.imu_rate_hz,
+        surface_rate_hz=args.surface_rate_hz, noise=args.noise, drop_probability=args.drop_probability,
+        sweep_amplitude_rad=math.radians(args.amplitude_deg) if args.amplitude_deg else None, **band,
+    ).check()
+
+
+def run(args) -> int:
+    config = load_config(args.config)
+    hidden = hidden_effects(args.hidden, config)
+    options = options_from_args(args, tuple(config.channels))
+    out = Path(args.out)
+    _check_out(out)
+    if out.exists():
+        if not args.force:
+            raise ConfigError(f"--out {out}: exists already (use --force to replace a bag)")
+        _remove_existing(out)
+    flight = simulate_flight(config, hidden, options, seed=args.seed)
+    write_flight(flight, out, args.storage, compress=not args.no_compression,
+                 custom_data={"gap_validation.config": str(config.source)})
+    print(f"wrote {out}: {flight.duration_s / 60:.1f} min, {flight.message_count} messages, seed {args.seed}")
+    for topic, series in flight.topics.items():
+        print(f"  {topic}: {series.msgtype}, {len(series)} messages")
+    for name in config.channels:
+        effects = hidden.get(name, [])
+        truth = " + ".join(describe_effect(e) for e in effects) if effects else "nothing (model = truth)"
+        print(f"  {name}: {len(flight.sweeps(name))} sweeps, hidden: {truth}")
+    if options.band_noise_rad_s is not None:
+        low, high = options.band_noise_rad_s
+        chosen = options.band_noise_channels or tuple(config.channels)
+        print(f"  band noise: {options.band_noise_rms_rad_s:g} rad/s rms at {low:g}-{high:g} rad/s on "
+              f"{', '.join(chosen)}")
+    return 0

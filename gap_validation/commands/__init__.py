@@ -1,1 +1,0 @@
-"""One module per ``gap-validate`` subcommand: ``register(subparsers)`` and ``run(args) -> int``."""

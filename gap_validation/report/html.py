@@ -1,0 +1,255 @@
+"""HTML validation report: Table 1, the verdict in words and the paper's figures per channel (front end).
+
+``write_report(result, directory)`` writes ``directory/index.html`` (opens offline: plain HTML and PNG files
+beside it) with, at the top, the summary in the form of the paper's Table 1 (raw and averaged epsilon, gain,
+phase and disk margins per channel) and the verdict per channel in words; then per channel the figures of
+:mod:`gap_validation.report.figures` (Figs. 1, 2, 4, 5 and 6 of the paper, where the model fails, the diagnosis
+candidates before and after, and epsilon over model versions). Every name that comes from a bag or a config
+is HTML-escaped. A figure that cannot be drawn is replaced by a one-line note: the rest of the report is
+still written. Files are written atomically (temporary file, then rename).
+"""
+from __future__ import annotations
+
+import html
+import logging
+import os
+import re
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Callable
+
+from gap_validation.report import figures
+from gap_validation.atomic import atomic_write_text
+from gap_validation.core.errors import DataError, one_line
+from gap_validation.core.margins import STANDARD_EPSILON, WARN_EPSILON, margins_from_epsilon
+from gap_validation.core.results import NUGAP_DATA_NOTE, ChannelResult, ValidationResult
+from gap_validation.report.terminal import fmt
+
+log = logging.getLogger(__name__)
+
+#: Figure kinds in report order, with their captions.
+FIGURES = {
+    "bode": "Model and flight data: each sweep light, their average dark; coherence below, excluded points "
+            "marked (paper Fig. 4).",
+    "disk": "Perturbations P2/P1 per frequency with the epsilon disks of the raw and averaged data, the "
+            "gain-margin markers on the real axis and the phase tangents (Figs. 1 and 5).",
+    "failure": "Where the model fails: kappa(w) and epsilon(w) (eqs. 13, 14), thresholds, the worst frequency "
+               "and the model-limited (red) / data-limited (orange) bands.",
+    "nichols": "Nichols plane: the epsilon disk as an ellipse around the critical point, inside the standard "
+               "exclusion region (Fig. 2 left).",
+    "nyquist": "Robust Nyquist diagram: the tube of epsilon disks around the model contains the data; it must "
+               "not cover the critical point -1 (Fig. 2 right).",
+    "time": "Time domain: doublets from the flight against the model and the tube of Monte Carlo runs of the "
+            "uncertain model (all-pass perturbations on the epsilon-disk boundary; Fig. 6), with the TIC "
+            "(eq. 1) and input-augmented TIC (eq. 3).",
+    "diagnosis": "Diagnosis: the model with each top candidate effect against the data, with the epsilon each "
+                 "leaves.",
+    "history": "Epsilon over model versions (validation history): watch it fall.",
+}
+
+_STYLE = ("body{font-family:sans-serif;max-width:1050px;margin:auto;padding:0 1em}"
+          "table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #ccc;padding:3px 8px;"
+          "text-align:right}th{background:#f4f4f4}.verdict{margin:0.3em 0}.bad{color:#b00}.ok{color:#070}"
+          ".warn{color:#a60}figure{margin:1em 0}figcaption{font-size:0.85em;color:#444}img{max-width:100%}"
+          ".note{font-size:0.85em;color:#666}")
+
+
+def verdict(ch: ChannelResult) -> tuple[str, str]:
+    """The channel's verdict in words and its CSS class (ok / warn / bad)."""
+    eps = ch.epsilon
+    if eps is None:
+        return f"not validated yet: {ch.message or 'no sweep'}.", "warn"
+    m = margins_from_epsilon(eps)
+    if not m.guaranteed:
+        text, cls = (f"not validated: epsilon {eps:.3g} >= 1, the data lie outside every disk that guarantees "
+                     f"margins; no controller designed on this model is guaranteed stable on the aircraft."), "bad"
+    else:
+        need = (f"a controller with at least {m.gain_margin_db:.2f} dB gain margin and {m.phase_margin_deg:.1f} deg "
+                f"phase margin on the model is guaranteed stable on the aircraft")
+        if eps < WARN_EPSILON:
+            text, cls = f"validated (epsilon {eps:.3f}): {need}; well within standard margins.", "ok"
+        elif eps < STANDARD_EPSILON:
+            text, cls = f"validated (epsilon {eps:.3f}): {need}; within standard margins (6 dB, 45 deg).", "ok"
+        else:
+            text, cls = (f"validated with large margins only (epsilon {eps:.3f}): {need}, more than the standard "
+                         f"6 dB / 45 deg."), "warn"
+    if ch.limited_by == "model" and ch.diagnosis:
+        top = ch.diagnosis[0]
+        text += f" Model-limited; the likeliest missing effect: {top.sentence or top.effect}."
+    elif ch.limited_by == "model":
+        text += " Model-limited: confident data disagree with the model."
+    elif ch.limited_by == "data":
+        text += " Data-limited: fly better sweeps where the coherence is low before changing the model."
+    return text, cls
+
+
+def _cell(value) -> str:
+    return f"<td>{html.escape(value)}</td>"
+
+
+def table1_html(result: ValidationResult) -> str:
+    """The summary in the paper's Table 1 form: raw and averaged columns per channel."""
+    channels = list(result.channels.values())
+    head1 = "<tr><th rowspan='2'></th>" + "".join(
+        f"<th colspan='2'>{html.escape(ch.name)}</th>" for ch in channels) + "</tr>"
+    head2 = "<tr>" + "<th>Raw</th><th>Average</th>" * len(channels) + "</tr>"
+    rows = [("Gap metric epsilon", lambda c, m, e: fmt(e, ".2f")),
+            ("Gain margin, dB", lambda c, m, e: fmt(m.gain_margin_db, ".2f")),
+            ("Phase margin, deg", lambda c, m, e: fmt(m.phase_margin_deg, ".2f")),
+            ("Disk margin", lambda c, m, e: fmt(m.disk_margin, ".2f"))]
+    out = ["<table class='table1'>", head1, head2]
+    for label, cell in rows:
+        cells = []
+        for ch in channels:
+            for eps, margins in ((ch.epsilon_raw, ch.margins_raw), (ch.epsilon, ch.margins)):
+                cells.append(_cell(cell(ch, margins, eps)))
+        out.append(f"<tr><th>{html.escape(label)}</th>{''.join(cells)}</tr>")
+    out.append("</table>")
+    return "\n".join(out)
+
+
+def details_html(result: ValidationResult) -> str:
+    """Further figures per channel: nu-gap, worst frequency, sweeps, limits, TIC, previous epsilon."""
+    channels = list(result.channels.values())
+
+    def tic(ch):
+        values = [d.get("tic") for d in ch.time_domain if d.get("tic") is not None]
+        return ", ".join(f"{v:.3f}" for v in values) or "-"
+
+    rows = [("nu-gap (average)", lambda c: fmt(c.nu_gap)),
+            ("worst frequency, rad/s", lambda c: fmt(c.worst_frequency_rad_s, ".3g")),
+            ("sweeps", lambda c: str(c.sweeps)),
+            ("points used / excluded", lambda c: f"{c.points_used} / {c.points_excluded}"),
+            ("limited by", lambda c: c.limited_by),
+            ("TIC of the doublets (eq. 1)", tic),
+            ("previous epsilon", lambda c: fmt(c.epsilon_previous))]
+    out = ["<table><tr><th></th>" + "".join(f"<th>{html.escape(c.name)}</th>" for c in channels) + "</tr>"]
+    for label, cell in rows:
+        out.append(f"<tr><th>{html.escape(label)}</th>" + "".join(_cell(cell(c)) for c in channels) + "</tr>")
+    out.append("</table>")
+    return "\n".join(out)
+
+
+def _slug(name: str, index: int) -> str:
+    """A safe file stem for a channel name (names come from configs: never trust them in a path)."""
+    if re.fullmatch(r"[A-Za-z0-9_-]{1,64}", name):
+        return name
+    return f"channel{index}_" + (re.sub(r"[^A-Za-z0-9_-]+", "_", name)[:40].strip("_") or "x")
+
+
+class _Channel:
+    """Draws one channel's figures, collecting the HTML and the problems."""
+
+    def __init__(self, ch: ChannelResult, stem: str, directory: Path, versions: list[dict], runs: int, seed: int):
+        self.ch, self.stem, self.directory, self.versions = ch, stem, directory, versions
+        self.runs, self.seed = runs, seed
+        self.parts: list[str] = []
+        self.problems: list[str] = []
+        self.model = self._model()
+
+    def _model(self):
+        if not self.ch.model_spec:
+            return None
+        from gap_validation.core.models import LinearModel
+
+        try:
+            return LinearModel.from_spec(self.ch.model_spec)
+        except Exception as err:  # noqa: BLE001 - a bad model only costs the figures that need it
+            self.problems.append(f"{self.ch.name}: model not usable for figures ({one_line(err)})")
+            return None
+
+    def figure(self, kind: str, draw: Callable[[Path], None]) -> None:
+        path = self.directory / f"{self.stem}_{kind}.png"
+        try:
+            draw(path)
+        except Exception as err:  # noqa: BLE001 - one figure never costs the rest of the report
+            problem = f"{self.ch.name}: {kind} figure not drawn ({one_line(err)})"
+            log.debug("figure failed", exc_info=True)
+            self.problems.append(problem)
+            self.parts.append(f"<p class='bad'>{html.escape(problem)}</p>")
+            return
+        alt = html.escape(f"{self.ch.name} {kind}", quote=True)
+        self.parts.append(f"<figure id='{html.escape(self.stem, quote=True)}-{kind}'>"
+                          f"<img src='{html.escape(path.name, quote=True)}' alt='{alt}'>"
+                          f"<figcaption>{html.escape(FIGURES[kind])}</figcaption></figure>")
+
+    def draw_all(self) -> None:
+        ch, model = self.ch, self.model
+        has_frequency = ch.frequency_rad_s is not None and len(ch.frequency_rad_s) > 0 and ch.measured is not None
+        if has_frequency:
+            self.figure("bode", lambda p: figures.bode_figure(ch, p, model))
+            self.figure("disk", lambda p: figures.disk_figure(ch, p))
+            self.figure("failure", lambda p: figures.failure_figure(ch, p))
+            self.figure("nichols", lambda p: figures.nichols_figure(ch, p))
+            self.figure("nyquist", lambda p: figures.nyquist_figure(ch, p, model))
+        else:
+            self.parts.append("<p>no sweep yet: no frequency-domain figure.</p>")
+        if ch.manoeuvres and model is not None:
+            self.figure("time", lambda p: figures.time_figure(ch, p, model, self.runs, self.seed))
+        else:
+            reason = "no model to simulate" if ch.manoeuvres else "no doublet found in the flight (fly one, "\
+                     "separated by at least 8 s from the sweeps)"
+            self.parts.append(f"<p class='note'>time domain: {html.escape(reason)}.</p>")
+        if has_frequency and ch.diagnosis and model is not None:
+            self.figure("diagnosis", lambda p: figures.diagnosis_figure(ch, p, model))
+        if self.versions:
+            self.figure("history", lambda p: figures.history_figure(ch.name, self.versions, p))
+
+
+def write_report(result: ValidationResult, directory: str | os.PathLike, *, runs: int = 500, seed: int = 0,
+                 warn: Callable[[str], None] | None = None) -> Path:
+    """Write ``index.html`` and the figures of every channel into ``directory``; return the HTML path.
+
+    Parameters
+    ----------
+    result : ValidationResult
+        From a replay, the node, the library or :meth:`ValidationResult.from_json_dict`.
+    directory : path
+        Created when missing.
+    runs : int
+        Monte Carlo runs per doublet (paper: 500).
+    seed : int
+        Seed of the Monte Carlo sampling (the report is reproducible).
+    warn : callable, optional
+        Called with a one-line message for each figure that could not be drawn.
+    """
+    directory = Path(directory)
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise DataError(f"{directory}: cannot create report directory ({err.strerror or err})") from None
+    when = datetime.now(timezone.utc).isoformat(timespec="seconds")
+    parts = ["<!doctype html><html><head><meta charset='utf-8'><title>gap_validation report</title>",
+             f"<style>{_STYLE}</style></head><body>", "<h1>Model validation in the gap metric</h1>",
+             f"<p class='note'>config: {html.escape(str(result.config_source or '-'))}; data: "
+             f"{html.escape(', '.join(result.sources) or '-')}; written {when}</p>",
+             "<h2>Summary (paper Table 1)</h2>", table1_html(result), "<h3>Verdict</h3><ul>"]
+    verdicts = {name: verdict(ch) for name, ch in result.channels.items()}
+    for name, ch in result.channels.items():
+        text, cls = verdicts[name]
+        parts.append(f"<li class='verdict {cls}'><b>{html.escape(ch.name)}</b>: {html.escape(text)}</li>")
+    parts += ["</ul>", details_html(result)]
+    problems = []
+    for index, (name, ch) in enumerate(result.channels.items()):
+        drawer = _Channel(ch, _slug(name, index), directory, list(result.history.get(name) or []), runs, seed)
+        drawer.draw_all()
+        text, cls = verdicts[name]
+        parts.append(f"<h2 id='{html.escape(drawer.stem, quote=True)}'>{html.escape(name)}</h2>")
+        parts.append(f"<p class='verdict {cls}'>{html.escape(text)}</p>")
+        parts.append(f"<p>model: {html.escape(ch.model_description or '-')}</p>")
+        if ch.message:
+            parts.append(f"<p>{html.escape(ch.message)}</p>")
+        if ch.diagnosis:
+            parts.append("<ol>" + "".join(f"<li>{html.escape(str(d.sentence or d.effect))}</li>"
+                                          for d in ch.diagnosis[:3]) + "</ol>")
+        parts += drawer.parts
+        problems += drawer.problems
+    parts.append(f"<p class='note'>{html.escape(NUGAP_DATA_NOTE)}.</p></body></html>")
+    index = directory / "index.html"
+    try:
+        atomic_write_text(index, "\n".join(parts))
+    except OSError as err:
+        raise DataError(f"{index}: cannot write the report ({err.strerror or err})") from None
+    for problem in problems:
+        (warn or log.warning)(problem)
+    return index

@@ -1,0 +1,88 @@
+"""Terminal rendering of results: tables and plain sentences (no colour codes, no ROS)."""
+from __future__ import annotations
+
+import json
+import os
+
+from gap_validation.atomic import atomic_open
+from gap_validation.core.errors import DataError
+from gap_validation.core.results import ChannelResult, ValidationResult
+
+
+def write_json(data: dict, path: str | os.PathLike) -> None:
+    """Write ``data`` as JSON atomically (:mod:`gap_validation.atomic`: temporary file, then rename).
+
+    Raises
+    ------
+    DataError
+        One line naming the file when it cannot be written (the old file, if any, is kept).
+    """
+    try:
+        with atomic_open(path, "w") as fh:
+            json.dump(data, fh, indent=1, allow_nan=False)
+            fh.write("\n")
+    except OSError as err:
+        raise DataError(f"{path}: cannot write JSON ({err.strerror or err})") from None
+
+
+def fmt(value, spec: str = ".3f", none: str = "-") -> str:
+    """Format a number, or ``none`` for missing values."""
+    return none if value is None else format(value, spec)
+
+
+def table(headers: list[str], rows: list[list[str]]) -> str:
+    """A plain left/right aligned text table (first column left, the others right)."""
+    widths = [max(len(str(r[i])) for r in [headers, *rows]) for i in range(len(headers))]
+    lines = []
+    for r in [headers, *rows]:
+        cells = [str(c).ljust(widths[0]) if i == 0 else str(c).rjust(widths[i]) for i, c in enumerate(r)]
+        lines.append("  ".join(cells).rstrip())
+    lines.insert(1, "  ".join("-" * w for w in widths))
+    return "\n".join(lines)
+
+
+def _epsilon_cell(ch: ChannelResult) -> str:
+    cell = fmt(ch.epsilon)
+    if ch.epsilon_previous is not None and ch.epsilon is not None:
+        cell = f"{fmt(ch.epsilon_previous)}->{cell}"
+    return cell
+
+
+def channel_sentences(ch: ChannelResult) -> list[str]:
+    """Plain sentences about one channel: status, where it fails, the top diagnosis."""
+    out = []
+    if ch.message:
+        out.append(ch.message)
+    if ch.diagnosis:
+        top = ch.diagnosis[0]
+        text = top.sentence or f"missing: {top.effect}"
+        if text not in ch.message:
+            out.append(text)
+    bad = sum(ch.bad_samples.values())
+    if bad:
+        reasons = ", ".join(f"{k} x{v}" for k, v in sorted(ch.bad_samples.items()))
+        out.append(f"{bad} bad samples skipped ({reasons})")
+    return out
+
+
+def format_table(result: ValidationResult) -> str:
+    """The per-channel validation table (paper Table 1 layout, one row per channel) and sentences."""
+    headers = ["channel", "nu-gap", "epsilon", "eps raw", "GM dB", "PM deg", "disk", "worst rad/s", "sweeps",
+               "excluded", "limited by"]
+    rows = []
+    for name, ch in result.channels.items():
+        n_points = len(ch.frequency_rad_s) if ch.frequency_rad_s is not None else 0
+        rows.append([name, fmt(ch.nu_gap), _epsilon_cell(ch), fmt(ch.epsilon_raw),
+                     fmt(ch.margins.gain_margin_db, ".2f"), fmt(ch.margins.phase_margin_deg, ".1f"),
+                     fmt(ch.margins.disk_margin, ".3f"), fmt(ch.worst_frequency_rad_s, ".2f"), str(ch.sweeps),
+                     f"{ch.points_excluded}/{n_points}", ch.limited_by])
+    lines = [table(headers, rows)]
+    for name, ch in result.channels.items():
+        for sentence in channel_sentences(ch):
+            lines.append(f"  {name}: {sentence}")
+    if any(ch.epsilon is not None and ch.epsilon >= 1 for ch in result.channels.values()):
+        lines.append("  epsilon >= 1: no stability guarantee, margins not given")
+    if any(ch.margins.guaranteed for ch in result.channels.values()):
+        lines.append("  margins from epsilon (eqs. 15-17): a controller with these gain/phase/disk margins on the "
+                     "model is guaranteed stable on the aircraft")
+    return "\n".join(lines)

@@ -1,0 +1,144 @@
+"""The node's full diagnoses (effect fitting) in a background thread, on private copies of the validator.
+
+The cheap results (``diagnose=False``) are computed every diagnostics tick. The full diagnosis fits effects,
+which takes long: :class:`DiagnosisWorker` runs it in one worker thread on a copy of the validator state, at
+most every ``diagnosis_period`` s and only when the results changed (at once after a model reload or a new
+sweep), so message callbacks keep running. No rclpy import.
+"""
+from __future__ import annotations
+
+import concurrent.futures
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from gap_validation.core.config import ValidationConfig
+from gap_validation.core.results import ValidationResult
+from gap_validation.core.validator import OnlineValidator
+
+__all__ = ["DiagnosisWorker"]
+
+
+def _copy_tree(value: Any) -> Any:
+    """Deep copy of a state tree (arrays copied), so a worker thread never sees arrays being updated."""
+    if isinstance(value, np.ndarray):
+        return value.copy()
+    if isinstance(value, dict):
+        return {k: _copy_tree(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_copy_tree(v) for v in value]
+    if isinstance(value, tuple):
+        return tuple(_copy_tree(v) for v in value)
+    return value
+
+
+def _diagnose_snapshot(config: ValidationConfig, state: dict, generation: int) -> tuple[int, ValidationResult]:
+    """Worker: full results (effect fitting) on a private copy of the validator."""
+    return generation, OnlineValidator.from_state(config, state).results(diagnose=True)
+
+
+def _results_key(result: ValidationResult, generation: int) -> tuple:
+    return (generation,) + tuple(
+        (name, ch.sweeps, ch.epsilon, ch.nu_gap, ch.points_excluded) for name, ch in result.channels.items())
+
+
+class DiagnosisWorker:
+    """At most one full diagnosis at a time, in a worker thread.
+
+    Attributes
+    ----------
+    job : concurrent.futures.Future or None
+        The diagnosis running or finished and not yet harvested.
+    force : bool
+        Start the next diagnosis whatever the period (set after a model reload).
+    """
+
+    def __init__(self) -> None:
+        self.job: concurrent.futures.Future | None = None
+        self.force = True
+        self._key: Any = None
+        self._started = -math.inf
+        self._pool: concurrent.futures.ThreadPoolExecutor | None = None
+
+    def forget(self) -> None:
+        """The spectra were reset: the next results are new whatever they say."""
+        self._key = None
+
+    def schedule(self, result: ValidationResult, validator: OnlineValidator, config: ValidationConfig,
+                 generation: int, period_s: float) -> None:
+        """Start a diagnosis of ``validator``'s state when ``result`` (the cheap results) warrants one.
+
+        Parameters
+        ----------
+        result : ValidationResult
+            The cheap results just computed.
+        validator : OnlineValidator
+            Whose state is copied for the worker.
+        config : ValidationConfig
+            The config the state belongs to.
+        generation : int
+            Model generation (changes on reload and reset); a result of an older one is not taken.
+        period_s : float
+            Shortest interval between two diagnoses when nothing but the numbers changed [s]; <= 0: never.
+        """
+        if period_s <= 0 or (self.job is not None and not self.job.done()):
+            return
+        if not any(ch.epsilon is not None for ch in result.channels.values()):
+            return
+        key = _results_key(result, generation)
+        if key == self._key:
+            return
+        sweeps_changed = self._key is None or key[0] != self._key[0] or any(
+            a[1] != b[1] for a, b in zip(key[1:], self._key[1:]))
+        if not (self.force or sweeps_changed or time.monotonic() - self._started >= period_s):
+            return
+        self.force = False
+        self._key = key
+        self._started = time.monotonic()
+        state = _copy_tree(validator.state_dict())
+        if self._pool is None:
+            self._pool = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="gap_diagnosis")
+        self.job = self._pool.submit(_diagnose_snapshot, config, state, generation)
+
+    def harvest(self, generation: int) -> ValidationResult | None:
+        """The finished diagnosis's results if they belong to ``generation`` (None otherwise, or still running).
+
+        Parameters
+        ----------
+        generation : int
+            The current model generation.
+
+        Raises
+        ------
+        Exception
+            Whatever the diagnosis raised (it is harvested all the same).
+        """
+        job = self.job
+        if job is None or not job.done():
+            return None
+        self.job = None
+        done_generation, result = job.result()
+        return result if done_generation == generation else None
+
+    def wait(self, timeout_s: float) -> bool:
+        """Block until the running diagnosis (if any) is done; True when it is.
+
+        Parameters
+        ----------
+        timeout_s : float
+            Longest wait [s].
+        """
+        job = self.job
+        if job is None:
+            return True
+        concurrent.futures.wait([job], timeout=timeout_s)
+        return job.done()
+
+    def close(self) -> None:
+        """Shut the thread down; a running diagnosis works on its own copy and finishes unawaited."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._pool = None
+            self.job = None

@@ -1,0 +1,327 @@
+"""What each channel's ``DiagnosticStatus`` says, without ROS types: levels, wording, values.
+
+diagnostic_updater style: one :class:`ChannelTask` per channel owns what the node saw of that channel (when its
+input and output last brought a sample, the top candidate of the last full diagnosis) and :meth:`ChannelTask.run`
+fills its :class:`ChannelStatus`; the node turns those into a ``DiagnosticArray``. No rclpy import.
+
+Level:
+
+* STALE before any data (message "waiting for data on ..."), when a topic's type is still being discovered,
+  when the input or output had no good sample for ``stale_timeout`` s (the last numbers stay in the values),
+  and while data flow but no sweep has completed ("receiving data, waiting for a sweep"): there is no
+  estimate to judge then, and OK would claim a validation that has not happened.
+* WARN when sweeps were flown but no frequency reached the coherence threshold (data-limited: fly better
+  sweeps), or when ``warn_epsilon <= epsilon < error_epsilon``.
+* ERROR when ``epsilon >= error_epsilon``; OK below ``warn_epsilon`` (thresholds of
+  :mod:`gap_validation.core.margins`, eq. 16).
+
+Values are strings under the JSON key names (``nu_gap``, ``epsilon``, ``epsilon_raw``, ``epsilon_previous``,
+``gain_margin_db``, ``phase_margin_deg``, ``disk_margin``, ``worst_frequency_rad_s``, ``sweeps``, ``limited_by``,
+``points_excluded``, ``bad_samples`` (total; ``bad_samples_by_reason`` has the JSON dict), ``diagnosis`` (top
+candidate sentence; ``pending`` before the first fit, ``none`` when no effect helps, ``off`` when disabled),
+``diagnosis_effects`` (the JSON list to append to the model's effects), ``samples_input``/``samples_output``,
+``samples_dropped`` ...). ``samples_dropped`` counts the messages missing from the channel's topics, inferred from
+gaps in their ``header.stamp`` (:class:`~gap_validation.ros.stamp_gaps.StampGaps`; DDS does not tell the node
+when a queue overflows; topics without a header are not counted). Numbers are Python ``repr`` (round-trip
+exact); missing numbers are ``null`` (margins for epsilon >= 1: no guarantee).
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from typing import Any, Callable, Collection, Mapping
+
+from gap_validation.core.config import ChannelConfig
+from gap_validation.core.margins import STANDARD_EPSILON, WARN_EPSILON
+from gap_validation.core.results import Candidate, ChannelResult
+from gap_validation.messages.router import MessageRouter
+
+__all__ = ["ChannelStatus", "ChannelTask", "channel_status", "candidate_sentence", "STREAMS"]
+
+_JSON_VALUES = ("nu_gap", "epsilon", "epsilon_raw", "epsilon_previous", "gain_margin_db", "phase_margin_deg",
+                "disk_margin", "worst_frequency_rad_s", "sweeps", "limited_by", "points_excluded")
+#: The streams whose silence makes a channel STALE.
+STREAMS = ("input", "output")
+
+
+def _value_text(value: Any) -> str:
+    """A status value string: ``repr`` of numbers (round-trip exact), ``null`` for None, JSON otherwise."""
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float)):
+        return repr(value)
+    if isinstance(value, str):
+        return value
+    return json.dumps(value, sort_keys=True)
+
+
+def candidate_sentence(candidate: Candidate | None) -> str:
+    """One line about a diagnosis candidate: ``missing: time delay of 45 ms (epsilon would be 0.06)``."""
+    if not candidate:
+        return ""
+    sentence = candidate.sentence
+    if not sentence:
+        parts = []
+        try:
+            from gap_validation.core.effects import describe_effect
+
+            parts = [describe_effect(e) for e in candidate.effects]
+        except Exception:  # noqa: BLE001 - description is cosmetic; fall back to the effect name
+            parts = []
+        what = " + ".join(parts) or str(candidate.effect or "unknown effect").replace("_", " ")
+        sentence = f"missing: {what}"
+        if candidate.epsilon is not None:
+            sentence += f" (epsilon would be {candidate.epsilon:.2f})"
+    return " ".join(str(sentence).split())
+
+
+def _band_text(result: ChannelResult) -> str:
+    """``at 20-40 rad/s`` from the diagnosis band that holds the worst frequency, else ``at 14.9 rad/s``."""
+    worst = result.worst_frequency_rad_s
+    chosen = None
+    for band in result.bands:
+        if worst is not None and band.contains(worst):
+            chosen = band
+            break
+        if chosen is None and band.limited_by == result.limited_by:
+            chosen = band
+    if chosen is not None:
+        return f"at {chosen.min_rad_s:.3g}-{chosen.max_rad_s:.3g} rad/s"
+    return f"at {worst:.3g} rad/s" if worst is not None else ""
+
+
+def _level_for(epsilon: float, warn_epsilon: float, error_epsilon: float) -> str:
+    if epsilon >= error_epsilon:
+        return "ERROR"
+    return "WARN" if epsilon >= warn_epsilon else "OK"
+
+
+def _summary(result: ChannelResult, level: str, candidate_text: str) -> str:
+    """``epsilon 0.62 (was 0.71): ERROR, model-limited at 20-40 rad/s; missing: time delay of 45 ms``."""
+    text = f"epsilon {result.epsilon:.2f}"
+    if result.epsilon_previous is not None:
+        text += f" (was {result.epsilon_previous:.2f})"
+    text += f": {level}"
+    if result.limited_by in ("model", "data"):
+        band = _band_text(result)
+        text += f", {result.limited_by}-limited" + (f" {band}" if band else "")
+    elif result.worst_frequency_rad_s is not None:
+        text += f", worst at {result.worst_frequency_rad_s:.3g} rad/s"
+    if candidate_text:
+        text += f"; {candidate_text}"
+    return text
+
+
+@dataclass
+class ChannelStatus:
+    """What one ``DiagnosticStatus`` says, without ROS types: level name, message and string values."""
+
+    channel: str
+    level: str
+    message: str
+    values: list[tuple[str, str]] = field(default_factory=list)
+
+
+def channel_status(result: ChannelResult, *, warn_epsilon: float = WARN_EPSILON,
+                   error_epsilon: float = STANDARD_EPSILON,
+                   stale_reason: str | None = None, waiting_reason: str | None = None,
+                   candidate: Candidate | dict | None = None, diagnosis_state: str = "pending",
+                   extra_values: dict | None = None) -> ChannelStatus:
+    """The status of one channel from its (cheap) result.
+
+    Parameters
+    ----------
+    result : ChannelResult
+        ``OnlineValidator.results(diagnose=False)`` of the channel.
+    warn_epsilon, error_epsilon : float
+        Level thresholds on the averaged epsilon (eq. 14).
+    stale_reason : str, optional
+        Why the inputs count as stopped ("no data for 4.2 s on /imu (output)"): level STALE, numbers kept.
+    waiting_reason : str, optional
+        Why there is no data yet ("waiting for data on /imu (output)"): level STALE.
+    candidate : Candidate or dict, optional
+        Top diagnosis candidate of the last full diagnosis (or its JSON object, a ``diagnosis`` entry).
+    diagnosis_state : {"pending", "done", "off"}
+        Whether a full diagnosis has been run for the current model.
+    extra_values : dict, optional
+        More values appended (e.g. sample ages).
+
+    Returns
+    -------
+    ChannelStatus
+    """
+    if isinstance(candidate, dict):
+        candidate = Candidate.from_json_dict(candidate)
+    data = result.to_json_dict(samples=False)
+    values = [(key, _value_text(data.get(key))) for key in _JSON_VALUES]
+    bad = dict(result.bad_samples)
+    values.append(("bad_samples", str(int(sum(bad.values())))))
+    values.append(("bad_samples_by_reason", json.dumps(bad, sort_keys=True)))
+    cand_text = candidate_sentence(candidate)
+    if diagnosis_state == "off":
+        diagnosis_value = "off"
+    elif candidate:
+        diagnosis_value = cand_text
+    else:
+        diagnosis_value = "none" if diagnosis_state == "done" else "pending"
+    values.append(("diagnosis", diagnosis_value))
+    values.append(("diagnosis_effects", json.dumps(candidate.effects if candidate else [])))
+    values.append(("diagnosis_epsilon", _value_text(candidate.epsilon if candidate else None)))
+    values.append(("nu_gap_frequency_rad_s", _value_text(data.get("nu_gap_frequency_rad_s"))))
+    values.append(("coherence_threshold", _value_text(result.coherence_threshold)))
+    values.append(("model_description", result.model_description))
+    for key, value in (extra_values or {}).items():
+        values.append((key, _value_text(value)))
+
+    if result.epsilon is not None:
+        level = _level_for(result.epsilon, warn_epsilon, error_epsilon)
+        summary = _summary(result, level, cand_text)
+    elif result.sweeps > 0:
+        level = "WARN"
+        summary = (result.message or "no frequency passes the coherence threshold") + \
+            ": WARN, data-limited (fly better sweeps)"
+    else:
+        level, summary = "STALE", "receiving data, waiting for a sweep (no estimate yet)"
+    if waiting_reason:
+        resumed = f" (resumed: {summary})" if result.epsilon is not None else ""
+        return ChannelStatus(result.name, "STALE", waiting_reason + resumed, values)
+    if stale_reason:
+        last = f"; last: {summary}" if result.epsilon is not None or result.sweeps > 0 else ""
+        return ChannelStatus(result.name, "STALE", stale_reason + last, values)
+    return ChannelStatus(result.name, level, summary, values)
+
+
+class ChannelTask:
+    """The diagnostic task of one channel: what the node saw of it, and the status it fills.
+
+    Parameters
+    ----------
+    name : str
+        Channel name.
+    channel : ChannelConfig
+        Its config (topics of its streams); :attr:`channel` is replaced on a config reload.
+
+    Attributes
+    ----------
+    last_seen : dict
+        Stream -> node time [s] of the arrival that last brought the stream a sample.
+    top : Candidate or None
+        Top candidate of the last full diagnosis taken for the current model.
+    diagnosed : bool
+        Whether a full diagnosis has been taken for the current model.
+    """
+
+    def __init__(self, name: str, channel: ChannelConfig):
+        self.name = name
+        self.channel = channel
+        self.last_seen: dict[str, float] = {}
+        self._seen_count: dict[str, int] = {}
+        self.top: Candidate | None = None
+        self.diagnosed = False
+
+    @property
+    def topics(self) -> list[str]:
+        """The topics of the channel's input and output, sorted."""
+        return sorted({self.channel.signal(stream).topic for stream in STREAMS})
+
+    def new_router(self) -> None:
+        """The node's router was replaced (reload, reset): its sample counts start again."""
+        self._seen_count = {}
+
+    def take_diagnosis(self, candidate: Candidate | None) -> None:
+        """A full diagnosis finished for the current model; ``candidate`` is its top (None: no effect helps).
+
+        Parameters
+        ----------
+        candidate : Candidate or None
+            The top candidate.
+        """
+        self.top, self.diagnosed = candidate, True
+
+    def forget_diagnosis(self) -> None:
+        """The model or the spectra changed: the last diagnosis no longer holds."""
+        self.top, self.diagnosed = None, False
+
+    def update_seen(self, router: MessageRouter, arrivals: Mapping[str, float], now_s: float) -> None:
+        """Note which streams got new samples since the last call, stamped with their topic's last arrival.
+
+        Parameters
+        ----------
+        router : MessageRouter
+            Counts the samples of each stream.
+        arrivals : mapping
+            Topic -> node time [s] of its last message.
+        now_s : float
+            Node time [s] (for a topic without an arrival).
+        """
+        for stream in STREAMS:
+            count = router.samples(self.name, stream)
+            if count > self._seen_count.get(stream, 0):
+                self.last_seen[stream] = arrivals.get(self.channel.signal(stream).topic, now_s)
+            self._seen_count[stream] = count
+
+    def reasons(self, now_s: float, stale_timeout_s: float,
+                pending: Collection[str] = ()) -> tuple[str | None, str | None, dict]:
+        """(waiting reason, stale reason, age values) of the channel at node time ``now_s``.
+
+        Parameters
+        ----------
+        now_s : float
+            Node time [s].
+        stale_timeout_s : float
+            A stream without a sample for longer is stale [s].
+        pending : collection of str
+            Topics whose type is still being discovered.
+        """
+        waiting, stale, ages = [], [], {}
+        for stream in STREAMS:
+            topic = self.channel.signal(stream).topic
+            seen = self.last_seen.get(stream)
+            if seen is None:
+                known = "; type not known yet" if topic in pending else ""
+                waiting.append(f"{topic} ({stream}{known})")
+            else:
+                age = max(0.0, now_s - seen)
+                ages[f"{stream}_age_s"] = round(age, 3)
+                if age > stale_timeout_s:
+                    stale.append((age, f"{topic} ({stream})"))
+        waiting_reason = f"waiting for data on {' and '.join(waiting)}" if waiting else None
+        stale_reason = None
+        if stale:
+            age = max(a for a, _ in stale)
+            stale_reason = f"no data for {age:.1f} s on {' and '.join(t for _, t in stale)}"
+        return waiting_reason, stale_reason, ages
+
+    def run(self, result: ChannelResult, now_s: float, router: MessageRouter, dropped: Callable[[str], int], *,
+            stale_timeout_s: float, warn_epsilon: float = WARN_EPSILON, error_epsilon: float = STANDARD_EPSILON,
+            pending: Collection[str] = (), diagnosis_off: bool = False) -> ChannelStatus:
+        """Fill the channel's status from its (cheap) result.
+
+        Parameters
+        ----------
+        result : ChannelResult
+            ``OnlineValidator.results(diagnose=False)`` of the channel.
+        now_s : float
+            Node time [s].
+        router : MessageRouter
+            Sample counts (``samples_input``, ``samples_output``).
+        dropped : callable
+            ``dropped(topic)``: messages missing from a topic (``samples_dropped``).
+        stale_timeout_s : float
+            Silence [s] after which a stream is stale.
+        warn_epsilon, error_epsilon : float
+            Level thresholds on the averaged epsilon.
+        pending : collection of str
+            Topics whose type is still being discovered.
+        diagnosis_off : bool
+            Full diagnoses are disabled.
+        """
+        waiting, stale, ages = self.reasons(now_s, stale_timeout_s, pending)
+        state = "off" if diagnosis_off else ("done" if self.diagnosed else "pending")
+        extra = {**ages, "samples_input": router.samples(self.name, "input"),
+                 "samples_output": router.samples(self.name, "output"),
+                 "samples_dropped": sum(dropped(topic) for topic in self.topics)}
+        return channel_status(result, warn_epsilon=warn_epsilon, error_epsilon=error_epsilon, stale_reason=stale,
+                              waiting_reason=waiting, candidate=self.top, diagnosis_state=state, extra_values=extra)

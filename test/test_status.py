@@ -1,0 +1,42 @@
+"""Channel statuses without ROS (gap_validation.ros.status): levels, messages and values of one channel."""
+import json
+import math
+
+import pytest
+
+from gap_validation.ros.status import channel_status
+
+
+def test_channel_status_levels_and_messages():
+    from gap_validation.core.results import ChannelResult
+    from gap_validation.core.margins import margins_from_epsilon
+
+    ch = ChannelResult(name="pitch", sweeps=3, epsilon=0.62, epsilon_previous=0.71, nu_gap=0.4,
+                       worst_frequency_rad_s=25.0, limited_by="model",
+                       bands=[{"min_rad_s": 20.0, "max_rad_s": 40.0, "limited_by": "model"}],
+                       margins=margins_from_epsilon(0.62), bad_samples={"input: not finite": 2})
+    top = {"effect": "time_delay", "effects": [{"type": "time_delay", "seconds": 0.045}], "epsilon": 0.06,
+           "sentence": "missing: time delay of 45 ms; adding it brings epsilon from 0.62 to 0.06"}
+    status = channel_status(ch, candidate=top, diagnosis_state="done")
+    assert status.level == "ERROR"
+    assert status.message == ("epsilon 0.62 (was 0.71): ERROR, model-limited at 20-40 rad/s; missing: time delay "
+                              "of 45 ms; adding it brings epsilon from 0.62 to 0.06")
+    values = dict(status.values)
+    assert values["bad_samples"] == "2" and json.loads(values["bad_samples_by_reason"]) == {"input: not finite": 2}
+    assert json.loads(values["diagnosis_effects"]) == [{"type": "time_delay", "seconds": 0.045}]
+    assert float(values["phase_margin_deg"]) == pytest.approx(2 * math.degrees(math.asin(0.62)))
+    ch.epsilon = 0.3
+    assert channel_status(ch).level == "WARN"
+    ch.epsilon = 0.1
+    assert channel_status(ch).level == "OK"
+    assert channel_status(ch, warn_epsilon=0.05, error_epsilon=0.08).level == "ERROR"
+    ch.epsilon = 1.2
+    ch.margins = margins_from_epsilon(1.2)
+    values = dict(channel_status(ch).values)
+    assert values["gain_margin_db"] == "null" and values["phase_margin_deg"] == "null"
+    empty = ChannelResult(name="roll")
+    assert channel_status(empty).level == "STALE"
+    assert "waiting for a sweep" in channel_status(empty).message
+    assert dict(channel_status(empty).values)["diagnosis"] == "pending"
+    flat = ChannelResult(name="roll", sweeps=2, message="no frequency with coherence >= 0.6 yet")
+    assert channel_status(flat).level == "WARN" and "data-limited" in channel_status(flat).message

@@ -16,7 +16,7 @@ setup(
         ("share/" + package_name + "/launch", glob("launch/*.py")),
     ],
     python_requires=">=3.10",
-    install_requires=["numpy", "scipy", "PyYAML", "rosbags>=0.10", "matplotlib"],
+    install_requires=["numpy", "scipy", "PyYAML", "rosbags>=0.10", "matplotlib", "dask[distributed]"],
     extras_require={"test": ["pytest", "hypothesis", "pytest-xdist"]},
     zip_safe=True,
     maintainer="gap_validation developers",

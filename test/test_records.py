@@ -109,3 +109,33 @@ def test_period_of_a_multisine_is_its_fundamental():
 
 def test_nothing_away_from_trim_gives_no_piece():
     assert pieces_of(card(5.0)) == []
+
+
+def test_a_clipped_chirp_is_saturated_and_a_noisy_one_or_a_3211_is_not():
+    from gap_validation.core.records import SATURATED_SHARE, saturated_share
+
+    raw = chirp(20.0)
+    clipped = card(np.clip(raw, -0.05, 0.05), seed=1)
+    clipped_exact = np.where(np.abs(clipped - TRIM) > 0.05, TRIM + np.sign(clipped - TRIM) * 0.05, clipped)
+    [piece] = pieces_of(clipped_exact)
+    assert saturated_share(clipped_exact, piece) >= SATURATED_SHARE
+    [piece] = pieces_of(card(raw, seed=1))
+    assert saturated_share(card(raw, seed=1), piece) == 0.0           # noise never repeats its extreme value
+    steps = TRIM + np.concatenate([np.zeros(200), 0.05 * multistep(np.arange(0, 3.5, DT), 0.5), np.zeros(300)])
+    [piece] = pieces_of(steps)
+    assert classify(steps, DT, piece, NOISE) == "multistep"        # plateaus by design: the estimator asks
+    assert saturated_share(steps, piece) > SATURATED_SHARE         # only smooth kinds about saturation
+
+
+def test_an_estimator_says_a_clipped_chirp_is_saturated_and_does_not_use_it():
+    from gap_validation.core.estimator import FrequencyResponseEstimator
+
+    w = np.geomspace(1.0, 20.0, 12)
+    raw = chirp(30.0, w0=0.5, w1=30.0)
+    u = np.concatenate([np.zeros(300), np.clip(raw, -0.04, 0.04), np.zeros(500)])
+    t = np.arange(u.size) * DT
+    y = np.convolve(u, np.exp(-t[:200] * 5.0) * DT * 5.0)[:u.size]
+    est = FrequencyResponseEstimator(w)
+    est.add_time_histories(t, u, t, y)
+    est.flush()
+    assert est.saturated == 1 and est.n_manoeuvres == 0

@@ -89,43 +89,38 @@ def _samples(bag, spec):
     return np.asarray(t), np.asarray(v)
 
 
-def test_replay_agrees_with_scipy_welch_on_the_same_samples(bags, clean_outcome):
+def test_replay_agrees_with_a_scipy_batch_estimate_on_the_same_samples(bags, clean_outcome):
     """Independent batch estimate: the bag's samples, cubic-spline aligned on a 100 Hz grid, cut to the sweeps
-    the replay detected, scipy.signal.csd/welch with the estimator's Hann window length per frequency and
-    50 % overlap, pooled over sweeps (H1 = Gxy/Gxx). Agreement within the replay's random error."""
+    the replay detected, each sweep's whole-record cross and auto spectra from ``scipy.signal.csd``/``welch``
+    (one rectangular segment, the record's own resolution), summed over the bins within 10 % of each analysis
+    frequency and over sweeps (H1 = Gxy/Gxx, the smoothed ETFE). The replay's local polynomial estimate removes
+    the transients this reference keeps, so the two agree within the replay's random error plus a few percent."""
     config = ultrastick()
     channel = config.channels["pitch"]
     result = clean_outcome.result.channels["pitch"]
     tx, x = _samples(bags["clean"], channel.input)
     ty, y = _samples(bags["clean"], channel.output)
     fs = 100.0
-    w = channel.frequencies.values()
-    window_s = FrequencyResponseEstimator(w).window_s
+    w = result.frequency_rad_s
     spans = [(s.start_s, s.end_s) for s in result.sweep_results]
+    assert len(spans) == 3
     fx, fy = interpolate.CubicSpline(tx, x), interpolate.CubicSpline(ty, y)
-    h = np.empty(w.size, complex)
-    for i, (wi, win) in enumerate(zip(w, window_s)):
-        nper = int(round(win * fs))
-        # zero-padded FFT length that puts w on bin k (to < 0.1 % of w)
-        k = math.ceil(8 * nper * wi / (2 * math.pi * fs))
-        nfft = int(round(2 * math.pi * fs * k / wi))
-        pxy = pxx = 0.0
-        for start, end in spans:
-            grid = np.arange(math.ceil(start * fs), math.floor(end * fs)) / fs
-            if grid.size < nper:
-                continue
-            xs, ys = fx(grid), fy(grid)
-            n_seg = 1 + (grid.size - nper) // (nper // 2)
-            _, gxy = signal.csd(xs, ys, fs=fs, window="hann", nperseg=nper, noverlap=nper // 2, nfft=nfft,
-                                detrend="constant")
-            _, gxx = signal.welch(xs, fs=fs, window="hann", nperseg=nper, noverlap=nper // 2, nfft=nfft,
-                                  detrend="constant")
-            pxy, pxx = pxy + n_seg * gxy[k], pxx + n_seg * gxx[k]
-        h[i] = pxy / pxx
+    pxy, pxx = np.zeros(w.size, complex), np.zeros(w.size)
+    for start, end in spans:
+        grid = np.arange(math.ceil(start * fs), math.floor(end * fs)) / fs
+        xs, ys = fx(grid), fy(grid)
+        f, gxy = signal.csd(xs, ys, fs=fs, window="boxcar", nperseg=grid.size, detrend="constant")
+        _, gxx = signal.welch(xs, fs=fs, window="boxcar", nperseg=grid.size, detrend="constant")
+        for i, wi in enumerate(w):
+            band = np.abs(2 * math.pi * f - wi) <= 0.1 * wi
+            pxy[i] += gxy[band].sum()
+            pxx[i] += gxx[band].sum()
+    h = pxy / pxx
     ok = result.confident
+    assert np.count_nonzero(ok) >= 0.8 * w.size
     rel = np.abs(result.measured[ok] / h[ok] - 1.0)
-    assert np.all(rel <= 2.0 * result.random_error[ok] + 0.02), rel.max()
-    assert np.median(rel) < 0.02
+    assert np.all(rel <= 3.0 * result.random_error[ok] + 0.05), rel.max()
+    assert np.median(rel) < 0.03
 
 
 # ------------------------------------------------------------------------------------------- storages, variants
@@ -400,7 +395,7 @@ def test_cli_simulate_and_errors(tmp_path, capsys):
     argv = ["simulate", "--config", str(CONFIG_PATH), "--out", str(out), "--sweeps", "1", "--sweep-duration",
             "20", "--hidden", "pitch:time_delay:seconds=0.04", "--seed", "3"]
     assert main(argv) == 0
-    assert "pitch: 1 sweeps, hidden: time delay of 40 ms" in capsys.readouterr().out
+    assert "pitch: 1 chirp manoeuvre, hidden: time delay of 40 ms" in capsys.readouterr().out
     first = next(out.glob("*.mcap")).read_bytes()
     assert main(argv) == 2 and "exists already" in capsys.readouterr().err
     assert main(argv + ["--force"]) == 0

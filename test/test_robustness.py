@@ -299,7 +299,7 @@ def test_channel_never_excited_says_no_sweep_found_and_the_others_validate(tmp_p
     text = capsys.readouterr().out
     assert "roll: no sweep found" in text
     channels = json.loads(out.read_text())["channels"]
-    assert channels["roll"]["message"] == "no sweep found" and channels["roll"]["epsilon"] is None
+    assert channels["roll"]["message"].startswith("no sweep found: ") and channels["roll"]["epsilon"] is None
     for name in ("pitch", "yaw"):
         assert channels[name]["sweeps"] == 1 and channels[name]["epsilon"] is not None, name
 

@@ -157,7 +157,8 @@ def run(args) -> int:
     for name in config.channels:
         effects = hidden.get(name, [])
         truth = " + ".join(describe_effect(e) for e in effects) if effects else "nothing (model = truth)"
-        print(f"  {name}: {len(flight.sweeps(name))} {options.excitation} manoeuvres, hidden: {truth}")
+        n = len(flight.sweeps(name))
+        print(f"  {name}: {n} {options.excitation} manoeuvre{'s' if n != 1 else ''}, hidden: {truth}")
     if options.band_noise_rad_s is not None:
         low, high = options.band_noise_rad_s
         chosen = options.band_noise_channels or tuple(config.channels)

@@ -66,8 +66,8 @@ from gap_validation.core.alignment import (_NONE, JUMP_BACK_S, _GridAligner, _St
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.manoeuvres import Manoeuvre, ManoeuvreRecorder
 from gap_validation.core.numbers import NON_NEGATIVE, POSITIVE, check_number
-from gap_validation.core.records import (KINDS, RESPONSE_KINDS, SWEEP_KINDS, Piece, classify, period, split_record,
-                                         trim_noise)
+from gap_validation.core.records import (KINDS, RESPONSE_KINDS, SATURATED_SHARE, SWEEP_KINDS, Piece, classify,
+                                         period, saturated_share, split_record, trim_noise)
 from gap_validation.core.spectra import (SPECTRA_DEFAULTS, BandSums, expected_estimate, record_bands,
                                          solve_bands)
 from gap_validation.core.sweeps import DETECTOR_DEFAULTS, SweepDetector, TriggerTracker
@@ -564,6 +564,7 @@ class FrequencyResponseEstimator:
         self._kinds: Counter = Counter()
         self._counted: Counter = Counter()
         self._longest_n = 0
+        self._saturated = 0
 
     def _new_sums(self) -> BandSums:
         q = len(self._names) - self._m - self._p
@@ -616,6 +617,17 @@ class FrequencyResponseEstimator:
     def longest_record_s(self) -> float:
         """Length of the longest manoeuvre record so far [s] (0 before any)."""
         return self._longest_n * self._dt
+
+    @property
+    def saturated(self) -> int:
+        """Manoeuvres not used because their excitation was pinned at its extremes (clipped; see
+        :func:`gap_validation.core.records.saturated_share`)."""
+        return self._saturated
+
+    @property
+    def not_estimable(self) -> dict[str, int]:
+        """Per reason in :data:`NOT_ESTIMABLE_REASONS`: (record, frequency) pairs that gave nothing."""
+        return {name: int(np.sum(self._reasons[i])) for i, name in enumerate(NOT_ESTIMABLE_REASONS)}
 
     @property
     def kinds(self) -> dict[str, int]:
@@ -1036,17 +1048,24 @@ class FrequencyResponseEstimator:
                                 k0 + piece.active_end, kind)
             if kind not in RESPONSE_KINDS or active_s < self._opts["min_sweep_s"]:
                 continue
+            if kind in ("chirp", "multisine", "broadband") and saturated_share(det, piece) >= SATURATED_SHARE:
+                self._saturated += 1
+                continue
             if kind == "multisine":          # whole periods only: its lines do not leak (nor another axis' lines)
                 n_p = period(det[piece.active_start:piece.active_end], self._dt)
                 whole = (piece.active_end - piece.active_start) // n_p * n_p if n_p else 0
                 if whole:
                     start = piece.active_start + (piece.active_end - piece.active_start - whole) // 2
                     seg = data[:, start:start + whole]
-                    self._estimate_piece(k0 + start, seg, kind, noise)
+                    self._estimate_piece(k0 + start, seg, kind, noise, (k0 + start, k0 + start + whole))
                     continue
-            self._estimate_piece(k0 + piece.start, seg, kind, noise)
+            self._estimate_piece(k0 + piece.start, seg, kind, noise,
+                                 (k0 + piece.active_start, k0 + piece.active_end))
 
-    def _estimate_piece(self, k_start: int, seg: np.ndarray, kind: str, noise: float) -> None:
+    def _estimate_piece(self, k_start: int, seg: np.ndarray, kind: str, noise: float,
+                        active: tuple[int, int]) -> None:
+        """Estimate one record (``seg`` from sample ``k_start``); ``active`` is the manoeuvre's own span, the
+        time reported for it (the record adds trim before and after)."""
         self._longest_n = max(self._longest_n, seg.shape[1])
         m, p = self._m, self._p
         instruments = seg[m + p:] if seg.shape[0] > m + p else None
@@ -1060,7 +1079,7 @@ class FrequencyResponseEstimator:
         if not counted.any():
             return
         self._tot.add(sums, counted)
-        k_end = k_start + seg.shape[1]
+        k_start, k_end = active
         if self._n_sweeps == 0:
             self._span[0] = k_start
         self._span[1] = k_end
@@ -1096,7 +1115,7 @@ class FrequencyResponseEstimator:
             **self._raw_state(),
             "kind_counts": np.array([self._kinds[k] for k in KINDS], np.int64),
             "counted_counts": np.array([self._counted[k] for k in KINDS], np.int64),
-            "longest_n": self._longest_n,
+            "longest_n": self._longest_n, "saturated": self._saturated,
         })
         st.update(self._tot.state_dict("tot."))
         parts = {"align": self._align, "trig": self._trig, "tbase": self._trig_base, "man": self._man,
@@ -1171,6 +1190,7 @@ class FrequencyResponseEstimator:
         self._span = [int(v) for v in st["span"]]
         self._reasons[:] = st["reasons"]
         self._longest_n = int(st["longest_n"])
+        self._saturated = int(st["saturated"])
         self._tot = BandSums.from_state(st, "tot.")
         meta = np.asarray(st["raw_meta"], np.int64).reshape(-1, 2)
         kinds = [str(k) for k in np.atleast_1d(st["raw_kind"])]

@@ -29,8 +29,6 @@ import math
 from typing import Any, Sequence
 
 import numpy as np
-import scipy.linalg
-import scipy.signal
 from numpy.typing import ArrayLike
 
 from gap_validation.core.effects import EFFECTS, check_plausible, effect_factor, validate_effect
@@ -207,6 +205,8 @@ def _tf2ss(num: np.ndarray, den: np.ndarray) -> StateSpace:
     """Real realization (A, B, C, D) of a proper num/den with 2-D arrays (also for static gains)."""
     if len(den) == 1:
         return np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), np.array([[num[-1] / den[0]]])
+    import scipy.signal   # here, not at import: scipy.signal costs the replay's start-up ~1 s
+
     a, b, c, d = scipy.signal.tf2ss(num, den)
     return a, b, c, np.atleast_2d(d)
 
@@ -621,6 +621,8 @@ def _parse_ss(spec: Any, where: str) -> Airframe:
     b1 = (b @ w_in).reshape(n, 1)
     c1 = (w_out @ c).reshape(1, n)
     d1 = np.array([[float(w_out @ d @ w_in)]])
+    import scipy.signal
+
     with np.errstate(all="ignore"):
         try:
             num, den = scipy.signal.ss2tf(a, b1, c1, d1)
@@ -678,6 +680,8 @@ def _discretise(a: np.ndarray, b: np.ndarray, h: float, hold: str) -> tuple[np.n
 
     Returns Phi, Ga, Gb with x[k+1] = Phi x[k] + Ga u[k] + Gb u[k+1].
     """
+    import scipy.linalg
+
     n = a.shape[0]
     if hold == "zero":
         block = np.zeros((n + 1, n + 1))

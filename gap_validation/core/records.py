@@ -27,6 +27,14 @@ excitation repeats with a period of 1 s or more at least twice, correlation >= 0
 three plateaus, e.g. 3-2-1-1), ``doublet`` (two plateaus of opposite sign), ``pulse`` (one plateau, back to
 trim), ``step`` (a trim change: the level after differs from the level before; not used for frequency
 responses), else ``broadband`` (random or hand-flown excitation).
+
+Saturation (:func:`saturated_share`)
+------------------------------------
+A smooth manoeuvre (chirp, multisine, broadband: steps have plateaus by design) whose excitation sits pinned at the same value at its largest or smallest excursion (repeated to
+round-off, in runs of three samples or more: a clipped command, a surface logged at its stop) for
+:data:`SATURATED_SHARE` (5 %) of its samples or more is *saturated*: the loop held a nonlinearity the linear
+model does not have, so the estimator does not use it and says so. A noisy signal never repeats its extreme
+value exactly, so noise alone cannot trigger this.
 """
 from __future__ import annotations
 
@@ -36,7 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["Piece", "split_record", "classify", "trim_noise", "period", "KINDS", "RESPONSE_KINDS", "SWEEP_KINDS",
-           "trim_tolerance"]
+           "trim_tolerance", "saturated_share", "SATURATED_SHARE"]
 
 #: Every kind :func:`classify` returns.
 KINDS = ("chirp", "multisine", "multistep", "doublet", "pulse", "broadband", "step")
@@ -368,3 +376,38 @@ def _flat_share(dev: np.ndarray, dt: float, tol: float) -> float:
     for k in range(n):
         covered[idx + k] = True
     return float(np.count_nonzero(covered & away) / np.count_nonzero(away))
+
+
+#: Share of a manoeuvre's samples pinned at its extremes from which it counts as saturated.
+SATURATED_SHARE = 0.05
+
+
+def saturated_share(u: np.ndarray, piece: Piece) -> float:
+    """Share of a manoeuvre's excited samples pinned at exactly its largest or smallest value.
+
+    Parameters
+    ----------
+    u : ndarray
+        The buffered excitation signal the piece indexes.
+    piece : Piece
+        The manoeuvre.
+
+    Returns
+    -------
+    float
+        Samples in runs of three or more equal to the extreme value (either side), over the excited samples; 0 for
+        a signal that never repeats its extremes (any noisy signal).
+    """
+    active = np.asarray(u[piece.active_start:piece.active_end], float)
+    if active.size < 3:
+        return 0.0
+    pinned = 0
+    hi, lo = float(np.max(active)), float(np.min(active))
+    tie = 1e-9 * (hi - lo)                     # interpolation onto the estimator's grid may leave round-off
+    for at in (active >= hi - tie, active <= lo + tie):
+        if np.count_nonzero(at) < 3:
+            continue
+        starts, ends = _runs(at)
+        lengths = ends - starts
+        pinned += int(np.sum(lengths[lengths >= 3]))
+    return pinned / active.size

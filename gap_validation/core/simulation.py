@@ -27,7 +27,6 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Sequence
 
 import numpy as np
-from scipy import signal
 
 from gap_validation.core.config import SignalSpec, ValidationConfig
 from gap_validation.core.effects import validate_effect
@@ -663,6 +662,8 @@ def _gust(n: int, fs_hz: float, opt: FlightOptions, rng: np.random.Generator) ->
     white = rng.standard_normal(n + int(5 * fs_hz))
     if rms == 0.0:
         return np.zeros(n)
+    from scipy import signal   # here: scipy.signal is slow to import
+
     b, a = signal.butter(2, opt.gust_bandwidth_rad_s / (2 * math.pi), fs=fs_hz)
     coloured = signal.lfilter(b, a, white)[-n:]
     return coloured * (rms / max(float(np.std(coloured)), 1e-300))
@@ -691,6 +692,8 @@ def band_noise(n: int, fs_hz: float, band_rad_s: tuple[float, float], rms: float
     white = rng.standard_normal(n + int(settle_s * fs_hz))
     if rms == 0.0:
         return np.zeros(n)
+    from scipy import signal
+
     sos = signal.butter(_BAND_NOISE_ORDER, [low / (2 * math.pi), high / (2 * math.pi)], btype="bandpass",
                         output="sos", fs=fs_hz)
     filtered = signal.sosfilt(sos, white)[-n:]

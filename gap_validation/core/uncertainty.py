@@ -27,7 +27,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy import signal
 
 from gap_validation.core.errors import DataError
 from gap_validation.core.metrics import tic, tic_input_augmented
@@ -181,6 +180,8 @@ def filter_uniform(num: ArrayLike, den: ArrayLike, dt_s: float, x: ArrayLike) ->
     x : array_like
         Input samples.
     """
+    from scipy import signal   # here: scipy.signal is slow to import and most runs never come here
+
     bd, ad, _ = signal.cont2discrete((np.atleast_1d(num), np.atleast_1d(den)), dt_s, method="foh")
     return signal.lfilter(np.ravel(bd), np.ravel(ad), x)
 

@@ -21,6 +21,7 @@ from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.diagnosis import confident_points, sweep_points
 from gap_validation.core.estimator import FrequencyResponseEstimator, SpectralEstimate
 from gap_validation.core.margins import margins_from_epsilon
+from gap_validation.core.records import SATURATED_SHARE
 from gap_validation.core.results import ChannelResult, SweepResult, ValidationResult
 from gap_validation.core.uncertainty import time_domain_check
 
@@ -399,15 +400,20 @@ def _why_nothing(est: FrequencyResponseEstimator, channel: ChannelConfig) -> str
     if set(kinds) == {"step"}:
         return f"the {where} only changed trim ({kinds['step']} steps; a trim change gives no frequency response)"
     flown = ", ".join(f"{n} {k}" for k, n in sorted(kinds.items()))
+    if est.saturated and not est.n_manoeuvres:
+        return (f"{flown} flown, {est.saturated} of them with the {where} saturated (pinned at its limits for "
+                f"{100 * SATURATED_SHARE:.0f} % of the manoeuvre or more); fly smaller amplitudes")
     w = channel.frequencies.values()
-    reasons = {k: int(np.sum(v)) for k, v in zip(("not_excited", "too_short", "above_grid", "too_few_bins"),
-                                                   est._reasons)}
+    reasons = est.not_estimable
     worst = max(reasons, key=reasons.get)
     if worst == "too_short" and reasons[worst]:
         return (f"{flown} flown, none long enough to resolve {w.min():.3g}-{w.max():.3g} rad/s (the longest "
                 f"record lasts {est.longest_record_s:.1f} s); fly longer manoeuvres")
     if worst == "above_grid" and reasons[worst]:
         return (f"{flown} flown, but the streams' sample rates resolve only up to {est.resolved_rad_s:.3g} rad/s")
+    if worst == "too_few_bins" and reasons[worst]:
+        return (f"{flown} flown, too few degrees of freedom at {w.min():.3g}-{w.max():.3g} rad/s (too few "
+                f"excited spectral lines per band); fly longer or more manoeuvres")
     return f"{flown} flown, none excites {w.min():.3g}-{w.max():.3g} rad/s enough (relative and to the input noise)"
 
 

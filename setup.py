@@ -17,7 +17,7 @@ setup(
     ],
     python_requires=">=3.10",
     install_requires=["numpy", "scipy", "PyYAML", "rosbags>=0.10", "matplotlib"],
-    extras_require={"test": ["pytest", "hypothesis"]},
+    extras_require={"test": ["pytest", "hypothesis", "mpmath"]},
     zip_safe=True,
     maintainer="gap_validation developers",
     maintainer_email="dev@gap-validation.invalid",

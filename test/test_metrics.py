@@ -1,7 +1,8 @@
 """Metrics: chordal distance, exact nu-gap with the winding-number condition, epsilon, TIC.
 
-Pinned numbers: the paper's example (eqs. 18-19: nu-gap 0.0852, epsilon 0.1404 at 14.9 rad/s) and textbook
-nu-gaps (Vinnicombe: 100/(2s+1) vs 100/(2s-1) is 0.0200, vs 100/(s+1)^2 is 0.8988).
+Pinned numbers: the paper's example (eqs. 18-19: nu-gap 0.0852, epsilon 0.1404 at 14.9 rad/s), textbook
+nu-gaps (Vinnicombe: 100/(2s+1) vs 100/(2s-1) is 0.0200, vs 100/(s+1)^2 is 0.8988) and the corner cases of
+issue 15 against a 40-digit reference.
 """
 
 import math
@@ -130,6 +131,135 @@ def test_common_factors_are_cancelled_before_counting():
     with_cancelled_unstable_mode = LinearModel.from_tf(np.polymul([1.0], [1.0, -3.0]), np.polymul([1.0, 1.0],
                                                                                                  [1.0, -3.0]))
     assert nugap(p, with_cancelled_unstable_mode)[0] == pytest.approx(0.0, abs=1e-9)
+
+
+# -- corner cases (issue 15): peaks at gain crossovers far from every pole and zero, beside undamped poles ----
+
+W0 = 27.7200457464113
+CORNER_CASES = {  # (num1, den1, num2, den2), the sup of kappa and where (from the issue; the 40-digit reference)
+    "gains 1e-6/s vs 2e-6/s": (([1e-6], [1.0, 0.0], [2e-6], [1.0, 0.0]), 1 / 3, math.sqrt(2) * 1e-6),
+    "gains 1e8/(s+1) vs 1.1e8/(s+1)": (([1e8], [1.0, 1.0], [1.1e8], [1.0, 1.0]), 1 / 21, 1.0488088e8),
+    "-50.9/s vs -56.07/(s-0.002125)": (([-50.9], [1.0, 0.0], [-56.07], [1.0, -0.002125]), 0.0483313115, 53.4225),
+    "two peaks beside a shared undamped pole": (
+        (np.polymul([-3.111686845952856], [1.0, 0.14255673341511005]).tolist(),
+         np.polymul([1.0, 0.0, W0**2], [1.0, 0.9590014583306136]).tolist(),
+         np.polymul([-2.898949107865159], [1.0, 0.14711222759321194]).tolist(),
+         np.polymul([1.0, 0.0, W0**2], [1.0, 0.9844060387689597]).tolist()), 0.0354112008, 27.666),
+}
+
+
+def mp_sup(polys, per_point, lo=1e-9, hi=1e12, per_decade=2000):
+    """High-precision reference: local maxima of a float scan (2000 points per decade over 21 decades), each
+    refined by a golden-section search evaluated with mpmath at 40 digits; the largest one and where."""
+    mp = pytest.importorskip("mpmath")
+    mp.mp.dps = 40
+    n1, d1, n2, d2 = ([mp.mpf(c) for c in poly] for poly in polys)
+
+    def horner(coefficients, s):
+        out = mp.mpf(0)
+        for c in coefficients:
+            out = out * s + c
+        return out
+
+    def value(w):
+        s = mp.mpc(0, w)
+        return per_point(mp, horner(n1, s) / horner(d1, s), horner(n2, s) / horner(d2, s))
+
+    w = np.geomspace(lo, hi, int(per_decade * math.log10(hi / lo)))
+    with np.errstate(all="ignore"):
+        s = 1j * w
+        f1, f2 = (np.polyval(polys[i], s) / np.polyval(polys[i + 1], s) for i in (0, 2))
+        scan = per_point(np, f1, f2)
+    scan = np.where(np.isfinite(scan), scan, -1.0)
+    peaks = np.flatnonzero((scan[1:-1] >= scan[:-2]) & (scan[1:-1] >= scan[2:])) + 1
+    best_value, best_w = mp.mpf(-1), None
+    golden = (mp.sqrt(5) - 1) / 2
+    for k in peaks[np.argsort(scan[peaks])[::-1][:4]]:
+        a, b = mp.mpf(w[k - 1]), mp.mpf(w[k + 1])
+        for _ in range(160):
+            c, d = b - golden * (b - a), a + golden * (b - a)
+            a, b = (a, d) if value(c) > value(d) else (c, b)
+        if value((a + b) / 2) > best_value:
+            best_value, best_w = value((a + b) / 2), (a + b) / 2
+    return float(best_value), float(best_w)
+
+
+def chordal(lib, p1, p2):
+    return abs(p2 - p1) / lib.sqrt((1 + abs(p1) ** 2) * (1 + abs(p2) ** 2))
+
+
+def overbound(lib, p1, p2):
+    return abs(p2 - p1) / abs(p2 + p1)
+
+
+@pytest.mark.parametrize("name", CORNER_CASES)
+def test_nugap_corner_cases_equal_a_40_digit_reference_to_1e_6(name):
+    polys, published, w_published = CORNER_CASES[name]
+    m1, m2 = LinearModel.from_tf(polys[0], polys[1]), LinearModel.from_tf(polys[2], polys[3])
+    value, w_peak = nugap(m1, m2)
+    reference, w_reference = mp_sup(polys, chordal)
+    assert winding_condition(m1, m2).satisfied
+    assert value == pytest.approx(reference, rel=1e-6)
+    assert value == pytest.approx(published, rel=1e-6 if name != "-50.9/s vs -56.07/(s-0.002125)" else 1e-8)
+    assert w_peak == pytest.approx(w_reference, rel=1e-6)
+    assert w_peak == pytest.approx(w_published, rel=1e-4)
+    assert nugap(m2, m1)[0] == pytest.approx(value, rel=1e-9)
+
+
+@pytest.mark.parametrize("name", CORNER_CASES)
+def test_epsilon_on_the_corner_cases_equals_the_reference(name):
+    polys = CORNER_CASES[name][0]
+    m1, m2 = LinearModel.from_tf(polys[0], polys[1]), LinearModel.from_tf(polys[2], polys[3])
+    value, w_peak = epsilon(m1, m2)
+    if name == "-50.9/s vs -56.07/(s-0.002125)":  # an integrator against a finite DC gain: the limit at w = 0 is 1
+        assert (value, w_peak) == (1.0, 0.0)
+        return
+    reference, _ = mp_sup(polys, overbound)
+    assert value == pytest.approx(reference, rel=1e-6)
+    assert value >= nugap(m1, m2)[0] * (1 - 1e-12)
+
+
+def reference_sup(m1, m2):
+    """Independent float reference: kappa from the models' frequency responses on 400 points per decade over
+    1e-12..1e13 rad/s, every local maximum within 10 % of the top refined by a bounded search in ln(w)."""
+    w = np.geomspace(1e-12, 1e13, 10_001)
+    with np.errstate(all="ignore"):
+        values = kappa_of(m1, m2, w)
+    values = np.where(np.isfinite(values), values, -1.0)
+    peaks = np.flatnonzero((values[1:-1] >= values[:-2]) & (values[1:-1] >= values[2:])) + 1
+    best = max(values.max(), kappa_of(m1, m2, np.array([0.0]))[0] if m1.dc_gain() != math.inf and
+               m2.dc_gain() != math.inf else -1.0)
+    for k in peaks[values[peaks] >= 0.9 * values.max()]:
+        result = minimize_scalar(lambda x: -kappa_of(m1, m2, np.array([math.exp(x)]))[0],
+                                 bounds=(math.log(w[k - 1]), math.log(w[k + 1])), method="bounded",
+                                 options={"xatol": 1e-12})
+        best = max(best, -result.fun)
+    return best
+
+
+def scaled_model(gain, kind, corner, zeta):
+    if kind == "integrator":
+        return LinearModel.from_tf([gain], [1.0, 0.0])
+    if kind == "lag":
+        return LinearModel.from_tf([gain * corner], [1.0, corner])
+    if kind == "lead":
+        return LinearModel.from_tf([gain, gain * corner / 3], [1.0, corner])
+    return LinearModel.from_tf([gain * corner**2], [1.0, 2 * zeta * corner, corner**2])
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(-9.0, 9.0), st.sampled_from(["integrator", "lag", "lead", "second order"]),
+       st.floats(0.01, 100.0), st.floats(0.05, 1.0), st.floats(0.5, 2.0), st.floats(0.7, 1.4),
+       st.sampled_from([1.0, -1.0]))
+def test_nugap_with_gains_from_1e_9_to_1e9_equals_a_high_resolution_reference(log_gain, kind, corner, zeta,
+                                                                              gain_ratio, corner_ratio, sign):
+    m1 = scaled_model(sign * 10.0**log_gain, kind, corner, zeta)
+    m2 = scaled_model(sign * 10.0**log_gain * gain_ratio, kind, corner * corner_ratio, zeta)
+    assume(winding_condition(m1, m2).satisfied)
+    value, w_peak = nugap(m1, m2)
+    reference = reference_sup(m1, m2)
+    assert value >= reference * (1 - 1e-9)  # the difference of nearly equal models costs digits: 1e-5 leaves 11
+    assert value == pytest.approx(reference, rel=1e-6)
 
 
 # -- delays: numerical winding number and exact sup ----------------------------------------------------------

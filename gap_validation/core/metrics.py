@@ -8,9 +8,11 @@ two :class:`~gap_validation.core.models.LinearModel` the results are exact:
 
 * the winding-number condition is checked (algebraically from polynomial roots for rational models or equal
   delays, numerically along the frequency axis when the delays differ), and the nu-gap is 1 when it fails;
-* the sup is located on a dense logarithmic grid (plus points around every lightly damped root and, with
-  delays, a linear grid resolving the delay's phase) and every promising local maximum is refined with a
-  bounded scalar optimisation to about 1e-8 relative in frequency; w = 0 and w -> infinity are checked too.
+* the sup is located on a dense logarithmic grid spanning every feature frequency of the pair (poles, zeros,
+  the corner frequencies and gain crossovers of each model, the zeros of P2 - P1 and P2 + P1), plus points
+  around every lightly damped root, on both sides of every root on the imaginary axis and, with delays, a
+  linear grid resolving the delay's phase; every promising local maximum is refined with a bounded scalar
+  optimisation to about 1e-8 relative in frequency; w = 0 and w -> infinity are checked too.
 
 Conventions: ``P1`` is the model, ``P2`` the measurement (or the second model), as in the paper.
 """
@@ -38,6 +40,7 @@ _REFINE_XATOL = 1e-10  # bounded refinement tolerance in ln(w)
 _MAX_CANDIDATES = 40
 _TIE_RTOL = 1e-9  # peaks equal to this (relative) are the same height: the lowest frequency is reported
 _HUGE_EPSILON = 1e10  # a refined epsilon peak above this is a crossing of P2 = -P1: reported as inf
+_AXIS_OFFSETS = np.geomspace(1e-9, 0.5, 180)  # relative offsets sampled on both sides of roots on the axis
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -344,8 +347,7 @@ def _winding_algebraic(n1: np.ndarray, d1: np.ndarray, n2: np.ndarray, d2: np.nd
     if len(rho) < len(d_term) or abs(rho[-(deg1 + deg2 + 1)]) <= 1e-12 * lead_scale:
         return WindingCheck(False, math.inf, "1 + P2~ P1 vanishes at infinity (P1(inf) P2(inf) = -1)")
     roots = _roots(rho)
-    scale = max(1.0, float(np.max(np.abs(roots)))) if roots.size else 1.0
-    on_axis = np.abs(roots.real) <= _AXIS_RTOL * np.maximum(np.abs(roots), 1e-3 * scale)
+    on_axis = _on_axis(roots)
     if np.any(on_axis):
         w = float(np.min(np.abs(roots[on_axis].imag)))
         return WindingCheck(False, w, f"1 + P2~ P1 vanishes at w = {w:.6g} rad/s")
@@ -355,6 +357,12 @@ def _winding_algebraic(n1: np.ndarray, d1: np.ndarray, n2: np.ndarray, d2: np.nd
         return WindingCheck(True)
     return WindingCheck(False, math.nan, f"winding number {(left - right - deg1 + deg2) // 2} != 0 "
                                          f"(unstable pole/zero counts do not match)")
+
+
+def _on_axis(roots: np.ndarray) -> np.ndarray:
+    """Which roots lie on the imaginary axis (relative tolerance, absolute near the origin)."""
+    scale = max(1.0, float(np.max(np.abs(roots)))) if roots.size else 1.0
+    return np.abs(roots.real) <= _AXIS_RTOL * np.maximum(np.abs(roots), 1e-3 * scale)
 
 
 def _winding_numerical(n1: np.ndarray, d1: np.ndarray, n2: np.ndarray, d2: np.ndarray,
@@ -443,19 +451,61 @@ def _resonance_points(roots: np.ndarray) -> np.ndarray:
 # ----------------------------------------------------------------------------------------------------------
 
 
-def _analysis_grid(m1: LinearModel, m2: LinearModel, extra_roots: ArrayLike = ()) -> np.ndarray:
-    roots = np.concatenate([m1.poles(), m1.zeros(), m2.poles(), m2.zeros(), np.asarray(extra_roots, complex)])
+def _axis_points(roots: np.ndarray) -> np.ndarray:
+    """Frequencies on both sides of every root on the positive imaginary axis, geometrically closer.
+
+    Two models sharing an undamped pole can have their largest chordal distance a hair to either side of it;
+    the offsets run from 1e-9 to 0.5 of the root's frequency.
+    """
+    roots = np.asarray(roots, dtype=complex)
+    centres = np.unique(roots[(roots.imag > 0.0) & _on_axis(roots)].imag)
+    if centres.size == 0:
+        return np.zeros(0)
+    return np.concatenate([centres[:, None] * (1.0 - _AXIS_OFFSETS), centres[:, None] * (1.0 + _AXIS_OFFSETS)],
+                          axis=1).ravel()
+
+
+def _feature_roots(model: LinearModel) -> np.ndarray:
+    """Poles, zeros and the roots of ``n n~ + d d~`` and ``n n~ - d d~`` of a model.
+
+    ``|n(jw)|^2 + |d(jw)|^2`` is the denominator of the chordal distance (its roots are the corner
+    frequencies of ``1 + |P|^2``) and the real roots of ``|n(jw)|^2 - |d(jw)|^2`` are the gain crossovers
+    ``|P(jw)| = 1``, where two models' chordal distance peaks when their gains differ (1e-6/s vs 2e-6/s
+    peaks at 1.4e-6 rad/s, far from any pole or zero).
+    """
+    num, den = _strip(model.num), _strip(model.den)
+    nn = np.polymul(num, _mirror(num))
+    dd = np.polymul(den, _mirror(den))
+    return np.concatenate([model.poles(), model.zeros(), _roots(np.polyadd(nn, dd)), _roots(np.polysub(nn, dd))])
+
+
+def _pair_roots(m1: LinearModel, m2: LinearModel) -> np.ndarray:
+    """Every frequency feature of a pair: each model's :func:`_feature_roots` and, with equal delays, the zeros
+    of ``P2 - P1`` and of ``P2 + P1`` (the numerator and denominator of epsilon, eq. 14)."""
+    parts = [_feature_roots(m1), _feature_roots(m2)]
+    if m1.delay_s == m2.delay_s:
+        cross1, cross2 = np.polymul(m2.num, m1.den), np.polymul(m1.num, m2.den)
+        parts += [_roots(np.polysub(cross1, cross2)), _roots(np.polyadd(cross1, cross2))]
+    return np.concatenate(parts)
+
+
+def _analysis_grid(roots: ArrayLike, delta_s: float = 0.0) -> np.ndarray:
+    """Frequencies [rad/s] resolving every feature: a logarithmic grid from 1e-4 of the smallest to 1e4 times the
+    largest root magnitude (and 1/delta_s), points around lightly damped roots and on both sides of roots on
+    the imaginary axis, and a linear grid at pi/8 of the delay's phase."""
+    roots = np.asarray(roots, dtype=complex)
+    roots = roots[np.isfinite(roots)]
     magnitudes = np.abs(roots)
     magnitudes = magnitudes[magnitudes > 0.0]
     w_min = float(magnitudes.min()) if magnitudes.size else 1.0
     w_max = float(magnitudes.max()) if magnitudes.size else 1.0
-    delta_s = abs(m2.delay_s - m1.delay_s)
+    delta_s = abs(delta_s)
     if delta_s > 0.0:
         w_min = min(w_min, 1.0 / delta_s)
         w_max = max(w_max, 1.0 / delta_s)
     w_lo, w_hi = 1e-4 * w_min, 1e4 * w_max
     parts = [np.geomspace(w_lo, w_hi, int(_GRID_PER_DECADE * math.log10(w_hi / w_lo)) + 2),
-             _resonance_points(roots)]
+             _resonance_points(roots), _axis_points(roots)]
     if delta_s > 0.0:
         step = math.pi / (8.0 * delta_s)
         parts.append(np.arange(1, min(int(w_hi / step), 100_000) + 1) * step)
@@ -528,12 +578,15 @@ def _first_huge(fun: Response, w: np.ndarray, threshold: float) -> float:
 
 
 def _sup_with_ends(fun: Response, at_zero: float, at_infinity: float, w: np.ndarray) -> tuple[float, float]:
+    """Sup over the grid's range, w = 0 and w -> infinity: the largest of the three values. It is reported at
+    w = 0 when that ties with the grid's peak (within 1e-9 relative), at infinity only when the limit there is
+    above both by more than that (a peak creeping up to its limit keeps its frequency, with the limit's value)."""
     value, where = _refined_sup(fun, w)
     if not math.isnan(at_zero) and at_zero >= value - _TIE_RTOL * max(1.0, abs(value)):
         value, where = max(at_zero, value), 0.0
     if at_infinity > value + _TIE_RTOL * max(1.0, abs(value)):
         value, where = at_infinity, math.inf
-    return value, where
+    return max(value, at_infinity), where
 
 
 def nugap(m1: LinearModel, m2: LinearModel) -> tuple[float, float]:
@@ -555,7 +608,7 @@ def nugap(m1: LinearModel, m2: LinearModel) -> tuple[float, float]:
     check = winding_condition(m1, m2)
     if not check.satisfied:
         return 1.0, check.frequency_rad_s
-    w = _analysis_grid(m1, m2)
+    w = _analysis_grid(_pair_roots(m1, m2), m2.delay_s - m1.delay_s)
     fun = lambda x: _kappa_models(m1, m2, x)  # noqa: E731
     value, where = _sup_with_ends(fun, float(fun(np.array([0.0]))[0]), _kappa_at_infinity(m1, m2), w)
     return min(max(value, 0.0), 1.0), where
@@ -576,7 +629,6 @@ def epsilon(m1: LinearModel, m2: LinearModel) -> tuple[float, float]:
     w_peak_rad_s : float
         Frequency of the sup [rad/s] (``inf`` for the limit at infinity).
     """
-    extra = ()
     if m1.delay_s == m2.delay_s:
         total = np.polyadd(np.polymul(m2.num, m1.den), np.polymul(m1.num, m2.den))
         extra = _roots(total)
@@ -586,7 +638,7 @@ def epsilon(m1: LinearModel, m2: LinearModel) -> tuple[float, float]:
             if np.isinf(_epsilon_models(m1, m2, np.array([w]))[0]) or \
                     _epsilon_models(m1, m2, np.array([w]))[0] > 1e6:
                 return math.inf, w
-    w = _analysis_grid(m1, m2, extra)
+    w = _analysis_grid(_pair_roots(m1, m2), m2.delay_s - m1.delay_s)
     fun = lambda x: _epsilon_models(m1, m2, x)  # noqa: E731
     value, where = _refined_sup(fun, w)
     if value >= _HUGE_EPSILON:

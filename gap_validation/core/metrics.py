@@ -1,10 +1,11 @@
 """Distances between models and data: chordal distance, nu-gap, overbounding epsilon, Theil coefficient.
 
-Paper: "Validating Aircraft Models in the Gap Metric" (eqs. 1, 3, 13, 14); nu-gap after Vinnicombe.
+Paper: "Validating Aircraft Models in the Gap Metric" (eqs. 1, 3, 13, 14); nu-gap after Vinnicombe
+(*Uncertainty and Feedback: H-infinity loop-shaping and the nu-gap metric*, Imperial College Press, 2001).
 
 Each metric returns its value and the frequency where it peaks [rad/s]. For frequency-response *data* the sup
 is over the given points and the winding-number condition of the nu-gap is assumed (as the paper does). For
-two :class:`~gap_validation.core.models.LinearModel` the results are exact:
+two models the results are exact. SISO :class:`~gap_validation.core.models.LinearModel` pairs (delays allowed):
 
 * the winding-number condition is checked (algebraically from polynomial roots for rational models or equal
   delays, numerically along the frequency axis when the delays differ), and the nu-gap is 1 when it fails;
@@ -13,6 +14,12 @@ two :class:`~gap_validation.core.models.LinearModel` the results are exact:
   around every lightly damped root, on both sides of every root on the imaginary axis and, with delays, a
   linear grid resolving the delay's phase; every promising local maximum is refined with a bounded scalar
   optimisation to about 1e-8 relative in frequency; w = 0 and w -> infinity are checked too.
+
+MIMO pairs (:class:`~gap_validation.core.models.MimoModel`, or a MIMO model against a 1 x 1 one) go through
+normalised coprime factors (:mod:`gap_validation.core.statespace`): kappa(w) is
+``sigma_max((I + P2 P2*)^-1/2 (P2 - P1) (I + P1* P1)^-1/2)``, the sup is the H-infinity norm of
+``Gt2 G1`` (level-set iteration, peak refined), and the winding-number condition is counted from the zeros of
+``det(G2~ G1)``. For 1 x 1 models this is the SISO nu-gap.
 
 Conventions: ``P1`` is the model, ``P2`` the measurement (or the second model), as in the paper.
 """
@@ -27,8 +34,10 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.optimize import minimize_scalar
 
+from gap_validation.core import statespace
+
 if TYPE_CHECKING:  # pragma: no cover
-    from gap_validation.core.models import LinearModel
+    from gap_validation.core.models import LinearModel, MimoModel
 
 #: A real function of frequency [rad/s], vectorised (kappa(w) or epsilon(w) of two models).
 Response = Callable[[np.ndarray], np.ndarray]
@@ -41,6 +50,7 @@ _MAX_CANDIDATES = 40
 _TIE_RTOL = 1e-9  # peaks equal to this (relative) are the same height: the lowest frequency is reported
 _HUGE_EPSILON = 1e10  # a refined epsilon peak above this is a crossing of P2 = -P1: reported as inf
 _AXIS_OFFSETS = np.geomspace(1e-9, 0.5, 180)  # relative offsets sampled on both sides of roots on the axis
+_SINGULAR_D_COND = 1e12  # det(G2~ G1) at infinity is taken as zero beyond this condition number
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -49,22 +59,29 @@ _AXIS_OFFSETS = np.geomspace(1e-9, 0.5, 180)  # relative offsets sampled on both
 
 
 def chordal_distance(p1: ArrayLike, p2: ArrayLike) -> np.ndarray:
-    """Chordal distance between two frequency responses (paper eq. 13, pointwise).
+    """Chordal distance between two frequency responses (paper eq. 13, pointwise; Vinnicombe's kappa).
 
-    ``kappa = |P2 - P1| / sqrt((1 + |P1|^2) (1 + |P2|^2))``, between 0 and 1; an infinite response (a pole
-    on the imaginary axis) is the point at infinity of the Riemann sphere.
+    SISO: ``kappa = |P2 - P1| / sqrt((1 + |P1|^2) (1 + |P2|^2))``, between 0 and 1; an infinite response (a
+    pole on the imaginary axis) is the point at infinity of the Riemann sphere.
+
+    MIMO (arrays of 3 or more dimensions: stacks of ``p x m`` matrices in the last two axes):
+    ``kappa = sigma_max((I + P2 P2*)^-1/2 (P2 - P1) (I + P1* P1)^-1/2)``; a matrix with a non-finite entry
+    gives nan. For 1 x 1 matrices it is the SISO formula.
 
     Parameters
     ----------
     p1, p2 : array_like of complex
-        Frequency responses at the same frequencies (broadcast).
+        Frequency responses at the same frequencies (broadcast): SISO values, or ``(..., p, m)`` matrices.
 
     Returns
     -------
     ndarray of float
+        One value per frequency (the matrix axes removed).
     """
     p1 = np.asarray(p1, dtype=complex)
     p2 = np.asarray(p2, dtype=complex)
+    if max(p1.ndim, p2.ndim) >= 3:
+        return _chordal_distance_matrices(*np.broadcast_arrays(p1, p2))
     p1, p2 = np.broadcast_arrays(p1, p2)
     inf1, inf2 = ~np.isfinite(p1) & ~np.isnan(p1), ~np.isfinite(p2) & ~np.isnan(p2)
     with np.errstate(invalid="ignore", over="ignore"):
@@ -74,6 +91,30 @@ def chordal_distance(p1: ArrayLike, p2: ArrayLike) -> np.ndarray:
         kappa = np.where(inf2 & ~inf1, 1.0 / np.sqrt(1.0 + a1 * a1), kappa)
     kappa = np.where(inf1 & inf2, 0.0, kappa)
     return np.minimum(kappa, 1.0)
+
+
+def _inv_sqrt_gram(p: np.ndarray, side: str) -> np.ndarray:
+    """``(I + P P*)^-1/2`` (side "left") or ``(I + P* P)^-1/2`` (side "right") of a stack of matrices, from the
+    singular values of P (no cancellation when P is huge, e.g. next to a pole on the axis)."""
+    u, s, vh = np.linalg.svd(p, full_matrices=True)
+    basis = u if side == "left" else np.conj(np.swapaxes(vh, -1, -2))
+    weights = np.ones(basis.shape[:-1])
+    weights[..., :s.shape[-1]] = 1.0 / np.sqrt(1.0 + s * s)
+    return (basis * weights[..., None, :]) @ np.conj(np.swapaxes(basis, -1, -2))
+
+
+def _chordal_distance_matrices(p1: np.ndarray, p2: np.ndarray) -> np.ndarray:
+    """Vinnicombe's pointwise chordal distance of stacks of p x m matrices (nan where an entry is not finite)."""
+    shape = p1.shape[:-2]
+    p1 = p1.reshape((-1,) + p1.shape[-2:])
+    p2 = p2.reshape((-1,) + p2.shape[-2:])
+    out = np.full(p1.shape[0], np.nan)
+    ok = np.all(np.isfinite(p1), axis=(1, 2)) & np.all(np.isfinite(p2), axis=(1, 2))
+    if np.any(ok):
+        a, b = p1[ok], p2[ok]
+        psi = _inv_sqrt_gram(b, "left") @ (b - a) @ _inv_sqrt_gram(a, "right")
+        out[ok] = np.minimum(np.linalg.svd(psi, compute_uv=False)[:, 0], 1.0)
+    return out.reshape(shape)
 
 
 def epsilon_per_frequency(p1: ArrayLike, p2: ArrayLike) -> np.ndarray:
@@ -119,7 +160,8 @@ def nugap_frequency_data(w_rad_s: ArrayLike, p1: ArrayLike, p2: ArrayLike) -> tu
     w_rad_s : array_like
         Frequencies [rad/s].
     p1, p2 : array_like of complex
-        Model and measured responses at ``w_rad_s``. NaN points are ignored.
+        Model and measured responses at ``w_rad_s`` (SISO values, or ``(len(w), p, m)`` matrices: see
+        :func:`chordal_distance`). NaN points are ignored.
 
     Returns
     -------
@@ -305,11 +347,11 @@ class WindingCheck:
     method: str = "algebraic"
 
 
-def winding_condition(m1: LinearModel, m2: LinearModel) -> WindingCheck:
-    """Check Vinnicombe's winding-number condition of the nu-gap for two SISO models.
+def winding_condition(m1: LinearModel | MimoModel, m2: LinearModel | MimoModel) -> WindingCheck:
+    """Check Vinnicombe's winding-number condition of the nu-gap for two models (SISO or MIMO).
 
-    With coprime P_i = n_i/d_i (delays aside), the condition is that the normalised coprime factors satisfy
-    wno det(G2* G1) = 0 with G2* G1 nonsingular on the axis. On s = j w,
+    SISO: with coprime P_i = n_i/d_i (delays aside), the condition is that the normalised coprime factors
+    satisfy wno det(G2* G1) = 0 with G2* G1 nonsingular on the axis. On s = j w,
     ``G2* G1 = rho(s) / (q2(-s) q1(s))`` with ``rho(s) = d2(-s) d1(s) + n2(-s) n1(s) exp(s (T2 - T1))`` and
     q_i the Hurwitz spectral factors of ``d_i d_i~ + n_i n_i~`` (deg q_i = deg d_i). Since q1 contributes
     deg d1 / 2 turns and q2(-s) -deg d2 / 2, the condition is: rho has no zero on the extended imaginary axis
@@ -322,14 +364,26 @@ def winding_condition(m1: LinearModel, m2: LinearModel) -> WindingCheck:
     beyond w_hi (past every root and where |P1 P2| < 1) is added analytically, and conjugate symmetry gives
     the whole axis.
 
+    MIMO (method ``"state space"``): with minimal realizations and normalised right coprime factors G_i of
+    order n_i (:func:`~gap_validation.core.statespace.right_ncf`), ``det(G2~ G1)`` has n1 stable and n2
+    antistable poles; it must have no zero on the extended imaginary axis (``I + P2(inf)^T P1(inf)``
+    nonsingular) and exactly n2 zeros in the open right half plane (the zeros of ``det`` are the eigenvalues of
+    ``A - B D^-1 C`` of the product's realization). For 1 x 1 models this is the polynomial count above.
+
     Parameters
     ----------
-    m1, m2 : LinearModel
+    m1, m2 : LinearModel or MimoModel
+        Models of the same shape (a 1 x 1 MimoModel counts as SISO).
 
     Returns
     -------
     WindingCheck
     """
+    siso, systems = _siso_or_state_space(m1, m2)
+    if systems is not None:
+        g1, g2 = (statespace.right_ncf(system) for system in systems)
+        return _winding_state_space(g1, g2, systems[1][0].shape[0])
+    m1, m2 = siso
     n1, d1 = _coprime(m1.num, m1.den)
     n2, d2 = _coprime(m2.num, m2.den)
     delta_s = m2.delay_s - m1.delay_s
@@ -363,6 +417,25 @@ def _on_axis(roots: np.ndarray) -> np.ndarray:
     """Which roots lie on the imaginary axis (relative tolerance, absolute near the origin)."""
     scale = max(1.0, float(np.max(np.abs(roots)))) if roots.size else 1.0
     return np.abs(roots.real) <= _AXIS_RTOL * np.maximum(np.abs(roots), 1e-3 * scale)
+
+
+def _winding_state_space(g1: statespace.StateSpace, g2: statespace.StateSpace, n2: int) -> WindingCheck:
+    """The condition from the normalised right coprime factors G1, G2 (n2 states in G2)."""
+    product = statespace.series(g1, statespace.paraconjugate(g2))   # G2~ G1, m x m
+    d = product[3]
+    if d.size and np.linalg.cond(d) > _SINGULAR_D_COND:
+        return WindingCheck(False, math.inf, "det(I + P2~ P1) vanishes at infinity (I + P2(inf)^T P1(inf) is "
+                                             "singular)", "state space")
+    zeros = statespace.zeros_square(product)
+    on_axis = _on_axis(zeros)
+    if np.any(on_axis):
+        w = float(np.min(np.abs(zeros[on_axis].imag)))
+        return WindingCheck(False, w, f"det(I + P2~ P1) vanishes at w = {w:.6g} rad/s", "state space")
+    right = int(np.sum(zeros.real > 0.0))
+    if right == n2:
+        return WindingCheck(True, method="state space")
+    return WindingCheck(False, math.nan, f"winding number {n2 - right} != 0 (unstable pole/zero counts do not "
+                                         f"match)", "state space")
 
 
 def _winding_numerical(n1: np.ndarray, d1: np.ndarray, n2: np.ndarray, d2: np.ndarray,
@@ -589,13 +662,41 @@ def _sup_with_ends(fun: Response, at_zero: float, at_infinity: float, w: np.ndar
     return max(value, at_infinity), where
 
 
-def nugap(m1: LinearModel, m2: LinearModel) -> tuple[float, float]:
-    """Exact nu-gap of two LTI models (Vinnicombe; paper eq. 13 with the winding-number condition).
+def _shape(model: LinearModel | MimoModel) -> tuple[int, int]:
+    return tuple(getattr(model, "shape", (1, 1)))
+
+
+def _siso_or_state_space(m1: LinearModel | MimoModel, m2: LinearModel | MimoModel) -> tuple[
+        tuple[LinearModel, LinearModel] | None, tuple[statespace.StateSpace, statespace.StateSpace] | None]:
+    """Two SISO models, or minimal realizations of two MIMO models of the same shape."""
+    shape1, shape2 = _shape(m1), _shape(m2)
+    if shape1 != shape2:
+        raise ValueError(f"models of different shapes ({shape1[0]}x{shape1[1]} and {shape2[0]}x{shape2[1]} "
+                         f"outputs x inputs) have no nu-gap")
+    if shape1 == (1, 1):
+        return (_siso(m1), _siso(m2)), None
+    return None, (m1.minimal_state_space(), m2.minimal_state_space())
+
+
+def _siso(model: LinearModel | MimoModel) -> LinearModel:
+    return model if not hasattr(model, "shape") else model.siso()
+
+
+def nugap(m1: LinearModel | MimoModel, m2: LinearModel | MimoModel) -> tuple[float, float]:
+    """Exact nu-gap of two LTI models (Vinnicombe 2001; paper eq. 13 with the winding-number condition).
+
+    SISO models (delays allowed) use the exact polynomial path (module docstring); MIMO models the state-space
+    path: ``sup_w kappa(w)`` with ``kappa(w) = sigma_max((I + P2 P2*)^-1/2 (P2 - P1) (I + P1* P1)^-1/2)``
+    is the H-infinity norm of ``Gt2 G1`` (normalised coprime factors), located by the level-set iteration
+    and refined to 1e-6 relative in frequency. The nu-gap is invariant under constant unitary changes of
+    input and output coordinates (``U P V`` for both models); for block-diagonal models it is the largest of
+    the blocks' nu-gaps unless two blocks fail the winding condition in opposite directions (the condition is
+    on the determinant, so their winding numbers cancel).
 
     Parameters
     ----------
-    m1, m2 : LinearModel
-        Model and second model (delays allowed).
+    m1, m2 : LinearModel or MimoModel
+        Model and second model, of the same shape (outputs x inputs).
 
     Returns
     -------
@@ -604,7 +705,17 @@ def nugap(m1: LinearModel, m2: LinearModel) -> tuple[float, float]:
     w_peak_rad_s : float
         Frequency of the sup [rad/s] (``inf`` for the limit at infinity); when the condition fails, where
         1 + P2~ P1 vanishes, or nan when the failure is a winding-number mismatch.
+
+    Raises
+    ------
+    ValueError
+        Models of different shapes.
     """
+    siso, systems = _siso_or_state_space(m1, m2)
+    if systems is not None:
+        value, where, _ = _nugap_state_space(*systems)
+        return value, where
+    m1, m2 = siso
     check = winding_condition(m1, m2)
     if not check.satisfied:
         return 1.0, check.frequency_rad_s
@@ -614,12 +725,25 @@ def nugap(m1: LinearModel, m2: LinearModel) -> tuple[float, float]:
     return min(max(value, 0.0), 1.0), where
 
 
-def epsilon(m1: LinearModel, m2: LinearModel) -> tuple[float, float]:
+def _nugap_state_space(s1: statespace.StateSpace, s2: statespace.StateSpace) -> tuple[float, float, WindingCheck]:
+    """nu-gap of two minimal realizations: the winding condition on det(G2~ G1), then ||Gt2 G1||_inf."""
+    g1 = statespace.right_ncf(s1)
+    check = _winding_state_space(g1, statespace.right_ncf(s2), s2[0].shape[0])
+    if not check.satisfied:
+        return 1.0, check.frequency_rad_s, check
+    value, where = statespace.hinf_norm(statespace.series(g1, statespace.left_ncf(s2)))
+    return min(max(value, 0.0), 1.0), where, check
+
+
+def epsilon(m1: LinearModel | MimoModel, m2: LinearModel | MimoModel) -> tuple[float, float]:
     """Exact sup over frequency of the overbounding-disk radius ``|P2 - P1| / |P2 + P1|`` (eq. 14).
+
+    The disk of eq. 14 is a SISO notion; 1 x 1 MIMO models are taken as SISO.
 
     Parameters
     ----------
-    m1, m2 : LinearModel
+    m1, m2 : LinearModel or MimoModel
+        SISO models (or 1 x 1).
 
     Returns
     -------
@@ -628,7 +752,15 @@ def epsilon(m1: LinearModel, m2: LinearModel) -> tuple[float, float]:
         no stability margin is guaranteed.
     w_peak_rad_s : float
         Frequency of the sup [rad/s] (``inf`` for the limit at infinity).
+
+    Raises
+    ------
+    ValueError
+        For MIMO models (no epsilon disk: compare them by the nu-gap).
     """
+    if _shape(m1) != (1, 1) or _shape(m2) != (1, 1):
+        raise ValueError("epsilon (eq. 14) is defined for SISO models; compare MIMO models by the nu-gap")
+    m1, m2 = _siso(m1), _siso(m2)
     if m1.delay_s == m2.delay_s:
         total = np.polyadd(np.polymul(m2.num, m1.den), np.polymul(m1.num, m2.den))
         extra = _roots(total)

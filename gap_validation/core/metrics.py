@@ -446,27 +446,74 @@ def _winding_numerical(n1: np.ndarray, d1: np.ndarray, n2: np.ndarray, d2: np.nd
     if abs(k1 * k2) >= 1.0:
         return WindingCheck(False, math.inf, "|P1(inf) P2(inf)| >= 1 with different delays: the winding number "
                                              "is not defined", "numerical")
-    d_a, d_b = _mirror(d2), d1  # rho = d_a d_b + n_a n_b exp(j w delta)
-    n_a, n_b = _mirror(n2), n1
-    roots = np.concatenate([_roots(p) for p in (d1, d2, n1, n2)])
+    # rho = d2(-s) d1(s) + n2(-s) n1(s) exp(s delta)
+    turns, where = axis_turns(np.polymul(_mirror(d2), d1), np.polymul(_mirror(n2), n1), delta_s, k1 * k2,
+                              np.concatenate([_roots(d1), -_roots(d2)]),
+                              np.concatenate([_roots(p) for p in (d1, d2, n1, n2)]))
+    if turns is None:
+        if math.isnan(where):
+            return WindingCheck(False, math.nan, "phase of 1 + P2~ P1 could not be resolved", "numerical")
+        text = "at w = 0" if where == 0.0 else f"near w = {where:.6g} rad/s"
+        return WindingCheck(False, where, f"1 + P2~ P1 vanishes {text}", "numerical")
+    if abs(turns - (deg1 - deg2) / 2.0) < 0.25:
+        return WindingCheck(True, method="numerical")
+    return WindingCheck(False, math.nan, "winding number of 1 + P2~ P1 does not match the unstable poles",
+                        "numerical")
+
+
+def axis_turns(a: ArrayLike, b: ArrayLike, delta_s: float, k_inf: float, a_roots: ArrayLike,
+               hint_roots: ArrayLike = ()) -> tuple[float | None, float]:
+    """Turns of ``f(j w) = a(j w) + b(j w) exp(j w delta_s)`` around 0 as w runs over the whole real line.
+
+    The quasi-polynomial's phase is unwrapped on an adaptive grid over (0, w_hi) (logarithmic, linear at
+    pi/4 of the delay's phase, points around every root; intervals whose phase jumps by more than pi/3 are
+    halved), the tail beyond w_hi, where ``|b/a| <= (1 + |k_inf|)/2 < 1``, is the phase of a alone
+    (analytic from its roots), and conjugate symmetry (real coefficients) doubles the half line. By the
+    argument principle a retarded quasi-polynomial of degree N with Z zeros in the open right half plane and
+    none on the axis turns ``N/2 - Z`` times (the nu-gap's winding condition; a closed loop with a delay,
+    Nyquist).
+
+    Parameters
+    ----------
+    a, b : array_like
+        Real polynomial coefficients, descending powers of s; ``deg b <= deg a``.
+    delta_s : float
+        The exponent's coefficient [s] (nonzero; negative for a delay ``exp(-s T)``).
+    k_inf : float
+        ``lim b(s)/a(s)`` as s -> infinity; ``|k_inf| < 1``.
+    a_roots : array_like
+        The roots of a (for the analytic tail).
+    hint_roots : array_like
+        Roots whose neighbourhoods the grid resolves (e.g. poles and zeros).
+
+    Returns
+    -------
+    turns : float or None
+        Turns over the whole axis; None when f vanishes on the axis (within the grid's resolution) or the
+        phase cannot be resolved.
+    w_zero_rad_s : float
+        Where f vanishes (nan when it does not, or when the phase was unresolved).
+    """
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    a_roots = np.asarray(a_roots, dtype=complex)
+    roots = np.concatenate([np.asarray(hint_roots, dtype=complex), a_roots])
     w_top = max(1.0, float(np.max(np.abs(roots)))) if roots.size else 1.0
     w_hi = 1e3 * w_top
-    limit = 0.5 * (1.0 + abs(k1 * k2))
+    limit = 0.5 * (1.0 + abs(k_inf))
 
-    def rho_x(w: ArrayLike) -> np.ndarray:
+    def f_x(w: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         s = 1j * np.asarray(w, dtype=float)
-        dd = np.polyval(d_a, s) * np.polyval(d_b, s)
-        nn = np.polyval(n_a, s) * np.polyval(n_b, s) * np.exp(s * delta_s)
+        aa = np.polyval(a, s)
+        bb = np.polyval(b, s) * np.exp(s * delta_s)
         with np.errstate(divide="ignore", invalid="ignore"):
-            return dd + nn, nn / dd
+            return aa + bb, bb / aa
 
     for _ in range(60):
-        if abs(rho_x(w_hi)[1]) <= limit:
+        if abs(f_x(w_hi)[1]) <= limit:
             break
         w_hi *= 2.0
-    rho0 = float(np.real(rho_x(0.0)[0]))
-    if rho0 == 0.0:
-        return WindingCheck(False, 0.0, "1 + P2~ P1 vanishes at w = 0", "numerical")
+    if float(np.real(f_x(0.0)[0])) == 0.0:
+        return None, 0.0
     w_lo = 1e-6 * min([abs(r) for r in roots if abs(r) > 0] + [1.0])
     grid = [np.array([0.0]), np.geomspace(w_lo, w_hi, int(_GRID_PER_DECADE * math.log10(w_hi / w_lo)) + 2)]
     step = math.pi / (4.0 * abs(delta_s))
@@ -474,7 +521,7 @@ def _winding_numerical(n1: np.ndarray, d1: np.ndarray, n2: np.ndarray, d2: np.nd
     grid.append(_resonance_points(roots))
     w = np.unique(np.concatenate(grid))
     w = w[(w >= 0.0) & (w <= w_hi)]
-    phase = np.angle(rho_x(w)[0])
+    phase = np.angle(f_x(w)[0])
     for _ in range(60):
         jump = np.abs(_wrap(np.diff(phase)))
         bad = np.flatnonzero(jump > math.pi / 3.0)
@@ -482,22 +529,16 @@ def _winding_numerical(n1: np.ndarray, d1: np.ndarray, n2: np.ndarray, d2: np.nd
             break
         width = w[bad + 1] - w[bad]
         if np.any(width <= 1e-13 * np.maximum(w[bad + 1], 1e-300)):
-            where = float(w[bad[np.argmin(width)]])
-            return WindingCheck(False, where, f"1 + P2~ P1 vanishes near w = {where:.6g} rad/s", "numerical")
+            return None, float(w[bad[np.argmin(width)]])
         mids = 0.5 * (w[bad] + w[bad + 1])
         w = np.insert(w, bad + 1, mids)
-        phase = np.insert(phase, bad + 1, np.angle(rho_x(mids)[0]))
+        phase = np.insert(phase, bad + 1, np.angle(f_x(mids)[0]))
     else:
-        return WindingCheck(False, math.nan, "phase of 1 + P2~ P1 could not be resolved", "numerical")
+        return None, math.nan
     total = float(np.sum(_wrap(np.diff(phase))))
-    tail = sum(_wrap(math.pi / 2 - np.angle(1j * w_hi - a)) for a in _roots(d1))
-    tail += sum(_wrap(-math.pi / 2 - np.angle(-1j * w_hi - b)) for b in _roots(d2))
-    tail -= float(np.angle(1.0 + rho_x(w_hi)[1]))
-    half_turns = (total + tail) / math.pi  # winding of rho over the whole axis, in turns, times 2 ... / 2
-    if abs(half_turns - (deg1 - deg2) / 2.0) < 0.25:
-        return WindingCheck(True, method="numerical")
-    return WindingCheck(False, math.nan, "winding number of 1 + P2~ P1 does not match the unstable poles",
-                        "numerical")
+    tail = float(sum(_wrap(math.pi / 2 - np.angle(1j * w_hi - r)) for r in a_roots))
+    tail -= float(np.angle(1.0 + f_x(w_hi)[1]))
+    return (total + tail) / math.pi, math.nan
 
 
 def _wrap(angle: ArrayLike) -> np.ndarray:

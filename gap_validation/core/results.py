@@ -330,6 +330,11 @@ class ChannelResult:
     model_spec: dict = field(default_factory=dict)                   # the config's model mapping
     manoeuvres: list[Manoeuvre] = field(default_factory=list)        # doublets kept for the time domain
     time_domain: list[dict] = field(default_factory=list)            # per manoeuvre: tic, tic_input_augmented
+    # the controller check (a channel with a controller): b(P1, C) and b > nu-gap (core.robust)
+    stability_margin_b: float | None = None
+    stability_margin_frequency_rad_s: float | None = None
+    guaranteed_stable: bool | None = None
+    stability_note: str = ""
 
     def __post_init__(self) -> None:
         # bands and candidates given as their JSON objects (hand-written results, tests) are read as such
@@ -388,6 +393,10 @@ class ChannelResult:
         }
         for entry, response in zip(out["raw_sweeps"], self.sweep_measured if samples else ()):
             entry["measured"] = _mag_phase(response, self.model)
+        if self.stability_margin_b is not None:  # only with a controller
+            out.update({"stability_margin_b": _num(self.stability_margin_b),
+                        "stability_margin_frequency_rad_s": _num(self.stability_margin_frequency_rad_s),
+                        "guaranteed_stable": self.guaranteed_stable, "stability_note": self.stability_note})
         return out
 
     def _checks(self) -> list[dict | None]:
@@ -416,7 +425,10 @@ class ChannelResult:
                  bad_samples=dict(data.get("bad_samples") or {}),
                  epsilon_previous=data.get("epsilon_previous"),
                  model_description=data.get("model_description", ""), message=data.get("message", ""),
-                 model_spec=dict(data.get("model_spec") or {}))
+                 model_spec=dict(data.get("model_spec") or {}),
+                 stability_margin_b=data.get("stability_margin_b"),
+                 stability_margin_frequency_rad_s=data.get("stability_margin_frequency_rad_s"),
+                 guaranteed_stable=data.get("guaranteed_stable"), stability_note=data.get("stability_note") or "")
         ch.margins = margins_from_epsilon(ch.epsilon if ch.epsilon is not None else float("nan"))
         if ch.epsilon_raw is not None:
             ch.margins_raw = margins_from_epsilon(ch.epsilon_raw)

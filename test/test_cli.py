@@ -184,7 +184,7 @@ def test_compare_models_controller_check_b_of_the_integrator_with_unit_feedback(
     data = json.loads(out_json.read_text())["channels"]["roll"]
     assert data["stability_margin_b"] == pytest.approx(0.70711, abs=5e-6)
     assert data["guaranteed_stable"] is guaranteed
-    assert ("guaranteed to stabilise the aircraft: b = 0.71 > nu-gap" in text) is guaranteed
+    assert ("guaranteed to stabilise the aircraft: b = 0.7071 > nu-gap 0.0100" in text) is guaranteed
     header = text.splitlines()[0].split()
     assert header[-2:] == ["b(P1,C)", "stable"]
 

@@ -279,8 +279,10 @@ def _state_space_margin(plant: statespace.StateSpace, controller: statespace.Sta
 
 
 def _pair_text(b: float, gap: float) -> tuple[str, str]:
-    """b and the nu-gap with just enough digits that the comparison reads true (2 to 6 decimals)."""
-    for digits in range(2, 7):
+    """b and the nu-gap with two decimals (two significant digits below 0.01), more while they read equal."""
+    smallest = min((abs(x) for x in (b, gap) if x), default=1.0)
+    first = 2 if smallest >= 0.01 else min(1 - math.floor(math.log10(smallest)), 6)
+    for digits in range(first, 7):
         left, right = f"{b:.{digits}f}", f"{gap:.{digits}f}"
         if left != right:
             return left, right
@@ -307,7 +309,7 @@ def stability_sentence(margin: StabilityMargin, nu_gap: float | None, measured: 
     if not margin.stable:
         return f"the controller does not stabilise the model: b = 0 ({margin.reason})"
     if nu_gap is None or math.isnan(nu_gap):
-        return f"b = {margin.b:.2f}: no nu-gap yet to compare with"
+        return f"b = {_pair_text(margin.b, margin.b)[0]}: no nu-gap yet to compare with"
     b_text, gap_text = _pair_text(margin.b, nu_gap)
     if margin.b > nu_gap:
         text = f"the controller is guaranteed to stabilise the aircraft: b = {b_text} > nu-gap {gap_text}"

@@ -602,6 +602,17 @@ def test_matrix_chordal_distance_properties(seed, log_scale):
                                rtol=1e-9, atol=1e-15)
 
 
+def test_round_off_in_the_coefficients_changes_nothing():
+    # 1/(s+1)^2 through a state-space round trip: its coefficients differ by round-off, so n2 d1 - n1 d2 has a
+    # leading coefficient of 1e-16 unless cancellations are recognised (a spurious root near 1e15 once moved the
+    # whole analysis grid there)
+    m1, m2 = LinearModel.from_tf([1.0], [1.0, 2.0, 1.0]), LinearModel.from_tf([1.0], [1.0, 1.0, 1.0])
+    round_trip = MimoModel.from_linear(m1).siso()
+    assert nugap(round_trip, m2)[0] == pytest.approx(nugap(m1, m2)[0], rel=1e-9)
+    assert nugap(round_trip, m2)[0] == pytest.approx(0.3204237536639, rel=1e-9)
+    assert epsilon(round_trip, m2)[0] == pytest.approx(epsilon(m1, m2)[0], rel=1e-9)
+
+
 def test_mimo_frequency_data_and_errors():
     p1, p2 = block_diagonal(P1_PAPER, VINNICOMBE_STABLE), block_diagonal(P2_PAPER, VINNICOMBE_UNSTABLE)
     w = np.geomspace(1.0, 100.0, 2001)

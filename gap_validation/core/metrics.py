@@ -579,6 +579,20 @@ def _axis_points(roots: np.ndarray) -> np.ndarray:
                           axis=1).ravel()
 
 
+def _combined(a: ArrayLike, b: ArrayLike, sign: float = 1.0) -> np.ndarray:
+    """``a + sign b`` with every coefficient that cancels to round-off of its operands set to exactly 0.
+
+    Leading coefficients that cancel (``P1(inf) = P2(inf)`` in ``n2 d1 - n1 d2``, ``|P(inf)| = 1`` in
+    ``n n~ - d d~``) would otherwise give spurious roots near 1e15; trailing ones give exact roots at 0.
+    """
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    size = max(a.size, b.size)
+    a = np.concatenate([np.zeros(size - a.size), a])
+    b = np.concatenate([np.zeros(size - b.size), b])
+    total = a + sign * b
+    return np.where(np.abs(total) <= 64 * np.finfo(float).eps * (np.abs(a) + np.abs(b)), 0.0, total)
+
+
 def _feature_roots(model: LinearModel) -> np.ndarray:
     """Poles, zeros and the roots of ``n n~ + d d~`` and ``n n~ - d d~`` of a model.
 
@@ -590,7 +604,7 @@ def _feature_roots(model: LinearModel) -> np.ndarray:
     num, den = _strip(model.num), _strip(model.den)
     nn = np.polymul(num, _mirror(num))
     dd = np.polymul(den, _mirror(den))
-    return np.concatenate([model.poles(), model.zeros(), _roots(np.polyadd(nn, dd)), _roots(np.polysub(nn, dd))])
+    return np.concatenate([model.poles(), model.zeros(), _roots(_combined(nn, dd)), _roots(_combined(nn, dd, -1.0))])
 
 
 def _pair_roots(m1: LinearModel, m2: LinearModel) -> np.ndarray:
@@ -599,7 +613,7 @@ def _pair_roots(m1: LinearModel, m2: LinearModel) -> np.ndarray:
     parts = [_feature_roots(m1), _feature_roots(m2)]
     if m1.delay_s == m2.delay_s:
         cross1, cross2 = np.polymul(m2.num, m1.den), np.polymul(m1.num, m2.den)
-        parts += [_roots(np.polysub(cross1, cross2)), _roots(np.polyadd(cross1, cross2))]
+        parts += [_roots(_combined(cross1, cross2, -1.0)), _roots(_combined(cross1, cross2))]
     return np.concatenate(parts)
 
 
@@ -624,7 +638,9 @@ def _analysis_grid(roots: ArrayLike, delta_s: float = 0.0) -> np.ndarray:
         step = math.pi / (8.0 * delta_s)
         parts.append(np.arange(1, min(int(w_hi / step), 100_000) + 1) * step)
     w = np.unique(np.concatenate(parts))
-    return w[(w >= w_lo) & (w <= w_hi)]
+    w = w[(w >= w_lo) & (w <= w_hi)]
+    # points within round-off of each other (the same root from several polynomials) would tie as false peaks
+    return w[np.concatenate([[True], np.diff(w) > 1e-12 * w[1:]])] if w.size else w
 
 
 def _grid_peaks(fun: Response, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -29,8 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from gap_validation.core import statespace
-from gap_validation.core.metrics import (_analysis_grid, _coprime, _feature_roots, _mirror, _on_axis, _roots,
-                                         _strip, _sup_with_ends, axis_turns)
+from gap_validation.core.metrics import (_analysis_grid, _combined, _coprime, _feature_roots, _mirror, _on_axis,
+                                         _roots, _strip, _sup_with_ends, axis_turns)
 from gap_validation.core.models import LinearModel, MimoModel
 
 #: A model as the metrics take it.
@@ -170,9 +170,10 @@ def _siso_margin(plant: LinearModel, controller: LinearModel) -> StabilityMargin
         return np.abs(closed) / np.sqrt((np.abs(np_) ** 2 + np.abs(dp_) ** 2) * (np.abs(nc_) ** 2 + np.abs(dc_) ** 2))
 
     nn, dd = np.polymul(loop_num, _mirror(loop_num)), np.polymul(loop_den, _mirror(loop_den))
-    roots = [_feature_roots(plant), _feature_roots(controller), _roots(np.polysub(nn, dd)), _roots(np.polyadd(nn, dd))]
+    roots = [_feature_roots(plant), _feature_roots(controller), _roots(_combined(nn, dd, -1.0)),
+             _roots(_combined(nn, dd))]
     if delay_s == 0.0:
-        roots.append(_roots(np.polyadd(loop_den, loop_num)))
+        roots.append(_roots(_combined(loop_den, loop_num)))
     w = _analysis_grid(np.concatenate(roots), delay_s)
     kp, kc = _value_at_infinity(n_p, d_p), _value_at_infinity(n_c, d_c)
     norm = math.sqrt((1.0 + kp * kp) * (1.0 + kc * kc))

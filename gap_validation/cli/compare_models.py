@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from gap_validation.config import load_config
 from gap_validation.core import metrics, robust
 from gap_validation.core.config import ChannelConfig, ValidationConfig
@@ -42,34 +44,43 @@ def compare(config_a: ValidationConfig, config_b: ValidationConfig) -> dict:
         raise ConfigError(f"{config_a.source} and {config_b.source} have no channel in common")
     out = {}
     for name in common:
-        ch_a, ch_b = config_a.channels[name], config_b.channels[name]
-        m1, m2 = ch_a.model, _aligned(name, ch_a, ch_b, config_a.source, config_b.source)
-        nugap, w_nugap = metrics.nugap(m1, m2)
-        winding = metrics.winding_condition(m1, m2)
-        shape = list(getattr(m1, "shape", (1, 1)))
-        entry = {"nu_gap": nugap, "nu_gap_frequency_rad_s": _finite(w_nugap)}
-        if shape == [1, 1]:
-            eps, w_eps = metrics.epsilon(m1, m2)
-            margins = margins_from_epsilon(eps)
-            entry.update({"epsilon": _finite(eps), "worst_frequency_rad_s": _finite(w_eps), **margins.to_json_dict(),
-                          "disk_markers": [margins.lower_disk_marker, margins.upper_disk_marker]
-                          if margins.lower_disk_marker is not None else None,
-                          "margins_note": margins_note(eps)})
-        else:
-            entry.update({"epsilon": None, "worst_frequency_rad_s": _finite(w_nugap),
-                          **margins_from_epsilon(math.nan).to_json_dict(), "disk_markers": None,
-                          "margins_note": MIMO_MARGINS_NOTE})
-        entry["nu_gap_note"] = None if winding.satisfied else \
-            f"winding-number condition fails ({winding.reason}): nu-gap 1"
-        entry["shape"] = shape
-        controller = ch_a.controller if ch_a.controller is not None else ch_b.controller
-        if controller is not None:
-            check = robust.controller_check(m1, controller, nugap)
-            entry.update({"stability_margin_b": check.stability_margin_b,
-                          "stability_margin_frequency_rad_s": check.frequency_rad_s,
-                          "guaranteed_stable": check.guaranteed_stable, "stability_note": check.sentence})
-        out[name] = entry
+        try:
+            out[name] = _compare_channel(name, config_a, config_b)
+        except np.linalg.LinAlgError as err:  # e.g. a nearly hidden mode on the imaginary axis
+            raise ConfigError(f"channels.{name}: the models of {config_a.source} and {config_b.source} cannot be "
+                              f"compared ({err})") from None
     return {"channels": out, "config_a": config_a.source, "config_b": config_b.source}
+
+
+def _compare_channel(name: str, config_a: ValidationConfig, config_b: ValidationConfig) -> dict:
+    """The JSON object of one channel present in both configs."""
+    ch_a, ch_b = config_a.channels[name], config_b.channels[name]
+    m1, m2 = ch_a.model, _aligned(name, ch_a, ch_b, config_a.source, config_b.source)
+    nugap, w_nugap = metrics.nugap(m1, m2)
+    winding = metrics.winding_condition(m1, m2)
+    shape = list(getattr(m1, "shape", (1, 1)))
+    entry = {"nu_gap": nugap, "nu_gap_frequency_rad_s": _finite(w_nugap)}
+    if shape == [1, 1]:
+        eps, w_eps = metrics.epsilon(m1, m2)
+        margins = margins_from_epsilon(eps)
+        entry.update({"epsilon": _finite(eps), "worst_frequency_rad_s": _finite(w_eps), **margins.to_json_dict(),
+                      "disk_markers": [margins.lower_disk_marker, margins.upper_disk_marker]
+                      if margins.lower_disk_marker is not None else None,
+                      "margins_note": margins_note(eps)})
+    else:
+        entry.update({"epsilon": None, "worst_frequency_rad_s": _finite(w_nugap),
+                      **margins_from_epsilon(math.nan).to_json_dict(), "disk_markers": None,
+                      "margins_note": MIMO_MARGINS_NOTE})
+    entry["nu_gap_note"] = None if winding.satisfied else \
+        f"winding-number condition fails ({winding.reason}): nu-gap 1"
+    entry["shape"] = shape
+    controller = ch_a.controller if ch_a.controller is not None else ch_b.controller
+    if controller is not None:
+        check = robust.controller_check(m1, controller, nugap)
+        entry.update({"stability_margin_b": check.stability_margin_b,
+                      "stability_margin_frequency_rad_s": check.frequency_rad_s,
+                      "guaranteed_stable": check.guaranteed_stable, "stability_note": check.sentence})
+    return entry
 
 
 def _aligned(name: str, ch_a: ChannelConfig, ch_b: ChannelConfig, source_a: str, source_b: str):

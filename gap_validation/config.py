@@ -10,7 +10,7 @@ from gap_validation.atomic import atomic_write_text
 from gap_validation.core.config import ValidationConfig, parse_config
 from gap_validation.core.errors import ConfigError, DataError
 
-__all__ = ["load_config", "dump_config", "ValidationConfig"]
+__all__ = ["load_config", "dump_config", "read_yaml", "ValidationConfig"]
 
 
 def load_config(path: str | os.PathLike) -> ValidationConfig:
@@ -22,18 +22,28 @@ def load_config(path: str | os.PathLike) -> ValidationConfig:
         One line naming the file and the problem (missing file, YAML syntax with line number, bad key).
     """
     path = Path(path)
+    return parse_config(read_yaml(path, "config file", "config"), str(path))
+
+
+def read_yaml(path: str | os.PathLike, what: str, short: str | None = None):
+    """The YAML document of a file (configs, campaign manifests), or a one-line :class:`ConfigError`.
+
+    ``what`` names the kind of file in the messages (``"config file"``: "config file not found", "is a directory,
+    not a config file"); ``short`` in "cannot read <short>" (default ``what``).
+    """
+    path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
-        raise ConfigError(f"{path}: config file not found") from None
+        raise ConfigError(f"{path}: {what} not found") from None
     except UnicodeDecodeError as err:
         raise ConfigError(f"{path}: not a text (UTF-8) file (byte {err.start}: {err.reason})") from None
     except IsADirectoryError:
-        raise ConfigError(f"{path}: is a directory, not a config file") from None
+        raise ConfigError(f"{path}: is a directory, not a {what}") from None
     except OSError as err:
-        raise ConfigError(f"{path}: cannot read config ({err.strerror or err})") from None
+        raise ConfigError(f"{path}: cannot read {short or what} ({err.strerror or err})") from None
     try:
-        data = yaml.safe_load(text)
+        return yaml.safe_load(text)
     except RecursionError:
         raise ConfigError(f"{path}: YAML error: nested too deeply") from None
     except yaml.YAMLError as err:
@@ -41,7 +51,6 @@ def load_config(path: str | os.PathLike) -> ValidationConfig:
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
         problem = getattr(err, "problem", None) or "invalid YAML"
         raise ConfigError(f"{path}: YAML error{where}: {problem}") from None
-    return parse_config(data, str(path))
 
 
 def dump_config(config: ValidationConfig | dict, path: str | os.PathLike) -> None:

@@ -33,12 +33,16 @@ def generate_launch_description():
                               description="checkpoint of the gathered spectra ('' = off)"),
         DeclareLaunchArgument("results_dir", default_value="",
                               description="where ~/save_results writes ('' = current directory)"),
+        DeclareLaunchArgument("node_name", default_value="gap_validator",
+                              description="node name; the statuses are named '<node_name>: <channel>'"),
+        DeclareLaunchArgument("namespace", default_value="", description="node namespace (e.g. /uav1)"),
         DeclareLaunchArgument("log_level", default_value="info", description="ROS log level"),
     ]
     node = Node(
         package="gap_validation",
         executable="validator_node",
-        name="gap_validator",
+        name=LaunchConfiguration("node_name"),
+        namespace=LaunchConfiguration("namespace"),
         output="screen",
         emulate_tty=True,
         parameters=[

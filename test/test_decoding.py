@@ -4,6 +4,7 @@ import pytest
 
 from _messages import TS, FakeValidator, imu, joints, make_config
 from gap_validation.core.errors import DataError
+from gap_validation.messages.cdr import Records
 from gap_validation.messages.decoding import VERIFY_MESSAGES, TopicDecoder, Undecodable, fast_values_agree
 from gap_validation.messages.router import MessageRouter
 
@@ -88,6 +89,44 @@ def test_values_agree_treats_nan_as_equal_and_checks_the_stamp():
     assert fast_values_agree(routes, msg, 3.0, [float("nan")])
     assert not fast_values_agree(routes, msg, 4.0, [float("nan")])
     assert not fast_values_agree(routes, imu(y=1.0, sec=3, nanosec=0), 3.0, [np.nextafter(1.0, 2.0)])
+
+
+def _records(n, start=0):
+    return Records.from_raws([_raw(imu(y=0.01 * k, sec=k + 1)) for k in range(start, start + n)])
+
+
+def test_batches_are_read_once_the_record_decoder_is_trusted_and_checked_too():
+    calls = []
+    _, step = _decoder(lambda raw: calls.append(1) or TS.deserialize_cdr(raw, IMU))
+    stamps, values, fast = step.decode_batch(_records(5))
+    assert not fast.any() and calls == []                 # not trusted yet: every record goes through decode()
+    for k in range(VERIFY_MESSAGES):
+        step.decode(_raw(imu(y=0.01 * k, sec=k + 1)))
+    stamps, values, fast = step.decode_batch(_records(20, start=VERIFY_MESSAGES))
+    assert fast.all() and len(calls) == 2 * VERIFY_MESSAGES       # the batch decoder's first records checked
+    assert values[:, 0].tolist() == [0.01 * k for k in range(VERIFY_MESSAGES, VERIFY_MESSAGES + 20)]
+    assert stamps.tolist() == [k + 1.5 for k in range(VERIFY_MESSAGES, VERIFY_MESSAGES + 20)]
+    step.decode_batch(_records(20))
+    assert len(calls) == 2 * VERIFY_MESSAGES                      # then trusted
+
+
+def test_a_disagreeing_batch_decoder_is_dropped_and_records_go_one_by_one():
+    seen, count = [], {"n": 0}
+
+    def deserialize(raw):
+        msg = TS.deserialize_cdr(raw, IMU)
+        count["n"] += 1
+        if count["n"] > VERIFY_MESSAGES:                  # the record decoder passed; the batch decoder will not
+            msg.angular_velocity.y += 1.0
+        return msg
+
+    _, step = _decoder(deserialize, on_disagree=seen.append)
+    for k in range(VERIFY_MESSAGES):
+        step.decode(_raw(imu(sec=k + 1)))
+    _, _, fast = step.decode_batch(_records(10))
+    assert not fast.any() and step.batch is None and seen == ["/imu"]
+    assert step.decoder is not None                       # records are still read one by one (decode)
+    assert not step.decode_batch(_records(10))[2].any()
 
 
 def test_replay_and_node_use_this_step():

@@ -1,4 +1,4 @@
-"""The house's dependency rules (docs/ARCHITECTURE.md): core <- messages <- bag / ros; report; cli.
+"""The house's dependency rules (docs/ARCHITECTURE.md): core <- messages <- bag / ros; report; campaign; cli.
 
 Each package may import only what its layer allows, checked two ways: statically (no ``import`` in a package
 names a package above it) and in a fresh interpreter (importing a module pulls in none of the heavy libraries
@@ -21,6 +21,7 @@ FORBIDDEN_PACKAGES = {
     "bag": ("ros", "report", "cli"),
     "ros": ("bag", "cli"),
     "report": ("messages", "bag", "ros", "cli"),
+    "campaign": ("ros", "cli"),
 }
 
 #: Modules -> third-party libraries that importing them must not import.
@@ -34,6 +35,8 @@ FORBIDDEN_LIBRARIES = [
     (["gap_validation.bag." + p.stem for p in sorted((PACKAGE / "bag").glob("*.py"))], ("rclpy", "matplotlib")),
     (["gap_validation.report", "gap_validation.report.terminal", "gap_validation.report.html"],
      ("rclpy", "rosbags", "matplotlib")),
+    (["gap_validation.campaign." + p.stem for p in sorted((PACKAGE / "campaign").glob("*.py"))]
+     + ["gap_validation.cli.campaign"], ("rclpy", "matplotlib", "distributed")),
 ]
 
 
@@ -72,7 +75,8 @@ def _loaded_after_import(modules: list[str], libraries: tuple[str, ...]) -> str:
 
 
 @pytest.mark.parametrize("modules, libraries", FORBIDDEN_LIBRARIES,
-                         ids=["core", "messages", "ros-without-rclpy", "bag", "report-without-matplotlib"])
+                         ids=["core", "messages", "ros-without-rclpy", "bag", "report-without-matplotlib",
+                              "campaign-without-dask-or-matplotlib"])
 def test_layers_import_no_heavier_library(modules, libraries):
     assert _loaded_after_import(modules, libraries) == "[]"
 

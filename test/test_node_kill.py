@@ -10,7 +10,6 @@ matches an uninterrupted in-process run of the same messages.
 from __future__ import annotations
 
 import os
-import random
 import signal
 import subprocess
 import sys
@@ -19,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _ros import domain_id
 import yaml
 
 rclpy = pytest.importorskip("rclpy")
@@ -62,7 +62,7 @@ def assert_same_tree(a, b, where="state"):
 @pytest.fixture
 def env(tmp_path):
     saved = dict(os.environ)
-    os.environ.update({"ROS_PYTHON_CHECK_FIELDS": "1", "ROS_DOMAIN_ID": str(random.randint(0, 101)),
+    os.environ.update({"ROS_PYTHON_CHECK_FIELDS": "1", "ROS_DOMAIN_ID": domain_id(),
                        "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"})
     data = yaml.safe_load((ROOT / "config" / "ultrastick25e.yaml").read_text())
     for channel in data["channels"].values():

@@ -145,6 +145,38 @@ def test_mcap_sqlite3_bare_files_and_full_decode_agree(tmp_path, pitch_config, p
     assert fast.bags[0].fast_topics == ["/control_surfaces", "/imu"] and full.bags[0].fast_topics == []
 
 
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_batched_replay_gives_the_record_by_record_result(tmp_path, monkeypatch, storage):
+    """Replay reads records in batches and decodes them at once (TopicDecoder.decode_batch): the JSON is the one
+    of the record-by-record replay (every record through TopicDecoder.decode and MessageRouter.on_values, as
+    before batching) and of full deserialisation, to the bit, on a 1 kHz flight of three channels."""
+    from gap_validation.messages.decoding import TopicDecoder
+    from gap_validation.messages.router import MessageRouter
+
+    bag = tmp_path / "flight"
+    make_bag(bag, seed=3, storage=storage, options=with_options(SHORT, sweeps_per_channel=1, sweep_duration_s=30.0,
+                                                               imu_rate_hz=1000.0, surface_rate_hz=100.0))
+    config = ultrastick()
+    batched_messages = []
+    run = MessageRouter.on_values_batch
+    monkeypatch.setattr(MessageRouter, "on_values_batch",
+                        lambda self, topics, which, *rest: batched_messages.append(len(which)) or
+                        run(self, topics, which, *rest))
+    batched = replay([bag], config)
+    assert sum(batched_messages) > 0.9 * batched.messages          # nearly all records were read in batches
+    monkeypatch.setattr(MessageRouter, "on_values_batch", run)
+    full = replay([bag], config, fast=False)
+    skip = TopicDecoder.decode_batch
+    monkeypatch.setattr(TopicDecoder, "decode_batch", lambda self, records: tuple(
+        (out if i < 2 else np.zeros_like(out)) for i, out in enumerate(skip(self, records))))
+    one_by_one = replay([bag], config)
+    reference = json.dumps(one_by_one.result.to_json_dict(), sort_keys=True)
+    assert one_by_one.messages == batched.messages == full.messages > 100_000
+    assert json.dumps(batched.result.to_json_dict(), sort_keys=True) == reference
+    assert json.dumps(full.result.to_json_dict(), sort_keys=True) == reference
+    assert all(ch.sweeps == 1 for ch in batched.result.channels.values())
+
+
 def test_custom_topics_joint_names_and_rates(tmp_path):
     data = single_channel("pitch")
     data["channels"]["pitch"]["input"] = {"topic": "/fmu/servo_feedback", "field": "position[elev_servo]"}

@@ -4,6 +4,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from _messages import T, FakeValidator, imu, joints, make_config
 from gap_validation.core.config import SignalSpec, ValidationConfig
@@ -180,3 +182,72 @@ def test_structural_error_skips_only_that_signal():
     assert val.samples("pitch", "output")[1].tolist() == [1.0, 2.0, 3.0]
     assert val.samples("roll", "output")[0].size == 0 and not val.bad
     assert "angular_velocity.w" in router.broken[("roll", "output")]
+
+
+# ------------------------------------------------------------------------------------------ runs of messages
+#: Steps between message times: exact binary fractions (spans reached exactly), reordering, a jump back, NaN.
+_STEP = st.sampled_from([0.125, 0.125, 0.25, 0.0, 0.375, -0.125, -40.0, float("nan")]) | st.floats(0.0, 0.3)
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(st.tuples(st.sampled_from(["/imu", "/control_surfaces", "/sweep"]), _STEP,
+                          st.floats(-1.0, 1.0) | st.just(float("nan"))), min_size=1, max_size=120),
+       st.lists(st.integers(0, 120), max_size=6), st.lists(st.integers(0, 120), max_size=4),
+       st.integers(1, 40), st.sampled_from([0.25, 0.5, 1.0, 1.5]), st.sampled_from([0.0, 60.0, -12.5]))
+def test_runs_of_values_reach_the_validator_as_message_by_message(messages, cuts, singles, batch, span, offset):
+    """``on_values_batch`` pushes the same batches at the same messages as ``on_values`` one by one (full batches,
+    time spans, time jumping back, NaN times and values, runs mixed with single messages)."""
+    times, t = [], 50.0
+    for _, step, _ in messages:
+        t = t + step if math.isfinite(step) else t
+        times.append(t if math.isfinite(step) else float("nan"))
+    one, many = FakeValidator(), FakeValidator()
+    routers = [MessageRouter(make_config(trigger=True), v, batch=batch, max_batch_s=span) for v in (one, many)]
+    for router in routers:
+        router.time_offset_s = offset
+    for (topic, _, value), t in zip(messages, times):
+        routers[0].on_values(topic, t, [value])
+    topics = ["/imu", "/control_surfaces", "/sweep"]
+    bounds = sorted({0, len(messages), *(c for c in cuts if c < len(messages))})
+    singles = set(singles)
+    for start, stop in zip(bounds, bounds[1:]):
+        run = list(range(start, stop))
+        while run:
+            if run[0] in singles:              # a single message between runs (a record decoded on its own)
+                i = run.pop(0)
+                routers[1].on_values(messages[i][0], times[i], [messages[i][2]])
+                continue
+            part = run[:next((j for j, i in enumerate(run) if i in singles), len(run))]
+            run = run[len(part):]
+            which = np.array([topics.index(messages[i][0]) for i in part])
+            values = [np.array([[messages[i][2]] for i in part if messages[i][0] == topic]).reshape(-1, 1)
+                      for topic in topics]
+            routers[1].on_values_batch(topics, which, np.array([times[i] for i in part]), values)
+    for router in routers:
+        router.flush()
+    assert len(one.batches) == len(many.batches)
+    for a, b in zip(one.batches, many.batches):
+        assert a[:2] == b[:2] and np.array_equal(a[2], b[2], equal_nan=True)
+        assert np.array_equal(a[3], b[3], equal_nan=True)
+    assert sorted(one.bad) == sorted(many.bad) and routers[0].messages == routers[1].messages
+
+
+@pytest.mark.parametrize("times", [50 + 0.125 * np.arange(30),                               # span reached exactly
+                                   np.r_[50 + 0.125 * np.arange(9), 8 + 0.125 * np.arange(9)],  # a jump back
+                                   np.r_[50.0, 50.0, 50.0, 49.9, 50.25, 50.5]])                 # reordered
+def test_runs_push_where_message_by_message_pushes(times):
+    batches = []
+    for split in (False, True):
+        val = FakeValidator()
+        router = MessageRouter(make_config(), val, batch=7, max_batch_s=0.25)
+        topics = np.arange(times.size) % 3 == 0                  # every third message a surface position
+        if split:
+            names = ["/imu", "/control_surfaces"]
+            router.on_values_batch(names, topics.astype(int), times,
+                                   [np.ones((int((~topics).sum()), 1)), np.ones((int(topics.sum()), 1))])
+        else:
+            for t, surface in zip(times, topics):
+                router.on_values("/control_surfaces" if surface else "/imu", t, [1.0])
+        router.flush()
+        batches.append([(c, s, t.tolist()) for c, s, t, _ in val.batches])
+    assert batches[0] == batches[1]

@@ -34,9 +34,26 @@ def test_channel_status_levels_and_messages():
     ch.margins = margins_from_epsilon(1.2)
     values = dict(channel_status(ch).values)
     assert values["gain_margin_db"] == "null" and values["phase_margin_deg"] == "null"
-    empty = ChannelResult(name="roll")
-    assert channel_status(empty).level == "STALE"
-    assert "waiting for a sweep" in channel_status(empty).message
+    empty = ChannelResult(name="roll")      # data flow, no sweep yet: nothing wrong, nothing to judge (not STALE)
+    assert channel_status(empty).level == "OK"
+    assert channel_status(empty).message == "receiving data, waiting for a sweep (no estimate yet)"
     assert dict(channel_status(empty).values)["diagnosis"] == "pending"
+    assert dict(channel_status(empty).values)["epsilon"] == "null"
+    assert channel_status(empty, waiting_reason="waiting for data on /imu (output)").level == "STALE"
+    assert channel_status(empty, stale_reason="no data for 4.0 s on /imu (output)").level == "STALE"
     flat = ChannelResult(name="roll", sweeps=2, message="no frequency with coherence >= 0.6 yet")
     assert channel_status(flat).level == "WARN" and "data-limited" in channel_status(flat).message
+
+
+def test_a_publisher_that_cannot_be_matched_is_named_first_and_raises_the_level():
+    from gap_validation.core.results import ChannelResult
+    from gap_validation.core.margins import margins_from_epsilon
+
+    note = "publisher on /imu offers BEST_EFFORT; set qos_reliability to auto or best_effort"
+    empty = ChannelResult(name="pitch")
+    silent = channel_status(empty, waiting_reason="waiting for data on /imu (output)", notes=[note])
+    assert silent.level == "ERROR" and silent.message == f"{note}; waiting for data on /imu (output)"
+    flowing = channel_status(empty, notes=[note])        # another publisher feeds the topic: a warning
+    assert flowing.level == "WARN" and flowing.message.startswith(note)
+    bad = ChannelResult(name="pitch", sweeps=1, epsilon=0.5, margins=margins_from_epsilon(0.5))
+    assert channel_status(bad, notes=[note]).level == "ERROR"

@@ -20,10 +20,12 @@ from pathlib import Path
 from typing import Any, Iterator, Sequence
 
 from rosbags.rosbag2 import Reader
+from rosbags.rosbag2.reader import DirectoryReader
 from rosbags.rosbag2.errors import ReaderError
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, TypesysError, get_types_from_idl, get_types_from_msg, get_typestore
 
+from gap_validation.bag.batches import BATCH, RecordBatch, grouped, storage_batches
 from gap_validation.bag.salvage import Damage, salvage
 from gap_validation.core.errors import DataError, one_line
 
@@ -187,6 +189,58 @@ class Bag:
         if self.damage is not None:
             where = getattr(self._reader, "path", self.path)      # the damaged file itself
             raise DataError(f"{where}: {self.damage.text}{self._before()}")
+
+    def record_batches(self, topics: Sequence[str] | None = None, size: int = BATCH) -> Iterator[RecordBatch]:
+        """The records of :meth:`records`, in the same order, as :class:`~gap_validation.bag.batches.RecordBatch`
+        of at most ``size`` records (an indexed mcap file: straight from its chunks; sqlite3: rows fetched many at
+        a time; see :mod:`gap_validation.bag.batches`).
+
+        Raises
+        ------
+        DataError
+            On a damaged file, naming the bag (the batches before it stay valid).
+        """
+        conns = self._connections(topics)
+        if not conns:
+            return
+        sources = self._batch_sources(conns, size)
+        if sources is None:
+            yield from grouped(self.records(topics), size)
+            return
+        try:
+            for source in sources:
+                for batch in source:
+                    self._last_ns = int(batch.t_ns[-1]) if len(batch) else self._last_ns
+                    yield batch
+        except Exception as err:  # noqa: BLE001 - as records(): rosbags, zstd, lz4 raise many kinds on damage
+            if isinstance(err, DataError):
+                raise
+            raise DataError(f"{self.path}: corrupted or unreadable data ({one_line(err)}){self._before()}") \
+                from None
+
+    def _batch_sources(self, conns: Sequence[Any], size: int) -> list[Iterator[RecordBatch]] | None:
+        """Per storage file, its batches (:func:`~gap_validation.bag.batches.storage_batches`), in the order rosbags
+        reads the files; None when one of them cannot be read so (then :meth:`records` is grouped)."""
+        if self.damage is not None or not isinstance(self._reader, Reader):
+            return None
+        storage = self._reader.storage
+        if isinstance(storage, DirectoryReader):
+            if self._reader.compression_mode == "message":
+                return None
+            parts = [(part, {x.id: y.topic for x in part.connections for y in conns   # as DirectoryReader.messages
+                             if y.topic == x.topic and y.msgtype == x.msgtype and y.ext == x.ext
+                             and (not x.digest or not y.digest or y.digest == x.digest)})
+                     for part in storage.storages]
+        else:
+            parts = [(storage, {c.id: c.topic for c in conns})]
+        sources = []
+        for part, topic_of in parts:
+            if topic_of:
+                source = storage_batches(part, topic_of, size)
+                if source is None:
+                    return None
+                sources.append(source)
+        return sources
 
     def _before(self) -> str:
         """``; validated the X s before (up to bag time T)`` for what was read before a damage."""

@@ -52,15 +52,20 @@ class ProgressBar:
         self.drawn = False
 
     def __call__(self, done: int, total: int) -> None:
+        self.draw(done, total, lambda rate: f"msgs {rate:,.0f} msg/s")
+
+    def draw(self, done: int, total: int, counts, ran: int | None = None) -> None:
+        """Redraw (unless drawn less than 0.1 s ago): ``done/total`` then ``counts(rate)``, the rate being
+        ``ran`` (default ``done``) per second since the start."""
         now = time.monotonic()
         if now - self.last < 0.1 and done < total:
             return
         self.last = now
         frac = done / total if total else 1.0
         filled = int(round(frac * self.width))
-        rate = done / max(now - self.start, 1e-9)
+        rate = (done if ran is None else ran) / max(now - self.start, 1e-9)
         self.stream.write(f"\r{self.label} [{'#' * filled}{'.' * (self.width - filled)}] {frac:4.0%} "
-                          f"{done}/{total} msgs {rate:,.0f} msg/s")
+                          f"{done}/{total} {counts(rate)}")
         self.stream.flush()
         self.drawn = True
 

@@ -1,6 +1,7 @@
 """From serialized messages to samples, with no rclpy and no rosbags import.
 
-* :mod:`~gap_validation.messages.cdr`: fast CDR field decoders (only the configured fields);
+* :mod:`~gap_validation.messages.cdr`: fast CDR field decoders (only the configured fields; of one record, or of
+  many at once);
 * :mod:`~gap_validation.messages.decoding`: the one decoding step replay and the node share (decode, verify the
   first messages against full deserialisation, fall back, count ``undecodable``);
 * :mod:`~gap_validation.messages.router`: the :class:`~gap_validation.messages.router.MessageRouter` from

@@ -16,15 +16,24 @@ raw subscriptions) both hand each serialized message of a topic to its :class:`T
 
 Then the front end routes the result: fast values with ``MessageRouter.on_values``, a message with
 ``MessageRouter.on_message``. Nothing here imports rclpy or rosbags.
+
+Replay also has many records of a topic at once (:class:`~gap_validation.messages.cdr.Records`, e.g. a
+decompressed mcap chunk): :meth:`TopicDecoder.decode_batch` reads their fields vectorised with the topic's
+batch decoder (:func:`~gap_validation.messages.cdr.batch_decoder`) once the per-record decoder is trusted. The
+batch decoder is checked in the same way on the first :data:`VERIFY_MESSAGES` records it reads (each also
+deserialised fully and compared; on a difference it is dropped); whatever it does not read is for
+:meth:`TopicDecoder.decode`, one record at a time, so what the two entries decide stays this module's.
 """
 from __future__ import annotations
 
 import math
 from typing import Any, Callable, Sequence
 
+import numpy as np
+
 from gap_validation.core.errors import DataError
 from gap_validation.core.fields import FieldError
-from gap_validation.messages.cdr import fast_decoder
+from gap_validation.messages.cdr import Records, batch_decoder, fast_decoder
 from gap_validation.messages.router import MessageRouter, Route, stamp_seconds
 
 __all__ = ["TopicDecoder", "Undecodable", "VERIFY_MESSAGES", "UNDECODABLE", "fast_values_agree"]
@@ -88,7 +97,8 @@ class TopicDecoder:
         ``on_disagree(topic)`` when the fast decoder disagrees with full deserialisation (it is dropped).
     """
 
-    __slots__ = ("router", "topic", "routes", "decoder", "verify_left", "deserialize", "errors", "on_disagree")
+    __slots__ = ("router", "topic", "routes", "decoder", "verify_left", "deserialize", "errors", "on_disagree",
+                 "batch", "batch_verify_left")
 
     def __init__(self, router: MessageRouter, topic: str, msgtype: str, deserialize: Callable[[Any], Any], *,
                  fast: bool = True, errors: tuple[type[BaseException], ...] = (Exception,),
@@ -99,6 +109,9 @@ class TopicDecoder:
         #: The fast field decoder (None: every message is deserialised).
         self.decoder = fast_decoder(msgtype, [r.path for r in self.routes]) if fast else None
         self.verify_left = VERIFY_MESSAGES
+        #: The batch decoder (None: records are decoded one by one), verified on its first records too.
+        self.batch = batch_decoder(msgtype, [r.path for r in self.routes]) if fast else None
+        self.batch_verify_left = VERIFY_MESSAGES
         self.deserialize = deserialize
         self.errors = errors
         self.on_disagree = on_disagree
@@ -142,3 +155,39 @@ class TopicDecoder:
                 if self.on_disagree is not None:
                     self.on_disagree(self.topic)
         return None, None, msg
+
+    def decode_batch(self, records: Records) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Read the fields of many records of the topic at once.
+
+        Parameters
+        ----------
+        records : Records
+            Serialized (CDR) messages of this topic, in arrival order.
+
+        Returns
+        -------
+        stamp_s, values, fast : numpy.ndarray
+            Per record: the header stamp [s] (NaN: none, use the receive time), a row of raw values (one per
+            route), and whether it was read. A record not read must go through :meth:`decode` (all of them
+            until the per-record decoder is trusted, or when the batch decoder was dropped).
+        """
+        n = len(records)
+        if self.batch is None or self.decoder is None or self.verify_left > 0:
+            return np.full(n, np.nan), np.empty((n, len(self.routes))), np.zeros(n, dtype=bool)
+        stamps, values, fast = self.batch(records)
+        if self.batch_verify_left > 0:
+            for i in np.flatnonzero(fast)[:self.batch_verify_left]:
+                try:
+                    msg = self.deserialize(records.raw(int(i)))
+                except self.errors:             # not a check: left to decode(), record by record
+                    fast[i] = False
+                    continue
+                self.batch_verify_left -= 1
+                stamp = None if math.isnan(stamps[i]) else float(stamps[i])
+                if not fast_values_agree(self.routes, msg, stamp, values[i].tolist()):
+                    self.batch = None
+                    if self.on_disagree is not None:
+                        self.on_disagree(self.topic)
+                    fast[:] = False
+                    break
+        return stamps, values, fast

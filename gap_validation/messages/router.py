@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
@@ -66,13 +66,51 @@ class Route:
 
 
 class _TopicBuffer:
-    """Pending messages of one topic: times and one raw value per route (NaN where extraction failed)."""
+    """Pending messages of one topic: times and one raw value per route (NaN where extraction failed), queued one
+    by one (``t``, ``rows``) or as arrays (``chunks``, in arrival order before the ones queued one by one)."""
 
-    __slots__ = ("t", "rows")
+    __slots__ = ("t", "rows", "chunks", "chunked")
 
     def __init__(self):
         self.t: list[float] = []
         self.rows: list = []
+        self.chunks: list[tuple[np.ndarray, np.ndarray]] = []
+        self.chunked = 0
+
+    def __len__(self) -> int:
+        return self.chunked + len(self.t)
+
+    def _seal(self) -> None:
+        """Turn the messages queued one by one into a chunk (keeps the arrival order before a new chunk)."""
+        n = len(self.t)
+        self.chunks.append((np.asarray(self.t, dtype=float), np.asarray(self.rows, dtype=float).reshape(n, -1)))
+        self.chunked += n
+        self.t, self.rows = [], []
+
+    def add(self, t: np.ndarray, rows: np.ndarray) -> None:
+        """Queue many messages: times and one row of raw values each."""
+        if self.t:
+            self._seal()
+        self.chunks.append((t, rows))
+        self.chunked += t.size
+
+    def last_t(self) -> float:
+        """Time of the last message queued (the buffer is not empty)."""
+        return self.t[-1] if self.t else float(self.chunks[-1][0][-1])
+
+    def take(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every pending message as ``(t, raw values)`` arrays; the buffer is emptied."""
+        if not self.chunks:
+            t = np.asarray(self.t, dtype=float)
+            raw = np.asarray(self.rows, dtype=float).reshape(t.size, -1)
+        else:
+            if self.t:
+                self._seal()
+            t = np.concatenate([c[0] for c in self.chunks])
+            raw = np.concatenate([c[1] for c in self.chunks])
+            self.chunks, self.chunked = [], 0
+        self.t, self.rows = [], []
+        return t, raw
 
 
 class _StreamState:
@@ -242,6 +280,61 @@ class MessageRouter:
         if topic in self.routes:
             self._queue(topic, t_s, values)
 
+    def on_values_batch(self, topics: Sequence[str], which: np.ndarray, t_s: np.ndarray,
+                        values: Sequence[np.ndarray]) -> None:
+        """Queue a run of fast-decoded messages of several topics, in arrival order, as :meth:`on_values` would
+        one by one: the same batches reach the validator, pushed at the same messages.
+
+        Parameters
+        ----------
+        topics : sequence of str
+            The topics of the run (each one the router reads).
+        which : numpy.ndarray of int
+            Per message, its topic's index in ``topics``.
+        t_s : numpy.ndarray of float
+            Per message, its time (stamp or receive time) before :attr:`time_offset_s`.
+        values : sequence of numpy.ndarray
+            Per topic, one row of raw values (one per route, before ``scale``) per message of that topic, in
+            arrival order.
+        """
+        t = np.asarray(t_s, dtype=float) + self.time_offset_s
+        n = int(t.size)
+        if not n:
+            return
+        where = [np.flatnonzero(which == k) for k in range(len(topics))]
+        buffers = [self._pending[topic] for topic in topics]
+        for topic, positions in zip(topics, where):
+            self.messages[topic] += int(positions.size)
+        queued = [0] * len(topics)           # rows of each topic queued so far
+        i = 0
+        while i < n:
+            if self._flush_t is None:
+                self._flush_t = float(t[i])
+            start = self._flush_t
+            # the first message from i on at which _queue would push (its topic's batch full, or the time span
+            # reached) or restart the span (time jumped back)
+            ahead = t[i:]
+            jumps = (ahead - start >= self.max_batch_s) | (ahead < start - JUMP_BACK_S)
+            stop = i + int(np.argmax(jumps)) if jumps.any() else n
+            full = False
+            for k, positions in enumerate(where):
+                need = self.batch - len(buffers[k])          # messages of topic k until its batch is full
+                at = queued[k] + max(need, 1) - 1
+                if at < positions.size and positions[at] <= stop:
+                    stop, full = int(positions[at]), True
+            for k, positions in enumerate(where):
+                upto = int(np.searchsorted(positions, min(stop, n - 1), side="right"))
+                if upto > queued[k]:
+                    take = positions[queued[k]:upto]
+                    buffers[k].add(t[take], values[k][queued[k]:upto])
+                    queued[k] = upto
+            if stop >= n:
+                break
+            if full or t[stop] - start >= self.max_batch_s:
+                self.flush()
+            self._flush_t = float(t[stop])
+            i = stop + 1
+
     def _queue(self, topic: str, t_s: float, values) -> None:
         t_s += self.time_offset_s
         self.messages[topic] += 1
@@ -250,7 +343,7 @@ class MessageRouter:
         buf.rows.append(values)
         if self._flush_t is None:
             self._flush_t = t_s
-        if len(buf.t) >= self.batch or t_s - self._flush_t >= self.max_batch_s:
+        if len(buf) >= self.batch or t_s - self._flush_t >= self.max_batch_s:
             self.flush()
             self._flush_t = t_s
         elif t_s < self._flush_t - JUMP_BACK_S:      # time went back (a looped bag): batch from here on
@@ -273,9 +366,7 @@ class MessageRouter:
             self.validator.count_bad(route.channel, route.stream, reason, count)
 
     def _send_topic(self, topic: str, buf: _TopicBuffer) -> None:
-        t_all = np.asarray(buf.t, dtype=float)
-        raw = np.asarray(buf.rows, dtype=float).reshape(t_all.size, -1)
-        buf.t, buf.rows = [], []
+        t_all, raw = buf.take()
         for j, route in enumerate(self.routes[topic]):
             state = self._streams[(route.channel, route.stream)]
             values = raw[:, j] * route.scale
@@ -305,7 +396,7 @@ class MessageRouter:
         estimator before the samples of the same instant)."""
         for topic in self._flush_order:
             buf = self._pending[topic]
-            if buf.t:
+            if len(buf):
                 self._send_topic(topic, buf)
 
     def saturation(self, channel: str) -> list[tuple[str, float, int]]:
@@ -318,13 +409,13 @@ class MessageRouter:
         state = self._streams.get((channel, stream))
         if state is None:
             return 0
-        pending = sum(len(self._pending[topic].t) for topic, routes in self.routes.items()
+        pending = sum(len(self._pending[topic]) for topic, routes in self.routes.items()
                       if any((r.channel, r.stream) == (channel, stream) for r in routes))
         return state.good + pending
 
     def latest_time_s(self) -> float:
         """Latest sample time [s] queued on any topic (``-inf`` before the first sample)."""
-        pending = [buf.t[-1] for buf in self._pending.values() if buf.t]
+        pending = [buf.last_t() for buf in self._pending.values() if len(buf)]
         return max([self.last_time_s, *pending])
 
 

@@ -18,19 +18,25 @@ from gap_validation.core.config import ValidationConfig
 from gap_validation.core.results import ValidationResult
 from gap_validation.core.validator import OnlineValidator
 
-__all__ = ["DiagnosisWorker"]
+__all__ = ["DiagnosisWorker", "copy_tree"]
 
 
-def _copy_tree(value: Any) -> Any:
-    """Deep copy of a state tree (arrays copied), so a worker thread never sees arrays being updated."""
+def copy_tree(value: Any) -> Any:
+    """Deep copy of a state tree (arrays copied), so a worker thread never sees arrays being updated.
+
+    Parameters
+    ----------
+    value : object
+        A state tree: dicts, lists, tuples, numpy arrays and plain values.
+    """
     if isinstance(value, np.ndarray):
         return value.copy()
     if isinstance(value, dict):
-        return {k: _copy_tree(v) for k, v in value.items()}
+        return {k: copy_tree(v) for k, v in value.items()}
     if isinstance(value, list):
-        return [_copy_tree(v) for v in value]
+        return [copy_tree(v) for v in value]
     if isinstance(value, tuple):
-        return tuple(_copy_tree(v) for v in value)
+        return tuple(copy_tree(v) for v in value)
     return value
 
 
@@ -97,7 +103,7 @@ class DiagnosisWorker:
         self.force = False
         self._key = key
         self._started = time.monotonic()
-        state = _copy_tree(validator.state_dict())
+        state = copy_tree(validator.state_dict())
         if self._pool is None:
             self._pool = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="gap_diagnosis")
         self.job = self._pool.submit(_diagnose_snapshot, config, state, generation)

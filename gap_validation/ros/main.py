@@ -11,6 +11,7 @@ Exit status 2 on a bad config or parameter (one line on stderr), 0 after Ctrl-C 
 from __future__ import annotations
 
 import argparse
+import gc
 import sys
 
 from gap_validation.core.errors import GapValidationError, one_line
@@ -29,7 +30,7 @@ __all__ = ["main"]
 
 
 def _parser() -> argparse.ArgumentParser:
-    lines = "\n".join(f"  {name:<18} {default!r:<12} {text}" for name, (default, _, text) in PARAMETERS.items())
+    lines = "\n".join(f"  {name:<18} {p.default!r:<12} {p.description}" for name, p in PARAMETERS.items())
     return argparse.ArgumentParser(
         prog="validator_node", formatter_class=argparse.RawDescriptionHelpFormatter,
         description="ROS 2 node gap_validator: live nu-gap validation of linear aircraft models.",
@@ -75,6 +76,9 @@ def main(args: list[str] | None = None) -> int:
         return 2
     executor = _executor(node)
     executor.add_node(node)
+    # what start-up built (modules, config, models, restored spectra) lives as long as the node: out of the cyclic
+    # garbage collector's full collections, which hold the interpreter lock for as long as they take
+    gc.freeze()
     try:
         while rclpy.ok():  # spin_once loop: EventsExecutor.spin() of Jazzy neither runs timers nor stops
             executor.spin_once(timeout_sec=0.5)

@@ -1,6 +1,6 @@
 """ROS 2 node ``gap_validator``: live model validation beside the flight stack.
 
-A thin shell (docs/ARCHITECTURE.md, "one data path"): every subscribed message goes to
+A thin shell (docs/ARCHITECTURE.md, "one data path"): every message taken from a subscription goes to
 :class:`gap_validation.messages.router.MessageRouter`, exactly as :mod:`gap_validation.bag.replay` feeds a bag
 (serialized messages through the same decoding step, :class:`gap_validation.messages.decoding.TopicDecoder`,
 with rclpy's ``deserialize_message`` as the full deserialisation; other subscriptions deserialised by rclpy),
@@ -15,28 +15,42 @@ Run::
     ros2 launch gap_validation validator.launch.py config_file:=/path/cfg.yaml
     validator_node --ros-args -p config_file:=/path/cfg.yaml        # pip install, no colcon
 
-Parameters, with the reasons for the QoS and executor defaults and the node's CPU cost:
+Parameters, with the reasons for the QoS and intake defaults and the node's CPU cost:
 :mod:`gap_validation.ros.parameters` (``config/validator.params.yaml`` lists them with their defaults).
+
+Taking messages
+---------------
+Every topic is subscribed at start-up (type from the config, else implied by its field paths,
+:func:`~gap_validation.ros.message_types.topic_types`; only topics whose fields imply nothing wait for the graph),
+with the reliability the publishers offer (``qos_reliability: auto``: both reliable and best effort until they
+are known, then theirs; re-checked every ``discovery_period``). The subscriptions are kept out of the executor's
+wait set: one timer (``intake_period``, steady clock, so it runs before ``/clock`` does with ``use_sim_time``)
+drains every queue in one wake-up (:mod:`gap_validation.ros.intake`), which costs a fraction of one executor
+callback per message. A sample's time is its ``header.stamp``, else its reception time (DDS's, on the node clock).
 
 Time
 ----
-The router stamps samples with ``header.stamp`` when the message has one, else with the node clock at
-reception. With ``ros2 bag play --clock`` and ``use_sim_time:=true`` the node therefore sees the same samples
-and stamps as ``gap-validate replay`` on the bag and gives the same numbers (topics without a header, e.g.
-``std_msgs/Float64``, are stamped with the receive time, which differs slightly from the bag time).
-Staleness and the timers use the node clock: with ``use_sim_time`` they follow ``/clock``, so nothing is
-published before the bag plays or while it is paused.
+With ``ros2 bag play --clock`` and ``use_sim_time:=true`` the node sees the same samples and stamps as
+``gap-validate replay`` on the bag and gives the same numbers (topics without a header, e.g.
+``std_msgs/Float64``, are stamped with the reception time, which differs slightly from the bag time).
+Staleness and the diagnostics and checkpoint timers use the node clock: with ``use_sim_time`` they follow
+``/clock``, so nothing is published before the bag plays or while it is paused.
 
 Diagnostics
 -----------
-Published every ``diagnostic_period`` by a timer; when the timer is 1.5 periods late (a flood: rclpy's
-EventsExecutor queues it behind every pending message) the next message callback publishes instead, so
-``/diagnostics`` stays on time under load (``benchmarks/bench_node_flood.py``). One status per channel, named
-``gap_validator: <channel>``, filled by the channel's :class:`~gap_validation.ros.status.ChannelTask` (levels
-STALE / WARN / ERROR / OK and the values: :mod:`gap_validation.ros.status`).
+Published every ``diagnostic_period`` by a timer; when the timer is 1.5 periods late the intake timer (or a
+direct message callback) publishes instead, so ``/diagnostics`` stays on time under load. One status per
+channel, named ``<node name>: <channel>`` with the node's actual name (remapped with ``-r __node:=gv2``:
+``gv2: pitch``, as diagnostic_updater names its tasks), ``hardware_id`` from the parameter, else the config's
+``aircraft`` key, else the node's fully qualified name (fixed at start-up: a model update keeps it), filled by the
+channel's :class:`~gap_validation.ros.status.ChannelTask` (levels and values: :mod:`gap_validation.ros.status`).
 
-The cheap results are computed every tick; full diagnoses (effect fitting) run in a worker thread
-(:mod:`gap_validation.ros.diagnosis_worker`), and the last top candidate is kept for the message.
+Never blocking the executor
+---------------------------
+The cheap results are computed every tick. Full diagnoses (effect fitting) run in a worker thread on a copy of
+the state (:mod:`gap_validation.ros.diagnosis_worker`); checkpoints and ``~/save_results`` (full diagnosis, JSON,
+HTML report) run in another, on a snapshot (:mod:`gap_validation.ros.background`). ``~/save_results`` requests
+are taken by the intake timer and answered when the files are written, so ``/diagnostics`` keeps its period.
 
 Live model update
 -----------------
@@ -65,18 +79,22 @@ from gap_validation.core.results import ValidationResult
 from gap_validation.core.validator import OnlineValidator
 from gap_validation.messages.decoding import TopicDecoder, Undecodable
 from gap_validation.messages.router import MessageRouter, note_saturation, stamp_seconds
-from gap_validation.report.terminal import write_json
+from gap_validation.ros import background
+from gap_validation.ros.background import Background
 from gap_validation.ros.diagnosis_worker import DiagnosisWorker
-from gap_validation.ros.message_types import check_fields, message_class, resolve_types
-from gap_validation.ros.parameters import PARAMETERS, check_parameters
+from gap_validation.ros.intake import BEST_EFFORT, RELIABLE, Intake, choose_reliability, publisher_note
+from gap_validation.ros.message_types import TopicType, fields_fit, message_class, topic_types
+from gap_validation.ros.parameters import PARAMETERS, check_parameters, unknown_parameters
 from gap_validation.ros.stamp_gaps import StampGaps
 from gap_validation.ros.status import ChannelStatus, ChannelTask
 
 try:  # rclpy is only needed to run the node
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-    from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
-    from rclpy.exceptions import ParameterException
+    from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+    from rclpy.clock import Clock, ClockType
+    from rclpy.event_handler import SubscriptionEventCallbacks
+    from rclpy.exceptions import InvalidParameterValueException, ParameterException
     from rclpy.node import Node
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
     from rclpy.serialization import deserialize_message
@@ -89,8 +107,10 @@ except ImportError as _err:  # pragma: no cover - exercised only without ROS 2
 
 __all__ = ["NODE_NAME", "ValidatorNode"]
 
-#: Node name (DESIGN.md).
+#: Node name (DESIGN.md); remapping (``-r __node:=...``) renames the node and its statuses.
 NODE_NAME = "gap_validator"
+
+_SOURCES = {"config": "the config's type", "fields": "implied by its fields", "graph": "its publishers' type"}
 
 
 class ValidatorNode(Node):
@@ -107,79 +127,110 @@ class ValidatorNode(Node):
         Bad startup config or parameter (one line; ``main`` exits with status 2).
     """
 
-    #: Diagnostics periods after the last publication when a message callback publishes in the timer's stead.
+    #: Diagnostics periods after the last publication when the intake timer publishes in the timer's stead.
     DIAGNOSTICS_LATE = 1.5
+    #: Longest a QoS change keeps the previous subscription while the new one matches [s].
+    CHANGE_TIMEOUT_S = 5.0
+
+    #: Subscriptions and services the node drains itself (kept out of the executor's wait set).
+    _polled: frozenset | set = frozenset()
 
     def __init__(self, **kwargs):
         if rclpy is None:  # pragma: no cover
             raise ConfigError(f"rclpy is not available ({_ROS_IMPORT_ERROR})")
         super().__init__(NODE_NAME, **kwargs)
+        self._polled = set()
         try:
             self._setup()
         except BaseException:
-            self._close_worker()
+            self._close_workers()
             self.destroy_node()
             raise
+
+    # ---------------------------------------------------------------- what the executor waits on
+    @property
+    def subscriptions(self):
+        """The node's subscriptions the executor waits on (not those drained by the intake timer)."""
+        return (s for s in super().subscriptions if s not in self._polled)
+
+    @property
+    def services(self):
+        """The node's services the executor serves (not ``~/save_results``, answered by the intake timer)."""
+        return (s for s in super().services if s not in self._polled)
 
     # ---------------------------------------------------------------- setup
     def _setup(self) -> None:
         self._logged: set[str] = set()
         self._declare_parameters()
-        check_parameters({name: self.get_parameter(name).value for name in PARAMETERS})
-        config_file = self.get_parameter("config_file").value
+        for line in unknown_parameters(getattr(self, "_parameter_overrides", {}), PARAMETERS):
+            self.get_logger().warning(line)
+        check_parameters({name: self._param(name) for name in PARAMETERS})
+        config_file = self._param("config_file")
         if not config_file:
             raise ConfigError("parameter config_file is not set (ros2 run gap_validation validator_node "
                               "--ros-args -p config_file:=/path/cfg.yaml)")
         self.config = load_config(config_file)
-        self._types = resolve_types(self.config)
+        self._types: dict[str, TopicType] = topic_types(self.config)
+        self._hardware_id = self._default_hardware_id()
+        self._umask = background.umask()
         self.validator = self._initial_validator()
         self.router = MessageRouter(self.config, self.validator)
         self.last_result: ValidationResult | None = None
-        self._subs: dict[str, Any] = {}              # topic -> subscription
-        self._sub_types: dict[str, str] = {}         # topic -> type subscribed with
+        self._intakes: dict[str, Intake] = {}       # topic -> its subscription(s)
         self._raw: dict[str, TopicDecoder] = {}      # topic -> decoding step of its raw subscription
-        self._pending: dict[str, None] = {}          # topics whose type is still to be discovered
         self._last_arrival: dict[str, float] = {}    # topic -> node time [s] of its last message
         self._gaps: dict[str, StampGaps] = {}        # topic -> messages missing from its stamps
         self._tasks: dict[str, ChannelTask] = {}     # channel -> its diagnostic task
         self._sync_tasks()
         self._generation = 0
+        self._graph_due = False
         self._diagnosis = DiagnosisWorker()
-        self._discovery_timer = None
-        self._qos = self._make_qos()
+        self._background = Background()
+        self._steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._subscribe_all()
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_service(Trigger, "~/reload", self._srv_reload)
         self.create_service(Trigger, "~/reset", self._srv_reset)
-        self.create_service(Trigger, "~/save_results", self._srv_save_results)
+        self._save_srv = self.create_service(Trigger, "~/save_results", self._srv_save_results)
+        self._polled.add(self._save_srv)
         self._diag_due_s = self._now_s() + self.DIAGNOSTICS_LATE * self._param("diagnostic_period")
         self._diag_timer = self.create_timer(self._param("diagnostic_period"), self._diagnostics_tick)
+        self._intake_timer = self.create_timer(self._param("intake_period"), self._intake_tick, clock=self._steady)
+        self._graph_timer = self.create_timer(self._param("discovery_period"), self._check_graph,
+                                              clock=self._steady)
         self._ckpt_timer = None
         if self._param("state_file"):
-            self._ckpt_timer = self.create_timer(self._param("checkpoint_period"), self.checkpoint)
+            self._ckpt_timer = self.create_timer(self._param("checkpoint_period"), self._checkpoint_tick)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.get_logger().info(
-            f"validating {', '.join(self.config.channels)} from {config_file} on "
-            f"{', '.join(self.router.topics)} (QoS {self._param('qos_reliability')}, depth "
-            f"{self._param('qos_depth')})")
+            f"validating {', '.join(self.config.channels)} from {config_file} on {', '.join(self.router.topics)} "
+            f"(QoS {self._param('qos_reliability')}, depth {self._param('qos_depth')}; statuses "
+            f"'{self.get_name()}: <channel>', hardware_id {self.hardware_id})")
 
     def _declare_parameters(self) -> None:
-        for name, (default, read_only, description) in PARAMETERS.items():
+        for name, param in PARAMETERS.items():
+            descriptor = ParameterDescriptor(description=param.description, read_only=param.read_only)
+            if param.range is not None and isinstance(param.default, float):
+                descriptor.floating_point_range = [FloatingPointRange(
+                    from_value=float(param.range[0]), to_value=float(param.range[1]), step=0.0)]
+            elif param.range is not None and isinstance(param.default, int):
+                descriptor.integer_range = [IntegerRange(
+                    from_value=int(param.range[0]), to_value=int(param.range[1]), step=1)]
+            if param.choices:
+                descriptor.additional_constraints = f"one of: {', '.join(param.choices)}"
             try:
-                self.declare_parameter(name, default, ParameterDescriptor(description=description,
-                                                                           read_only=read_only))
+                self.declare_parameter(name, param.default, descriptor)
+            except InvalidParameterValueException:   # outside the descriptor's range
+                got = getattr(getattr(self, "_parameter_overrides", {}).get(name), "value", None)
+                low, high = param.range if param.range is not None else (None, None)
+                raise ConfigError(f"parameter {name}: expected a number in [{low:g}, {high:g}], got {got!r}") \
+                    from None
             except ParameterException as err:
-                kind = type(default).__name__.replace("str", "string").replace("float", "double (e.g. 1.0)")
+                kind = type(param.default).__name__.replace("str", "string").replace("float", "double (e.g. 1.0)")
                 raise ConfigError(f"parameter {name}: expected a {kind} ({one_line(err)})") from None
 
     def _param(self, name: str) -> Any:
         return self.get_parameter(name).value
-
-    def _make_qos(self) -> "QoSProfile":
-        reliability = ReliabilityPolicy.RELIABLE if self._param("qos_reliability") == "reliable" \
-            else ReliabilityPolicy.BEST_EFFORT
-        return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=int(self._param("qos_depth")),
-                          reliability=reliability, durability=DurabilityPolicy.VOLATILE)
 
     def _log_once(self, key: str, level: str, text: str) -> None:
         if key in self._logged:
@@ -193,10 +244,14 @@ class ValidatorNode(Node):
         else:
             logger.info(text)
 
+    def _default_hardware_id(self) -> str:
+        aircraft = self.config.raw.get("aircraft") if isinstance(self.config.raw, dict) else None
+        return str(aircraft) if aircraft else self.get_fully_qualified_name()
+
     @property
     def hardware_id(self) -> str:
-        """The ``hardware_id`` parameter, or the config file's stem."""
-        return self._param("hardware_id") or Path(self.config.source or "gap_validation").stem
+        """The ``hardware_id`` parameter, else the startup config's ``aircraft``, else the node's full name."""
+        return self._param("hardware_id") or self._hardware_id
 
     # ---------------------------------------------------------------- checkpoint and resume
     def _initial_validator(self) -> OnlineValidator:
@@ -217,56 +272,122 @@ class ValidatorNode(Node):
         self.get_logger().info(f"resumed from checkpoint {path}")
         return validator
 
+    def _checkpoint_meta(self) -> dict:
+        return {"node": self.get_fully_qualified_name(), "config_file": self.config.source}
+
     def checkpoint(self) -> str | None:
-        """Write the validator state to ``state_file`` now (atomically); returns the path or None."""
+        """Write the validator state to ``state_file`` now, in this thread (atomically); the path or None.
+
+        The checkpoint timer writes in the background instead (:meth:`_checkpoint_tick`); this waits for those.
+        """
         path = self._param("state_file")
         if not path:
             return None
         self._flush()
+        self._background.wait(60.0)
         try:
-            save_state(self.validator.state_dict(), path,
-                       meta={"node": self.get_fully_qualified_name(), "config_file": self.config.source,
-                             "saved_unix_s": time.time()})
+            save_state(self.validator.state_dict(), path, meta={**self._checkpoint_meta(), "saved_unix_s": time.time()})
         except (DataError, TypeError) as err:
             self._log_once(f"checkpoint:{err}", "error", f"checkpoint failed: {one_line(err)}")
             return None
+        background.fix_modes([Path(path)], self._umask)
         return path
+
+    def _checkpoint_tick(self) -> None:
+        """Checkpoint timer: snapshot now, write in the background (skipped while the previous one writes)."""
+        self._checkpoint_in_background()
+
+    def _checkpoint_in_background(self, force: bool = False) -> None:
+        """Snapshot now, write in the background thread (after the writes before it); skipped while the previous
+        checkpoint is still being written, unless ``force`` (a reset must reach the file)."""
+        path = self._param("state_file")
+        if not path or (self._background.busy("checkpoint") and not force):
+            return
+        self._flush()
+        snap = background.snapshot(self.config, self.validator, None, self._generation, self._checkpoint_meta())
+        self._background.submit("checkpoint", path, background.write_checkpoint, snap, path, self._umask)
+
+    def wait_for_background(self, timeout_s: float = 60.0) -> bool:
+        """Block until the background jobs (checkpoints, saves) are written and answered (tests, tools)."""
+        done = self._background.wait(timeout_s)
+        self._harvest_background()
+        return done
 
     # ---------------------------------------------------------------- subscriptions
     def _subscribe_all(self) -> None:
-        for topic in list(self._subs):
-            if topic not in self._types or (self._types[topic] and self._types[topic] != self._sub_types[topic]):
-                self.destroy_subscription(self._subs.pop(topic))
-                self._sub_types.pop(topic)
-                self._raw.pop(topic, None)
-        for topic in self._raw:  # the fields may have changed (reload): new decoding steps
-            self._raw[topic] = self._decoding(topic, self._sub_types[topic])
-        self._pending = {}
-        for topic, type_name in self._types.items():
-            if topic in self._subs:
+        """Subscribe to every topic whose type is known (config or fields); drop topics no longer configured."""
+        for topic in list(self._intakes):
+            wanted = self._types.get(topic)
+            intake = self._intakes[topic]
+            if wanted is None or (wanted.name is not None and wanted.name != intake.type_name):
+                self._unsubscribe(topic)
+        for topic in list(self._raw):  # the fields may have changed (reload): new decoding steps
+            self._raw[topic] = self._decoding(topic, self._intakes[topic].type_name)
+        for topic, wanted in self._types.items():
+            if topic in self._intakes:
                 continue
-            if type_name is None:
-                self._pending[topic] = None
-                self._log_once(f"discover:{topic}", "info",
-                               f"topic {topic}: type not in the config, waiting for it to appear on the graph")
-            else:
-                self._subscribe(topic, type_name)
-        if not self._pending:
-            return
-        self._discover()
-        if self._pending and self._discovery_timer is None:
-            self._discovery_timer = self.create_timer(self._param("discovery_period"), self._discover)
+            if wanted.name is None:
+                self._log_once(f"discover:{topic}", "info", f"topic {topic}: type neither in the config nor "
+                                                            "implied by its fields, waiting for it on the graph")
+                continue
+            self._subscribe(topic, wanted)
+        self._graph_due = True
 
-    def _subscribe(self, topic: str, type_name: str) -> None:
-        cls = message_class(type_name)
+    @property
+    def pending(self) -> list[str]:
+        """Topics whose type is still to be discovered on the graph."""
+        return [topic for topic in self._types if topic not in self._intakes]
+
+    def _publishers_on(self, topic: str) -> list[tuple[str, str]]:
+        """(type, reliability) of each publisher on ``topic``."""
+        out = []
+        for info in self.get_publishers_info_by_topic(self.resolve_topic_name(topic)):
+            best_effort = info.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT
+            out.append((info.topic_type, BEST_EFFORT if best_effort else RELIABLE))
+        return out
+
+    def _create(self, topic: str, type_name: str, reliability: str) -> Any:
+        """A subscription drained by the intake timer (not in the executor's wait set)."""
         decoding = self._decoding(topic, type_name) if self._param("raw_decoding") else None
-        if decoding is None or decoding.decoder is None:
-            self._subs[topic] = self.create_subscription(cls, topic, partial(self.on_message, topic), self._qos)
-        else:
+        raw = decoding is not None and decoding.decoder is not None
+        if raw:
             self._raw[topic] = decoding
-            self._subs[topic] = self.create_subscription(cls, topic, partial(self.on_raw, topic), self._qos,
-                                                         raw=True)
-        self._sub_types[topic] = type_name
+        else:
+            self._raw.pop(topic, None)
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=int(self._param("qos_depth")),
+                         reliability=ReliabilityPolicy.RELIABLE if reliability == RELIABLE
+                         else ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
+        # no QoS event handlers: they are waitables the executor would wait on, and rmw wakes those with every
+        # message of the subscription (the SingleThreadedExecutor spun at 82 % of a core); the graph check
+        # (discovery_period) sees matches and incompatible publishers instead
+        events = SubscriptionEventCallbacks(use_default_callbacks=False)
+        sub = self.create_subscription(message_class(type_name), topic, partial(self._on_executor_message, topic),
+                                       qos, event_callbacks=events, raw=raw)
+        self._polled.add(sub)
+        self._wake_executor()
+        return sub
+
+    def _subscribe(self, topic: str, wanted: TopicType) -> None:
+        """Subscribe now; with ``qos_reliability: auto`` and no publisher known yet, both reliable and best effort
+        (:class:`~gap_validation.ros.intake.Intake`: nothing missed from the first message, nothing twice)."""
+        mode = self._param("qos_reliability")
+        offered = [r for t, r in self._publishers_on(topic) if t == wanted.name]
+        reliability = choose_reliability(mode, offered) if offered or mode != "auto" else None
+        kinds = [reliability] if reliability else [RELIABLE, BEST_EFFORT]
+        subs = {kind: self._create(topic, wanted.name, kind) for kind in kinds}
+        self._intakes[topic] = Intake(topic, wanted.name, wanted.source, subs, reliability)
+        self.get_logger().info(f"topic {topic}: subscribed as {wanted.name} ({_SOURCES[wanted.source]}), "
+                               f"{(reliability or 'reliable and best_effort until the publishers are known').upper()}")
+
+    def _destroy(self, sub: Any) -> None:
+        self._polled.discard(sub)
+        self.destroy_subscription(sub)
+
+    def _unsubscribe(self, topic: str) -> None:
+        intake = self._intakes.pop(topic)
+        for sub in intake.subscriptions.values():
+            self._destroy(sub)
+        self._raw.pop(topic, None)
 
     def _decoding(self, topic: str, type_name: str) -> TopicDecoder:
         """The decoding step of a raw subscription, with rclpy's deserialisation behind the fast decoder."""
@@ -278,81 +399,169 @@ class ValidatorNode(Node):
         self._log_once(f"fast:{topic}", "info", f"topic {topic}: fast decoding disagrees with rclpy; "
                                                 "deserialising instead")
 
-    def _discover(self) -> None:
-        """Subscribe to pending topics whose type has appeared on the graph (timer callback)."""
-        if not self._pending:
-            return
-        graph = dict(self.get_topic_names_and_types())
-        for topic in list(self._pending):
-            types = graph.get(topic)
-            if not types:
-                continue
-            type_name = types[0]
-            if len(types) > 1:
-                self._log_once(f"types:{topic}", "warning",
-                               f"topic {topic}: several types on the graph ({', '.join(types)}), using {type_name}")
+    def _check_graph(self) -> None:
+        """Graph check: discover pending types, follow the publishers' type and reliability, note mismatches."""
+        self._graph_due = False
+        mode = self._param("qos_reliability")
+        for topic, wanted in self._types.items():
             try:
-                cls = message_class(type_name)
-                check_fields(topic, cls, self.config.topics()[topic])
-            except ConfigError as err:
-                self._log_once(f"badtype:{topic}", "error", f"topic {topic}: {err} (its samples count as bad)")
-                if "not installed" in str(err):
+                publishers = self._publishers_on(topic)
+            except Exception as err:  # noqa: BLE001 - the graph is best effort; try again next time
+                self._log_once(f"graph:{type(err).__name__}", "warning", f"graph query failed: {one_line(err)}")
+                return
+            intake = self._intakes.get(topic)
+            if intake is None or intake.type_source != "config":
+                self._follow_type(topic, intake, publishers)
+                intake = self._intakes.get(topic)
+                if intake is None:
                     continue
-            self._pending.pop(topic)
-            self._subscribe(topic, type_name)
-            self.get_logger().info(f"topic {topic}: discovered type {type_name}, subscribed")
-        if not self._pending and self._discovery_timer is not None:
-            self.destroy_timer(self._discovery_timer)
-            self._discovery_timer = None
+            offered = [r for t, r in publishers if t == intake.type_name]
+            want = choose_reliability(mode, offered) if offered or mode != "auto" else intake.reliability
+            if want is not None and want != intake.reliability:   # (two kinds only: a new one replaces a lone one)
+                self._settle(intake, want, len(offered))
+            note = publisher_note(topic, mode, intake.reliability, intake.type_name, intake.type_source,
+                                  publishers) if intake.reliability else None
+            if note and note != intake.note:
+                self._log_once(f"note:{topic}:{note}", "warning", note)
+            intake.note = note
 
+    def _follow_type(self, topic: str, intake: Intake | None, publishers: list[tuple[str, str]]) -> None:
+        """Subscribe a pending topic with the publishers' type, or replace a type the fields implied wrongly."""
+        types = sorted({t for t, _ in publishers})
+        if not types or (intake is not None and intake.type_name in types):
+            return
+        type_name = types[0]
+        if len(types) > 1:
+            self._log_once(f"types:{topic}", "warning",
+                           f"topic {topic}: several types on the graph ({', '.join(types)}), using {type_name}")
+        if not fields_fit(topic, type_name, self.config.topics()[topic]):
+            self._log_once(f"badtype:{topic}:{type_name}", "error",
+                           f"topic {topic}: its publishers' type {type_name} is not installed or lacks a "
+                           "configured field; not subscribed with it")
+            return
+        if intake is not None:   # the guessed type has no publisher: nothing arrives on it, replace it
+            self._unsubscribe(topic)
+        self._types[topic] = TopicType(type_name, "graph")
+        self._subscribe(topic, self._types[topic])
+
+    def _settle(self, intake: Intake, reliability: str, publishers: int) -> None:
+        """Keep ``reliability``: its subscription (new, make before break, when the topic has none) is drained with
+        the others until it has matched the publishers (:meth:`Intake.settle`)."""
+        new = None if reliability in intake.subscriptions else self._create(intake.topic, intake.type_name,
+                                                                            reliability)
+        intake.settle(reliability, publishers, time.monotonic() + self.CHANGE_TIMEOUT_S, subscription=new)
+        self.get_logger().info(f"topic {intake.topic}: publishers offer {reliability.upper()}"
+                               f"{', re-subscribing' if new is not None else ''}")
+
+    # ---------------------------------------------------------------- taking messages
     def _now_s(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
 
+    def _intake_tick(self) -> None:
+        """Intake timer: drain every queue, retire replaced subscriptions, serve ~/save_results, keep
+        /diagnostics on time."""
+        limit = int(self._param("qos_depth"))
+        now_s = self._now_s()
+        offset_s = now_s - time.time_ns() * 1e-9   # DDS reception stamps (system clock) -> node clock
+        for topic, intake in list(self._intakes.items()):
+            retire = intake.retire_due(time.monotonic())
+            try:
+                got = intake.drain(limit)
+            except Exception as err:  # noqa: BLE001 - a subscription destroyed under us: next time
+                self._log_once(f"take:{topic}:{type(err).__name__}", "error", f"topic {topic}: {one_line(err)}")
+                continue
+            if retire:
+                for sub in intake.retired():
+                    self._destroy(sub)
+            if got:
+                self.take_messages(topic, got, now_s, offset_s)
+        if self._graph_due:
+            self._check_graph()
+        self._serve_save_requests()
+        self._harvest_background()
+        self._diagnostics_overdue(self._now_s())
+
+    def take_messages(self, topic: str, items: list, now_s: float | None = None, offset_s: float | None = None
+                      ) -> None:
+        """Hand messages drained from ``topic``'s queue to the decoding step and the router (never raises).
+
+        Parameters
+        ----------
+        topic : str
+            The topic.
+        items : list of (bytes or message, dict)
+            ``take_message`` results: serialized messages for raw subscriptions, else messages, each with its
+            message info (``received_timestamp`` [ns, system clock] stamps messages without a header).
+        now_s : float, optional
+            Node time [s] of the drain (default: now).
+        offset_s : float, optional
+            Node time minus system time [s] (default: now).
+        """
+        now_s = self._now_s() if now_s is None else now_s
+        offset_s = now_s - time.time_ns() * 1e-9 if offset_s is None else offset_s
+        decoding = self._raw.get(topic)
+        t_rx = now_s
+        if decoding is None:
+            for msg, info in items:
+                rx = info.get("received_timestamp")
+                t_rx = min(now_s, rx * 1e-9 + offset_s) if rx else now_s
+                self._route(topic, msg, t_rx)
+        else:
+            decode, gaps, on_values = decoding.decode, self._gaps_of(topic), self.router.on_values
+            for data, info in items:
+                rx = info.get("received_timestamp")
+                t_rx = min(now_s, rx * 1e-9 + offset_s) if rx else now_s
+                try:
+                    stamp, values, msg = decode(data)
+                except Undecodable as err:  # a damaged message: counted as replay counts it
+                    self._log_once(f"raw:{topic}:{type(err.error).__name__}", "error",
+                                   f"topic {topic}: message skipped ({one_line(err.error)})")
+                    continue
+                if msg is not None:
+                    self._route(topic, msg, t_rx)
+                    continue
+                if stamp is not None:
+                    gaps.add(stamp)
+                try:
+                    on_values(topic, t_rx if stamp is None else stamp, values)
+                except Exception as err:  # noqa: BLE001 - a message must never stop the node
+                    self._log_once(f"raw:{topic}:{type(err).__name__}", "error",
+                                   f"topic {topic}: message skipped ({one_line(err)})")
+        self._last_arrival[topic] = t_rx
+
+    def _on_executor_message(self, topic: str, msg: Any) -> None:
+        """Subscription callback, should an executor still hand a message over (before it saw the subscription
+        leave its wait set): taken like a drained one."""
+        self.take_messages(topic, [(msg, {})])
+
     def on_raw(self, topic: str, data: bytes) -> None:
-        """Callback of raw subscriptions: the decoding step replay uses, then the router (never raises).
+        """One serialized message of ``topic``, as a raw subscription delivers it (tests, benchmarks): the
+        decoding step replay uses, then the router (never raises); publishes overdue diagnostics.
 
         :meth:`TopicDecoder.decode <gap_validation.messages.decoding.TopicDecoder.decode>` reads only the
         configured fields, checks its first messages per topic against rclpy's deserialisation, and
         deserialises any message it cannot read (missing joint, short array, other encoding), which is then
         routed normally, so bad samples are counted the same way; an undecodable message is counted.
         """
-        now_s = self._arrived(topic)
-        decoding = self._raw.get(topic)
-        if decoding is None:
+        if topic not in self._raw:
             return
-        try:
-            stamp, values, msg = decoding.decode(data)
-        except Undecodable as err:  # a damaged message: counted as replay counts it
-            self._log_once(f"raw:{topic}:{type(err.error).__name__}", "error",
-                           f"topic {topic}: message skipped ({one_line(err.error)})")
-            return
-        if msg is not None:
-            self._route(topic, msg, now_s)
-            return
-        if stamp is not None:
-            self._stamp_gaps(topic, stamp)
-        try:
-            self.router.on_values(topic, now_s if stamp is None else stamp, values)
-        except Exception as err:  # noqa: BLE001 - a message must never stop the node
-            self._log_once(f"raw:{topic}:{type(err).__name__}", "error",
-                           f"topic {topic}: message skipped ({one_line(err)})")
+        now_s = self._now_s()
+        self.take_messages(topic, [(data, {})], now_s, 0.0)
+        self._diagnostics_overdue(now_s)
 
     def on_message(self, topic: str, msg: Any) -> None:
-        """Subscription callback: hand the message to the router (never raises)."""
-        self._route(topic, msg, self._arrived(topic))
-
-    def _arrived(self, topic: str) -> float:
-        """Note a message's arrival on ``topic``; publish overdue diagnostics; return the node time [s]."""
+        """One deserialised message of ``topic`` (tests, tools): to the router (never raises); publishes
+        overdue diagnostics."""
         now_s = self._now_s()
         self._last_arrival[topic] = now_s
+        self._route(topic, msg, now_s)
         self._diagnostics_overdue(now_s)
-        return now_s
 
-    def _stamp_gaps(self, topic: str, stamp_s: float) -> None:
+    def _gaps_of(self, topic: str) -> StampGaps:
         gaps = self._gaps.get(topic)
         if gaps is None:
             gaps = self._gaps[topic] = StampGaps(self._param("stale_timeout"))
-        gaps.add(stamp_s)
+        return gaps
 
     def samples_dropped(self, topic: str) -> int:
         """Messages of ``topic`` missing from its header stamps so far (:class:`StampGaps`)."""
@@ -362,7 +571,7 @@ class ValidatorNode(Node):
     def _route(self, topic: str, msg: Any, now_s: float) -> None:
         stamp = stamp_seconds(msg)
         if stamp is not None:
-            self._stamp_gaps(topic, stamp)
+            self._gaps_of(topic).add(stamp)
         try:
             self.router.on_message(topic, msg, now_s)
         except FieldError as err:  # the message type lacks a configured field: every message will fail
@@ -388,12 +597,17 @@ class ValidatorNode(Node):
     def statuses(self, result: ValidationResult, now_s: float | None = None) -> list[ChannelStatus]:
         """Per-channel :class:`ChannelStatus` for ``result`` at node time ``now_s``."""
         now_s = self._now_s() if now_s is None else now_s
+        notes = {topic: intake.note for topic, intake in self._intakes.items() if intake.note}
         return [self._tasks[name].run(ch, now_s, self.router, self.samples_dropped,
                                       stale_timeout_s=self._param("stale_timeout"),
                                       warn_epsilon=self._param("warn_epsilon"),
-                                      error_epsilon=self._param("error_epsilon"), pending=self._pending,
-                                      diagnosis_off=self._param("diagnosis_period") <= 0)
+                                      error_epsilon=self._param("error_epsilon"), pending=self.pending,
+                                      diagnosis_off=self._param("diagnosis_period") <= 0, notes=notes)
                 for name, ch in result.channels.items()]
+
+    def status_name(self, channel: str) -> str:
+        """``<node name>: <channel>``, with the node's actual (remapped) name, as diagnostic_updater names tasks."""
+        return f"{self.get_name()}: {channel}"
 
     def diagnostic_array(self, statuses: list[ChannelStatus]) -> "DiagnosticArray":
         """The ``DiagnosticArray`` message of ``statuses`` (levels are the DiagnosticStatus byte constants)."""
@@ -404,25 +618,24 @@ class ValidatorNode(Node):
         hardware_id = self.hardware_id
         for status in statuses:
             array.status.append(DiagnosticStatus(
-                level=levels[status.level], name=f"{NODE_NAME}: {status.channel}", message=status.message,
+                level=levels[status.level], name=self.status_name(status.channel), message=status.message,
                 hardware_id=hardware_id, values=[KeyValue(key=k, value=v) for k, v in status.values]))
         return array
 
     def _diagnostics_tick(self) -> None:
-        """Timer callback: publish, unless a message callback just did (the timer was late, see below)."""
+        """Timer callback: publish, unless the intake timer just did (the timer was late, see below)."""
         period = self._param("diagnostic_period")
         if self._now_s() >= self._diag_due_s - (self.DIAGNOSTICS_LATE - 0.5) * period:
             self.publish_diagnostics()
 
     def _diagnostics_overdue(self, now_s: float) -> None:
-        """From the message callbacks: publish when the timer is late (under a flood rclpy's EventsExecutor
-        queues the timer behind every pending message, and /diagnostics would stall while the flood lasts)."""
+        """From the intake timer and message callbacks: publish when the diagnostics timer is late."""
         if now_s > self._diag_due_s:
             self.publish_diagnostics()
 
     def publish_diagnostics(self) -> "DiagnosticArray":
-        """Flush, compute the cheap results, schedule a diagnosis, publish /diagnostics (timer callback, or a
-        message callback when the timer is :attr:`DIAGNOSTICS_LATE` periods late)."""
+        """Flush, compute the cheap results, schedule a diagnosis, publish /diagnostics (timer callback, or the
+        intake timer when the timer is :attr:`DIAGNOSTICS_LATE` periods late)."""
         now_s = self._now_s()
         self._diag_due_s = now_s + self.DIAGNOSTICS_LATE * self._param("diagnostic_period")
         self._flush()
@@ -481,7 +694,7 @@ class ValidatorNode(Node):
         path = path or self._param("config_file")
         try:
             config = load_config(path)
-            types = resolve_types(config)
+            types = topic_types(config)
         except GapValidationError as err:
             text = f"reload failed (the model of {self.config.source} stays): {one_line(err)}"
             self.get_logger().error(text)
@@ -493,6 +706,9 @@ class ValidatorNode(Node):
             text = f"reload failed (the model of {self.config.source} stays): {one_line(err)}"
             self.get_logger().error(text)
             return False, text
+        for topic, intake in self._intakes.items():   # keep what the graph taught about types
+            if topic in types and types[topic].source != "config" and intake.type_source == "graph":
+                types[topic] = TopicType(intake.type_name, "graph")
         self.config, self._types = config, types
         self._sync_tasks()
         self._new_router()
@@ -518,13 +734,14 @@ class ValidatorNode(Node):
             task.forget_diagnosis()
 
     def reset(self) -> str:
-        """Forget every spectrum gathered (and the pending samples); checkpoints the empty state."""
+        """Forget every spectrum gathered (and the pending samples); checkpoints the empty state (in the
+        background)."""
         self.validator.reset()
         self._new_router()
         self._generation += 1
         self._forget_diagnoses()
         self._diagnosis.forget()
-        self.checkpoint()
+        self._checkpoint_in_background(force=True)
         return "spectra cleared"
 
     def _note_saturation(self, result: ValidationResult) -> None:
@@ -532,38 +749,73 @@ class ValidatorNode(Node):
         for line in note_saturation(self.config, self.router, result):
             self._log_once(f"saturation:{line.split(':')[0]}", "warning", line)
 
-    def save_results(self) -> Path:
-        """Write the JSON (and report, when available) of what was gathered so far; returns the JSON path.
-
-        Runs the full diagnosis synchronously (message callbacks wait meanwhile; the deep queue holds them).
-        """
+    def save_results_in_background(self, tag: Any = None) -> None:
+        """Snapshot now; the full diagnosis, JSON and report are written by the background thread (the answer to
+        ``~/save_results`` is sent when they are, :meth:`_harvest_background`)."""
         self._flush()
-        result = self.validator.results(diagnose=True)
-        self._note_saturation(result)
-        self._take_diagnosis(result)
-        out_dir = Path(self._param("results_dir") or ".")
-        try:
-            out_dir.mkdir(parents=True, exist_ok=True)
-        except OSError as err:
-            raise DataError(f"{out_dir}: cannot create results directory ({err.strerror or err})") from None
-        stem = f"{self.hardware_id}_{time.strftime('%Y%m%d-%H%M%S')}"
-        path, n = out_dir / f"{stem}.json", 1
-        while path.exists():
-            n += 1
-            path = out_dir / f"{stem}_{n}.json"
-        write_json(result.to_json_dict(), path)
-        self._write_report(result, path.with_suffix(""))
+        snap = background.snapshot(self.config, self.validator, self.router, self._generation)
+        out_dir = Path(self._param("results_dir") or ".").resolve()
+        self._background.submit("save_results", tag, background.save_results, snap, out_dir,
+                                background.file_stem(self.hardware_id), self._umask, process=True)
+
+    def save_results(self) -> Path:
+        """Write the JSON (and report, when available) of what was gathered so far, and wait for it; the JSON path.
+
+        The service ``~/save_results`` does the same without waiting (the executor goes on meanwhile).
+        """
+        self.save_results_in_background(tag=None)
+        self._background.wait(600.0)
+        path = None
+        for kind, future, tag in self._background.harvest():
+            outcome = self._finish_job(kind, future, tag)
+            if kind == "save_results" and tag is None:
+                path = outcome
+        if isinstance(path, BaseException):
+            raise path
         return path
 
-    def _write_report(self, result: ValidationResult, target: Path) -> None:
+    def _finish_job(self, kind: str, future: Any, tag: Any) -> Any:
+        """A finished background job: log a failure, take a save's diagnosis, answer its request."""
         try:
-            from gap_validation.report.html import write_report
-        except ImportError:  # no matplotlib: the JSON is written, the report is a bonus
-            return
-        try:
-            write_report(result, target)
-        except Exception as err:  # noqa: BLE001 - the JSON is written; the report is a bonus
-            self.get_logger().warning(f"report not written: {one_line(err)}")
+            outcome = future.result()
+        except Exception as err:  # noqa: BLE001 - reported, never raised into the executor
+            self._log_once(f"{kind}:{one_line(err)}", "error", f"{kind} failed: {one_line(err)}")
+            outcome = err
+        if kind == "save_results":
+            if not isinstance(outcome, BaseException):
+                for line in outcome.warnings:
+                    self.get_logger().warning(one_line(line))
+                if outcome.generation == self._generation:   # no reload or reset since the snapshot
+                    for name, top in outcome.top.items():
+                        if name in self._tasks:
+                            self._tasks[name].take_diagnosis(top)
+                outcome = outcome.path
+            if tag is not None:
+                response = Trigger.Response()
+                if isinstance(outcome, BaseException):
+                    response.success, response.message = False, f"save_results failed: {one_line(outcome)}"
+                else:
+                    response.success, response.message = True, str(outcome)
+                try:
+                    self._save_srv.send_response(response, tag)
+                except Exception as err:  # noqa: BLE001 - the client left
+                    self._log_once(f"respond:{type(err).__name__}", "warning",
+                                   f"~/save_results: could not answer ({one_line(err)})")
+        return outcome
+
+    def _harvest_background(self) -> None:
+        for kind, future, tag in self._background.harvest():
+            self._finish_job(kind, future, tag)
+
+    def _serve_save_requests(self) -> None:
+        """Take ``~/save_results`` requests (the service is drained here, not by the executor)."""
+        srv = self._save_srv
+        while True:
+            with srv.handle:
+                request, header = srv.handle.service_take_request(srv.srv_type.Request)
+            if header is None:
+                return
+            self.save_results_in_background(tag=header)
 
     def _srv_reload(self, request, response):
         response.success, response.message = self.reload()
@@ -575,6 +827,8 @@ class ValidatorNode(Node):
         return response
 
     def _srv_save_results(self, request, response):
+        """Callback of ``~/save_results`` should an executor serve it (the intake timer normally takes the
+        requests): waits for the files."""
         try:
             response.message = str(self.save_results())
             response.success = True
@@ -597,12 +851,17 @@ class ValidatorNode(Node):
         return SetParametersResult(successful=True)
 
     # ---------------------------------------------------------------- shutdown
-    def _close_worker(self) -> None:
+    def _close_workers(self) -> None:
         worker = getattr(self, "_diagnosis", None)
         if worker is not None:  # a running diagnosis works on its own copy: let it finish unawaited
             worker.close()
 
     def close(self) -> None:
-        """Final checkpoint and worker shutdown (call before ``destroy_node``)."""
-        self._close_worker()
-        self.checkpoint()
+        """Finish the background writes (answering pending ``~/save_results``), write the final checkpoint and
+        stop the workers (call before ``destroy_node``)."""
+        self._close_workers()
+        if getattr(self, "_background", None) is not None:
+            self._background.wait(120.0)
+            self._harvest_background()
+            self.checkpoint()
+            self._background.close(0.0)

@@ -1,36 +1,52 @@
-"""Parameters of the node ``gap_validator``: names, defaults, documentation and checks (no rclpy).
+"""Parameters of the node ``gap_validator``: names, defaults, ranges, documentation and checks (no rclpy).
 
 ``config/validator.params.yaml`` lists them with their defaults; :class:`gap_validation.ros.node.ValidatorNode`
-declares :data:`PARAMETERS` and refuses values :func:`check_parameters` refuses.
+declares :data:`PARAMETERS` with a ``ParameterDescriptor`` each (description, read-only flag, and a
+``FloatingPointRange`` / ``IntegerRange`` from :attr:`Param.range`, so ``ros2 param describe`` shows them and rclpy
+refuses values outside), refuses what :func:`check_parameters` refuses, and warns about parameter overrides that
+name no parameter (:func:`unknown_parameters`: ``-p diagnostic_perid:=2`` is reported, with the likely meant
+``diagnostic_period``, instead of being silently ignored).
 
 config_file : str
     Validation config (YAML, DESIGN.md). Setting it at run time reloads the model (see "Live model update").
+hardware_id : str, "" (the config's ``aircraft`` key, else the node's fully qualified name)
+    ``hardware_id`` of every status (diagnostic_updater's ``setHardwareID``). Fixed at start-up: a model update
+    (``config_file``, ``~/reload``) does not change it; setting the parameter does.
+qos_reliability : {"auto", "reliable", "best_effort"}, "auto"
+    Reliability of the subscriptions (read-only). ``auto`` matches what the publishers offer: RELIABLE when every
+    publisher on the topic is reliable, BEST_EFFORT when any is best effort; while none is known the topic has
+    both subscriptions, drained as one (nothing missed from the first message on, nothing taken twice).
+    Re-checked every ``discovery_period``; a change re-subscribes make-before-break
+    (:mod:`gap_validation.ros.intake`).
+    ``reliable`` or ``best_effort`` fix it; a publisher the fixed choice cannot match is named in the channel's
+    status ("publisher on /imu offers BEST_EFFORT; set qos_reliability to auto or best_effort").
 qos_depth : int, 1000
-    KEEP_LAST depth of every subscription (read-only).
-qos_reliability : {"reliable", "best_effort"}, "reliable"
-    Reliability of the subscriptions (read-only).
+    KEEP_LAST depth of every subscription (read-only): one second of a 1 kHz IMU.
+intake_period : float, 0.05 s
+    The subscriptions' queues are drained every ``intake_period`` (read-only): one wake-up takes every waiting
+    message of every topic (``take`` in a loop), instead of one executor callback per message. Must leave room
+    in the queue: ``intake_period * rate < qos_depth`` (50 messages of a 1 kHz IMU per drain).
 diagnostic_period : float, 1.0 s
     Period of ``/diagnostics`` (read-only).
 diagnosis_period : float, 10.0 s
-    Shortest interval between two full diagnoses (effect fitting); <= 0 disables them.
+    Shortest interval between two full diagnoses (effect fitting); 0 disables them.
 stale_timeout : float, 3.0 s
-    A channel whose input or output has had no good sample for this long is STALE.
+    A channel whose input or output has had no sample for this long is STALE.
 warn_epsilon, error_epsilon : float, 0.25 and 0.38
     Levels: epsilon < warn_epsilon is OK, < error_epsilon WARN, else ERROR. 0.38 is the paper's point of
     "standard stability margins of a 6 dB gain margin and a 45 deg phase margin" (Section III, eqs. 15-16:
     2 asin(0.38) = 44.7 deg): below it a controller with standard margins is guaranteed stable on the
     aircraft. 0.25 (4.4 dB, 29 deg guaranteed) warns before that point is reached.
-hardware_id : str, "" (the config file's stem)
-    ``hardware_id`` of every status.
 state_file : str, "" (off)
     Checkpoint of the gathered spectra (:mod:`gap_validation.core.checkpoint`), written atomically every
-    ``checkpoint_period`` s and at shutdown; resumed from at start (read-only).
+    ``checkpoint_period`` s (in a worker thread, from a copy) and at shutdown; resumed from at start (read-only).
 checkpoint_period : float, 5.0 s
     (read-only)
 results_dir : str, "" (current directory)
     Where ``~/save_results`` writes.
 discovery_period : float, 1.0 s
-    Retry period for topics whose message type is neither in the config nor on the graph yet (read-only).
+    Period of the graph check (read-only): publishers' QoS (``qos_reliability: auto``), and the type of topics
+    whose type is neither in the config nor implied by their field paths.
 raw_decoding : bool, true
     Subscribe to the serialized messages and read only the configured fields with the decoding step replay
     uses (:mod:`gap_validation.messages.decoding`: Imu, JointState, Float64/32, Bool; checked against rclpy's
@@ -39,54 +55,86 @@ executor : {"events", "single_threaded"}, "events"
     Executor of the console script: rclpy's EventsExecutor where available (the SingleThreadedExecutor
     when ``use_sim_time`` is set, whose /clock-driven timers the EventsExecutor of Jazzy gets wrong). The
     console script drives either with ``spin_once`` in a loop (``EventsExecutor.spin()`` of rclpy 7.1 runs no
-    timers and ignores SIGINT).
+    timers and ignores SIGINT). Since messages are drained by a timer, both cost about the same.
 
 CPU
 ---
-At 1 kHz IMU and 100 Hz surfaces on three channels the node's own work (callbacks, diagnostics,
-checkpoints, diagnosis) is about 2 % of one core (``benchmarks/bench_node.py``). The whole process costs more
-because rclpy's executor and deserialisation dominate at these rates: a do-nothing subscriber costs about 23 %
-of a core with the SingleThreadedExecutor and 9.5 % with the EventsExecutor, 4 % with raw (serialized)
-subscriptions; hence the defaults ``executor:=events`` and ``raw_decoding:=true``.
+At 1 kHz IMU and 100 Hz surfaces on three channels the node's own work (decoding, diagnostics, checkpoints,
+diagnosis) is about 2-4 % of one core (``benchmarks/bench_node.py``). The whole process costs more: DDS receives
+every message in its own threads (about 4 % here whatever the node does), and rclpy's executors cost per
+callback (one callback per message gave 15 % with the EventsExecutor, 59 % with the SingleThreadedExecutor).
+Hence the queues are drained by one timer (``intake_period``), which brings the whole process under 8 %
+(README, "Benchmarks"), and ``raw_decoding`` reads the fields straight from the serialized messages.
 
 QoS choice
 ----------
-Subscriptions are RELIABLE, KEEP_LAST with a deep queue (``qos_depth`` = 1000 by default: one second of a
-1 kHz IMU) and VOLATILE. The usual sensor-data profile (BEST_EFFORT, depth 5) drops samples as soon as the
-node is busy for a few milliseconds (a diagnostics tick, a checkpoint, the GIL held by the diagnosis thread),
-and every lost sample is a gap in the spectra. A RELIABLE subscription cannot be matched by a BEST_EFFORT
-publisher (it receives nothing), so ``qos_reliability:=best_effort`` is offered for flight stacks that
-publish with the sensor-data profile; the deep queue still absorbs bursts then.
+KEEP_LAST with a deep queue (``qos_depth`` 1000) and VOLATILE: the usual sensor-data profile (depth 5) drops
+samples as soon as the node is busy for a few milliseconds, and every lost sample is a gap in the spectra.
+Reliability follows the publishers (``auto``): IMU drivers and PX4's bridge publish BEST_EFFORT, which a
+RELIABLE subscription never receives.
 """
 from __future__ import annotations
 
-from typing import Any
+import difflib
+from typing import Any, Iterable, NamedTuple
 
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.margins import STANDARD_EPSILON, WARN_EPSILON
 
-__all__ = ["PARAMETERS", "check_parameters"]
+__all__ = ["Param", "PARAMETERS", "RELIABILITIES", "check_parameters", "unknown_parameters"]
 
-#: Parameters: name -> (default, read-only, description). The params YAML mirrors these.
-PARAMETERS: dict[str, tuple[Any, bool, str]] = {
-    "config_file": ("", False, "validation config (YAML); setting it reloads the model"),
-    "hardware_id": ("", False, "hardware_id of the statuses (default: the config file stem)"),
-    "qos_depth": (1000, True, "KEEP_LAST depth of the subscriptions"),
-    "qos_reliability": ("reliable", True, "reliable | best_effort (match the publishers)"),
-    "diagnostic_period": (1.0, True, "period of /diagnostics [s]"),
-    "diagnosis_period": (10.0, False, "shortest interval between full diagnoses [s]; <= 0 disables them"),
-    "stale_timeout": (3.0, False, "STALE after this long without input or output samples [s]"),
-    "warn_epsilon": (WARN_EPSILON, False, f"WARN from this epsilon ({WARN_EPSILON:g}: 4.4 dB / 29 deg, eqs. 15-16)"),
-    "error_epsilon": (STANDARD_EPSILON, False,
-                      f"ERROR from this epsilon ({STANDARD_EPSILON:g}: the paper's 6 dB / 45 deg point)"),
-    "state_file": ("", True, "checkpoint file of the spectra ('' = off); resumed from at start"),
-    "checkpoint_period": (5.0, True, "checkpoint period [s]"),
-    "results_dir": ("", False, "directory of ~/save_results ('' = current directory)"),
-    "discovery_period": (1.0, True, "retry period for topics whose type is not known yet [s]"),
-    "raw_decoding": (True, True, "read the configured fields straight from the serialized message (Imu, "
-                                 "JointState, Float64/32, Bool) instead of deserialising it in Python"),
-    "executor": ("events", True, "events (rclpy's EventsExecutor, far less CPU) | single_threaded"),
+#: Values of ``qos_reliability``.
+RELIABILITIES = ("auto", "reliable", "best_effort")
+
+
+class Param(NamedTuple):
+    """One parameter: default (its type is the parameter's), read-only flag, description, range and choices."""
+
+    default: Any
+    read_only: bool
+    description: str
+    #: ``(from, to)`` inclusive, for numbers (``FloatingPointRange`` / ``IntegerRange`` of the descriptor).
+    range: tuple[float, float] | None = None
+    #: Allowed strings (``additional_constraints`` of the descriptor, checked by :func:`check_parameters`).
+    choices: tuple[str, ...] | None = None
+
+
+_DAY_S = 86400.0
+
+#: The node's parameters. The params YAML mirrors these.
+PARAMETERS: dict[str, Param] = {
+    "config_file": Param("", False, "validation config (YAML); setting it reloads the model"),
+    "hardware_id": Param("", False, "hardware_id of the statuses (default: the config's 'aircraft' key, else the "
+                                    "node's fully qualified name); a model update keeps it"),
+    "qos_reliability": Param("auto", True, "auto (match the publishers: best effort if any is) | reliable | "
+                                           "best_effort", choices=RELIABILITIES),
+    "qos_depth": Param(1000, True, "KEEP_LAST depth of the subscriptions", range=(1, 1_000_000)),
+    "intake_period": Param(0.05, True, "the subscriptions' queues are drained every intake_period [s] (keep "
+                                       "intake_period * rate below qos_depth)", range=(0.001, 1.0)),
+    "diagnostic_period": Param(1.0, True, "period of /diagnostics [s]", range=(0.01, 3600.0)),
+    "diagnosis_period": Param(10.0, False, "shortest interval between full diagnoses [s]; 0 disables them",
+                              range=(0.0, _DAY_S)),
+    "stale_timeout": Param(3.0, False, "STALE after this long without input or output samples [s]",
+                           range=(0.01, _DAY_S)),
+    "warn_epsilon": Param(WARN_EPSILON, False,
+                          f"WARN from this epsilon ({WARN_EPSILON:g}: 4.4 dB / 29 deg, eqs. 15-16)", range=(0.0, 1.0)),
+    "error_epsilon": Param(STANDARD_EPSILON, False,
+                           f"ERROR from this epsilon ({STANDARD_EPSILON:g}: the paper's 6 dB / 45 deg point)",
+                           range=(0.0, 1.0)),
+    "state_file": Param("", True, "checkpoint file of the spectra ('' = off); resumed from at start"),
+    "checkpoint_period": Param(5.0, True, "checkpoint period [s]", range=(0.01, _DAY_S)),
+    "results_dir": Param("", False, "directory of ~/save_results ('' = current directory)"),
+    "discovery_period": Param(1.0, True, "period of the graph check: publishers' QoS, types not known yet [s]",
+                              range=(0.01, 60.0)),
+    "raw_decoding": Param(True, True, "read the configured fields straight from the serialized message (Imu, "
+                                      "JointState, Float64/32, Bool) instead of deserialising it in Python"),
+    "executor": Param("events", True, "events (rclpy's EventsExecutor) | single_threaded",
+                      choices=("events", "single_threaded")),
 }
+
+#: Parameters every rclpy node has, and the prefix of QoS overrides: not unknown.
+_NODE_PARAMETERS = ("use_sim_time", "start_type_description_service")
+_NODE_PREFIXES = ("qos_overrides.",)
 
 
 def check_parameters(values: dict[str, Any]) -> None:
@@ -98,18 +146,45 @@ def check_parameters(values: dict[str, Any]) -> None:
         Parameter name -> value (any subset of :data:`PARAMETERS`; ``warn_epsilon`` and ``error_epsilon``
         are checked against each other when both are given).
     """
-    for name in ("qos_depth", "diagnostic_period", "stale_timeout", "checkpoint_period", "discovery_period"):
-        if name in values and not values[name] > 0:
-            raise ConfigError(f"parameter {name}: expected a number > 0, got {values[name]!r}")
-    if "executor" in values and values["executor"] not in ("events", "single_threaded"):
-        raise ConfigError(f"parameter executor: expected events or single_threaded, got {values['executor']!r}")
-    if "qos_reliability" in values and values["qos_reliability"] not in ("reliable", "best_effort"):
-        raise ConfigError(f"parameter qos_reliability: expected reliable or best_effort, got "
-                          f"{values['qos_reliability']!r}")
+    for name, value in values.items():
+        param = PARAMETERS.get(name)
+        if param is None:
+            continue
+        if param.choices is not None and value not in param.choices:
+            raise ConfigError(f"parameter {name}: expected one of {', '.join(param.choices)}, got {value!r}")
+        if param.range is not None and not param.range[0] <= value <= param.range[1]:
+            raise ConfigError(f"parameter {name}: expected a number in [{param.range[0]:g}, {param.range[1]:g}], "
+                              f"got {value!r}")
     for name in ("warn_epsilon", "error_epsilon"):
-        if name in values and not 0.0 < values[name] <= 1.0:
+        if name in values and not values[name] > 0.0:
             raise ConfigError(f"parameter {name}: expected a number in (0, 1], got {values[name]!r}")
     if "warn_epsilon" in values and "error_epsilon" in values \
             and values["warn_epsilon"] > values["error_epsilon"]:
         raise ConfigError(f"parameter warn_epsilon ({values['warn_epsilon']}) is above error_epsilon "
                           f"({values['error_epsilon']})")
+
+
+def unknown_parameters(overrides: Iterable[str], declared: Iterable[str]) -> list[str]:
+    """One line per override that names no parameter, with the parameter it probably meant.
+
+    Parameters
+    ----------
+    overrides : iterable of str
+        Names given with ``-p``, ``--params-file`` or ``parameter_overrides``.
+    declared : iterable of str
+        Names the node declared.
+
+    Returns
+    -------
+    list of str
+        ``unknown parameter diagnostic_perid (did you mean diagnostic_period?): ignored``, sorted by name.
+    """
+    known = set(declared) | set(_NODE_PARAMETERS)
+    lines = []
+    for name in sorted(set(overrides) - known):
+        if name.startswith(_NODE_PREFIXES):
+            continue
+        close = difflib.get_close_matches(name, sorted(known), n=1, cutoff=0.6)
+        hint = f" (did you mean {close[0]}?)" if close else ""
+        lines.append(f"unknown parameter {name}{hint}: ignored")
+    return lines

@@ -2,18 +2,23 @@
 
 diagnostic_updater style: one :class:`ChannelTask` per channel owns what the node saw of that channel (when its
 input and output last brought a sample, the top candidate of the last full diagnosis) and :meth:`ChannelTask.run`
-fills its :class:`ChannelStatus`; the node turns those into a ``DiagnosticArray``. No rclpy import.
+fills its :class:`ChannelStatus`; the node names it ``<node name>: <channel>`` and turns those into a
+``DiagnosticArray``. No rclpy import.
 
-Level:
+Level (STALE means "the inputs are silent", as diagnostic_aggregator reads it; nothing else is STALE):
 
 * STALE before any data (message "waiting for data on ..."), when a topic's type is still being discovered,
-  when the input or output had no good sample for ``stale_timeout`` s (the last numbers stay in the values),
-  and while data flow but no sweep has completed ("receiving data, waiting for a sweep"): there is no
-  estimate to judge then, and OK would claim a validation that has not happened.
+  and when the input or output had no sample for ``stale_timeout`` s (the last numbers stay in the values).
+* OK while data flow and no sweep has completed yet ("receiving data, waiting for a sweep (no estimate yet)";
+  ``epsilon`` null): nothing is wrong, there is nothing to judge yet. On a test card that sweeps one axis at a
+  time the other channels wait OK, so an aggregator group does not turn ERROR for some STALE items.
 * WARN when sweeps were flown but no frequency reached the coherence threshold (data-limited: fly better
   sweeps), or when ``warn_epsilon <= epsilon < error_epsilon``.
 * ERROR when ``epsilon >= error_epsilon``; OK below ``warn_epsilon`` (thresholds of
   :mod:`gap_validation.core.margins`, eq. 16).
+* A publisher that cannot reach the subscription (QoS or type, :func:`gap_validation.ros.intake.publisher_note`)
+  is named first in the message: ERROR while its topic brings no data (the channel cannot be validated until the
+  setting is fixed), at least WARN otherwise.
 
 Values are strings under the JSON key names (``nu_gap``, ``epsilon``, ``epsilon_raw``, ``epsilon_previous``,
 ``gain_margin_db``, ``phase_margin_deg``, ``disk_margin``, ``worst_frequency_rad_s``, ``sweeps``, ``limited_by``,
@@ -29,7 +34,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
-from typing import Any, Callable, Collection, Mapping
+from typing import Any, Callable, Collection, Mapping, Sequence
 
 from gap_validation.core.config import ChannelConfig
 from gap_validation.core.margins import STANDARD_EPSILON, WARN_EPSILON
@@ -92,6 +97,9 @@ def _band_text(result: ChannelResult) -> str:
     return f"at {worst:.3g} rad/s" if worst is not None else ""
 
 
+_ORDER = ("OK", "WARN", "ERROR")
+
+
 def _level_for(epsilon: float, warn_epsilon: float, error_epsilon: float) -> str:
     if epsilon >= error_epsilon:
         return "ERROR"
@@ -128,7 +136,7 @@ def channel_status(result: ChannelResult, *, warn_epsilon: float = WARN_EPSILON,
                    error_epsilon: float = STANDARD_EPSILON,
                    stale_reason: str | None = None, waiting_reason: str | None = None,
                    candidate: Candidate | dict | None = None, diagnosis_state: str = "pending",
-                   extra_values: dict | None = None) -> ChannelStatus:
+                   extra_values: dict | None = None, notes: Sequence[str] = ()) -> ChannelStatus:
     """The status of one channel from its (cheap) result.
 
     Parameters
@@ -147,6 +155,9 @@ def channel_status(result: ChannelResult, *, warn_epsilon: float = WARN_EPSILON,
         Whether a full diagnosis has been run for the current model.
     extra_values : dict, optional
         More values appended (e.g. sample ages).
+    notes : sequence of str
+        Publishers that cannot reach the channel's subscriptions (``publisher on /imu offers BEST_EFFORT; ...``):
+        first in the message; ERROR with ``waiting_reason`` or ``stale_reason``, else at least WARN.
 
     Returns
     -------
@@ -183,13 +194,20 @@ def channel_status(result: ChannelResult, *, warn_epsilon: float = WARN_EPSILON,
         summary = (result.message or "no frequency passes the coherence threshold") + \
             ": WARN, data-limited (fly better sweeps)"
     else:
-        level, summary = "STALE", "receiving data, waiting for a sweep (no estimate yet)"
+        level, summary = "OK", "receiving data, waiting for a sweep (no estimate yet)"
+    noted = "; ".join(notes)
     if waiting_reason:
         resumed = f" (resumed: {summary})" if result.epsilon is not None else ""
+        if noted:
+            return ChannelStatus(result.name, "ERROR", f"{noted}; {waiting_reason}{resumed}", values)
         return ChannelStatus(result.name, "STALE", waiting_reason + resumed, values)
     if stale_reason:
         last = f"; last: {summary}" if result.epsilon is not None or result.sweeps > 0 else ""
+        if noted:
+            return ChannelStatus(result.name, "ERROR", f"{noted}; {stale_reason}{last}", values)
         return ChannelStatus(result.name, "STALE", stale_reason + last, values)
+    if noted:
+        return ChannelStatus(result.name, max(level, "WARN", key=_ORDER.index), f"{noted}; {summary}", values)
     return ChannelStatus(result.name, level, summary, values)
 
 
@@ -296,7 +314,8 @@ class ChannelTask:
 
     def run(self, result: ChannelResult, now_s: float, router: MessageRouter, dropped: Callable[[str], int], *,
             stale_timeout_s: float, warn_epsilon: float = WARN_EPSILON, error_epsilon: float = STANDARD_EPSILON,
-            pending: Collection[str] = (), diagnosis_off: bool = False) -> ChannelStatus:
+            pending: Collection[str] = (), diagnosis_off: bool = False,
+            notes: Mapping[str, str] | None = None) -> ChannelStatus:
         """Fill the channel's status from its (cheap) result.
 
         Parameters
@@ -317,11 +336,16 @@ class ChannelTask:
             Topics whose type is still being discovered.
         diagnosis_off : bool
             Full diagnoses are disabled.
+        notes : mapping, optional
+            Topic -> why a publisher on it cannot reach the subscription (those of the channel's topics are
+            shown).
         """
         waiting, stale, ages = self.reasons(now_s, stale_timeout_s, pending)
         state = "off" if diagnosis_off else ("done" if self.diagnosed else "pending")
         extra = {**ages, "samples_input": router.samples(self.name, "input"),
                  "samples_output": router.samples(self.name, "output"),
                  "samples_dropped": sum(dropped(topic) for topic in self.topics)}
+        mine = [notes[topic] for topic in self.topics if notes and notes.get(topic)]
         return channel_status(result, warn_epsilon=warn_epsilon, error_epsilon=error_epsilon, stale_reason=stale,
-                              waiting_reason=waiting, candidate=self.top, diagnosis_state=state, extra_values=extra)
+                              waiting_reason=waiting, candidate=self.top, diagnosis_state=state, extra_values=extra,
+                              notes=mine)

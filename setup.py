@@ -17,7 +17,7 @@ setup(
     ],
     python_requires=">=3.10",
     install_requires=["numpy", "scipy", "PyYAML", "rosbags>=0.10", "matplotlib", "dask[distributed]"],
-    extras_require={"test": ["pytest", "hypothesis", "pytest-xdist"]},
+    extras_require={"test": ["pytest", "hypothesis", "pytest-xdist", "mpmath"]},
     zip_safe=True,
     maintainer="gap_validation developers",
     maintainer_email="dev@gap-validation.invalid",

@@ -93,3 +93,98 @@ def test_bundled_configs_parse():
     assert list(cfg.channels) == ["roll", "pitch", "yaw"]
     for name in ("paper_example_p1", "paper_example_p2"):
         assert "pitch" in load_config(f"config/{name}.yaml").channels
+
+
+# -- MIMO channels and controllers (issue 14) ------------------------------------------------------------------
+
+LATERAL = {
+    "inputs": [{"topic": "/control_surfaces", "field": "position[aileron]"},
+               {"topic": "/control_surfaces", "field": "position[rudder]"}],
+    "outputs": [{"topic": "/imu", "field": "angular_velocity.x"}, {"topic": "/imu", "field": "angular_velocity.z"}],
+    "model": {"state_space": {"A": [[-0.87, 0.90, -16.8], [-2.76, -16.1, 3.37], [1.71, 0.51, -2.78]],
+                              "B": [[0.0, 5.3], [156.5, -5.0], [-11.5, -82.0]],
+                              "C": [[0, 1, 0], [0, 0, 1]]}},
+    "controller": {"transfer_matrix": [[{"numerator": [0.05], "denominator": [1.0]}, 0.0],
+                                       [0.0, {"numerator": [0.1, 0.0], "denominator": [1.0, 1.0]}]]},
+}
+
+
+def mimo_config(**changes):
+    data = copy.deepcopy(BASE)
+    data["channels"]["pitch"]["controller"] = {"numerator": [0.2], "denominator": [1.0]}
+    data["channels"]["lateral"] = copy.deepcopy(LATERAL)
+    data["channels"]["lateral"].update(changes)
+    return data
+
+
+def test_mimo_channel_and_controllers_parse():
+    cfg = parse_config(mimo_config(), "cfg.yaml")
+    lateral, pitch = cfg.channels["lateral"], cfg.channels["pitch"]
+    assert lateral.is_mimo and not pitch.is_mimo
+    assert lateral.input is None and [s.field for s in lateral.inputs] == ["position[aileron]", "position[rudder]"]
+    assert lateral.model.shape == (2, 2) and lateral.controller.shape == (2, 2)
+    assert pitch.controller.freqresp([1.0])[0] == pytest.approx(0.2)
+    assert lateral.controller_spec == LATERAL["controller"] and lateral.model_spec == LATERAL["model"]
+
+
+def test_flight_data_path_rejects_mimo_channels_in_one_line(tmp_path):
+    from gap_validation.core.validator import OnlineValidator
+
+    cfg = parse_config(mimo_config(), "cfg.yaml")
+    expected = "cfg.yaml: channel lateral: MIMO validation from flight data is not available yet"
+    for attempt in (cfg.topics, cfg.check_flight_data_path, lambda: OnlineValidator(cfg),
+                    lambda: cfg.with_channel_effects("lateral", [{"type": "gain", "factor": 2.0}])):
+        with pytest.raises(ConfigError) as err:
+            attempt()
+        assert "\n" not in str(err.value)
+        assert str(err.value).startswith(expected) or "effects on a MIMO model" in str(err.value)
+    # a SISO-only config still feeds the validator; a MIMO config cannot be swapped in live
+    siso = parse_config(BASE, "cfg.yaml")
+    validator = OnlineValidator(siso)
+    with pytest.raises(ConfigError, match="channel lateral: MIMO validation"):
+        validator.set_config(cfg)
+    path = tmp_path / "mimo.yaml"
+    dump_config(cfg, path)
+    again = load_config(path)
+    assert again.channels["lateral"].model.shape == (2, 2)
+
+
+@pytest.mark.parametrize("changes, needle", [
+    ({"input": {"topic": "/a", "field": "x"}}, "channels.lateral.input: give input/output (SISO) or inputs/outputs"),
+    ({"outputs": KeyError}, "channels.lateral.outputs: missing"),
+    ({"inputs": []}, "channels.lateral.inputs: expected a non-empty list of signals"),
+    ({"inputs": {"topic": "/a", "field": "x"}}, "channels.lateral.inputs: expected a non-empty list"),
+    ({"inputs": [{"topic": "/a", "field": "x"}, {"topic": "/a", "field": "x"}]},
+     "channels.lateral.inputs[1]: the same signal as channels.lateral.inputs[0] (/a x)"),
+    ({"outputs": [{"topic": "/imu", "field": 3}, {"topic": "/imu", "field": "y"}]}, "channels.lateral.outputs[0].field"),
+    ({"model": {"state_space": dict(LATERAL["model"]["state_space"], B=[[0.0], [156.5], [-11.5]])}},
+     "cfg.yaml: channels.lateral.model.state_space.B: expected 2 columns (one per entry of channels.lateral.inputs),"
+     " got shape 3x1"),
+    ({"model": {"state_space": dict(LATERAL["model"]["state_space"], C=[[0, 1, 0]])}},
+     "channels.lateral.model.state_space.C: expected 2 rows (one per entry of channels.lateral.outputs), got shape 1x3"),
+    ({"model": {"numerator": [1.0], "denominator": [1.0, 1.0]}},
+     "channels.lateral.model.numerator: unknown key for a MIMO model"),
+    ({"controller": {"state_space": {"D": [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]}}},
+     "channels.lateral.controller.state_space.D: expected 2 columns (one per entry of channels.lateral.outputs "
+     "(the controller reads them)), got shape 2x3"),
+    ({"controller": {"numerator": [1.0], "denominator": [1.0]}}, "channels.lateral.controller.numerator"),
+])
+def test_mimo_errors_name_file_key_and_value(changes, needle):
+    data = mimo_config()
+    for key, value in changes.items():
+        if value is KeyError:
+            del data["channels"]["lateral"][key]
+        else:
+            data["channels"]["lateral"][key] = value
+    with pytest.raises(ConfigError) as err:
+        parse_config(data, "cfg.yaml")
+    text = str(err.value)
+    assert "\n" not in text and text.startswith("cfg.yaml: ")
+    assert needle in text
+
+
+def test_siso_controller_errors_name_the_key():
+    data = copy.deepcopy(BASE)
+    data["channels"]["pitch"]["controller"] = {"numerator": [1.0, 2.0, 3.0], "denominator": [1.0]}
+    with pytest.raises(ConfigError, match=r"^cfg\.yaml: channels\.pitch\.controller: improper model"):
+        parse_config(data, "cfg.yaml")

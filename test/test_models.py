@@ -8,7 +8,7 @@ import pytest
 import scipy.signal
 
 from gap_validation.core.errors import ConfigError
-from gap_validation.core.models import LinearModel
+from gap_validation.core.models import LinearModel, MimoModel
 
 # Ultra Stick 25e linearisation (17 m/s), UASLab/OpenFlight, as in ../shared/reference/ultrastick25e.yaml.
 SHORT_PERIOD = {"A": [[-15.81, -7.405], [15.72, -7.56]], "B": [[-133.7], [-2.703]], "C": [1.0, 0.0]}
@@ -280,3 +280,86 @@ def test_model_is_immutable():
         model.num[0] = 2.0
     with pytest.raises(AttributeError):
         model.delay_s = 1.0
+
+
+# -- MIMO models -----------------------------------------------------------------------------------------------
+
+LATERAL_MIMO = {"A": LATERAL["A"], "B": LATERAL["B"], "C": [LATERAL["C"][1], LATERAL["C"][2]]}
+
+
+def test_mimo_state_space_response_is_the_matrix_formula_and_round_trips():
+    model = MimoModel.from_spec({"state_space": LATERAL_MIMO}, inputs=3, outputs=2)
+    assert model.shape == (2, 3) and model.order == 4
+    a, b, c = (np.array(LATERAL_MIMO[k], dtype=float) for k in "ABC")
+    w = np.array([0.3, 4.0, 40.0])
+    expected = np.stack([c @ np.linalg.solve(1j * x * np.eye(4) - a, b) for x in w])
+    np.testing.assert_allclose(model.freqresp(w), expected, rtol=1e-10)
+    again = MimoModel.from_spec(model.to_spec(), inputs=3, outputs=2)
+    np.testing.assert_allclose(again.freqresp(w), expected, rtol=1e-12)
+    # every element matches the SISO model that selects it
+    siso = LinearModel.from_spec({"state_space": dict(LATERAL, input=1, output=2)})
+    np.testing.assert_allclose(model.freqresp(w)[:, 1, 1], siso.freqresp(w), rtol=1e-9)
+
+
+def test_transfer_matrix_form_and_static_gains():
+    spec = {"transfer_matrix": [[{"numerator": [18.75, 225.0], "denominator": [1.0, 9.0, 225.0]}, 0.5],
+                                [0, {"zeros": [], "poles": [-0.5], "gain": 50.0,
+                                     "effects": [{"type": "first_order_lag", "bandwidth_rad_s": 30.0}]}]]}
+    model = MimoModel.from_spec(spec, inputs=2, outputs=2)
+    w = np.array([0.0, 2.0, 20.0])
+    p = model.freqresp(w)
+    s = 1j * w
+    np.testing.assert_allclose(p[:, 0, 0], (18.75 * s + 225.0) / (s * s + 9.0 * s + 225.0), rtol=1e-10)
+    np.testing.assert_allclose(p[:, 0, 1], 0.5)
+    np.testing.assert_allclose(p[:, 1, 0], 0.0, atol=1e-12)
+    np.testing.assert_allclose(p[:, 1, 1], 50.0 / (s + 0.5) * 30.0 / (s + 30.0), rtol=1e-10)
+    gain = MimoModel.from_spec({"state_space": {"D": [[1.0, 2.0], [3.0, 4.0]]}}, inputs=2, outputs=2)
+    assert gain.order == 0 and gain.poles().size == 0
+    np.testing.assert_allclose(gain.freqresp([1.0])[0], [[1.0, 2.0], [3.0, 4.0]])
+
+
+def test_minimal_realization_and_poles_of_a_mimo_model():
+    # a heading state (integrator) that the rate outputs do not see is not a pole of the transfer matrix
+    a = np.array([[-2.0, 0.0], [1.0, 0.0]])
+    model = MimoModel(a, [[1.0, 0.5], [0.0, 0.0]], [[1.0, 0.0], [2.0, 0.0]])
+    assert model.order == 2 and model.minimal_state_space()[0].shape == (1, 1)
+    np.testing.assert_allclose(model.poles(), [-2.0])
+    one = MimoModel(a, [[1.0], [0.0]], [[1.0, 0.0]])
+    siso = one.siso()
+    np.testing.assert_allclose(siso.freqresp([0.0, 3.0]), one.freqresp([0.0, 3.0])[:, 0, 0], rtol=1e-12)
+    with pytest.raises(ValueError, match="not SISO"):
+        model.siso()
+    assert MimoModel.from_linear(LinearModel.from_tf([1.0], [1.0, 1.0])).shape == (1, 1)
+    with pytest.raises(ValueError, match="delay"):
+        MimoModel.from_linear(LinearModel.from_tf([1.0], [1.0, 1.0], 0.1))
+    with pytest.raises(ConfigError, match="effects on a MIMO model"):
+        model.with_effects([{"type": "time_delay", "seconds": 0.1}])
+    assert model.with_effects([]) is model
+
+
+@pytest.mark.parametrize("spec, fragment", [
+    ({"state_space": dict(LATERAL_MIMO, B=[[1, 2], [3, 4], [5, 6], [7, 8]])},
+     "model.state_space.B: expected 3 columns (one per entry of inputs), got shape 4x2"),
+    ({"state_space": dict(LATERAL_MIMO, C=[LATERAL["C"][1]])},
+     "model.state_space.C: expected 2 rows (one per entry of outputs), got shape 1x4"),
+    ({"state_space": dict(LATERAL_MIMO, D=[[0, 0], [0, 0]])}, "model.state_space.D: expected 3 columns"),
+    ({"state_space": dict(LATERAL_MIMO, input=0)}, "model.state_space.input: not used by a MIMO model"),
+    ({"state_space": {"A": LATERAL["A"], "B": LATERAL["B"]}}, "model.state_space: missing key 'C'"),
+    ({"state_space": dict(LATERAL_MIMO), "delay_s": 0.05}, "model.delay_s: not available for a MIMO model yet"),
+    ({"state_space": dict(LATERAL_MIMO), "effects": []}, "model.effects: not available for a MIMO model yet"),
+    ({"numerator": [1.0], "denominator": [1.0, 1.0]}, "model.numerator: unknown key for a MIMO model"),
+    ({"transfer_matrix": [[1, 2, 3]]}, "model.transfer_matrix: expected 2 rows (one per entry of outputs), got 1"),
+    ({"transfer_matrix": [[1, 2], [3, 4]]}, "model.transfer_matrix[0]: expected 3 elements"),
+    ({"transfer_matrix": [[1, 2, 3], [4, 5]]}, "model.transfer_matrix[1]: expected 3 elements like row 0"),
+    ({"transfer_matrix": [[1, 2, "x"], [4, 5, 6]]}, "model.transfer_matrix[0][2]"),
+    ({"transfer_matrix": [[1, 2, {"numerator": [1], "denominator": [1, 1], "delay_s": 0.1}], [4, 5, 6]]},
+     "model.transfer_matrix[0][2]: delays are not available in a MIMO model yet"),
+    ({"transfer_matrix": [[1, 2, 3], [4, 5, 6]], "state_space": LATERAL_MIMO}, "exactly one of"),
+    ({"state_space": dict(LATERAL_MIMO, A=[[1e300]])}, "model.state_space.A"),
+])
+def test_mimo_config_errors_name_key_and_value(spec, fragment):
+    with pytest.raises(ConfigError) as info:
+        MimoModel.from_spec(spec, "model", inputs=3, outputs=2, inputs_are="entry of inputs",
+                            outputs_are="entry of outputs")
+    assert fragment in str(info.value)
+    assert "\n" not in str(info.value)

@@ -15,7 +15,8 @@ LAUNCH = ROOT / "launch" / "validator.launch.py"
 
 #: Python top-level module -> its rosdep key (ROS packages are their own keys).
 ROSDEP = {"numpy": "python3-numpy", "scipy": "python3-scipy", "yaml": "python3-yaml",
-          "matplotlib": "python3-matplotlib", "pytest": "python3-pytest", "hypothesis": "python3-hypothesis"}
+          "matplotlib": "python3-matplotlib", "pytest": "python3-pytest", "hypothesis": "python3-hypothesis",
+          "mpmath": "python3-mpmath", "xdist": "python3-pytest-xdist"}
 ROS_PACKAGES = {"rclpy", "rcl_interfaces", "launch", "launch_ros", "ament_index_python", "diagnostic_msgs",
                 "sensor_msgs", "std_msgs", "std_srvs", "geometry_msgs"}
 #: No rosdep key (or none for the extra used): installed with pip, as the README says.

@@ -141,3 +141,26 @@ def test_trigger_strings_are_refused():
     with pytest.raises(DataError, match="trigger values must be booleans or numbers"):
         validator.add_samples("pitch", "trigger", [0.0, 1.0], ["false", "true"])
     validator.add_samples("pitch", "trigger", [0.0, 1.0], [0, 1])
+
+
+def test_controller_check_from_the_measured_nu_gap_and_its_json(flight):
+    from gap_validation.core.results import ChannelResult
+    from gap_validation.core.robust import stability_margin
+
+    # u = -C y: the pitch model's gain is negative, so is a stabilising proportional controller's
+    controller = {"numerator": [-0.05], "denominator": [1.0]}
+    config = with_pitch_effects([{"type": "time_delay", "seconds": 0.04}], controller=controller)
+    result = fed(config, flight).results()
+    pitch = result.channels["pitch"]
+    b, w_b = stability_margin(config.channels["pitch"].model, config.channels["pitch"].controller)
+    assert pitch.stability_margin_b == pytest.approx(b) and 0.0 < b <= 1.0
+    assert pitch.guaranteed_stable is (b > pitch.nu_gap)
+    assert pitch.stability_note.endswith("(nu-gap over the measured band, winding-number condition assumed)")
+    assert f"b = {b:.2f}" in pitch.stability_note
+    data = pitch.to_json_dict(samples=False)
+    assert data["stability_margin_b"] == pytest.approx(b) and data["guaranteed_stable"] is pitch.guaranteed_stable
+    again = ChannelResult.from_json_dict("pitch", data)
+    assert (again.stability_margin_b, again.guaranteed_stable, again.stability_note) == \
+        (pitch.stability_margin_b, pitch.guaranteed_stable, pitch.stability_note)
+    # channels without a controller keep their JSON as it was
+    assert "stability_margin_b" not in result.channels["roll"].to_json_dict(samples=False)

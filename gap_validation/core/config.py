@@ -4,6 +4,13 @@ The CLI, the node and the library read the same file (YAML, loaded by :func:`gap
 this module validates the already-loaded mapping, so it needs neither yaml nor ROS. Every error names the file,
 the key path and the offending value, e.g. ``cfg.yaml: channels.pitch.input.field: expected a string, got 3``.
 Unknown keys are errors (a typo must not silently fall back to a default).
+
+A channel is SISO (``input``/``output``, a :class:`~gap_validation.core.models.LinearModel`) or MIMO
+(``inputs``/``outputs`` lists, a :class:`~gap_validation.core.models.MimoModel` whose B columns and C rows follow
+the lists). An optional ``controller`` (``u = -C y``, negative feedback) maps the outputs to the inputs: a SISO
+model mapping, or for a MIMO channel a MIMO one (``B`` columns = outputs, ``C`` rows = inputs). MIMO channels are
+compared model against model (``compare-models``); the flight-data path rejects them with one line
+(:meth:`ValidationConfig.check_flight_data_path`).
 """
 from __future__ import annotations
 
@@ -14,14 +21,15 @@ from typing import Any
 import numpy as np
 
 from gap_validation.core.errors import ConfigError
-from gap_validation.core.models import LinearModel
+from gap_validation.core.models import LinearModel, MimoModel
 from gap_validation.core.numbers import FINITE, NONZERO, POSITIVE, Interval, check_number
 
 #: Streams a channel has: the surface (input), the rate (output) and the optional sweep trigger.
 STREAMS = ("input", "output", "trigger")
 
 _TOP_KEYS = {"channels", "aircraft", "description", "history"}
-_CHANNEL_KEYS = {"input", "output", "model", "frequencies", "coherence_threshold", "trigger", "estimator"}
+_CHANNEL_KEYS = {"input", "output", "inputs", "outputs", "model", "frequencies", "coherence_threshold", "trigger",
+                 "estimator", "controller"}
 _SIGNAL_KEYS = {"topic", "field", "scale", "type"}
 _GRID_KEYS = {"min_rad_s", "max_rad_s", "count"}
 
@@ -57,17 +65,31 @@ class FrequencyGrid:
 
 @dataclass(frozen=True)
 class ChannelConfig:
-    """One input-output pair (e.g. elevator to pitch rate) with its model and analysis settings."""
+    """One input-output pair (e.g. elevator to pitch rate) with its model and analysis settings.
+
+    A MIMO channel (e.g. aileron and rudder to roll and yaw rate) has ``input``/``output`` None and its signals
+    in ``inputs``/``outputs``; its model is a :class:`~gap_validation.core.models.MimoModel`. ``controller`` is
+    the feedback ``u = -C y`` of the controller check b(P1, C) > nu-gap (None without one).
+    """
 
     name: str
-    input: SignalSpec
-    output: SignalSpec
-    model: LinearModel
+    input: SignalSpec | None
+    output: SignalSpec | None
+    model: LinearModel | MimoModel
     model_spec: dict
     frequencies: FrequencyGrid = field(default_factory=FrequencyGrid)
     coherence_threshold: float = 0.6
     trigger: SignalSpec | None = None
     estimator: dict = field(default_factory=dict)
+    inputs: tuple[SignalSpec, ...] = ()
+    outputs: tuple[SignalSpec, ...] = ()
+    controller: LinearModel | MimoModel | None = None
+    controller_spec: dict | None = None
+
+    @property
+    def is_mimo(self) -> bool:
+        """True for a channel with ``inputs``/``outputs`` lists."""
+        return bool(self.inputs)
 
     def signal(self, stream: str) -> SignalSpec | None:
         """The :class:`SignalSpec` of ``stream`` (``input``, ``output`` or ``trigger``).
@@ -88,8 +110,31 @@ class ValidationConfig:
     source: str | None = None
     raw: dict = field(default_factory=dict)
 
+    def check_flight_data_path(self) -> None:
+        """Raise a one-line ConfigError when a channel cannot be validated from flight data yet (MIMO).
+
+        Replay, the node, the simulator and :class:`~gap_validation.core.validator.OnlineValidator` call it
+        (through :meth:`topics` or directly) before touching any data; ``compare-models`` does not.
+
+        Raises
+        ------
+        ConfigError
+            ``cfg.yaml: channel lateral: MIMO validation from flight data is not available yet ...``.
+        """
+        for name, channel in self.channels.items():
+            if channel.is_mimo:
+                raise ConfigError(f"{self.source or '<config>'}: channel {name}: MIMO validation from flight data "
+                                  f"is not available yet (gap-validate compare-models compares MIMO models)")
+
     def topics(self) -> dict[str, list[tuple[str, str, SignalSpec]]]:
-        """Topic -> every ``(channel, stream, spec)`` it feeds, in config order."""
+        """Topic -> every ``(channel, stream, spec)`` it feeds, in config order.
+
+        Raises
+        ------
+        ConfigError
+            For a MIMO channel (:meth:`check_flight_data_path`): the topics are what the flight-data path reads.
+        """
+        self.check_flight_data_path()
         out: dict[str, list[tuple[str, str, SignalSpec]]] = {}
         for name, channel in self.channels.items():
             for stream in STREAMS:
@@ -110,6 +155,9 @@ class ValidationConfig:
         """
         if channel not in self.channels:
             raise ConfigError(f"{self.source or '<config>'}: no channel {channel!r}")
+        if self.channels[channel].is_mimo:
+            raise ConfigError(f"{self.source or '<config>'}: channels.{channel}.model.effects: effects on a MIMO "
+                              f"model are not available yet")
         raw = copy.deepcopy(self.raw)
         model = raw["channels"][channel]["model"]
         model["effects"] = list(model.get("effects") or []) + [dict(e) for e in effects]
@@ -198,31 +246,75 @@ def _grid(value: Any, source: str, path: str) -> FrequencyGrid:
     return FrequencyGrid(low, high, count)
 
 
+def _signals(value: Any, source: str, path: str) -> tuple[SignalSpec, ...]:
+    """A MIMO channel's ``inputs`` or ``outputs``: a non-empty list of signal specs, no signal twice."""
+    if not isinstance(value, (list, tuple)) or not value:
+        raise _fail(source, path, f"expected a non-empty list of signals ({{topic, field}} mappings), got {value!r}")
+    specs = tuple(_signal(item, source, f"{path}[{i}]") for i, item in enumerate(value))
+    seen: dict[tuple[str, str], int] = {}
+    for i, spec in enumerate(specs):
+        first = seen.setdefault((spec.topic, spec.field), i)
+        if first != i:
+            raise _fail(source, f"{path}[{i}]", f"the same signal as {path}[{first}] ({spec.topic} {spec.field})")
+    return specs
+
+
+def _model(spec: Any, source: str, path: str, inputs: tuple[SignalSpec, ...] | None,
+           outputs: tuple[SignalSpec, ...] | None, controller: bool = False) -> tuple[LinearModel | MimoModel, dict]:
+    """The channel's model (or controller): SISO without signal lists, MIMO with them (shapes checked)."""
+    spec = _mapping(spec, source, path, None)
+    try:
+        if inputs is None:
+            return LinearModel.from_spec(spec, where=path), copy.deepcopy(spec)
+        channel = path.rsplit(".", 1)[0]
+        if controller:  # u = -C y: the controller reads the outputs and drives the inputs
+            model = MimoModel.from_spec(spec, path, inputs=len(outputs), outputs=len(inputs),
+                                        inputs_are=f"entry of {channel}.outputs (the controller reads them)",
+                                        outputs_are=f"entry of {channel}.inputs (the controller drives them)")
+        else:
+            model = MimoModel.from_spec(spec, path, inputs=len(inputs), outputs=len(outputs),
+                                        inputs_are=f"entry of {channel}.inputs",
+                                        outputs_are=f"entry of {channel}.outputs")
+    except ConfigError as err:
+        raise ConfigError(f"{source}: {err}") from None
+    return model, copy.deepcopy(spec)
+
+
 def _channel(name: str, value: Any, source: str) -> ChannelConfig:
     path = f"channels.{name}"
     data = _mapping(value, source, path, _CHANNEL_KEYS)
-    for key in ("input", "output", "model"):
+    mimo = "inputs" in data or "outputs" in data
+    for key in ("input", "output") if mimo else ():
+        if key in data:
+            raise _fail(source, f"{path}.{key}", "give input/output (SISO) or inputs/outputs lists (MIMO), not both")
+    for key in ("inputs", "outputs", "model") if mimo else ("input", "output", "model"):
         if key not in data:
             raise _fail(source, f"{path}.{key}", "missing")
-    model_spec = _mapping(data["model"], source, f"{path}.model", None)
-    try:
-        model = LinearModel.from_spec(model_spec, where=f"{path}.model")
-    except ConfigError as err:
-        raise ConfigError(f"{source}: {err}") from None
+    inputs = _signals(data["inputs"], source, f"{path}.inputs") if mimo else None
+    outputs = _signals(data["outputs"], source, f"{path}.outputs") if mimo else None
+    model, model_spec = _model(data["model"], source, f"{path}.model", inputs, outputs)
+    controller, controller_spec = None, None
+    if data.get("controller") is not None:
+        controller, controller_spec = _model(data["controller"], source, f"{path}.controller", inputs, outputs,
+                                             controller=True)
     estimator = _mapping(data.get("estimator", {}) or {}, source, f"{path}.estimator", None)
     _check_estimator_options(estimator, source, f"{path}.estimator")
     return ChannelConfig(
         name=name,
-        input=_signal(data["input"], source, f"{path}.input"),
-        output=_signal(data["output"], source, f"{path}.output"),
+        input=None if mimo else _signal(data["input"], source, f"{path}.input"),
+        output=None if mimo else _signal(data["output"], source, f"{path}.output"),
         model=model,
-        model_spec=copy.deepcopy(model_spec),
+        model_spec=model_spec,
         frequencies=(_grid(data["frequencies"] or {}, source, f"{path}.frequencies") if "frequencies" in data
                      else flown_grid(float(estimator.get("sample_rate_hz", 100.0)))),
         coherence_threshold=_number(data.get("coherence_threshold", 0.6), source,
                                     f"{path}.coherence_threshold", Interval(0.0, 0.999)),
         trigger=_signal(data["trigger"], source, f"{path}.trigger") if data.get("trigger") is not None else None,
         estimator=dict(estimator),
+        inputs=inputs or (),
+        outputs=outputs or (),
+        controller=controller,
+        controller_spec=controller_spec,
     )
 
 

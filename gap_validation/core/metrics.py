@@ -1,16 +1,25 @@
 """Distances between models and data: chordal distance, nu-gap, overbounding epsilon, Theil coefficient.
 
-Paper: "Validating Aircraft Models in the Gap Metric" (eqs. 1, 3, 13, 14); nu-gap after Vinnicombe.
+Paper: "Validating Aircraft Models in the Gap Metric" (eqs. 1, 3, 13, 14); nu-gap after Vinnicombe
+(*Uncertainty and Feedback: H-infinity loop-shaping and the nu-gap metric*, Imperial College Press, 2001).
 
 Each metric returns its value and the frequency where it peaks [rad/s]. For frequency-response *data* the sup
 is over the given points and the winding-number condition of the nu-gap is assumed (as the paper does). For
-two :class:`~gap_validation.core.models.LinearModel` the results are exact:
+two models the results are exact. SISO :class:`~gap_validation.core.models.LinearModel` pairs (delays allowed):
 
 * the winding-number condition is checked (algebraically from polynomial roots for rational models or equal
   delays, numerically along the frequency axis when the delays differ), and the nu-gap is 1 when it fails;
-* the sup is located on a dense logarithmic grid (plus points around every lightly damped root and, with
-  delays, a linear grid resolving the delay's phase) and every promising local maximum is refined with a
-  bounded scalar optimisation to about 1e-8 relative in frequency; w = 0 and w -> infinity are checked too.
+* the sup is located on a dense logarithmic grid spanning every feature frequency of the pair (poles, zeros,
+  the corner frequencies and gain crossovers of each model, the zeros of P2 - P1 and P2 + P1), plus points
+  around every lightly damped root, on both sides of every root on the imaginary axis and, with delays, a
+  linear grid resolving the delay's phase; every promising local maximum is refined with a bounded scalar
+  optimisation to about 1e-8 relative in frequency; w = 0 and w -> infinity are checked too.
+
+MIMO pairs (:class:`~gap_validation.core.models.MimoModel`, or a MIMO model against a 1 x 1 one) go through
+normalised coprime factors (:mod:`gap_validation.core.statespace`): kappa(w) is
+``sigma_max((I + P2 P2*)^-1/2 (P2 - P1) (I + P1* P1)^-1/2)``, the sup is the H-infinity norm of
+``Gt2 G1`` (level-set iteration, peak refined), and the winding-number condition is counted from the zeros of
+``det(G2~ G1)``. For 1 x 1 models this is the SISO nu-gap.
 
 Conventions: ``P1`` is the model, ``P2`` the measurement (or the second model), as in the paper.
 """
@@ -25,8 +34,10 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.optimize import minimize_scalar
 
+from gap_validation.core import statespace
+
 if TYPE_CHECKING:  # pragma: no cover
-    from gap_validation.core.models import LinearModel
+    from gap_validation.core.models import LinearModel, MimoModel
 
 #: A real function of frequency [rad/s], vectorised (kappa(w) or epsilon(w) of two models).
 Response = Callable[[np.ndarray], np.ndarray]
@@ -38,6 +49,8 @@ _REFINE_XATOL = 1e-10  # bounded refinement tolerance in ln(w)
 _MAX_CANDIDATES = 40
 _TIE_RTOL = 1e-9  # peaks equal to this (relative) are the same height: the lowest frequency is reported
 _HUGE_EPSILON = 1e10  # a refined epsilon peak above this is a crossing of P2 = -P1: reported as inf
+_AXIS_OFFSETS = np.geomspace(1e-9, 0.5, 180)  # relative offsets sampled on both sides of roots on the axis
+_SINGULAR_D_COND = 1e12  # det(G2~ G1) at infinity is taken as zero beyond this condition number
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -46,22 +59,29 @@ _HUGE_EPSILON = 1e10  # a refined epsilon peak above this is a crossing of P2 = 
 
 
 def chordal_distance(p1: ArrayLike, p2: ArrayLike) -> np.ndarray:
-    """Chordal distance between two frequency responses (paper eq. 13, pointwise).
+    """Chordal distance between two frequency responses (paper eq. 13, pointwise; Vinnicombe's kappa).
 
-    ``kappa = |P2 - P1| / sqrt((1 + |P1|^2) (1 + |P2|^2))``, between 0 and 1; an infinite response (a pole
-    on the imaginary axis) is the point at infinity of the Riemann sphere.
+    SISO: ``kappa = |P2 - P1| / sqrt((1 + |P1|^2) (1 + |P2|^2))``, between 0 and 1; an infinite response (a
+    pole on the imaginary axis) is the point at infinity of the Riemann sphere.
+
+    MIMO (arrays of 3 or more dimensions: stacks of ``p x m`` matrices in the last two axes):
+    ``kappa = sigma_max((I + P2 P2*)^-1/2 (P2 - P1) (I + P1* P1)^-1/2)``; a matrix with a non-finite entry
+    gives nan. For 1 x 1 matrices it is the SISO formula.
 
     Parameters
     ----------
     p1, p2 : array_like of complex
-        Frequency responses at the same frequencies (broadcast).
+        Frequency responses at the same frequencies (broadcast): SISO values, or ``(..., p, m)`` matrices.
 
     Returns
     -------
     ndarray of float
+        One value per frequency (the matrix axes removed).
     """
     p1 = np.asarray(p1, dtype=complex)
     p2 = np.asarray(p2, dtype=complex)
+    if max(p1.ndim, p2.ndim) >= 3:
+        return _chordal_distance_matrices(*np.broadcast_arrays(p1, p2))
     p1, p2 = np.broadcast_arrays(p1, p2)
     inf1, inf2 = ~np.isfinite(p1) & ~np.isnan(p1), ~np.isfinite(p2) & ~np.isnan(p2)
     with np.errstate(invalid="ignore", over="ignore"):
@@ -71,6 +91,30 @@ def chordal_distance(p1: ArrayLike, p2: ArrayLike) -> np.ndarray:
         kappa = np.where(inf2 & ~inf1, 1.0 / np.sqrt(1.0 + a1 * a1), kappa)
     kappa = np.where(inf1 & inf2, 0.0, kappa)
     return np.minimum(kappa, 1.0)
+
+
+def _inv_sqrt_gram(p: np.ndarray, side: str) -> np.ndarray:
+    """``(I + P P*)^-1/2`` (side "left") or ``(I + P* P)^-1/2`` (side "right") of a stack of matrices, from the
+    singular values of P (no cancellation when P is huge, e.g. next to a pole on the axis)."""
+    u, s, vh = np.linalg.svd(p, full_matrices=True)
+    basis = u if side == "left" else np.conj(np.swapaxes(vh, -1, -2))
+    weights = np.ones(basis.shape[:-1])
+    weights[..., :s.shape[-1]] = 1.0 / np.sqrt(1.0 + s * s)
+    return (basis * weights[..., None, :]) @ np.conj(np.swapaxes(basis, -1, -2))
+
+
+def _chordal_distance_matrices(p1: np.ndarray, p2: np.ndarray) -> np.ndarray:
+    """Vinnicombe's pointwise chordal distance of stacks of p x m matrices (nan where an entry is not finite)."""
+    shape = p1.shape[:-2]
+    p1 = p1.reshape((-1,) + p1.shape[-2:])
+    p2 = p2.reshape((-1,) + p2.shape[-2:])
+    out = np.full(p1.shape[0], np.nan)
+    ok = np.all(np.isfinite(p1), axis=(1, 2)) & np.all(np.isfinite(p2), axis=(1, 2))
+    if np.any(ok):
+        a, b = p1[ok], p2[ok]
+        psi = _inv_sqrt_gram(b, "left") @ (b - a) @ _inv_sqrt_gram(a, "right")
+        out[ok] = np.minimum(np.linalg.svd(psi, compute_uv=False)[:, 0], 1.0)
+    return out.reshape(shape)
 
 
 def epsilon_per_frequency(p1: ArrayLike, p2: ArrayLike) -> np.ndarray:
@@ -116,7 +160,8 @@ def nugap_frequency_data(w_rad_s: ArrayLike, p1: ArrayLike, p2: ArrayLike) -> tu
     w_rad_s : array_like
         Frequencies [rad/s].
     p1, p2 : array_like of complex
-        Model and measured responses at ``w_rad_s``. NaN points are ignored.
+        Model and measured responses at ``w_rad_s`` (SISO values, or ``(len(w), p, m)`` matrices: see
+        :func:`chordal_distance`). NaN points are ignored.
 
     Returns
     -------
@@ -302,11 +347,11 @@ class WindingCheck:
     method: str = "algebraic"
 
 
-def winding_condition(m1: LinearModel, m2: LinearModel) -> WindingCheck:
-    """Check Vinnicombe's winding-number condition of the nu-gap for two SISO models.
+def winding_condition(m1: LinearModel | MimoModel, m2: LinearModel | MimoModel) -> WindingCheck:
+    """Check Vinnicombe's winding-number condition of the nu-gap for two models (SISO or MIMO).
 
-    With coprime P_i = n_i/d_i (delays aside), the condition is that the normalised coprime factors satisfy
-    wno det(G2* G1) = 0 with G2* G1 nonsingular on the axis. On s = j w,
+    SISO: with coprime P_i = n_i/d_i (delays aside), the condition is that the normalised coprime factors
+    satisfy wno det(G2* G1) = 0 with G2* G1 nonsingular on the axis. On s = j w,
     ``G2* G1 = rho(s) / (q2(-s) q1(s))`` with ``rho(s) = d2(-s) d1(s) + n2(-s) n1(s) exp(s (T2 - T1))`` and
     q_i the Hurwitz spectral factors of ``d_i d_i~ + n_i n_i~`` (deg q_i = deg d_i). Since q1 contributes
     deg d1 / 2 turns and q2(-s) -deg d2 / 2, the condition is: rho has no zero on the extended imaginary axis
@@ -319,14 +364,26 @@ def winding_condition(m1: LinearModel, m2: LinearModel) -> WindingCheck:
     beyond w_hi (past every root and where |P1 P2| < 1) is added analytically, and conjugate symmetry gives
     the whole axis.
 
+    MIMO (method ``"state space"``): with minimal realizations and normalised right coprime factors G_i of
+    order n_i (:func:`~gap_validation.core.statespace.right_ncf`), ``det(G2~ G1)`` has n1 stable and n2
+    antistable poles; it must have no zero on the extended imaginary axis (``I + P2(inf)^T P1(inf)``
+    nonsingular) and exactly n2 zeros in the open right half plane (the zeros of ``det`` are the eigenvalues of
+    ``A - B D^-1 C`` of the product's realization). For 1 x 1 models this is the polynomial count above.
+
     Parameters
     ----------
-    m1, m2 : LinearModel
+    m1, m2 : LinearModel or MimoModel
+        Models of the same shape (a 1 x 1 MimoModel counts as SISO).
 
     Returns
     -------
     WindingCheck
     """
+    siso, systems = _siso_or_state_space(m1, m2)
+    if systems is not None:
+        g1, g2 = (statespace.right_ncf(system) for system in systems)
+        return _winding_state_space(g1, g2, systems[1][0].shape[0])
+    m1, m2 = siso
     n1, d1 = _coprime(m1.num, m1.den)
     n2, d2 = _coprime(m2.num, m2.den)
     delta_s = m2.delay_s - m1.delay_s
@@ -344,8 +401,7 @@ def _winding_algebraic(n1: np.ndarray, d1: np.ndarray, n2: np.ndarray, d2: np.nd
     if len(rho) < len(d_term) or abs(rho[-(deg1 + deg2 + 1)]) <= 1e-12 * lead_scale:
         return WindingCheck(False, math.inf, "1 + P2~ P1 vanishes at infinity (P1(inf) P2(inf) = -1)")
     roots = _roots(rho)
-    scale = max(1.0, float(np.max(np.abs(roots)))) if roots.size else 1.0
-    on_axis = np.abs(roots.real) <= _AXIS_RTOL * np.maximum(np.abs(roots), 1e-3 * scale)
+    on_axis = _on_axis(roots)
     if np.any(on_axis):
         w = float(np.min(np.abs(roots[on_axis].imag)))
         return WindingCheck(False, w, f"1 + P2~ P1 vanishes at w = {w:.6g} rad/s")
@@ -357,6 +413,31 @@ def _winding_algebraic(n1: np.ndarray, d1: np.ndarray, n2: np.ndarray, d2: np.nd
                                          f"(unstable pole/zero counts do not match)")
 
 
+def _on_axis(roots: np.ndarray) -> np.ndarray:
+    """Which roots lie on the imaginary axis (relative tolerance, absolute near the origin)."""
+    scale = max(1.0, float(np.max(np.abs(roots)))) if roots.size else 1.0
+    return np.abs(roots.real) <= _AXIS_RTOL * np.maximum(np.abs(roots), 1e-3 * scale)
+
+
+def _winding_state_space(g1: statespace.StateSpace, g2: statespace.StateSpace, n2: int) -> WindingCheck:
+    """The condition from the normalised right coprime factors G1, G2 (n2 states in G2)."""
+    product = statespace.series(g1, statespace.paraconjugate(g2))   # G2~ G1, m x m
+    d = product[3]
+    if d.size and np.linalg.cond(d) > _SINGULAR_D_COND:
+        return WindingCheck(False, math.inf, "det(I + P2~ P1) vanishes at infinity (I + P2(inf)^T P1(inf) is "
+                                             "singular)", "state space")
+    zeros = statespace.zeros_square(product)
+    on_axis = _on_axis(zeros)
+    if np.any(on_axis):
+        w = float(np.min(np.abs(zeros[on_axis].imag)))
+        return WindingCheck(False, w, f"det(I + P2~ P1) vanishes at w = {w:.6g} rad/s", "state space")
+    right = int(np.sum(zeros.real > 0.0))
+    if right == n2:
+        return WindingCheck(True, method="state space")
+    return WindingCheck(False, math.nan, f"winding number {n2 - right} != 0 (unstable pole/zero counts do not "
+                                         f"match)", "state space")
+
+
 def _winding_numerical(n1: np.ndarray, d1: np.ndarray, n2: np.ndarray, d2: np.ndarray,
                        delta_s: float) -> WindingCheck:
     deg1, deg2 = len(d1) - 1, len(d2) - 1
@@ -365,27 +446,74 @@ def _winding_numerical(n1: np.ndarray, d1: np.ndarray, n2: np.ndarray, d2: np.nd
     if abs(k1 * k2) >= 1.0:
         return WindingCheck(False, math.inf, "|P1(inf) P2(inf)| >= 1 with different delays: the winding number "
                                              "is not defined", "numerical")
-    d_a, d_b = _mirror(d2), d1  # rho = d_a d_b + n_a n_b exp(j w delta)
-    n_a, n_b = _mirror(n2), n1
-    roots = np.concatenate([_roots(p) for p in (d1, d2, n1, n2)])
+    # rho = d2(-s) d1(s) + n2(-s) n1(s) exp(s delta)
+    turns, where = axis_turns(np.polymul(_mirror(d2), d1), np.polymul(_mirror(n2), n1), delta_s, k1 * k2,
+                              np.concatenate([_roots(d1), -_roots(d2)]),
+                              np.concatenate([_roots(p) for p in (d1, d2, n1, n2)]))
+    if turns is None:
+        if math.isnan(where):
+            return WindingCheck(False, math.nan, "phase of 1 + P2~ P1 could not be resolved", "numerical")
+        text = "at w = 0" if where == 0.0 else f"near w = {where:.6g} rad/s"
+        return WindingCheck(False, where, f"1 + P2~ P1 vanishes {text}", "numerical")
+    if abs(turns - (deg1 - deg2) / 2.0) < 0.25:
+        return WindingCheck(True, method="numerical")
+    return WindingCheck(False, math.nan, "winding number of 1 + P2~ P1 does not match the unstable poles",
+                        "numerical")
+
+
+def axis_turns(a: ArrayLike, b: ArrayLike, delta_s: float, k_inf: float, a_roots: ArrayLike,
+               hint_roots: ArrayLike = ()) -> tuple[float | None, float]:
+    """Turns of ``f(j w) = a(j w) + b(j w) exp(j w delta_s)`` around 0 as w runs over the whole real line.
+
+    The quasi-polynomial's phase is unwrapped on an adaptive grid over (0, w_hi) (logarithmic, linear at
+    pi/4 of the delay's phase, points around every root; intervals whose phase jumps by more than pi/3 are
+    halved), the tail beyond w_hi, where ``|b/a| <= (1 + |k_inf|)/2 < 1``, is the phase of a alone
+    (analytic from its roots), and conjugate symmetry (real coefficients) doubles the half line. By the
+    argument principle a retarded quasi-polynomial of degree N with Z zeros in the open right half plane and
+    none on the axis turns ``N/2 - Z`` times (the nu-gap's winding condition; a closed loop with a delay,
+    Nyquist).
+
+    Parameters
+    ----------
+    a, b : array_like
+        Real polynomial coefficients, descending powers of s; ``deg b <= deg a``.
+    delta_s : float
+        The exponent's coefficient [s] (nonzero; negative for a delay ``exp(-s T)``).
+    k_inf : float
+        ``lim b(s)/a(s)`` as s -> infinity; ``|k_inf| < 1``.
+    a_roots : array_like
+        The roots of a (for the analytic tail).
+    hint_roots : array_like
+        Roots whose neighbourhoods the grid resolves (e.g. poles and zeros).
+
+    Returns
+    -------
+    turns : float or None
+        Turns over the whole axis; None when f vanishes on the axis (within the grid's resolution) or the
+        phase cannot be resolved.
+    w_zero_rad_s : float
+        Where f vanishes (nan when it does not, or when the phase was unresolved).
+    """
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    a_roots = np.asarray(a_roots, dtype=complex)
+    roots = np.concatenate([np.asarray(hint_roots, dtype=complex), a_roots])
     w_top = max(1.0, float(np.max(np.abs(roots)))) if roots.size else 1.0
     w_hi = 1e3 * w_top
-    limit = 0.5 * (1.0 + abs(k1 * k2))
+    limit = 0.5 * (1.0 + abs(k_inf))
 
-    def rho_x(w: ArrayLike) -> np.ndarray:
+    def f_x(w: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         s = 1j * np.asarray(w, dtype=float)
-        dd = np.polyval(d_a, s) * np.polyval(d_b, s)
-        nn = np.polyval(n_a, s) * np.polyval(n_b, s) * np.exp(s * delta_s)
+        aa = np.polyval(a, s)
+        bb = np.polyval(b, s) * np.exp(s * delta_s)
         with np.errstate(divide="ignore", invalid="ignore"):
-            return dd + nn, nn / dd
+            return aa + bb, bb / aa
 
     for _ in range(60):
-        if abs(rho_x(w_hi)[1]) <= limit:
+        if abs(f_x(w_hi)[1]) <= limit:
             break
         w_hi *= 2.0
-    rho0 = float(np.real(rho_x(0.0)[0]))
-    if rho0 == 0.0:
-        return WindingCheck(False, 0.0, "1 + P2~ P1 vanishes at w = 0", "numerical")
+    if float(np.real(f_x(0.0)[0])) == 0.0:
+        return None, 0.0
     w_lo = 1e-6 * min([abs(r) for r in roots if abs(r) > 0] + [1.0])
     grid = [np.array([0.0]), np.geomspace(w_lo, w_hi, int(_GRID_PER_DECADE * math.log10(w_hi / w_lo)) + 2)]
     step = math.pi / (4.0 * abs(delta_s))
@@ -393,7 +521,7 @@ def _winding_numerical(n1: np.ndarray, d1: np.ndarray, n2: np.ndarray, d2: np.nd
     grid.append(_resonance_points(roots))
     w = np.unique(np.concatenate(grid))
     w = w[(w >= 0.0) & (w <= w_hi)]
-    phase = np.angle(rho_x(w)[0])
+    phase = np.angle(f_x(w)[0])
     for _ in range(60):
         jump = np.abs(_wrap(np.diff(phase)))
         bad = np.flatnonzero(jump > math.pi / 3.0)
@@ -401,22 +529,16 @@ def _winding_numerical(n1: np.ndarray, d1: np.ndarray, n2: np.ndarray, d2: np.nd
             break
         width = w[bad + 1] - w[bad]
         if np.any(width <= 1e-13 * np.maximum(w[bad + 1], 1e-300)):
-            where = float(w[bad[np.argmin(width)]])
-            return WindingCheck(False, where, f"1 + P2~ P1 vanishes near w = {where:.6g} rad/s", "numerical")
+            return None, float(w[bad[np.argmin(width)]])
         mids = 0.5 * (w[bad] + w[bad + 1])
         w = np.insert(w, bad + 1, mids)
-        phase = np.insert(phase, bad + 1, np.angle(rho_x(mids)[0]))
+        phase = np.insert(phase, bad + 1, np.angle(f_x(mids)[0]))
     else:
-        return WindingCheck(False, math.nan, "phase of 1 + P2~ P1 could not be resolved", "numerical")
+        return None, math.nan
     total = float(np.sum(_wrap(np.diff(phase))))
-    tail = sum(_wrap(math.pi / 2 - np.angle(1j * w_hi - a)) for a in _roots(d1))
-    tail += sum(_wrap(-math.pi / 2 - np.angle(-1j * w_hi - b)) for b in _roots(d2))
-    tail -= float(np.angle(1.0 + rho_x(w_hi)[1]))
-    half_turns = (total + tail) / math.pi  # winding of rho over the whole axis, in turns, times 2 ... / 2
-    if abs(half_turns - (deg1 - deg2) / 2.0) < 0.25:
-        return WindingCheck(True, method="numerical")
-    return WindingCheck(False, math.nan, "winding number of 1 + P2~ P1 does not match the unstable poles",
-                        "numerical")
+    tail = float(sum(_wrap(math.pi / 2 - np.angle(1j * w_hi - r)) for r in a_roots))
+    tail -= float(np.angle(1.0 + f_x(w_hi)[1]))
+    return (total + tail) / math.pi, math.nan
 
 
 def _wrap(angle: ArrayLike) -> np.ndarray:
@@ -443,24 +565,82 @@ def _resonance_points(roots: np.ndarray) -> np.ndarray:
 # ----------------------------------------------------------------------------------------------------------
 
 
-def _analysis_grid(m1: LinearModel, m2: LinearModel, extra_roots: ArrayLike = ()) -> np.ndarray:
-    roots = np.concatenate([m1.poles(), m1.zeros(), m2.poles(), m2.zeros(), np.asarray(extra_roots, complex)])
+def _axis_points(roots: np.ndarray) -> np.ndarray:
+    """Frequencies on both sides of every root on the positive imaginary axis, geometrically closer.
+
+    Two models sharing an undamped pole can have their largest chordal distance a hair to either side of it;
+    the offsets run from 1e-9 to 0.5 of the root's frequency.
+    """
+    roots = np.asarray(roots, dtype=complex)
+    centres = np.unique(roots[(roots.imag > 0.0) & _on_axis(roots)].imag)
+    if centres.size == 0:
+        return np.zeros(0)
+    return np.concatenate([centres[:, None] * (1.0 - _AXIS_OFFSETS), centres[:, None] * (1.0 + _AXIS_OFFSETS)],
+                          axis=1).ravel()
+
+
+def _combined(a: ArrayLike, b: ArrayLike, sign: float = 1.0) -> np.ndarray:
+    """``a + sign b`` with every coefficient that cancels to round-off of its operands set to exactly 0.
+
+    Leading coefficients that cancel (``P1(inf) = P2(inf)`` in ``n2 d1 - n1 d2``, ``|P(inf)| = 1`` in
+    ``n n~ - d d~``) would otherwise give spurious roots near 1e15; trailing ones give exact roots at 0.
+    """
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    size = max(a.size, b.size)
+    a = np.concatenate([np.zeros(size - a.size), a])
+    b = np.concatenate([np.zeros(size - b.size), b])
+    total = a + sign * b
+    return np.where(np.abs(total) <= 64 * np.finfo(float).eps * (np.abs(a) + np.abs(b)), 0.0, total)
+
+
+def _feature_roots(model: LinearModel) -> np.ndarray:
+    """Poles, zeros and the roots of ``n n~ + d d~`` and ``n n~ - d d~`` of a model.
+
+    ``|n(jw)|^2 + |d(jw)|^2`` is the denominator of the chordal distance (its roots are the corner
+    frequencies of ``1 + |P|^2``) and the real roots of ``|n(jw)|^2 - |d(jw)|^2`` are the gain crossovers
+    ``|P(jw)| = 1``, where two models' chordal distance peaks when their gains differ (1e-6/s vs 2e-6/s
+    peaks at 1.4e-6 rad/s, far from any pole or zero).
+    """
+    num, den = _strip(model.num), _strip(model.den)
+    nn = np.polymul(num, _mirror(num))
+    dd = np.polymul(den, _mirror(den))
+    return np.concatenate([model.poles(), model.zeros(), _roots(_combined(nn, dd)), _roots(_combined(nn, dd, -1.0))])
+
+
+def _pair_roots(m1: LinearModel, m2: LinearModel) -> np.ndarray:
+    """Every frequency feature of a pair: each model's :func:`_feature_roots` and, with equal delays, the zeros
+    of ``P2 - P1`` and of ``P2 + P1`` (the numerator and denominator of epsilon, eq. 14)."""
+    parts = [_feature_roots(m1), _feature_roots(m2)]
+    if m1.delay_s == m2.delay_s:
+        cross1, cross2 = np.polymul(m2.num, m1.den), np.polymul(m1.num, m2.den)
+        parts += [_roots(_combined(cross1, cross2, -1.0)), _roots(_combined(cross1, cross2))]
+    return np.concatenate(parts)
+
+
+def _analysis_grid(roots: ArrayLike, delta_s: float = 0.0) -> np.ndarray:
+    """Frequencies [rad/s] resolving every feature: a logarithmic grid from 1e-4 of the smallest to 1e4 times the
+    largest root magnitude (and 1/delta_s), points around lightly damped roots and on both sides of roots on
+    the imaginary axis, and a linear grid at pi/8 of the delay's phase."""
+    roots = np.asarray(roots, dtype=complex)
+    roots = roots[np.isfinite(roots)]
     magnitudes = np.abs(roots)
     magnitudes = magnitudes[magnitudes > 0.0]
     w_min = float(magnitudes.min()) if magnitudes.size else 1.0
     w_max = float(magnitudes.max()) if magnitudes.size else 1.0
-    delta_s = abs(m2.delay_s - m1.delay_s)
+    delta_s = abs(delta_s)
     if delta_s > 0.0:
         w_min = min(w_min, 1.0 / delta_s)
         w_max = max(w_max, 1.0 / delta_s)
     w_lo, w_hi = 1e-4 * w_min, 1e4 * w_max
     parts = [np.geomspace(w_lo, w_hi, int(_GRID_PER_DECADE * math.log10(w_hi / w_lo)) + 2),
-             _resonance_points(roots)]
+             _resonance_points(roots), _axis_points(roots)]
     if delta_s > 0.0:
         step = math.pi / (8.0 * delta_s)
         parts.append(np.arange(1, min(int(w_hi / step), 100_000) + 1) * step)
     w = np.unique(np.concatenate(parts))
-    return w[(w >= w_lo) & (w <= w_hi)]
+    w = w[(w >= w_lo) & (w <= w_hi)]
+    # points within round-off of each other (the same root from several polynomials) would tie as false peaks
+    return w[np.concatenate([[True], np.diff(w) > 1e-12 * w[1:]])] if w.size else w
 
 
 def _grid_peaks(fun: Response, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -528,21 +708,52 @@ def _first_huge(fun: Response, w: np.ndarray, threshold: float) -> float:
 
 
 def _sup_with_ends(fun: Response, at_zero: float, at_infinity: float, w: np.ndarray) -> tuple[float, float]:
+    """Sup over the grid's range, w = 0 and w -> infinity: the largest of the three values. It is reported at
+    w = 0 when that ties with the grid's peak (within 1e-9 relative), at infinity only when the limit there is
+    above both by more than that (a peak creeping up to its limit keeps its frequency, with the limit's value)."""
     value, where = _refined_sup(fun, w)
     if not math.isnan(at_zero) and at_zero >= value - _TIE_RTOL * max(1.0, abs(value)):
         value, where = max(at_zero, value), 0.0
     if at_infinity > value + _TIE_RTOL * max(1.0, abs(value)):
         value, where = at_infinity, math.inf
-    return value, where
+    return max(value, at_infinity), where
 
 
-def nugap(m1: LinearModel, m2: LinearModel) -> tuple[float, float]:
-    """Exact nu-gap of two LTI models (Vinnicombe; paper eq. 13 with the winding-number condition).
+def _shape(model: LinearModel | MimoModel) -> tuple[int, int]:
+    return tuple(getattr(model, "shape", (1, 1)))
+
+
+def _siso_or_state_space(m1: LinearModel | MimoModel, m2: LinearModel | MimoModel) -> tuple[
+        tuple[LinearModel, LinearModel] | None, tuple[statespace.StateSpace, statespace.StateSpace] | None]:
+    """Two SISO models, or minimal realizations of two MIMO models of the same shape."""
+    shape1, shape2 = _shape(m1), _shape(m2)
+    if shape1 != shape2:
+        raise ValueError(f"models of different shapes ({shape1[0]}x{shape1[1]} and {shape2[0]}x{shape2[1]} "
+                         f"outputs x inputs) have no nu-gap")
+    if shape1 == (1, 1):
+        return (_siso(m1), _siso(m2)), None
+    return None, (m1.minimal_state_space(), m2.minimal_state_space())
+
+
+def _siso(model: LinearModel | MimoModel) -> LinearModel:
+    return model if not hasattr(model, "shape") else model.siso()
+
+
+def nugap(m1: LinearModel | MimoModel, m2: LinearModel | MimoModel) -> tuple[float, float]:
+    """Exact nu-gap of two LTI models (Vinnicombe 2001; paper eq. 13 with the winding-number condition).
+
+    SISO models (delays allowed) use the exact polynomial path (module docstring); MIMO models the state-space
+    path: ``sup_w kappa(w)`` with ``kappa(w) = sigma_max((I + P2 P2*)^-1/2 (P2 - P1) (I + P1* P1)^-1/2)``
+    is the H-infinity norm of ``Gt2 G1`` (normalised coprime factors), located by the level-set iteration
+    and refined to 1e-6 relative in frequency. The nu-gap is invariant under constant unitary changes of
+    input and output coordinates (``U P V`` for both models); for block-diagonal models it is the largest of
+    the blocks' nu-gaps unless two blocks fail the winding condition in opposite directions (the condition is
+    on the determinant, so their winding numbers cancel).
 
     Parameters
     ----------
-    m1, m2 : LinearModel
-        Model and second model (delays allowed).
+    m1, m2 : LinearModel or MimoModel
+        Model and second model, of the same shape (outputs x inputs).
 
     Returns
     -------
@@ -551,22 +762,45 @@ def nugap(m1: LinearModel, m2: LinearModel) -> tuple[float, float]:
     w_peak_rad_s : float
         Frequency of the sup [rad/s] (``inf`` for the limit at infinity); when the condition fails, where
         1 + P2~ P1 vanishes, or nan when the failure is a winding-number mismatch.
+
+    Raises
+    ------
+    ValueError
+        Models of different shapes.
     """
+    siso, systems = _siso_or_state_space(m1, m2)
+    if systems is not None:
+        value, where, _ = _nugap_state_space(*systems)
+        return value, where
+    m1, m2 = siso
     check = winding_condition(m1, m2)
     if not check.satisfied:
         return 1.0, check.frequency_rad_s
-    w = _analysis_grid(m1, m2)
+    w = _analysis_grid(_pair_roots(m1, m2), m2.delay_s - m1.delay_s)
     fun = lambda x: _kappa_models(m1, m2, x)  # noqa: E731
     value, where = _sup_with_ends(fun, float(fun(np.array([0.0]))[0]), _kappa_at_infinity(m1, m2), w)
     return min(max(value, 0.0), 1.0), where
 
 
-def epsilon(m1: LinearModel, m2: LinearModel) -> tuple[float, float]:
+def _nugap_state_space(s1: statespace.StateSpace, s2: statespace.StateSpace) -> tuple[float, float, WindingCheck]:
+    """nu-gap of two minimal realizations: the winding condition on det(G2~ G1), then ||Gt2 G1||_inf."""
+    g1 = statespace.right_ncf(s1)
+    check = _winding_state_space(g1, statespace.right_ncf(s2), s2[0].shape[0])
+    if not check.satisfied:
+        return 1.0, check.frequency_rad_s, check
+    value, where = statespace.hinf_norm(statespace.series(g1, statespace.left_ncf(s2)))
+    return min(max(value, 0.0), 1.0), where, check
+
+
+def epsilon(m1: LinearModel | MimoModel, m2: LinearModel | MimoModel) -> tuple[float, float]:
     """Exact sup over frequency of the overbounding-disk radius ``|P2 - P1| / |P2 + P1|`` (eq. 14).
+
+    The disk of eq. 14 is a SISO notion; 1 x 1 MIMO models are taken as SISO.
 
     Parameters
     ----------
-    m1, m2 : LinearModel
+    m1, m2 : LinearModel or MimoModel
+        SISO models (or 1 x 1).
 
     Returns
     -------
@@ -575,8 +809,15 @@ def epsilon(m1: LinearModel, m2: LinearModel) -> tuple[float, float]:
         no stability margin is guaranteed.
     w_peak_rad_s : float
         Frequency of the sup [rad/s] (``inf`` for the limit at infinity).
+
+    Raises
+    ------
+    ValueError
+        For MIMO models (no epsilon disk: compare them by the nu-gap).
     """
-    extra = ()
+    if _shape(m1) != (1, 1) or _shape(m2) != (1, 1):
+        raise ValueError("epsilon (eq. 14) is defined for SISO models; compare MIMO models by the nu-gap")
+    m1, m2 = _siso(m1), _siso(m2)
     if m1.delay_s == m2.delay_s:
         total = np.polyadd(np.polymul(m2.num, m1.den), np.polymul(m1.num, m2.den))
         extra = _roots(total)
@@ -586,7 +827,7 @@ def epsilon(m1: LinearModel, m2: LinearModel) -> tuple[float, float]:
             if np.isinf(_epsilon_models(m1, m2, np.array([w]))[0]) or \
                     _epsilon_models(m1, m2, np.array([w]))[0] > 1e6:
                 return math.inf, w
-    w = _analysis_grid(m1, m2, extra)
+    w = _analysis_grid(_pair_roots(m1, m2), m2.delay_s - m1.delay_s)
     fun = lambda x: _epsilon_models(m1, m2, x)  # noqa: E731
     value, where = _refined_sup(fun, w)
     if value >= _HUGE_EPSILON:

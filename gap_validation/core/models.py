@@ -650,6 +650,317 @@ def _check_proper(num: np.ndarray, den: np.ndarray, where: str) -> None:
 
 
 # ----------------------------------------------------------------------------------------------------------
+# MIMO models
+# ----------------------------------------------------------------------------------------------------------
+
+_MIMO_KEYS = ("state_space", "transfer_matrix")
+_MIMO_SS_KEYS = ("A", "B", "C", "D")
+
+
+class MimoModel:
+    """A MIMO linear model ``P(s) = C (sI - A)^-1 B + D`` with p outputs and m inputs, immutable.
+
+    The model of a channel with ``inputs:``/``outputs:`` lists (DESIGN.md): column j of B (and of D) belongs to
+    ``inputs[j]``, row i of C (and of D) to ``outputs[i]``. No delays or effects (yet); rational effects may be
+    put into the elements of the ``transfer_matrix`` form.
+
+    Parameters
+    ----------
+    a, b, c : array_like
+        ``n x n``, ``n x m``, ``p x n`` (``n`` may be 0: a static gain).
+    d : array_like, optional
+        ``p x m`` feedthrough (default zero).
+
+    Notes
+    -----
+    Build models from a config mapping with :meth:`from_spec`; :meth:`to_spec` gives it back. The metrics
+    (:func:`~gap_validation.core.metrics.nugap`) and :func:`~gap_validation.core.robust.stability_margin`
+    accept a MimoModel wherever they accept a :class:`LinearModel`.
+    """
+
+    __slots__ = ("_system", "_spec", "_minimal")
+
+    def __init__(self, a: ArrayLike, b: ArrayLike, c: ArrayLike, d: ArrayLike | None = None, *,
+                 _spec: dict | None = None) -> None:
+        from gap_validation.core.statespace import as_state_space
+
+        system = as_state_space(a, b, c, d)
+        if not all(np.all(np.isfinite(m)) for m in system):
+            raise ConfigError("model.state_space: expected finite matrices")
+        for matrix in system:
+            matrix.setflags(write=False)
+        self._system = system
+        self._spec = _spec
+        self._minimal = None
+
+    # -- construction from / to the config mapping ----------------------------------------------------------
+
+    @classmethod
+    def from_spec(cls, spec: Any, where: str = "model", inputs: int | None = None, outputs: int | None = None, *,
+                  inputs_are: str = "input", outputs_are: str = "output") -> MimoModel:
+        """Build a MIMO model from a config ``model:`` (or ``controller:``) mapping.
+
+        Forms::
+
+            state_space: {A: [[...]], B: [[...]], C: [[...]], D: [[...]]}   # D optional; or only D (a gain)
+            transfer_matrix:                                                 # rows: outputs, columns: inputs
+              - [{numerator: [...], denominator: [...]}, 0.0]               # an element: a number or any
+              - [0.0, {zeros: [], poles: [-2.0], gain: 1.0}]                # SISO model mapping (no delay)
+
+        Parameters
+        ----------
+        spec : mapping
+            The mapping.
+        where : str
+            Its path in the config, for error messages.
+        inputs, outputs : int, optional
+            Required numbers of inputs (columns of B and D) and outputs (rows of C and D).
+        inputs_are, outputs_are : str
+            What one input / output is, for error messages (``"entry of channels.lateral.inputs"``).
+
+        Returns
+        -------
+        MimoModel
+
+        Raises
+        ------
+        ConfigError
+            One line naming the path, key and value: unknown keys, wrong shapes (B columns not matching the
+            inputs, ...), non-finite or absurd numbers, delays.
+        """
+        if not isinstance(spec, dict):
+            raise ConfigError(f"{where}: expected a mapping (state_space or transfer_matrix), got {spec!r}")
+        for key in spec:
+            if key in ("delay_s", "effects"):
+                raise ConfigError(f"{where}.{key}: not available for a MIMO model yet (put rational effects into "
+                                  f"the elements of a transfer_matrix), got {spec[key]!r}")
+            if key not in _MIMO_KEYS:
+                raise ConfigError(f"{where}.{key}: unknown key for a MIMO model (expected state_space or "
+                                  f"transfer_matrix), got {key!r}: {spec[key]!r}")
+        if len(spec) != 1:
+            raise ConfigError(f"{where}: expected exactly one of state_space or transfer_matrix, got keys "
+                              f"{sorted(spec)}")
+        shape = (outputs, inputs, outputs_are, inputs_are)
+        if "state_space" in spec:
+            system = _parse_mimo_ss(spec["state_space"], f"{where}.state_space", *shape)
+        else:
+            system = _parse_transfer_matrix(spec["transfer_matrix"], f"{where}.transfer_matrix", *shape)
+        return cls(*system, _spec={key: _plain(value) for key, value in spec.items()})
+
+    @classmethod
+    def from_linear(cls, model: LinearModel) -> MimoModel:
+        """The 1 x 1 MimoModel of a SISO model without delay.
+
+        Parameters
+        ----------
+        model : LinearModel
+            A model with ``delay_s == 0``.
+
+        Raises
+        ------
+        ValueError
+            When the model has a delay (no finite state space).
+        """
+        if model.delay_s:
+            raise ValueError(f"a model with a delay ({model.delay_s:g} s) has no finite state space")
+        return cls(*model.state_space())
+
+    def to_spec(self) -> dict:
+        """Config ``model:`` mapping that :meth:`from_spec` turns back into this model (plain lists)."""
+        if self._spec is not None:
+            return copy.deepcopy(self._spec)
+        a, b, c, d = self._system
+        return {"state_space": {"A": a.tolist(), "B": b.tolist(), "C": c.tolist(), "D": d.tolist()}}
+
+    # -- attributes -----------------------------------------------------------------------------------------
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(outputs, inputs)."""
+        return self._system[3].shape
+
+    @property
+    def order(self) -> int:
+        """Number of states of the realization as given."""
+        return self._system[0].shape[0]
+
+    @property
+    def delay_s(self) -> float:
+        """Pure delay [s]: always 0 for a MIMO model."""
+        return 0.0
+
+    @property
+    def effects(self) -> tuple[dict, ...]:
+        """Effects in series: none for a MIMO model."""
+        return ()
+
+    def with_effects(self, effects: Sequence[dict]) -> MimoModel:
+        """Effects in series are not available for a MIMO model yet: the model itself when ``effects`` is empty.
+
+        Parameters
+        ----------
+        effects : sequence of dict
+            Effect mappings.
+
+        Raises
+        ------
+        ConfigError
+            When ``effects`` is not empty.
+        """
+        if effects:
+            names = ", ".join(str(e.get("type", e)) if isinstance(e, dict) else repr(e) for e in effects)
+            raise ConfigError(f"model.effects: effects on a MIMO model are not available yet, got {names}")
+        return self
+
+    def state_space(self) -> StateSpace:
+        """The realization (A, B, C, D) as given (read-only arrays)."""
+        return self._system
+
+    def minimal_state_space(self) -> StateSpace:
+        """A minimal realization (controllable and observable part; cached)."""
+        if self._minimal is None:
+            from gap_validation.core.statespace import minimal_realization
+
+            self._minimal = minimal_realization(self._system)
+        return self._minimal
+
+    def poles(self) -> np.ndarray:
+        """Poles of the transfer matrix [rad/s]: eigenvalues of the minimal realization's A."""
+        a = self.minimal_state_space()[0]
+        return np.linalg.eigvals(a) if a.size else np.zeros(0, dtype=complex)
+
+    def siso(self) -> LinearModel:
+        """The :class:`LinearModel` of a 1 x 1 model (transfer function of the minimal realization).
+
+        Raises
+        ------
+        ValueError
+            When the model is not 1 x 1.
+        """
+        if self.shape != (1, 1):
+            raise ValueError(f"a {self.shape[0]}x{self.shape[1]} model is not SISO")
+        a, b, c, d = self.minimal_state_space()
+        if a.shape[0] == 0:
+            return LinearModel([d[0, 0]], [1.0])
+        num, den = scipy.signal.ss2tf(a, b, c, d)
+        return LinearModel(_trim_leading(num[0], den), den)
+
+    def __repr__(self) -> str:
+        return f"MimoModel({self.shape[0]}x{self.shape[1]}, {self.order} states)"
+
+    # -- frequency response ---------------------------------------------------------------------------------
+
+    def freqresp(self, w_rad_s: ArrayLike) -> np.ndarray:
+        """Complex frequency response matrices P(j w), from the minimal realization (a hidden mode on the axis,
+        e.g. an unobserved heading integrator, does not make P(j0) infinite).
+
+        Parameters
+        ----------
+        w_rad_s : array_like
+            Frequencies [rad/s].
+
+        Returns
+        -------
+        ndarray of complex
+            Shape ``(len(w), outputs, inputs)``.
+        """
+        from gap_validation.core.statespace import freqresp
+
+        return freqresp(self.minimal_state_space(), w_rad_s)
+
+
+def _parse_mimo_ss(spec: Any, where: str, outputs: int | None, inputs: int | None, outputs_are: str,
+                   inputs_are: str) -> StateSpace:
+    if not isinstance(spec, dict):
+        raise ConfigError(f"{where}: expected a mapping with A, B, C (D optional) or only D, got {spec!r}")
+    for key in spec:
+        if key in ("input", "output"):
+            raise ConfigError(f"{where}.{key}: not used by a MIMO model (columns of B follow the inputs list, rows "
+                              f"of C the outputs list), got {spec[key]!r}")
+        if key not in _MIMO_SS_KEYS:
+            raise ConfigError(f"{where}.{key}: unknown key (expected {', '.join(_MIMO_SS_KEYS)}), got {key!r}")
+    given = [key for key in ("A", "B", "C") if key in spec]
+    if not given:
+        if "D" not in spec:
+            raise ConfigError(f"{where}: missing key 'A' (A, B, C, or only D for a static gain)")
+        d = _matrix(spec["D"], f"{where}.D", rows=outputs if outputs == 1 else None,
+                    cols=inputs if inputs == 1 else None)
+        _check_shape(d, f"{where}.D", outputs, inputs, outputs_are, inputs_are)
+        return np.zeros((0, 0)), np.zeros((0, d.shape[1])), np.zeros((d.shape[0], 0)), d
+    for key in ("A", "B", "C"):
+        if key not in spec:
+            raise ConfigError(f"{where}: missing key {key!r} (A, B, C, or only D for a static gain)")
+    a = _matrix(spec["A"], f"{where}.A")
+    n = a.shape[0]
+    if a.shape != (n, n):
+        raise ConfigError(f"{where}.A: expected a square matrix, got shape {a.shape[0]}x{a.shape[1]}")
+    b = _matrix(spec["B"], f"{where}.B", rows=n)
+    _check_shape(b, f"{where}.B", None, inputs, outputs_are, inputs_are)
+    c = _matrix(spec["C"], f"{where}.C", cols=n)
+    _check_shape(c, f"{where}.C", outputs, None, outputs_are, inputs_are)
+    p, m = c.shape[0], b.shape[1]
+    d = np.zeros((p, m)) if spec.get("D") is None else _matrix(spec["D"], f"{where}.D")
+    _check_shape(d, f"{where}.D", p, m, outputs_are, inputs_are)
+    return a, b, c, d
+
+
+def _check_shape(matrix: np.ndarray, where: str, rows: int | None, cols: int | None, rows_are: str,
+                 cols_are: str) -> None:
+    """ConfigError naming the key, the expected count and the shape given."""
+    got = f"got shape {matrix.shape[0]}x{matrix.shape[1]}"
+    if cols is not None and matrix.shape[1] != cols:
+        raise ConfigError(f"{where}: expected {cols} column{'s' * (cols != 1)} (one per {cols_are}), {got}")
+    if rows is not None and matrix.shape[0] != rows:
+        raise ConfigError(f"{where}: expected {rows} row{'s' * (rows != 1)} (one per {rows_are}), {got}")
+
+
+def _parse_transfer_matrix(spec: Any, where: str, outputs: int | None, inputs: int | None, outputs_are: str,
+                           inputs_are: str) -> StateSpace:
+    """A transfer matrix (rows of elements) as one realization: every element's states side by side."""
+    if not isinstance(spec, (list, tuple)) or not spec or \
+            not all(isinstance(row, (list, tuple)) and row for row in spec):
+        raise ConfigError(f"{where}: expected a non-empty list of rows (one per output), each a list of "
+                          f"elements (one per input), got {spec!r}")
+    if outputs is not None and len(spec) != outputs:
+        raise ConfigError(f"{where}: expected {outputs} row{'s' * (outputs != 1)} (one per {outputs_are}), got "
+                          f"{len(spec)}")
+    m = len(spec[0])
+    if inputs is not None and m != inputs:
+        raise ConfigError(f"{where}[0]: expected {inputs} element{'s' * (inputs != 1)} (one per {inputs_are}), "
+                          f"got {m}")
+    blocks = []
+    for i, row in enumerate(spec):
+        if len(row) != m:
+            raise ConfigError(f"{where}[{i}]: expected {m} elements like row 0, got {len(row)}")
+        for j, element in enumerate(row):
+            blocks.append((i, j, _element(element, f"{where}[{i}][{j}]")))
+    n = sum(block[0].shape[0] for _, _, block in blocks)
+    a, b, c, d = np.zeros((n, n)), np.zeros((n, m)), np.zeros((len(spec), n)), np.zeros((len(spec), m))
+    k = 0
+    for i, j, (ae, be, ce, de) in blocks:
+        size = ae.shape[0]
+        a[k:k + size, k:k + size] = ae
+        b[k:k + size, j] = be[:, 0]
+        c[i, k:k + size] = ce[0]
+        d[i, j] = de[0, 0]
+        k += size
+    return a, b, c, d
+
+
+def _element(value: Any, where: str) -> StateSpace:
+    """One element of a transfer matrix: a number (static gain) or a SISO model mapping without delay."""
+    if isinstance(value, dict):
+        model = LinearModel.from_spec(value, where)
+        if model.delay_s:
+            raise ConfigError(f"{where}: delays are not available in a MIMO model yet, got a delay of "
+                              f"{model.delay_s:g} s")
+        return model.state_space()
+    gain = check_number(value, where, strings=True, expected="a number or a model mapping (numerator/"
+                                                              "denominator, zeros/poles/gain)")
+    return np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), np.array([[gain]])
+
+
+# ----------------------------------------------------------------------------------------------------------
 # simulation
 # ----------------------------------------------------------------------------------------------------------
 

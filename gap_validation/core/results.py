@@ -335,6 +335,11 @@ class ChannelResult:
     manoeuvres_by_kind: dict[str, int] = field(default_factory=dict)  # manoeuvres that gave a response
     degrees_of_freedom: np.ndarray | None = None                     # of the noise estimate, per frequency
     frequency_reasons: list = field(default_factory=list)            # per frequency: why not confident, or None
+    # the controller check (a channel with a controller): b(P1, C) and b > nu-gap (core.robust)
+    stability_margin_b: float | None = None
+    stability_margin_frequency_rad_s: float | None = None
+    guaranteed_stable: bool | None = None
+    stability_note: str = ""
 
     def __post_init__(self) -> None:
         # bands and candidates given as their JSON objects (hand-written results, tests) are read as such
@@ -399,6 +404,10 @@ class ChannelResult:
         }
         for entry, response in zip(out["raw_sweeps"], self.sweep_measured if samples else ()):
             entry["measured"] = _mag_phase(response, self.model)
+        if self.stability_margin_b is not None:  # only with a controller
+            out.update({"stability_margin_b": _num(self.stability_margin_b),
+                        "stability_margin_frequency_rad_s": _num(self.stability_margin_frequency_rad_s),
+                        "guaranteed_stable": self.guaranteed_stable, "stability_note": self.stability_note})
         return out
 
     def _checks(self) -> list[dict | None]:
@@ -429,7 +438,10 @@ class ChannelResult:
                  model_description=data.get("model_description", ""), message=data.get("message", ""),
                  model_spec=dict(data.get("model_spec") or {}), excitation=data.get("excitation"),
                  manoeuvres_by_kind=dict(data.get("manoeuvres_by_kind") or {}),
-                 frequency_reasons=list(data.get("frequency_reasons") or []))
+                 frequency_reasons=list(data.get("frequency_reasons") or []),
+                 stability_margin_b=data.get("stability_margin_b"),
+                 stability_margin_frequency_rad_s=data.get("stability_margin_frequency_rad_s"),
+                 guaranteed_stable=data.get("guaranteed_stable"), stability_note=data.get("stability_note") or "")
         band = data.get("excited_band_rad_s")
         ch.excited_band_rad_s = (float(band[0]), float(band[1])) if band and None not in band else None
         ch.margins = margins_from_epsilon(ch.epsilon if ch.epsilon is not None else float("nan"))

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from gap_validation.core import metrics
+from gap_validation.core import metrics, robust
 from gap_validation.core.config import STREAMS, ChannelConfig, ValidationConfig
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.diagnosis import confident_points, sweep_points
@@ -60,6 +60,7 @@ class OnlineValidator:
     """
 
     def __init__(self, config: ValidationConfig, *, diagnose: bool = True) -> None:
+        config.check_flight_data_path()  # MIMO channels: one line, before any data
         self._config = config
         self._diagnose = diagnose
         self._estimators = {name: _estimator_for(ch) for name, ch in config.channels.items()}
@@ -68,6 +69,7 @@ class OnlineValidator:
         self._versions: dict[str, int] = {name: 0 for name in config.channels}
         self._diagnosis_cache: dict[str, tuple[Any, dict]] = {}
         self._time_domain_cache: dict[str, tuple] = {}
+        self._margin_cache: dict[str, tuple] = {}   # channel -> (model and controller specs, b(P1, C))
         self.sources: list[str] = []
 
     # ------------------------------------------------------------------ data in
@@ -173,6 +175,7 @@ class OnlineValidator:
         config : ValidationConfig
             The new config (models, and possibly topics, fields or analysis settings).
         """
+        config.check_flight_data_path()
         old = self.results(diagnose=False)
         restarted = []
         estimators, bad = {}, {}
@@ -225,6 +228,8 @@ class OnlineValidator:
         """
         diagnose = self._diagnose if diagnose is None else diagnose
         channels = {name: self._channel_result(name, ch, diagnose) for name, ch in self._config.channels.items()}
+        for name, channel in self._config.channels.items():
+            self._check_controller(channel, channels[name])
         return ValidationResult(channels=channels, config_source=self._config.source, sources=list(self.sources))
 
     def _channel_result(self, name: str, channel: ChannelConfig, diagnose: bool) -> ChannelResult:
@@ -273,6 +278,22 @@ class OnlineValidator:
             result.margins_raw = margins_from_epsilon(result.epsilon_raw)
         self._apply_diagnosis(name, channel, avg, sweeps, result, diagnose)
         return result
+
+    def _check_controller(self, channel: ChannelConfig, result: ChannelResult) -> None:
+        """The controller check (issue 14): b(P1, C) of the model and the controller (cached per model and
+        controller) against the measured nu-gap: ``guaranteed_stable = b > nu-gap``."""
+        if channel.controller is None:
+            return
+        key = (repr(channel.model_spec), repr(channel.controller_spec))
+        cached = self._margin_cache.get(channel.name)
+        if cached is None or cached[0] != key:
+            cached = (key, robust.margin_of(channel.model, channel.controller))
+            self._margin_cache[channel.name] = cached
+        check = robust.controller_check(channel.model, channel.controller, result.nu_gap, measured=True,
+                                        margin=cached[1])
+        result.stability_margin_b, result.stability_margin_frequency_rad_s = check.stability_margin_b, \
+            check.frequency_rad_s
+        result.guaranteed_stable, result.stability_note = check.guaranteed_stable, check.sentence
 
     def _time_domain(self, name: str, channel: ChannelConfig, est: FrequencyResponseEstimator,
                      result: ChannelResult) -> None:

@@ -38,8 +38,9 @@ def test_design_example_parses_with_defaults():
     assert ch.input.topic == "/control_surfaces" and ch.input.field == "position[elevator]"
     assert ch.output.scale == 1.0 and ch.coherence_threshold == 0.6
     w = ch.frequencies.values()
-    assert w.size == 40 and np.isclose(w[0], 1.0) and np.isclose(w[-1], 60.0)
-    assert np.all(np.diff(np.log(w)) > 0)
+    # no grid configured: 0.3-100 rad/s at 20 per decade, trimmed later to the band the flight excites (issue 12)
+    assert not ch.frequencies.configured and np.isclose(w[0], 0.3) and np.isclose(w[-1], 100.0)
+    assert w.size == 51 and np.all(np.diff(np.log(w)) > 0)
     assert ch.model.delay_s == pytest.approx(0.05)
     assert set(cfg.topics()) == {"/control_surfaces", "/imu"}
     assert cfg.topics()["/imu"][0][:2] == ("pitch", "output")

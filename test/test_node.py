@@ -250,12 +250,17 @@ def fed(flight, typed, tmp_path_factory):
     session = Ros()
     try:
         state = tmp_path_factory.mktemp("fed") / "fed.npz"
-        node = session.validator(typed, state_file=str(state))
+        node = session.validator(typed, state_file=str(state), stale_timeout=0.5)
         flight.feed_raw(node)
         assert all(raw.decoder is not None for raw in node._raw.values())  # fast decoding verified and used
         node.router.flush()
-        result = node.validator.results(diagnose=False)
+        # the flight's last manoeuvre ends a few seconds before the data: its record closes when the inputs
+        # have been silent for stale_timeout (the end of the run), as replay closes it at the end of the bag
+        before = node.validator.results(diagnose=False)
+        time.sleep(0.6)
         array = node.publish_diagnostics()
+        result = node.validator.results(diagnose=False)
+        assert sum(ch.sweeps for ch in result.channels.values()) > sum(ch.sweeps for ch in before.channels.values())
         assert node.checkpoint() == str(state)
     finally:
         session.close()
@@ -269,6 +274,14 @@ def statuses(array: DiagnosticArray, node_name: str = "gap_validator") -> dict:
         assert status.name.startswith(f"{node_name}: "), status.name
         out[status.name.split(": ", 1)[1]] = (status, {kv.key: kv.value for kv in status.values})
     return out
+
+
+def end_of_data(*nodes: ValidatorNode) -> None:
+    """The flight is over: the router's pending samples to the validator, and the last manoeuvre closed -- what the
+    node does once its inputs have been silent for ``stale_timeout`` (the ``fed`` fixture goes that way)."""
+    for node in nodes:
+        node.router.flush()
+        node.validator.finish()
 
 
 def number(text: str) -> float | None:
@@ -344,7 +357,7 @@ def test_best_effort_publisher_with_default_parameters_gives_the_epsilon_of_repl
     expected = {topic: sum(1 for t, _ in flight.records if t == topic) for topic in flight.types}
     assert node.router.messages == expected                       # none lost, none twice
     assert {t: list(i.subscriptions) for t, i in node._intakes.items()} == {t: ["best_effort"] for t in flight.types}
-    node.router.flush()
+    end_of_data(node)
     mine = node.validator.results(diagnose=False)
     for name, ch in flight.replayed.channels.items():
         assert mine.channels[name].sweeps == ch.sweeps >= 1
@@ -376,8 +389,7 @@ def test_flight_over_dds_arrives_complete_and_gives_the_same_state(flight, typed
     flight.feed(direct, 0, count)
     assert over_dds.router.messages == direct.router.messages
     assert {t: i.reliability for t, i in over_dds._intakes.items()} == {t: "reliable" for t in flight.types}
-    over_dds.router.flush()
-    direct.router.flush()
+    end_of_data(over_dds, direct)
     for name in flight.config.channels:
         for stream in ("input", "output"):
             assert over_dds.router.samples(name, stream) == direct.router.samples(name, stream) > 0
@@ -414,7 +426,7 @@ def test_restart_from_checkpoint_reproduces_the_estimates(flight, typed, fed, ro
     ros.drop(first)  # writes the final checkpoint, as at shutdown
     second = ros.validator(typed, state_file=str(state), name="gap_validator_second")
     flight.feed_raw(second, half)
-    second.router.flush()
+    end_of_data(second)
     resumed = second.validator.results(diagnose=False)
     for name, ch in full.channels.items():
         assert resumed.channels[name].sweeps == ch.sweeps

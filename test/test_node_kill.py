@@ -191,6 +191,9 @@ def test_kill_9_restart_resumes_identical_spectra_and_continues(env, tmp_path):
             assert peer.last[name]["epsilon"] == ("null" if ch.epsilon is None else repr(ch.epsilon))
 
         peer.publish(second)
+        # the flight's last manoeuvre closes once the inputs have been silent for stale_timeout (3 s): the end
+        # of the run, as replay closes it at the end of the bag
+        time.sleep(3.5)
         final = _checkpoint_after(peer, state, time.time())
     finally:
         if child.poll() is None:
@@ -205,6 +208,7 @@ def test_kill_9_restart_resumes_identical_spectra_and_continues(env, tmp_path):
     for topic, msg in messages:
         router.on_message(topic, msg, 0.0)
     router.flush()
+    whole.finish()
     a = OnlineValidator.from_state(load_config(config), final, diagnose=False)
     assert sum(ch.sweeps for ch in a.results(diagnose=False).channels.values()) >= 1
     for name in whole.config.channels:

@@ -416,3 +416,22 @@ def test_cli_simulate_and_errors(tmp_path, capsys):
     assert main(["simulate", "--config", str(CONFIG_PATH), "--out", str(tmp_path / "y.db3"), "--sweeps", "1",
                  "--sweep-duration", "10", "--storage", "sqlite3"]) == 0
     assert (tmp_path / "y.db3").is_file()
+
+
+def test_cli_simulates_a_nasa_style_3211_run_and_replay_says_what_was_flown(tmp_path, capsys):
+    """`simulate --excitation 3211 --trim-s 1 --duration-s 8` at 50 Hz: one short multistep; replay of the model
+    that generated it finds a multistep, its band, and no model-limited point."""
+    out = tmp_path / "nasa"
+    assert main(["simulate", "--config", str(CONFIG_PATH), "--out", str(out), "--excitation", "3211",
+                 "--sweeps", "1", "--trim-s", "1", "--duration-s", "8", "--multistep-unit-s", "0.5",
+                 "--imu-rate-hz", "50", "--surface-rate-hz", "50", "--seed", "4"]) == 0
+    text = capsys.readouterr().out
+    assert "roll: 1 3211 manoeuvre, hidden: nothing" in text and "8.0 s" in text or "0.1 min" in text
+    result = replay([out], ultrastick()).result.channels["roll"]
+    assert result.excitation == "multistep" and result.manoeuvres_by_kind == {"multistep": 1}
+    assert result.limited_by != "model" and not result.diagnosis
+    low, high = result.excited_band_rad_s
+    assert 0.5 < low < 3.0 and 6.0 < high < 40.0, (low, high)
+    assert main(["simulate", "--config", str(CONFIG_PATH), "--out", str(tmp_path / "x"), "--excitation",
+                 "sine"]) == 2
+    assert "invalid choice" in capsys.readouterr().err

@@ -79,6 +79,12 @@ def register(sub) -> None:
                    help="trim before the first manoeuvre [s] (default: the gap)")
     p.add_argument("--duration-s", type=_positive(float), default=None, metavar="S",
                    help="length of the flight [s]: the test card is cut there (default: the whole card)")
+    p.add_argument("--multisine-period-s", type=_positive(float), default=d.multisine_period_s, metavar="S",
+                   help=f"period of a multisine [s] (lowest line 2 pi / period; default {d.multisine_period_s:g})")
+    p.add_argument("--multisine-periods", type=_positive(int), default=d.multisine_periods, metavar="N",
+                   help=f"periods flown per multisine (default {d.multisine_periods})")
+    p.add_argument("--multistep-unit-s", type=_positive(float), default=d.multistep_unit_s, metavar="S",
+                   help=f"unit of a 3-2-1-1 [s] (default {d.multistep_unit_s:g})")
     p.add_argument("--sweep-duration", type=_positive(float), default=d.sweep_duration_s, metavar="S",
                    help=f"length of one sweep [s] (default {d.sweep_duration_s:g})")
     p.add_argument("--imu-rate-hz", type=_positive(float), default=d.imu_rate_hz,
@@ -132,6 +138,9 @@ def options_from_args(args, channels: tuple[str, ...] | None = None) -> FlightOp
     return with_options(
         excitation=getattr(args, "excitation", None), quiet_s=getattr(args, "sweep_gap_s", None),
         trim_s=getattr(args, "trim_s", None), duration_s=getattr(args, "duration_s", None),
+        multisine_period_s=getattr(args, "multisine_period_s", None),
+        multisine_periods=getattr(args, "multisine_periods", None),
+        multistep_unit_s=getattr(args, "multistep_unit_s", None),
         sweeps_per_channel=args.sweeps, sweep_duration_s=args.sweep_duration, imu_rate_hz=args.imu_rate_hz,
         surface_rate_hz=args.surface_rate_hz, noise=args.noise, drop_probability=args.drop_probability,
         sweep_amplitude_rad=math.radians(args.amplitude_deg) if args.amplitude_deg else None, **band,

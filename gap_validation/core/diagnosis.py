@@ -59,7 +59,6 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.optimize import least_squares
 from scipy.special import betainc
 
 from gap_validation.core import metrics
@@ -606,6 +605,7 @@ def _fit_combo(combo: _Combo, data: _FitData) -> np.ndarray:
     for x0 in _distinct_starts(grid, costs, span, _N_STARTS):
         lo, hi = combo.bounds(x0, data.ctx)
         x0 = np.clip(x0, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
+        from scipy.optimize import least_squares   # scipy.optimize costs 0.6 s at import: only when used
         sol = least_squares(lambda x: data.residuals(combo.response(x, data.w))[0], x0, bounds=(lo, hi),
                             x_scale=(hi - lo) / 10.0, method="trf", max_nfev=200)
         cost = data.cost(combo.response(sol.x, data.w))[0]
@@ -639,6 +639,7 @@ def _coefficient_fit(model: LinearModel, data: _FitData) -> LinearModel | None:
         return data.residuals((p / data.p_model)[None, :])[0]
 
     bound = np.full(n_free, math.log(10.0))
+    from scipy.optimize import least_squares   # scipy.optimize costs 0.6 s at import: only when used
     sol = least_squares(residuals, np.zeros(n_free), bounds=(-bound, bound), method="trf", max_nfev=100 * n_free)
     num, den = build(sol.x)
     num = np.array([significant(v, 6) for v in num])

@@ -106,6 +106,8 @@ _STATE_VERSION = 3               # 3: records and local polynomial sums (1, 2: w
 #: interpolation onto the grid loses magnitude below it (cubic: 0.9 % at 0.15 fs, 6 % at 0.25 fs), which
 #: :func:`~gap_validation.core.spectra.interpolation_gain` restores; above it, images of the sampling do not.
 RESOLVED_FRACTION = 0.25
+#: Sample intervals of each stream whose median gives its rate (the first ones: 2.6 s at 50 Hz).
+RATE_STEPS = 128
 #: How far before the detector's start a record reaches back (to the end of the previous record at most) [s]:
 #: a sweep that starts slowly is seen late, and the record must begin at trim.
 LOOKBACK_S = 10.0
@@ -539,8 +541,11 @@ class FrequencyResponseEstimator:
         self._dl_k0 = 0
         self._buf = np.zeros((S, 2, _BUFFER_CAP))          # stream, (t, value), sample
         self._buf_n = [0] * S
-        self._spacing = np.zeros((S, 3))                     # per stream: sum of sample intervals, count, last t
-        self._spacing[:, 2] = -np.inf
+        # per stream: its first RATE_STEPS sample intervals (the rate is their median: fixed by the data alone,
+        # not by how the samples were cut into calls), how many, and the last sample time
+        self._steps = np.zeros((S, RATE_STEPS))
+        self._spacing = np.zeros((S, 2))                     # per stream: intervals kept, last t
+        self._spacing[:, 1] = -np.inf
         self._t0 = float("nan")
         self._last_k: int | None = None
         self._trigger_mode = not opts["detect_sweeps"]
@@ -646,11 +651,15 @@ class FrequencyResponseEstimator:
 
     @property
     def stream_rates_hz(self) -> np.ndarray:
-        """Mean sample rate of each stream so far [Hz], to three significant digits (so that how the samples were
-        cut into calls does not change a result); inf before two samples."""
-        with np.errstate(divide="ignore", invalid="ignore"):
-            rates = np.where(self._spacing[:, 0] > 0, self._spacing[:, 1] / self._spacing[:, 0], np.inf)
-        return np.array([float(f"{r:.3g}") if np.isfinite(r) else np.inf for r in rates])
+        """Sample rate of each stream [Hz]: one over the median of its first :data:`RATE_STEPS` sample intervals
+        (dropped messages and jitter aside; the same however the samples were cut into calls), to three
+        significant digits; inf before two samples."""
+        rates = []
+        for s in range(self._steps.shape[0]):
+            n = int(self._spacing[s, 0])
+            step = float(np.median(self._steps[s, :n])) if n else 0.0
+            rates.append(float(f"{1.0 / step:.3g}") if step > 0 else np.inf)
+        return np.array(rates)
 
     @property
     def resolved_rad_s(self) -> float:
@@ -888,10 +897,13 @@ class FrequencyResponseEstimator:
         t, v = st.base.intake(t, v, self._jump_tol_s, self._new_base, self._jump_tol_s)
         if t.size == 0:
             return
-        steps = np.diff(t, prepend=self._spacing[s, 2])
-        steps = steps[steps <= self._opts["max_gap_s"]]
-        self._spacing[s, :2] += (float(steps.sum()), steps.size)
-        self._spacing[s, 2] = t[-1]
+        n = int(self._spacing[s, 0])
+        if n < RATE_STEPS:
+            steps = np.diff(t, prepend=self._spacing[s, 1])
+            steps = steps[(steps > 0) & (steps <= self._opts["max_gap_s"])][: RATE_STEPS - n]
+            self._steps[s, n:n + steps.size] = steps
+            self._spacing[s, 0] = n + steps.size
+        self._spacing[s, 1] = t[-1]
         self._ensure_t0(t[0])
         k, vals = st.add(t - self._t0, v)
         self._align.push(s, k, vals)
@@ -1110,6 +1122,7 @@ class FrequencyResponseEstimator:
             "det_on": np.array(self._det_on, np.int64),
             "dl": self._dl.copy(), "dl_n": self._dl_n, "dl_k0": self._dl_k0,
             "buf": self._buf.copy(), "buf_n": np.array(self._buf_n, np.int64), "spacing": self._spacing.copy(),
+            "rate_steps": self._steps.copy(),
             "n_sweeps": self._n_sweeps, "span": np.array(self._span, np.int64),
             "reasons": self._reasons.copy(), "n_raw": len(self._raw),
             **self._raw_state(),
@@ -1184,6 +1197,7 @@ class FrequencyResponseEstimator:
         self._buf[:] = st["buf"]
         self._buf_n = [int(n) for n in st["buf_n"]]
         self._spacing[:] = st["spacing"]
+        self._steps[:] = st["rate_steps"]
         self._dl[:] = st["dl"]
         self._dl_n, self._dl_k0 = int(st["dl_n"]), int(st["dl_k0"])
         self._n_sweeps = int(st["n_sweeps"])

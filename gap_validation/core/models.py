@@ -842,6 +842,8 @@ class MimoModel:
         a, b, c, d = self.minimal_state_space()
         if a.shape[0] == 0:
             return LinearModel([d[0, 0]], [1.0])
+        import scipy.signal
+
         num, den = scipy.signal.ss2tf(a, b, c, d)
         return LinearModel(_trim_leading(num[0], den), den)
 

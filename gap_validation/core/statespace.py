@@ -23,7 +23,6 @@ import math
 import numpy as np
 import scipy.linalg
 from numpy.typing import ArrayLike
-from scipy.optimize import minimize_scalar
 
 #: A real realization (A, B, C, D) as 2-D arrays.
 StateSpace = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
@@ -573,6 +572,7 @@ def _refine_peak(sigma: _Sigma, best: float, where: float,
     lo = max(lo, where * 1e-3)
     if hi <= lo:
         return best, where
+    from scipy.optimize import minimize_scalar   # scipy.optimize costs 0.6 s at import: only when used
     result = minimize_scalar(lambda x: -evaluate(where * math.exp(x)),
                              bounds=(math.log(lo / where), math.log(hi / where)), method="bounded",
                              options={"xatol": _REFINE_XATOL, "maxiter": 200})

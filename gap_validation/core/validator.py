@@ -149,11 +149,18 @@ class OnlineValidator:
         if channel in self._bad:
             self._bad[channel][f"{stream}: {reason}"] += int(count)
 
-    def finish(self) -> None:
-        """End of data: close open sweeps."""
+    def finish(self, channels: Sequence[str] | None = None) -> None:
+        """End of data: close the open manoeuvres (of ``channels``, default all).
+
+        Parameters
+        ----------
+        channels : sequence of str, optional
+            The channels whose data ended (the node: those whose inputs went silent).
+        """
         for name, est in self._estimators.items():
-            est.flush()
-            self._versions[name] += 1
+            if channels is None or name in channels:
+                est.flush()
+                self._versions[name] += 1
 
     def reset(self) -> None:
         """Forget every spectrum gathered (keeps the models)."""

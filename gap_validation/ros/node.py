@@ -584,8 +584,13 @@ class ValidatorNode(Node):
 
     # ---------------------------------------------------------------- diagnostics
     def _update_seen(self, now_s: float) -> None:
-        for task in self._tasks.values():
+        ended = []
+        for name, task in self._tasks.items():
             task.update_seen(self.router, self._last_arrival, now_s)
+            if task.run_ended(now_s, self._param("stale_timeout")):
+                ended.append(name)
+        if ended:       # inputs silent: close the manoeuvre in progress (the last one of a flight)
+            self.validator.finish(ended)
 
     def _sync_tasks(self) -> None:
         """One :class:`ChannelTask` per channel of the config (kept by name across reloads)."""

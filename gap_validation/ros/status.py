@@ -238,6 +238,26 @@ class ChannelTask:
         self._seen_count: dict[str, int] = {}
         self.top: Candidate | None = None
         self.diagnosed = False
+        self._run_open = False
+
+    def run_ended(self, now_s: float, stale_timeout_s: float) -> bool:
+        """True once when every stream of the channel has been silent for ``stale_timeout_s`` since its last
+        sample: the run of data ended (landing, a paused bag), so the manoeuvre in progress can be closed, as the
+        estimator would when the next sample came after the gap.
+
+        Parameters
+        ----------
+        now_s : float
+            Node time [s].
+        stale_timeout_s : float
+            Silence that ends the run [s].
+        """
+        if not self._run_open or len(self.last_seen) < len(STREAMS):
+            return False
+        if all(now_s - seen > stale_timeout_s for seen in self.last_seen.values()):
+            self._run_open = False
+            return True
+        return False
 
     @property
     def topics(self) -> list[str]:
@@ -278,6 +298,7 @@ class ChannelTask:
             count = router.samples(self.name, stream)
             if count > self._seen_count.get(stream, 0):
                 self.last_seen[stream] = arrivals.get(self.channel.signal(stream).topic, now_s)
+                self._run_open = True
             self._seen_count[stream] = count
 
     def reasons(self, now_s: float, stale_timeout_s: float,

@@ -144,16 +144,18 @@ def _restarts(dev: np.ndarray, tol: float, lo: int, hi: int) -> list[int]:
     if flips.size < _TREND_HALF_PERIODS + 2:
         return []
     half = np.diff(flips).astype(float)
+    values = half.tolist()
     out: list[int] = []
     first = 0                                            # half-periods since the last cut
     for j in range(_TREND_HALF_PERIODS, half.size):
-        prev = half[max(first, j - _TREND_WINDOW):j]
-        if prev.size < _TREND_HALF_PERIODS:
+        if j - max(first, j - _TREND_WINDOW) < _TREND_HALF_PERIODS:
             continue
-        recent = float(np.median(prev[-3:]))
-        trend = _rank_trend(prev)
-        if (trend <= -0.8 and half[j] >= _RESTART_RATIO * recent) or \
-                (trend >= 0.8 and half[j] * _RESTART_RATIO <= recent):
+        recent = sorted(values[j - 3:j])[1]              # median of the last three
+        longer, shorter = values[j] >= _RESTART_RATIO * recent, values[j] * _RESTART_RATIO <= recent
+        if not (longer or shorter):                      # the cheap test first: most half-periods go on
+            continue
+        trend = _rank_trend(half[max(first, j - _TREND_WINDOW):j])
+        if (longer and trend <= -0.8) or (shorter and trend >= 0.8):
             out.append(lo + int(flips[j]))
             first = j + 1
     return out

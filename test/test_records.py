@@ -139,3 +139,14 @@ def test_an_estimator_says_a_clipped_chirp_is_saturated_and_does_not_use_it():
     est.add_time_histories(t, u, t, y)
     est.flush()
     assert est.saturated == 1 and est.n_manoeuvres == 0
+
+
+@pytest.mark.parametrize("period_s", [3.4, 5.0, 10.0])
+def test_two_periods_of_a_short_multisine_are_one_periodic_record(period_s):
+    """Its fades lie partly at trim, so the excited span is a little under two periods: still periodic, one record
+    (a restart of its sweep inside each period does not split it)."""
+    t = np.arange(0.0, 2 * period_s, DT)
+    u = card(0.05 * multisine(t, period_s, 2, 0.5, 52.0))
+    assert kinds_of(u) == ["multisine"]
+    [piece] = pieces_of(u)
+    assert period(u[piece.active_start:piece.active_end] - TRIM, DT) == pytest.approx(period_s / DT, abs=2)

@@ -278,7 +278,8 @@ def period(dev: np.ndarray, dt: float) -> int:
     """The period of a periodic excitation in samples (0 when it is not periodic).
 
     The shortest lag of at least 1 s whose normalised autocorrelation is at least 0.8 and within 0.05 of the
-    highest (the fundamental, not a multiple of it), with at least two periods in ``dev``.
+    highest (the fundamental, not a multiple of it), with at least about two periods in ``dev`` (lags up to
+    60 % of it: the fade-in and fade-out of two periods lie partly within the trim tolerance).
 
     Parameters
     ----------
@@ -295,7 +296,7 @@ def period(dev: np.ndarray, dt: float) -> int:
     spec = np.fft.rfft(x, 2 * n)
     acf = np.fft.irfft(spec * np.conj(spec))[:n]
     energy = np.concatenate(([0.0], np.cumsum(x * x)))
-    lags = np.arange(lo, n // 2 + 1)
+    lags = np.arange(lo, int(0.6 * n) + 1)
     with np.errstate(divide="ignore", invalid="ignore"):   # correlation of x[:n-L] with x[L:]
         rho = acf[lags] / np.sqrt(energy[n - lags] * (energy[n] - energy[lags]))
     rho = np.where(np.isfinite(rho), rho, 0.0)

@@ -1065,12 +1065,10 @@ class FrequencyResponseEstimator:
                 continue
             if kind == "multisine":          # whole periods only: its lines do not leak (nor another axis' lines)
                 n_p = period(det[piece.active_start:piece.active_end], self._dt)
-                # the nearest whole number of periods about the excited span (its fades lie partly at trim)
-                whole = int(round((piece.active_end - piece.active_start) / n_p)) * n_p if n_p else 0
-                whole = min(whole, (piece.end - piece.start) // n_p * n_p) if n_p else 0
+                # whole periods within the excited span (a fade is not periodic: the lines would leak)
+                whole = (piece.active_end - piece.active_start) // n_p * n_p if n_p else 0
                 if whole:
                     start = piece.active_start + (piece.active_end - piece.active_start - whole) // 2
-                    start = min(max(start, piece.start), piece.end - whole)
                     seg = data[:, start:start + whole]
                     self._estimate_piece(k0 + start, seg, kind, noise, (k0 + start, k0 + start + whole))
                     continue

@@ -412,7 +412,11 @@ def record_bands(inputs: np.ndarray, outputs: np.ndarray, dt: float, w_rad_s: np
             status[i] = STATUS_NOT_EXCITED
             continue
         dof = sel.size - (t_order + 1)
-        if dof < 1 + m * (order + 1):
+        # bins carrying the input (the participation ratio of its power) must outnumber the response's
+        # coefficients by one and a half: a few strong lines among weak bins (a sparse multisine in a widened
+        # band) fix the response with nothing left to check it against
+        carried = float(np.sum(power[sel]) ** 2 / max(np.sum(power[sel] ** 2), 1e-300))
+        if dof < 1 + m * (order + 1) or carried < 1.5 + m * (order + 1):
             status[i] = STATUS_TOO_FEW_BINS
             continue
         q_t = np.linalg.qr(_vander(r, t_order))[0] if t_order >= 0 else np.zeros((r.size, 0))

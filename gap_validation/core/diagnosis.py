@@ -50,8 +50,8 @@ reported only when its improvement is real against the data's errors, at the usa
   spike lowers the sup of epsilon but not the aggregate);
 * a pair must be, by the same tests, clearly better than its best single member.
 
-Among the adequate candidates (those within the errors, or as good as the best one) the simplest (fewest
-parameters) comes first; the rest follow by epsilon.
+Candidates that leave the data within their errors everywhere come first, the simplest (fewest parameters)
+first; then those as good as the best one, simplest first; the rest follow by epsilon.
 """
 from __future__ import annotations
 
@@ -886,13 +886,15 @@ def _select(ev: _Evidence, base: _Fit, fitted: list[FittedCandidate]) -> list[Fi
         return []
     best_eps = min(c.score.eps for c in kept)
 
-    def adequate(c: FittedCandidate) -> bool:
-        if c.score.k_max <= ev.sigma_factor:
-            return True
+    def rank(c: FittedCandidate) -> tuple:
+        if c.score.k_max <= ev.sigma_factor:         # leaves the data within their errors everywhere
+            return 0, c.complexity, c.score.eps
         tolerance = max(IMPROVEMENT_SIGMA_FACTOR * ev.sigma[c.score.worst], MIN_RELATIVE_IMPROVEMENT * best_eps)
-        return c.score.eps <= best_eps + tolerance
+        if c.score.eps <= best_eps + tolerance:      # as good as the best
+            return 1, c.complexity, c.score.eps
+        return 2, 0, c.score.eps
 
-    ranked = sorted(kept, key=lambda c: (0, c.complexity, c.score.eps) if adequate(c) else (1, 0, c.score.eps))
+    ranked = sorted(kept, key=rank)
     return ranked[:_MAX_CANDIDATES]
 
 

@@ -250,12 +250,12 @@ def fed(flight, typed, tmp_path_factory):
     session = Ros()
     try:
         state = tmp_path_factory.mktemp("fed") / "fed.npz"
-        node = session.validator(typed, state_file=str(state), stale_timeout=0.5)
+        node = session.validator(typed, state_file=str(state), end_of_data_timeout=0.5)
         flight.feed_raw(node)
         assert all(raw.decoder is not None for raw in node._raw.values())  # fast decoding verified and used
         node.router.flush()
         # the flight's last manoeuvre ends a few seconds before the data: its record closes when the inputs
-        # have been silent for stale_timeout (the end of the run), as replay closes it at the end of the bag
+        # have been silent for end_of_data_timeout (the end of the run), as replay closes it at the end of the bag
         before = node.validator.results(diagnose=False)
         time.sleep(0.6)
         array = node.publish_diagnostics()
@@ -278,7 +278,7 @@ def statuses(array: DiagnosticArray, node_name: str = "gap_validator") -> dict:
 
 def end_of_data(*nodes: ValidatorNode) -> None:
     """The flight is over: the router's pending samples to the validator, and the last manoeuvre closed -- what the
-    node does once its inputs have been silent for ``stale_timeout`` (the ``fed`` fixture goes that way)."""
+    node does once its inputs have been silent for ``end_of_data_timeout`` (the ``fed`` fixture goes that way)."""
     for node in nodes:
         node.router.flush()
         node.validator.finish()

@@ -191,9 +191,9 @@ def test_kill_9_restart_resumes_identical_spectra_and_continues(env, tmp_path):
             assert peer.last[name]["epsilon"] == ("null" if ch.epsilon is None else repr(ch.epsilon))
 
         peer.publish(second)
-        # the flight's last manoeuvre closes once the inputs have been silent for stale_timeout (3 s): the end
-        # of the run, as replay closes it at the end of the bag
-        time.sleep(3.5)
+        # the flight's last manoeuvre closes once the inputs have been silent for end_of_data_timeout (10 s):
+        # the end of the run, as replay closes it at the end of the bag
+        time.sleep(10.5)
         final = _checkpoint_after(peer, state, time.time())
     finally:
         if child.poll() is None:

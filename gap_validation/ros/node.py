@@ -587,9 +587,9 @@ class ValidatorNode(Node):
         ended = []
         for name, task in self._tasks.items():
             task.update_seen(self.router, self._last_arrival, now_s)
-            if task.run_ended(now_s, self._param("stale_timeout")):
+            if task.run_ended(now_s, self._param("end_of_data_timeout")):
                 ended.append(name)
-        if ended:       # inputs silent: close the manoeuvre in progress (the last one of a flight)
+        if ended:       # inputs silent for end_of_data_timeout: close the last manoeuvre of the flight
             self.validator.finish(ended)
 
     def _sync_tasks(self) -> None:

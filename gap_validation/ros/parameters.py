@@ -32,6 +32,10 @@ diagnosis_period : float, 10.0 s
     Shortest interval between two full diagnoses (effect fitting); 0 disables them.
 stale_timeout : float, 3.0 s
     A channel whose input or output has had no sample for this long is STALE.
+end_of_data_timeout : float, 10.0 s
+    A channel whose input and output have both had no sample for this long has ended its run of data (landing,
+    a stopped bag): its last manoeuvre is closed and counted, as replay closes it at the end of a bag. Longer
+    than any pause of a live stream that resumes without a gap in its stamps (that would split a manoeuvre).
 warn_epsilon, error_epsilon : float, 0.25 and 0.38
     Levels: epsilon < warn_epsilon is OK, < error_epsilon WARN, else ERROR. 0.38 is the paper's point of
     "standard stability margins of a 6 dB gain margin and a 45 deg phase margin" (Section III, eqs. 15-16:
@@ -116,6 +120,9 @@ PARAMETERS: dict[str, Param] = {
                               range=(0.0, _DAY_S)),
     "stale_timeout": Param(3.0, False, "STALE after this long without input or output samples [s]",
                            range=(0.01, _DAY_S)),
+    "end_of_data_timeout": Param(10.0, False, "after this long without input and output samples the run of data "
+                                              "has ended: the last manoeuvre is closed and counted [s]",
+                                 range=(0.01, _DAY_S)),
     "warn_epsilon": Param(WARN_EPSILON, False,
                           f"WARN from this epsilon ({WARN_EPSILON:g}: 4.4 dB / 29 deg, eqs. 15-16)", range=(0.0, 1.0)),
     "error_epsilon": Param(STANDARD_EPSILON, False,

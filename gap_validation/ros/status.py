@@ -240,21 +240,21 @@ class ChannelTask:
         self.diagnosed = False
         self._run_open = False
 
-    def run_ended(self, now_s: float, stale_timeout_s: float) -> bool:
-        """True once when every stream of the channel has been silent for ``stale_timeout_s`` since its last
-        sample: the run of data ended (landing, a paused bag), so the manoeuvre in progress can be closed, as the
+    def run_ended(self, now_s: float, timeout_s: float) -> bool:
+        """True once when every stream of the channel has been silent for ``timeout_s`` since its last sample:
+        the run of data ended (landing, a stopped bag), so the manoeuvre in progress can be closed, as the
         estimator would when the next sample came after the gap.
 
         Parameters
         ----------
         now_s : float
             Node time [s].
-        stale_timeout_s : float
-            Silence that ends the run [s].
+        timeout_s : float
+            Silence that ends the run [s] (the node's ``end_of_data_timeout``).
         """
         if not self._run_open or len(self.last_seen) < len(STREAMS):
             return False
-        if all(now_s - seen > stale_timeout_s for seen in self.last_seen.values()):
+        if all(now_s - seen > timeout_s for seen in self.last_seen.values()):
             self._run_open = False
             return True
         return False

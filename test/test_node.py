@@ -719,8 +719,10 @@ def _umask() -> int:
 
 def test_save_results_runs_in_the_background_and_diagnostics_keep_their_period(typed, fed, ros, tmp_path):
     """``~/save_results`` (full diagnosis, JSON, the report's figures: seconds of work) runs on a snapshot in a
-    worker thread: /diagnostics keeps its period within 1.5x meanwhile and, with data flowing, no channel goes
-    STALE; the answer comes when the files are written, with the usual permissions."""
+    child process: /diagnostics keeps its period meanwhile (no gap over 2 periods: on a two-core CI machine
+    running two test workers the child competes for the cores and a period stretches by half of itself now and
+    then, while a blocked executor would show one gap as long as the whole save, over 4 periods) and, with data
+    flowing, no channel goes STALE; the answer comes when the files are written, with the usual permissions."""
     results = tmp_path / "results"
     period = 0.5
     pitch_only = yaml.safe_load(typed.read_text())     # one channel's report: a third of the work, same path
@@ -759,7 +761,7 @@ def test_save_results_runs_in_the_background_and_diagnostics_keep_their_period(t
     during = [t for t, _ in published if started <= t <= finished]
     assert finished - started > 4 * period, "the save was too quick to show anything"
     gaps = np.diff([started, *during, finished])
-    assert gaps.max() <= 1.5 * period, f"/diagnostics stalled {gaps.max():.2f} s during ~/save_results"
+    assert gaps.max() <= 2.0 * period, f"/diagnostics stalled {gaps.max():.2f} s during ~/save_results"
     for t, array in published:
         if started <= t <= finished:
             assert all(status.level != DiagnosticStatus.STALE for status in array.status), \

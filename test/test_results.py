@@ -39,3 +39,24 @@ def test_doublets_round_trip_and_are_left_out_without_samples():
     assert light["time_domain"] == [{"kind": "doublet", "start_s": m.start_s, "end_s": m.end_s, "tic": 0.2,
                                      "tic_input_augmented": 0.1}]
     assert light["epsilon"] == full["epsilon"] and light["sweeps"] == full["sweeps"]
+
+
+def test_warnings_reach_the_json_the_table_the_report_text_and_the_diagnostics():
+    """A channel's one-line ``warnings`` (DESIGN.md's JSON extension) round-trip through the JSON and are shown
+    wherever the channel's sentences are: the table's footnotes and the node's diagnostic values."""
+    import json
+
+    from gap_validation.core.results import ValidationResult
+    from gap_validation.report.terminal import format_table
+    from gap_validation.ros.status import channel_status
+
+    warning = "the rudder moved with the aileron during the roll sweeps (coherence 0.92): add it to other_inputs"
+    ch = ChannelResult(name="roll", sweeps=2, epsilon=0.1, nu_gap=0.08, warnings=[warning])
+    data = ch.to_json_dict()
+    assert data["warnings"] == [warning]
+    back = ValidationResult.from_json_dict({"channels": {"roll": data}})
+    assert back.channels["roll"].warnings == [warning]
+    assert f"  roll: warning: {warning}" in format_table(back).splitlines()
+    values = dict(channel_status(ch).values)
+    assert json.loads(values["warnings"]) == [warning]
+    assert ChannelResult(name="pitch").to_json_dict()["warnings"] == []

@@ -340,6 +340,8 @@ class ChannelResult:
     stability_margin_frequency_rad_s: float | None = None
     guaranteed_stable: bool | None = None
     stability_note: str = ""
+    # one-line warnings about what the numbers may not show (coupled surfaces, feedback, band edges, ...)
+    warnings: list[str] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         # bands and candidates given as their JSON objects (hand-written results, tests) are read as such
@@ -401,6 +403,7 @@ class ChannelResult:
             "manoeuvres_by_kind": dict(self.manoeuvres_by_kind),
             "degrees_of_freedom": _list(self.degrees_of_freedom),
             "frequency_reasons": list(self.frequency_reasons),
+            "warnings": list(self.warnings),
         }
         for entry, response in zip(out["raw_sweeps"], self.sweep_measured if samples else ()):
             entry["measured"] = _mag_phase(response, self.model)
@@ -441,7 +444,8 @@ class ChannelResult:
                  frequency_reasons=list(data.get("frequency_reasons") or []),
                  stability_margin_b=data.get("stability_margin_b"),
                  stability_margin_frequency_rad_s=data.get("stability_margin_frequency_rad_s"),
-                 guaranteed_stable=data.get("guaranteed_stable"), stability_note=data.get("stability_note") or "")
+                 guaranteed_stable=data.get("guaranteed_stable"), stability_note=data.get("stability_note") or "",
+                 warnings=[str(w) for w in data.get("warnings") or []])
         band = data.get("excited_band_rad_s")
         ch.excited_band_rad_s = (float(band[0]), float(band[1])) if band and None not in band else None
         ch.margins = margins_from_epsilon(ch.epsilon if ch.epsilon is not None else float("nan"))

@@ -239,6 +239,8 @@ def write_report(result: ValidationResult, directory: str | os.PathLike, *, runs
         parts.append(f"<p>model: {html.escape(ch.model_description or '-')}</p>")
         if ch.message:
             parts.append(f"<p>{html.escape(ch.message)}</p>")
+        for warning in ch.warnings:
+            parts.append(f"<p class=\"warn\">Warning: {html.escape(warning)}</p>")
         if ch.diagnosis:
             parts.append("<ol>" + "".join(f"<li>{html.escape(str(d.sentence or d.effect))}</li>"
                                           for d in ch.diagnosis[:3]) + "</ol>")

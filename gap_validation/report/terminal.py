@@ -57,10 +57,11 @@ def _band_cell(ch: ChannelResult) -> str:
 
 
 def channel_sentences(ch: ChannelResult) -> list[str]:
-    """Plain sentences about one channel: status, where it fails, the top diagnosis."""
+    """Plain sentences about one channel: status, where it fails, the top diagnosis, the warnings."""
     out = []
     if ch.message:
         out.append(ch.message)
+    out.extend(f"warning: {w}" for w in ch.warnings)
     if ch.diagnosis:
         top = ch.diagnosis[0]
         text = top.sentence or f"missing: {top.effect}"

@@ -183,6 +183,7 @@ def channel_status(result: ChannelResult, *, warn_epsilon: float = WARN_EPSILON,
     values.append(("nu_gap_frequency_rad_s", _value_text(data.get("nu_gap_frequency_rad_s"))))
     values.append(("coherence_threshold", _value_text(result.coherence_threshold)))
     values.append(("model_description", result.model_description))
+    values.append(("warnings", json.dumps(list(result.warnings))))
     for key, value in (extra_values or {}).items():
         values.append((key, _value_text(value)))
 

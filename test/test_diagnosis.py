@@ -6,7 +6,6 @@ the estimator pools them. The truth is the model with a hidden effect in series.
 """
 import json
 import math
-import time
 
 import numpy as np
 import pytest
@@ -307,16 +306,14 @@ def test_sweep_scatter_raises_the_random_error():
     assert np.median(e_sc / e_bp) > 5
 
 
-# ------------------------------------------------------------------------------------------------ speed
+# ------------------------------------------------------------------------------------------------ the servo
 
 
-def test_full_fit_is_fast():
+def test_full_fit_finds_the_servo_pair():
+    # its speed (goal 3 s) is benchmarks/bench_core.py's, measured against a reference in the same run
     est, sweeps = measure(ROLL, SERVO, 0)
-    start = time.perf_counter()
     found = analyse_channel(ROLL, est, sweeps, THRESHOLD)
-    elapsed = time.perf_counter() - start
     assert found.candidates[0]["effect"] == "first_order_lag+time_delay"
-    assert elapsed < 3.0
 
 
 # ------------------------------------------------------------------------------------------------ guards

@@ -1,7 +1,6 @@
 """LinearModel: config forms, Ultra Stick 25e models, effects in series, exact delay, simulation."""
 
 import math
-import time
 
 import numpy as np
 import pytest
@@ -156,15 +155,13 @@ def test_repeated_poles_on_irregular_grid_use_the_exact_step_recursion():
                                atol=1e-12)
 
 
-def test_jittered_grid_matches_a_fine_uniform_simulation_and_is_fast():
+def test_jittered_grid_matches_a_fine_uniform_simulation():
     model = LinearModel.from_spec({"state_space": dict(LATERAL, input=[1, -1, 0], output=1), "effects": [
         {"type": "first_order_lag", "bandwidth_rad_s": 37.7}]})
     rng = np.random.default_rng(11)
     t = np.cumsum(rng.uniform(0.015, 0.025, 200_000))
     u = np.sin(1.3 * t) * np.cos(0.01 * t)
-    start = time.perf_counter()
     y = model.simulate(t, u)
-    assert time.perf_counter() - start < 2.0
     # the same piecewise-linear input and delay on a fine uniform grid (first 5000 samples)
     t, u, y = t[:5000], u[:5000], y[:5000]
     fine = np.arange(t[0], t[-1], 0.0005)
@@ -214,16 +211,14 @@ def test_static_gain_and_pure_delay_models():
     np.testing.assert_allclose(y, 1.5 * np.clip(t - 0.2, 0, None), atol=1e-12)
 
 
-def test_a_million_samples_are_fast():
+def test_a_million_samples_stay_finite_and_match_lsim():
+    # speed against scipy.signal.lsim: benchmarks/bench_core.py
     model = LinearModel.from_spec({"state_space": dict(LATERAL, input=[1, -1, 0], output=1), "effects": [
         {"type": "first_order_lag", "bandwidth_rad_s": 37.7}, {"type": "time_delay", "seconds": 0.05}]})
     t = np.arange(1_000_000) * 0.004
     u = np.sin(0.5 * t) * np.sin(0.01 * t)
-    start = time.perf_counter()
     y = model.simulate(t, u)
-    elapsed = time.perf_counter() - start
     assert np.all(np.isfinite(y))
-    assert elapsed < 2.0, f"{elapsed:.2f} s"
     # spot check the end against a short simulation of the last stretch from the exact state is costly;
     # instead compare the first 20000 samples with lsim
     _, reference, _ = scipy.signal.lsim((model.num, model.den), np.interp(t[:20000] - 0.05, t, u, left=0.0),

@@ -2,7 +2,6 @@
 import math
 import subprocess
 import sys
-import time
 from dataclasses import replace
 
 import numpy as np
@@ -382,9 +381,7 @@ def test_simulation_is_ros_free():
     assert done.returncode == 0, done.stdout + done.stderr
 
 
-def test_fifteen_minute_flight_is_fast(config):
-    start = time.perf_counter()
+def test_fifteen_minute_flight_is_made(config):
+    # seconds of flight per second of work: benchmarks/bench_core.py
     fl = simulate_flight(config, options=FlightOptions(sweeps_per_channel=4, sweep_duration_s=60.0), seed=0)
-    elapsed = time.perf_counter() - start
     assert fl.duration_s > 14 * 60
-    assert elapsed < 10.0

@@ -719,10 +719,12 @@ def _umask() -> int:
 
 def test_save_results_runs_in_the_background_and_diagnostics_keep_their_period(typed, fed, ros, tmp_path):
     """``~/save_results`` (full diagnosis, JSON, the report's figures: seconds of work) runs on a snapshot in a
-    child process: /diagnostics keeps its period meanwhile (no gap over 2 periods: on a two-core CI machine
-    running two test workers the child competes for the cores and a period stretches by half of itself now and
-    then, while a blocked executor would show one gap as long as the whole save, over 4 periods) and, with data
-    flowing, no channel goes STALE; the answer comes when the files are written, with the usual permissions."""
+    child process: /diagnostics keeps being published meanwhile and, with data flowing, no channel goes STALE;
+    the answer comes when the files are written, with the usual permissions.
+
+    A blocked executor shows as one gap the length of the save (over 4 periods) and no publication during it.
+    How regular the period stays depends on the machine's load (two test workers on two cores stretched one
+    to 1.5 periods in CI, other jobs to 3): the test asserts what blocking would break, not the load."""
     results = tmp_path / "results"
     period = 0.5
     pitch_only = yaml.safe_load(typed.read_text())     # one channel's report: a third of the work, same path
@@ -730,7 +732,7 @@ def test_save_results_runs_in_the_background_and_diagnostics_keep_their_period(t
     config = tmp_path / "pitch.yaml"
     config.write_text(yaml.safe_dump(pitch_only, sort_keys=False))
     node = resume(ros, fed, tmp_path, config, spin=True, results_dir=str(results), diagnostic_period=period,
-                  stale_timeout=2 * period)
+                  stale_timeout=5 * period)
     # validator_node freezes its start-up objects out of the garbage collector's way (ros/main.py); this process
     # also holds the whole flight, whose full collections would otherwise be what stalls the executor
     gc.freeze()
@@ -754,14 +756,17 @@ def test_save_results_runs_in_the_background_and_diagnostics_keep_their_period(t
     save = ros.plain("gap_test_client").create_client(Trigger, "/gap_validator/save_results")
     ros.wait(lambda: len(published) >= 2)
     started = time.monotonic()
-    answer = ros.call(save, Trigger.Request())
+    answer = ros.call(save, Trigger.Request(), timeout_s=240.0)   # a spawned interpreter drawing figures: slow on a loaded machine
     finished = time.monotonic()
     ros.helper.destroy_timer(feeder)
     assert answer.success, answer.message
     during = [t for t, _ in published if started <= t <= finished]
     assert finished - started > 4 * period, "the save was too quick to show anything"
+    took = finished - started
     gaps = np.diff([started, *during, finished])
-    assert gaps.max() <= 2.0 * period, f"/diagnostics stalled {gaps.max():.2f} s during ~/save_results"
+    assert len(during) >= 0.4 * took / period, f"{len(during)} /diagnostics in {took:.1f} s of ~/save_results"
+    assert gaps.max() <= max(2.0 * period, 0.4 * took), \
+        f"/diagnostics stalled {gaps.max():.2f} s during {took:.1f} s of ~/save_results"
     for t, array in published:
         if started <= t <= finished:
             assert all(status.level != DiagnosticStatus.STALE for status in array.status), \
@@ -960,7 +965,7 @@ def test_console_script_runs_publishes_answers_and_checkpoints_on_sigint(ros, ty
         assert set(statuses(got[-1])) == {"roll", "pitch", "yaw"}
         if executor == "events":   # served by the intake timer whatever the executor: once is enough
             save = ros.helper.create_client(Trigger, "/gap_validator/save_results")
-            answer = ros.call(save, Trigger.Request())
+            answer = ros.call(save, Trigger.Request(), timeout_s=240.0)   # a spawned interpreter drawing figures: slow on a loaded machine
             assert answer.success and Path(answer.message).is_file(), answer.message
             assert Path(answer.message).stat().st_mode & 0o777 == 0o666 & ~_umask()
         setter = ros.helper.create_client(SetParameters, "/gap_validator/set_parameters")
@@ -977,3 +982,4 @@ def test_console_script_runs_publishes_answers_and_checkpoints_on_sigint(ros, ty
     assert "Traceback" not in err
     assert "unknown parameter diagnostic_perid (did you mean diagnostic_period?): ignored" in err
     assert load_state(state)["channels"]  # final checkpoint at shutdown
+

@@ -270,3 +270,20 @@ def test_mimo_results_serialise_and_come_back(lateral_flight):
     assert np.allclose(back.mimo.partial_coherence[ok], result.mimo.partial_coherence[ok])
     assert back.mimo.worst_elements == result.mimo.worst_elements
     assert isinstance(back.mimo, MimoDetail)
+
+
+def test_report_of_a_mimo_channel_has_its_bode_matrix_kappa_and_singular_values(lateral_flight, tmp_path):
+    from gap_validation.report.html import write_report
+    from gap_validation.report.terminal import format_table
+
+    result = validate(lateral_flight, lateral_config(aileron_effectiveness=0.6))
+    problems = []
+    index = write_report(ValidationResult(channels={"lateral": result}), tmp_path, warn=problems.append)
+    assert problems == []
+    for kind in ("mimo_bode", "mimo_kappa", "mimo_sv"):
+        assert (tmp_path / f"lateral_{kind}.png").stat().st_size > 10_000
+    text = index.read_text()
+    assert "2x2 MIMO nu-gap" in text and "Model-limited" in text and "gain 1.6" in text
+    row = next(line for line in format_table(ValidationResult(channels={"lateral": result})).splitlines()
+               if line.startswith("lateral"))
+    assert row.split()[:3] == ["lateral", "(2x2)", f"{result.nu_gap:.3f}"]

@@ -66,8 +66,8 @@ from gap_validation.core.alignment import (_NONE, JUMP_BACK_S, _GridAligner, _St
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.manoeuvres import Manoeuvre, ManoeuvreRecorder
 from gap_validation.core.numbers import NON_NEGATIVE, POSITIVE, check_number
-from gap_validation.core.records import (KINDS, RESPONSE_KINDS, SATURATED_SHARE, SWEEP_KINDS, Piece, classify,
-                                         period, saturated_share, split_record, trim_noise)
+from gap_validation.core.records import (KINDS, MIN_ACTIVE_S, RESPONSE_KINDS, SATURATED_SHARE, SWEEP_KINDS, Piece,
+                                         classify, period, saturated_share, split_record, trim_noise)
 from gap_validation.core.spectra import (SPECTRA_DEFAULTS, BandSums, MatrixEstimate, expected_estimate,
                                          record_bands, solve_bands, solve_matrix)
 from gap_validation.core.sweeps import DETECTOR_DEFAULTS, SweepDetector, TriggerTracker
@@ -1070,22 +1070,42 @@ class FrequencyResponseEstimator:
 
     def _pieces_per_stream(self, data: np.ndarray) -> list[Piece]:
         """Several detection streams (a MIMO channel's inputs, flown one at a time): the record split by each
-        stream on its own; where manoeuvres of two streams overlap the one that moves its stream most is kept
-        (each manoeuvre counts once; a record may hold an aileron doublet and the rudder sweep after it)."""
+        stream on its own (a record may hold an aileron doublet and the rudder sweep after it). The manoeuvre
+        that moves its stream most is kept first; a later one that overlaps kept ones keeps only what lies outside
+        them (excited spans), split again on its own trim there (a surface the pilot re-trimmed during the other surface's sweep
+        looks excited across it: its own sweep after it is a manoeuvre, the re-trim a trim step)."""
         found = []
         for n, s in enumerate(self._det_streams):
             det = data[s]
-            for piece in split_record(det, self._dt, trim_noise(det, self._dt), self._rec.pre_n, self._rec.post_n,
-                                      self._opts["min_quiet_s"]):
+            for piece in self._split(det, 0, det.size):
                 moved = float(np.var(det[piece.active_start:piece.active_end])) if piece.active_end > \
                     piece.active_start else 0.0
-                found.append((moved, Piece(piece.start, piece.end, piece.active_start, piece.active_end,
-                                           piece.group + n * 1_000_000)))
+                found.append((moved, n, Piece(piece.start, piece.end, piece.active_start, piece.active_end,
+                                              piece.group + n * 1_000_000)))
         kept: list[Piece] = []
-        for _, piece in sorted(found, key=lambda item: -item[0]):
-            if all(piece.active_end <= k.active_start or piece.active_start >= k.active_end for k in kept):
+        shortest = max(int(round(MIN_ACTIVE_S / self._dt)), 1)
+        for _, n, piece in sorted(found, key=lambda item: -item[0]):
+            gaps = [(piece.active_start, piece.active_end)]
+            for k in kept:
+                gaps = [part for lo, hi in gaps
+                        for part in ((lo, min(hi, k.active_start)), (max(lo, k.active_end), hi)) if part[1] > part[0]]
+            if gaps == [(piece.active_start, piece.active_end)]:
                 kept.append(piece)
+                continue
+            for part, (lo, hi) in enumerate(gaps):
+                if hi - lo < shortest:
+                    continue
+                end = piece.end if hi == piece.active_end else hi
+                kept += [Piece(p.start + lo, p.end + lo, p.active_start + lo, p.active_end + lo,
+                               piece.group + 1000 * (part + 1) + p.group)
+                         for p in self._split(data[self._det_streams[n]], lo, end)]
         return sorted(kept, key=lambda p: (p.start, p.active_start))
+
+    def _split(self, det: np.ndarray, lo: int, hi: int) -> list[Piece]:
+        """:func:`~gap_validation.core.records.split_record` of ``det[lo:hi]`` (indices relative to ``lo``)."""
+        seg = det[lo:hi]
+        return split_record(seg, self._dt, trim_noise(seg, self._dt), self._rec.pre_n, self._rec.post_n,
+                            self._opts["min_quiet_s"]) if seg.size >= 3 else []
 
     def _detection_signal(self, data: np.ndarray, piece: Piece) -> np.ndarray:
         """The signal a manoeuvre is classified by: the detection stream, or with several (a MIMO channel's

@@ -266,7 +266,8 @@ def _confident(matrix: MatrixEstimate, coherence_threshold: float, coefficients:
 
 def _bands(w: np.ndarray, kappa: np.ndarray, flags: list[str], k: np.ndarray, coherence: np.ndarray,
            dof: np.ndarray) -> list[Band]:
-    """Runs of adjacent frequencies flagged ``model`` or ``data``; a band's ``epsilon`` holds its peak kappa."""
+    """Runs of adjacent frequencies flagged ``model`` or ``data``; a band's ``epsilon`` holds its peak kappa (of a
+    model-limited band: over its model-limited points)."""
     bands, i = [], 0
     while i < len(flags):
         if flags[i] not in ("model", "data"):
@@ -276,8 +277,9 @@ def _bands(w: np.ndarray, kappa: np.ndarray, flags: list[str], k: np.ndarray, co
         while j + 1 < len(flags) and flags[j + 1] in ("model", "data"):
             j += 1
         idx = np.arange(i, j + 1)
-        peak = int(idx[np.nanargmax(kappa[idx])])
         verdict = "model" if any(flags[t] == "model" for t in idx) else "data"
+        judged = idx[[flags[t] == verdict for t in idx]]       # a model-limited band peaks where it is model-limited
+        peak = int(judged[np.nanargmax(kappa[judged])])
         if verdict == "model":
             reason = (f"kappa {kappa[peak]:.2f} at {w[peak]:.3g} rad/s is {np.nanmax(k[idx]):.1f} noise scales "
                       f"from the data (well outside the random error)")

@@ -287,3 +287,18 @@ def test_report_of_a_mimo_channel_has_its_bode_matrix_kappa_and_singular_values(
     row = next(line for line in format_table(ValidationResult(channels={"lateral": result})).splitlines()
                if line.startswith("lateral"))
     assert row.split()[:3] == ["lateral", "(2x2)", f"{result.nu_gap:.3f}"]
+
+
+def test_a_mimo_channel_resumes_from_its_checkpoint_state(lateral_flight):
+    config = lateral_config()
+    validator = OnlineValidator(config, diagnose=False)
+    channel = config.channels["lateral"]
+    histories = {s: (lateral_flight.topics[channel.signal(s).topic].stamp_s,
+                     lateral_flight.topics[channel.signal(s).topic].values[channel.signal(s).field])
+                 for s in channel.input_streams + channel.output_streams}
+    validator.add_histories("lateral", histories)
+    validator.finish()
+    resumed = OnlineValidator.from_state(config, validator.state_dict(), diagnose=False)
+    before, after = validator.results().channels["lateral"], resumed.results().channels["lateral"]
+    assert after.nu_gap == before.nu_gap and after.sweeps == before.sweeps
+    assert np.array_equal(after.mimo.measured, before.mimo.measured, equal_nan=True)

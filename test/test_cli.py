@@ -229,3 +229,10 @@ def test_simulate_and_replay_of_a_mimo_lateral_channel(tmp_path, capsys):
     assert results["weak"]["limited_by"] == "model"
     assert results["weak"]["mimo"]["worst_elements"][0]["input"].endswith("position[aileron]")
     assert results["weak"]["diagnosis"][0]["parameters"]["input_index"] == 0
+    # --apply-diagnosis does not write effects a MIMO model cannot take: it says what to change, in one line
+    fixed = tmp_path / "fixed.yaml"
+    assert main(["replay", str(bag), "--config", str(weaker), "--no-history", "--no-progress",
+                 "--apply-diagnosis", str(fixed)]) == 0
+    err = capsys.readouterr().err
+    assert "lateral: not applied (a MIMO model takes no effects yet" in err and "gain 1.6" in err
+    assert not fixed.exists()

@@ -302,3 +302,20 @@ def test_a_mimo_channel_resumes_from_its_checkpoint_state(lateral_flight):
     before, after = validator.results().channels["lateral"], resumed.results().channels["lateral"]
     assert after.nu_gap == before.nu_gap and after.sweeps == before.sweeps
     assert np.array_equal(after.mimo.measured, before.mimo.measured, equal_nan=True)
+
+
+def test_column_diagnosis_finds_a_delay_on_the_rudder_column():
+    from gap_validation.core.mimo import diagnose_columns
+
+    model = lateral_config().channels["lateral"].model
+    w = np.geomspace(1.0, 60.0, 30)
+    h = model.freqresp(w).copy()
+    h[:, :, 1] *= np.exp(-1j * w * 0.05)[:, None]                 # 50 ms on the rudder only
+    found = diagnose_columns(model, w, h, np.ones(w.size, bool), ["aileron", "rudder"], np.full(w.size, 1e-3))
+    top = found[0]
+    assert (top.effect, top.parameters["input"]) == ("time_delay", "rudder")
+    assert top.parameters["seconds"] == pytest.approx(0.05, rel=1e-3)
+    assert top.nu_gap < 1e-3 and top.explains
+    # no candidate on data the model explains
+    assert diagnose_columns(model, w, model.freqresp(w), np.ones(w.size, bool), ["a", "r"],
+                            np.full(w.size, 1e-3)) == []

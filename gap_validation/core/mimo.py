@@ -427,7 +427,8 @@ def diagnose_columns(model: MimoModel, w: np.ndarray, h: np.ndarray, confident: 
                      model_points: np.ndarray | None = None) -> list[Candidate]:
     """Actuator effects per input column (an effect of a surface acts on its column of the matrix): a ``gain``
     and a ``time_delay`` on each column, fitted to minimise the sum of kappa(w)^2 over the confident frequencies
-    (bounded scalar search), ranked by the nu-gap they leave.
+    (a grid of 61 values, then a bounded scalar search around the best), ranked by how much of kappa they remove
+    where the model is model-limited.
 
     A candidate is reported when, over the model-limited frequencies (``model_points``; default every
     confident one), it removes at least :data:`MIN_RELATIVE_IMPROVEMENT` of the sup of kappa and more than
@@ -479,8 +480,12 @@ def diagnose_columns(model: MimoModel, w: np.ndarray, h: np.ndarray, confident: 
                 return float(np.sum(metrics.chordal_distance(_with_column(pc, j, _column_factor(kind, value, wc)),
                                                              hc) ** 2))
 
-            bounds = (math.log(lo), math.log(hi)) if kind == "gain" else (lo, hi)
-            found = minimize_scalar(cost, bounds=bounds, method="bounded", options={"xatol": 1e-4})
+            # a grid first (a delay's cost has local minima), then a bounded search between the best point's
+            # neighbours
+            grid = np.linspace(*((math.log(lo), math.log(hi)) if kind == "gain" else (lo, hi)), 61)
+            best = int(np.argmin([cost(x) for x in grid]))
+            bounds = (grid[max(best - 1, 0)], grid[min(best + 1, grid.size - 1)])
+            found = minimize_scalar(cost, bounds=bounds, method="bounded", options={"xatol": 1e-6})
             value = math.exp(found.x) if kind == "gain" else float(found.x)
             kappa = metrics.chordal_distance(_with_column(pc, j, _column_factor(kind, value, wc)), hc)
             after = float(np.max(kappa[judged]))

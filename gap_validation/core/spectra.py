@@ -593,7 +593,8 @@ class MatrixEstimate:
     partial_coherence : ndarray, (F, p, m)
         Per element: the fraction of what the *other* inputs leave unexplained in output i that input j
         explains, ``(RSS_i without j - RSS_i) / RSS_i without j`` (partial coherence of output i with input j
-        given the other inputs, Bendat and Piersol ch. 7); equal to the multiple coherence for m = 1.
+        given the other inputs, Bendat and Piersol ch. 7); equal to the multiple coherence for m = 1; 0 with
+        more instruments than inputs (the reduced fit is not defined then).
     noise : ndarray, (F, p, p) complex
         Noise covariance per bin (residual cross-products over the degrees of freedom).
     """

@@ -128,22 +128,23 @@ def test_mimo_channel_and_controllers_parse():
     assert lateral.controller_spec == LATERAL["controller"] and lateral.model_spec == LATERAL["model"]
 
 
-def test_flight_data_path_rejects_mimo_channels_in_one_line(tmp_path):
+def test_flight_data_path_accepts_mimo_channels(tmp_path):
     from gap_validation.core.validator import OnlineValidator
 
     cfg = parse_config(mimo_config(), "cfg.yaml")
-    expected = "cfg.yaml: channel lateral: MIMO validation from flight data is not available yet"
-    for attempt in (cfg.topics, cfg.check_flight_data_path, lambda: OnlineValidator(cfg),
-                    lambda: cfg.with_channel_effects("lateral", [{"type": "gain", "factor": 2.0}])):
-        with pytest.raises(ConfigError) as err:
-            attempt()
-        assert "\n" not in str(err.value)
-        assert str(err.value).startswith(expected) or "effects on a MIMO model" in str(err.value)
-    # a SISO-only config still feeds the validator; a MIMO config cannot be swapped in live
-    siso = parse_config(BASE, "cfg.yaml")
-    validator = OnlineValidator(siso)
-    with pytest.raises(ConfigError, match="channel lateral: MIMO validation"):
-        validator.set_config(cfg)
+    cfg.check_flight_data_path()
+    streams = [(c, s) for entries in cfg.topics().values() for c, s, _ in entries if c == "lateral"]
+    assert sorted(streams) == [("lateral", "inputs[0]"), ("lateral", "inputs[1]"), ("lateral", "outputs[0]"),
+                               ("lateral", "outputs[1]")]
+    assert cfg.channels["lateral"].signal("inputs[1]").field == "position[rudder]"
+    assert OnlineValidator(cfg).results().channels["lateral"].message.startswith("no sweep found")
+    # effects on a MIMO model are still one line
+    with pytest.raises(ConfigError) as err:
+        cfg.with_channel_effects("lateral", [{"type": "gain", "factor": 2.0}])
+    assert "\n" not in str(err.value) and "effects on a MIMO model" in str(err.value)
+    # a MIMO config can be swapped in live (its channel starts empty)
+    validator = OnlineValidator(parse_config(BASE, "cfg.yaml"))
+    assert "lateral" in validator.set_config(cfg)
     path = tmp_path / "mimo.yaml"
     dump_config(cfg, path)
     again = load_config(path)

@@ -983,3 +983,30 @@ def test_console_script_runs_publishes_answers_and_checkpoints_on_sigint(ros, ty
     assert "unknown parameter diagnostic_perid (did you mean diagnostic_period?): ignored" in err
     assert load_state(state)["channels"]  # final checkpoint at shutdown
 
+
+def test_a_mimo_channel_through_the_node_equals_replay(ros, tmp_path):
+    """Issue 14: a MIMO lateral channel (aileron, rudder -> p, r) from its raw records through the node: the
+    same MIMO nu-gap as replay, and a status whose level follows the nu-gap (epsilon is a SISO notion)."""
+    from _flights import make_bag, SHORT
+    from test_mimo import LATERAL
+
+    channel = copy.deepcopy(LATERAL)
+    for signal in channel["inputs"] + channel["outputs"]:
+        signal["type"] = TYPES[signal["topic"]]
+    config = tmp_path / "lateral.yaml"
+    config.write_text(yaml.safe_dump({"channels": {"lateral": channel}}))
+    bag = tmp_path / "flight"
+    make_bag(bag, load_config(config), seed=3, options=SHORT)
+    expected = replay([bag], load_config(config), diagnose=False).result.channels["lateral"]
+    node = ros.validator(config, end_of_data_timeout=0.5)
+    with open_bag(bag) as opened:
+        for topic, _, _, raw in opened.records(list(TYPES)):
+            node.on_raw(topic, bytes(raw))
+    end_of_data(node)
+    mine = node.validator.results(diagnose=False).channels["lateral"]
+    assert expected.nu_gap is not None and expected.nu_gap < 0.15
+    assert mine.nu_gap == pytest.approx(expected.nu_gap, abs=1e-9) and mine.sweeps == expected.sweeps
+    status, values = statuses(node.publish_diagnostics())["lateral"]
+    assert status.level == DiagnosticStatus.OK and status.message.startswith("MIMO nu-gap")
+    assert number(values["nu_gap"]) == pytest.approx(expected.nu_gap, abs=1e-9)
+    assert int(values["samples_input"]) > 0 and int(values["samples_output"]) > 0

@@ -288,7 +288,7 @@ def _channel_checks(config: ValidationConfig, router: MessageRouter) -> tuple[li
     """Errors for streams that received messages but no usable sample; warnings for streams without data."""
     errors, warnings = [], []
     for name, channel in config.channels.items():
-        for stream in ("input", "output"):
+        for stream in channel.input_streams + channel.output_streams:     # MIMO: inputs[j], outputs[i]
             spec = channel.signal(stream)
             if router.samples(name, stream):
                 continue
@@ -300,7 +300,8 @@ def _channel_checks(config: ValidationConfig, router: MessageRouter) -> tuple[li
                 errors.append(f"{where}: no usable sample ({reasons})" + (f": {first}" if first else ""))
             else:
                 warnings.append(f"{where}: no samples")
-    if not any(router.samples(name, "input") and router.samples(name, "output") for name in config.channels):
+    if not any(all(router.samples(name, stream) for stream in ch.input_streams + ch.output_streams)
+               for name, ch in config.channels.items()):
         errors.append("no channel has both input and output samples in the data: nothing to validate "
                       "(check the config's topics and fields against the bag)")
     return errors, warnings

@@ -201,6 +201,10 @@ def _apply_diagnosis(config, result, out_path: str, history: Path | None) -> Non
         if not ch.diagnosis:
             continue
         top = ch.diagnosis[0]
+        if config.channels[name].is_mimo:   # MIMO models take no effects yet: say what to change by hand
+            print(f"gap-validate: --apply-diagnosis: {name}: not applied (a MIMO model takes no effects yet; "
+                  f"change its model by hand): {top.sentence}", file=sys.stderr)
+            continue
         model = raw["channels"][name]["model"]
         if top.model:  # parameter error: the refitted model replaces the old one (effects kept in it)
             raw["channels"][name]["model"] = copy.deepcopy(top.model)

@@ -167,7 +167,8 @@ def run(args) -> int:
         effects = hidden.get(name, [])
         truth = " + ".join(describe_effect(e) for e in effects) if effects else "nothing (model = truth)"
         n = len(flight.sweeps(name))
-        print(f"  {name}: {n} {options.excitation} manoeuvre{'s' if n != 1 else ''}, hidden: {truth}")
+        turns = " (each input in turn)" if config.channels[name].is_mimo else ""
+        print(f"  {name}: {n} {options.excitation} manoeuvre{'s' if n != 1 else ''}{turns}, hidden: {truth}")
     if options.band_noise_rad_s is not None:
         low, high = options.band_noise_rad_s
         chosen = options.band_noise_channels or tuple(config.channels)

@@ -9,8 +9,8 @@ A channel is SISO (``input``/``output``, a :class:`~gap_validation.core.models.L
 (``inputs``/``outputs`` lists, a :class:`~gap_validation.core.models.MimoModel` whose B columns and C rows follow
 the lists). An optional ``controller`` (``u = -C y``, negative feedback) maps the outputs to the inputs: a SISO
 model mapping, or for a MIMO channel a MIMO one (``B`` columns = outputs, ``C`` rows = inputs). MIMO channels are
-compared model against model (``compare-models``); the flight-data path rejects them with one line
-(:meth:`ValidationConfig.check_flight_data_path`).
+compared model against model (``compare-models``) and validated from flight data (streams ``inputs[j]`` and
+``outputs[i]``, :meth:`ChannelConfig.input_streams`).
 """
 from __future__ import annotations
 
@@ -92,14 +92,44 @@ class ChannelConfig:
         return bool(self.inputs)
 
     def signal(self, stream: str) -> SignalSpec | None:
-        """The :class:`SignalSpec` of ``stream`` (``input``, ``output`` or ``trigger``).
+        """The :class:`SignalSpec` of ``stream`` (``input``, ``output`` or ``trigger``; for a MIMO channel also
+        ``inputs[j]`` and ``outputs[i]``, and ``input``/``output`` are its first input/output).
 
         Parameters
         ----------
-        stream : {"input", "output", "trigger"}
+        stream : str
             The stream.
         """
+        if self.is_mimo:
+            for prefix, specs in (("inputs", self.inputs), ("outputs", self.outputs)):
+                if stream.startswith(prefix + "["):
+                    return specs[int(stream[len(prefix) + 1:-1])]
+            if stream in ("input", "output"):
+                return (self.inputs if stream == "input" else self.outputs)[0]
         return {"input": self.input, "output": self.output, "trigger": self.trigger}[stream]
+
+    @property
+    def input_streams(self) -> tuple[str, ...]:
+        """Names of the input streams: ``("input",)``, or ``("inputs[0]", "inputs[1]", ...)`` for MIMO."""
+        return tuple(mimo_stream("inputs", j) for j in range(len(self.inputs))) if self.is_mimo else ("input",)
+
+    @property
+    def output_streams(self) -> tuple[str, ...]:
+        """Names of the output streams: ``("output",)``, or ``("outputs[0]", ...)`` for MIMO."""
+        return tuple(mimo_stream("outputs", i) for i in range(len(self.outputs))) if self.is_mimo else ("output",)
+
+
+def mimo_stream(kind: str, index: int) -> str:
+    """The stream name of a MIMO channel's ``inputs[index]`` or ``outputs[index]``.
+
+    Parameters
+    ----------
+    kind : {"inputs", "outputs"}
+        Which list.
+    index : int
+        Position in the list.
+    """
+    return f"{kind}[{index}]"
 
 
 @dataclass(frozen=True)
@@ -111,33 +141,31 @@ class ValidationConfig:
     raw: dict = field(default_factory=dict)
 
     def check_flight_data_path(self) -> None:
-        """Raise a one-line ConfigError when a channel cannot be validated from flight data yet (MIMO).
+        """Raise a one-line ConfigError when a channel cannot be validated from flight data.
 
         Replay, the node, the simulator and :class:`~gap_validation.core.validator.OnlineValidator` call it
-        (through :meth:`topics` or directly) before touching any data; ``compare-models`` does not.
+        (through :meth:`topics` or directly) before touching any data; ``compare-models`` does not. Every
+        channel the schema accepts can be validated from flight data (MIMO channels too, since issue 14: the
+        estimator pools single-axis manoeuvres into the whole response matrix), so this checks nothing today;
+        it stays the one place a future restriction goes.
 
         Raises
         ------
         ConfigError
-            ``cfg.yaml: channel lateral: MIMO validation from flight data is not available yet ...``.
+            Never today.
         """
-        for name, channel in self.channels.items():
-            if channel.is_mimo:
-                raise ConfigError(f"{self.source or '<config>'}: channel {name}: MIMO validation from flight data "
-                                  f"is not available yet (gap-validate compare-models compares MIMO models)")
+        return None
 
     def topics(self) -> dict[str, list[tuple[str, str, SignalSpec]]]:
         """Topic -> every ``(channel, stream, spec)`` it feeds, in config order.
 
-        Raises
-        ------
-        ConfigError
-            For a MIMO channel (:meth:`check_flight_data_path`): the topics are what the flight-data path reads.
+        A MIMO channel's streams are ``inputs[j]`` and ``outputs[i]`` (:func:`mimo_stream`).
         """
         self.check_flight_data_path()
         out: dict[str, list[tuple[str, str, SignalSpec]]] = {}
         for name, channel in self.channels.items():
-            for stream in STREAMS:
+            streams = channel.input_streams + channel.output_streams + ("trigger",) if channel.is_mimo else STREAMS
+            for stream in streams:
                 spec = channel.signal(stream)
                 if spec is not None:
                     out.setdefault(spec.topic, []).append((name, stream, spec))

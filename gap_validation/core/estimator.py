@@ -66,10 +66,10 @@ from gap_validation.core.alignment import (_NONE, JUMP_BACK_S, _GridAligner, _St
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.manoeuvres import Manoeuvre, ManoeuvreRecorder
 from gap_validation.core.numbers import NON_NEGATIVE, POSITIVE, check_number
-from gap_validation.core.records import (KINDS, RESPONSE_KINDS, SATURATED_SHARE, SWEEP_KINDS, Piece, classify,
-                                         period, saturated_share, split_record, trim_noise)
-from gap_validation.core.spectra import (SPECTRA_DEFAULTS, BandSums, expected_estimate, record_bands,
-                                         solve_bands)
+from gap_validation.core.records import (KINDS, MIN_ACTIVE_S, RESPONSE_KINDS, SATURATED_SHARE, SWEEP_KINDS, Piece,
+                                         classify, period, saturated_share, split_record, trim_noise)
+from gap_validation.core.spectra import (SPECTRA_DEFAULTS, BandSums, MatrixEstimate, expected_estimate,
+                                         record_bands, solve_bands, solve_matrix)
 from gap_validation.core.sweeps import DETECTOR_DEFAULTS, SweepDetector, TriggerTracker
 
 __all__ = ["FrequencyResponseEstimator", "SpectralEstimate", "ESTIMATOR_DEFAULTS", "RETIRED_OPTIONS",
@@ -859,6 +859,27 @@ class FrequencyResponseEstimator:
                                           self._time(self._span[0]), self._time(self._span[1]),
                                           self._n_sweeps, "", reasons)
 
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(outputs p, inputs m) of the response matrix."""
+        return self._p, self._m
+
+    def averaged_matrix(self) -> MatrixEstimate | None:
+        """The whole p x m response matrix pooled over every manoeuvre so far, with per-element variances and
+        coherences (:func:`~gap_validation.core.spectra.solve_matrix`); None before the first manoeuvre.
+
+        With single-axis manoeuvres flown in turn each record excites one input; pooled, they determine every
+        element (``H = G_yu G_uu^-1``). :meth:`averaged` is its first element (the SISO view).
+        """
+        if self._n_sweeps == 0:
+            return None
+        return solve_matrix(self._tot)
+
+    @property
+    def pooled_sums(self) -> BandSums:
+        """The pooled local polynomial sums (a copy)."""
+        return self._tot.copy()
+
     def _time(self, k: int) -> float:
         return float(self._t0 + k * self._dt)
 
@@ -1023,6 +1044,8 @@ class FrequencyResponseEstimator:
         n = data.shape[1]
         if src == _TRIGGER:
             return [Piece(0, n, min(act0, n), max(min(act1, n), min(act0, n)))]
+        if len(self._det_streams) > 1:
+            return self._pieces_per_stream(data)
         det = data[self._det_streams[0]]
         return split_record(det, self._dt, trim_noise(det, self._dt), self._rec.pre_n, self._rec.post_n,
                             self._opts["min_quiet_s"])
@@ -1045,12 +1068,63 @@ class FrequencyResponseEstimator:
             return
         self._estimate_pieces(k0, data, self._pieces(data, src, act0, act1))
 
+    def _pieces_per_stream(self, data: np.ndarray) -> list[Piece]:
+        """Several detection streams (a MIMO channel's inputs, flown one at a time): the record split by each
+        stream on its own (a record may hold an aileron doublet and the rudder sweep after it). The manoeuvre
+        that moves its stream most is kept first; a later one that overlaps kept ones keeps only what lies outside
+        them (excited spans), split again on its own trim there (a surface the pilot re-trimmed during the other surface's sweep
+        looks excited across it: its own sweep after it is a manoeuvre, the re-trim a trim step)."""
+        found = []
+        for n, s in enumerate(self._det_streams):
+            det = data[s]
+            for piece in self._split(det, 0, det.size):
+                moved = float(np.var(det[piece.active_start:piece.active_end])) if piece.active_end > \
+                    piece.active_start else 0.0
+                found.append((moved, n, Piece(piece.start, piece.end, piece.active_start, piece.active_end,
+                                              piece.group + n * 1_000_000)))
+        kept: list[Piece] = []
+        shortest = max(int(round(MIN_ACTIVE_S / self._dt)), 1)
+        for _, n, piece in sorted(found, key=lambda item: -item[0]):
+            gaps = [(piece.active_start, piece.active_end)]
+            for k in kept:
+                gaps = [part for lo, hi in gaps
+                        for part in ((lo, min(hi, k.active_start)), (max(lo, k.active_end), hi)) if part[1] > part[0]]
+            if gaps == [(piece.active_start, piece.active_end)]:
+                kept.append(piece)
+                continue
+            for part, (lo, hi) in enumerate(gaps):
+                if hi - lo < shortest:
+                    continue
+                end = piece.end if hi == piece.active_end else hi
+                kept += [Piece(p.start + lo, p.end + lo, p.active_start + lo, p.active_end + lo,
+                               piece.group + 1000 * (part + 1) + p.group)
+                         for p in self._split(data[self._det_streams[n]], lo, end)]
+        return sorted(kept, key=lambda p: (p.start, p.active_start))
+
+    def _split(self, det: np.ndarray, lo: int, hi: int) -> list[Piece]:
+        """:func:`~gap_validation.core.records.split_record` of ``det[lo:hi]`` (indices relative to ``lo``)."""
+        seg = det[lo:hi]
+        return split_record(seg, self._dt, trim_noise(seg, self._dt), self._rec.pre_n, self._rec.post_n,
+                            self._opts["min_quiet_s"]) if seg.size >= 3 else []
+
+    def _detection_signal(self, data: np.ndarray, piece: Piece) -> np.ndarray:
+        """The signal a manoeuvre is classified by: the detection stream, or with several (a MIMO channel's
+        inputs, flown one at a time) the one that varies most during the manoeuvre."""
+        if len(self._det_streams) == 1:
+            return data[self._det_streams[0]]
+        candidates = data[self._det_streams][:, piece.active_start:max(piece.active_end, piece.active_start + 1)]
+        return data[self._det_streams[int(np.argmax(np.var(candidates, axis=1)))]]
+
     def _estimate_pieces(self, k0: int, data: np.ndarray, pieces: list[Piece]) -> None:
+        single = len(self._det_streams) == 1
         det = data[self._det_streams[0]]
         noise = trim_noise(det, self._dt)
         for piece in pieces:
             if piece.active_end <= piece.active_start:
                 continue
+            if not single:
+                det = self._detection_signal(data, piece)
+                noise = trim_noise(det, self._dt)
             kind = classify(det, self._dt, piece, noise)
             self._kinds[kind] += 1
             active_s = (piece.active_end - piece.active_start) * self._dt

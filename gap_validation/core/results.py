@@ -342,6 +342,8 @@ class ChannelResult:
     stability_note: str = ""
     # one-line warnings about what the numbers may not show (coupled surfaces, feedback, band edges, ...)
     warnings: list[str] = field(default_factory=list)
+    # a MIMO channel (issue 14): per-element responses, coherences, singular values (core.mimo.MimoDetail)
+    mimo: Any = None
 
     def __post_init__(self) -> None:
         # bands and candidates given as their JSON objects (hand-written results, tests) are read as such
@@ -407,6 +409,8 @@ class ChannelResult:
         }
         for entry, response in zip(out["raw_sweeps"], self.sweep_measured if samples else ()):
             entry["measured"] = _mag_phase(response, self.model)
+        if self.mimo is not None:               # only for a MIMO channel
+            out["mimo"] = self.mimo.to_json_dict()
         if self.stability_margin_b is not None:  # only with a controller
             out.update({"stability_margin_b": _num(self.stability_margin_b),
                         "stability_margin_frequency_rad_s": _num(self.stability_margin_frequency_rad_s),
@@ -460,6 +464,10 @@ class ChannelResult:
         raw = list(data.get("raw_sweeps") or [])
         ch.sweep_results = [SweepResult.from_json_dict(r) for r in raw]
         ch.sweep_measured = [m for m in (_complex(r.get("measured")) for r in raw) if m is not None]
+        if data.get("mimo"):
+            from gap_validation.core.mimo import MimoDetail
+
+            ch.mimo = MimoDetail.from_json_dict(data["mimo"])
         entries = list(data.get("time_domain") or [])
         ch.manoeuvres = [_manoeuvre_from_json(e) for e in entries]
         ch.time_domain = [{k: e.get(k) for k in ("tic", "tic_input_augmented")} for e in entries]

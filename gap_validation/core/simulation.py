@@ -229,7 +229,7 @@ class Segment:
     """One manoeuvre of the test card; times from the flight start [s].
 
     ``kind`` is ``sweep`` (log chirp), ``multisine``, ``multisine-orthogonal`` (one segment per channel, same
-    times), ``3211`` or ``doublet``.
+    times), ``3211`` or ``doublet``. On a MIMO channel each input is flown in turn: ``input_index`` says which.
     """
 
     channel: str
@@ -237,6 +237,7 @@ class Segment:
     start_s: float
     end_s: float
     band_rad_s: tuple[float, float] | None = None
+    input_index: int | None = None         # a MIMO channel's input this manoeuvre excites (None: SISO)
 
 
 @dataclass
@@ -525,7 +526,7 @@ def plan_topics(config: ValidationConfig) -> dict[str, _TopicPlan]:
                               f"(supported: {', '.join(LAYOUTS)})")
         for _, _, _, path in parsed:
             _check_field(topic, msgtype, path)
-        role = "imu" if any(stream == "output" for _, stream, _, _ in parsed) else "surface"
+        role = "imu" if any(stream.startswith("output") for _, stream, _, _ in parsed) else "surface"
         plans[topic] = _TopicPlan(topic, msgtype, role, parsed, _joint_names(parsed) if msgtype == JOINT_STATE
                                   else ())
     return plans
@@ -600,8 +601,16 @@ def doublet(t_s: np.ndarray, half_period_s: float) -> np.ndarray:
         (t >= half_period_s) & (t < 2 * half_period_s), 1.0, 0.0)
 
 
+def _card_units(config: ValidationConfig) -> list[tuple[str, int | None]]:
+    """What the test card excites in turn, in config order: each SISO channel ``(name, None)``, and each input
+    of a MIMO channel ``(name, j)`` (single-axis manoeuvres flown one after the other)."""
+    return [(name, j) for name, ch in config.channels.items()
+            for j in (range(len(ch.inputs)) if ch.is_mimo else (None,))]
+
+
 def _test_card(config: ValidationConfig, opt: FlightOptions) -> tuple[list[Segment], float]:
     segments: list[Segment] = []
+    units = _card_units(config)
     t = opt.quiet_s if opt.trim_s is None else opt.trim_s
     doublet_s = 2 * opt.doublet_half_period_s
     for _ in range(opt.sweeps_per_channel):
@@ -609,21 +618,21 @@ def _test_card(config: ValidationConfig, opt: FlightOptions) -> tuple[list[Segme
                  for name, ch in config.channels.items()}
         if opt.excitation == "multisine-orthogonal":
             length = opt.multisine_period_s * opt.multisine_periods
-            segments += [Segment(name, "multisine-orthogonal", t, t + length, bands[name]) for name in bands]
+            segments += [Segment(name, "multisine-orthogonal", t, t + length, bands[name], j) for name, j in units]
             t += length + opt.quiet_s
             continue
-        for name in config.channels:
+        for name, j in units:
             if opt.excitation == "doublet":
-                segments.append(Segment(name, "doublet", t, t + doublet_s))
+                segments.append(Segment(name, "doublet", t, t + doublet_s, None, j))
                 t += doublet_s + opt.quiet_s
                 continue
             kind, length = {"chirp": ("sweep", opt.sweep_duration_s),
                             "multisine": ("multisine", opt.multisine_period_s * opt.multisine_periods),
                             "3211": ("3211", 7.0 * opt.multistep_unit_s)}[opt.excitation]
-            segments.append(Segment(name, kind, t, t + length, bands[name]))
+            segments.append(Segment(name, kind, t, t + length, bands[name], j))
             t += length + opt.quiet_s
             if opt.excitation in ("chirp", "multisine"):
-                segments.append(Segment(name, "doublet", t, t + doublet_s))
+                segments.append(Segment(name, "doublet", t, t + doublet_s, None, j))
                 t += doublet_s + opt.quiet_s
     if opt.duration_s is not None:
         segments = [seg for seg in segments if seg.start_s < opt.duration_s]
@@ -765,21 +774,32 @@ def simulate_flight(config: ValidationConfig, hidden: dict[str, list[dict]] | No
     t_s = np.arange(0.0, duration_s + 2.0 / fs_hz, 1.0 / fs_hz)
 
     inputs, trim = {}, {}
-    for name in config.channels:
-        inputs[name] = _channel_input(name, t_s, segments, opt, tuple(config.channels))
+    units = _card_units(config)
+    for name, ch in config.channels.items():
+        if ch.is_mimo:
+            inputs[name], trim[name] = _mimo_inputs(name, ch, t_s, segments, duration_s, opt, units, rng)
+            continue
+        inputs[name] = _channel_input(name, t_s, segments, opt, tuple(config.channels),
+                                      share=(units.index((name, None)), len(units)))
         trim[name] = _pilot_trim(t_s, segments, duration_s, opt, rng)
-    outputs = {name: np.asarray(truth[name].simulate(t_s, inputs[name]), dtype=float).ravel()
-               for name in config.channels}
-    gusts = {name: _gust(t_s.size, fs_hz, opt, rng) for name in config.channels}
+    outputs = {name: (_mimo_outputs(truth[name], t_s, inputs[name]) if ch.is_mimo else
+                      np.asarray(truth[name].simulate(t_s, inputs[name]), dtype=float).ravel())
+               for name, ch in config.channels.items()}
+    gusts = {name: (np.stack([_gust(t_s.size, fs_hz, opt, rng) for _ in ch.outputs]) if ch.is_mimo else
+                    _gust(t_s.size, fs_hz, opt, rng)) for name, ch in config.channels.items()}
     bands = _band_noises(config, t_s.size, fs_hz, opt, seed)
     measured = {}
     for name, ch in config.channels.items():
-        measured[(name, "input")] = (inputs[name] + trim[name], opt.surface_noise_rad * opt.noise,
-                                     opt.surface_lsb_rad)
-        disturbed = outputs[name] + gusts[name]
-        if name in bands:
-            disturbed = disturbed + bands[name]
-        measured[(name, "output")] = (disturbed, opt.gyro_noise_rad_s * opt.noise, opt.gyro_lsb_rad_s)
+        if ch.is_mimo:
+            measured.update(_mimo_measured(name, ch, inputs[name] + trim[name], outputs[name] + gusts[name]
+                                           + bands.get(name, 0.0), opt))
+        else:
+            measured[(name, "input")] = (inputs[name] + trim[name], opt.surface_noise_rad * opt.noise,
+                                         opt.surface_lsb_rad)
+            disturbed = outputs[name] + gusts[name]
+            if name in bands:
+                disturbed = disturbed + bands[name]
+            measured[(name, "output")] = (disturbed, opt.gyro_noise_rad_s * opt.noise, opt.gyro_lsb_rad_s)
         if ch.trigger is not None:
             active = np.zeros_like(t_s)
             kinds = SWEEP_SEGMENTS + (("doublet",) if opt.excitation == "doublet" else ())
@@ -811,18 +831,21 @@ def simulate_flight(config: ValidationConfig, hidden: dict[str, list[dict]] | No
 
 
 def _channel_input(name: str, t_s: np.ndarray, segments: list[Segment], opt: FlightOptions,
-                   channels: tuple[str, ...] = ()) -> np.ndarray:
-    """Surface deflection deviation of one channel from trim [rad]: its manoeuvres."""
+                   channels: tuple[str, ...] = (), input_index: int | None = None,
+                   share: tuple[int, int] | None = None) -> np.ndarray:
+    """Surface deflection deviation of one channel (of a MIMO channel's input ``input_index``) from trim [rad]:
+    its manoeuvres. ``share`` overrides the orthogonal multisine's (index, count)."""
     u = np.zeros_like(t_s)
     for seg in segments:
-        if seg.channel != name:
+        if seg.channel != name or seg.input_index != input_index:
             continue
         tau, length = t_s - seg.start_s, seg.end_s - seg.start_s
         if seg.kind == "sweep":
             w0, w1 = seg.band_rad_s
             u += opt.sweep_amplitude_rad * log_sweep(tau, length, w0, w1, dwell_cycles=opt.dwell_cycles)
         elif seg.kind in ("multisine", "multisine-orthogonal"):
-            share = (channels.index(name), len(channels)) if seg.kind == "multisine-orthogonal" else (0, 1)
+            share = (share or (channels.index(name), len(channels))) if seg.kind == "multisine-orthogonal" \
+                else (0, 1)
             u += opt.sweep_amplitude_rad * multisine(tau, opt.multisine_period_s, opt.multisine_periods,
                                                      *seg.band_rad_s, share=share)
         elif seg.kind == "3211":
@@ -923,3 +946,43 @@ def with_options(options: FlightOptions | None = None, **changes: Any) -> Flight
     """
     base = options or FlightOptions()
     return replace(base, **{k: v for k, v in changes.items() if v is not None})
+
+
+# --------------------------------------------------------------------------------------------- MIMO channels
+def _mimo_inputs(name: str, channel, t_s: np.ndarray, segments: list[Segment], duration_s: float,
+                 opt: FlightOptions, units: list, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """A MIMO channel's surface deviations (m, n) [rad], each input flown in its own manoeuvres, and the
+    pilot's trim of each surface (m, n) [rad]."""
+    m = len(channel.inputs)
+    u = np.stack([_channel_input(name, t_s, segments, opt, (), j, (units.index((name, j)), len(units)))
+                  for j in range(m)])
+    trim = np.stack([_pilot_trim(t_s, segments, duration_s, opt, rng) for _ in range(m)])
+    return u, trim
+
+
+def _mimo_outputs(model, t_s: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Outputs (p, n) of a :class:`~gap_validation.core.models.MimoModel` from the full state space for the
+    inputs ``u`` (m, n): by superposition, output i is the sum over inputs j of the realization ``(A, B e_j,
+    e_i^T C, D_ij)`` simulated exactly (:meth:`LinearModel.simulate`, linear hold)."""
+    from gap_validation.core.models import LinearModel
+
+    a, b, c, d = model.state_space()
+    p, m = model.shape
+    y = np.zeros((p, t_s.size))
+    for i in range(p):
+        for j in range(m):
+            element = LinearModel.from_spec({"state_space": {"A": a.tolist(), "B": b[:, [j]].tolist(),
+                                                             "C": c[[i], :].tolist(), "D": [[float(d[i, j])]]}})
+            y[i] += np.asarray(element.simulate(t_s, u[j]), float).ravel()
+    return y
+
+
+def _mimo_measured(name: str, channel, u: np.ndarray, y: np.ndarray, opt: FlightOptions) -> dict:
+    """``(name, stream) -> (series, noise std, lsb)`` of a MIMO channel's streams ``inputs[j]``, ``outputs[i]``."""
+    from gap_validation.core.config import mimo_stream
+
+    out = {(name, mimo_stream("inputs", j)): (u[j], opt.surface_noise_rad * opt.noise, opt.surface_lsb_rad)
+           for j in range(len(channel.inputs))}
+    out.update({(name, mimo_stream("outputs", i)): (y[i], opt.gyro_noise_rad_s * opt.noise, opt.gyro_lsb_rad_s)
+                for i in range(len(channel.outputs))})
+    return out

@@ -40,7 +40,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 __all__ = ["SPECTRA_DEFAULTS", "BandSums", "record_bands", "interpolation_gain", "band_excited", "LocalEstimate", "solve_bands",
-           "expected_estimate", "EXTRA_ORDER"]
+           "expected_estimate", "EXTRA_ORDER", "MatrixEstimate", "solve_matrix", "expected_matrix"]
 
 #: Options of the local polynomial estimate (estimator options of the same names).
 SPECTRA_DEFAULTS = {
@@ -323,6 +323,12 @@ def interpolation_gain(w_rad_s: np.ndarray, rate_hz: float, cubic: bool = True) 
     return np.interp(w / (2.0 * math.pi * rate_hz), nu, gain)
 
 
+def _inputs_carried(fu_band: np.ndarray) -> int:
+    """How many inputs carry power in a band: at least :data:`_BIN_FLOOR` of the strongest input's (>= 1)."""
+    power = np.sum(np.abs(fu_band) ** 2, axis=1)
+    return max(1, int(np.count_nonzero(power >= _BIN_FLOOR * np.max(power))))
+
+
 def _vander(r: np.ndarray, degree: int) -> np.ndarray:
     return np.vander(r, degree + 1, increasing=True)
 
@@ -416,7 +422,10 @@ def record_bands(inputs: np.ndarray, outputs: np.ndarray, dt: float, w_rad_s: np
         # coefficients by one and a half: a few strong lines among weak bins (a sparse multisine in a widened
         # band) fix the response with nothing left to check it against
         carried = float(np.sum(power[sel]) ** 2 / max(np.sum(power[sel] ** 2), 1e-300))
-        if dof < 1 + m * (order + 1) or carried < 1.5 + m * (order + 1):
+        # several inputs: only those this record excites here carry coefficients it must determine (single-axis
+        # sweeps flown in turn: each record one input; the pooled sums determine the whole matrix)
+        m_here = m if m == 1 else _inputs_carried(fu[:, sel])
+        if dof < 1 + m_here * (order + 1) or carried < 1.5 + m_here * (order + 1):
             status[i] = STATUS_TOO_FEW_BINS
             continue
         q_t = np.linalg.qr(_vander(r, t_order))[0] if t_order >= 0 else np.zeros((r.size, 0))
@@ -564,3 +573,160 @@ def expected_estimate(sums: BandSums, w_rad_s: np.ndarray, band_fraction: float,
         centre = abs(complex(model_response(np.array([w[i]]))[0]))
         error[i] = fit_err / centre if centre > 0 else np.inf
     return expected, error
+
+
+@dataclass(frozen=True)
+class MatrixEstimate:
+    """The whole frequency-response matrix solved from :class:`BandSums` (p outputs x m inputs).
+
+    Attributes
+    ----------
+    response : ndarray, (F, p, m) complex
+        ``H(w)``, element ``[i, j]`` from input j to output i; NaN where nothing was estimated.
+    variance : ndarray, (F, p, m)
+        ``E |H_ij,est - H_ij|^2`` per element (complex variance); inf where unknown.
+    dof : ndarray, (F,) int
+        Degrees of freedom of the noise covariance (bins minus every fitted coefficient).
+    multiple_coherence : ndarray, (F, p)
+        Per output: ``1 - RSS_i / |Y_i|^2``, the fraction of output i explained by all inputs together (after the
+        transient); the SISO coherence for m = p = 1.
+    partial_coherence : ndarray, (F, p, m)
+        Per element: the fraction of what the *other* inputs leave unexplained in output i that input j
+        explains, ``(RSS_i without j - RSS_i) / RSS_i without j`` (partial coherence of output i with input j
+        given the other inputs, Bendat and Piersol ch. 7); equal to the multiple coherence for m = 1; 0 with
+        more instruments than inputs (the reduced fit is not defined then).
+    noise : ndarray, (F, p, p) complex
+        Noise covariance per bin (residual cross-products over the degrees of freedom).
+    """
+
+    response: np.ndarray
+    variance: np.ndarray
+    dof: np.ndarray
+    multiple_coherence: np.ndarray
+    partial_coherence: np.ndarray
+    noise: np.ndarray
+
+
+def _residual(sums: BandSums, i: int, rows: np.ndarray, cols_h: np.ndarray, cols_e: np.ndarray):
+    """``(theta, inv, rss)`` of the fit with the response columns ``cols_h`` (of ``ff``/``fy``), instrument
+    rows ``rows`` (of ``zf``/``zy``) and extended columns ``cols_e`` (of ``zf``); None when singular."""
+    try:
+        inv = np.linalg.inv(sums.zf[i][np.ix_(rows, cols_e)])
+    except np.linalg.LinAlgError:
+        return None
+    theta = inv @ sums.zy[i][rows]
+    ff, fy = sums.ff[i][np.ix_(cols_h, cols_h)], sums.fy[i][cols_h]
+    rss = sums.yy[i] - theta.conj().T @ fy - fy.conj().T @ theta + theta.conj().T @ ff @ theta
+    return theta, inv, rss
+
+
+def solve_matrix(sums: BandSums) -> MatrixEstimate:
+    """Solve the pooled local polynomial fits of :class:`BandSums` for the whole p x m response matrix.
+
+    The same normal equations as :func:`solve_bands` (least squares, or instrumental variables with an
+    excitation signal), read for every input and output: ``H = G_yu G_uu^-1`` pooled over the records (as CIFER
+    does for single-axis sweeps flown in turn: each record excites one input, together they determine the
+    matrix). The covariance of the coefficients is ``Sigma_v (x) (Z^H Phi)^-1 Z^H Z (Z^H Phi)^-H``; the
+    variance of ``H_ij`` is ``Sigma_v[i, i]`` times the diagonal entry of input j's constant coefficient.
+
+    Parameters
+    ----------
+    sums : BandSums
+
+    Returns
+    -------
+    MatrixEstimate
+        NaN / inf / 0 at a frequency with fewer than one degree of freedom or a singular system. For m = p = 1
+        ``response``, ``variance``, ``dof`` and ``multiple_coherence`` equal :func:`solve_bands`' to the bit.
+    """
+    n_freq = sums.bins.size
+    nh = sums.ff.shape[1]
+    m, p = sums.inputs, sums.yy.shape[1]
+    per = sums.order + 1
+    response = np.full((n_freq, p, m), np.nan + 0j)
+    variance = np.full((n_freq, p, m), np.inf)
+    dof = np.zeros(n_freq, np.int64)
+    multiple = np.zeros((n_freq, p))
+    partial = np.zeros((n_freq, p, m))
+    noise = np.full((n_freq, p, p), np.inf + 0j)
+    cols = sums.h_columns()
+    all_h = np.arange(nh)
+    rows_all = np.arange(sums.zf.shape[1])
+    square = sums.zf.shape[1] == nh          # least squares, or as many instruments as inputs
+    for i in range(n_freq):
+        d = int(sums.dof[i]) - nh
+        if sums.records[i] == 0 or d < 1:
+            continue
+        full = _residual(sums, i, rows_all, all_h, cols)
+        if full is None:
+            continue
+        theta, inv, rss = full
+        rss_diag = np.maximum(np.real(np.diag(rss)), 0.0)
+        total = np.real(np.diag(sums.yy[i]))
+        sigma = rss / d
+        cov = inv @ sums.zz[i] @ inv.conj().T
+        response[i] = theta[::per, :].T
+        variance[i] = (rss_diag / d)[:, None] * np.real(np.diag(cov))[None, ::per]
+        dof[i] = d
+        with np.errstate(divide="ignore", invalid="ignore"):
+            multiple[i] = np.where(total > 0, np.clip(1.0 - rss_diag / total, 0.0, 1.0), 0.0)
+        noise[i] = sigma
+        for j in range(m):
+            if m == 1:
+                partial[i, :, 0] = multiple[i]
+                break
+            keep = np.concatenate([all_h[k * per:(k + 1) * per] for k in range(m) if k != j])
+            rows = keep if square else rows_all
+            reduced = _residual(sums, i, rows, keep, cols[keep]) if square else None
+            if reduced is None:
+                continue
+            rss_without = np.maximum(np.real(np.diag(reduced[2])), 0.0)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                partial[i, :, j] = np.where(rss_without > 0,
+                                            np.clip(1.0 - rss_diag / rss_without, 0.0, 1.0), 0.0)
+    return MatrixEstimate(response, variance, dof, multiple, partial, noise)
+
+
+def expected_matrix(sums: BandSums, w_rad_s: np.ndarray, band_fraction: float,
+                    model_response: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+    """The response matrix a MIMO model would give through this estimator (:func:`expected_estimate` for every
+    element): ``(Z^H Phi)^-1 Z^H Phi_ext c`` with each column of the model expanded over the bands used.
+
+    Parameters
+    ----------
+    sums : BandSums
+    w_rad_s : ndarray, (F,)
+        Analysis frequencies [rad/s].
+    band_fraction : float
+        The ``band_fraction`` the sums were made with.
+    model_response : callable
+        ``model_response(w_rad_s) -> complex array (len(w), p, m)``.
+
+    Returns
+    -------
+    ndarray, (F, p, m) complex
+        NaN where nothing was estimated.
+    """
+    w = np.asarray(w_rad_s, float)
+    m, p = sums.inputs, sums.yy.shape[1]
+    expected = np.full((w.size, p, m), np.nan + 0j)
+    cols = sums.h_columns()
+    degree = sums.order + EXTRA_ORDER
+    n_nodes = 3 * (degree + 1)
+    cheb = np.cos(np.pi * (np.arange(n_nodes) + 0.5) / n_nodes)
+    per_h = sums.order + 1
+    for i in range(w.size):
+        if sums.records[i] == 0:
+            continue
+        lo, hi = float(sums.r_lo[i]), float(sums.r_hi[i])
+        mid, half = 0.5 * (lo + hi), max(0.5 * (hi - lo), 1e-12)
+        nodes = mid + half * cheb
+        values = np.asarray(model_response(w[i] + band_fraction * w[i] * nodes), complex)   # (nodes, p, m)
+        vander = _vander(nodes, degree)
+        coef = np.concatenate([np.linalg.lstsq(vander, values[:, :, j], rcond=None)[0] for j in range(m)])
+        try:
+            theta = np.linalg.solve(sums.zf[i][:, cols], sums.zf[i] @ coef)          # (nh, p)
+        except np.linalg.LinAlgError:
+            continue
+        expected[i] = theta[::per_h, :].T
+    return expected

@@ -40,6 +40,10 @@ def _sup(metric, w: np.ndarray, p_model: np.ndarray, p_meas: np.ndarray,
 
 
 def _estimator_for(channel: ChannelConfig) -> FrequencyResponseEstimator:
+    if channel.is_mimo:   # streams inputs[j], outputs[i]: the whole matrix from the pooled sums
+        return FrequencyResponseEstimator(channel.frequencies.values(),
+                                          channel.input_streams + channel.output_streams,
+                                          len(channel.inputs), len(channel.outputs), **channel.estimator)
     return FrequencyResponseEstimator(channel.frequencies.values(), **channel.estimator)
 
 
@@ -85,8 +89,10 @@ class OnlineValidator:
         ----------
         channel : str
             Channel name from the config.
-        stream : {"input", "output", "trigger"}
-            Surface deflection [rad], body rate [rad/s], or the explicit sweep trigger (bool).
+        stream : str
+            ``input`` (surface deflection [rad]), ``output`` (body rate [rad/s]) or ``trigger`` (the explicit
+            sweep trigger, bool); a MIMO channel's ``inputs[j]`` and ``outputs[i]``
+            (:attr:`~gap_validation.core.config.ChannelConfig.input_streams`).
         t_s, values : array_like
             Sample times [s] and values (already scaled to SI units).
         """
@@ -96,7 +102,10 @@ class OnlineValidator:
         t_s = np.asarray(t_s, dtype=float)
         if t_s.size == 0:
             return
-        if stream == "input":
+        mimo = self._config.channels[channel].is_mimo
+        if mimo and stream != "trigger":
+            est.add_samples(stream, t_s, np.asarray(values, dtype=float))
+        elif stream == "input":
             est.add_input(t_s, np.asarray(values, dtype=float))
         elif stream == "output":
             est.add_output(t_s, np.asarray(values, dtype=float))
@@ -130,6 +139,24 @@ class OnlineValidator:
             raise ConfigError(f"no channel {channel!r} in the config")
         est.add_time_histories(np.asarray(t_input_s, float), np.asarray(u, float),
                                np.asarray(t_output_s, float), np.asarray(y, float))
+        self._versions[channel] += 1
+
+    def add_histories(self, channel: str, histories: dict) -> None:
+        """Feed whole recorded time histories of any streams of one channel at once (library use; a MIMO
+        channel's ``inputs[j]`` and ``outputs[i]``), interleaved in time as a replay would feed them.
+
+        Parameters
+        ----------
+        channel : str
+            Channel name from the config.
+        histories : dict
+            ``{stream: (t_s, values)}`` (SI units).
+        """
+        est = self._estimators.get(channel)
+        if est is None:
+            raise ConfigError(f"no channel {channel!r} in the config")
+        est.add_histories({stream: (np.asarray(t, float), np.asarray(v, float)) for stream, (t, v) in
+                           histories.items()})
         self._versions[channel] += 1
 
     def count_bad(self, channel: str, stream: str, reason: str, count: int = 1) -> None:
@@ -240,6 +267,8 @@ class OnlineValidator:
         return ValidationResult(channels=channels, config_source=self._config.source, sources=list(self.sources))
 
     def _channel_result(self, name: str, channel: ChannelConfig, diagnose: bool) -> ChannelResult:
+        if channel.is_mimo:
+            return self._mimo_result(name, channel, diagnose)
         est = self._estimators[name]
         sweeps = list(est.sweeps)
         result = ChannelResult(name=name, sweeps=int(getattr(est, "n_sweeps", len(sweeps))),
@@ -284,6 +313,58 @@ class OnlineValidator:
             result.epsilon_raw, result.epsilon_raw_frequency_rad_s = max(raw, key=lambda r: r[0])
             result.margins_raw = margins_from_epsilon(result.epsilon_raw)
         self._apply_diagnosis(name, channel, avg, sweeps, result, diagnose)
+        return result
+
+    def _mimo_result(self, name: str, channel: ChannelConfig, diagnose: bool) -> ChannelResult:
+        """A MIMO channel: the whole response matrix pooled over the manoeuvres against the MIMO model
+        (:mod:`gap_validation.core.mimo`). ``kappa``, ``nu_gap``, ``limited_by``, ``bands`` and ``diagnosis`` as
+        for SISO; ``coherence`` is the worst output's multiple coherence; epsilon and its margins are SISO
+        notions (null); the per-element responses are in ``mimo``."""
+        from gap_validation.core import mimo
+        from gap_validation.core.spectra import expected_matrix
+
+        est = self._estimators[name]
+        result = ChannelResult(name=name, sweeps=int(est.n_sweeps), coherence_threshold=channel.coherence_threshold,
+                               bad_samples=dict(self._bad[name]), epsilon_previous=None,
+                               model_description=_describe_model(channel), model_spec=channel.model_spec)
+        result.excitation = est.excitation
+        result.manoeuvres_by_kind = est.counted_kinds
+        avg, matrix = est.averaged(), est.averaged_matrix()
+        if avg is None or matrix is None:
+            result.message = "no sweep found: " + _why_nothing(est, channel)
+            return result
+        index = np.arange(avg.w_rad_s.size)
+        excited = np.all(np.isfinite(matrix.response), axis=(1, 2))
+        if excited.any():
+            on = np.flatnonzero(excited)
+            result.excited_band_rad_s = (float(avg.w_rad_s[on[0]]), float(avg.w_rad_s[on[-1]]))
+            if not channel.frequencies.configured:
+                index = np.arange(on[0], on[-1] + 1)
+        w = np.asarray(avg.w_rad_s, float)[index]
+        matrix = mimo.take_frequencies(matrix, index)
+        sums = est.pooled_sums.take(index)
+        band_fraction = est.options["band_fraction"]
+        key = (self._versions[name], repr(channel.model_spec), diagnose)
+        cached = self._diagnosis_cache.get(name)
+        if cached is not None and cached[0] == key:
+            found = cached[1]
+        else:
+            found = mimo.analyse_mimo(
+                channel.model, matrix, w, channel.coherence_threshold,
+                [f"{s.topic} {s.field}" for s in channel.inputs], [f"{s.topic} {s.field}" for s in channel.outputs],
+                coefficients=len(channel.inputs) * (est.options["order"] + 1),
+                expected=lambda response: expected_matrix(sums, w, band_fraction, response),
+                excited=excited[index], diagnose=diagnose)
+            self._diagnosis_cache[name] = (key, found)
+        result.frequency_rad_s, result.coherence, result.kappa = w, found.coherence, found.kappa
+        result.degrees_of_freedom, result.confident = found.dof, found.confident
+        result.points_excluded = int(w.size - np.count_nonzero(found.confident))
+        result.nu_gap, result.nu_gap_frequency_rad_s = found.nu_gap, found.nu_gap_frequency_rad_s
+        result.limited_by, result.frequency_flags, result.bands = found.limited_by, list(found.flags), \
+            list(found.bands)
+        result.diagnosis, result.message, result.mimo = list(found.diagnosis), found.message, found.detail
+        result.frequency_reasons = [None if c else ("not_excited" if f == "not_excited" else "low_coherence")
+                                    for c, f in zip(found.confident, found.flags)]
         return result
 
     def _check_controller(self, channel: ChannelConfig, result: ChannelResult) -> None:
@@ -420,8 +501,9 @@ def _frequency_reasons(avg: SpectralEstimate, confident: np.ndarray, coherence_t
 
 def _why_nothing(est: FrequencyResponseEstimator, channel: ChannelConfig) -> str:
     """One line: why a channel has no frequency response at all."""
-    spec = channel.input
-    where = f"input {spec.topic} {spec.field!r}"
+    spec = channel.input if channel.input is not None else channel.inputs[0]
+    where = (f"input {spec.topic} {spec.field!r}" if channel.input is not None else
+             "inputs " + ", ".join(f"{s.topic} {s.field!r}" for s in channel.inputs))
     kinds = {k: v for k, v in est.kinds.items() if v}
     if not kinds:
         return f"the {where} never left trim (no manoeuvre)"
@@ -450,8 +532,11 @@ def _measurement_key(channel: ChannelConfig) -> str:
     def signal(spec):
         return None if spec is None else (spec.topic, spec.field, spec.scale)
 
-    return repr((signal(channel.input), signal(channel.output), signal(channel.trigger), channel.frequencies,
-                 sorted(channel.estimator.items())))
+    key = (signal(channel.input), signal(channel.output), signal(channel.trigger), channel.frequencies,
+           sorted(channel.estimator.items()))
+    if channel.is_mimo:
+        key += (tuple(signal(s) for s in channel.inputs), tuple(signal(s) for s in channel.outputs))
+    return repr(key)
 
 
 def _describe_model(channel: ChannelConfig) -> str:

@@ -426,3 +426,120 @@ def _short(text: str, width: int = 40) -> str:
 
 def _fmt(value) -> str:
     return "-" if value is None or not np.isfinite(value) else f"{value:.3g}"
+
+
+# ------------------------------------------------------------------------------------------ MIMO channels
+def _element_names(detail) -> tuple[list[str], list[str]]:
+    """Short names of a MIMO channel's inputs and outputs (the field, without the topic)."""
+    short = lambda text: text.split(" ", 1)[-1]  # noqa: E731
+    return [short(n) for n in detail.inputs], [short(n) for n in detail.outputs]
+
+
+def mimo_bode_figure(ch: ChannelResult, path: Path) -> None:
+    """A MIMO channel's Bode matrix: per element (row: output, column: input) the model and the measured
+    magnitude (confident points filled) and phase, and the element's partial coherence below."""
+    plt = pyplot()
+    detail = ch.mimo
+    p, m = detail.shape
+    w = ch.frequency_rad_s
+    conf = _confident(ch)
+    inputs, outputs = _element_names(detail)
+    fig, axes = plt.subplots(3 * p, m, figsize=(4.2 * m, 2.1 * 3 * p), sharex=True, squeeze=False,
+                             gridspec_kw={"height_ratios": [2, 1.4, 0.9] * p})
+    for i in range(p):
+        for j in range(m):
+            mag, pha, coh = axes[3 * i, j], axes[3 * i + 1, j], axes[3 * i + 2, j]
+            model, meas = detail.model[:, i, j], detail.measured[:, i, j]
+            mag.semilogx(w, _db(model), color="k", lw=1.2, label="model")
+            mag.semilogx(w, _db(meas), color="tab:blue", lw=0.8, alpha=0.6)
+            mag.scatter(w[conf], _db(meas)[conf], color="tab:blue", s=8, label="flight (confident)")
+            mag.scatter(w[~conf], _db(meas)[~conf], color="tab:blue", s=10, marker="x", alpha=0.6,
+                        label="excluded")
+            pha.semilogx(w, phase_deg(model), color="k", lw=1.2)
+            pha.semilogx(w, phase_deg(meas, model), color="tab:blue", lw=0.8, marker=".", ms=3)
+            coh.semilogx(w, detail.partial_coherence[:, i, j], color="tab:green", lw=1,
+                         label="partial coherence")
+            coh.semilogx(w, detail.multiple_coherence[:, i], color="0.5", lw=0.8, ls="--",
+                         label="multiple coherence of the output")
+            coh.axhline(ch.coherence_threshold, color="tab:red", ls=":", lw=0.8)
+            coh.set_ylim(0, 1.05)
+            mag.set_title(f"{_short(inputs[j], 24)} -> {_short(outputs[i], 24)}", fontsize=8)
+            mag.set_ylabel("dB", fontsize=7)
+            pha.set_ylabel("deg", fontsize=7)
+            coh.set_ylabel("coh.", fontsize=7)
+            for ax in (mag, pha, coh):
+                ax.grid(True, which="both", alpha=0.3)
+                ax.tick_params(labelsize=6.5)
+            if i == 0 and j == 0:
+                mag.legend(fontsize=6)
+                coh.legend(fontsize=5.5, loc="lower left")
+    for j in range(m):
+        axes[-1, j].set_xlabel("frequency [rad/s]", fontsize=7)
+    fig.suptitle(f"{ch.name}: Bode matrix, model against flight (rows: outputs, columns: inputs)", fontsize=9)
+    fig.tight_layout()
+    _save(fig, path)
+
+
+def mimo_kappa_figure(ch: ChannelResult, path: Path) -> None:
+    """A MIMO channel's kappa(w) (Vinnicombe's MIMO chordal distance) with its noise scale, the threshold, the
+    model- and data-limited bands, the nu-gap and the element that dominates where it fails."""
+    plt = pyplot()
+    w, kappa, detail = ch.frequency_rad_s, np.asarray(ch.kappa, float), ch.mimo
+    fig, ax = plt.subplots(figsize=(7, 4.0))
+    labelled = set()
+    for band in ch.bands:
+        colour = _BAND_COLOURS.get(band.limited_by)
+        if colour:
+            lo, hi = float(band.min_rad_s), float(band.max_rad_s)
+            if hi <= lo:
+                lo, hi = lo / 1.05, hi * 1.05
+            ax.axvspan(lo, hi, color=colour, alpha=0.12, lw=0,
+                       label=None if band.limited_by in labelled else f"{band.limited_by}-limited band")
+            labelled.add(band.limited_by)
+    ax.semilogx(w, kappa, color="tab:purple", lw=1.2, label="kappa(w), MIMO chordal distance")
+    if detail.kappa_noise is not None and len(detail.kappa_noise) == len(w):
+        ax.fill_between(w, 0, np.clip(detail.kappa_noise, 0, 1), color="tab:blue", alpha=0.15,
+                        label="noise scale of kappa (random error of H)")
+    flags = ch.frequency_flags if len(ch.frequency_flags) == len(w) else ["ok"] * len(w)
+    for flag, colour in _FLAG_COLOURS.items():
+        sel = np.array([f == flag for f in flags])
+        if np.any(sel):
+            ax.scatter(w[sel], kappa[sel], color=colour, s=18, zorder=3, label=flag)
+    from gap_validation.core.mimo import KAPPA_THRESHOLD
+
+    ax.axhline(KAPPA_THRESHOLD, color="tab:orange", ls=":", lw=1, label=f"{KAPPA_THRESHOLD:g}: band threshold")
+    if ch.nu_gap is not None:
+        ax.axvline(ch.nu_gap_frequency_rad_s, color="k", lw=0.8, ls="--")
+        text = f"nu-gap {ch.nu_gap:.3f} at {ch.nu_gap_frequency_rad_s:.3g} rad/s"
+        if detail.worst_elements and ch.limited_by == "model":
+            top = detail.worst_elements[0]
+            inputs, outputs = _element_names(detail)
+            text += (f"\nfails most: {inputs[top['input_index']]} -> {outputs[top['output_index']]} "
+                     f"at {detail.worst_elements_frequency_rad_s:.3g} rad/s")
+        ax.set_title(f"{ch.name}: where the model fails (limited by: {ch.limited_by})\n{text}", fontsize=8.5)
+    top = float(np.nanmax(kappa)) if np.any(np.isfinite(kappa)) else 1.0
+    ax.set_ylim(0, min(1.05, max(0.3, top * 1.15)))
+    ax.set_xlabel("frequency [rad/s]")
+    ax.set_ylabel("kappa [-]")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=6.5, ncol=2, loc="upper left")
+    fig.tight_layout()
+    _save(fig, path)
+
+
+def mimo_singular_values_figure(ch: ChannelResult, path: Path) -> None:
+    """Singular values of the model's and the measured response matrices over frequency (dB)."""
+    plt = pyplot()
+    w, detail = ch.frequency_rad_s, ch.mimo
+    conf = _confident(ch)
+    fig, ax = plt.subplots(figsize=(7, 4.0))
+    model, meas = detail.singular_values("model"), detail.singular_values("measured")
+    for k in range(model.shape[1]):
+        ax.semilogx(w, _db(model[:, k]), color="k", lw=1.2, ls="-" if k == 0 else "--",
+                    label=f"model sigma_{k + 1}")
+        ax.semilogx(w, _db(meas[:, k]), color="tab:blue", lw=0.8, alpha=0.6, ls="-" if k == 0 else "--")
+        ax.scatter(w[conf], _db(meas[:, k])[conf], color="tab:blue", s=8, marker="o" if k == 0 else "s",
+                   label=f"flight sigma_{k + 1} (confident)")
+    ax.set_xlabel("frequency [rad/s]")
+    ax.set_ylabel("singular value [dB]")
+    _finish(fig, ax, path, f"{ch.name}: singular values of model and flight data")

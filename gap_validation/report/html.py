@@ -45,6 +45,13 @@ FIGURES = {
     "diagnosis": "Diagnosis: the model with each top candidate effect against the data, with the epsilon each "
                  "leaves.",
     "history": "Epsilon over model versions (validation history): watch it fall.",
+    "mimo_bode": "MIMO channel: Bode matrix, model against flight per element (rows: outputs, columns: inputs), "
+                 "with the element's partial coherence (what its input explains once the other inputs are "
+                 "accounted for) and the output's multiple coherence below.",
+    "mimo_kappa": "MIMO channel: kappa(w), the MIMO chordal distance of model and measured matrices, its noise "
+                  "scale from the random error of H, the model-limited (red) / data-limited (orange) bands and "
+                  "the element that fails most.",
+    "mimo_sv": "MIMO channel: singular values of the model's and the measured response matrices.",
 }
 
 _STYLE = ("body{font-family:sans-serif;max-width:1050px;margin:auto;padding:0 1em}"
@@ -57,6 +64,8 @@ _STYLE = ("body{font-family:sans-serif;max-width:1050px;margin:auto;padding:0 1e
 def verdict(ch: ChannelResult) -> tuple[str, str]:
     """The channel's verdict in words and its CSS class (ok / warn / bad)."""
     eps = ch.epsilon
+    if ch.mimo is not None and ch.nu_gap is not None:
+        return _mimo_verdict(ch)
     if eps is None:
         return f"not validated yet: {ch.message or 'no sweep'}.", "warn"
     m = margins_from_epsilon(eps)
@@ -78,6 +87,22 @@ def verdict(ch: ChannelResult) -> tuple[str, str]:
         text += f" Model-limited; the likeliest missing effect: {top.sentence or top.effect}."
     elif ch.limited_by == "model":
         text += " Model-limited: confident data disagree with the model."
+    elif ch.limited_by == "data":
+        text += " Data-limited: fly better sweeps where the coherence is low before changing the model."
+    return text, cls
+
+
+def _mimo_verdict(ch: ChannelResult) -> tuple[str, str]:
+    """A MIMO channel's verdict from its MIMO nu-gap (epsilon and its margins are SISO notions)."""
+    nu = ch.nu_gap
+    shape = "x".join(str(n) for n in ch.mimo.shape)
+    cls = "ok" if nu < WARN_EPSILON else "warn" if nu < STANDARD_EPSILON else "bad"
+    text = (f"{shape} MIMO nu-gap {nu:.3f} over the confident frequencies: a controller whose stability margin "
+            f"b(P, C) exceeds it on the model is guaranteed to stabilise the aircraft (Vinnicombe).")
+    if ch.limited_by == "model":
+        text += (f" Model-limited; {ch.diagnosis[0].sentence}." if ch.diagnosis else
+                 " Model-limited: confident data disagree with the model.")
+        cls = "warn" if cls == "ok" else cls
     elif ch.limited_by == "data":
         text += " Data-limited: fly better sweeps where the coherence is low before changing the model."
     return text, cls
@@ -117,7 +142,8 @@ def details_html(result: ValidationResult) -> str:
         return ", ".join(f"{v:.3f}" for v in values) or "-"
 
     rows = [("nu-gap (average)", lambda c: fmt(c.nu_gap)),
-            ("worst frequency, rad/s", lambda c: fmt(c.worst_frequency_rad_s, ".3g")),
+            ("worst frequency, rad/s", lambda c: fmt(c.nu_gap_frequency_rad_s if c.mimo is not None
+                                                     else c.worst_frequency_rad_s, ".3g")),
             ("sweeps", lambda c: str(c.sweeps)),
             ("points used / excluded", lambda c: f"{c.points_used} / {c.points_excluded}"),
             ("limited by", lambda c: c.limited_by),
@@ -148,7 +174,7 @@ class _Channel:
         self.model = self._model()
 
     def _model(self):
-        if not self.ch.model_spec:
+        if not self.ch.model_spec or self.ch.mimo is not None:   # MIMO figures read the matrices of the result
             return None
         from gap_validation.core.models import LinearModel
 
@@ -175,6 +201,9 @@ class _Channel:
 
     def draw_all(self) -> None:
         ch, model = self.ch, self.model
+        if ch.mimo is not None:
+            self.draw_mimo()
+            return
         has_frequency = ch.frequency_rad_s is not None and len(ch.frequency_rad_s) > 0 and ch.measured is not None
         if has_frequency:
             self.figure("bode", lambda p: figures.bode_figure(ch, p, model))
@@ -192,6 +221,19 @@ class _Channel:
             self.parts.append(f"<p class='note'>time domain: {html.escape(reason)}.</p>")
         if has_frequency and ch.diagnosis and model is not None:
             self.figure("diagnosis", lambda p: figures.diagnosis_figure(ch, p, model))
+        if self.versions:
+            self.figure("history", lambda p: figures.history_figure(ch.name, self.versions, p))
+
+
+    def draw_mimo(self) -> None:
+        """A MIMO channel: Bode matrix, kappa(w), singular values (and the history, if any)."""
+        ch = self.ch
+        if ch.frequency_rad_s is not None and len(ch.frequency_rad_s) and ch.mimo.measured is not None:
+            self.figure("mimo_bode", lambda p: figures.mimo_bode_figure(ch, p))
+            self.figure("mimo_kappa", lambda p: figures.mimo_kappa_figure(ch, p))
+            self.figure("mimo_sv", lambda p: figures.mimo_singular_values_figure(ch, p))
+        else:
+            self.parts.append("<p>no sweep yet: no frequency-domain figure.</p>")
         if self.versions:
             self.figure("history", lambda p: figures.history_figure(ch.name, self.versions, p))
 

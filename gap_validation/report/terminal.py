@@ -81,9 +81,12 @@ def format_table(result: ValidationResult) -> str:
     rows = []
     for name, ch in result.channels.items():
         n_points = len(ch.frequency_rad_s) if ch.frequency_rad_s is not None else 0
-        rows.append([name, fmt(ch.nu_gap), _epsilon_cell(ch), fmt(ch.epsilon_raw),
+        # a MIMO channel: the frequency of its nu-gap (epsilon is a SISO notion), its shape after the name
+        worst = ch.nu_gap_frequency_rad_s if ch.mimo is not None else ch.worst_frequency_rad_s
+        label = f"{name} ({ch.mimo.shape[0]}x{ch.mimo.shape[1]})" if ch.mimo is not None else name
+        rows.append([label, fmt(ch.nu_gap), _epsilon_cell(ch), fmt(ch.epsilon_raw),
                      fmt(ch.margins.gain_margin_db, ".2f"), fmt(ch.margins.phase_margin_deg, ".1f"),
-                     fmt(ch.margins.disk_margin, ".3f"), fmt(ch.worst_frequency_rad_s, ".2f"), str(ch.sweeps),
+                     fmt(ch.margins.disk_margin, ".3f"), fmt(worst, ".2f"), str(ch.sweeps),
                      _band_cell(ch), f"{ch.points_excluded}/{n_points}", ch.limited_by])
     lines = [table(headers, rows)]
     if any(ch.nu_gap is not None for ch in result.channels.values()):

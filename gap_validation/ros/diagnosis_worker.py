@@ -91,7 +91,8 @@ class DiagnosisWorker:
         """
         if period_s <= 0 or (self.job is not None and not self.job.done()):
             return
-        if not any(ch.epsilon is not None for ch in result.channels.values()):
+        if not any(ch.epsilon is not None or (ch.mimo is not None and ch.nu_gap is not None)
+                   for ch in result.channels.values()):
             return
         key = _results_key(result, generation)
         if key == self._key:

@@ -190,6 +190,15 @@ def channel_status(result: ChannelResult, *, warn_epsilon: float = WARN_EPSILON,
     if result.epsilon is not None:
         level = _level_for(result.epsilon, warn_epsilon, error_epsilon)
         summary = _summary(result, level, cand_text)
+    elif result.mimo is not None and result.nu_gap is not None:
+        # a MIMO channel: epsilon is a SISO notion; its level follows the MIMO nu-gap (kappa <= epsilon)
+        level = _level_for(result.nu_gap, warn_epsilon, error_epsilon)
+        summary = f"MIMO nu-gap {result.nu_gap:.2f}: {level}"
+        if result.limited_by in ("model", "data"):
+            band = _band_text(result)
+            summary += f", {result.limited_by}-limited" + (f" {band}" if band else "")
+        if cand_text:
+            summary += f"; {cand_text}"
     elif result.sweeps > 0:
         level = "WARN"
         summary = (result.message or "no frequency passes the coherence threshold") + \
@@ -253,7 +262,7 @@ class ChannelTask:
         timeout_s : float
             Silence that ends the run [s] (the node's ``end_of_data_timeout``).
         """
-        if not self._run_open or len(self.last_seen) < len(STREAMS):
+        if not self._run_open or len(self.last_seen) < len(self.streams):
             return False
         if all(now_s - seen > timeout_s for seen in self.last_seen.values()):
             self._run_open = False
@@ -263,7 +272,15 @@ class ChannelTask:
     @property
     def topics(self) -> list[str]:
         """The topics of the channel's input and output, sorted."""
-        return sorted({self.channel.signal(stream).topic for stream in STREAMS})
+        return sorted({self.channel.signal(stream).topic for stream in self.streams})
+
+    @property
+    def streams(self) -> tuple[str, ...]:
+        """The channel's streams watched for data: :data:`STREAMS`, or a MIMO channel's ``inputs[j]`` and
+        ``outputs[i]``."""
+        if getattr(self.channel, "is_mimo", False):
+            return self.channel.input_streams + self.channel.output_streams
+        return STREAMS
 
     def new_router(self) -> None:
         """The node's router was replaced (reload, reset): its sample counts start again."""
@@ -295,7 +312,7 @@ class ChannelTask:
         now_s : float
             Node time [s] (for a topic without an arrival).
         """
-        for stream in STREAMS:
+        for stream in self.streams:
             count = router.samples(self.name, stream)
             if count > self._seen_count.get(stream, 0):
                 self.last_seen[stream] = arrivals.get(self.channel.signal(stream).topic, now_s)
@@ -316,7 +333,7 @@ class ChannelTask:
             Topics whose type is still being discovered.
         """
         waiting, stale, ages = [], [], {}
-        for stream in STREAMS:
+        for stream in self.streams:
             topic = self.channel.signal(stream).topic
             seen = self.last_seen.get(stream)
             if seen is None:
@@ -364,8 +381,11 @@ class ChannelTask:
         """
         waiting, stale, ages = self.reasons(now_s, stale_timeout_s, pending)
         state = "off" if diagnosis_off else ("done" if self.diagnosed else "pending")
-        extra = {**ages, "samples_input": router.samples(self.name, "input"),
-                 "samples_output": router.samples(self.name, "output"),
+        mimo = getattr(self.channel, "is_mimo", False)
+        extra = {**ages, "samples_input": sum(router.samples(self.name, s) for s in self.channel.input_streams)
+                 if mimo else router.samples(self.name, "input"),
+                 "samples_output": sum(router.samples(self.name, s) for s in self.channel.output_streams)
+                 if mimo else router.samples(self.name, "output"),
                  "samples_dropped": sum(dropped(topic) for topic in self.topics)}
         mine = [notes[topic] for topic in self.topics if notes and notes.get(topic)]
         return channel_status(result, warn_epsilon=warn_epsilon, error_epsilon=error_epsilon, stale_reason=stale,

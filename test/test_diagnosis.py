@@ -156,8 +156,10 @@ def test_hidden_effect_is_named_with_its_parameters(name, seed):
     fixed = model.with_effects(top["effects"]).freqresp(W)
     assert np.max(metrics.epsilon_per_frequency(fixed, est.response)) == pytest.approx(top["epsilon"])
     assert np.max(metrics.chordal_distance(fixed, est.response)) == pytest.approx(top["nu_gap"])
+    assert top["explains"]             # the JSON's explains reaches the sentence (issue 15)
     assert top["sentence"] == (f"missing: {describe_effect(top['effects'][0])}; adding it brings epsilon from "
-                               f"{top['epsilon_before']:.2f} to {top['epsilon']:.2f}")
+                               f"{top['epsilon_before']:.2f} to {top['epsilon']:.2f}, which explains the mismatch "
+                               f"(the rest is within the data's errors)")
     json.dumps([c.to_json_dict() for c in found.candidates], allow_nan=False)
 
 
@@ -357,3 +359,79 @@ def test_no_pair_when_a_single_effect_explains_it():
     found = analyse_channel(PITCH, est, sweeps, THRESHOLD)
     assert found.candidates[0]["explains"]
     assert not any("+" in c["effect"] for c in found.candidates)
+
+
+# ------------------------------------------------------------------------------------------------ bounds (issue 15)
+
+
+def _on_a_bound(candidate) -> bool:
+    """Whether any fitted parameter of ``candidate`` sits on an edge of the registry's search box (W's band)."""
+    from gap_validation.core.effects import EFFECTS
+    ctx = FitRange(float(W[0]), float(W[-1]))
+    for effect in candidate["effects"]:
+        fit = EFFECTS[effect["type"]].fit
+        x = np.array([math.log(v) if "frequency" in k or "bandwidth" in k else v
+                      for k, v in effect.items() if k != "type"])
+        lo, hi = fit.bounds(x, ctx)
+        if np.any(np.minimum(x - lo, hi - x) <= 1e-3 * (hi - lo)):
+            return True
+    return False
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_gain_beyond_the_search_range_is_never_offered_and_the_widened_refit_is(seed):
+    """x15 (23.5 dB) is beyond the gain's +-20 dB: the gain fit sits on x10 and is not offered; the coefficient
+    refit lands on its x10 bound, is widened to x100 and then fits (numerator x15, denominator unchanged)."""
+    est, sweeps = measure(PITCH, [{"type": "gain", "factor": 15.0}], seed)
+    found = analyse_channel(PITCH, est, sweeps, THRESHOLD)
+    assert [c["effect"] for c in found.candidates] == ["parameter_error"], found.message
+    top = found.candidates[0]
+    assert top["explains"] and "which explains the mismatch" in top["sentence"]
+    np.testing.assert_allclose(top["model"]["numerator"], 15.0 * PITCH.num, rtol=0.05)
+    np.testing.assert_allclose(top["model"]["denominator"], PITCH.den, rtol=0.05)
+    assert not found.beyond_range                       # an offered candidate explains it: nothing more to say
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_sign_error_with_a_gain_beyond_the_range_is_reported_as_beyond_it(seed):
+    """The issue's "gain x-15.5": a negative gain on its -10 bound is no fix; the refit cannot flip a sign; the
+    message says what lay beyond the search range and nothing is offered."""
+    est, sweeps = measure(PITCH, [{"type": "gain", "factor": -15.0}], seed)
+    found = analyse_channel(PITCH, est, sweeps, THRESHOLD)
+    assert found.limited_by == "model" and found.candidates == []
+    assert "gain (factor at -10 (lower bound))" in found.beyond_range
+    assert "beyond the search range (not offered as a fix): " in found.message
+    assert "gain (factor at -10 (lower bound))" in found.message
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_gain_error_is_ranked_first_and_delay_is_named_not_a_refit(seed):
+    """The issue's 0.7 gain ranked behind a refit, and a 60 ms delay returned as a refitted denominator: the
+    single effect that explains it comes first, and no offered candidate sits on a bound."""
+    for hidden, name in (({"type": "gain", "factor": 0.7}, "gain"), ({"type": "time_delay", "seconds": 0.06},
+                                                                     "time_delay")):
+        found = analyse_channel(PITCH, *measure(PITCH, [hidden], seed), THRESHOLD)
+        top = found.candidates[0]
+        assert top["effect"] == name and top["explains"], found.message
+        assert close(next(iter(top["parameters"].values())), next(v for k, v in hidden.items() if k != "type"),
+                     0.05)
+        assert not any(_on_a_bound(c) for c in found.candidates), found.candidates
+        refits = [c for c in found.candidates if c["effect"] == "parameter_error"]
+        assert all(np.all(np.abs(np.log(np.abs(np.divide(c["model"]["numerator"], PITCH.num)))) < math.log(10) - 1e-3)
+                   for c in refits)
+    assert "time delay of 60 ms" in found.message
+
+
+def test_candidate_that_does_not_explain_says_so():
+    """A first-order model against a short, noisy run of a far-off truth: the refit needs more than x100 (beyond
+    the range, not offered); the lag that is offered leaves the data outside their errors and its sentence says so."""
+    truth = LinearModel.from_tf([-20.0], [1.0, 2.0])
+    est, sweeps = flight(truth.freqresp(W), np.random.default_rng(1), coherence=0.8, n_per_sweep=8, n_sweeps=1)
+    found = analyse_channel(PITCH, est, sweeps, THRESHOLD)
+    assert found.candidates and not any(c["explains"] for c in found.candidates)
+    for c in found.candidates:
+        assert ", but does not explain the mismatch (" in c["sentence"] and "noise scales left at" in c["sentence"]
+        assert c["effect"] != "parameter_error" and not _on_a_bound(c)
+    assert any(b.startswith("parameter_error (") and "after widening the search to x100" in b
+               for b in found.beyond_range), found.beyond_range
+    assert found.candidates[0]["sentence"] in found.message

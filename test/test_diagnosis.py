@@ -435,3 +435,75 @@ def test_candidate_that_does_not_explain_says_so():
     assert any(b.startswith("parameter_error (") and "after widening the search to x100" in b
                for b in found.beyond_range), found.beyond_range
     assert found.candidates[0]["sentence"] in found.message
+
+
+# ------------------------------------------------------------------------------------------------ band edges, winding
+
+
+def test_unstable_truth_measured_above_its_pole_warns_at_the_band_edge():
+    """The issue's case: model 1/(s+1), aircraft 1/(s-1), measured over 3-40 rad/s. Over the band the nu-gap is
+    0.18 and epsilon 0.33 (margins of 6.0 dB / 38.9 deg would follow) but the true nu-gap is 1: both sups sit at
+    the lowest confident frequency, so the warning is given and the margins carry the caveat."""
+    w = np.geomspace(3.0, 40.0, 40)
+    model, truth = LinearModel.from_tf([1.0], [1.0, 1.0]), LinearModel.from_tf([1.0], [1.0, -1.0])
+    assert metrics.nugap(model, truth)[0] == 1.0
+    rng = np.random.default_rng(0)
+    e = diagnosis.bendat_piersol_random_error(np.full(w.shape, 0.95), 60)
+    measured = truth.freqresp(w) * (1.0 + e * (rng.standard_normal(w.size) + 1j * rng.standard_normal(w.size)))
+    coherence = np.full(w.shape, 0.95)
+    n = np.full(w.shape, 60)
+    error = diagnosis.bendat_piersol_random_error(coherence, n)
+    est = SpectralEstimate(w, np.ones(w.shape), np.abs(measured) ** 2 / coherence, measured, n, measured, coherence,
+                           error, n_sweeps=3, variance=2.0 * (error * np.abs(measured)) ** 2)
+    found = analyse_channel(model, est, [], THRESHOLD)
+    nu, w_nu = metrics.nugap_frequency_data(w, model.freqresp(w), measured)
+    eps, w_eps = metrics.epsilon_frequency_data(w, model.freqresp(w), measured)
+    assert nu == pytest.approx(0.18, abs=0.01) and eps == pytest.approx(0.33, abs=0.02) and w_nu == w_eps == 3.0
+    assert found.warnings[0] == ("epsilon and sup kappa (the nu-gap) peak at the lowest confident frequency "
+                                 "(3 rad/s), beyond the data's errors: the mismatch may continue outside the band; "
+                                 "the margins then do not hold")
+    assert "do not hold" in found.margins_caveat
+
+
+@pytest.mark.parametrize("seed", range(24))
+def test_clean_data_give_no_band_edge_warning(seed):
+    """Noise peaks at a band edge as often as anywhere (more: coherence falls there); within the errors it is no
+    evidence of a mismatch outside the band, and gives no warning."""
+    model = ROLL if seed % 2 else PITCH
+    coherence = np.where(np.arange(W.size) < 3, 0.7, 0.95)       # weakest at the low edge
+    found = analyse_channel(model, *measure(model, [], seed, coherence=coherence), THRESHOLD)
+    assert found.warnings == [] and found.margins_caveat == ""
+
+
+def test_band_edge_warning_needs_the_sup_at_an_edge_beyond_the_errors():
+    w = np.array([1.0, 2.0, 4.0, 8.0])
+    confident = np.array([False, True, True, True])           # the lowest confident frequency is 2 rad/s
+    eps = np.array([0.9, 0.3, 0.1, 0.1])
+    assert "at the lowest confident frequency (2 rad/s)" in diagnosis.band_edge_warning(w, eps, eps, np.full(4, 9.0),
+                                                                                          confident)
+    assert diagnosis.band_edge_warning(w, eps, eps, np.array([9.0, 3.0, 9.0, 9.0]), confident) == ""   # noise
+    middle = np.array([0.1, 0.1, 0.3, 0.1])
+    assert diagnosis.band_edge_warning(w, middle, middle, np.full(4, 9.0), confident) == ""
+    top = diagnosis.band_edge_warning(w, np.array([0.1, 0.1, 0.2, 0.3]), np.array([0.1, 0.3, 0.1, 0.2]),
+                                      np.full(4, 9.0), confident)
+    assert top.startswith("epsilon peaks at the highest confident frequency (8 rad/s); sup kappa (the nu-gap) "
+                          "peaks at the lowest")
+
+
+def test_sign_error_fails_the_winding_condition_against_the_diagnosed_model():
+    """A sign error: the data-path nu-gap over 1-40 rad/s is below 1, but the model and the diagnosed model
+    (gain -1) fail the exact winding-number condition (1 + P2~ P1 = 1 - |P|^2 vanishes at |P| = 1, 134 rad/s):
+    reported, and the margins carry the caveat."""
+    found = analyse_channel(PITCH, *measure(PITCH, [{"type": "gain", "factor": -1.0}], 1), THRESHOLD)
+    assert found.candidates[0]["effect"] == "gain"
+    winding = [w for w in found.warnings if "winding-number condition" in w]
+    assert winding == ["the model and the diagnosed model (gain) fail the winding-number condition (1 + P2~ P1 "
+                       "vanishes at w = 133.616 rad/s): if the diagnosis is right, the nu-gap between the model and "
+                       "the aircraft is 1, not the sup over the measured band, and the margins do not hold"]
+    assert "winding-number condition" in found.margins_caveat
+
+
+def test_a_diagnosed_lag_passes_the_winding_condition_and_says_nothing():
+    found = analyse_channel(PITCH, *measure(PITCH, [HIDDEN["first_order_lag"]], 0), THRESHOLD)
+    assert found.candidates[0]["effect"] == "first_order_lag"
+    assert not any("winding" in w for w in found.warnings) and "winding" not in found.margins_caveat

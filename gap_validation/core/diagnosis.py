@@ -73,6 +73,7 @@ from numpy.typing import ArrayLike
 from scipy.special import betainc
 
 from gap_validation.core import metrics
+from gap_validation.core.errors import GapValidationError
 from gap_validation.core.effects import EFFECTS, EffectFit, EffectType, FitRange, describe_effect, validate_effect
 from gap_validation.core.models import LinearModel
 from gap_validation.core.numbers import significant
@@ -85,6 +86,7 @@ __all__ = [
     "ChannelDiagnosis", "analyse_channel", "fit_effects", "FittedCandidate", "cifer_weight", "cifer_cost",
     "bendat_piersol_random_error", "effective_random_error", "epsilon_noise_scale", "minimum_averages",
     "normalised_mismatch", "frequency_flags", "find_bands", "FAMILIES", "PAIRS", "SIGMA_FACTOR", "BIAS_ERROR",
+    "band_edge_warning",
 ]
 
 #: Noise-only epsilon is Rayleigh with scale ``sigma = e/2``; ``P(eps > k sigma) = exp(-k^2/2)``: k = 4 gives
@@ -145,6 +147,11 @@ class ChannelDiagnosis:
         Fits that would have been candidates but sit on a bound of their search range (never offered as a
         fix), one phrase each (``"gain (factor at -10 (lower bound))"``), listed when no offered candidate
         explains the mismatch.
+    warnings : list of str
+        What the data-path numbers may not show (:func:`band_edge_warning`, a failed winding-number condition
+        between the model and the top candidate's model), one line each (``ChannelResult.warnings``).
+    margins_caveat : str
+        Why the margins from epsilon are not guaranteed although epsilon < 1 (empty: nothing known against them).
     """
 
     limited_by: str = "none"
@@ -153,6 +160,8 @@ class ChannelDiagnosis:
     candidates: list[Candidate] = field(default_factory=list)
     message: str = ""
     beyond_range: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    margins_caveat: str = ""
 
 
 # ------------------------------------------------------------------------------------------------ statistics
@@ -1079,8 +1088,74 @@ def analyse_channel(model: LinearModel, estimate: SpectralEstimate, sweeps: Sequ
         result.candidates = [_candidate(c, ev, base, p_model, sweeps, coherence_threshold) for c in chosen]
         if not any(c.explains for c in result.candidates):   # said only when no offered fix explains it
             result.beyond_range = [f"{c.name} ({c.at_bound})" for c in _select(ev, base, fitted) if c.at_bound]
+        if chosen:
+            _winding_warning(model, chosen[0], result)
+    edge = band_edge_warning(ev.w, base.eps_w, metrics.chordal_distance(p_model, ev.p_meas), base.k, ev.confident,
+                             sigma_factor)
+    if edge:
+        result.warnings.insert(0, edge)
+        result.margins_caveat = result.margins_caveat or ("the mismatch peaks at the edge of the measured band and "
+                                                          "may continue outside it: the margins then do not hold")
     result.message = _message(ev, base, result, coherence_threshold, epsilon_threshold, channel)
     return result
+
+
+def band_edge_warning(w_rad_s: ArrayLike, eps_w: ArrayLike, kappa: ArrayLike, mismatch: ArrayLike,
+                      confident: ArrayLike, sigma_factor: float = SIGMA_FACTOR) -> str:
+    """A warning when epsilon's or the nu-gap's sup (eqs. 13-14) sits at the lowest or highest confident frequency
+    with a mismatch there beyond the errors (``k > sigma_factor``), else an empty string.
+
+    The data-path numbers are sups over the measured band: a mismatch that peaks at an edge of it may grow
+    outside, where nothing was measured, and then neither epsilon nor the margins from it (eqs. 15-17) hold. A
+    sup at an edge within the errors (noise) is no such evidence and gives no warning.
+
+    Parameters
+    ----------
+    w_rad_s : array_like
+        Frequencies [rad/s].
+    eps_w, kappa : array_like
+        epsilon(w) and the chordal distance kappa(w) of the model against the averaged data.
+    mismatch : array_like
+        Normalised mismatch k per frequency (:func:`normalised_mismatch`).
+    confident : array_like of bool
+        Frequencies that count (:func:`confident_points`).
+    sigma_factor : float
+        k beyond which the mismatch is real.
+    """
+    w = np.asarray(w_rad_s, float)
+    confident = np.asarray(confident, bool)
+    idx = np.flatnonzero(confident)
+    if idx.size < 2:
+        return ""
+    k = np.asarray(mismatch, float)
+    found = {}
+    for label, values in (("epsilon", eps_w), ("sup kappa (the nu-gap)", kappa)):
+        _, worst = _sup(np.asarray(values, float), confident)
+        if worst in (idx[0], idx[-1]) and k[worst] > sigma_factor:
+            found.setdefault(worst, []).append(label)
+    if not found:
+        return ""
+    parts = [f"{' and '.join(labels)} {'peaks' if len(labels) == 1 else 'peak'} at the "
+             f"{'lowest' if i == idx[0] else 'highest'} confident frequency ({w[i]:.3g} rad/s)"
+             for i, labels in found.items()]
+    return ("; ".join(parts) + ", beyond the data's errors: the mismatch may continue outside the band; the "
+            "margins then do not hold")
+
+
+def _winding_warning(model: LinearModel, top: FittedCandidate, result: ChannelDiagnosis) -> None:
+    """The exact winding-number condition between the model and the top candidate's model (the data-path nu-gap
+    assumes it holds between the model and the aircraft): a warning and a margins caveat when it fails."""
+    try:
+        check = metrics.winding_condition(model, top.model)
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError, GapValidationError):   # a degenerate model
+        return
+    if check.satisfied:
+        return
+    result.warnings.append(f"the model and the diagnosed model ({top.name}) fail the winding-number condition "
+                           f"({check.reason}): if the diagnosis is right, the nu-gap between the model and the "
+                           f"aircraft is 1, not the sup over the measured band, and the margins do not hold")
+    result.margins_caveat = ("the model and the diagnosed model fail the winding-number condition: the margins "
+                             "do not hold if the diagnosis is right")
 
 
 def _diagnose(model: LinearModel, ev: _Evidence) -> list[FittedCandidate]:

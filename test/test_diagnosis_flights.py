@@ -177,3 +177,29 @@ def test_band_noise_is_data_limited_and_a_hidden_effect_model_limited(seed, tmp_
     assert any(band["limited_by"] == "model" for band in found.bands), found.bands
     assert "model" in found.frequency_flags
     assert found.diagnosis and found.diagnosis[0]["effect"] == "time_delay", found.message
+
+
+def test_short_run_far_off_fits_are_beyond_the_search_range_not_fixes(tmp_path):
+    """issue 15 on a short simulated run (one 30 s sweep, as ``gap-validate simulate --sweeps 1 --sweep-duration 30
+    --seed 2``): a sign error with a x15 gain (main offered 'gain error x-15') is beyond the gain's +-20 dB search
+    range: nothing is offered and the message says what lay beyond; a 60 ms delay is named, and no fit sitting on a
+    bound (main offered a refit with the numerator at x0.1 and a mode with zeros at the band's edge) is offered."""
+    from test_diagnosis import _on_a_bound
+
+    config = config_from(single_channel("pitch"))
+    short = {"sweeps_per_channel": 1, "sweep_duration_s": 30.0}
+    make_bag(tmp_path / "sign", config, hidden=["pitch:gain:factor=-15"], seed=2, **short)
+    sign = replay([tmp_path / "sign"], config).result.channels["pitch"]
+    assert sign.limited_by == "model" and sign.diagnosis == [], sign.message
+    assert "beyond the search range (not offered as a fix): " in sign.message
+    assert "gain (factor at -10 (lower bound))" in sign.message
+
+    make_bag(tmp_path / "delay", config, hidden=["pitch:time_delay:seconds=0.06"], seed=2, **short)
+    delay = replay([tmp_path / "delay"], config).result.channels["pitch"]
+    top = delay.diagnosis[0]
+    assert top.effect == "time_delay" and abs(top.parameters["seconds"] - 0.06) < 0.003 and top.explains
+    assert "time delay of 60 ms" in delay.message and "which explains the mismatch" in delay.message
+    assert all(c.effect != "parameter_error" for c in delay.diagnosis)
+    assert not any(_on_a_bound(c) for c in delay.diagnosis if c.effect != "parameter_error")
+    assert any("at the highest confident frequency" in w for w in delay.warnings)
+    assert any("(time_delay) fail the winding-number condition" in w for w in delay.warnings)

@@ -35,7 +35,7 @@ def test_good_corrupt_good_validates_both_good_bags_names_the_bad_one_exit_1(tmp
     assert pitch["sweeps"] == 2 and pitch["epsilon"] is not None    # one sweep from each good bag
 
 
-def test_channel_whose_topic_is_missing_does_not_stop_the_others(tmp_path, good_bags, capsys):
+def test_channel_whose_topic_is_missing_does_not_stop_the_others_exit_1(tmp_path, good_bags, capsys):
     data = raw_config()
     data["channels"] = {"pitch": data["channels"]["pitch"], "roll": data["channels"]["roll"]}
     data["channels"]["roll"]["input"]["field"] = "position[elevator]"   # the pitch-only bag has this joint
@@ -45,8 +45,10 @@ def test_channel_whose_topic_is_missing_does_not_stop_the_others(tmp_path, good_
     status = main(["replay", str(good_bags[0]), "--config", str(config), "--json", str(out), "--no-history"])
     captured = capsys.readouterr()
     assert "/no_such_imu" in captured.err and "Traceback" not in captured.err
+    errors = [line for line in captured.err.splitlines() if "error:" in line]
+    assert len(errors) == 1 and "channel roll" in errors[0] and "not validated" in errors[0]
     channels = json.loads(out.read_text())["channels"]
     assert channels["pitch"]["sweeps"] == 1 and channels["pitch"]["epsilon"] is not None
-    assert channels["roll"]["epsilon"] is None and status == 0   # a warning, not an error
+    assert channels["roll"]["epsilon"] is None and status == 1   # requested, no data: an error (issue 15)
     alone = replay([good_bags[0]], config_from(single_channel("pitch")), diagnose=False).result.channels["pitch"]
     assert channels["pitch"]["epsilon"] == pytest.approx(alone.epsilon, abs=1e-12)   # unaffected by roll

@@ -437,3 +437,93 @@ def test_cli_simulates_a_nasa_style_3211_run_and_replay_says_what_was_flown(tmp_
     with pytest.raises(SystemExit) as exit_:
         main(["simulate", "--config", str(CONFIG_PATH), "--out", str(tmp_path / "x"), "--excitation", "sine"])
     assert exit_.value.code == 2 and "invalid choice" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------------------------------ --apply-diagnosis
+def _apply(tmp_path, capsys, channels: dict, force: bool = False):
+    """Run the CLI's --apply-diagnosis step on hand-made results for the Ultra Stick config; returns the written
+    config (or None), stdout and stderr."""
+    import yaml
+
+    from gap_validation.cli.replay import _apply_diagnosis
+    from gap_validation.core.results import ChannelResult, ValidationResult
+
+    config = ultrastick()
+    result = ValidationResult(channels={name: ChannelResult(name=name, **fields) for name, fields in channels.items()})
+    out = tmp_path / "fixed.yaml"
+    _apply_diagnosis(config, result, str(out), None, force=force)
+    captured = capsys.readouterr()
+    return (yaml.safe_load(out.read_text()) if out.exists() else None), captured.out, captured.err
+
+
+_DELAY = {"effect": "time_delay", "effects": [{"type": "time_delay", "seconds": 0.05}], "epsilon": 0.05,
+          "sentence": "missing: time delay of 50 ms; adding it brings epsilon from 0.62 to 0.05, which explains the "
+                      "mismatch (the rest is within the data's errors)", "explains": True}
+_MODE = {"effect": "structural_mode", "effects": [{"type": "structural_mode", "frequency_rad_s": 2.9, "damping": 0.48,
+                                                   "zero_frequency_rad_s": 3.5, "zero_damping": 0.5}],
+         "epsilon": 0.09, "sentence": "missing: structural mode ...; but does not explain the mismatch", "explains": False}
+
+
+def test_apply_diagnosis_writes_only_fixes_that_explain_a_model_limited_channel(tmp_path, capsys):
+    """issue 15: a channel that fits (the backlash case: a candidate but the verdict 'model fits'), a data-limited
+    one and one whose best candidate does not explain the mismatch are left as they are, each with a line saying
+    why; the model-limited channel with an explaining candidate gets it."""
+    written, out, err = _apply(tmp_path, capsys, {
+        "roll": {"limited_by": "none", "epsilon": 0.125, "diagnosis": [_MODE]},
+        "pitch": {"limited_by": "model", "epsilon": 0.62, "diagnosis": [_DELAY]},
+        "yaw": {"limited_by": "model", "epsilon": 0.3, "diagnosis": [_MODE]},
+    })
+    channels = written["channels"]
+    assert channels["pitch"]["model"]["effects"] == [{"type": "time_delay", "seconds": 0.05}]
+    original = raw_config_channels()
+    assert channels["roll"]["model"] == original["roll"]["model"]
+    assert channels["yaw"]["model"] == original["yaw"]["model"]
+    assert "  pitch: missing: time delay of 50 ms" in out
+    assert "  roll: left as it is: the channel is not model-limited (limited by none); --force writes" in out
+    assert ("  yaw: left as it is: no candidate explains the mismatch (none leaves the data within their errors; "
+            "the best leaves epsilon 0.09); --force writes the top candidate anyway") in out
+
+
+def test_apply_diagnosis_without_an_explaining_fix_writes_nothing_and_says_why(tmp_path, capsys):
+    written, out, err = _apply(tmp_path, capsys, {
+        "roll": {"limited_by": "none", "epsilon": 0.04},
+        "pitch": {"limited_by": "data", "epsilon": 0.3},
+        "yaw": {"limited_by": "model", "epsilon": 0.3, "diagnosis": [_MODE]},
+    })
+    assert written is None and out == ""
+    assert "no channel has a fix that explains its mismatch; " in err and "fixed.yaml not written" in err
+    assert "  roll: left as it is: the model fits (epsilon 0.04): nothing to fix" in err
+    assert "  pitch: left as it is: data-limited: fly better sweeps rather than change the model" in err
+    assert "  yaw: left as it is: no candidate explains the mismatch" in err
+
+
+def test_apply_diagnosis_force_writes_the_top_candidate_and_says_what_it_does_not_do(tmp_path, capsys):
+    written, out, err = _apply(tmp_path, capsys, {
+        "roll": {"limited_by": "none", "epsilon": 0.125, "diagnosis": [_MODE]},
+        "pitch": {"limited_by": "model", "epsilon": 0.62, "diagnosis": [_MODE, _DELAY]},
+        "yaw": {"limited_by": "none", "epsilon": 0.04},
+    }, force=True)
+    channels = written["channels"]
+    assert channels["roll"]["model"]["effects"][-1]["type"] == "structural_mode"
+    assert channels["pitch"]["model"]["effects"][-1]["type"] == "time_delay"   # the explaining one, even forced
+    assert "(forced: the channel is not model-limited (limited by none))" in out
+    assert "  yaw: left as it is: the model fits" in out
+
+
+def raw_config_channels() -> dict:
+    import yaml
+
+    return yaml.safe_load(CONFIG_PATH.read_text())["channels"]
+
+
+def test_clean_flight_gets_no_fix_written_even_forced(bags, tmp_path, capsys):
+    """End to end: the truth is the model, so no channel is model-limited and nothing is written; --force has no
+    candidate to write either."""
+    fixed = tmp_path / "fixed.yaml"
+    for extra in ([], ["--force"]):
+        assert main(["replay", str(bags["clean"]), "--config", str(CONFIG_PATH), "--apply-diagnosis", str(fixed),
+                     "--no-history", "--no-progress", *extra]) == 0
+        err = capsys.readouterr().err
+        assert not fixed.exists() and "not written" in err
+        for name in ("roll", "pitch", "yaw"):
+            assert f"  {name}: left as it is: the model fits (epsilon " in err

@@ -60,3 +60,34 @@ def test_warnings_reach_the_json_the_table_the_report_text_and_the_diagnostics()
     values = dict(channel_status(ch).values)
     assert json.loads(values["warnings"]) == [warning]
     assert ChannelResult(name="pitch").to_json_dict()["warnings"] == []
+
+
+def test_margins_caveat_reaches_the_json_the_table_the_report_and_the_diagnostics(tmp_path):
+    """issue 15: margins from epsilon < 1 with a caveat (a mismatch peaking at a band edge) are given as numbers
+    but never presented as guaranteed: ``margins_guaranteed`` false with the reason in ``margins_note`` (round
+    trip), starred cells and a footnote in the table, a 'NOT guaranteed' verdict in the report, the node's values."""
+    from gap_validation.core.margins import margins_from_epsilon
+    from gap_validation.core.results import ValidationResult
+    from gap_validation.report.html import table1_html, verdict
+    from gap_validation.report.terminal import format_table
+    from gap_validation.ros.status import channel_status
+
+    caveat = "the mismatch peaks at the edge of the measured band and may continue outside it: the margins then do not hold"
+    ch = ChannelResult(name="roll", sweeps=2, epsilon=0.33, nu_gap=0.18, margins=margins_from_epsilon(0.33),
+                       margins_caveat=caveat)
+    data = ch.to_json_dict()
+    assert data["gain_margin_db"] == margins_from_epsilon(0.33).gain_margin_db      # 5.96 dB: given, ...
+    assert data["margins_guaranteed"] is False and data["margins_note"] == f"margins not guaranteed: {caveat}"
+    back = ValidationResult.from_json_dict({"channels": {"roll": data}})
+    assert back.channels["roll"].margins_caveat == caveat and not back.channels["roll"].margins_guaranteed
+    table = format_table(back)
+    assert "5.96*" in table and "38.5*" in table and f"  * roll: margins NOT guaranteed: {caveat}" in table
+    assert "guaranteed stable on the aircraft" not in table
+    assert "over the measured band (the winding-number condition assumed" in table
+    text, cls = verdict(back.channels["roll"])
+    assert cls == "bad" and "NOT guaranteed stable on the aircraft" in text and caveat in text
+    assert "margins NOT guaranteed" in table1_html(back) and "winding-number condition assumed" in table1_html(back)
+    values = dict(channel_status(ch).values)
+    assert values["margins_guaranteed"] == "false" and values["margins_note"].startswith("margins not guaranteed")
+    fine = ChannelResult(name="roll", epsilon=0.1, margins=margins_from_epsilon(0.1)).to_json_dict()
+    assert fine["margins_guaranteed"] is True and fine["margins_note"] is None

@@ -164,3 +164,32 @@ def test_controller_check_from_the_measured_nu_gap_and_its_json(flight):
         (pitch.stability_margin_b, pitch.guaranteed_stable, pitch.stability_note)
     # channels without a controller keep their JSON as it was
     assert "stability_margin_b" not in result.channels["roll"].to_json_dict(samples=False)
+
+
+def test_mismatch_peaking_at_the_band_edge_warns_and_its_margins_are_not_guaranteed(flight):
+    """issue 15: a 10 ms delay left out of the model (truth 40 ms, model 30 ms): epsilon grows with frequency and
+    peaks at the highest confident frequency, beyond the errors; a warning says the mismatch may continue outside
+    the band, and the margins (epsilon < 1) are given but not presented as guaranteed (JSON, table). The model that
+    is the truth gets neither."""
+    from gap_validation.report.terminal import format_table
+
+    validator = fed(with_pitch_effects([{"type": "time_delay", "seconds": 0.03}]), flight, ["pitch"])
+    pitch = validator.results().channels["pitch"]
+    top = float(pitch.frequency_rad_s[pitch.confident][-1])
+    assert pitch.worst_frequency_rad_s == top and 0.1 < pitch.epsilon < 1.0
+    edge = [w for w in pitch.warnings if "at the highest confident frequency" in w]
+    assert len(edge) == 1 and edge[0].endswith("the mismatch may continue outside the band; the margins then do "
+                                               "not hold"), pitch.warnings
+    assert pitch.margins.guaranteed and not pitch.margins_guaranteed
+    data = pitch.to_json_dict()
+    assert data["gain_margin_db"] is not None and data["margins_guaranteed"] is False
+    assert data["margins_note"].startswith("margins not guaranteed: the mismatch peaks at the edge of the measured band")
+    table = format_table(validator.results())
+    assert f"{pitch.margins.gain_margin_db:.2f}*" in table and "* pitch: margins NOT guaranteed" in table
+    assert "is guaranteed stable on the aircraft" not in table
+
+    validator.set_config(with_pitch_effects([{"type": "time_delay", "seconds": 0.04}]))
+    exact = validator.results().channels["pitch"]
+    assert exact.margins_guaranteed and not exact.warnings and exact.to_json_dict()["margins_note"] is None
+    table = format_table(validator.results())
+    assert "(pitch): a controller with these gain/phase/disk margins on the model is guaranteed stable" in table

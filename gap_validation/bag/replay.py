@@ -285,7 +285,9 @@ def _open_all(paths: Sequence[str | Path], reports: list[BagReport]) -> list[tup
 
 
 def _channel_checks(config: ValidationConfig, router: MessageRouter) -> tuple[list[str], list[str]]:
-    """Errors for streams that received messages but no usable sample; warnings for streams without data."""
+    """Errors for streams without a usable sample: those that received messages none of which could be used,
+    and those with no data at all (a requested channel whose topic is missing or silent: the others are still
+    validated and written, the exit status is 1)."""
     errors, warnings = [], []
     for name, channel in config.channels.items():
         for stream in channel.input_streams + channel.output_streams:     # MIMO: inputs[j], outputs[i]
@@ -299,7 +301,7 @@ def _channel_checks(config: ValidationConfig, router: MessageRouter) -> tuple[li
                 reasons = ", ".join(f"{n} {reason}" for reason, n in sorted(bad.items()))
                 errors.append(f"{where}: no usable sample ({reasons})" + (f": {first}" if first else ""))
             else:
-                warnings.append(f"{where}: no samples")
+                errors.append(f"{where}: no samples (topic missing from the data or silent): channel not validated")
     if not any(all(router.samples(name, stream) for stream in ch.input_streams + ch.output_streams)
                for name, ch in config.channels.items()):
         errors.append("no channel has both input and output samples in the data: nothing to validate "

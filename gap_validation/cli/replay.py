@@ -29,7 +29,11 @@ def register(sub) -> None:
     p.add_argument("--json", metavar="OUT", help="write the results as JSON")
     p.add_argument("--report", metavar="DIR", help="write the HTML report with figures into DIR")
     p.add_argument("--apply-diagnosis", metavar="OUT_YAML",
-                   help="write the config with each channel's top diagnosis candidate added (review it, keep it)")
+                   help="write the config with the fix of each model-limited channel whose diagnosis has a candidate "
+                        "that explains the mismatch (review it, keep it); the others are left as they are")
+    p.add_argument("--force", action="store_true",
+                   help="with --apply-diagnosis: write each channel's top candidate even when it does not explain "
+                        "the mismatch or the channel is not model-limited")
     p.add_argument("--history", metavar="FILE",
                    help="validation history to append to (default: the config's 'history' key, else "
                         "<config stem>.history.jsonl beside the config)")
@@ -146,7 +150,7 @@ def _write_outputs(args, config, result, write_report) -> None:
     if write_report is not None:
         write_report(result, args.report, warn=_warn)
     if args.apply_diagnosis:
-        _apply_diagnosis(config, result, args.apply_diagnosis, history)
+        _apply_diagnosis(config, result, args.apply_diagnosis, history, force=getattr(args, "force", False))
 
 
 def _warn(message: str) -> None:
@@ -191,36 +195,72 @@ def _trends(records: list[dict], result) -> list[str]:
     return lines
 
 
-def _apply_diagnosis(config, result, out_path: str, history: Path | None) -> None:
-    """Write the config with every channel's top candidate added (effects appended, or a refitted model)."""
+def _apply_diagnosis(config, result, out_path: str, history: Path | None, force: bool = False) -> None:
+    """Write the config with a fix for every channel that needs one and has one that explains the mismatch.
+
+    A channel gets its candidate (effects appended, or the refitted model) only when it is model-limited and a
+    candidate leaves the data within their errors (``explains``); with ``force``, the top candidate of any
+    channel that has one. Every channel left as it is gets a line saying why.
+    """
     import copy
 
     raw = copy.deepcopy(config.raw)
-    applied = []
+    applied, left = [], []
     for name, ch in result.channels.items():
-        if not ch.diagnosis:
-            continue
-        top = ch.diagnosis[0]
-        if config.channels[name].is_mimo:   # MIMO models take no effects yet: say what to change by hand
+        if ch.diagnosis and config.channels[name].is_mimo:   # MIMO models take no effects yet: say what to change
             print(f"gap-validate: --apply-diagnosis: {name}: not applied (a MIMO model takes no effects yet; "
-                  f"change its model by hand): {top.sentence}", file=sys.stderr)
+                  f"change its model by hand): {ch.diagnosis[0].sentence}", file=sys.stderr)
+            continue
+        top, why = _fix_for(ch, force)
+        if top is None:
+            left.append(f"{name}: left as it is: {why}")
             continue
         model = raw["channels"][name]["model"]
         if top.model:  # parameter error: the refitted model replaces the old one (effects kept in it)
             raw["channels"][name]["model"] = copy.deepcopy(top.model)
         else:
             model["effects"] = list(model.get("effects") or []) + [dict(e) for e in top.effects]
-        applied.append(f"{name}: {top.sentence or top.effect}")
+        applied.append(f"{name}: {top.sentence or top.effect}" + (f" (forced: {why})" if why else ""))
     if history is not None:
         raw["history"] = str(history.resolve())
     if not applied:
-        print(f"gap-validate: --apply-diagnosis: no channel has a candidate; {out_path} not written",
-              file=sys.stderr)
+        print(f"gap-validate: --apply-diagnosis: no channel has a fix that explains its mismatch; {out_path} not "
+              f"written", file=sys.stderr)
+        for line in left:
+            print(f"  {line}", file=sys.stderr)
         return
     from gap_validation.core.config import parse_config
 
     parse_config(raw, out_path)  # never write a config that would not load
     dump_config(raw, out_path)
     print(f"wrote {out_path} (review it, then replay with it):")
-    for line in applied:
+    for line in applied + left:
         print(f"  {line}")
+
+
+def _fix_for(ch, force: bool):
+    """``(candidate, note)`` to write for a channel, or ``(None, why not)``.
+
+    Without ``force``: the first candidate that explains the mismatch of a model-limited channel. With it: that,
+    else the top candidate, with a note saying what it does not do.
+    """
+    if not ch.diagnosis:
+        if ch.limited_by == "model":
+            return None, "model-limited, but no candidate brings a real improvement (see the diagnosis)"
+        if ch.limited_by == "data":
+            return None, "data-limited: fly better sweeps rather than change the model"
+        if ch.epsilon is None:
+            return None, "nothing validated (no confident frequency)"
+        return None, f"the model fits (epsilon {ch.epsilon:.2f}): nothing to fix"
+    explaining = next((c for c in ch.diagnosis if c.explains), None)
+    if ch.limited_by == "model" and explaining is not None:
+        return explaining, ""
+    top = ch.diagnosis[0]
+    if ch.limited_by != "model":
+        why = f"the channel is not model-limited (limited by {ch.limited_by})"
+    else:
+        left = f"; the best leaves epsilon {top.epsilon:.2f}" if top.epsilon is not None else ""
+        why = f"no candidate explains the mismatch (none leaves the data within their errors{left})"
+    if force:
+        return top, why
+    return None, why + "; --force writes the top candidate anyway"

@@ -52,6 +52,14 @@ reported only when its improvement is real against the data's errors, at the usa
 
 Candidates that leave the data within their errors everywhere come first, the simplest (fewest parameters)
 first; then those as good as the best one, simplest first; the rest follow by epsilon.
+
+No fit at its bounds: a fit whose parameter sits on an edge of its search range (:data:`BOUND_TOLERANCE` of the
+range; the ranges are the registry's, e.g. a structural mode inside the confident band with damping up to 1, a
+gain within +-20 dB of either sign) is *beyond the search range*: it is never offered as a fix, and said so in
+the message when no offered candidate explains the mismatch. ``parameter_error`` searches each coefficient
+within x10 of the model's and, when it lands on that bound, once more within x100 (:data:`COEFFICIENT_RANGES`).
+Each sentence says the epsilon the candidate leaves and whether it *explains* the mismatch (the JSON's
+``explains``: the data within their errors at every confident frequency), or how many noise scales it leaves.
 """
 from __future__ import annotations
 
@@ -65,6 +73,7 @@ from numpy.typing import ArrayLike
 from scipy.special import betainc
 
 from gap_validation.core import metrics
+from gap_validation.core.errors import GapValidationError
 from gap_validation.core.effects import EFFECTS, EffectFit, EffectType, FitRange, describe_effect, validate_effect
 from gap_validation.core.models import LinearModel
 from gap_validation.core.numbers import significant
@@ -77,6 +86,7 @@ __all__ = [
     "ChannelDiagnosis", "analyse_channel", "fit_effects", "FittedCandidate", "cifer_weight", "cifer_cost",
     "bendat_piersol_random_error", "effective_random_error", "epsilon_noise_scale", "minimum_averages",
     "normalised_mismatch", "frequency_flags", "find_bands", "FAMILIES", "PAIRS", "SIGMA_FACTOR", "BIAS_ERROR",
+    "band_edge_warning",
 ]
 
 #: Noise-only epsilon is Rayleigh with scale ``sigma = e/2``; ``P(eps > k sigma) = exp(-k^2/2)``: k = 4 gives
@@ -100,6 +110,11 @@ _PHASE_WEIGHT = 0.01745
 _DB_PER_NEPER = 20.0 / math.log(10.0)
 _DEG_PER_RAD = 180.0 / math.pi
 _N_STARTS = 3          # local refinements per candidate, from distinct grid points
+#: A fitted parameter within this fraction of its search box (fit coordinates) from an edge sits on the bound.
+BOUND_TOLERANCE = 1e-3
+#: ``parameter_error`` searches each coefficient within x10 of the model's, then once within x100 (widened)
+#: when the fit sits on a bound; still on it, the refit is beyond the search range.
+COEFFICIENT_RANGES = (10.0, 100.0)
 _MIN_POINTS = 4        # fewer confident points: no fitting
 _MAX_CANDIDATES = 6    # reported at most
 
@@ -128,6 +143,15 @@ class ChannelDiagnosis:
         append) with a ``note`` saying so.
     message : str
         One plain sentence for the terminal.
+    beyond_range : list of str
+        Fits that would have been candidates but sit on a bound of their search range (never offered as a
+        fix), one phrase each (``"gain (factor at -10 (lower bound))"``), listed when no offered candidate
+        explains the mismatch.
+    warnings : list of str
+        What the data-path numbers may not show (:func:`band_edge_warning`, a failed winding-number condition
+        between the model and the top candidate's model), one line each (``ChannelResult.warnings``).
+    margins_caveat : str
+        Why the margins from epsilon are not guaranteed although epsilon < 1 (empty: nothing known against them).
     """
 
     limited_by: str = "none"
@@ -135,6 +159,9 @@ class ChannelDiagnosis:
     bands: list[Band] = field(default_factory=list)
     candidates: list[Candidate] = field(default_factory=list)
     message: str = ""
+    beyond_range: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    margins_caveat: str = ""
 
 
 # ------------------------------------------------------------------------------------------------ statistics
@@ -617,9 +644,11 @@ def _fit_combo(combo: _Combo, data: _FitData) -> np.ndarray:
     return best_x
 
 
-def _coefficient_fit(model: LinearModel, data: _FitData) -> LinearModel | None:
+def _coefficient_fit(model: LinearModel, data: _FitData, factor: float = COEFFICIENT_RANGES[0],
+                     start: LinearModel | None = None) -> tuple[LinearModel, str] | None:
     """Refit the airframe's numerator/denominator coefficients (same structure, monic denominator), each as
-    ``c = c0 exp(x)`` started at the current values (x = 0), effects kept: the ``parameter_error`` candidate."""
+    ``c = c0 exp(x)`` within ``|x| <= ln(factor)``, started at the current values (x = 0) or at ``start``,
+    effects kept: the ``parameter_error`` candidate, and which coefficients sit on the bound (empty: none)."""
     air = model.airframe
     num0, den0 = np.array(air.num, float), np.array(air.den, float)
     free_num = np.flatnonzero(num0 != 0.0)
@@ -641,13 +670,23 @@ def _coefficient_fit(model: LinearModel, data: _FitData) -> LinearModel | None:
         p = np.polyval(num, s) / np.polyval(den, s) * others
         return data.residuals((p / data.p_model)[None, :])[0]
 
-    bound = np.full(n_free, math.log(10.0))
+    bound = np.full(n_free, math.log(factor))
+    x0 = np.zeros(n_free)
+    if start is not None and len(start.airframe.num) == len(num0) and len(start.airframe.den) == len(den0):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x0 = np.log(np.concatenate([np.asarray(start.airframe.num, float)[free_num] / num0[free_num],
+                                        np.asarray(start.airframe.den, float)[free_den] / den0[free_den]]))
+        x0 = np.clip(np.where(np.isfinite(x0), x0, 0.0), -0.999 * bound, 0.999 * bound)
     from scipy.optimize import least_squares   # scipy.optimize costs 0.6 s at import: only when used
-    sol = least_squares(residuals, np.zeros(n_free), bounds=(-bound, bound), method="trf", max_nfev=100 * n_free)
+    sol = least_squares(residuals, x0, bounds=(-bound, bound), method="trf", max_nfev=100 * n_free)
     num, den = build(sol.x)
     num = np.array([significant(v, 6) for v in num])
     den = np.array([significant(v, 6) for v in den])
-    return LinearModel(num, den, air.delay_s, model.effects)
+    names = [f"numerator[{i}]" for i in free_num] + [f"denominator[{i}]" for i in free_den]
+    ratios = [f"x{math.exp(v):.3g}" for v in sol.x]
+    edge = [f"{n} {r}" for n, r, v in zip(names, ratios, sol.x)
+            if abs(abs(v) - bound[0]) <= BOUND_TOLERANCE * 2.0 * bound[0]]
+    return LinearModel(num, den, air.delay_s, model.effects), ", ".join(edge)
 
 
 # ------------------------------------------------------------------------------------------------ evidence
@@ -760,6 +799,9 @@ class FittedCandidate:
         The two effect types of a pair (empty otherwise).
     replacement : bool
         True for ``parameter_error`` (the model's coefficients changed; nothing to append).
+    at_bound : str
+        Which parameter sits on which edge of its search range (``"damping at 1 (upper bound)"``), empty when
+        none does: such a fit is beyond the search range and never offered as a fix.
     """
 
     name: str
@@ -769,6 +811,7 @@ class FittedCandidate:
     members: tuple[str, ...] = ()
     replacement: bool = False
     score: _Fit | None = None
+    at_bound: str = ""
 
 
 def _fit_data(model: LinearModel, ev: _Evidence) -> _FitData | None:
@@ -782,19 +825,45 @@ def _fit_data(model: LinearModel, ev: _Evidence) -> _FitData | None:
 
 
 def _fit_combo_candidate(combo: _Combo, model: LinearModel, data: _FitData) -> FittedCandidate:
-    effects = combo.specs(_fit_combo(combo, data))
+    x = _fit_combo(combo, data)
+    effects = combo.specs(x)
     members = tuple(f.name for f in combo.families)
+    lo, hi = combo.bounds(x, data.ctx)
+    names = [f"{f.name}.{p.name}" if len(members) > 1 else p.name for f in combo.families for p in f.parameters]
+    values = [v for e in effects for k, v in e.items() if k != "type"]
     return FittedCandidate(combo.name, combo.complexity, effects, model.with_effects(effects),
-                           members if len(members) > 1 else ())
+                           members if len(members) > 1 else (),
+                           at_bound=_on_bound(x, lo, hi, names, values))
+
+
+def _on_bound(x: np.ndarray, lo: np.ndarray, hi: np.ndarray, names: Sequence[str], values: Sequence) -> str:
+    """Words for the parameters of ``x`` that sit on an edge of the box ``[lo, hi]`` (empty when none does)."""
+    x, lo, hi = (np.asarray(v, float) for v in (x, lo, hi))
+    tol = BOUND_TOLERANCE * np.where(np.isfinite(hi - lo), hi - lo, 1.0)
+    words = []
+    for i in range(x.size):
+        edge = "lower" if x[i] <= lo[i] + tol[i] else "upper" if x[i] >= hi[i] - tol[i] else None
+        if edge is not None:
+            name = names[i] if i < len(names) else f"parameter {i}"
+            value = f" {values[i]:.3g}" if i < len(values) else ""
+            words.append(f"{name} at{value} ({edge} bound)")
+    return ", ".join(words)
 
 
 def _fit_parameter_error(model: LinearModel, data: _FitData) -> FittedCandidate | None:
-    refit = _coefficient_fit(model, data)
-    if refit is None:
-        return None
+    refit, at_bound = None, ""
+    for factor in COEFFICIENT_RANGES:       # widened once when the fit sits on the bound
+        fitted = _coefficient_fit(model, data, factor, start=refit)
+        if fitted is None:
+            return None
+        refit, at_bound = fitted
+        if not at_bound:
+            break
     air = model.airframe
     n_free = int(np.count_nonzero(air.num) + np.count_nonzero(air.den[1:]))
-    return FittedCandidate("parameter_error", n_free, [], refit, replacement=True)
+    return FittedCandidate("parameter_error", n_free, [], refit, replacement=True,
+                           at_bound=f"{at_bound} of the model's, after widening the search to "
+                                    f"x{COEFFICIENT_RANGES[-1]:g}" if at_bound else "")
 
 
 def fit_effects(model: LinearModel, estimate: SpectralEstimate, coherence_threshold: float = 0.6, *,
@@ -937,6 +1006,8 @@ def _parameters(c: FittedCandidate) -> dict:
 
 
 def _sentence(c: FittedCandidate, base: _Fit, ev: _Evidence) -> str:
+    """What the candidate is, the epsilon it leaves, and whether it explains the mismatch (the data within their
+    errors at every confident frequency, JSON ``explains``)."""
     after = c.score
     if c.replacement:
         text = (f"parameter error: refitting the model's coefficients (same structure) brings epsilon from "
@@ -945,7 +1016,11 @@ def _sentence(c: FittedCandidate, base: _Fit, ev: _Evidence) -> str:
         what = " and ".join(describe_effect(e) for e in c.effects)
         verb = "adding it" if len(c.effects) == 1 else "adding both"
         text = f"missing: {what}; {verb} brings epsilon from {base.eps:.2f} to {after.eps:.2f}"
-    return text
+    if after.k_max <= ev.sigma_factor:
+        return text + ", which explains the mismatch (the rest is within the data's errors)"
+    worst = int(np.argmax(np.where(ev.confident, after.k, -np.inf)))
+    return (text + f", but does not explain the mismatch ({after.k_max:.0f} noise scales left at "
+            f"{ev.w[worst]:.3g} rad/s)")
 
 
 def _raw_epsilon(model: LinearModel, sweeps: Sequence, coherence_threshold: float,
@@ -1008,16 +1083,85 @@ def analyse_channel(model: LinearModel, estimate: SpectralEstimate, sweeps: Sequ
                        ev.min_dof, sigma_factor)
     result = ChannelDiagnosis(limited_by=_limited_by(ev, base, bands), frequency_flags=flags, bands=bands)
     if fit and result.limited_by == "model":
-        chosen = _select(ev, base, _diagnose(model, ev))
+        fitted = _diagnose(model, ev)
+        chosen = _select(ev, base, [c for c in fitted if not c.at_bound])
         result.candidates = [_candidate(c, ev, base, p_model, sweeps, coherence_threshold) for c in chosen]
+        if not any(c.explains for c in result.candidates):   # said only when no offered fix explains it
+            result.beyond_range = [f"{c.name} ({c.at_bound})" for c in _select(ev, base, fitted) if c.at_bound]
+        if chosen:
+            _winding_warning(model, chosen[0], result)
+    edge = band_edge_warning(ev.w, base.eps_w, metrics.chordal_distance(p_model, ev.p_meas), base.k, ev.confident,
+                             sigma_factor)
+    if edge:
+        result.warnings.insert(0, edge)
+        result.margins_caveat = result.margins_caveat or ("the mismatch peaks at the edge of the measured band and "
+                                                          "may continue outside it: the margins then do not hold")
     result.message = _message(ev, base, result, coherence_threshold, epsilon_threshold, channel)
     return result
+
+
+def band_edge_warning(w_rad_s: ArrayLike, eps_w: ArrayLike, kappa: ArrayLike, mismatch: ArrayLike,
+                      confident: ArrayLike, sigma_factor: float = SIGMA_FACTOR) -> str:
+    """A warning when epsilon's or the nu-gap's sup (eqs. 13-14) sits at the lowest or highest confident frequency
+    with a mismatch there beyond the errors (``k > sigma_factor``), else an empty string.
+
+    The data-path numbers are sups over the measured band: a mismatch that peaks at an edge of it may grow
+    outside, where nothing was measured, and then neither epsilon nor the margins from it (eqs. 15-17) hold. A
+    sup at an edge within the errors (noise) is no such evidence and gives no warning.
+
+    Parameters
+    ----------
+    w_rad_s : array_like
+        Frequencies [rad/s].
+    eps_w, kappa : array_like
+        epsilon(w) and the chordal distance kappa(w) of the model against the averaged data.
+    mismatch : array_like
+        Normalised mismatch k per frequency (:func:`normalised_mismatch`).
+    confident : array_like of bool
+        Frequencies that count (:func:`confident_points`).
+    sigma_factor : float
+        k beyond which the mismatch is real.
+    """
+    w = np.asarray(w_rad_s, float)
+    confident = np.asarray(confident, bool)
+    idx = np.flatnonzero(confident)
+    if idx.size < 2:
+        return ""
+    k = np.asarray(mismatch, float)
+    found = {}
+    for label, values in (("epsilon", eps_w), ("sup kappa (the nu-gap)", kappa)):
+        _, worst = _sup(np.asarray(values, float), confident)
+        if worst in (idx[0], idx[-1]) and k[worst] > sigma_factor:
+            found.setdefault(worst, []).append(label)
+    if not found:
+        return ""
+    parts = [f"{' and '.join(labels)} {'peaks' if len(labels) == 1 else 'peak'} at the "
+             f"{'lowest' if i == idx[0] else 'highest'} confident frequency ({w[i]:.3g} rad/s)"
+             for i, labels in found.items()]
+    return ("; ".join(parts) + ", beyond the data's errors: the mismatch may continue outside the band; the "
+            "margins then do not hold")
+
+
+def _winding_warning(model: LinearModel, top: FittedCandidate, result: ChannelDiagnosis) -> None:
+    """The exact winding-number condition between the model and the top candidate's model (the data-path nu-gap
+    assumes it holds between the model and the aircraft): a warning and a margins caveat when it fails."""
+    try:
+        check = metrics.winding_condition(model, top.model)
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError, GapValidationError):   # a degenerate model
+        return
+    if check.satisfied:
+        return
+    result.warnings.append(f"the model and the diagnosed model ({top.name}) fail the winding-number condition "
+                           f"({check.reason}): if the diagnosis is right, the nu-gap between the model and the "
+                           f"aircraft is 1, not the sup over the measured band, and the margins do not hold")
+    result.margins_caveat = ("the model and the diagnosed model fail the winding-number condition: the margins "
+                             "do not hold if the diagnosis is right")
 
 
 def _diagnose(model: LinearModel, ev: _Evidence) -> list[FittedCandidate]:
     """Singles and the coefficient refit; pairs too when no single effect leaves a mismatch within the errors."""
     fitted = _fit_all(model, ev, pairs=False, parameter_error=True)
-    explained = any(c.score.k_max <= ev.sigma_factor for c in fitted if not c.replacement)
+    explained = any(c.score.k_max <= ev.sigma_factor for c in fitted if not c.replacement and not c.at_bound)
     if fitted and not explained:
         fitted += _fit_all(model, ev, pairs=True, parameter_error=False, singles=False)
     return fitted
@@ -1074,6 +1218,8 @@ def _message(ev: _Evidence, base: _Fit, result: ChannelDiagnosis, coherence_thre
     if result.candidates:
         text += ("; " if band is not None else "; the data still resolve a difference: ") + \
             result.candidates[0].sentence
+    if result.beyond_range:
+        text += ("; beyond the search range (not offered as a fix): " + "; ".join(result.beyond_range))
     excluded = int(np.count_nonzero(~ev.confident))
     if excluded:
         missing = int(np.count_nonzero(~estimated))

@@ -324,7 +324,8 @@ def _lag2_spec(x: np.ndarray) -> dict:
 
 
 def _gain_bounds(x0: np.ndarray, ctx: FitRange) -> tuple[np.ndarray, np.ndarray]:
-    return (np.array([0.05]), np.array([20.0])) if x0[0] > 0 else (np.array([-20.0]), np.array([-0.05]))
+    # the search range is the grid's, +-20 dB of either sign: a fit on its edge is beyond it (never offered)
+    return (np.array([0.1]), np.array([10.0])) if x0[0] > 0 else (np.array([-10.0]), np.array([-0.1]))
 
 
 def _gain_grid(ctx: FitRange, coarse: bool) -> np.ndarray:

@@ -15,8 +15,8 @@ from gap_validation.core.manoeuvres import Manoeuvre
 from gap_validation.core.margins import Margins, margins_from_epsilon, margins_note
 
 #: Note attached to every measured nu-gap: on frequency data the winding-number condition cannot be checked.
-NUGAP_DATA_NOTE = ("nu-gap on measured frequency points assumes the winding-number condition holds "
-                   "(as the paper does for rigid-body aircraft)")
+NUGAP_DATA_NOTE = ("nu-gap on measured frequency points, over the measured band only, assumes the winding-number "
+                   "condition holds (as the paper does for rigid-body aircraft)")
 
 
 def _num(value: Any) -> float | None:
@@ -344,11 +344,24 @@ class ChannelResult:
     warnings: list[str] = field(default_factory=list)
     # a MIMO channel (issue 14): per-element responses, coherences, singular values (core.mimo.MimoDetail)
     mimo: Any = None
+    # why the margins from epsilon < 1 are not guaranteed (a mismatch peaking at a band edge, a failed winding
+    # condition against the diagnosed model); empty: nothing known against them
+    margins_caveat: str = ""
 
     def __post_init__(self) -> None:
         # bands and candidates given as their JSON objects (hand-written results, tests) are read as such
         self.bands = [_band(b) for b in self.bands]
         self.diagnosis = [_candidate(c) for c in self.diagnosis]
+
+    @property
+    def margins_guaranteed(self) -> bool:
+        """Margins exist (epsilon < 1) and nothing known says they do not hold (JSON ``margins_guaranteed``)."""
+        return bool(self.margins.guaranteed and not self.margins_caveat)
+
+    def margins_text(self) -> str | None:
+        """Why the margins are not given or not guaranteed (JSON ``margins_note``), None when they are."""
+        return margins_note(self.epsilon) or (f"margins not guaranteed: {self.margins_caveat}"
+                                              if self.margins_caveat else None)
 
     @property
     def points_used(self) -> int:
@@ -383,7 +396,8 @@ class ChannelResult:
             "nu_gap_frequency_rad_s": _num(self.nu_gap_frequency_rad_s),
             "epsilon_raw_frequency_rad_s": _num(self.epsilon_raw_frequency_rad_s),
             "margins_raw": self.margins_raw.to_json_dict(),
-            "margins_note": margins_note(self.epsilon),     # why the margins are null (None when given)
+            "margins_note": self.margins_text(),  # why the margins are null or not guaranteed (None: they are)
+            "margins_guaranteed": self.margins_guaranteed,
             "coherence_threshold": self.coherence_threshold,
             "points_used": self.points_used,
             "points_excluded": int(self.points_excluded),
@@ -449,7 +463,8 @@ class ChannelResult:
                  stability_margin_b=data.get("stability_margin_b"),
                  stability_margin_frequency_rad_s=data.get("stability_margin_frequency_rad_s"),
                  guaranteed_stable=data.get("guaranteed_stable"), stability_note=data.get("stability_note") or "",
-                 warnings=[str(w) for w in data.get("warnings") or []])
+                 warnings=[str(w) for w in data.get("warnings") or []],
+                 margins_caveat=_caveat(data))
         band = data.get("excited_band_rad_s")
         ch.excited_band_rad_s = (float(band[0]), float(band[1])) if band and None not in band else None
         ch.margins = margins_from_epsilon(ch.epsilon if ch.epsilon is not None else float("nan"))
@@ -472,6 +487,16 @@ class ChannelResult:
         ch.manoeuvres = [_manoeuvre_from_json(e) for e in entries]
         ch.time_domain = [{k: e.get(k) for k in ("tic", "tic_input_augmented")} for e in entries]
         return ch
+
+
+def _caveat(data: dict) -> str:
+    """The margins caveat of a channel's JSON object (its ``margins_note`` when ``margins_guaranteed`` is false
+    while margins are given)."""
+    note = data.get("margins_note") or ""
+    prefix = "margins not guaranteed: "
+    if data.get("margins_guaranteed") is False and data.get("gain_margin_db") is not None:
+        return note[len(prefix):] if note.startswith(prefix) else note or "not guaranteed"
+    return ""
 
 
 @dataclass

@@ -422,6 +422,8 @@ class OnlineValidator:
         result.frequency_flags = list(found.frequency_flags)
         result.bands = list(found.bands)
         result.diagnosis = list(found.candidates)
+        result.warnings.extend(w for w in found.warnings if w not in result.warnings)
+        result.margins_caveat = found.margins_caveat if result.margins.guaranteed else ""
         if found.message:
             result.message = found.message
 

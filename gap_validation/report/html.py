@@ -72,6 +72,10 @@ def verdict(ch: ChannelResult) -> tuple[str, str]:
     if not m.guaranteed:
         text, cls = (f"not validated: epsilon {eps:.3g} >= 1, the data lie outside every disk that guarantees "
                      f"margins; no controller designed on this model is guaranteed stable on the aircraft."), "bad"
+    elif ch.margins_caveat:
+        text, cls = (f"not validated beyond the measured band (epsilon {eps:.3f} over it): {ch.margins_caveat}; a "
+                     f"controller with {m.gain_margin_db:.2f} dB gain margin and {m.phase_margin_deg:.1f} deg phase "
+                     f"margin on the model is NOT guaranteed stable on the aircraft."), "bad"
     else:
         need = (f"a controller with at least {m.gain_margin_db:.2f} dB gain margin and {m.phase_margin_deg:.1f} deg "
                 f"phase margin on the model is guaranteed stable on the aircraft")
@@ -130,6 +134,11 @@ def table1_html(result: ValidationResult) -> str:
                 cells.append(_cell(cell(ch, margins, eps)))
         out.append(f"<tr><th>{html.escape(label)}</th>{''.join(cells)}</tr>")
     out.append("</table>")
+    out.append("<p class='note'>nu-gap and epsilon over the measured band (the winding-number condition assumed, as "
+               "in the paper); the margins hold if the mismatch outside the band is no larger.</p>")
+    doubtful = [ch for ch in channels if ch.margins.guaranteed and ch.margins_caveat]
+    out += [f"<p class='warn'>{html.escape(ch.name)}: margins NOT guaranteed: {html.escape(ch.margins_caveat)}</p>"
+            for ch in doubtful]
     return "\n".join(out)
 
 

@@ -184,6 +184,8 @@ def channel_status(result: ChannelResult, *, warn_epsilon: float = WARN_EPSILON,
     values.append(("coherence_threshold", _value_text(result.coherence_threshold)))
     values.append(("model_description", result.model_description))
     values.append(("warnings", json.dumps(list(result.warnings))))
+    values.append(("margins_guaranteed", "true" if result.margins_guaranteed else "false"))
+    values.append(("margins_note", result.margins_text() or ""))
     for key, value in (extra_values or {}).items():
         values.append((key, _value_text(value)))
 

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 import scipy.linalg
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from gap_validation.core import statespace as ss
@@ -30,21 +30,31 @@ def random_system(rng, states, outputs, inputs, stable=True, feedthrough=True):
 W = np.array([0.0, 0.03, 0.7, 2.0, 13.0, 400.0])
 
 
+def _evaluation_tolerance(factor):
+    """What double precision can give for G(jw) of this realization: 1e-9, or 50 eps cond(jw I - A) where the
+    realization is ill-conditioned (random unstable systems: cond up to 4e7 for 0.2 % of them, errors up to
+    3.5e-8; over 4000 random systems the largest error is half of this tolerance)."""
+    a = factor[0]
+    cond = np.array([np.linalg.cond(1j * w * np.eye(a.shape[0]) - a) for w in W])
+    return (1e-9 + 50.0 * np.finfo(float).eps * cond)[:, None, None]
+
+
 @settings(max_examples=40, deadline=None)
 @given(st.integers(0, 2**32 - 1), st.integers(1, 6), st.integers(1, 3), st.integers(1, 3), st.booleans())
+@example(1416186937, 3, 3, 1, False)   # cond(A) 9e6: G~G = I to 3.5e-8 only (failed a 1e-9 tolerance in CI)
 def test_normalised_coprime_factors(seed, states, outputs, inputs, stable):
     system = random_system(np.random.default_rng(seed), states, outputs, inputs, stable)
     p = ss.freqresp(system, W)
-    g = ss.freqresp(ss.right_ncf(system), W)
+    right, left = ss.right_ncf(system), ss.left_ncf(system)
+    g = ss.freqresp(right, W)
     n, m = g[:, :outputs], g[:, outputs:]
     np.testing.assert_allclose(n @ np.linalg.inv(m), p, atol=1e-8 * (1 + np.abs(p).max()))
-    np.testing.assert_allclose(conj_t(g) @ g, np.broadcast_to(np.eye(inputs), (W.size, inputs, inputs)), atol=1e-9)
-    gt = ss.freqresp(ss.left_ncf(system), W)
+    assert np.all(np.abs(conj_t(g) @ g - np.eye(inputs)) <= _evaluation_tolerance(right))
+    gt = ss.freqresp(left, W)
     mt, nt = -gt[:, :, :outputs], gt[:, :, outputs:]
     np.testing.assert_allclose(np.linalg.inv(mt) @ nt, p, atol=1e-8 * (1 + np.abs(p).max()))
-    np.testing.assert_allclose(gt @ conj_t(gt), np.broadcast_to(np.eye(outputs), (W.size, outputs, outputs)),
-                               atol=1e-9)
-    np.testing.assert_allclose(gt @ g, 0.0, atol=1e-9)
+    assert np.all(np.abs(gt @ conj_t(gt) - np.eye(outputs)) <= _evaluation_tolerance(left))
+    assert np.all(np.abs(gt @ g) <= np.maximum(_evaluation_tolerance(right), _evaluation_tolerance(left)))
     for factor in (ss.right_ncf(system), ss.left_ncf(system)):
         assert np.all(np.linalg.eigvals(factor[0]).real < 0.0)
 

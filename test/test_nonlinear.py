@@ -180,3 +180,19 @@ def test_a_linear_flight_at_two_amplitudes_is_not_called_nonlinear(tmp_path):
     assert result.nonlinearity is None, result.message
     assert "agree within their errors" in result.nonlinearity_evidence
     assert result.limited_by != "model" and result.diagnosis == [], result.message
+
+
+def test_a_checkpoint_without_amplitudes_loads_with_them_unknown():
+    from gap_validation.core.estimator import FrequencyResponseEstimator
+
+    t = np.arange(0.0, 80.0, 0.01)
+    u = 0.04 * log_sweep(t - 10.0, 60.0, 1.0, 20.0)
+    est = FrequencyResponseEstimator(np.geomspace(2.0, 15.0, 8))
+    est.add_time_histories(t, u, t, np.convolve(u, np.ones(5) / 5.0, mode="same"))
+    est.flush()
+    assert [s.amplitude for s in est.sweeps] == [pytest.approx(0.04, rel=0.03)]
+    state = est.state_dict()
+    del state["raw_amplitude"]                 # written before amplitudes were recorded
+    old = FrequencyResponseEstimator.from_state(state)
+    assert len(old.sweeps) == 1 and math.isnan(old.sweeps[0].amplitude)
+    np.testing.assert_array_equal(old.sweeps[0].response, est.sweeps[0].response)

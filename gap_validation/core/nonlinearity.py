@@ -13,11 +13,15 @@ or saturation does. Two things here:
   frequency by frequency against their errors: ``z^2 = |H_lo - H_hi|^2 / (v_lo + v_hi + floor)``, each group
   the inverse-variance mean of its records, its variance scaled by the group's Birge ratio (scatter between
   its own records beyond their errors) and a systematic floor of :data:`~gap_validation.core.diagnosis.BIAS_ERROR`
-  on each. For a linear system z^2 is about Exp(1) per frequency and the sum about Gamma(n, 1). Nonlinearity is
+  on each. The variances are themselves estimated (the records' degrees of freedom d, combined by
+  Welch-Satterthwaite), so for a linear system z^2 is F(2, 2 d) at each frequency: its tail probability p gives
+  the *surprise* ``-ln p``, Exp(1) for a linear response, and the summed surprise is Gamma(n, 1). Nonlinearity is
   called only when the sum is beyond it with probability below :data:`FALSE_ALARM` *and* at least
-  :data:`MIN_FREQUENCIES` frequencies each disagree beyond ``k = 4`` noise scales (z^2 > 16) by more than
-  :data:`MIN_RELATIVE_DIFFERENCE` of the response (conservative: a linear model must never be called
-  nonlinear; measured on linear flights by ``benchmarks/false_alarms.py``).
+  :data:`MIN_FREQUENCIES` frequencies each have a surprise above 16 (p < 1e-7, as k = 4 noise scales), differ
+  by more than :data:`MIN_RELATIVE_DIFFERENCE` of the response and by less than 90 deg in phase (a rate limit,
+  free play or saturation shifts the phase between two amplitudes by less than that; more is a bad record).
+  Conservative: a linear model must never be called nonlinear; measured on linear flights by
+  ``benchmarks/false_alarms.py``.
 
 A flight whose sweeps all have one amplitude cannot show amplitude dependence this way (the describing
 function at that amplitude is then one more frequency response, which the diagnosis still fits as
@@ -60,7 +64,8 @@ class AmplitudeDependence:
     frequencies : int
         Frequencies compared.
     disagreeing : int
-        Frequencies beyond 4 noise scales (and :data:`MIN_RELATIVE_DIFFERENCE`).
+        Frequencies with a surprise above 16 that differ by more than :data:`MIN_RELATIVE_DIFFERENCE` and by
+        less than 90 deg.
     probability : float
         Chance that a linear response gives a summed z^2 this large.
     worst_rad_s : float
@@ -145,10 +150,13 @@ def amplitude_function(w_rad_s: Sequence[float], amplitude: Sequence[float]) -> 
     return at
 
 
-def _group(sweeps: Sequence, points: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """Inverse-variance mean response and its variance (scaled by the Birge ratio when it is above one)."""
+def _group(sweeps: Sequence, points: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Inverse-variance mean response, its variance (scaled by the Birge ratio when it is above one) and the
+    degrees of freedom of that variance (summed over the records)."""
     h = np.array([np.asarray(s.response, complex) for s in sweeps])
     var = np.array([np.asarray(s.variance, float) for s in sweeps])
+    dof_r = np.array([np.broadcast_to(np.asarray(getattr(s, "n_averages", np.inf), float), h.shape[1:])
+                      for s in sweeps])
     ok = np.array(points) & np.isfinite(var) & (var > 0)
     with np.errstate(divide="ignore", invalid="ignore"):
         weight = np.where(ok, 1.0 / np.where(ok, var, 1.0), 0.0)
@@ -159,7 +167,9 @@ def _group(sweeps: Sequence, points: Sequence[np.ndarray]) -> tuple[np.ndarray, 
         chi2 = np.sum(weight * np.abs(np.where(ok, h - mean, 0.0)) ** 2, axis=0)
     dof = float(np.sum(np.maximum(m - 1, 0)))
     birge = float(np.sum(chi2[m >= 2]) / dof) if dof > 0 else 1.0
-    return np.where(total > 0, mean, np.nan), np.where(total > 0, variance * max(birge, 1.0), np.inf)
+    d = np.sum(np.where(ok, dof_r, 0.0), axis=0)
+    return (np.where(total > 0, mean, np.nan), np.where(total > 0, variance * max(birge, 1.0), np.inf),
+            np.where(total > 0, np.maximum(d, 1.0), np.nan))
 
 
 def amplitude_dependence(sweeps: Sequence, average_confident: np.ndarray, coherence_threshold: float,
@@ -182,7 +192,7 @@ def amplitude_dependence(sweeps: Sequence, average_confident: np.ndarray, cohere
     AmplitudeDependence or None
         None when the sweeps do not span :data:`AMPLITUDE_RATIO` in amplitude or nothing can be compared.
     """
-    from scipy.special import gammaincc
+    from scipy.special import fdtrc, gammaincc
 
     from gap_validation.core.diagnosis import sweep_points
 
@@ -196,8 +206,8 @@ def amplitude_dependence(sweeps: Sequence, average_confident: np.ndarray, cohere
     split = math.sqrt(amps.max() * amps.min())
     low = [s for s, a in zip(usable, amps) if a < split]
     high = [s for s, a in zip(usable, amps) if a >= split]
-    h_lo, v_lo = _group(low, [sweep_points(s, average_confident, coherence_threshold) for s in low])
-    h_hi, v_hi = _group(high, [sweep_points(s, average_confident, coherence_threshold) for s in high])
+    h_lo, v_lo, d_lo = _group(low, [sweep_points(s, average_confident, coherence_threshold) for s in low])
+    h_hi, v_hi, d_hi = _group(high, [sweep_points(s, average_confident, coherence_threshold) for s in high])
     both = np.isfinite(h_lo) & np.isfinite(h_hi) & np.isfinite(v_lo) & np.isfinite(v_hi)
     n = int(np.count_nonzero(both))
     result = AmplitudeDependence(False, float(np.mean(amps[amps < split])), float(np.mean(amps[amps >= split])),
@@ -209,10 +219,17 @@ def amplitude_dependence(sweeps: Sequence, average_confident: np.ndarray, cohere
     with np.errstate(divide="ignore", invalid="ignore"):
         z2 = np.where(both, diff ** 2 / (v_lo + v_hi + floor), 0.0)
         relative = np.where(both, diff / np.abs(h_hi), 0.0)
-    result.probability = float(gammaincc(n, float(np.sum(z2))))      # Gamma(n, 1) tail
-    strong = (z2 > _Z2_SINGLE) & (relative > MIN_RELATIVE_DIFFERENCE)
+        # the variances are estimated (d degrees of freedom, Welch-Satterthwaite): z^2 is F(2, 2 d), not Exp(1);
+        # its tail probability p turned into -ln p, which is Exp(1) for a linear response
+        d = np.where(both, (v_lo + v_hi) ** 2 / (v_lo ** 2 / d_lo + v_hi ** 2 / d_hi), 1.0)
+        tail = np.where(both, fdtrc(2.0, 2.0 * np.maximum(d, 1.0), z2), 1.0)
+        surprise = -np.log(np.maximum(tail, 1e-300))
+        phase = np.abs(np.angle(np.where(both, h_hi / h_lo, 1.0)))
+    result.probability = float(gammaincc(n, float(np.sum(surprise))))      # Gamma(n, 1) tail
+    # a rate limit, free play or saturation changes the phase between amplitudes by less than 90 deg
+    strong = (surprise > _Z2_SINGLE) & (relative > MIN_RELATIVE_DIFFERENCE) & (phase < math.pi / 2)
     result.disagreeing = int(np.count_nonzero(strong))
-    worst = int(np.argmax(z2))
+    worst = int(np.argmax(surprise))
     w = np.asarray(usable[0].w_rad_s, float)
     ratio = h_hi[worst] / h_lo[worst]
     result.worst_rad_s, result.gain_ratio = float(w[worst]), float(abs(ratio))

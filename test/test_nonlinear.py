@@ -196,3 +196,19 @@ def test_a_checkpoint_without_amplitudes_loads_with_them_unknown():
     old = FrequencyResponseEstimator.from_state(state)
     assert len(old.sweeps) == 1 and math.isnan(old.sweeps[0].amplitude)
     np.testing.assert_array_equal(old.sweeps[0].response, est.sweeps[0].response)
+
+
+def test_compare_models_refuses_an_amplitude_dependent_model(tmp_path, capsys):
+    import yaml
+
+    from _flights import ROOT
+    from gap_validation.cli.main import main
+
+    p1 = ROOT / "config" / "paper_example_p1.yaml"
+    data = yaml.safe_load(p1.read_text())
+    data["channels"]["pitch"]["model"]["effects"] = [{"type": "rate_limit", "rad_s": 0.8}]
+    limited = tmp_path / "limited.yaml"
+    limited.write_text(yaml.safe_dump(data))
+    assert main(["compare-models", str(limited), str(p1)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "channels.pitch.model.effects: rate_limit depends on the input amplitude" in err

@@ -21,6 +21,8 @@ def test_vocabulary_is_the_design_contract():
         "second_order_lag": ("natural_frequency_rad_s", "damping"),
         "gain": ("factor",),
         "structural_mode": ("frequency_rad_s", "damping", "zero_frequency_rad_s", "zero_damping"),
+        "rate_limit": ("rad_s",),
+        "backlash": ("width_rad",),
     }
 
 
@@ -106,10 +108,12 @@ def test_one_registry_entry_per_effect_serves_every_reader():
     from gap_validation.core import diagnosis
 
     assert EFFECT_TYPES == {name: entry.names for name, entry in EFFECTS.items()}
-    assert all(diagnosis.FAMILIES[name] is entry.fit for name, entry in EFFECTS.items())
+    assert all(diagnosis.FAMILIES[name] is entry.fit for name, entry in EFFECTS.items() if entry.factor is not None)
+    assert all(diagnosis.NONLINEAR_FAMILIES[name] is entry for name, entry in EFFECTS.items() if entry.factor is None)
     for name, entry in EFFECTS.items():
         spec = {"type": name, **{p.name: 0.5 for p in entry.parameters}}
-        np.testing.assert_array_equal(entry.response(spec, W), effect_response(spec, W))
+        amplitude = None if entry.factor is not None else 0.7        # a describing function needs it
+        np.testing.assert_array_equal(entry.response(spec, W, amplitude), effect_response(spec, W, amplitude))
         assert entry.complexity == len(entry.parameters)
 
 

@@ -253,6 +253,8 @@ def test_restored_estimator_continues_identically(nominal, split):
         for name in ("gxx", "gyy", "gxy", "n_averages", "response", "coherence", "random_error"):
             assert np.array_equal(getattr(a, name), getattr(b, name)), name
         assert (a.start_s, a.end_s) == (b.start_s, b.end_s)
+        assert np.array_equal(a.amplitude, b.amplitude, equal_nan=True)       # each record's input amplitude
+    assert all(s.amplitude > 0 for s in resumed.sweeps)
 
 
 def test_state_with_missing_key_is_a_data_error():

@@ -55,6 +55,7 @@ def compare(config_a: ValidationConfig, config_b: ValidationConfig) -> dict:
 def _compare_channel(name: str, config_a: ValidationConfig, config_b: ValidationConfig) -> dict:
     """The JSON object of one channel present in both configs."""
     ch_a, ch_b = config_a.channels[name], config_b.channels[name]
+    _refuse_nonlinear(name, ((config_a.source, ch_a), (config_b.source, ch_b)))
     m1, m2 = ch_a.model, _aligned(name, ch_a, ch_b, config_a.source, config_b.source)
     nugap, w_nugap = metrics.nugap(m1, m2)
     winding = metrics.winding_condition(m1, m2)
@@ -81,6 +82,19 @@ def _compare_channel(name: str, config_a: ValidationConfig, config_b: Validation
                       "stability_margin_frequency_rad_s": check.frequency_rad_s,
                       "guaranteed_stable": check.guaranteed_stable, "stability_note": check.sentence})
     return entry
+
+
+def _refuse_nonlinear(name: str, channels) -> None:
+    """ConfigError when a model holds an amplitude-dependent effect (``rate_limit``, ``backlash``): its response
+    needs the amplitude of a flight, which two configs do not have."""
+    for source, ch in channels:
+        from gap_validation.core.effects import is_nonlinear
+
+        kinds = [e["type"] for e in getattr(ch.model, "effects", ()) if is_nonlinear(e)]
+        if kinds:
+            raise ConfigError(f"{source}: channels.{name}.model.effects: {kinds[0]} depends on the input amplitude "
+                              f"of a flight; compare-models compares linear models only (remove it to compare "
+                              f"the linear parts)")
 
 
 def _aligned(name: str, ch_a: ChannelConfig, ch_b: ChannelConfig, source_a: str, source_b: str):

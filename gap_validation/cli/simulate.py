@@ -65,7 +65,8 @@ def register(sub) -> None:
                    help="new rosbag2 directory (or a bare .mcap / .db3 file)")
     p.add_argument("--hidden", action="append", default=[], metavar="CHANNEL:EFFECT:key=value[,key=value]",
                    help="effect in series with the channel's model in the truth (repeatable), "
-                        "e.g. pitch:time_delay:seconds=0.04")
+                        "e.g. pitch:time_delay:seconds=0.04; rate_limit:rad_s=R and backlash:width_rad=B act "
+                        "on the surface command in the time domain (nonlinear)")
     p.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
     p.add_argument("--storage", choices=STORAGES, default=None, help="storage plugin (default mcap)")
     p.add_argument("--excitation", choices=EXCITATIONS, default=d.excitation,
@@ -93,6 +94,9 @@ def register(sub) -> None:
                    help=f"rate of the input (surface) topics [Hz] (default {d.surface_rate_hz:g})")
     p.add_argument("--amplitude-deg", type=_positive(float), default=None,
                    help="sweep amplitude [deg] (default 3.4)")
+    p.add_argument("--amplitude-scales", type=_amplitude_scales, default=None, metavar="S[,S...]",
+                   help="round i of the test card flies its sweeps at S[i mod n] times the amplitude, e.g. 1,0.4 "
+                        "(sweeps at different amplitudes reveal a nonlinear response; default: all the same)")
     p.add_argument("--noise", type=_non_negative, default=d.noise, metavar="SCALE",
                    help="multiplies sensor noise and gust levels (default 1; 0: noise-free)")
     p.add_argument("--drop-probability", type=_non_negative, default=d.drop_probability,
@@ -103,6 +107,16 @@ def register(sub) -> None:
     p.add_argument("--no-compression", action="store_true", help="no zstd chunk compression (mcap)")
     p.add_argument("--force", action="store_true", help="replace BAG if it exists and is a bag")
     p.set_defaults(func=run)
+
+
+def _amplitude_scales(text: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        values = ()
+    if not values or not all(v > 0 and v < float("inf") for v in values):
+        raise argparse.ArgumentTypeError(f"expected numbers > 0 separated by commas, got {text!r}")
+    return values
 
 
 def _remove_existing(out: Path) -> None:
@@ -143,7 +157,8 @@ def options_from_args(args, channels: tuple[str, ...] | None = None) -> FlightOp
         multistep_unit_s=getattr(args, "multistep_unit_s", None),
         sweeps_per_channel=args.sweeps, sweep_duration_s=args.sweep_duration, imu_rate_hz=args.imu_rate_hz,
         surface_rate_hz=args.surface_rate_hz, noise=args.noise, drop_probability=args.drop_probability,
-        sweep_amplitude_rad=math.radians(args.amplitude_deg) if args.amplitude_deg else None, **band,
+        sweep_amplitude_rad=math.radians(args.amplitude_deg) if args.amplitude_deg else None,
+        sweep_amplitude_scales=getattr(args, "amplitude_scales", None), **band,
     ).check()
 
 

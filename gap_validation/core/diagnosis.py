@@ -65,7 +65,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
@@ -74,7 +74,8 @@ from scipy.special import betainc
 
 from gap_validation.core import metrics
 from gap_validation.core.errors import GapValidationError
-from gap_validation.core.effects import EFFECTS, EffectFit, EffectType, FitRange, describe_effect, validate_effect
+from gap_validation.core.effects import (EFFECTS, AmplitudeFitRange, EffectFit, EffectType, FitRange, describe_effect,
+                                         validate_effect)
 from gap_validation.core.models import LinearModel
 from gap_validation.core.numbers import significant
 from gap_validation.core.results import Band, Candidate
@@ -152,6 +153,14 @@ class ChannelDiagnosis:
         between the model and the top candidate's model), one line each (``ChannelResult.warnings``).
     margins_caveat : str
         Why the margins from epsilon are not guaranteed although epsilon < 1 (empty: nothing known against them).
+    nonlinearity : str or None
+        :data:`~gap_validation.core.nonlinearity.NONLINEARITY` when sweeps flown at different amplitudes
+        disagree beyond their errors (JSON ``nonlinearity``), else None.
+    nonlinearity_evidence : str or None
+        The comparison in words (JSON ``nonlinearity_evidence``), also when nothing was detected; None when the
+        sweeps do not span different amplitudes.
+    amplitude : ndarray or None
+        Input amplitude flown per frequency (:func:`~gap_validation.core.nonlinearity.flown_amplitude`).
     """
 
     limited_by: str = "none"
@@ -162,6 +171,9 @@ class ChannelDiagnosis:
     beyond_range: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     margins_caveat: str = ""
+    nonlinearity: str | None = None
+    nonlinearity_evidence: str | None = None
+    amplitude: np.ndarray | None = None
 
 
 # ------------------------------------------------------------------------------------------------ statistics
@@ -1031,7 +1043,8 @@ def _raw_epsilon(model: LinearModel, sweeps: Sequence, coherence_threshold: floa
         ok = sweep_points(s, average_confident, coherence_threshold)
         if np.any(ok):
             w = np.asarray(s.w_rad_s, float)[ok]
-            e = float(np.max(metrics.epsilon_per_frequency(model.freqresp(w), np.asarray(s.response, complex)[ok])))
+            m = _at_sweep_amplitude(model, s)
+            e = float(np.max(metrics.epsilon_per_frequency(m.freqresp(w), np.asarray(s.response, complex)[ok])))
             best = e if best is None else max(best, e)
     return best
 
@@ -1073,6 +1086,7 @@ def analyse_channel(model: LinearModel, estimate: SpectralEstimate, sweeps: Sequ
     ChannelDiagnosis
     """
     ev = _evidence(estimate, sweeps, coherence_threshold, bias_error, sigma_factor)
+    model, amplitude = flown_model(model, estimate, sweeps)
     p_model = model.freqresp(ev.w)
     base = ev.fit(model.freqresp)
     mismatch = base.k
@@ -1083,7 +1097,7 @@ def analyse_channel(model: LinearModel, estimate: SpectralEstimate, sweeps: Sequ
                        ev.min_dof, sigma_factor)
     result = ChannelDiagnosis(limited_by=_limited_by(ev, base, bands), frequency_flags=flags, bands=bands)
     if fit and result.limited_by == "model":
-        fitted = _diagnose(model, ev)
+        fitted = _diagnose(model, ev, amplitude)
         chosen = _select(ev, base, [c for c in fitted if not c.at_bound])
         result.candidates = [_candidate(c, ev, base, p_model, sweeps, coherence_threshold) for c in chosen]
         if not any(c.explains for c in result.candidates):   # said only when no offered fix explains it
@@ -1097,6 +1111,7 @@ def analyse_channel(model: LinearModel, estimate: SpectralEstimate, sweeps: Sequ
         result.margins_caveat = result.margins_caveat or ("the mismatch peaks at the edge of the measured band and "
                                                           "may continue outside it: the margins then do not hold")
     result.message = _message(ev, base, result, coherence_threshold, epsilon_threshold, channel)
+    _call_nonlinearity(result, ev, sweeps, coherence_threshold, bias_error, amplitude)
     return result
 
 
@@ -1158,9 +1173,12 @@ def _winding_warning(model: LinearModel, top: FittedCandidate, result: ChannelDi
                              "do not hold if the diagnosis is right")
 
 
-def _diagnose(model: LinearModel, ev: _Evidence) -> list[FittedCandidate]:
-    """Singles and the coefficient refit; pairs too when no single effect leaves a mismatch within the errors."""
+def _diagnose(model: LinearModel, ev: _Evidence, amplitude=None) -> list[FittedCandidate]:
+    """Singles and the coefficient refit (and the amplitude-dependent effects when the flown amplitude is known);
+    pairs too when no single effect leaves a mismatch within the errors."""
     fitted = _fit_all(model, ev, pairs=False, parameter_error=True)
+    if amplitude is not None:
+        fitted += _fit_nonlinear(model, ev, amplitude)
     explained = any(c.score.k_max <= ev.sigma_factor for c in fitted if not c.replacement and not c.at_bound)
     if fitted and not explained:
         fitted += _fit_all(model, ev, pairs=True, parameter_error=False, singles=False)
@@ -1230,3 +1248,108 @@ def _message(ev: _Evidence, base: _Fit, result: ChannelDiagnosis, coherence_thre
         parts += [f"{rest} with fewer than {ev.min_dof} degrees of freedom"] if rest else []
         text += f" ({excluded} of {ev.w.size} frequencies excluded: {', '.join(parts)})"
     return text
+
+
+# ------------------------------------------------------------------------------------------------ nonlinear effects
+
+
+#: Amplitude-dependent effects the diagnosis fits through their describing functions (a view of the registry).
+NONLINEAR_FAMILIES: dict[str, EffectType] = {name: e for name, e in EFFECTS.items() if e.describing_fit is not None}
+
+
+def flown_model(model: LinearModel, estimate: SpectralEstimate, sweeps: Sequence) -> tuple[LinearModel, object]:
+    """The model bound to the input amplitude flown per frequency, and that amplitude as ``amplitude(w)``.
+
+    The amplitude comes from the records (:func:`~gap_validation.core.nonlinearity.flown_amplitude`); without
+    it, a model with an amplitude-dependent effect is bound to an unknown amplitude (the effect then counts as
+    absent: its describing function is 1) and the amplitude returned is None.
+
+    Parameters
+    ----------
+    model : LinearModel
+        The channel's model.
+    estimate : SpectralEstimate
+        The pooled estimate (its frequencies).
+    sweeps : sequence of SpectralEstimate
+        The raw estimates with their ``amplitude``.
+    """
+    from gap_validation.core.nonlinearity import amplitude_function, flown_amplitude
+
+    w = np.asarray(estimate.w_rad_s, float)
+    amp = flown_amplitude(w, sweeps)
+    if amp is None or w.size == 0:
+        return model.at_amplitude(lambda x: np.full(np.shape(x), np.nan)), None
+    at = amplitude_function(w, amp)
+    return model.at_amplitude(at), at
+
+
+def _at_sweep_amplitude(model: LinearModel, sweep) -> LinearModel:
+    """``model`` at one record's own amplitude (amplitude-dependent models only)."""
+    a = float(getattr(sweep, "amplitude", math.nan))
+    if not model.nonlinear or not math.isfinite(a):
+        return model
+    return model.at_amplitude(a)
+
+
+@dataclass
+class _DescribingCombo(_Combo):
+    """One amplitude-dependent effect, fitted through its describing function at the flown amplitude."""
+
+    amplitude: object = None          # amplitude(w) -> array
+
+    def response(self, x: np.ndarray, w: np.ndarray) -> np.ndarray:
+        x = np.atleast_2d(x)
+        out = np.ones((x.shape[0], w.size), dtype=complex)
+        for fam, part in zip(self.families, self._split(x)):
+            out = out * fam.describing_fit.response(part, w, self.amplitude(w))
+        return out
+
+    def grid(self, ctx: FitRange) -> np.ndarray:
+        return self.families[0].describing_fit.grid(ctx, False)
+
+    def bounds(self, x0: np.ndarray, ctx: FitRange) -> tuple[np.ndarray, np.ndarray]:
+        return self.families[0].describing_fit.bounds(x0, ctx)
+
+    def specs(self, x: np.ndarray) -> list[dict]:
+        return [validate_effect(self.families[0].describing_fit.spec(np.asarray(x, float)))]
+
+
+def _fit_nonlinear(model: LinearModel, ev: _Evidence, amplitude) -> list[FittedCandidate]:
+    """``rate_limit`` and ``backlash`` fitted in series with the model (describing functions at the flown
+    amplitude), scored like the others."""
+    data = _fit_data(model, ev)
+    if data is None:
+        return []
+    a = np.asarray(amplitude(data.w), float)
+    if not np.all(np.isfinite(a) & (a > 0)):
+        return []
+    data = replace(data, ctx=AmplitudeFitRange(data.ctx.w_lo, data.ctx.w_hi, float(a.min()), float(a.max())))
+    out = []
+    for family in NONLINEAR_FAMILIES.values():
+        combo = _DescribingCombo((family,), amplitude)
+        x = _fit_combo(combo, data)
+        effects = combo.specs(x)
+        lo, hi = combo.bounds(x, data.ctx)
+        values = [v for e in effects for k, v in e.items() if k != "type"]
+        cand = FittedCandidate(combo.name, combo.complexity, effects,
+                               model.with_effects(effects).at_amplitude(amplitude),
+                               at_bound=_on_bound(x, lo, hi, [k for e in effects for k in e if k != "type"], values))
+        cand.score = ev.fit(cand.model.freqresp)
+        out.append(cand)
+    return out
+
+
+def _call_nonlinearity(result: ChannelDiagnosis, ev: _Evidence, sweeps: Sequence, coherence_threshold: float,
+                       bias_error: float, amplitude) -> None:
+    """Compare the sweeps flown at different amplitudes; when they disagree beyond their errors, say
+    :data:`~gap_validation.core.nonlinearity.NONLINEARITY` in the result and the message."""
+    from gap_validation.core.nonlinearity import NONLINEARITY, amplitude_dependence
+
+    result.amplitude = None if amplitude is None else np.asarray(amplitude(ev.w), float)
+    found = amplitude_dependence(sweeps, ev.confident, coherence_threshold, bias_error)
+    if found is None:
+        return
+    result.nonlinearity_evidence = found.sentence()
+    if found.detected:
+        result.nonlinearity = NONLINEARITY
+        result.message += f"; {NONLINEARITY}: {found.sentence()}"

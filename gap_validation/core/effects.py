@@ -13,6 +13,8 @@ second_order_lag    natural_frequency_rad_s, damping                            
 gain                factor                                                           k
 structural_mode     frequency_rad_s, damping, zero_frequency_rad_s, zero_damping     (s^2/wz^2 + 2 zz s/wz + 1) /
                                                                                      (s^2/wp^2 + 2 zp s/wp + 1)
+rate_limit          rad_s                                                            describing function N(A w / R)
+backlash            width_rad                                                        describing function N(b / A)
 ==================  ===============================================================  ==============================
 
 All factors except ``gain`` have unit gain at s = 0. The names and parameters are a user contract: they are
@@ -28,10 +30,16 @@ diagnosis fits it (:class:`EffectFit`: start grid, bounds and vectorised respons
 frequencies). :mod:`gap_validation.core.models`, the config checks and :mod:`gap_validation.core.diagnosis` all
 read it.
 
-An amplitude-dependent (nonlinear) effect, such as a surface rate limit or free play, is one more entry with
-``factor=None`` and a ``describing_function(params, w_rad_s, amplitude)``: :meth:`EffectType.response` then
-needs the flown amplitude, and a :class:`~gap_validation.core.models.LinearModel` (which needs a factor)
-refuses it with a one-line error.
+Amplitude-dependent (nonlinear) effects
+---------------------------------------
+``rate_limit`` (a surface rate limit R [rad/s]) and ``backlash`` (free play of total width b [rad]) act on the
+surface command before the airframe. They have no linear factor (``factor=None``); in the frequency domain they
+are their *describing functions* (the first harmonic of the output for a sinusoid of amplitude A at w, divided
+by the input's), evaluated at the amplitude flown at each frequency (:func:`rate_limit_df`,
+:func:`backlash_df`). :meth:`EffectType.response` then needs the amplitude; a
+:class:`~gap_validation.core.models.LinearModel` holding one needs it too (``at_amplitude``), and simulates it
+in the time domain (:func:`rate_limited`, :func:`backlash_output`). Their fits (:attr:`EffectType.describing_fit`)
+take the flown amplitude per frequency as a third argument of the response.
 """
 from __future__ import annotations
 
@@ -46,7 +54,8 @@ from gap_validation.core.errors import ConfigError
 from gap_validation.core.numbers import NON_NEGATIVE, NONZERO, POSITIVE, Interval, check_number, significant
 
 __all__ = ["Parameter", "FitRange", "EffectFit", "EffectType", "EFFECTS", "EFFECT_TYPES", "MAX_DELAY_S",
-           "validate_effect", "check_plausible", "effect_factor", "effect_response", "describe_effect"]
+           "validate_effect", "check_plausible", "effect_factor", "effect_response", "describe_effect",
+           "is_nonlinear", "rate_limit_df", "backlash_df", "rate_limited", "backlash_output", "apply_nonlinear"]
 
 #: Largest delay the diagnosis fits [s].
 MAX_DELAY_S = 0.5
@@ -131,6 +140,11 @@ class EffectType:
         How the diagnosis fits it (None: never proposed by the diagnosis).
     describing_function : callable or None
         ``describing_function(params, w_rad_s, amplitude) -> complex array`` of an amplitude-dependent effect.
+    describing_fit : EffectFit or None
+        How the diagnosis fits an amplitude-dependent effect: as :attr:`fit`, but its ``response(X, w,
+        amplitude)`` takes the flown amplitude at each frequency.
+    time_domain : callable or None
+        ``time_domain(params, t_s, u) -> y``: the element on sampled signals (simulation).
     """
 
     name: str
@@ -139,6 +153,8 @@ class EffectType:
     describe: Callable[[Mapping[str, float]], str]
     fit: EffectFit | None = None
     describing_function: Callable[[Mapping[str, float], np.ndarray, Any], np.ndarray] | None = None
+    describing_fit: EffectFit | None = None
+    time_domain: Callable[[Mapping[str, float], np.ndarray, np.ndarray], np.ndarray] | None = None
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -182,7 +198,7 @@ class EffectType:
         if self.factor is None:
             if amplitude is None or self.describing_function is None:
                 raise ConfigError(f"effect {self.name}: depends on the input amplitude, which is not given")
-            return self.describing_function(params, w, amplitude)
+            return self.describing_function(params, w, np.broadcast_to(np.asarray(amplitude, float), w.shape))
         num, den, delay_s = self.factor(params)
         s = 1j * w
         return np.polyval(num, s) / np.polyval(den, s) * np.exp(-s * delay_s)
@@ -377,6 +393,237 @@ def _mode_spec(x: np.ndarray) -> dict:
             "zero_damping": significant(x[3], 3)}
 
 
+# ------------------------------------------------------------------------------------------------ nonlinear effects
+#: Largest R / (A w) of a rate limit whose output is a pure triangle wave (it never catches the sinusoid):
+#: 1 / sqrt(1 + pi^2 / 4).
+_RHO_TRIANGLE = 1.0 / math.sqrt(1.0 + math.pi ** 2 / 4.0)
+
+
+def rate_limit_df(rho: Any) -> np.ndarray:
+    """Describing function of a rate limit as a function of ``rho = R / (A w)`` (exact, closed form).
+
+    For ``x = A sin(w t)`` through ``|dy/dt| <= R``: ``rho >= 1``, the limit is never reached (N = 1);
+    ``rho <= 1 / sqrt(1 + pi^2/4)``, the output is a triangle wave of slope R that never catches the input:
+    ``N = (4 rho / pi) exp(-j acos(pi rho / 2))``; in between the output follows the sinusoid near its peaks
+    (where ``|dx/dt| <= R``) and slews at R from ``theta_2 = pi - acos(rho)`` until it meets the input again at
+    ``theta_m + pi``, with ``sqrt(1 - rho^2) + sin(theta_m) = rho (theta_m + acos(rho))``; N is the first
+    Fourier coefficient of that output, integrated piecewise in closed form.
+
+    Parameters
+    ----------
+    rho : array_like
+        ``R / (A w)`` (> 0).
+
+    Returns
+    -------
+    ndarray of complex
+        N, same shape as ``rho`` (``|N| <= 1``, phase a lag).
+    """
+    rho = np.asarray(rho, float)
+    out = np.ones(rho.shape, complex)
+    tri = rho <= _RHO_TRIANGLE
+    r = rho[tri]
+    out[tri] = 4.0 * r / math.pi * np.exp(-1j * np.arccos(np.minimum(math.pi * r / 2.0, 1.0)))
+    mid = (rho > _RHO_TRIANGLE) & (rho < 1.0)
+    if np.any(mid):
+        r = rho[mid]
+        a = np.arccos(r)
+        c = np.sqrt(1.0 - r * r)
+        lo, hi = a.copy(), math.pi - a           # f(theta) = r (theta + a) - c - sin(theta) rises on [lo, hi]
+        for _ in range(60):
+            m = 0.5 * (lo + hi)
+            up = r * (m + a) - c - np.sin(m) > 0.0
+            hi, lo = np.where(up, m, hi), np.where(up, lo, m)
+        tm = 0.5 * (lo + hi)
+        t2 = math.pi - a
+        t3 = tm + math.pi
+        # following: y = sin(theta) on [tm, t2]
+        i_s = (t2 - tm) / 2.0 - (np.sin(2 * t2) - np.sin(2 * tm)) / 4.0
+        i_c = (np.sin(t2) ** 2 - np.sin(tm) ** 2) / 2.0
+        # slewing: y = c - r (theta - t2) on [t2, t3]
+        i_s += c * (np.cos(t2) - np.cos(t3)) - r * (-(t3 - t2) * np.cos(t3) + np.sin(t3) - np.sin(t2))
+        i_c += c * (np.sin(t3) - np.sin(t2)) - r * ((t3 - t2) * np.sin(t3) + np.cos(t3) - np.cos(t2))
+        out[mid] = (2.0 / math.pi) * (i_s + 1j * i_c)
+    return out
+
+
+def backlash_df(ratio: Any) -> np.ndarray:
+    """Describing function of backlash (free play) as a function of ``ratio = b / A`` (textbook, exact).
+
+    With half-width ``h = b / 2`` and ``r = h / A < 1`` (Gelb & Vander Velde, *Multiple-Input Describing
+    Functions and Nonlinear System Design*, 1968)::
+
+        Re N = (pi/2 + asin(1 - 2 r) + 2 (1 - 2 r) sqrt(r (1 - r))) / pi,    Im N = -4 r (1 - r) / pi
+
+    and N = 0 when the amplitude does not cross the free play (``r >= 1``).
+
+    Parameters
+    ----------
+    ratio : array_like
+        Total free play over the input amplitude, ``b / A`` (>= 0).
+
+    Returns
+    -------
+    ndarray of complex
+        N, same shape as ``ratio``.
+    """
+    r = np.clip(np.asarray(ratio, float) / 2.0, 0.0, 1.0)
+    q = 1.0 - 2.0 * r
+    re = (math.pi / 2.0 + np.arcsin(q) + 2.0 * q * np.sqrt(r * (1.0 - r))) / math.pi
+    return re - 1j * 4.0 * r * (1.0 - r) / math.pi
+
+
+def _amplitude(amplitude: Any) -> np.ndarray:
+    a = np.asarray(amplitude, float)
+    return np.where(np.isfinite(a) & (a > 0.0), a, np.nan)
+
+
+def _rate_df(p: Mapping[str, float], w: np.ndarray, amplitude: Any) -> np.ndarray:
+    with np.errstate(divide="ignore"):
+        rho = p["rad_s"] / (_amplitude(amplitude) * np.abs(w))
+    return np.where(np.isfinite(rho), rate_limit_df(np.where(np.isfinite(rho), rho, 1.0)), 1.0 + 0j)
+
+
+def _backlash_df(p: Mapping[str, float], w: np.ndarray, amplitude: Any) -> np.ndarray:
+    ratio = p["width_rad"] / _amplitude(amplitude)
+    return np.where(np.isfinite(ratio), backlash_df(np.where(np.isfinite(ratio), ratio, 0.0)), 1.0 + 0j)
+
+
+def rate_limited(t_s: Any, u: Any, rad_s: float) -> np.ndarray:
+    """A signal through a rate limit: ``y_k = y_(k-1) + clip(u_k - y_(k-1), -R dt_k, R dt_k)``, ``y_0 = u_0``.
+
+    Parameters
+    ----------
+    t_s : array_like
+        Sample times [s], increasing.
+    u : array_like
+        Commanded signal [rad].
+    rad_s : float
+        Rate limit R [rad/s].
+    """
+    u = np.asarray(u, float).ravel()
+    y = np.empty_like(u)
+    if u.size == 0:
+        return y
+    steps = (rad_s * np.diff(np.asarray(t_s, float).ravel())).tolist()
+    prev = float(u[0])
+    y[0] = prev
+    for k, (target, step) in enumerate(zip(u[1:].tolist(), steps), start=1):
+        delta = target - prev
+        prev = prev + (step if delta > step else -step if delta < -step else delta)
+        y[k] = prev
+    return y
+
+
+def backlash_output(u: Any, width_rad: float) -> np.ndarray:
+    """A signal through free play of total width b: the output moves only when the input pushes it,
+    ``y_k = clip(y_(k-1), u_k - b/2, u_k + b/2)``, ``y_0 = u_0``.
+
+    Parameters
+    ----------
+    u : array_like
+        Input signal [rad].
+    width_rad : float
+        Total free play b [rad].
+    """
+    u = np.asarray(u, float).ravel()
+    y = np.empty_like(u)
+    if u.size == 0:
+        return y
+    h = 0.5 * width_rad
+    prev = float(u[0])
+    for k, x in enumerate(u.tolist()):
+        prev = x - h if prev < x - h else x + h if prev > x + h else prev
+        y[k] = prev
+    return y
+
+
+def is_nonlinear(spec: Mapping[str, Any]) -> bool:
+    """True for an amplitude-dependent effect (no linear factor).
+
+    Parameters
+    ----------
+    spec : mapping
+        An effect mapping with a known ``type``.
+    """
+    return EFFECTS[spec["type"]].factor is None
+
+
+def apply_nonlinear(effects: Sequence[Mapping[str, Any]], t_s: Any, u: Any) -> np.ndarray:
+    """The surface command ``u`` through the amplitude-dependent effects of ``effects``, in their order (the
+    linear ones are skipped: they act in the linear part).
+
+    Parameters
+    ----------
+    effects : sequence of mapping
+        Validated effects.
+    t_s : array_like
+        Sample times [s].
+    u : array_like
+        Samples of the command.
+    """
+    out = np.asarray(u, float).ravel()
+    for e in effects:
+        entry = EFFECTS[e["type"]]
+        if entry.factor is None and entry.time_domain is not None:
+            out = entry.time_domain(e, np.asarray(t_s, float).ravel(), out)
+    return out
+
+
+def _rate_words(p: Mapping[str, float]) -> str:
+    return f"surface rate limit of {p['rad_s']:.3g} rad/s (nonlinear, amplitude-dependent)"
+
+
+def _backlash_words(p: Mapping[str, float]) -> str:
+    return f"backlash (free play) of {p['width_rad']:.3g} rad (nonlinear, amplitude-dependent)"
+
+
+@dataclass(frozen=True)
+class AmplitudeFitRange(FitRange):
+    """A :class:`FitRange` with the smallest and largest amplitude flown at the usable frequencies."""
+
+    a_lo: float = math.nan
+    a_hi: float = math.nan
+
+
+def _rate_bounds(x0: np.ndarray | None, ctx: AmplitudeFitRange) -> tuple[np.ndarray, np.ndarray]:
+    # below 0.02 A w_lo the surface barely moves; above A w_hi the limit is never reached (no effect)
+    return np.log([0.02 * ctx.a_lo * ctx.w_lo]), np.log([1.5 * ctx.a_hi * ctx.w_hi])
+
+
+def _rate_grid(ctx: AmplitudeFitRange, coarse: bool) -> np.ndarray:
+    lo, hi = _rate_bounds(None, ctx)
+    return np.linspace(lo[0], hi[0], 12 if coarse else 48)[:, None]
+
+
+def _rate_response(x: np.ndarray, w: np.ndarray, amplitude: np.ndarray) -> np.ndarray:
+    rho = np.exp(x[:, :1]) / (np.asarray(amplitude, float)[None, :] * w[None, :])
+    return rate_limit_df(rho)
+
+
+def _rate_spec(x: np.ndarray) -> dict:
+    return {"type": "rate_limit", "rad_s": significant(math.exp(x[0]))}
+
+
+def _backlash_bounds(x0: np.ndarray | None, ctx: AmplitudeFitRange) -> tuple[np.ndarray, np.ndarray]:
+    # free play as wide as the smallest amplitude's double swing stops the surface
+    return np.log([1e-3 * ctx.a_lo]), np.log([1.9 * ctx.a_lo])
+
+
+def _backlash_grid(ctx: AmplitudeFitRange, coarse: bool) -> np.ndarray:
+    lo, hi = _backlash_bounds(None, ctx)
+    return np.linspace(lo[0], hi[0], 12 if coarse else 48)[:, None]
+
+
+def _backlash_response(x: np.ndarray, w: np.ndarray, amplitude: np.ndarray) -> np.ndarray:
+    ratio = np.exp(x[:, :1]) / np.asarray(amplitude, float)[None, :]
+    return np.broadcast_to(backlash_df(ratio), (x.shape[0], w.size))
+
+
+def _backlash_spec(x: np.ndarray) -> dict:
+    return {"type": "backlash", "width_rad": significant(math.exp(x[0]))}
+
+
 # ------------------------------------------------------------------------------------------------ the registry
 _FREQUENCY = dict(valid=POSITIVE, plausible=Interval(1e-4, 1e5))
 _DAMPING = dict(valid=NON_NEGATIVE, plausible=Interval(0.0, 100.0))
@@ -396,6 +643,14 @@ EFFECTS: dict[str, EffectType] = {e.name: e for e in (
                                    Parameter("zero_frequency_rad_s", **_FREQUENCY),
                                    Parameter("zero_damping", **_DAMPING)),
                _mode_factor, _mode_words, EffectFit(_mode_grid, _mode_bounds, _mode_response, _mode_spec)),
+    EffectType("rate_limit", (Parameter("rad_s", POSITIVE, Interval(1e-3, 1e3)),), None, _rate_words,
+               describing_function=_rate_df,
+               describing_fit=EffectFit(_rate_grid, _rate_bounds, _rate_response, _rate_spec),
+               time_domain=lambda p, t, u: rate_limited(t, u, p["rad_s"])),
+    EffectType("backlash", (Parameter("width_rad", POSITIVE, Interval(1e-6, 1.0)),), None, _backlash_words,
+               describing_function=_backlash_df,
+               describing_fit=EffectFit(_backlash_grid, _backlash_bounds, _backlash_response, _backlash_spec),
+               time_domain=lambda p, t, u: backlash_output(u, p["width_rad"])),
 )}
 
 #: Effect type -> required parameter names, in the order of DESIGN.md's table (a view of :data:`EFFECTS`).

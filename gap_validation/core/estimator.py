@@ -73,7 +73,7 @@ from gap_validation.core.spectra import (SPECTRA_DEFAULTS, BandSums, MatrixEstim
 from gap_validation.core.sweeps import DETECTOR_DEFAULTS, SweepDetector, TriggerTracker
 
 __all__ = ["FrequencyResponseEstimator", "SpectralEstimate", "ESTIMATOR_DEFAULTS", "RETIRED_OPTIONS",
-           "NOT_ESTIMABLE_REASONS"]
+           "NOT_ESTIMABLE_REASONS", "record_amplitude"]
 
 #: Options of :class:`FrequencyResponseEstimator` and their defaults (units in the names).
 ESTIMATOR_DEFAULTS = {
@@ -156,6 +156,11 @@ class SpectralEstimate:
         The estimator's ``band_fraction``.
     coefficients : int
         Complex coefficients of the response polynomial (``order + 1``).
+    amplitude : float
+        A raw estimate's input amplitude: ``sqrt(2)`` times the RMS of the first input over the manoeuvre's own
+        span, its trim (linear trend) removed (the amplitude of a sinusoid of the same power; exactly the
+        amplitude of a constant-amplitude chirp) [input units]; NaN when unknown or pooled
+        (:func:`record_amplitude`).
     """
 
     w_rad_s: np.ndarray
@@ -175,6 +180,7 @@ class SpectralEstimate:
     sums: BandSums | None = None
     band_fraction: float = SPECTRA_DEFAULTS["band_fraction"]
     coefficients: int = SPECTRA_DEFAULTS["order"] + 1
+    amplitude: float = float("nan")
 
     @classmethod
     def from_sums(cls, w_rad_s, sums: BandSums, dt: float, band_fraction: float, start_s: float = float("nan"),
@@ -224,7 +230,7 @@ class SpectralEstimate:
 
     @classmethod
     def from_rows(cls, w_rad_s, rows: np.ndarray, start_s: float, end_s: float, kind: str,
-                  band_fraction: float, coefficients: int) -> "SpectralEstimate":
+                  band_fraction: float, coefficients: int, amplitude: float = float("nan")) -> "SpectralEstimate":
         """Inverse of :meth:`rows` (a raw estimate).
 
         Parameters
@@ -241,6 +247,8 @@ class SpectralEstimate:
             The estimator's ``band_fraction``.
         coefficients : int
             ``order + 1``.
+        amplitude : float, optional
+            The record's input amplitude (:attr:`amplitude`).
         """
         response = rows[0] + 1j * rows[1]
         variance, n, coherence, gxx, gyy = rows[2], rows[3].astype(np.int64), rows[4], rows[5], rows[6]
@@ -249,7 +257,7 @@ class SpectralEstimate:
             err = np.where(ok, np.sqrt(variance / 2.0) / np.abs(response), np.inf)
         return cls(np.asarray(w_rad_s, float).copy(), gxx, gyy, np.where(ok, response * gxx, 0.0), n, response,
                    coherence, np.where(np.isfinite(err), err, np.inf), float(start_s), float(end_s), 1, variance,
-                   kind, {}, None, float(band_fraction), int(coefficients))
+                   kind, {}, None, float(band_fraction), int(coefficients), float(amplitude))
 
     @property
     def excited(self) -> np.ndarray:
@@ -272,7 +280,8 @@ class SpectralEstimate:
         sums = None if self.sums is None else self.sums.take(index)
         return SpectralEstimate(**arrays, start_s=self.start_s, end_s=self.end_s, n_sweeps=self.n_sweeps,
                                 variance=variance, kind=self.kind, reasons=reasons, sums=sums,
-                                band_fraction=self.band_fraction, coefficients=self.coefficients)
+                                band_fraction=self.band_fraction, coefficients=self.coefficients,
+                                amplitude=self.amplitude)
 
     def expected(self, model_response) -> tuple[np.ndarray, np.ndarray]:
         """The estimate a model would give through this estimator (see
@@ -287,6 +296,31 @@ class SpectralEstimate:
             return np.asarray(model_response(self.w_rad_s), complex), np.zeros(self.w_rad_s.shape)
         expected, error = expected_estimate(self.sums, self.w_rad_s, self.band_fraction, model_response)
         return np.where(self.excited, expected, np.nan + 0j), error
+
+
+def record_amplitude(u: np.ndarray) -> float:
+    """Input amplitude of one manoeuvre: ``sqrt(2)`` times the RMS of ``u`` about its least-squares line.
+
+    The line removes the trim and a slow re-trim; ``sqrt(2) RMS`` is the amplitude of a sinusoid of the same
+    power, so a constant-amplitude chirp gives its amplitude at every frequency it passes (what a describing
+    function needs); for a multisine or a multistep it is the amplitude of the equivalent sinusoid.
+
+    Parameters
+    ----------
+    u : ndarray
+        Samples of the input over the manoeuvre's own span (uniform grid).
+
+    Returns
+    -------
+    float
+        The amplitude [input units]; NaN for fewer than 3 samples or non-finite data.
+    """
+    u = np.asarray(u, float).ravel()
+    if u.size < 3 or not np.all(np.isfinite(u)):
+        return float("nan")
+    x = np.arange(u.size, dtype=float)
+    coef = np.polyfit(x, u, 1)
+    return float(math.sqrt(2.0) * np.std(u - np.polyval(coef, x)))
 
 
 # ---------------------------------------------------------------------------------------------- options
@@ -564,6 +598,7 @@ class FrequencyResponseEstimator:
         self._tot = self._new_sums()
         self._reasons = np.zeros((len(NOT_ESTIMABLE_REASONS), F), np.int64)
         self._raw: list[tuple[np.ndarray, int, int, str]] = []    # estimate rows, k0, k1, kind
+        self._raw_amplitude: list[float] = []                       # input amplitude of each raw record
         self._n_sweeps = 0
         self._span = [0, 0]
         self._kinds: Counter = Counter()
@@ -835,10 +870,12 @@ class FrequencyResponseEstimator:
         multisine, multistep, broadband): an identification experiment. Doublets and pulses add to the pooled
         estimate but are not sweeps, unless the flight has no sweep at all (then every manoeuvre is one).
         """
-        raw = [r for r in self._raw if r[3] in SWEEP_KINDS] or self._raw
+        amplitudes = self._raw_amplitude + [float("nan")] * (len(self._raw) - len(self._raw_amplitude))
+        raw = [(r, a) for r, a in zip(self._raw, amplitudes) if r[3] in SWEEP_KINDS] \
+            or list(zip(self._raw, amplitudes))
         return [SpectralEstimate.from_rows(self._w, rows, self._time(k0), self._time(k1), kind,
-                                           self._opts["band_fraction"], self._opts["order"] + 1)
-                for rows, k0, k1, kind in raw]
+                                           self._opts["band_fraction"], self._opts["order"] + 1, amplitude)
+                for (rows, k0, k1, kind), amplitude in raw]
 
     @property
     def manoeuvres(self) -> list[Manoeuvre]:
@@ -1166,6 +1203,7 @@ class FrequencyResponseEstimator:
         if not counted.any():
             return
         self._tot.add(sums, counted)
+        amplitude = record_amplitude(seg[0, max(active[0] - k_start, 0):max(active[1] - k_start, 0)])
         k_start, k_end = active
         if self._n_sweeps == 0:
             self._span[0] = k_start
@@ -1174,8 +1212,10 @@ class FrequencyResponseEstimator:
         self._counted[kind] += 1
         raw = SpectralEstimate.from_sums(self._w, sums, self._dt, self._opts["band_fraction"])
         self._raw.append((raw.rows(), k_start, k_end, kind))
+        self._raw_amplitude.append(amplitude)
         if len(self._raw) > self._opts["max_raw_sweeps"]:
             self._raw.pop(0)
+            self._raw_amplitude.pop(0)
 
     # ------------------------------------------------------------------ checkpoint
     def state_dict(self) -> dict:
@@ -1223,7 +1263,9 @@ class FrequencyResponseEstimator:
         kinds = np.full(slots, "", dtype="<U16")
         for i, (r, k0, k1, kind) in enumerate(self._raw):
             rows[i], meta[i], kinds[i] = r, (k0, k1), kind
-        return {"raw_rows": rows, "raw_meta": meta, "raw_kind": kinds}
+        amplitude = np.full(slots, np.nan)
+        amplitude[:len(self._raw_amplitude)] = self._raw_amplitude[:slots]
+        return {"raw_rows": rows, "raw_meta": meta, "raw_kind": kinds, "raw_amplitude": amplitude}
 
     @classmethod
     def from_state(cls, state: dict) -> "FrequencyResponseEstimator":
@@ -1285,6 +1327,9 @@ class FrequencyResponseEstimator:
         kinds = [str(k) for k in np.atleast_1d(st["raw_kind"])]
         rows = np.asarray(st["raw_rows"], float)
         self._raw = [(rows[i].copy(), int(meta[i, 0]), int(meta[i, 1]), kinds[i]) for i in range(int(st["n_raw"]))]
+        amplitude = np.asarray(st.get("raw_amplitude", np.full(int(st["n_raw"]), np.nan)), float).ravel()
+        self._raw_amplitude = [float(amplitude[i]) if i < amplitude.size else float("nan")
+                               for i in range(int(st["n_raw"]))]
         self._kinds = Counter({k: int(v) for k, v in zip(KINDS, st["kind_counts"]) if int(v)})
         self._counted = Counter({k: int(v) for k, v in zip(KINDS, st["counted_counts"]) if int(v)})
         parts = {"align": self._align, "trig": self._trig, "tbase": self._trig_base, "man": self._man,

@@ -31,7 +31,7 @@ from typing import Any, Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-from gap_validation.core.effects import EFFECTS, check_plausible, effect_factor, validate_effect
+from gap_validation.core.effects import EFFECTS, apply_nonlinear, check_plausible, effect_factor, is_nonlinear, validate_effect
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.numbers import NON_NEGATIVE, check_number
 
@@ -248,10 +248,15 @@ class LinearModel:
     Notes
     -----
     Build models from a config mapping with :meth:`from_spec`; :meth:`to_spec` gives it back.
+
+    Amplitude-dependent effects (``rate_limit``, ``backlash``) act on the input before everything else: they are
+    not in ``num``/``den`` (the linear part); :meth:`simulate` applies them in the time domain, and
+    :meth:`freqresp` multiplies by their describing functions at the amplitude given to :meth:`at_amplitude`
+    (a ConfigError without one). A model without them behaves as a plain linear model.
     """
 
     __slots__ = ("_air_num", "_air_den", "_air_delay_s", "_air_ss", "_air_spec", "_effects", "_num", "_den",
-                 "_delay_s", "_realization")
+                 "_delay_s", "_realization", "_amplitude")
 
     def __init__(self, num: ArrayLike, den: ArrayLike, delay_s: float = 0.0, effects: Sequence[dict] = (), *,
                  _airframe_spec: dict | None = None, _airframe_ss: StateSpace | None = None) -> None:
@@ -276,6 +281,8 @@ class LinearModel:
         self._effects = tuple(validate_effect(e, f"model.effects[{i}]") for i, e in enumerate(effects))
         total_num, total_den, total_delay = self._air_num, self._air_den, self._air_delay_s
         for effect in self._effects:
+            if is_nonlinear(effect):
+                continue
             e_num, e_den, e_delay = effect_factor(effect)
             total_num = np.polymul(total_num, e_num)
             total_den = np.polymul(total_den, e_den)
@@ -284,6 +291,7 @@ class LinearModel:
         for array in (self._air_num, self._air_den, self._num, self._den):
             array.setflags(write=False)
         self._realization = None
+        self._amplitude = None
 
     # -- construction from / to the config mapping ----------------------------------------------------------
 
@@ -388,8 +396,31 @@ class LinearModel:
             Effect mappings (:mod:`gap_validation.core.effects`), appended after the model's own.
         """
         effects = list(self._effects) + list(effects)
-        return LinearModel(self._air_num, self._air_den, self._air_delay_s, effects,
-                           _airframe_spec=self._air_spec, _airframe_ss=self._air_ss)
+        out = LinearModel(self._air_num, self._air_den, self._air_delay_s, effects,
+                          _airframe_spec=self._air_spec, _airframe_ss=self._air_ss)
+        out._amplitude = self._amplitude
+        return out
+
+    @property
+    def nonlinear(self) -> bool:
+        """True when an effect is amplitude-dependent (``rate_limit``, ``backlash``)."""
+        return any(is_nonlinear(e) for e in self._effects)
+
+    def at_amplitude(self, amplitude: Any) -> LinearModel:
+        """A copy whose :meth:`freqresp` evaluates the amplitude-dependent effects' describing functions at the
+        flown input amplitude (the model itself is unchanged; without such effects it is returned as is).
+
+        Parameters
+        ----------
+        amplitude : float or callable
+            Input amplitude [input units], or ``amplitude(w_rad_s) -> array`` per frequency.
+        """
+        if not self.nonlinear:
+            return self
+        out = LinearModel(self._air_num, self._air_den, self._air_delay_s, self._effects,
+                          _airframe_spec=self._air_spec, _airframe_ss=self._air_ss)
+        out._amplitude = amplitude if callable(amplitude) else (lambda w, a=float(amplitude): np.full(np.shape(w), a))
+        return out
 
     @property
     def airframe(self) -> LinearModel:
@@ -466,6 +497,12 @@ class LinearModel:
             response = np.polyval(self._num, s) / np.polyval(self._den, s)
         if self._delay_s:
             response = response * np.exp(-s * self._delay_s)
+        for i, effect in enumerate(self._effects):
+            if is_nonlinear(effect):
+                if self._amplitude is None:
+                    raise ConfigError(f"model.effects[{i}] ({effect['type']}) depends on the input amplitude: "
+                                      "its response needs the flown amplitude")
+                response = response * EFFECTS[effect["type"]].response(effect, w, self._amplitude(w))
         return response
 
     # -- time response --------------------------------------------------------------------------------------
@@ -479,7 +516,7 @@ class LinearModel:
         """
         if self._realization is None:
             system = self._air_ss if self._air_ss is not None else _tf2ss(self._air_num, self._air_den)
-            for effect in self._effects:
+            for effect in (e for e in self._effects if not is_nonlinear(e)):
                 e_num, e_den, _ = effect_factor(effect)
                 if len(e_den) > 1 or e_num[0] != 1.0:
                     system = _series(system, _tf2ss(e_num, e_den))
@@ -494,6 +531,8 @@ class LinearModel:
         distinct step). The pure delay is applied exactly: the rational part is driven by u(t - T), obtained by
         interpolating ``u`` at ``t_s - T`` (zero before the first sample), so a delayed ramp or sine is
         reproduced to interpolation accuracy, not a Pade approximation.
+        Amplitude-dependent effects (``rate_limit``, ``backlash``) are applied first, in the time domain, to the
+        samples of ``u`` (:func:`~gap_validation.core.effects.apply_nonlinear`).
 
         Uniform grids (and uniform runs between dropouts) are simulated in blocks with matrix products
         (10^6 samples of a 5th-order model in about 0.2 s). Irregular (jittered) steps are solved exactly in
@@ -530,6 +569,8 @@ class LinearModel:
         steps = np.diff(t)
         if np.any(steps <= 0.0):
             raise ValueError("simulate: t_s must be strictly increasing")
+        if self.nonlinear:        # on the surface command, before the linear part
+            u = apply_nonlinear(self._effects, t, u)
         if self._delay_s > 0.0:
             u = delayed_input(t, u, self._delay_s, hold)
         a, b, c, d = self.state_space()

@@ -347,6 +347,10 @@ class ChannelResult:
     # why the margins from epsilon < 1 are not guaranteed (a mismatch peaking at a band edge, a failed winding
     # condition against the diagnosed model); empty: nothing known against them
     margins_caveat: str = ""
+    # amplitude dependence (core.nonlinearity): the verdict, its evidence, each raw sweep's input amplitude
+    nonlinearity: str | None = None
+    nonlinearity_evidence: str | None = None
+    input_amplitudes: list[float] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         # bands and candidates given as their JSON objects (hand-written results, tests) are read as such
@@ -420,6 +424,9 @@ class ChannelResult:
             "degrees_of_freedom": _list(self.degrees_of_freedom),
             "frequency_reasons": list(self.frequency_reasons),
             "warnings": list(self.warnings),
+            "nonlinearity": self.nonlinearity,
+            "nonlinearity_evidence": self.nonlinearity_evidence,
+            "input_amplitudes": [_num(a) for a in self.input_amplitudes],
         }
         for entry, response in zip(out["raw_sweeps"], self.sweep_measured if samples else ()):
             entry["measured"] = _mag_phase(response, self.model)
@@ -464,7 +471,10 @@ class ChannelResult:
                  stability_margin_frequency_rad_s=data.get("stability_margin_frequency_rad_s"),
                  guaranteed_stable=data.get("guaranteed_stable"), stability_note=data.get("stability_note") or "",
                  warnings=[str(w) for w in data.get("warnings") or []],
-                 margins_caveat=_caveat(data))
+                 margins_caveat=_caveat(data),
+                 nonlinearity=data.get("nonlinearity"), nonlinearity_evidence=data.get("nonlinearity_evidence"),
+                 input_amplitudes=[float(a) if a is not None else float("nan")
+                                   for a in data.get("input_amplitudes") or []])
         band = data.get("excited_band_rad_s")
         ch.excited_band_rad_s = (float(band[0]), float(band[1])) if band and None not in band else None
         ch.margins = margins_from_epsilon(ch.epsilon if ch.epsilon is not None else float("nan"))

@@ -131,6 +131,10 @@ class FlightOptions:
     step_rise_s : float
         Transition time of every step of a doublet or multistep (raised cosine; the surface actuator is not
         infinitely fast, and a measured step sampled at tens of hertz would be ambiguous by half a sample) [s].
+    sweep_amplitude_scales : tuple of float, optional
+        Round i of the test card flies its identification manoeuvres (sweeps, multisines, multisteps) at
+        ``scales[i % len(scales)]`` times their amplitude, e.g. ``(1.0, 0.4)`` (sweeps at different amplitudes
+        reveal an amplitude-dependent, nonlinear response). None (default): every round the same.
     """
 
     sweeps_per_channel: int = 3
@@ -169,6 +173,7 @@ class FlightOptions:
     multisine_periods: int = 3
     multistep_unit_s: float = 0.5
     step_rise_s: float = 0.04
+    sweep_amplitude_scales: tuple[float, ...] | None = None
 
     def check(self) -> "FlightOptions":
         """Raise :class:`ConfigError` naming the first option out of range; return self."""
@@ -203,7 +208,20 @@ class FlightOptions:
         check_number(self.drop_probability, "simulation option drop_probability", Interval(0.0, 0.5, high_open=True),
                      expected="a number in [0, 0.5)")
         self._check_band_noise()
+        self._check_amplitude_scales()
         return self
+
+    def _check_amplitude_scales(self) -> None:
+        scales = self.sweep_amplitude_scales
+        if scales is None:
+            return
+        try:
+            values = [float(x) for x in scales]
+        except (TypeError, ValueError):
+            values = []
+        if not values or not all(math.isfinite(v) and v > 0 for v in values):
+            raise ConfigError(f"simulation option sweep_amplitude_scales: expected a tuple of numbers > 0, "
+                              f"got {scales!r}")
 
     def _check_band_noise(self) -> None:
         band = self.band_noise_rad_s
@@ -836,9 +854,13 @@ def _channel_input(name: str, t_s: np.ndarray, segments: list[Segment], opt: Fli
     """Surface deflection deviation of one channel (of a MIMO channel's input ``input_index``) from trim [rad]:
     its manoeuvres. ``share`` overrides the orthogonal multisine's (index, count)."""
     u = np.zeros_like(t_s)
+    card, rounds = opt, 0
     for seg in segments:
         if seg.channel != name or seg.input_index != input_index:
             continue
+        opt = card
+        if seg.kind in SWEEP_SEGMENTS:
+            opt, rounds = _round_options(card, rounds), rounds + 1
         tau, length = t_s - seg.start_s, seg.end_s - seg.start_s
         if seg.kind == "sweep":
             w0, w1 = seg.band_rad_s
@@ -853,6 +875,17 @@ def _channel_input(name: str, t_s: np.ndarray, segments: list[Segment], opt: Fli
         else:
             u += opt.doublet_amplitude_rad * multistep(tau, opt.doublet_half_period_s, (1, 1), opt.step_rise_s)
     return u
+
+
+def _round_options(opt: FlightOptions, round_index: int) -> FlightOptions:
+    """The options of round ``round_index`` of the test card: its sweep and multistep amplitudes scaled by
+    ``sweep_amplitude_scales`` (unchanged when it is None)."""
+    scales = opt.sweep_amplitude_scales
+    if not scales:
+        return opt
+    scale = float(scales[round_index % len(scales)])
+    return replace(opt, sweep_amplitude_rad=opt.sweep_amplitude_rad * scale,
+                   doublet_amplitude_rad=opt.doublet_amplitude_rad * scale)
 
 
 def multisine(t_s: np.ndarray, period_s: float, periods: int, w0_rad_s: float, w1_rad_s: float,

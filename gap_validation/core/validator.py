@@ -289,7 +289,7 @@ class OnlineValidator:
                 span = slice(int(excited[0]), int(excited[-1]) + 1)
                 avg, sweeps = avg.select(span), [s.select(span) for s in sweeps]
         w = np.asarray(avg.w_rad_s, dtype=float)
-        p_model = channel.model.freqresp(w)
+        p_model = _flown_model(channel, avg, sweeps).freqresp(w)
         p_meas = np.asarray(avg.response, dtype=complex)
         confident = confident_points(avg, channel.coherence_threshold)
         kappa = metrics.chordal_distance(p_model, p_meas)
@@ -424,6 +424,7 @@ class OnlineValidator:
         result.diagnosis = list(found.candidates)
         result.warnings.extend(w for w in found.warnings if w not in result.warnings)
         result.margins_caveat = found.margins_caveat if result.margins.guaranteed else ""
+        _nonlinearity_result(found, sweeps, result)
         if found.message:
             result.message = found.message
 
@@ -480,6 +481,23 @@ REASON_WORDS = {
     "too_few_dof": "too few degrees of freedom",
     "low_coherence": "low coherence",
 }
+
+
+def _flown_model(channel: ChannelConfig, avg: SpectralEstimate, sweeps: list[SpectralEstimate]):
+    """The channel's model at the input amplitude flown (only a model with an amplitude-dependent effect,
+    ``rate_limit`` or ``backlash``, changes: its describing functions need the amplitude)."""
+    if not channel.model.nonlinear:
+        return channel.model
+    from gap_validation.core.diagnosis import flown_model
+
+    return flown_model(channel.model, avg, sweeps)[0]
+
+
+def _nonlinearity_result(found, sweeps: list[SpectralEstimate], result: ChannelResult) -> None:
+    """The diagnosis' amplitude-dependence verdict and the records' input amplitudes, into the result."""
+    result.nonlinearity = found.nonlinearity
+    result.nonlinearity_evidence = found.nonlinearity_evidence
+    result.input_amplitudes = [float(getattr(s, "amplitude", float("nan"))) for s in sweeps]
 
 
 def _frequency_reasons(avg: SpectralEstimate, confident: np.ndarray, coherence_threshold: float) -> list:

@@ -367,6 +367,15 @@ def candidate_model(model, candidate: Candidate):
     return model.with_effects(candidate.effects)
 
 
+def at_flown_amplitude(model, ch: ChannelResult):
+    """A model with an amplitude-dependent effect (``rate_limit``, ``backlash``) at the mean input amplitude of
+    the channel's sweeps (JSON ``input_amplitudes``; unknown: the effect drawn as absent); others as they are."""
+    if not getattr(model, "nonlinear", False):
+        return model
+    amplitudes = [a for a in ch.input_amplitudes if np.isfinite(a) and a > 0]
+    return model.at_amplitude(float(np.mean(amplitudes)) if amplitudes else float("nan"))
+
+
 def diagnosis_figure(ch: ChannelResult, path: Path, model) -> None:
     """Bode of the averaged data, the model, and the model with each of the top three candidates."""
     plt = pyplot()
@@ -380,7 +389,7 @@ def diagnosis_figure(ch: ChannelResult, path: Path, model) -> None:
     ax_m.semilogx(wd, _db(p0), "k--", lw=1.5, label=f"model: epsilon {_fmt(ch.epsilon)}")
     ax_p.semilogx(wd, phase_deg(p0), "k--", lw=1.5)
     for candidate, colour in zip(ch.diagnosis[:3], ("tab:red", "tab:green", "tab:purple")):
-        p = candidate_model(model, candidate).freqresp(wd)
+        p = at_flown_amplitude(candidate_model(model, candidate), ch).freqresp(wd)
         label = f"+ {candidate.effect or '?'}: epsilon {_fmt(candidate.epsilon)}"
         ax_m.semilogx(wd, _db(p), color=colour, lw=1.3, label=label)
         ax_p.semilogx(wd, phase_deg(p, p0), color=colour, lw=1.3)

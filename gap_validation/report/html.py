@@ -188,7 +188,9 @@ class _Channel:
         from gap_validation.core.models import LinearModel
 
         try:
-            return LinearModel.from_spec(self.ch.model_spec)
+            from gap_validation.report.figures import at_flown_amplitude
+
+            return at_flown_amplitude(LinearModel.from_spec(self.ch.model_spec), self.ch)
         except Exception as err:  # noqa: BLE001 - a bad model only costs the figures that need it
             self.problems.append(f"{self.ch.name}: model not usable for figures ({one_line(err)})")
             return None

@@ -367,6 +367,8 @@ def _on_a_bound(candidate) -> bool:
     ctx = FitRange(float(W[0]), float(W[-1]))
     for effect in candidate["effects"]:
         fit = EFFECTS[effect["type"]].fit
+        if fit is None:   # rate_limit, backlash: their box follows the flown amplitude (diagnosis checks it)
+            continue
         x = np.array([math.log(v) if "frequency" in k or "bandwidth" in k else v
                       for k, v in effect.items() if k != "type"])
         lo, hi = fit.bounds(x, ctx)

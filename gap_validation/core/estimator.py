@@ -54,7 +54,7 @@ from __future__ import annotations
 
 import bisect
 import math
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass, field
 from typing import Any, Sequence
 
@@ -113,6 +113,8 @@ RATE_STEPS = 128
 LOOKBACK_S = 10.0
 #: Manoeuvres up to this long are offered to the time-domain recorder (doublets, pulses, multisteps) [s].
 _SHORT_MANOEUVRE_S = 20.0
+#: Manoeuvre spans kept for :attr:`FrequencyResponseEstimator.record_spans_s`.
+_SPANS_KEPT = 256
 
 
 # ---------------------------------------------------------------------------------------------- results
@@ -570,6 +572,14 @@ class FrequencyResponseEstimator:
         self._counted: Counter = Counter()
         self._longest_n = 0
         self._saturated = 0
+        self._other_records = 0
+        self._own_record = True
+        self._spans: deque = deque(maxlen=_SPANS_KEPT)     # grid spans of the latest manoeuvres (not checkpointed)
+        #: Called as ``record_observer(samples, kind, t0_s, dt_s)`` with the grid samples (streams x n) of the
+        #: excited span of every manoeuvre of this channel that gives a response, its kind, the time of its first
+        #: sample and the grid step (the coupling monitors of :mod:`gap_validation.core.closed_loop`); None:
+        #: nobody. Not checkpointed; it changes nothing in the estimates.
+        self.record_observer = None
 
     def _new_sums(self) -> BandSums:
         q = len(self._names) - self._m - self._p
@@ -841,6 +851,12 @@ class FrequencyResponseEstimator:
                 for rows, k0, k1, kind in raw]
 
     @property
+    def record_spans_s(self) -> list[tuple[float, float]]:
+        """Start and end [s] of the latest manoeuvres of any kind (up to 256): each manoeuvre's own excited span,
+        without the trim kept around it; since the start of this process (not checkpointed)."""
+        return [(self._time(a), self._time(b)) for a, b in self._spans]
+
+    @property
     def manoeuvres(self) -> list[Manoeuvre]:
         """Short manoeuvres (doublets, pulses, multisteps) kept for the time-domain check (largest 3)."""
         return self._man.manoeuvres(self._t0, self._dt)
@@ -1023,9 +1039,43 @@ class FrequencyResponseEstimator:
         n = data.shape[1]
         if src == _TRIGGER:
             return [Piece(0, n, min(act0, n), max(min(act1, n), min(act0, n)))]
-        det = data[self._det_streams[0]]
+        if len(self._det_streams) > 1:
+            return self._multi_pieces(data)
+        det = data[self._det_index(data)]
         return split_record(det, self._dt, trim_noise(det, self._dt), self._rec.pre_n, self._rec.post_n,
                             self._opts["min_quiet_s"])
+
+    def _multi_pieces(self, data: np.ndarray) -> list[Piece]:
+        """Several inputs without an excitation signal (``other_inputs``): the manoeuvres of every input, each
+        kept where its own input is the most excited (relative to its trim noise) over its excited span, so a
+        surface that only follows another through an interconnect adds no manoeuvre of its own; in time order.
+        :attr:`_piece_stream` remembers which input each one belongs to."""
+        found = []
+        noise = {s: max(trim_noise(data[s], self._dt), 1e-12) for s in self._det_streams}
+        for s in self._det_streams:
+            for piece in split_record(data[s], self._dt, noise[s], self._rec.pre_n, self._rec.post_n,
+                                      self._opts["min_quiet_s"]):
+                if piece.active_end <= piece.active_start:
+                    continue
+                span = slice(piece.active_start, piece.active_end)
+                level = {r: float(np.std(data[r, span])) / noise[r] for r in self._det_streams}
+                if max(level, key=level.get) == s:
+                    found.append((piece, s))
+        found.sort(key=lambda item: (item[0].start, item[1]))
+        self._piece_stream = {(p.start, p.end, p.active_start, p.active_end): s for p, s in found}
+        return [p for p, _ in found]
+    def _det_index(self, data: np.ndarray) -> int:
+        """The detection stream a record is split and classified on: the only one, or (several inputs without
+        an excitation signal: ``other_inputs``) the one most excited relative to its trim noise."""
+        if len(self._det_streams) == 1:
+            return self._det_streams[0]
+        best, best_ratio = self._det_streams[0], -1.0
+        for s in self._det_streams:
+            row = data[s]
+            ratio = float(np.std(row)) / max(trim_noise(row, self._dt), 1e-12)
+            if ratio > best_ratio:
+                best, best_ratio = s, ratio
+        return best
 
     def _record_full(self, k0: int, data: np.ndarray, src: int, act0: int) -> int:
         """The record buffer is full (``max_record_s``): estimate the manoeuvres it completed and keep the one
@@ -1033,6 +1083,12 @@ class FrequencyResponseEstimator:
         n = data.shape[1]
         pieces = self._pieces(data, src, act0, n)
         going = [p for p in pieces if p.group == pieces[-1].group] if pieces and pieces[-1].end >= n else []
+        if len(self._det_streams) > 1 and src != _TRIGGER:        # inputs split separately: groups differ
+            going = [p for p in pieces if p.end >= n]
+            if going and len(going) < len(pieces):
+                first = min(p.start for p in going)
+                self._estimate_pieces(k0, data, [p for p in pieces if p.end < n])
+                return first
         if going and len(going) < len(pieces):
             self._estimate_pieces(k0, data, pieces[:len(pieces) - len(going)])
             return going[0].start
@@ -1046,11 +1102,22 @@ class FrequencyResponseEstimator:
         self._estimate_pieces(k0, data, self._pieces(data, src, act0, act1))
 
     def _estimate_pieces(self, k0: int, data: np.ndarray, pieces: list[Piece]) -> None:
-        det = data[self._det_streams[0]]
+        det_index = self._det_index(data)
+        det = data[det_index]
         noise = trim_noise(det, self._dt)
+        multi = len(self._det_streams) > 1
         for piece in pieces:
             if piece.active_end <= piece.active_start:
                 continue
+            if multi:      # other_inputs: each manoeuvre on the input it belongs to
+                det_index = getattr(self, "_piece_stream", {}).get(
+                    (piece.start, piece.end, piece.active_start, piece.active_end), det_index)
+                det = data[det_index]
+                noise = trim_noise(det, self._dt)
+            # other_inputs: a manoeuvre of another input (its own sweep) pools into the average, which needs it to
+            # separate the inputs, but is not a sweep of this channel (no raw estimate of its own)
+            self._own_record = det_index == self._det_streams[0] or self._m + self._p < len(self._names)
+            self._spans.append((k0 + piece.active_start, k0 + piece.active_end))
             kind = classify(det, self._dt, piece, noise)
             self._kinds[kind] += 1
             active_s = (piece.active_end - piece.active_start) * self._dt
@@ -1060,6 +1127,9 @@ class FrequencyResponseEstimator:
                                 k0 + piece.active_end, kind)
             if kind not in RESPONSE_KINDS or active_s < self._opts["min_sweep_s"]:
                 continue
+            if self.record_observer is not None and self._own_record:
+                self.record_observer(data[:, piece.active_start:piece.active_end], kind,
+                                     self._time(k0 + piece.active_start), self._dt)
             if kind in ("chirp", "multisine", "broadband") and saturated_share(det, piece) >= SATURATED_SHARE:
                 self._saturated += 1
                 continue
@@ -1093,7 +1163,11 @@ class FrequencyResponseEstimator:
             return
         self._tot.add(sums, counted)
         k_start, k_end = active
-        if self._n_sweeps == 0:
+        if not getattr(self, "_own_record", True):
+            self._n_sweeps += 1
+            self._other_records += 1
+            return
+        if self._n_sweeps == self._other_records:
             self._span[0] = k_start
         self._span[1] = k_end
         self._n_sweeps += 1
@@ -1131,6 +1205,8 @@ class FrequencyResponseEstimator:
             "counted_counts": np.array([self._counted[k] for k in KINDS], np.int64),
             "longest_n": self._longest_n, "saturated": self._saturated,
         })
+        if self._other_records:
+            st["other_records"] = self._other_records
         st.update(self._tot.state_dict("tot."))
         parts = {"align": self._align, "trig": self._trig, "tbase": self._trig_base, "man": self._man,
                  "rec": self._rec}
@@ -1206,6 +1282,7 @@ class FrequencyResponseEstimator:
         self._reasons[:] = st["reasons"]
         self._longest_n = int(st["longest_n"])
         self._saturated = int(st["saturated"])
+        self._other_records = int(st.get("other_records", 0))
         self._tot = BandSums.from_state(st, "tot.")
         meta = np.asarray(st["raw_meta"], np.int64).reshape(-1, 2)
         kinds = [str(k) for k in np.atleast_1d(st["raw_kind"])]

@@ -288,7 +288,7 @@ def _channel_checks(config: ValidationConfig, router: MessageRouter) -> tuple[li
     """Errors for streams that received messages but no usable sample; warnings for streams without data."""
     errors, warnings = [], []
     for name, channel in config.channels.items():
-        for stream in ("input", "output"):
+        for stream in ("input", "output", *(extra for extra, _ in channel.extra_streams())):
             spec = channel.signal(stream)
             if router.samples(name, stream):
                 continue

@@ -24,13 +24,19 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from gap_validation.core import metrics
 
-__all__ = ["TrimCoherenceMonitor", "CouplingMonitor", "SurfaceHistory", "welch_coherence", "near_minus_inverse", "with_bias_allowance",
-           "COUPLING_COHERENCE", "COUPLING_GAIN", "COUPLING_SHARE", "TRIM_COHERENCE", "KAPPA_MINUS_INVERSE", "BIAS_ALLOWANCE"]
+if TYPE_CHECKING:
+    from gap_validation.core.estimator import SpectralEstimate
+    from gap_validation.core.models import LinearModel
+
+__all__ = ["TrimCoherenceMonitor", "CouplingMonitor", "SurfaceHistory", "welch_coherence", "near_minus_inverse",
+           "with_bias_allowance", "COUPLING_COHERENCE", "COUPLING_GAIN", "COUPLING_SHARE", "TRIM_COHERENCE",
+           "KAPPA_MINUS_INVERSE", "BIAS_ALLOWANCE", "PENDING_RECORDS"]
 
 #: Coherence (R^2) between a channel's input and another surface during its manoeuvres that names the surface.
 COUPLING_COHERENCE = 0.6
@@ -137,16 +143,18 @@ class TrimCoherenceMonitor:
         """
         return [b for b in self.blocks if not any(b[0] < e + margin_s and s - margin_s < b[1] for s, e in spans_s)]
 
-    def feedback_share(self, spans_s: list[tuple[float, float]]) -> tuple[int, int]:
+    def feedback_share(self, spans_s: list[tuple[float, float]], since_s: float = -math.inf) -> tuple[int, int]:
         """``(coherent, total)`` trim blocks: how many between the manoeuvres have the surface coherent with the
         rate (:data:`TRIM_COHERENCE`).
 
         Parameters
         ----------
         spans_s : list of (float, float)
-            The channel's records [s].
+            The channel's manoeuvres [s].
+        since_s : float
+            Only blocks that start at or after this time [s] (the manoeuvres before it are forgotten).
         """
-        blocks = self.trim_blocks(spans_s)
+        blocks = [b for b in self.trim_blocks(spans_s) if b[0] >= since_s]
         return sum(1 for b in blocks if b[2] >= TRIM_COHERENCE), len(blocks)
 
 
@@ -225,11 +233,23 @@ class SurfaceHistory:
             self.t, self.v = self.t[keep], self.v[keep]
 
     def covers(self, t0_s: float, t1_s: float) -> bool:
-        """True when the samples span ``[t0_s, t1_s]``."""
+        """True when the samples span ``[t0_s, t1_s]``.
+
+        Parameters
+        ----------
+        t0_s, t1_s : float
+            Start and end [s].
+        """
         return bool(self.t.size) and self.t[0] <= t0_s and self.t[-1] >= t1_s
 
     def at(self, t_s: np.ndarray) -> np.ndarray:
-        """Linearly interpolated values at ``t_s``."""
+        """Linearly interpolated values at ``t_s``.
+
+        Parameters
+        ----------
+        t_s : ndarray
+            Times [s] within the samples (:meth:`covers`).
+        """
         return np.interp(t_s, self.t, self.v)
 
 
@@ -320,7 +340,8 @@ class CouplingMonitor:
         return self.coupled_energy >= COUPLING_SHARE * self.energy, r2, gain
 
 
-def near_minus_inverse(controller, w_rad_s: np.ndarray, measured: np.ndarray, model: np.ndarray) -> np.ndarray:
+def near_minus_inverse(controller: "LinearModel", w_rad_s: np.ndarray, measured: np.ndarray,
+                       model: np.ndarray) -> np.ndarray:
     """Frequencies where the measured response looks like ``-1/C`` (the controller's inverse, what a direct
     estimate tends to where feedback drives the surface): closer to ``-1/C`` than to the model in the chordal
     distance (eq. 13), and within :data:`KAPPA_MINUS_INVERSE` of it.
@@ -342,7 +363,7 @@ def near_minus_inverse(controller, w_rad_s: np.ndarray, measured: np.ndarray, mo
         return np.isfinite(to_inverse) & (to_inverse < KAPPA_MINUS_INVERSE) & (to_inverse < to_model)
 
 
-def with_bias_allowance(estimate, mask: np.ndarray):
+def with_bias_allowance(estimate: "SpectralEstimate", mask: np.ndarray) -> "SpectralEstimate":
     """The estimate with a relative error of :data:`BIAS_ALLOWANCE` at ``mask`` (the points a warning covers):
     the diagnosis then calls them data-limited and fits nothing to them.
 

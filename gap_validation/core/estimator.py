@@ -114,7 +114,7 @@ LOOKBACK_S = 10.0
 #: Manoeuvres up to this long are offered to the time-domain recorder (doublets, pulses, multisteps) [s].
 _SHORT_MANOEUVRE_S = 20.0
 #: Manoeuvre spans kept for :attr:`FrequencyResponseEstimator.record_spans_s`.
-_SPANS_KEPT = 256
+SPANS_KEPT = 256
 
 
 # ---------------------------------------------------------------------------------------------- results
@@ -574,7 +574,8 @@ class FrequencyResponseEstimator:
         self._saturated = 0
         self._other_records = 0
         self._own_record = True
-        self._spans: deque = deque(maxlen=_SPANS_KEPT)     # grid spans of the latest manoeuvres (not checkpointed)
+        self._piece_stream: dict = {}                        # other_inputs: manoeuvre -> the input it belongs to
+        self._spans: deque = deque(maxlen=SPANS_KEPT)     # grid spans of the latest manoeuvres (not checkpointed)
         #: Called as ``record_observer(samples, kind, t0_s, dt_s)`` with the grid samples (streams x n) of the
         #: excited span of every manoeuvre of this channel that gives a response, its kind, the time of its first
         #: sample and the grid step (the coupling monitors of :mod:`gap_validation.core.closed_loop`); None:
@@ -1064,6 +1065,7 @@ class FrequencyResponseEstimator:
         found.sort(key=lambda item: (item[0].start, item[1]))
         self._piece_stream = {(p.start, p.end, p.active_start, p.active_end): s for p, s in found}
         return [p for p, _ in found]
+
     def _det_index(self, data: np.ndarray) -> int:
         """The detection stream a record is split and classified on: the only one, or (several inputs without
         an excitation signal: ``other_inputs``) the one most excited relative to its trim noise."""
@@ -1110,7 +1112,7 @@ class FrequencyResponseEstimator:
             if piece.active_end <= piece.active_start:
                 continue
             if multi:      # other_inputs: each manoeuvre on the input it belongs to
-                det_index = getattr(self, "_piece_stream", {}).get(
+                det_index = self._piece_stream.get(
                     (piece.start, piece.end, piece.active_start, piece.active_end), det_index)
                 det = data[det_index]
                 noise = trim_noise(det, self._dt)
@@ -1122,7 +1124,7 @@ class FrequencyResponseEstimator:
             self._kinds[kind] += 1
             active_s = (piece.active_end - piece.active_start) * self._dt
             seg = data[:, piece.start:piece.end]
-            if kind in ("doublet", "pulse", "multistep") and active_s <= _SHORT_MANOEUVRE_S:
+            if kind in ("doublet", "pulse", "multistep") and active_s <= _SHORT_MANOEUVRE_S and self._own_record:
                 self._man.offer(k0 + piece.start, seg[0], seg[self._m], k0 + piece.active_start,
                                 k0 + piece.active_end, kind)
             if kind not in RESPONSE_KINDS or active_s < self._opts["min_sweep_s"]:
@@ -1163,7 +1165,7 @@ class FrequencyResponseEstimator:
             return
         self._tot.add(sums, counted)
         k_start, k_end = active
-        if not getattr(self, "_own_record", True):
+        if not self._own_record:
             self._n_sweeps += 1
             self._other_records += 1
             return

@@ -1054,7 +1054,8 @@ def parse_cross_response(text: str, config: ValidationConfig) -> tuple[str, str,
 WASHOUT_RAD_S = 0.3
 
 
-def damper_gain(model, gain_margin_db: float, loop_delay_s: float, w_rad_s: np.ndarray | None = None) -> float:
+def damper_gain(model: "LinearModel", gain_margin_db: float, loop_delay_s: float,
+                w_rad_s: np.ndarray | None = None) -> float:
     """Gain K of a rate damper ``u = r - C(s) y``, ``C = K s / (s + a)`` (washout ``a`` =
     :data:`WASHOUT_RAD_S`), with the given gain margin around ``model`` and a loop delay.
 
@@ -1179,7 +1180,8 @@ def _loop_flight(config: ValidationConfig, truth: dict, references: dict, gusts:
         n_c = max(1, int(round(delay_s * fs_hz)))
         wash_b, wash_a = signal.bilinear([1.0, 0.0], [1.0, WASHOUT_RAD_S], fs_hz)
         for name in config.channels:
-            k = damper_gain(truth[name], opt.closed_loop_gain_margin_db, n_c / fs_hz)
+            # the zero-order hold adds half a sample of delay to the discretised loop
+            k = damper_gain(truth[name], opt.closed_loop_gain_margin_db, (n_c + 0.5) / fs_hz)
             num, den, n_p = _discrete(truth[name], fs_hz)
             size = den.size + wash_a.size + n_c + n_p
             den_w, num_w = np.convolve(den, wash_a), np.convolve(num, wash_b)

@@ -615,7 +615,8 @@ def partial_coherence(sums: BandSums) -> np.ndarray:
     Returns
     -------
     ndarray, (F,)
-        In [0, 1]; 0 where nothing was estimated (or for a single input: the ordinary coherence's place).
+        In [0, 1]; 0 where nothing was estimated, where the pool leaves no degree of freedom, and for a single
+        input. With ``d`` degrees of freedom noise alone reaches about ``(order + 1) / (d + order + 1)``.
     """
     n_freq = sums.bins.size
     out = np.zeros(n_freq)
@@ -624,7 +625,7 @@ def partial_coherence(sums: BandSums) -> np.ndarray:
         return out
     others = np.arange(per, sums.ff.shape[1])
     for i in range(n_freq):
-        if sums.records[i] == 0:
+        if sums.records[i] == 0 or int(sums.dof[i]) - sums.ff.shape[1] < 1:
             continue
         ff, fy, yy = sums.ff[i], sums.fy[i][:, 0], float(sums.yy[i][0, 0].real)
         try:

@@ -23,7 +23,8 @@ from gap_validation.core.config import (EXCITATION_STREAM, OTHER_INPUT_STREAM, S
                                         ValidationConfig)
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.diagnosis import confident_points, sweep_points
-from gap_validation.core.estimator import ESTIMATOR_DEFAULTS, FrequencyResponseEstimator, SpectralEstimate
+from gap_validation.core.estimator import (ESTIMATOR_DEFAULTS, SPANS_KEPT, FrequencyResponseEstimator,
+                                          SpectralEstimate)
 from gap_validation.core.margins import margins_from_epsilon
 from gap_validation.core.records import SATURATED_SHARE
 from gap_validation.core.results import ChannelResult, SweepResult, ValidationResult
@@ -509,6 +510,11 @@ def _frequency_reasons(avg: SpectralEstimate, confident: np.ndarray, coherence_t
 
 def _why_nothing(est: FrequencyResponseEstimator, channel: ChannelConfig) -> str:
     """One line: why a channel has no frequency response at all."""
+    counts = est.bad_sample_counts
+    for stream, extra in channel.extra_streams():
+        if not counts.get(stream, {}).get("accepted"):
+            return (f"no samples of the {stream.replace('_', ' ')} {extra.topic} {extra.field!r} (the estimate needs "
+                    f"every stream of the channel)")
     spec = channel.input
     where = f"input {spec.topic} {spec.field!r}"
     kinds = {k: v for k, v in est.kinds.items() if v}
@@ -600,7 +606,9 @@ def _closed_loop_checks(channel: ChannelConfig, monitors: _Monitors, config: Val
                         f"sweeps)")
     if channel.excitation is None:
         spans = est.record_spans_s
-        coherent, total = monitors.trim.feedback_share(spans) if monitors.trim is not None else (0, 0)
+        # the estimator keeps the latest manoeuvres only: blocks before the oldest it remembers are not judged
+        since = spans[0][0] if len(spans) >= SPANS_KEPT else -np.inf
+        coherent, total = monitors.trim.feedback_share(spans, since) if monitors.trim is not None else (0, 0)
         if total >= 2 and coherent >= max(2, 0.5 * total):
             suspect |= np.isfinite(p_meas)
             warnings.append(f"between the manoeuvres the surface ({channel.input.topic} {channel.input.field}) "

@@ -99,7 +99,7 @@ def fly(flight: dict) -> list[dict]:
         rows.append({"kind": flight["kind"], "channel": name, "airframe": flight["airframe"],
                      "limited_by": ch.limited_by, "diagnosed": bool(ch.diagnosis), "epsilon": ch.epsilon,
                      "points": ch.points_used, "message": ch.message, "seed": flight["seed"],
-                     "options": flight["options"]})
+                     "options": flight["options"], "warnings": list(ch.warnings)})
     return rows
 
 
@@ -143,7 +143,12 @@ def main(argv=None) -> int:
     named = sum(r["diagnosed"] for r in rows) / max(len(rows), 1)
     print(f"\nmodel-limited {100 * model:.2f} % (goal <= 1 %), no diagnosis {100 * (1 - named):.2f} % "
           f"(goal >= 99 %): {'PASS' if model <= 0.01 and named <= 0.01 else 'FAIL'}")
+    warned = [r for r in rows if r.get("warnings")]
+    print(f"closed-loop / coupled-surface warnings (issue 13; open loop, surfaces independent: each is false) on "
+          f"{len(warned)} of {len(rows)} channels ({100 * len(warned) / max(len(rows), 1):.2f} %)")
     if args.show:
+        for r in warned:
+            print(f"  warned: {r['kind']} {r['channel']} {r['airframe']} seed {r['seed']}: {r['warnings']}")
         for r in rows:
             if r["limited_by"] == "model" or r["diagnosed"]:
                 print(f"  {r['kind']} {r['channel']} {r['airframe']} seed {r['seed']}: {r['message']}")

@@ -290,7 +290,7 @@ def _channel_checks(config: ValidationConfig, router: MessageRouter) -> tuple[li
     validated and written, the exit status is 1)."""
     errors, warnings = [], []
     for name, channel in config.channels.items():
-        for stream in channel.input_streams + channel.output_streams:     # MIMO: inputs[j], outputs[i]
+        for stream in (*channel.input_streams, *channel.output_streams, *(extra for extra, _ in channel.extra_streams())):
             spec = channel.signal(stream)
             if router.samples(name, stream):
                 continue

@@ -5,7 +5,9 @@ the hidden effects in series; sweeps per axis (roll, pitch, yaw in turn), double
 sensor noise, message rates with jitter and drops. The same seed gives the same bag.
 ``--band-noise LOW:HIGH:RMS[:CHANNEL[,CHANNEL]]`` adds a narrow-band output disturbance (band-pass filtered noise
 between LOW and HIGH rad/s, RMS rad/s) to the measured rates: the coherence drops there and the diagnosis
-should call that band data-limited.
+should call that band data-limited. ``--closed-loop-gain-margin-db``, ``--turbulence``, ``--log-excitation``,
+``--coupling`` and ``--cross-response`` fly closed-loop sweeps and coupled surfaces (README, "Closed loop and
+coupled surfaces").
 """
 from __future__ import annotations
 
@@ -19,7 +21,7 @@ from gap_validation.config import load_config
 from gap_validation.core.effects import describe_effect
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.simulation import (EXCITATIONS, FlightOptions, hidden_effects, parse_band_noise,
-                                            simulate_flight, with_options)
+                                            parse_coupling, parse_cross_response, simulate_flight, with_options)
 
 
 def _positive(kind):
@@ -104,6 +106,22 @@ def register(sub) -> None:
     p.add_argument("--band-noise", default=None, metavar="LOW:HIGH:RMS[:CHANNEL[,CHANNEL]]",
                    help="band-pass filtered noise between LOW and HIGH rad/s with RMS rad/s added to the measured "
                         "rate of every channel (or of the channels named), e.g. 8:14:0.05 (default: none)")
+    p.add_argument("--closed-loop-gain-margin-db", type=_positive(float), default=None, metavar="DB",
+                   help="fly every channel inside a rate damper u = r - K s/(s+0.3) y with this gain margin; the "
+                        "manoeuvre r is injected inside the loop (default: open loop)")
+    p.add_argument("--loop-delay-s", type=_positive(float), default=None, metavar="S",
+                   help="delay of the flight computer and actuator in the loop [s] (default: one surface sample)")
+    p.add_argument("--turbulence", type=_non_negative, default=0.0, metavar="RMS",
+                   help="turbulence at the rates: first-order filtered noise at 8 rad/s, RMS rad/s (default 0)")
+    p.add_argument("--log-excitation", default=None, metavar="TOPIC",
+                   help="log the injected manoeuvre of every channel on TOPIC (its input's joint; a Float64 "
+                        "TOPIC/<channel> for Float64 inputs): the config's excitation")
+    p.add_argument("--coupling", action="append", default=[], metavar="FROM:TO:GAIN",
+                   help="surface TO also moves by GAIN x surface FROM (an interconnect; surfaces by channel or "
+                        "joint name), e.g. aileron:rudder:0.3 (repeatable)")
+    p.add_argument("--cross-response", action="append", default=[], metavar="OUTPUT:SURFACE:GAIN[:WN[:DAMPING]]",
+                   help="the rate of channel OUTPUT also responds to SURFACE through GAIN wn^2/(s^2+2 zeta wn s+wn^2) "
+                        "(default wn 3 rad/s, damping 0.2), e.g. roll:rudder:-3:3:0.15 (repeatable)")
     p.add_argument("--no-compression", action="store_true", help="no zstd chunk compression (mcap)")
     p.add_argument("--force", action="store_true", help="replace BAG if it exists and is a bag")
     p.set_defaults(func=run)
@@ -140,11 +158,19 @@ def _check_out(out: Path) -> None:
         raise ConfigError(f"--out {out}: directory {out.parent} does not exist")
 
 
-def options_from_args(args, channels: tuple[str, ...] | None = None) -> FlightOptions:
+def options_from_args(args, channels: tuple[str, ...] | None = None, config=None) -> FlightOptions:
     """The :class:`FlightOptions` the command-line arguments ask for (``channels``: the config's, to check the
-    ones ``--band-noise`` names)."""
+    ones ``--band-noise`` names; ``config``: to resolve the surfaces of ``--coupling`` and ``--cross-response``)."""
     import math
 
+    loop = {"closed_loop_gain_margin_db": getattr(args, "closed_loop_gain_margin_db", None),
+            "loop_delay_s": getattr(args, "loop_delay_s", None),
+            "turbulence_rms_rad_s": getattr(args, "turbulence", None),
+            "log_excitation_topic": getattr(args, "log_excitation", None)}
+    if config is not None:
+        loop["coupling"] = tuple(parse_coupling(t, config) for t in getattr(args, "coupling", None) or ()) or None
+        loop["cross_responses"] = tuple(parse_cross_response(t, config)
+                                        for t in getattr(args, "cross_response", None) or ()) or None
     band = {}
     if getattr(args, "band_noise", None) is not None:
         band_rad_s, rms, chosen = parse_band_noise(args.band_noise, channels)
@@ -158,14 +184,14 @@ def options_from_args(args, channels: tuple[str, ...] | None = None) -> FlightOp
         sweeps_per_channel=args.sweeps, sweep_duration_s=args.sweep_duration, imu_rate_hz=args.imu_rate_hz,
         surface_rate_hz=args.surface_rate_hz, noise=args.noise, drop_probability=args.drop_probability,
         sweep_amplitude_rad=math.radians(args.amplitude_deg) if args.amplitude_deg else None,
-        sweep_amplitude_scales=getattr(args, "amplitude_scales", None), **band,
+        sweep_amplitude_scales=getattr(args, "amplitude_scales", None), **band, **loop,
     ).check()
 
 
 def run(args) -> int:
     config = load_config(args.config)
     hidden = hidden_effects(args.hidden, config)
-    options = options_from_args(args, tuple(config.channels))
+    options = options_from_args(args, tuple(config.channels), config)
     out = Path(args.out)
     _check_out(out)
     if out.exists():
@@ -184,6 +210,14 @@ def run(args) -> int:
         n = len(flight.sweeps(name))
         turns = " (each input in turn)" if config.channels[name].is_mimo else ""
         print(f"  {name}: {n} {options.excitation} manoeuvre{'s' if n != 1 else ''}{turns}, hidden: {truth}")
+    for name, gain in flight.loop_gains.items():
+        print(f"  {name}: closed loop, rate damper K = {gain:.4g} (u = r - K s/(s+0.3) y, gain margin "
+              f"{options.closed_loop_gain_margin_db:g} dB; controller for the config: "
+              f"{{numerator: [{gain:.4g}, 0.0], denominator: [1.0, 0.3]}})")
+    if options.log_excitation_topic:
+        print(f"  injected manoeuvres logged on {options.log_excitation_topic}")
+    for source, target, gain in options.coupling:
+        print(f"  coupling: {target} surface moves with {gain:g} x the {source} surface")
     if options.band_noise_rad_s is not None:
         low, high = options.band_noise_rad_s
         chosen = options.band_noise_channels or tuple(config.channels)

@@ -29,7 +29,11 @@ STREAMS = ("input", "output", "trigger")
 
 _TOP_KEYS = {"channels", "aircraft", "description", "history"}
 _CHANNEL_KEYS = {"input", "output", "inputs", "outputs", "model", "frequencies", "coherence_threshold", "trigger",
-                 "estimator", "controller"}
+                 "estimator", "controller", "excitation", "other_inputs"}
+#: Stream name of the channel's injected excitation (closed-loop flights; the estimator's instrument).
+EXCITATION_STREAM = "excitation"
+#: Stream name of the j-th of a channel's ``other_inputs`` (``other_input0``, ``other_input1`` ...).
+OTHER_INPUT_STREAM = "other_input{}"
 _SIGNAL_KEYS = {"topic", "field", "scale", "type"}
 _GRID_KEYS = {"min_rad_s", "max_rad_s", "count"}
 
@@ -85,6 +89,8 @@ class ChannelConfig:
     outputs: tuple[SignalSpec, ...] = ()
     controller: LinearModel | MimoModel | None = None
     controller_spec: dict | None = None
+    excitation: SignalSpec | None = None
+    other_inputs: tuple[SignalSpec, ...] = ()
 
     @property
     def is_mimo(self) -> bool:
@@ -100,6 +106,11 @@ class ChannelConfig:
         stream : str
             The stream.
         """
+        if stream == EXCITATION_STREAM:
+            return self.excitation
+        if stream.startswith("other_input") and stream[len("other_input"):].isdigit():
+            j = int(stream[len("other_input"):])
+            return self.other_inputs[j] if j < len(self.other_inputs) else None
         if self.is_mimo:
             for prefix, specs in (("inputs", self.inputs), ("outputs", self.outputs)):
                 if stream.startswith(prefix + "["):
@@ -107,6 +118,14 @@ class ChannelConfig:
             if stream in ("input", "output"):
                 return (self.inputs if stream == "input" else self.outputs)[0]
         return {"input": self.input, "output": self.output, "trigger": self.trigger}[stream]
+
+    def extra_streams(self) -> list[tuple[str, SignalSpec]]:
+        """The channel's streams beyond :data:`STREAMS`: each of ``other_inputs`` (``other_input0`` ...) and
+        the ``excitation``, as ``(stream, spec)`` in that order (empty without those keys)."""
+        out = [(OTHER_INPUT_STREAM.format(j), spec) for j, spec in enumerate(self.other_inputs)]
+        if self.excitation is not None:
+            out.append((EXCITATION_STREAM, self.excitation))
+        return out
 
     @property
     def input_streams(self) -> tuple[str, ...]:
@@ -169,6 +188,8 @@ class ValidationConfig:
                 spec = channel.signal(stream)
                 if spec is not None:
                     out.setdefault(spec.topic, []).append((name, stream, spec))
+            for stream, spec in channel.extra_streams():
+                out.setdefault(spec.topic, []).append((name, stream, spec))
         return out
 
     def with_channel_effects(self, channel: str, effects: list[dict]) -> "ValidationConfig":
@@ -327,6 +348,7 @@ def _channel(name: str, value: Any, source: str) -> ChannelConfig:
                                              controller=True)
     estimator = _mapping(data.get("estimator", {}) or {}, source, f"{path}.estimator", None)
     _check_estimator_options(estimator, source, f"{path}.estimator")
+    excitation, other_inputs = _closed_loop_signals(data, source, path, mimo)
     return ChannelConfig(
         name=name,
         input=None if mimo else _signal(data["input"], source, f"{path}.input"),
@@ -343,7 +365,33 @@ def _channel(name: str, value: Any, source: str) -> ChannelConfig:
         outputs=outputs or (),
         controller=controller,
         controller_spec=controller_spec,
+        excitation=excitation,
+        other_inputs=other_inputs,
     )
+
+
+def _closed_loop_signals(data: dict, source: str, path: str, mimo: bool
+                         ) -> tuple[SignalSpec | None, tuple[SignalSpec, ...]]:
+    """A SISO channel's ``excitation`` (the injected signal) and ``other_inputs`` (surfaces that may move with
+    its input), checked: no signal twice, and with both keys at least as many excitations as inputs (the
+    instrumental-variable estimate needs q >= m)."""
+    excitation = data.get("excitation")
+    others = data.get("other_inputs")
+    if mimo and (excitation is not None or others is not None):
+        key = "excitation" if excitation is not None else "other_inputs"
+        raise _fail(source, f"{path}.{key}", "not available for a MIMO channel yet")
+    spec = _signal(excitation, source, f"{path}.excitation") if excitation is not None else None
+    specs = _signals(others, source, f"{path}.other_inputs") if others is not None else ()
+    own = {(data["input"].get("topic", ""), data["input"].get("field", ""))} if isinstance(data.get("input"), dict) \
+        else set()
+    for i, other in enumerate(specs):
+        if (other.topic.lstrip("/"), other.field) in {(t.lstrip("/"), f) for t, f in own}:
+            raise _fail(source, f"{path}.other_inputs[{i}]", f"the channel's own input ({other.topic} {other.field})")
+    if spec is not None and specs:
+        raise _fail(source, f"{path}.other_inputs",
+                    f"{len(specs) + 1} inputs but 1 excitation: the instrumental-variable estimate needs at least as "
+                    f"many excitations as inputs (q >= m); give other_inputs without excitation, or excitation alone")
+    return spec, specs
 
 
 def _check_estimator_options(options: dict, source: str, path: str) -> None:

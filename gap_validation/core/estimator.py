@@ -54,7 +54,7 @@ from __future__ import annotations
 
 import bisect
 import math
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass, field
 from typing import Any, Sequence
 
@@ -113,6 +113,8 @@ RATE_STEPS = 128
 LOOKBACK_S = 10.0
 #: Manoeuvres up to this long are offered to the time-domain recorder (doublets, pulses, multisteps) [s].
 _SHORT_MANOEUVRE_S = 20.0
+#: Manoeuvre spans kept for :attr:`FrequencyResponseEstimator.record_spans_s`.
+SPANS_KEPT = 256
 
 
 # ---------------------------------------------------------------------------------------------- results
@@ -557,6 +559,9 @@ class FrequencyResponseEstimator:
         self._w = w.copy()
         self._opts = opts
         self._names = names
+        # other_inputs (issue 13): the channel's own input first, the others conditioned on and split on their own
+        # (a MIMO channel's inputs, ``inputs[j]``, are split by :meth:`_pieces_per_stream` instead)
+        self._conditioned = any(n.startswith("other_input") for n in names)
         self._m, self._p = int(inputs), int(outputs)
         fs = opts["sample_rate_hz"]
         self._dt = 1.0 / fs
@@ -605,6 +610,15 @@ class FrequencyResponseEstimator:
         self._counted: Counter = Counter()
         self._longest_n = 0
         self._saturated = 0
+        self._other_records = 0
+        self._own_record = True
+        self._piece_stream: dict = {}                        # other_inputs: manoeuvre -> the input it belongs to
+        self._spans: deque = deque(maxlen=SPANS_KEPT)     # grid spans of the latest manoeuvres (not checkpointed)
+        #: Called as ``record_observer(samples, kind, t0_s, dt_s)`` with the grid samples (streams x n) of the
+        #: excited span of every manoeuvre of this channel that gives a response, its kind, the time of its first
+        #: sample and the grid step (the coupling monitors of :mod:`gap_validation.core.closed_loop`); None:
+        #: nobody. Not checkpointed; it changes nothing in the estimates.
+        self.record_observer = None
 
     def _new_sums(self) -> BandSums:
         q = len(self._names) - self._m - self._p
@@ -878,6 +892,12 @@ class FrequencyResponseEstimator:
                 for (rows, k0, k1, kind), amplitude in raw]
 
     @property
+    def record_spans_s(self) -> list[tuple[float, float]]:
+        """Start and end [s] of the latest manoeuvres of any kind (up to 256): each manoeuvre's own excited span,
+        without the trim kept around it; since the start of this process (not checkpointed)."""
+        return [(self._time(a), self._time(b)) for a, b in self._spans]
+
+    @property
     def manoeuvres(self) -> list[Manoeuvre]:
         """Short manoeuvres (doublets, pulses, multisteps) kept for the time-domain check (largest 3)."""
         return self._man.manoeuvres(self._t0, self._dt)
@@ -1082,10 +1102,43 @@ class FrequencyResponseEstimator:
         if src == _TRIGGER:
             return [Piece(0, n, min(act0, n), max(min(act1, n), min(act0, n)))]
         if len(self._det_streams) > 1:
-            return self._pieces_per_stream(data)
+            return self._multi_pieces(data) if self._conditioned else self._pieces_per_stream(data)
         det = data[self._det_streams[0]]
         return split_record(det, self._dt, trim_noise(det, self._dt), self._rec.pre_n, self._rec.post_n,
                             self._opts["min_quiet_s"])
+
+    def _multi_pieces(self, data: np.ndarray) -> list[Piece]:
+        """Several inputs without an excitation signal (``other_inputs``): the manoeuvres of every input, each
+        kept where its own input is the most excited (relative to its trim noise) over its excited span, so a
+        surface that only follows another through an interconnect adds no manoeuvre of its own; in time order.
+        :attr:`_piece_stream` remembers which input each one belongs to."""
+        found = []
+        noise = {s: max(trim_noise(data[s], self._dt), 1e-12) for s in self._det_streams}
+        for s in self._det_streams:
+            for piece in split_record(data[s], self._dt, noise[s], self._rec.pre_n, self._rec.post_n,
+                                      self._opts["min_quiet_s"]):
+                if piece.active_end <= piece.active_start:
+                    continue
+                span = slice(piece.active_start, piece.active_end)
+                level = {r: float(np.std(data[r, span])) / noise[r] for r in self._det_streams}
+                if max(level, key=level.get) == s:
+                    found.append((piece, s))
+        found.sort(key=lambda item: (item[0].start, item[1]))
+        self._piece_stream = {(p.start, p.end, p.active_start, p.active_end): s for p, s in found}
+        return [p for p, _ in found]
+
+    def _det_index(self, data: np.ndarray) -> int:
+        """The detection stream a record is split and classified on: the only one, or (several inputs without
+        an excitation signal: ``other_inputs``) the one most excited relative to its trim noise."""
+        if len(self._det_streams) == 1:
+            return self._det_streams[0]
+        best, best_ratio = self._det_streams[0], -1.0
+        for s in self._det_streams:
+            row = data[s]
+            ratio = float(np.std(row)) / max(trim_noise(row, self._dt), 1e-12)
+            if ratio > best_ratio:
+                best, best_ratio = s, ratio
+        return best
 
     def _record_full(self, k0: int, data: np.ndarray, src: int, act0: int) -> int:
         """The record buffer is full (``max_record_s``): estimate the manoeuvres it completed and keep the one
@@ -1093,6 +1146,12 @@ class FrequencyResponseEstimator:
         n = data.shape[1]
         pieces = self._pieces(data, src, act0, n)
         going = [p for p in pieces if p.group == pieces[-1].group] if pieces and pieces[-1].end >= n else []
+        if self._conditioned and src != _TRIGGER:      # other_inputs split separately: groups differ
+            going = [p for p in pieces if p.end >= n]
+            if going and len(going) < len(pieces):
+                first = min(p.start for p in going)
+                self._estimate_pieces(k0, data, [p for p in pieces if p.end < n])
+                return first
         if going and len(going) < len(pieces):
             self._estimate_pieces(k0, data, pieces[:len(pieces) - len(going)])
             return going[0].start
@@ -1154,23 +1213,38 @@ class FrequencyResponseEstimator:
 
     def _estimate_pieces(self, k0: int, data: np.ndarray, pieces: list[Piece]) -> None:
         single = len(self._det_streams) == 1
-        det = data[self._det_streams[0]]
+        det_index = self._det_index(data) if self._conditioned else self._det_streams[0]
+        det = data[det_index]
         noise = trim_noise(det, self._dt)
+        multi = len(self._det_streams) > 1
         for piece in pieces:
             if piece.active_end <= piece.active_start:
                 continue
-            if not single:
+            if not single and self._conditioned:      # other_inputs: each manoeuvre on the input it belongs to
+                det_index = self._piece_stream.get(
+                    (piece.start, piece.end, piece.active_start, piece.active_end), det_index)
+                det = data[det_index]
+                noise = trim_noise(det, self._dt)
+            elif not single:                            # MIMO: the input that varies most during the manoeuvre
                 det = self._detection_signal(data, piece)
                 noise = trim_noise(det, self._dt)
+            # other_inputs: a manoeuvre of another input (its own sweep) pools into the average, which needs it to
+            # separate the inputs, but is not a sweep of this channel (no raw estimate of its own)
+            self._own_record = (not self._conditioned or det_index == self._det_streams[0]
+                                or self._m + self._p < len(self._names))
+            self._spans.append((k0 + piece.active_start, k0 + piece.active_end))
             kind = classify(det, self._dt, piece, noise)
             self._kinds[kind] += 1
             active_s = (piece.active_end - piece.active_start) * self._dt
             seg = data[:, piece.start:piece.end]
-            if kind in ("doublet", "pulse", "multistep") and active_s <= _SHORT_MANOEUVRE_S:
+            if kind in ("doublet", "pulse", "multistep") and active_s <= _SHORT_MANOEUVRE_S and self._own_record:
                 self._man.offer(k0 + piece.start, seg[0], seg[self._m], k0 + piece.active_start,
                                 k0 + piece.active_end, kind)
             if kind not in RESPONSE_KINDS or active_s < self._opts["min_sweep_s"]:
                 continue
+            if self.record_observer is not None and self._own_record:
+                self.record_observer(data[:, piece.active_start:piece.active_end], kind,
+                                     self._time(k0 + piece.active_start), self._dt)
             if kind in ("chirp", "multisine", "broadband") and saturated_share(det, piece) >= SATURATED_SHARE:
                 self._saturated += 1
                 continue
@@ -1205,7 +1279,11 @@ class FrequencyResponseEstimator:
         self._tot.add(sums, counted)
         amplitude = record_amplitude(seg[0, max(active[0] - k_start, 0):max(active[1] - k_start, 0)])
         k_start, k_end = active
-        if self._n_sweeps == 0:
+        if not self._own_record:
+            self._n_sweeps += 1
+            self._other_records += 1
+            return
+        if self._n_sweeps == self._other_records:
             self._span[0] = k_start
         self._span[1] = k_end
         self._n_sweeps += 1
@@ -1245,6 +1323,8 @@ class FrequencyResponseEstimator:
             "counted_counts": np.array([self._counted[k] for k in KINDS], np.int64),
             "longest_n": self._longest_n, "saturated": self._saturated,
         })
+        if self._other_records:
+            st["other_records"] = self._other_records
         st.update(self._tot.state_dict("tot."))
         parts = {"align": self._align, "trig": self._trig, "tbase": self._trig_base, "man": self._man,
                  "rec": self._rec}
@@ -1322,6 +1402,7 @@ class FrequencyResponseEstimator:
         self._reasons[:] = st["reasons"]
         self._longest_n = int(st["longest_n"])
         self._saturated = int(st["saturated"])
+        self._other_records = int(st.get("other_records", 0))
         self._tot = BandSums.from_state(st, "tot.")
         meta = np.asarray(st["raw_meta"], np.int64).reshape(-1, 2)
         kinds = [str(k) for k in np.atleast_1d(st["raw_kind"])]

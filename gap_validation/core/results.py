@@ -351,6 +351,9 @@ class ChannelResult:
     nonlinearity: str | None = None
     nonlinearity_evidence: str | None = None
     input_amplitudes: list[float] = field(default_factory=list)
+    # closed loop and coupled surfaces (issue 13): per frequency, only with the config keys
+    excitation_coherence: dict | None = None      # {"r_to_u": array, "r_to_y": array} with an ``excitation``
+    partial_coherence: np.ndarray | None = None   # with ``other_inputs``
 
     def __post_init__(self) -> None:
         # bands and candidates given as their JSON objects (hand-written results, tests) are read as such
@@ -432,6 +435,10 @@ class ChannelResult:
             entry["measured"] = _mag_phase(response, self.model)
         if self.mimo is not None:               # only for a MIMO channel
             out["mimo"] = self.mimo.to_json_dict()
+        if self.excitation_coherence is not None:    # only with an excitation
+            out["excitation_coherence"] = {k: _list(v) for k, v in self.excitation_coherence.items()}
+        if self.partial_coherence is not None:       # only with other_inputs
+            out["partial_coherence"] = _list(self.partial_coherence)
         if self.stability_margin_b is not None:  # only with a controller
             out.update({"stability_margin_b": _num(self.stability_margin_b),
                         "stability_margin_frequency_rad_s": _num(self.stability_margin_frequency_rad_s),
@@ -484,6 +491,10 @@ class ChannelResult:
                     "degrees_of_freedom"):
             setattr(ch, key, _array(data.get(key)))
         ch.measured, ch.model = _complex(data.get("measured")), _complex(data.get("model"))
+        if isinstance(data.get("excitation_coherence"), dict):
+            ch.excitation_coherence = {k: _array(v) for k, v in data["excitation_coherence"].items()}
+        if data.get("partial_coherence") is not None:
+            ch.partial_coherence = _array(data.get("partial_coherence"))
         confident = data.get("confident")
         ch.confident = np.array(confident, dtype=bool) if confident else None
         raw = list(data.get("raw_sweeps") or [])

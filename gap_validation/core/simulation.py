@@ -38,7 +38,8 @@ from gap_validation.core.numbers import NON_NEGATIVE, POSITIVE, Interval, check_
 __all__ = [
     "FlightOptions", "Segment", "TopicSeries", "SimulatedFlight", "parse_hidden", "hidden_effects",
     "parse_band_noise", "band_noise", "truth_models", "plan_topics", "simulate_flight", "log_sweep", "doublet",
-    "with_options", "EXCITATIONS", "multisine", "multistep",
+    "with_options", "EXCITATIONS", "multisine", "multistep", "parse_coupling", "parse_cross_response",
+    "damper_gain",
 ]
 
 #: Manoeuvres ``FlightOptions.excitation`` can fly.
@@ -174,6 +175,14 @@ class FlightOptions:
     multistep_unit_s: float = 0.5
     step_rise_s: float = 0.04
     sweep_amplitude_scales: tuple[float, ...] | None = None
+    # closed loop and coupled surfaces (issue 13; see the functions under "closed loop" below)
+    closed_loop_gain_margin_db: float | None = None
+    loop_delay_s: float | None = None
+    turbulence_rms_rad_s: float = 0.0
+    turbulence_bandwidth_rad_s: float = 8.0
+    log_excitation_topic: str | None = None
+    coupling: tuple = ()
+    cross_responses: tuple = ()
 
     def check(self) -> "FlightOptions":
         """Raise :class:`ConfigError` naming the first option out of range; return self."""
@@ -209,6 +218,7 @@ class FlightOptions:
                      expected="a number in [0, 0.5)")
         self._check_band_noise()
         self._check_amplitude_scales()
+        _check_loop_options(self)
         return self
 
     def _check_amplitude_scales(self) -> None:
@@ -310,6 +320,9 @@ class SimulatedFlight:
     seed : int
         Seed of the random generator.
     options : FlightOptions
+    loop_gains : dict
+        Closed-loop flights: channel -> the rate damper's gain K (``u = r - K y``, in the loop with
+        ``loop_delay_s``); empty in open loop.
     """
 
     topics: dict[str, TopicSeries]
@@ -323,6 +336,7 @@ class SimulatedFlight:
     start_time_s: float
     seed: int
     options: FlightOptions
+    loop_gains: dict = field(default_factory=dict)
 
     @property
     def message_count(self) -> int:
@@ -800,12 +814,17 @@ def simulate_flight(config: ValidationConfig, hidden: dict[str, list[dict]] | No
         inputs[name] = _channel_input(name, t_s, segments, opt, tuple(config.channels),
                                       share=(units.index((name, None)), len(units)))
         trim[name] = _pilot_trim(t_s, segments, duration_s, opt, rng)
-    outputs = {name: (_mimo_outputs(truth[name], t_s, inputs[name]) if ch.is_mimo else
-                      np.asarray(truth[name].simulate(t_s, inputs[name]), dtype=float).ravel())
-               for name, ch in config.channels.items()}
     gusts = {name: (np.stack([_gust(t_s.size, fs_hz, opt, rng) for _ in ch.outputs]) if ch.is_mimo else
                     _gust(t_s.size, fs_hz, opt, rng)) for name, ch in config.channels.items()}
     bands = _band_noises(config, t_s.size, fs_hz, opt, seed)
+    loop = _loop_flight(config, truth, inputs, gusts, bands, t_s, fs_hz, opt, seed)
+    references = dict(inputs)
+    if loop is not None:
+        inputs, outputs = loop.surfaces, loop.outputs
+    else:
+        outputs = {name: (_mimo_outputs(truth[name], t_s, inputs[name]) if ch.is_mimo else
+                          np.asarray(truth[name].simulate(t_s, inputs[name]), dtype=float).ravel())
+                   for name, ch in config.channels.items()}
     measured = {}
     for name, ch in config.channels.items():
         if ch.is_mimo:
@@ -818,6 +837,8 @@ def simulate_flight(config: ValidationConfig, hidden: dict[str, list[dict]] | No
             if name in bands:
                 disturbed = disturbed + bands[name]
             measured[(name, "output")] = (disturbed, opt.gyro_noise_rad_s * opt.noise, opt.gyro_lsb_rad_s)
+            if loop is not None:
+                measured[(name, "output")] = loop.measured_output(name, disturbed, opt)
         if ch.trigger is not None:
             active = np.zeros_like(t_s)
             kinds = SWEEP_SEGMENTS + (("doublet",) if opt.excitation == "doublet" else ())
@@ -827,6 +848,9 @@ def simulate_flight(config: ValidationConfig, hidden: dict[str, list[dict]] | No
             measured[(name, "trigger")] = (active, 0.0, 0.0)
 
     topics = {}
+    if opt.log_excitation_topic:
+        plans = plan_topics(_with_logged_excitation(config, opt.log_excitation_topic))
+    _extra_measured(plans, config, references, measured)
     for topic, plan in plans.items():
         rate = opt.imu_rate_hz if plan.role == "imu" else opt.surface_rate_hz
         stamps, receive = _sample_times(duration_s, rate, opt, rng)
@@ -845,7 +869,8 @@ def simulate_flight(config: ValidationConfig, hidden: dict[str, list[dict]] | No
                                     values, plan.joint_names)
     return SimulatedFlight(topics=topics, segments=segments, truth=truth, hidden=hidden, t_s=t_s,
                            inputs=inputs, outputs=outputs, duration_s=duration_s,
-                           start_time_s=opt.start_time_s, seed=seed, options=opt)
+                           start_time_s=opt.start_time_s, seed=seed, options=opt,
+                           loop_gains={} if loop is None else dict(loop.gains))
 
 
 def _channel_input(name: str, t_s: np.ndarray, segments: list[Segment], opt: FlightOptions,
@@ -1019,3 +1044,303 @@ def _mimo_measured(name: str, channel, u: np.ndarray, y: np.ndarray, opt: Flight
     out.update({(name, mimo_stream("outputs", i)): (y[i], opt.gyro_noise_rad_s * opt.noise, opt.gyro_lsb_rad_s)
                 for i in range(len(channel.outputs))})
     return out
+
+
+# --------------------------------------------------------------------------------------------- closed loop
+# Issue 13: a rate damper closing the loop around each channel with the manoeuvre injected inside it (the
+# injected signal logged as the excitation), turbulence, interconnected surfaces (``coupling``) and the response
+# of one channel's rate to another channel's surface (``cross_responses``). Kept apart from the open-loop flight
+# above: without these options a flight is exactly what it was.
+
+#: Spawn keys of the closed loop's random streams (gyro noise fed back, turbulence).
+_LOOP_NOISE_STREAM, _TURBULENCE_STREAM = 2, 3
+
+
+def _check_loop_options(opt: FlightOptions) -> None:
+    """ConfigError naming the first closed-loop / coupling option out of range."""
+    if opt.closed_loop_gain_margin_db is not None:
+        check_number(opt.closed_loop_gain_margin_db, "simulation option closed_loop_gain_margin_db",
+                     Interval(0.5, 60.0), expected="a gain margin from 0.5 to 60 dB")
+    if opt.loop_delay_s is not None:
+        check_number(opt.loop_delay_s, "simulation option loop_delay_s", POSITIVE, expected="a number > 0")
+    check_number(opt.turbulence_rms_rad_s, "simulation option turbulence_rms_rad_s", NON_NEGATIVE,
+                 expected="a number >= 0")
+    check_number(opt.turbulence_bandwidth_rad_s, "simulation option turbulence_bandwidth_rad_s", POSITIVE,
+                 expected="a number > 0")
+    if opt.coupling and opt.closed_loop_gain_margin_db is not None:
+        raise ConfigError("simulation options coupling and closed_loop_gain_margin_db: not available together "
+                          "yet (fly them as separate flights)")
+
+
+def _resolve_surface(config: ValidationConfig, name: str, text: str) -> str:
+    """The channel whose input is the surface ``name``: a channel name, or the joint of its input field."""
+    if name in config.channels:
+        return name
+    for channel, ch in config.channels.items():
+        if ch.input is not None and FieldPath.parse(ch.input.field).key == name:
+            return channel
+    joints = [FieldPath.parse(ch.input.field).key for ch in config.channels.values() if ch.input is not None]
+    raise ConfigError(f"{text}: bad part {name!r}: no channel or input joint of that name in the config "
+                      f"(channels: {', '.join(config.channels)}; joints: {', '.join(str(j) for j in joints if j)})")
+
+
+def parse_coupling(text: str, config: ValidationConfig) -> tuple[str, str, float]:
+    """Parse ``--coupling FROM:TO:GAIN`` (e.g. ``aileron:rudder:0.3``): the surface TO also moves by GAIN times
+    the surface FROM's deflection (an aileron-rudder interconnect). Surfaces are channel names or input joints.
+
+    Parameters
+    ----------
+    text : str
+        The argument.
+    config : ValidationConfig
+        The config whose channels carry the surfaces.
+
+    Returns
+    -------
+    (from_channel, to_channel, gain)
+
+    Raises
+    ------
+    ConfigError
+        One line naming the bad part.
+    """
+    where = f"--coupling {text!r}"
+    parts = [p.strip() for p in text.split(":")]
+    if len(parts) != 3:
+        raise ConfigError(f"{where}: expected FROM:TO:GAIN, e.g. aileron:rudder:0.3")
+    source, target = _resolve_surface(config, parts[0], where), _resolve_surface(config, parts[1], where)
+    if source == target:
+        raise ConfigError(f"{where}: a surface coupled to itself")
+    gain = _finite(parts[2], f"{where}: bad part {parts[2]!r} (GAIN must be a finite number)")
+    return source, target, gain
+
+
+def parse_cross_response(text: str, config: ValidationConfig) -> tuple[str, str, float, float, float]:
+    """Parse ``--cross-response OUTPUT:SURFACE:GAIN[:WN[:DAMPING]]`` (e.g. ``roll:rudder:-0.8:3:0.2``): the rate
+    of channel OUTPUT also responds to SURFACE through ``GAIN wn^2 / (s^2 + 2 zeta wn s + wn^2)`` (default
+    ``wn`` 3 rad/s, damping 0.2: a Dutch-roll-like cross response).
+
+    Parameters
+    ----------
+    text : str
+        The argument.
+    config : ValidationConfig
+        The config.
+
+    Returns
+    -------
+    (output_channel, surface_channel, gain, wn_rad_s, damping)
+    """
+    where = f"--cross-response {text!r}"
+    parts = [p.strip() for p in text.split(":")]
+    if not 3 <= len(parts) <= 5:
+        raise ConfigError(f"{where}: expected OUTPUT:SURFACE:GAIN[:WN[:DAMPING]], e.g. roll:rudder:-0.8:3:0.2")
+    if parts[0] not in config.channels:
+        raise ConfigError(f"{where}: bad part {parts[0]!r}: no such channel (channels: {', '.join(config.channels)})")
+    surface = _resolve_surface(config, parts[1], where)
+    numbers = [_finite(p, f"{where}: bad part {p!r} (expected a finite number)") for p in parts[2:]]
+    gain, wn, damping = (numbers + [3.0, 0.2][len(numbers) - 1:])[:3]
+    if wn <= 0 or damping <= 0:
+        raise ConfigError(f"{where}: WN and DAMPING must be > 0")
+    return parts[0], surface, gain, wn, damping
+
+
+#: Washout of the simulated rate damper [rad/s]: ``C(s) = K s / (s + a)`` (no feedback in steady state, so the
+#: damper leaves the slow spiral and trim to the pilot, as real dampers do).
+WASHOUT_RAD_S = 0.3
+
+
+def damper_gain(model: "LinearModel", gain_margin_db: float, loop_delay_s: float,
+                w_rad_s: np.ndarray | None = None) -> float:
+    """Gain K of a rate damper ``u = r - C(s) y``, ``C = K s / (s + a)`` (washout ``a`` =
+    :data:`WASHOUT_RAD_S`), with the given gain margin around ``model`` and a loop delay.
+
+    The sign makes the feedback negative in the channel's band (``K Re P(j w) > 0`` at 1 rad/s); ``|K|`` is the
+    critical gain (smallest ``1 / |P W|`` where the phase of ``K W(j w) P(j w) exp(-j w T)`` crosses -180 deg)
+    over ``10^(gain_margin_db / 20)``.
+
+    Parameters
+    ----------
+    model : LinearModel
+        The true aircraft of the channel.
+    gain_margin_db : float
+        Gain margin of the loop [dB].
+    loop_delay_s : float
+        Delay of the flight computer and actuator in the loop [s].
+    w_rad_s : ndarray, optional
+        Search grid [rad/s] (default 0.05 to 2000 rad/s).
+
+    Raises
+    ------
+    ConfigError
+        When the loop has no phase crossover (no finite gain margin).
+    """
+    w = np.geomspace(0.05, 2000.0, 40000) if w_rad_s is None else np.asarray(w_rad_s, float)
+    p = model.freqresp(w) * np.exp(-1j * w * loop_delay_s) * (1j * w) / (1j * w + WASHOUT_RAD_S)
+    sign = 1.0 if p[np.argmin(np.abs(w - 1.0))].real >= 0 else -1.0
+    loop = sign * p
+    crossing = np.flatnonzero((np.sign(loop.imag[:-1]) != np.sign(loop.imag[1:])) & (loop.real[:-1] < 0))
+    if crossing.size == 0:
+        raise ConfigError("closed loop: the rate damper's loop has no phase crossover, no finite gain margin")
+    critical = min(1.0 / abs(loop[i]) for i in crossing)
+    return sign * critical * 10.0 ** (-gain_margin_db / 20.0)
+
+
+def _discrete(model, fs_hz: float) -> tuple[np.ndarray, np.ndarray, int]:
+    """The model's rational part discretised with a zero-order hold (numerator, denominator in powers of
+    ``z^-1``, the same length) and its pure delay in samples."""
+    from scipy import signal
+
+    a, b, c, d = model.state_space()
+    if a.shape[0] == 0:
+        num, den = np.array([float(d[0, 0])]), np.array([1.0])
+    else:
+        ad, bd, cd, dd, _ = signal.cont2discrete((a, b, c, d), 1.0 / fs_hz, method="zoh")
+        num, den = signal.ss2tf(ad, bd, cd, dd)
+        num = np.atleast_2d(num)[0]
+    size = max(num.size, den.size)
+    num, den = np.pad(num, (size - num.size, 0)), np.pad(den, (size - den.size, 0))
+    return num, den, int(round(model.delay_s * fs_hz))
+
+
+def _shifted(poly: np.ndarray, n: int, size: int) -> np.ndarray:
+    out = np.zeros(size)
+    out[n:n + poly.size] = poly
+    return out
+
+
+@dataclass
+class _Loop:
+    """A closed-loop (or coupled) flight: the surfaces, the responses and the gyro noise fed back."""
+
+    surfaces: dict
+    outputs: dict
+    gains: dict
+    gyro_noise: dict
+
+    def measured_output(self, name: str, disturbed: np.ndarray, opt: FlightOptions) -> tuple:
+        """The logged rate: the rate the damper read (gyro noise included: the same noise drives the surface),
+        no further noise at sampling."""
+        noise = self.gyro_noise.get(name)
+        if noise is None:                                  # open loop: sensor noise drawn at sampling
+            return disturbed, opt.gyro_noise_rad_s * opt.noise, opt.gyro_lsb_rad_s
+        return disturbed + noise, 0.0, opt.gyro_lsb_rad_s
+
+
+def _turbulence(n: int, fs_hz: float, opt: FlightOptions, rng: np.random.Generator) -> np.ndarray:
+    """Turbulence at the rate: white noise through a first-order low-pass at ``turbulence_bandwidth_rad_s``,
+    scaled to ``turbulence_rms_rad_s``."""
+    white = rng.standard_normal(n + int(5 * fs_hz))
+    if opt.turbulence_rms_rad_s == 0.0:
+        return np.zeros(n)
+    from scipy import signal
+
+    b, a = signal.butter(1, opt.turbulence_bandwidth_rad_s / (2 * math.pi), fs=fs_hz)
+    coloured = signal.lfilter(b, a, white)[-n:]
+    return coloured * (opt.turbulence_rms_rad_s / max(float(np.std(coloured)), 1e-300))
+
+
+def _cross_model(gain: float, wn: float, damping: float):
+    from gap_validation.core.models import LinearModel
+
+    return LinearModel.from_tf([gain * wn * wn], [1.0, 2.0 * damping * wn, wn * wn])
+
+
+def _loop_flight(config: ValidationConfig, truth: dict, references: dict, gusts: dict, bands: dict,
+                 t_s: np.ndarray, fs_hz: float, opt: FlightOptions, seed: int) -> _Loop | None:
+    """Surfaces and responses of a closed-loop, turbulent or coupled flight; None for an open-loop flight
+    without them (the flight is then exactly the one of the options before issue 13).
+
+    Closed loop: per channel ``u = z^-Nc (r - K (y + d + n))`` with ``r`` the manoeuvre (injected inside the
+    loop), ``d`` gusts, turbulence and band noise at the rate, ``n`` the gyro noise, ``K`` the rate damper of
+    :func:`damper_gain` and ``Nc`` the loop delay (default one surface sample); ``y = P u`` with P the truth
+    discretised on the simulation grid (zero-order hold, delay in whole samples). Solved exactly with linear
+    filters. The turbulence is added to ``gusts`` (in place) so the logged rate holds it.
+    """
+    if opt.closed_loop_gain_margin_db is None and not opt.turbulence_rms_rad_s and not opt.coupling \
+            and not opt.cross_responses:
+        return None
+    mimo = [name for name, ch in config.channels.items() if ch.is_mimo]
+    if mimo:
+        raise ConfigError(f"closed loop, turbulence, coupling and cross responses: not available for the MIMO "
+                          f"channel {mimo[0]} yet (fly it open loop)")
+    from scipy import signal
+
+    n = t_s.size
+    turb_rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(_TURBULENCE_STREAM,)))
+    for name in config.channels:
+        gusts[name] = gusts[name] + _turbulence(n, fs_hz, opt, turb_rng)
+    surfaces = {name: np.asarray(r, float).copy() for name, r in references.items()}
+    for source, target, gain in opt.coupling:
+        surfaces[target] = surfaces[target] + gain * references[source]
+    gains, noise = {}, {}
+    if opt.closed_loop_gain_margin_db is not None:
+        noise_rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(_LOOP_NOISE_STREAM,)))
+        delay_s = opt.loop_delay_s if opt.loop_delay_s is not None else 1.0 / opt.surface_rate_hz
+        n_c = max(1, int(round(delay_s * fs_hz)))
+        wash_b, wash_a = signal.bilinear([1.0, 0.0], [1.0, WASHOUT_RAD_S], fs_hz)
+        for name in config.channels:
+            # the zero-order hold adds half a sample of delay to the discretised loop
+            k = damper_gain(truth[name], opt.closed_loop_gain_margin_db, (n_c + 0.5) / fs_hz)
+            num, den, n_p = _discrete(truth[name], fs_hz)
+            size = den.size + wash_a.size + n_c + n_p
+            den_w, num_w = np.convolve(den, wash_a), np.convolve(num, wash_b)
+            closed = _shifted(den_w, 0, size) + k * _shifted(num_w, n_c + n_p, size)
+            if np.max(np.abs(np.roots(np.trim_zeros(closed, "b")))) >= 1.0:
+                raise ConfigError(f"closed loop: channel {name}: the rate damper K = {k:.4g} does not stabilise the "
+                                  f"simulated loop (gain margin {opt.closed_loop_gain_margin_db:g} dB)")
+            noise[name] = opt.gyro_noise_rad_s * opt.noise * noise_rng.standard_normal(n)
+            disturbance = gusts[name] + bands.get(name, 0.0) + noise[name]
+            fed_back = signal.lfilter(_shifted(k * np.convolve(den, wash_b), n_c, size), closed, disturbance)
+            surfaces[name] = signal.lfilter(_shifted(den_w, n_c, size), closed, surfaces[name]) - fed_back
+            gains[name] = k
+    outputs = {}
+    for name in config.channels:
+        if name in gains:
+            num, den, n_p = _discrete(truth[name], fs_hz)
+            outputs[name] = signal.lfilter(_shifted(num, n_p, num.size + n_p), den, surfaces[name])
+        else:
+            outputs[name] = np.asarray(truth[name].simulate(t_s, surfaces[name]), dtype=float).ravel()
+    for out_channel, surface, gain, wn, damping in opt.cross_responses:
+        outputs[out_channel] = outputs[out_channel] + np.asarray(
+            _cross_model(gain, wn, damping).simulate(t_s, surfaces[surface]), float).ravel()
+    return _Loop(surfaces, outputs, gains, noise)
+
+
+def _with_logged_excitation(config: ValidationConfig, topic: str | None) -> ValidationConfig:
+    """The config with every channel's injected signal logged on ``topic`` (``--log-excitation``): a channel
+    without ``excitation`` gets one there, with its input's field (a JointState joint), else ``data`` on
+    ``TOPIC/<channel>``."""
+    if not topic:
+        return config
+    topic = topic if topic.startswith("/") else "/" + topic
+    channels = {}
+    for name, ch in config.channels.items():
+        if ch.excitation is None and ch.input is not None:
+            path = FieldPath.parse(ch.input.field)
+            spec = SignalSpec(topic, ch.input.field, ch.input.scale) if path.key is not None or \
+                path.index is not None else SignalSpec(f"{topic}/{name}", "data", ch.input.scale)
+            ch = replace(ch, excitation=spec)
+        channels[name] = ch
+    return replace(config, channels=channels)
+
+
+def _extra_measured(plans: dict, config: ValidationConfig, references: dict, measured: dict) -> None:
+    """The series behind the planned topics' ``excitation`` and ``other_input<j>`` streams: the channel's
+    injected manoeuvre (logged exactly), and the other surface's measured deflection (the channel whose input
+    is that topic and field; trim alone when no channel flies it)."""
+    by_signal = {(ch.input.topic, ch.input.field): name for name, ch in config.channels.items()
+                 if ch.input is not None}
+    for plan in plans.values():
+        for name, stream, spec, _ in plan.entries:
+            if (name, stream) in measured:
+                continue
+            if stream == "excitation":
+                measured[(name, stream)] = (np.asarray(references[name], float), 0.0, 0.0)
+            elif stream.startswith("other_input"):
+                owner = by_signal.get((spec.topic, spec.field))
+                if owner is not None:
+                    measured[(name, stream)] = measured[(owner, "input")]
+                else:
+                    zero = np.zeros_like(np.asarray(next(iter(references.values())), float))
+                    measured[(name, stream)] = (zero, 0.0, 0.0)

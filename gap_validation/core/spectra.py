@@ -40,7 +40,8 @@ from typing import Callable, Sequence
 import numpy as np
 
 __all__ = ["SPECTRA_DEFAULTS", "BandSums", "record_bands", "interpolation_gain", "band_excited", "LocalEstimate", "solve_bands",
-           "expected_estimate", "EXTRA_ORDER", "MatrixEstimate", "solve_matrix", "expected_matrix"]
+           "expected_estimate", "EXTRA_ORDER", "MatrixEstimate", "solve_matrix", "expected_matrix",
+           "excitation_coherence", "partial_coherence"]
 
 #: Options of the local polynomial estimate (estimator options of the same names).
 SPECTRA_DEFAULTS = {
@@ -423,8 +424,9 @@ def record_bands(inputs: np.ndarray, outputs: np.ndarray, dt: float, w_rad_s: np
         # band) fix the response with nothing left to check it against
         carried = float(np.sum(power[sel]) ** 2 / max(np.sum(power[sel] ** 2), 1e-300))
         # several inputs: only those this record excites here carry coefficients it must determine (single-axis
-        # sweeps flown in turn: each record one input; the pooled sums determine the whole matrix)
-        m_here = m if m == 1 else _inputs_carried(fu[:, sel])
+        # sweeps flown in turn, MIMO or other_inputs: each record usually one input; the pooled sums determine
+        # them all); with instruments every input's coefficients are solved from this record's instruments
+        m_here = m if m == 1 or instruments is not None else _inputs_carried(fu[:, sel])
         if dof < 1 + m_here * (order + 1) or carried < 1.5 + m_here * (order + 1):
             status[i] = STATUS_TOO_FEW_BINS
             continue
@@ -563,8 +565,10 @@ def expected_estimate(sums: BandSums, w_rad_s: np.ndarray, band_fraction: float,
         nodes = mid + half * cheb
         values = np.asarray(model_response(w[i] + scale * nodes), complex)
         coef, *_ = np.linalg.lstsq(_vander(nodes, degree), values, rcond=None)
+        if sums.inputs > 1:      # the first input's column; the others contribute nothing to the model's share
+            coef = np.concatenate([coef, np.zeros((sums.inputs - 1) * (degree + 1), complex)])
         points = mid + half * fine
-        fit_err = np.max(np.abs(_vander(points, degree) @ coef - model_response(w[i] + scale * points)))
+        fit_err = np.max(np.abs(_vander(points, degree) @ coef[:degree + 1] - model_response(w[i] + scale * points)))
         try:
             theta = np.linalg.solve(sums.zf[i][:, cols], sums.zf[i] @ coef)
         except np.linalg.LinAlgError:
@@ -730,3 +734,71 @@ def expected_matrix(sums: BandSums, w_rad_s: np.ndarray, band_fraction: float,
             continue
         expected[i] = theta[::per_h, :].T
     return expected
+
+
+def excitation_coherence(sums: BandSums) -> tuple[np.ndarray, np.ndarray]:
+    """Coherences of the first input and of the first output with the instruments (the injected excitation r):
+    the multiple coherence of the local polynomial fit of u, and of y, on the instrument regressors,
+    ``gamma^2 = b^H (Z^H Z)^-1 b / |v|^2`` with ``b = Z^H v`` (Bendat and Piersol, ch. 7).
+
+    Parameters
+    ----------
+    sums : BandSums
+        Sums made with instruments (``record_bands(..., instruments=...)``).
+
+    Returns
+    -------
+    r_to_u, r_to_y : ndarray, (F,)
+        In [0, 1]; 0 where nothing was estimated.
+    """
+    n_freq = sums.bins.size
+    r_u, r_y = np.zeros(n_freq), np.zeros(n_freq)
+    for i in range(n_freq):
+        if sums.records[i] == 0:
+            continue
+        try:
+            zz_inv = np.linalg.inv(sums.zz[i])
+        except np.linalg.LinAlgError:
+            continue
+        for out, b, total in ((r_u, sums.zf[i][:, 0], sums.ff[i][0, 0].real),
+                              (r_y, sums.zy[i][:, 0], sums.yy[i][0, 0].real)):
+            if total > 0:
+                out[i] = min(max(float((b.conj() @ zz_inv @ b).real) / total, 0.0), 1.0)
+    return r_u, r_y
+
+
+def partial_coherence(sums: BandSums) -> np.ndarray:
+    """Partial coherence of the first output with the first input, conditioned on the other inputs (least
+    squares): the share of the output power left unexplained by the other inputs that the first input explains,
+    ``(RSS_others - RSS_all) / RSS_others`` (Bendat and Piersol, ch. 7).
+
+    Parameters
+    ----------
+    sums : BandSums
+        Sums of m >= 2 inputs.
+
+    Returns
+    -------
+    ndarray, (F,)
+        In [0, 1]; 0 where nothing was estimated, where the pool leaves no degree of freedom, and for a single
+        input. With ``d`` degrees of freedom noise alone reaches about ``(order + 1) / (d + order + 1)``.
+    """
+    n_freq = sums.bins.size
+    out = np.zeros(n_freq)
+    per = sums.order + 1
+    if sums.inputs < 2:
+        return out
+    others = np.arange(per, sums.ff.shape[1])
+    for i in range(n_freq):
+        if sums.records[i] == 0 or int(sums.dof[i]) - sums.ff.shape[1] < 1:
+            continue
+        ff, fy, yy = sums.ff[i], sums.fy[i][:, 0], float(sums.yy[i][0, 0].real)
+        try:
+            rss_all = yy - float((fy.conj() @ np.linalg.solve(ff, fy)).real)
+            fo = fy[others]
+            rss_others = yy - float((fo.conj() @ np.linalg.solve(ff[np.ix_(others, others)], fo)).real)
+        except np.linalg.LinAlgError:
+            continue
+        if rss_others > 0:
+            out[i] = min(max((rss_others - max(rss_all, 0.0)) / rss_others, 0.0), 1.0)
+    return out

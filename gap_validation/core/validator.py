@@ -10,16 +10,21 @@ from __future__ import annotations
 
 import logging
 from collections import Counter
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from gap_validation.core import metrics, robust
-from gap_validation.core.config import STREAMS, ChannelConfig, ValidationConfig
+from gap_validation.core.closed_loop import (CouplingMonitor, SurfaceHistory, TrimCoherenceMonitor,
+                                             near_minus_inverse, with_bias_allowance)
+from gap_validation.core.config import (EXCITATION_STREAM, OTHER_INPUT_STREAM, STREAMS, ChannelConfig,
+                                        ValidationConfig)
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.diagnosis import confident_points, sweep_points
-from gap_validation.core.estimator import FrequencyResponseEstimator, SpectralEstimate
+from gap_validation.core.estimator import (ESTIMATOR_DEFAULTS, SPANS_KEPT, FrequencyResponseEstimator,
+                                          SpectralEstimate)
 from gap_validation.core.margins import margins_from_epsilon
 from gap_validation.core.records import SATURATED_SHARE
 from gap_validation.core.results import ChannelResult, SweepResult, ValidationResult
@@ -44,7 +49,14 @@ def _estimator_for(channel: ChannelConfig) -> FrequencyResponseEstimator:
         return FrequencyResponseEstimator(channel.frequencies.values(),
                                           channel.input_streams + channel.output_streams,
                                           len(channel.inputs), len(channel.outputs), **channel.estimator)
-    return FrequencyResponseEstimator(channel.frequencies.values(), **channel.estimator)
+    if not channel.other_inputs and channel.excitation is None:
+        return FrequencyResponseEstimator(channel.frequencies.values(), **channel.estimator)
+    # other_inputs are more inputs (the channel's response is the first input's column); the excitation is the
+    # instrument (instrumental variables) and the detection signal
+    others = [OTHER_INPUT_STREAM.format(j) for j in range(len(channel.other_inputs))]
+    streams = ["input", *others, "output"] + ([EXCITATION_STREAM] if channel.excitation is not None else [])
+    return FrequencyResponseEstimator(channel.frequencies.values(), streams, inputs=1 + len(others), outputs=1,
+                                      **channel.estimator)
 
 
 def _same_measurement(a: ChannelConfig, b: ChannelConfig) -> bool:
@@ -68,6 +80,8 @@ class OnlineValidator:
         self._config = config
         self._diagnose = diagnose
         self._estimators = {name: _estimator_for(ch) for name, ch in config.channels.items()}
+        self._monitors = _monitors_for(config)
+        self._watch()
         self._bad: dict[str, Counter] = {name: Counter() for name in config.channels}
         self._previous: dict[str, float | None] = {}
         self._versions: dict[str, int] = {name: 0 for name in config.channels}
@@ -107,13 +121,17 @@ class OnlineValidator:
             est.add_samples(stream, t_s, np.asarray(values, dtype=float))
         elif stream == "input":
             est.add_input(t_s, np.asarray(values, dtype=float))
+            self._feed_monitors(channel, {"input": (t_s, values)})
         elif stream == "output":
             est.add_output(t_s, np.asarray(values, dtype=float))
+            self._feed_monitors(channel, {"output": (t_s, values)})
         elif stream == "trigger":
             values = np.asarray(values)
             if values.dtype.kind not in "biuf":  # "false" would be True as a string
                 raise DataError(f"channel {channel}: trigger values must be booleans or numbers, got {values.dtype}")
             est.add_trigger(t_s, values.astype(bool))
+        elif stream in est.streams:                     # other_input<j>, excitation
+            est.add_samples(stream, t_s, np.asarray(values, dtype=float))
         else:
             raise ConfigError(f"unknown stream {stream!r} (expected one of {', '.join(STREAMS)})")
         self._versions[channel] += 1
@@ -140,6 +158,61 @@ class OnlineValidator:
         est.add_time_histories(np.asarray(t_input_s, float), np.asarray(u, float),
                                np.asarray(t_output_s, float), np.asarray(y, float))
         self._versions[channel] += 1
+        self._feed_monitors(channel, {"input": (t_input_s, u), "output": (t_output_s, y)}, whole=True)
+
+    def add_histories(self, channel: str, histories: dict) -> None:
+        """Feed whole recorded time histories of any of a channel's streams at once, interleaved in time
+        (library use; e.g. with ``excitation`` or ``other_inputs``: ``{"input": (t, u), "output": (t, y),
+        "excitation": (t, r)}``).
+
+        Parameters
+        ----------
+        channel : str
+            Channel name from the config.
+        histories : dict
+            Stream name (``input``, ``output``, ``excitation``, ``other_input0`` ...) -> ``(t_s, values)`` in SI
+            units.
+        """
+        est = self._estimators.get(channel)
+        if est is None:
+            raise ConfigError(f"no channel {channel!r} in the config")
+        est.add_histories({stream: (np.asarray(t, float), np.asarray(v, float))
+                           for stream, (t, v) in histories.items()})
+        self._versions[channel] += 1
+        self._feed_monitors(channel, histories, whole=True)
+
+    def _feed_monitors(self, channel: str, histories: dict, whole: bool = False) -> None:
+        """The closed-loop and coupling monitors (:mod:`gap_validation.core.closed_loop`) see the channel's input
+        and output too: its trim monitor both, the history of its surface its input (other channels' coupling
+        monitors read it at the times of their manoeuvres). ``whole``: whole recorded histories (library use)."""
+        mon = self._monitors.get(channel)
+        if mon is None:
+            return
+        for stream, (t, v) in histories.items():
+            if stream not in ("input", "output"):
+                continue
+            t, v = np.asarray(t, float), np.asarray(v, float)
+            if mon.trim is not None:
+                mon.trim.add("u" if stream == "input" else "y", t, v)
+            if stream == "input":
+                mon.history.add(t, v, whole=whole)
+                for other in self._monitors.values():
+                    coupling = other.coupling.get(channel)
+                    if coupling is not None and coupling.pending:
+                        coupling.catch_up(mon.history)
+
+    def _observer(self, channel: str):
+        """The channel estimator's ``record_observer``: each manoeuvre to the channel's coupling monitors."""
+        def observe(samples: np.ndarray, kind: str, t0_s: float, dt_s: float) -> None:
+            for other, coupling in self._monitors[channel].coupling.items():
+                coupling.observe(samples[0], t0_s, dt_s, self._monitors[other].history)
+        return observe
+
+    def _watch(self) -> None:
+        """Hook the coupling monitors to the channels' estimators (after any estimator was made)."""
+        for name, est in self._estimators.items():
+            est.record_observer = self._observer(name) if self._monitors.get(name) is not None and \
+                self._monitors[name].coupling else None
 
     def add_histories(self, channel: str, histories: dict) -> None:
         """Feed whole recorded time histories of any streams of one channel at once (library use; a MIMO
@@ -192,6 +265,8 @@ class OnlineValidator:
     def reset(self) -> None:
         """Forget every spectrum gathered (keeps the models)."""
         self._estimators = {name: _estimator_for(ch) for name, ch in self._config.channels.items()}
+        self._monitors = _monitors_for(self._config)
+        self._watch()
         self._bad = {name: Counter() for name in self._config.channels}
         self._previous = {}
         self._versions = {name: v + 1 for name, v in self._versions.items()}
@@ -224,8 +299,14 @@ class OnlineValidator:
                 restarted.append(name)
         self._previous = {name: old.channels[name].epsilon for name in config.channels if name in old.channels
                           and name not in restarted}
+        monitors = _monitors_for(config)
+        for name in config.channels:          # kept where the channel's measurement and the surfaces are unchanged
+            if name not in restarted and name in self._monitors and \
+                    set(self._monitors[name].coupling) == set(monitors[name].coupling):
+                monitors[name] = self._monitors[name]
         self._config = config
-        self._estimators, self._bad = estimators, bad
+        self._estimators, self._bad, self._monitors = estimators, bad, monitors
+        self._watch()
         self._versions = {name: self._versions.get(name, 0) + 1 for name in config.channels}
         self._diagnosis_cache.clear()
         self._time_domain_cache.clear()
@@ -299,6 +380,7 @@ class OnlineValidator:
         result.degrees_of_freedom = np.asarray(avg.n_averages, dtype=float)
         result.frequency_reasons = _frequency_reasons(avg, confident, channel.coherence_threshold)
         result.kappa, result.epsilon_per_frequency = kappa, eps_w
+        _closed_loop_coherences(channel, avg, result)
         result.measured, result.model, result.confident = p_meas, p_model, confident
         result.points_excluded = int(w.size - np.count_nonzero(confident))
         result.nu_gap, result.nu_gap_frequency_rad_s = _sup(metrics.nugap_frequency_data, w, p_model, p_meas,
@@ -312,6 +394,12 @@ class OnlineValidator:
         if raw:
             result.epsilon_raw, result.epsilon_raw_frequency_rad_s = max(raw, key=lambda r: r[0])
             result.margins_raw = margins_from_epsilon(result.epsilon_raw)
+        suspect, warnings = _closed_loop_checks(channel, self._monitors[name], self._config, est, w, p_meas,
+                                                p_model, confident)
+        result.warnings.extend(warnings)
+        if suspect.any():
+            result.frequency_reasons = [BIASED if s else r for s, r in zip(suspect, result.frequency_reasons)]
+            avg = with_bias_allowance(avg, suspect)
         self._apply_diagnosis(name, channel, avg, sweeps, result, diagnose)
         return result
 
@@ -463,6 +551,7 @@ class OnlineValidator:
                 saved = state["channels"].get(name)
                 if saved is not None and state.get("measurement", {}).get(name) == _measurement_key(ch):
                     self._estimators[name] = FrequencyResponseEstimator.from_state(saved)
+                    self._watch()
                     self._bad[name] = Counter(state.get("bad", {}).get(name, {}))
                     resumed.append(name)
             # as in set_config: a restarted channel has no previous epsilon (it was of other spectra)
@@ -480,6 +569,7 @@ REASON_WORDS = {
     "too_few_bins": "too few spectral lines of the excitation there",
     "too_few_dof": "too few degrees of freedom",
     "low_coherence": "low coherence",
+    "biased": "the response may be biased by feedback or another surface (see the warnings)",
 }
 
 
@@ -521,6 +611,11 @@ def _frequency_reasons(avg: SpectralEstimate, confident: np.ndarray, coherence_t
 
 def _why_nothing(est: FrequencyResponseEstimator, channel: ChannelConfig) -> str:
     """One line: why a channel has no frequency response at all."""
+    counts = est.bad_sample_counts
+    for stream, extra in channel.extra_streams():
+        if not counts.get(stream, {}).get("accepted"):
+            return (f"no samples of the {stream.replace('_', ' ')} {extra.topic} {extra.field!r} (the estimate needs "
+                    f"every stream of the channel)")
     spec = channel.input if channel.input is not None else channel.inputs[0]
     where = (f"input {spec.topic} {spec.field!r}" if channel.input is not None else
              "inputs " + ", ".join(f"{s.topic} {s.field!r}" for s in channel.inputs))
@@ -556,7 +651,98 @@ def _measurement_key(channel: ChannelConfig) -> str:
            sorted(channel.estimator.items()))
     if channel.is_mimo:
         key += (tuple(signal(s) for s in channel.inputs), tuple(signal(s) for s in channel.outputs))
+    if channel.excitation is not None or channel.other_inputs:     # only then: older checkpoints stay valid
+        key += (signal(channel.excitation), tuple(signal(s) for s in channel.other_inputs))
     return repr(key)
+
+
+@dataclass
+class _Monitors:
+    """A channel's closed-loop sign (its trim monitor; None with an ``excitation``), the latest samples of its
+    surface (other channels' coupling monitors read them) and its coupling monitors (other channel -> monitor of
+    that channel's surface)."""
+
+    trim: TrimCoherenceMonitor | None
+    history: SurfaceHistory
+    coupling: dict = field(default_factory=dict)
+
+
+def _monitors_for(config: ValidationConfig) -> dict[str, _Monitors]:
+    """Per SISO channel: a trim monitor (without ``excitation``) and a coupling monitor of every other channel's
+    surface that is not among its ``other_inputs`` nor its own input."""
+    out = {}
+    surfaces = {name: (ch.input.topic, ch.input.field) for name, ch in config.channels.items()
+                if ch.input is not None}
+    for name, ch in config.channels.items():
+        if ch.input is None:
+            continue
+        listed = {(s.topic, s.field) for s in ch.other_inputs} | {surfaces[name]}
+        coupling = {other: CouplingMonitor() for other, signal in surfaces.items()
+                    if other != name and signal not in listed}
+        options = {**ESTIMATOR_DEFAULTS, **ch.estimator}
+        keep_s = float(options["max_record_s"]) + float(options["max_lag_s"]) + 60.0
+        out[name] = _Monitors(None if ch.excitation is not None else TrimCoherenceMonitor(), SurfaceHistory(keep_s),
+                              coupling)
+    return out
+
+
+#: The ``frequency_reasons`` key of the points a closed-loop or coupling warning covers.
+BIASED = "biased"
+
+
+def _closed_loop_checks(channel: ChannelConfig, monitors: _Monitors, config: ValidationConfig,
+                        est: FrequencyResponseEstimator, w: np.ndarray, p_meas: np.ndarray,
+                        p_model: np.ndarray, confident: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    """Warnings instead of guesses (:mod:`gap_validation.core.closed_loop`): the points whose response may be
+    biased by another surface or by feedback, and one line per cause naming what to add to the config."""
+    suspect = np.zeros(w.size, bool)
+    warnings = []
+    where = f"channels.{channel.name}"
+    for other, monitor in monitors.coupling.items():
+        coupled, coherence, gain = monitor.coupled()
+        if not coupled:
+            continue
+        suspect |= np.isfinite(p_meas)
+        spec = config.channels[other].input
+        warnings.append(f"the {other} surface ({spec.topic} {spec.field}) moves with this channel's input during "
+                        f"its manoeuvres (coherence {coherence:.2f}, {gain:.2g} x the input): the measured response "
+                        f"mixes both surfaces and is not validated; add it to {where}.other_inputs (and fly its own "
+                        f"sweeps)")
+    if channel.excitation is None:
+        spans = est.record_spans_s
+        # the estimator keeps the latest manoeuvres only: blocks before the oldest it remembers are not judged
+        since = spans[0][0] if len(spans) >= SPANS_KEPT else -np.inf
+        coherent, total = monitors.trim.feedback_share(spans, since) if monitors.trim is not None else (0, 0)
+        if total >= 2 and coherent >= max(2, 0.5 * total):
+            suspect |= np.isfinite(p_meas)
+            warnings.append(f"between the manoeuvres the surface ({channel.input.topic} {channel.input.field}) "
+                            f"moves coherently with the rate ({coherent} of {total} trim stretches of "
+                            f"{monitors.trim.block_s:g} s): a feedback loop (damper, autopilot) drives it, so the "
+                            f"measured response is biased towards -1/C and not validated; log the injected signal "
+                            f"and add {where}.excitation")
+        if channel.controller is not None and not channel.is_mimo:
+            inverse = near_minus_inverse(channel.controller, w, p_meas, p_model) & confident
+            if inverse.any():
+                suspect |= inverse
+                band = w[inverse]
+                warnings.append(f"the measured response looks like -1/C of the configured controller at "
+                                f"{band[0]:.3g}-{band[-1]:.3g} rad/s: feedback drives the surface there, not "
+                                f"validated; log the injected signal and add {where}.excitation")
+    return suspect, warnings
+
+
+def _closed_loop_coherences(channel: ChannelConfig, avg: SpectralEstimate, result: ChannelResult) -> None:
+    """JSON ``excitation_coherence`` (r -> u and r -> y) with an ``excitation``, ``partial_coherence`` with
+    ``other_inputs`` (:mod:`gap_validation.core.spectra`)."""
+    if avg.sums is None:
+        return
+    from gap_validation.core.spectra import excitation_coherence, partial_coherence
+
+    if channel.excitation is not None:
+        r_u, r_y = excitation_coherence(avg.sums)
+        result.excitation_coherence = {"r_to_u": r_u, "r_to_y": r_y}
+    if channel.other_inputs:
+        result.partial_coherence = partial_coherence(avg.sums)
 
 
 def _describe_model(channel: ChannelConfig) -> str:

@@ -1,0 +1,285 @@
+"""Issue 13: closed-loop sweeps and surfaces that move together (core/closed_loop.py, the ``excitation`` and
+``other_inputs`` keys, the simulator's closed loop and coupling). Seeded simulated flights, in memory (simulator ->
+validator, the library path of the one data path) and once through a bag and the CLI."""
+from __future__ import annotations
+
+import copy
+import json
+
+import numpy as np
+import pytest
+from scipy import signal
+
+from _flights import config_from, raw_config, write_config
+from gap_validation.cli.main import main
+from gap_validation.core.closed_loop import (CouplingMonitor, SurfaceHistory, near_minus_inverse,
+                                             welch_coherence)
+from gap_validation.core.errors import ConfigError
+from gap_validation.core.models import LinearModel
+from gap_validation.core.simulation import _discrete, damper_gain, simulate_flight, with_options
+from gap_validation.core.spectra import BandSums, partial_coherence, record_bands
+from gap_validation.core.validator import OnlineValidator
+
+EXCITATION = {"topic": "/sysid/excitation", "field": "position[aileron]"}
+RUDDER = {"topic": "/control_surfaces", "field": "position[rudder]"}
+#: A closed-loop card: three 90 s roll sweeps inside a rate damper with a 6 dB gain margin, 12 s of trim between
+#: manoeuvres, turbulence, the injected signal logged.
+CLOSED_LOOP = dict(closed_loop_gain_margin_db=6.0, turbulence_rms_rad_s=0.05, log_excitation_topic="/sysid/excitation",
+                   sweeps_per_channel=3, sweep_duration_s=90.0, quiet_s=12.0)
+#: Rudder = own + 0.3 x aileron (an interconnect); the roll rate also answers the rudder (a Dutch-roll-like term).
+COUPLED = dict(coupling=(("roll", "yaw", 0.3),), cross_responses=(("roll", "yaw", -3.0, 3.0, 0.15),),
+               sweeps_per_channel=2, sweep_duration_s=60.0)
+
+
+def roll_config(excitation: bool = False, channels=("roll",), other_inputs: bool = False):
+    data = raw_config()
+    data["channels"] = {k: v for k, v in data["channels"].items() if k in channels}
+    if excitation:
+        data["channels"]["roll"]["excitation"] = dict(EXCITATION)
+    if other_inputs:
+        data["channels"]["roll"]["other_inputs"] = [dict(RUDDER)]
+    return config_from(data, "closed_loop.yaml")
+
+
+def validate(config, flight):
+    """Feed every stream of every channel of ``config`` from ``flight`` (whole histories) and validate."""
+    validator = OnlineValidator(config)
+    for name, ch in config.channels.items():
+        streams = [("input", ch.input), ("output", ch.output), *ch.extra_streams()]
+        validator.add_histories(name, {stream: (flight.topics[spec.topic].stamp_s,
+                                                flight.topics[spec.topic].values[spec.field] * spec.scale)
+                                       for stream, spec in streams})
+    validator.finish()
+    return validator.results()
+
+
+@pytest.fixture(scope="module")
+def clean_loop():
+    return simulate_flight(roll_config(), {}, with_options(**CLOSED_LOOP), seed=1)
+
+
+@pytest.fixture(scope="module")
+def delayed_loop():
+    hidden = {"roll": [{"type": "time_delay", "seconds": 0.035}]}
+    return simulate_flight(roll_config(), hidden, with_options(**CLOSED_LOOP), seed=1)
+
+
+@pytest.fixture(scope="module")
+def coupled():
+    return simulate_flight(roll_config(channels=("roll", "yaw")), {}, with_options(**COUPLED), seed=1)
+
+
+# ------------------------------------------------------------------------------------------ excitation
+def test_closed_loop_with_excitation_gives_the_plant(clean_loop):
+    ch = validate(roll_config(excitation=True), clean_loop).channels["roll"]
+    assert ch.limited_by != "model" and not ch.diagnosis, ch.message
+    assert ch.epsilon is not None and ch.epsilon < 0.3
+    assert not ch.warnings
+    r_u, r_y = ch.excitation_coherence["r_to_u"], ch.excitation_coherence["r_to_y"]
+    assert r_u.shape == r_y.shape == ch.frequency_rad_s.shape
+    assert np.median(r_u) > 0.8 and np.median(r_y) > 0.8 and np.all((r_u >= 0) & (r_u <= 1))
+    assert ch.to_json_dict()["excitation_coherence"]["r_to_u"][0] == pytest.approx(r_u[0])
+
+
+def test_closed_loop_hidden_delay_is_found_with_excitation(delayed_loop):
+    ch = validate(roll_config(excitation=True), delayed_loop).channels["roll"]
+    assert ch.limited_by == "model" and ch.diagnosis and ch.diagnosis[0].effect == "time_delay", ch.message
+    assert ch.diagnosis[0].parameters["seconds"] == pytest.approx(0.035, rel=0.2)
+
+
+@pytest.mark.parametrize("flight", ["clean_loop", "delayed_loop"])
+def test_closed_loop_without_excitation_warns_and_names_nothing(flight, request):
+    ch = validate(roll_config(), request.getfixturevalue(flight)).channels["roll"]
+    assert ch.limited_by != "model" and not ch.diagnosis, ch.message
+    assert any("feedback" in w and "channels.roll.excitation" in w for w in ch.warnings), ch.warnings
+
+
+def test_excitation_coherence_is_absent_without_the_key(clean_loop):
+    assert "excitation_coherence" not in validate(roll_config(), clean_loop).channels["roll"].to_json_dict()
+
+
+# ------------------------------------------------------------------------------------------ other inputs
+def test_coupled_surfaces_with_other_inputs_give_the_roll_response(coupled):
+    ch = validate(roll_config(channels=("roll", "yaw"), other_inputs=True), coupled).channels["roll"]
+    assert ch.limited_by != "model" and not ch.diagnosis and not ch.warnings, ch.message
+    assert ch.epsilon is not None and ch.epsilon < 0.15
+    assert ch.partial_coherence is not None and np.median(ch.partial_coherence) > 0.8
+    assert ch.sweeps == 2                       # the rudder's own sweeps pool in, but are not roll sweeps
+
+
+def test_coupled_surfaces_without_other_inputs_warn_naming_the_rudder(coupled):
+    result = validate(roll_config(channels=("roll", "yaw")), coupled)
+    roll = result.channels["roll"]
+    assert roll.limited_by != "model" and not roll.diagnosis, roll.message
+    assert any("position[rudder]" in w and "channels.roll.other_inputs" in w for w in roll.warnings), roll.warnings
+    assert "biased" in roll.frequency_reasons
+    assert not result.channels["yaw"].warnings           # the rudder's own sweeps move no aileron
+
+
+@pytest.mark.parametrize("options", [
+    dict(excitation="chirp", sweeps_per_channel=1, sweep_duration_s=30.0, quiet_s=12.0),
+    dict(excitation="multisine-orthogonal", sweeps_per_channel=1, multisine_period_s=15.0, multisine_periods=3),
+], ids=["chirps", "orthogonal multisines"])
+def test_open_loop_flights_of_uncoupled_surfaces_warn_of_nothing(options):
+    config = config_from(raw_config())
+    result = validate(config, simulate_flight(config, {}, with_options(**options), seed=2))
+    for name, ch in result.channels.items():
+        assert not ch.warnings, (name, ch.warnings)
+
+
+# ------------------------------------------------------------------------------------------ units
+def test_welch_coherence_is_scipys():
+    rng = np.random.default_rng(0)
+    u = rng.standard_normal(400)
+    y = np.convolve(u, [0.5, 0.3, 0.1], "same") + rng.standard_normal(400)
+    f_ref, c_ref = signal.coherence(u, y, fs=50.0, nperseg=100)
+    f, c = welch_coherence(u, y, 50.0, 100)
+    np.testing.assert_allclose(f, f_ref)
+    np.testing.assert_allclose(c, c_ref, atol=1e-12)
+
+
+def test_coupling_monitor_sees_an_interconnect_not_an_independent_surface():
+    rng = np.random.default_rng(1)
+    t = np.arange(0.0, 60.0, 0.01)
+    u = 0.05 * np.sin(2.0 * t + 0.02 * t ** 2)
+    for other, expected in ((0.3 * u + 1e-3 * rng.standard_normal(t.size), True),
+                            (0.05 * np.sin(7.0 * t + 1.0), False), (1e-3 * rng.standard_normal(t.size), False)):
+        history, monitor = SurfaceHistory(), CouplingMonitor()
+        monitor.observe(u, 0.0, 0.01, history)            # the surface's samples come later: it waits
+        assert monitor.pending and not monitor.records
+        history.add(t, other)
+        monitor.catch_up(history)
+        coupled, r2, gain = monitor.coupled()
+        assert coupled is expected and monitor.records == 1
+        if expected:
+            assert r2 > 0.99 and gain == pytest.approx(0.3, rel=0.02)
+
+
+def test_near_minus_inverse_marks_a_response_that_is_minus_one_over_c():
+    w = np.geomspace(1.0, 40.0, 20)
+    controller = LinearModel.from_tf([0.2, 0.0], [1.0, 0.3])
+    model = LinearModel.from_tf([156.0], [1.0, 16.0]).freqresp(w)
+    assert near_minus_inverse(controller, w, -1.0 / controller.freqresp(w), model).all()
+    assert not near_minus_inverse(controller, w, model * 1.05, model).any()
+
+
+def test_partial_coherence_separates_the_inputs():
+    rng = np.random.default_rng(3)
+    n, dt = 60000, 0.01
+    x1, x2 = rng.standard_normal(n), rng.standard_normal(n)
+    w = np.geomspace(2.0, 30.0, 8)
+    for y, low, high in ((np.convolve(x2, [0.0, 1.0], "same"), 0.0, 0.15),      # noise level: 3 / (dof + 3)
+                         (np.convolve(x1, [0.0, 1.0], "same"), 0.95, 1.0)):
+        y = y + 0.05 * rng.standard_normal(n)
+        sums, status = record_bands(np.stack([x1, x2]), y[None, :], dt, w)
+        assert (status == 0).all()
+        gamma = partial_coherence(sums)
+        assert np.all((gamma >= low) & (gamma <= high)), gamma
+    assert not partial_coherence(BandSums.zeros(4)).any()          # one input: nothing to condition on
+
+
+# ------------------------------------------------------------------------------------------ simulator
+def test_damper_gain_leaves_the_asked_gain_margin():
+    """The discretised loop of the simulator is stable at the damper's gain and 3 % below the critical gain, and
+    unstable 3 % above it (6 dB: the critical gain is twice the damper's)."""
+    model = config_from(raw_config()).channels["roll"].model
+    fs, n_c = 400.0, 8
+    k = damper_gain(model, 6.0, (n_c + 0.5) / fs)
+    num, den, n_p = _discrete(model, fs)
+    wash_b, wash_a = signal.bilinear([1.0, 0.0], [1.0, 0.3], fs)
+
+    def largest_root(gain):
+        size = den.size + wash_a.size + n_c + n_p
+        closed = np.zeros(size)
+        closed[:den.size + wash_a.size - 1] += np.convolve(den, wash_a)
+        closed[n_c + n_p:n_c + n_p + den.size + wash_b.size - 1] += gain * np.convolve(num, wash_b)
+        return np.max(np.abs(np.roots(np.trim_zeros(closed, "b"))))
+
+    critical = k * 10 ** (6.0 / 20.0)
+    assert largest_root(k) < 1.0 and largest_root(0.97 * critical) < 1.0 < largest_root(1.03 * critical)
+
+
+def test_closed_loop_flight_logs_the_injected_signal_and_keeps_open_loop_flights(clean_loop):
+    assert set(clean_loop.topics) == {"/control_surfaces", "/imu", "/sysid/excitation"}
+    assert clean_loop.loop_gains["roll"] > 0
+    logged = clean_loop.topics["/sysid/excitation"].values["position[aileron]"]
+    assert np.max(np.abs(logged)) == pytest.approx(0.06, rel=0.02)        # the manoeuvre, before any feedback
+    config = roll_config()
+    plain = simulate_flight(config, {}, with_options(sweeps_per_channel=1, sweep_duration_s=20.0), seed=4)
+    again = simulate_flight(config, {}, with_options(sweeps_per_channel=1, sweep_duration_s=20.0,
+                                                      turbulence_rms_rad_s=0.0, coupling=()), seed=4)
+    for topic, series in plain.topics.items():
+        for field, values in series.values.items():
+            np.testing.assert_array_equal(values, again.topics[topic].values[field])
+
+
+# ------------------------------------------------------------------------------------------ config and CLI
+@pytest.mark.parametrize("change,needle", [
+    (lambda ch: ch.update(excitation=dict(EXCITATION), other_inputs=[dict(RUDDER)]),
+     "channels.roll.other_inputs: 2 inputs but 1 excitation"),
+    (lambda ch: ch.update(other_inputs=[{"topic": "/control_surfaces", "field": "position[aileron]"}]),
+     "channels.roll.other_inputs[0]: the channel's own input"),
+    (lambda ch: ch.update(excitation={"topic": "/sysid"}), "channels.roll.excitation.field: missing"),
+    (lambda ch: ch.update(other_inputs=[]), "channels.roll.other_inputs: expected a non-empty list"),
+])
+def test_bad_closed_loop_keys_are_one_line_errors(change, needle):
+    data = raw_config()
+    change(data["channels"]["roll"])
+    with pytest.raises(ConfigError) as err:
+        config_from(data, "cfg.yaml")
+    assert needle in str(err.value) and "\n" not in str(err.value)
+
+
+def test_simulate_closed_loop_and_replay_with_excitation(tmp_path, capsys):
+    data = raw_config()
+    data["channels"] = {"roll": data["channels"]["roll"]}
+    plain = write_config(copy.deepcopy(data), tmp_path / "roll.yaml")
+    data["channels"]["roll"]["excitation"] = dict(EXCITATION)
+    excited = write_config(data, tmp_path / "roll_excitation.yaml")
+    bag = tmp_path / "flight"
+    assert main(["simulate", "--config", str(plain), "--out", str(bag), "--closed-loop-gain-margin-db", "6",
+                 "--turbulence", "0.05", "--log-excitation", "/sysid/excitation", "--sweeps", "2",
+                 "--sweep-duration", "60", "--sweep-gap-s", "12", "--seed", "1"]) == 0
+    assert "rate damper K =" in capsys.readouterr().out
+    out = tmp_path / "out.json"
+    assert main(["replay", str(bag), "--config", str(excited), "--json", str(out), "--no-history",
+                 "--no-progress"]) == 0
+    roll = json.loads(out.read_text())["channels"]["roll"]
+    assert roll["limited_by"] != "model" and not roll["diagnosis"] and roll["epsilon"] < 0.3
+    assert len(roll["excitation_coherence"]["r_to_y"]) == len(roll["frequency_rad_s"])
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["--coupling", "aileron:flap:0.3"], "--coupling 'aileron:flap:0.3': bad part 'flap'"),
+    (["--coupling", "aileron:rudder"], "expected FROM:TO:GAIN"),
+    (["--cross-response", "roll:rudder:x"], "bad part 'x'"),
+    (["--closed-loop-gain-margin-db", "6", "--coupling", "aileron:rudder:0.3"], "not available together"),
+])
+def test_bad_simulate_loop_options_are_one_line_exit_2(tmp_path, capsys, args, needle):
+    code = main(["simulate", "--config", "config/ultrastick25e.yaml", "--out", str(tmp_path / "bag"), *args])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and needle in err and len(err.splitlines()) == 1, err
+
+
+def test_the_node_path_message_by_message_gives_the_replay_result(clean_loop, tmp_path):
+    """Replay (batched decoding) and the node's path (the router, message by message, as ``on_message`` feeds it)
+    agree on a closed-loop flight with the excitation and on its warnings without it."""
+    from gap_validation.bag.reader import open_bag
+    from gap_validation.bag.replay import replay
+    from gap_validation.bag.writer import write_flight
+    from gap_validation.messages.router import MessageRouter
+
+    bag = tmp_path / "flight"
+    write_flight(clean_loop, bag)
+    for config in (roll_config(excitation=True), roll_config()):
+        replayed = replay([bag], config, diagnose=False).result.channels["roll"]
+        validator = OnlineValidator(config, diagnose=False)
+        router = MessageRouter(config, validator)
+        with open_bag(bag) as opened:
+            for topic, msg, t_s in opened.messages(list(config.topics())):
+                router.on_message(topic, msg, t_s)
+        router.flush()
+        validator.finish()
+        live = validator.results().channels["roll"]
+        assert live.epsilon == pytest.approx(replayed.epsilon, rel=1e-9) and live.warnings == replayed.warnings
+        assert (live.excitation_coherence is None) == (config.channels["roll"].excitation is None)

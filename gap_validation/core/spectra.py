@@ -324,12 +324,6 @@ def interpolation_gain(w_rad_s: np.ndarray, rate_hz: float, cubic: bool = True) 
     return np.interp(w / (2.0 * math.pi * rate_hz), nu, gain)
 
 
-def _inputs_carried(fu_band: np.ndarray) -> int:
-    """How many inputs carry power in a band: at least :data:`_BIN_FLOOR` of the strongest input's (>= 1)."""
-    power = np.sum(np.abs(fu_band) ** 2, axis=1)
-    return max(1, int(np.count_nonzero(power >= _BIN_FLOOR * np.max(power))))
-
-
 def _vander(r: np.ndarray, degree: int) -> np.ndarray:
     return np.vander(r, degree + 1, increasing=True)
 
@@ -426,7 +420,7 @@ def record_bands(inputs: np.ndarray, outputs: np.ndarray, dt: float, w_rad_s: np
         # several inputs: only those this record excites here carry coefficients it must determine (single-axis
         # sweeps flown in turn, MIMO or other_inputs: each record usually one input; the pooled sums determine
         # them all); with instruments every input's coefficients are solved from this record's instruments
-        m_here = m if m == 1 or instruments is not None else _inputs_carried(fu[:, sel])
+        m_here = m if m == 1 or instruments is not None else 1
         if dof < 1 + m_here * (order + 1) or carried < 1.5 + m_here * (order + 1):
             status[i] = STATUS_TOO_FEW_BINS
             continue

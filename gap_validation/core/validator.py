@@ -163,7 +163,7 @@ class OnlineValidator:
     def add_histories(self, channel: str, histories: dict) -> None:
         """Feed whole recorded time histories of any of a channel's streams at once, interleaved in time
         (library use; e.g. with ``excitation`` or ``other_inputs``: ``{"input": (t, u), "output": (t, y),
-        "excitation": (t, r)}``).
+        "excitation": (t, r)}``; a MIMO channel's ``inputs[j]`` and ``outputs[i]``).
 
         Parameters
         ----------
@@ -213,24 +213,6 @@ class OnlineValidator:
         for name, est in self._estimators.items():
             est.record_observer = self._observer(name) if self._monitors.get(name) is not None and \
                 self._monitors[name].coupling else None
-
-    def add_histories(self, channel: str, histories: dict) -> None:
-        """Feed whole recorded time histories of any streams of one channel at once (library use; a MIMO
-        channel's ``inputs[j]`` and ``outputs[i]``), interleaved in time as a replay would feed them.
-
-        Parameters
-        ----------
-        channel : str
-            Channel name from the config.
-        histories : dict
-            ``{stream: (t_s, values)}`` (SI units).
-        """
-        est = self._estimators.get(channel)
-        if est is None:
-            raise ConfigError(f"no channel {channel!r} in the config")
-        est.add_histories({stream: (np.asarray(t, float), np.asarray(v, float)) for stream, (t, v) in
-                           histories.items()})
-        self._versions[channel] += 1
 
     def count_bad(self, channel: str, stream: str, reason: str, count: int = 1) -> None:
         """Count samples that could not be used (NaN, missing joint, wrong length ...), per reason.

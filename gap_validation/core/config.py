@@ -348,10 +348,11 @@ def _channel(name: str, value: Any, source: str) -> ChannelConfig:
                                              controller=True)
     estimator = _mapping(data.get("estimator", {}) or {}, source, f"{path}.estimator", None)
     _check_estimator_options(estimator, source, f"{path}.estimator")
-    excitation, other_inputs = _closed_loop_signals(data, source, path, mimo)
+    input_spec = None if mimo else _signal(data["input"], source, f"{path}.input")   # checked before it is compared
+    excitation, other_inputs = _closed_loop_signals(data, source, path, mimo, input_spec)
     return ChannelConfig(
         name=name,
-        input=None if mimo else _signal(data["input"], source, f"{path}.input"),
+        input=input_spec,
         output=None if mimo else _signal(data["output"], source, f"{path}.output"),
         model=model,
         model_spec=model_spec,
@@ -370,7 +371,7 @@ def _channel(name: str, value: Any, source: str) -> ChannelConfig:
     )
 
 
-def _closed_loop_signals(data: dict, source: str, path: str, mimo: bool
+def _closed_loop_signals(data: dict, source: str, path: str, mimo: bool, own_input: SignalSpec | None = None
                          ) -> tuple[SignalSpec | None, tuple[SignalSpec, ...]]:
     """A SISO channel's ``excitation`` (the injected signal) and ``other_inputs`` (surfaces that may move with
     its input), checked: no signal twice, and with both keys at least as many excitations as inputs (the
@@ -382,10 +383,9 @@ def _closed_loop_signals(data: dict, source: str, path: str, mimo: bool
         raise _fail(source, f"{path}.{key}", "not available for a MIMO channel yet")
     spec = _signal(excitation, source, f"{path}.excitation") if excitation is not None else None
     specs = _signals(others, source, f"{path}.other_inputs") if others is not None else ()
-    own = {(data["input"].get("topic", ""), data["input"].get("field", ""))} if isinstance(data.get("input"), dict) \
-        else set()
+    own = {(own_input.topic.lstrip("/"), own_input.field)} if own_input is not None else set()
     for i, other in enumerate(specs):
-        if (other.topic.lstrip("/"), other.field) in {(t.lstrip("/"), f) for t, f in own}:
+        if (other.topic.lstrip("/"), other.field) in own:
             raise _fail(source, f"{path}.other_inputs[{i}]", f"the channel's own input ({other.topic} {other.field})")
     if spec is not None and specs:
         raise _fail(source, f"{path}.other_inputs",

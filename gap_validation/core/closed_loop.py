@@ -112,7 +112,16 @@ class TrimCoherenceMonitor:
     def _blocks(self) -> None:
         while self._start is not None and all(self._t[s].size for s in "uy") and \
                 min(self._t["u"][-1], self._t["y"][-1]) >= self._start + self.block_s:
+            # a gap longer than a block holds no covered block: go to where both streams have data again (absurd
+            # stamps such as 1e19 s would otherwise step half a block at a time across the gap)
+            first = max(float(self._t[s][np.argmax(self._t[s] >= self._start)]) for s in "uy")
+            if first > self._start + self.block_s:
+                self._start = first
+                continue
             start, end = self._start, self._start + self.block_s
+            if not start + 0.5 * self.block_s > start:    # stamps too large to resolve a block: nothing to judge
+                self._start = None
+                break
             grid = start + np.arange(int(round(self.block_s * self.rate_hz))) / self.rate_hz
             u = np.interp(grid, self._t["u"], self._v["u"])
             y = np.interp(grid, self._t["y"], self._v["y"])

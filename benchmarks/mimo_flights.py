@@ -41,12 +41,7 @@ def weakened(config, factor: float):
 def validate(flight, config):
     channel = config.channels["lateral"]
     validator = OnlineValidator(config)
-    histories = {}
-    for stream in channel.input_streams + channel.output_streams:
-        spec = channel.signal(stream)
-        series = flight.topics[spec.topic]
-        histories[stream] = (series.stamp_s, series.values[spec.field] * spec.scale)
-    validator.add_histories("lateral", histories)
+    validator.add_histories("lateral", flight.histories(channel))
     validator.finish()
     return validator.results().channels["lateral"]
 

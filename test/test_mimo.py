@@ -55,12 +55,7 @@ def validate(flight, config, diagnose=True):
     lateral channel's result."""
     validator = OnlineValidator(config, diagnose=diagnose)
     channel = config.channels["lateral"]
-    histories = {}
-    for stream in channel.input_streams + channel.output_streams:
-        spec = channel.signal(stream)
-        series = flight.topics[spec.topic]
-        histories[stream] = (series.stamp_s, series.values[spec.field] * spec.scale)
-    validator.add_histories("lateral", histories)
+    validator.add_histories("lateral", flight.histories(channel))
     validator.finish()
     return validator.results().channels["lateral"]
 

@@ -338,6 +338,22 @@ class SimulatedFlight:
     options: FlightOptions
     loop_gains: dict = field(default_factory=dict)
 
+    def histories(self, channel) -> dict:
+        """``{stream: (t_s, values)}`` of a channel's input and output streams as recorded (SI units), for
+        :meth:`~gap_validation.core.validator.OnlineValidator.add_histories`.
+
+        Parameters
+        ----------
+        channel : ChannelConfig
+            The channel (SISO ``input``/``output`` or MIMO ``inputs[j]``/``outputs[i]``).
+        """
+        out = {}
+        for stream in channel.input_streams + channel.output_streams:
+            spec = channel.signal(stream)
+            series = self.topics[spec.topic]
+            out[stream] = (series.stamp_s, series.values[spec.field] * spec.scale)
+        return out
+
     @property
     def message_count(self) -> int:
         """Messages in all topics."""

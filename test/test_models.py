@@ -358,3 +358,38 @@ def test_mimo_config_errors_name_key_and_value(spec, fragment):
                             outputs_are="entry of outputs")
     assert fragment in str(info.value)
     assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_transfer_function_of_a_state_space_is_scipys(seed):
+    """models._ss2tf (no scipy.signal import on the replay's path) gives scipy.signal.ss2tf's numbers to the bit."""
+    from gap_validation.core.models import _ss2tf
+
+    rng = np.random.default_rng(seed)
+    n = 1 + seed % 5
+    a, b, c, d = rng.normal(size=(n, n)), rng.normal(size=(n, 1)), rng.normal(size=(1, n)), rng.normal(size=(1, 1))
+    if seed % 2:
+        d[:] = 0.0
+    num, den = _ss2tf(a, b, c, d)
+    ref_num, ref_den = scipy.signal.ss2tf(a, b, c, d)
+    np.testing.assert_array_equal(den, ref_den)
+    np.testing.assert_array_equal(num, ref_num)
+    # and the response is the matrix formula's
+    s = 2.3j
+    expected = (c @ np.linalg.solve(s * np.eye(n) - a, b) + d)[0, 0]
+    assert abs(np.polyval(num[0], s) / np.polyval(den, s) - expected) < 1e-9 * max(1.0, abs(expected))
+
+
+def test_loading_a_state_space_config_does_not_import_scipy_signal():
+    """scipy.signal costs a replay's start-up about 0.7 s (benchmarks/bench_replay.py): the config path avoids it."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    code = ("import sys; from gap_validation.config import load_config; "
+            f"load_config({str(root / 'config' / 'ultrastick25e.yaml')!r}); print('scipy.signal' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=root, env=os.environ.copy(),
+                         check=True)
+    assert out.stdout.strip().splitlines()[-1] == "False"

@@ -193,6 +193,9 @@ def test_short_run_far_off_fits_are_beyond_the_search_range_not_fixes(tmp_path):
     assert sign.limited_by == "model" and sign.diagnosis == [], sign.message
     assert "beyond the search range (not offered as a fix): " in sign.message
     assert "gain (factor at -10 (lower bound))" in sign.message
+    # the same in the JSON, as a list of its own (and back from it)
+    assert "gain (factor at -10 (lower bound))" in sign.to_json_dict()["beyond_range"]
+    assert type(sign).from_json_dict("pitch", sign.to_json_dict()).beyond_range == sign.beyond_range
 
     make_bag(tmp_path / "delay", config, hidden=["pitch:time_delay:seconds=0.06"], seed=2, **short)
     delay = replay([tmp_path / "delay"], config).result.channels["pitch"]

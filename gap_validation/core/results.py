@@ -351,6 +351,9 @@ class ChannelResult:
     nonlinearity: str | None = None
     nonlinearity_evidence: str | None = None
     input_amplitudes: list[float] = field(default_factory=list)
+    # fits that sat on a search bound (never offered as a fix), said when no offered fix explains the mismatch:
+    # "gain (factor at -10 (lower bound))"
+    beyond_range: list[str] = field(default_factory=list)
     # closed loop and coupled surfaces (issue 13): per frequency, only with the config keys
     excitation_coherence: dict | None = None      # {"r_to_u": array, "r_to_y": array} with an ``excitation``
     partial_coherence: np.ndarray | None = None   # with ``other_inputs``
@@ -430,6 +433,7 @@ class ChannelResult:
             "nonlinearity": self.nonlinearity,
             "nonlinearity_evidence": self.nonlinearity_evidence,
             "input_amplitudes": [_num(a) for a in self.input_amplitudes],
+            "beyond_range": list(self.beyond_range),
         }
         for entry, response in zip(out["raw_sweeps"], self.sweep_measured if samples else ()):
             entry["measured"] = _mag_phase(response, self.model)
@@ -481,7 +485,8 @@ class ChannelResult:
                  margins_caveat=_caveat(data),
                  nonlinearity=data.get("nonlinearity"), nonlinearity_evidence=data.get("nonlinearity_evidence"),
                  input_amplitudes=[float(a) if a is not None else float("nan")
-                                   for a in data.get("input_amplitudes") or []])
+                                   for a in data.get("input_amplitudes") or []],
+                 beyond_range=[str(b) for b in data.get("beyond_range") or []])
         band = data.get("excited_band_rad_s")
         ch.excited_band_rad_s = (float(band[0]), float(band[1])) if band and None not in band else None
         ch.margins = margins_from_epsilon(ch.epsilon if ch.epsilon is not None else float("nan"))

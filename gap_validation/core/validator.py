@@ -492,6 +492,7 @@ class OnlineValidator:
         result.frequency_flags = list(found.frequency_flags)
         result.bands = list(found.bands)
         result.diagnosis = list(found.candidates)
+        result.beyond_range = list(found.beyond_range)
         result.warnings.extend(w for w in found.warnings if w not in result.warnings)
         result.margins_caveat = found.margins_caveat if result.margins.guaranteed else ""
         _nonlinearity_result(found, sweeps, result)

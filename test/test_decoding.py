@@ -130,10 +130,14 @@ def test_a_disagreeing_batch_decoder_is_dropped_and_records_go_one_by_one():
 
 
 def test_replay_and_node_use_this_step():
-    """One decoding step: both front ends build TopicDecoder, neither decodes fields on its own."""
+    """One decoding step: both front ends build TopicDecoder (the node in its topics component), neither decodes
+    fields on its own."""
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[1] / "gap_validation"
-    for front_end in ("bag/replay.py", "ros/node.py"):
+    for front_end in ("bag/replay.py", "ros/topics.py"):
         text = (root / front_end).read_text()
         assert "TopicDecoder(" in text and "fast_decoder" not in text and "verify_left" not in text
+    for module in ("node", "jobs"):
+        text = (root / "ros" / f"{module}.py").read_text()
+        assert "fast_decoder" not in text and "verify_left" not in text

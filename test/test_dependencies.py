@@ -88,3 +88,14 @@ def test_importing_the_node_imports_no_rosbags():
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert done.returncode == 0, done.stderr
     assert done.stdout.split() == ["False", "True"]
+
+
+#: The node module holds only rclpy wiring (issue 18): what needs no node lives in its own module.
+NODE_MAX_LINES = 600
+
+
+def test_the_node_module_stays_thin():
+    """node.py at most NODE_MAX_LINES lines; its topics and files are components (ros.topics, ros.jobs)."""
+    lines = len((PACKAGE / "ros" / "node.py").read_text().splitlines())
+    assert lines <= NODE_MAX_LINES, (f"gap_validation/ros/node.py has {lines} lines (at most {NODE_MAX_LINES}): "
+                                     "move what is not rclpy wiring of the node into its own module")

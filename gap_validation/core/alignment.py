@@ -18,6 +18,7 @@ numpy only.
 from __future__ import annotations
 
 import math
+from typing import Callable
 
 import numpy as np
 
@@ -134,7 +135,7 @@ class _TimeBase:
         """Latest accepted time on the shifted (continuous) time axis [s], -inf before any."""
         return self.last_t + self.offset
 
-    def intake(self, t: np.ndarray, v: np.ndarray, tol_s: float, new_base,
+    def intake(self, t: np.ndarray, v: np.ndarray, tol_s: float, new_base: Callable[[_TimeBase, float], None],
                forward_s: float = math.inf) -> tuple[np.ndarray, np.ndarray]:
         """Accepted samples of a batch on the shifted axis.
 

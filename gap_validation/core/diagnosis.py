@@ -66,7 +66,7 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Sequence
+from typing import TYPE_CHECKING, Callable, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -671,13 +671,13 @@ def _coefficient_fit(model: LinearModel, data: _FitData, factor: float = COEFFIC
     s = 1j * data.w
     others = LinearModel([1.0], [1.0], air.delay_s, model.effects).freqresp(data.w)
 
-    def build(x):
+    def build(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         num, den = num0.copy(), den0.copy()
         num[free_num] *= np.exp(x[:free_num.size])
         den[free_den] *= np.exp(x[free_num.size:])
         return num, den
 
-    def residuals(x):
+    def residuals(x: np.ndarray) -> np.ndarray:
         num, den = build(x)
         p = np.polyval(num, s) / np.polyval(den, s) * others
         return data.residuals((p / data.p_model)[None, :])[0]
@@ -718,13 +718,13 @@ class _Evidence:
     estimate: object = None    # for ``expected``: the model seen through the estimator
     min_dof: int = 10          # degrees of freedom a confident frequency needs (:func:`minimum_averages`)
 
-    def mismatch(self, eps_w, expansion_error=0.0) -> np.ndarray:
+    def mismatch(self, eps_w: ArrayLike, expansion_error: ArrayLike = 0.0) -> np.ndarray:
         """Normalised mismatch k per frequency (:func:`normalised_mismatch`); ``expansion_error`` (relative)
         widens the noise scale where the model's expansion over a band is inexact."""
         sigma = np.hypot(self.sigma, 0.5 * np.asarray(expansion_error, float))
         return normalised_mismatch(eps_w, sigma, self.n_averages)
 
-    def expected(self, response) -> tuple[np.ndarray, np.ndarray]:
+    def expected(self, response: Callable[[np.ndarray], ArrayLike]) -> tuple[np.ndarray, np.ndarray]:
         """A model's response through the estimator, and the expansion error (:meth:`SpectralEstimate.expected`);
         the plain response where the estimate cannot say."""
         direct = np.asarray(response(self.w), complex)
@@ -735,7 +735,7 @@ class _Evidence:
         through = np.asarray(through, complex)
         return np.where(np.isfinite(through), through, direct), np.where(np.isfinite(error), error, 0.0)
 
-    def fit(self, response) -> "_Fit":
+    def fit(self, response: Callable[[np.ndarray], ArrayLike]) -> "_Fit":
         """epsilon(w) of a model (``response(w) -> complex``) against the data, with its sups and statistics.
 
         epsilon(w) is the paper's (the model at w against the estimate); the mismatch ``k`` and the chi-square,

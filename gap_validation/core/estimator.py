@@ -56,7 +56,7 @@ import bisect
 import math
 from collections import Counter, deque
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -185,7 +185,7 @@ class SpectralEstimate:
     amplitude: float = float("nan")
 
     @classmethod
-    def from_sums(cls, w_rad_s, sums: BandSums, dt: float, band_fraction: float, start_s: float = float("nan"),
+    def from_sums(cls, w_rad_s: ArrayLike, sums: BandSums, dt: float, band_fraction: float, start_s: float = float("nan"),
                   end_s: float = float("nan"), n_sweeps: int = 1, kind: str = "",
                   reasons: dict | None = None) -> "SpectralEstimate":
         """Solve :class:`~gap_validation.core.spectra.BandSums` into an estimate.
@@ -231,7 +231,7 @@ class SpectralEstimate:
                          self.coherence, self.gxx, self.gyy]).astype(float)
 
     @classmethod
-    def from_rows(cls, w_rad_s, rows: np.ndarray, start_s: float, end_s: float, kind: str,
+    def from_rows(cls, w_rad_s: ArrayLike, rows: np.ndarray, start_s: float, end_s: float, kind: str,
                   band_fraction: float, coefficients: int, amplitude: float = float("nan")) -> "SpectralEstimate":
         """Inverse of :meth:`rows` (a raw estimate).
 
@@ -266,7 +266,7 @@ class SpectralEstimate:
         """Frequencies at which at least one record counted."""
         return np.isfinite(self.response)
 
-    def select(self, index) -> "SpectralEstimate":
+    def select(self, index: slice | ArrayLike) -> "SpectralEstimate":
         """The estimate at the frequencies ``index`` only (a slice or index array).
 
         Parameters
@@ -285,7 +285,7 @@ class SpectralEstimate:
                                 band_fraction=self.band_fraction, coefficients=self.coefficients,
                                 amplitude=self.amplitude)
 
-    def expected(self, model_response) -> tuple[np.ndarray, np.ndarray]:
+    def expected(self, model_response: Callable[[np.ndarray], ArrayLike]) -> tuple[np.ndarray, np.ndarray]:
         """The estimate a model would give through this estimator (see
         :func:`~gap_validation.core.spectra.expected_estimate`): ``(expected, expansion_error)``.
 
@@ -395,7 +395,8 @@ class _RecordBuffer:
     what is complete and returns how many leading samples it took; the record goes on with the rest.
     """
 
-    def __init__(self, n_streams: int, pre_n: int, post_n: int, cap: int, on_full, lookback_n: int = 0) -> None:
+    def __init__(self, n_streams: int, pre_n: int, post_n: int, cap: int,
+                 on_full: Callable[[int, np.ndarray, int, int], int], lookback_n: int = 0) -> None:
         self.n, self.pre_n, self.post_n, self.cap = n_streams, pre_n, post_n, cap
         self.lookback_n = max(lookback_n, pre_n)
         self.last_end_k = _NONE

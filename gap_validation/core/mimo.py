@@ -153,7 +153,7 @@ class MimoDetail:
         elements = data.get("elements") or []
         n = len(_array(data.get("kappa_noise")) if data.get("kappa_noise") else [])
 
-        def stack(get) -> np.ndarray:
+        def stack(get: Callable[[dict], np.ndarray | None]) -> np.ndarray:
             out = np.full((n, p, m), np.nan, dtype=complex)
             for e in elements:
                 value = get(e)

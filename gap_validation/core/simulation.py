@@ -28,7 +28,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from gap_validation.core.config import SignalSpec, ValidationConfig
+from gap_validation.core.config import ChannelConfig, SignalSpec, ValidationConfig
 from gap_validation.core.effects import validate_effect
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.fields import FieldPath
@@ -338,7 +338,7 @@ class SimulatedFlight:
     options: FlightOptions
     loop_gains: dict = field(default_factory=dict)
 
-    def histories(self, channel) -> dict:
+    def histories(self, channel: ChannelConfig) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """``{stream: (t_s, values)}`` of a channel's input and output streams as recorded (SI units), for
         :meth:`~gap_validation.core.validator.OnlineValidator.add_histories`.
 

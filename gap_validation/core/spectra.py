@@ -167,7 +167,7 @@ class BandSums:
         self.r_lo[sel] = np.minimum(self.r_lo[sel], other.r_lo[sel])
         self.r_hi[sel] = np.maximum(self.r_hi[sel], other.r_hi[sel])
 
-    def take(self, index) -> "BandSums":
+    def take(self, index: slice | np.ndarray) -> "BandSums":
         """The sums at the frequencies ``index`` (a slice or index array).
 
         Parameters

@@ -20,7 +20,7 @@ from gap_validation.core import metrics, robust
 from gap_validation.core.closed_loop import (CouplingMonitor, SurfaceHistory, TrimCoherenceMonitor,
                                              near_minus_inverse, with_bias_allowance)
 from gap_validation.core.config import (EXCITATION_STREAM, OTHER_INPUT_STREAM, STREAMS, ChannelConfig,
-                                        ValidationConfig)
+                                        SignalSpec, ValidationConfig)
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.diagnosis import confident_points, sweep_points
 from gap_validation.core.estimator import (ESTIMATOR_DEFAULTS, SPANS_KEPT, FrequencyResponseEstimator,
@@ -627,7 +627,7 @@ def _why_nothing(est: FrequencyResponseEstimator, channel: ChannelConfig) -> str
 
 def _measurement_key(channel: ChannelConfig) -> str:
     """What the gathered spectra depend on: signals (not their declared message type), grid, estimator."""
-    def signal(spec):
+    def signal(spec: SignalSpec | None) -> tuple | None:
         return None if spec is None else (spec.topic, spec.field, spec.scale)
 
     key = (signal(channel.input), signal(channel.output), signal(channel.trigger), channel.frequencies,

@@ -1,6 +1,12 @@
 """The ROS 2 front end: the node ``gap_validator`` and what it needs besides rclpy.
 
-* :mod:`~gap_validation.ros.node`: the node (parameters, subscriptions, timers, services; rclpy);
+* :mod:`~gap_validation.ros.node`: the node (parameters, timers, services, diagnostics, model update; rclpy);
+* :mod:`~gap_validation.ros.topics`: the node's subscriptions (types and QoS following the graph) and the taking
+  of their messages through the decoding step into the router (rclpy);
+* :mod:`~gap_validation.ros.jobs`: the node's files: resume from a checkpoint, checkpoints and ``~/save_results``
+  written off the executor and answered when done (rclpy);
+* :mod:`~gap_validation.ros.intake`: queues drained in one wake-up, QoS matched to the publishers;
+* :mod:`~gap_validation.ros.background`: the slow writes on snapshots, in a thread or a child process;
 * :mod:`~gap_validation.ros.main`: the console script ``validator_node``;
 * :mod:`~gap_validation.ros.parameters`: the node's parameters, their documentation and checks;
 * :mod:`~gap_validation.ros.status`: one diagnostic task per channel and the status wording;
@@ -8,6 +14,6 @@
 * :mod:`~gap_validation.ros.message_types`: rclpy message classes of type names, fields checked on them;
 * :mod:`~gap_validation.ros.diagnosis_worker`: full diagnoses in a background thread.
 
-Only ``node`` and ``main`` import rclpy; nothing here imports rosbags (the decoding step is
+Only ``node``, ``topics``, ``jobs`` and ``main`` import rclpy; nothing here imports rosbags (the decoding step is
 :mod:`gap_validation.messages`).
 """

@@ -57,3 +57,33 @@ def test_a_publisher_that_cannot_be_matched_is_named_first_and_raises_the_level(
     assert flowing.level == "WARN" and flowing.message.startswith(note)
     bad = ChannelResult(name="pitch", sweeps=1, epsilon=0.5, margins=margins_from_epsilon(0.5))
     assert channel_status(bad, notes=[note]).level == "ERROR"
+
+
+def test_the_last_diagnosis_nonlinearity_verdict_is_a_value():
+    """issue 15's left item: the node shows the full diagnosis' amplitude-dependence verdict (value
+    ``nonlinearity``, the JSON key's name), empty before a diagnosis and after the model or spectra change."""
+    from gap_validation.config import load_config
+    from gap_validation.core.margins import margins_from_epsilon
+    from gap_validation.core.results import ChannelResult
+    from gap_validation.messages.router import MessageRouter
+    from gap_validation.core.validator import OnlineValidator
+    from gap_validation.ros.status import ChannelTask
+    from pathlib import Path
+
+    config = load_config(Path(__file__).resolve().parents[1] / "config" / "ultrastick25e.yaml")
+    ch = ChannelResult(name="pitch", sweeps=2, epsilon=0.5, nu_gap=0.4, limited_by="model",
+                       margins=margins_from_epsilon(0.5))
+    verdict = "nonlinear, amplitude-dependent (rate limit, backlash or saturation?)"
+    assert dict(channel_status(ch).values)["nonlinearity"] == ""
+    assert dict(channel_status(ch, nonlinearity=verdict).values)["nonlinearity"] == verdict
+    task = ChannelTask("pitch", config.channels["pitch"])
+    router = MessageRouter(config, OnlineValidator(config, diagnose=False))
+
+    def status():
+        return dict(task.run(ch, 0.0, router, lambda topic: 0, stale_timeout_s=1e9).values)
+
+    assert status()["nonlinearity"] == ""
+    task.take_diagnosis(None, verdict)
+    assert status()["nonlinearity"] == verdict and status()["diagnosis"] == "none"
+    task.forget_diagnosis()
+    assert status()["nonlinearity"] == ""

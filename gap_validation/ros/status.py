@@ -136,7 +136,8 @@ def channel_status(result: ChannelResult, *, warn_epsilon: float = WARN_EPSILON,
                    error_epsilon: float = STANDARD_EPSILON,
                    stale_reason: str | None = None, waiting_reason: str | None = None,
                    candidate: Candidate | dict | None = None, diagnosis_state: str = "pending",
-                   extra_values: dict | None = None, notes: Sequence[str] = ()) -> ChannelStatus:
+                   extra_values: dict | None = None, notes: Sequence[str] = (),
+                   nonlinearity: str | None = None) -> ChannelStatus:
     """The status of one channel from its (cheap) result.
 
     Parameters
@@ -158,6 +159,9 @@ def channel_status(result: ChannelResult, *, warn_epsilon: float = WARN_EPSILON,
     notes : sequence of str
         Publishers that cannot reach the channel's subscriptions (``publisher on /imu offers BEST_EFFORT; ...``):
         first in the message; ERROR with ``waiting_reason`` or ``stale_reason``, else at least WARN.
+    nonlinearity : str, optional
+        The last full diagnosis' amplitude-dependence verdict (JSON ``nonlinearity``; value ``nonlinearity``,
+        empty when none was found or no diagnosis ran).
 
     Returns
     -------
@@ -186,6 +190,7 @@ def channel_status(result: ChannelResult, *, warn_epsilon: float = WARN_EPSILON,
     values.append(("warnings", json.dumps(list(result.warnings))))
     values.append(("margins_guaranteed", "true" if result.margins_guaranteed else "false"))
     values.append(("margins_note", result.margins_text() or ""))
+    values.append(("nonlinearity", nonlinearity or result.nonlinearity or ""))
     for key, value in (extra_values or {}).items():
         values.append((key, _value_text(value)))
 
@@ -241,6 +246,8 @@ class ChannelTask:
         Top candidate of the last full diagnosis taken for the current model.
     diagnosed : bool
         Whether a full diagnosis has been taken for the current model.
+    nonlinearity : str or None
+        That diagnosis' amplitude-dependence verdict (value ``nonlinearity``).
     """
 
     def __init__(self, name: str, channel: ChannelConfig):
@@ -250,6 +257,7 @@ class ChannelTask:
         self._seen_count: dict[str, int] = {}
         self.top: Candidate | None = None
         self.diagnosed = False
+        self.nonlinearity: str | None = None
         self._run_open = False
 
     def run_ended(self, now_s: float, timeout_s: float) -> bool:
@@ -288,19 +296,21 @@ class ChannelTask:
         """The node's router was replaced (reload, reset): its sample counts start again."""
         self._seen_count = {}
 
-    def take_diagnosis(self, candidate: Candidate | None) -> None:
+    def take_diagnosis(self, candidate: Candidate | None, nonlinearity: str | None = None) -> None:
         """A full diagnosis finished for the current model; ``candidate`` is its top (None: no effect helps).
 
         Parameters
         ----------
         candidate : Candidate or None
             The top candidate.
+        nonlinearity : str, optional
+            Its amplitude-dependence verdict (sweeps at different amplitudes disagree), None when not found.
         """
-        self.top, self.diagnosed = candidate, True
+        self.top, self.diagnosed, self.nonlinearity = candidate, True, nonlinearity
 
     def forget_diagnosis(self) -> None:
         """The model or the spectra changed: the last diagnosis no longer holds."""
-        self.top, self.diagnosed = None, False
+        self.top, self.diagnosed, self.nonlinearity = None, False, None
 
     def update_seen(self, router: MessageRouter, arrivals: Mapping[str, float], now_s: float) -> None:
         """Note which streams got new samples since the last call, stamped with their topic's last arrival.
@@ -392,4 +402,4 @@ class ChannelTask:
         mine = [notes[topic] for topic in self.topics if notes and notes.get(topic)]
         return channel_status(result, warn_epsilon=warn_epsilon, error_epsilon=error_epsilon, stale_reason=stale,
                               waiting_reason=waiting, candidate=self.top, diagnosis_state=state, extra_values=extra,
-                              notes=mine)
+                              notes=mine, nonlinearity=self.nonlinearity)

@@ -461,7 +461,8 @@ class LocalEstimate:
     coherence : ndarray, (F,)
         Multiple coherence ``1 - RSS / |Y|^2`` of the fit (0 where nothing was estimated).
     noise : ndarray, (F,)
-        Noise variance per bin (residual sum of squares over the degrees of freedom).
+        Noise variance per bin (residual sum of squares over the degrees of freedom), never below its neighbours'
+        pooled estimate (:func:`neighbour_noise_floor`).
     """
 
     response: np.ndarray
@@ -482,7 +483,8 @@ def solve_bands(sums: BandSums) -> LocalEstimate:
     -------
     LocalEstimate
         With ``nh`` response coefficients per frequency the degrees of freedom are ``dof - nh``; a frequency
-        with fewer than one degree of freedom or a singular system is NaN / inf / 0.
+        with fewer than one degree of freedom or a singular system is NaN / inf / 0. The noise variance (and
+        with it the response's) is raised to :func:`neighbour_noise_floor` where the own estimate is lower.
     """
     n_freq = sums.bins.size
     nh = sums.ff.shape[1]
@@ -512,7 +514,47 @@ def solve_bands(sums: BandSums) -> LocalEstimate:
         dof[i] = d
         coherence[i] = min(max(1.0 - rss0 / total, 0.0), 1.0) if total > 0 else 0.0
         noise[i] = sigma2
+    floor = neighbour_noise_floor(noise, dof)
+    low = np.isfinite(floor) & (noise > 0) & (floor > noise)
+    variance[low] *= floor[low] / noise[low]
+    noise[low] = floor[low]
     return LocalEstimate(response, variance, dof, coherence, noise)
+
+
+def neighbour_noise_floor(noise: np.ndarray, dof: np.ndarray) -> np.ndarray:
+    """The noise variance per bin pooled over each analysis frequency and its two neighbours on the grid.
+
+    The noise spectrum of a flight (sensor noise, gusts) is smooth in frequency, and neighbouring bands share
+    bins; an estimate on few degrees of freedom, though, scatters (``chi^2(2 d) / 2 d``: on 3 degrees of freedom
+    one in 25 is below a quarter of the truth, one in 100 below a seventh). Taken alone, such a chance low estimate turns an ordinary
+    error into "well outside the random error" (seen at the lowest lines of multisines, where the band widens over
+    few lines: ``benchmarks/false_alarms.py``). A frequency's noise is therefore never taken below the
+    degrees-of-freedom-weighted mean of its own and its neighbours' estimates.
+
+    Parameters
+    ----------
+    noise : ndarray, (F,)
+        Noise variance per bin at each analysis frequency (inf or NaN where unknown).
+    dof : ndarray, (F,)
+        Its degrees of freedom (0 where unknown).
+
+    Returns
+    -------
+    ndarray, (F,)
+        The pooled variance; NaN where the frequency has no estimate of its own.
+    """
+    noise = np.asarray(noise, float)
+    d = np.asarray(dof, float)
+    known = np.isfinite(noise) & (d > 0)
+    weighted = np.where(known, np.where(known, noise, 0.0) * d, 0.0)
+    weight = np.where(known, d, 0.0)
+    total, count = weighted.copy(), weight.copy()
+    total[1:] += weighted[:-1]
+    count[1:] += weight[:-1]
+    total[:-1] += weighted[1:]
+    count[:-1] += weight[1:]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(known & (count > 0), total / count, np.nan)
 
 
 def expected_estimate(sums: BandSums, w_rad_s: np.ndarray, band_fraction: float,
@@ -634,8 +676,9 @@ def solve_matrix(sums: BandSums) -> MatrixEstimate:
     Returns
     -------
     MatrixEstimate
-        NaN / inf / 0 at a frequency with fewer than one degree of freedom or a singular system. For m = p = 1
-        ``response``, ``variance``, ``dof`` and ``multiple_coherence`` equal :func:`solve_bands`' to the bit.
+        NaN / inf / 0 at a frequency with fewer than one degree of freedom or a singular system. Each output's
+        noise is raised to :func:`neighbour_noise_floor` as in :func:`solve_bands`. For m = p = 1 ``response``,
+        ``variance``, ``dof`` and ``multiple_coherence`` equal :func:`solve_bands`' to the bit.
     """
     n_freq = sums.bins.size
     nh = sums.ff.shape[1]
@@ -647,6 +690,7 @@ def solve_matrix(sums: BandSums) -> MatrixEstimate:
     multiple = np.zeros((n_freq, p))
     partial = np.zeros((n_freq, p, m))
     noise = np.full((n_freq, p, p), np.inf + 0j)
+    own = np.full((n_freq, p), np.inf)      # each output's noise variance, as solve_bands computes it
     cols = sums.h_columns()
     all_h = np.arange(nh)
     rows_all = np.arange(sums.zf.shape[1])
@@ -669,6 +713,7 @@ def solve_matrix(sums: BandSums) -> MatrixEstimate:
         with np.errstate(divide="ignore", invalid="ignore"):
             multiple[i] = np.where(total > 0, np.clip(1.0 - rss_diag / total, 0.0, 1.0), 0.0)
         noise[i] = sigma
+        own[i] = rss_diag / d
         for j in range(m):
             if m == 1:
                 partial[i, :, 0] = multiple[i]
@@ -682,6 +727,13 @@ def solve_matrix(sums: BandSums) -> MatrixEstimate:
             with np.errstate(divide="ignore", invalid="ignore"):
                 partial[i, :, j] = np.where(rss_without > 0,
                                             np.clip(1.0 - rss_diag / rss_without, 0.0, 1.0), 0.0)
+    for out in range(p):        # each output's noise never below its neighbours' (as solve_bands)
+        floor = neighbour_noise_floor(own[:, out], dof)
+        low = np.isfinite(floor) & (own[:, out] > 0) & (floor > own[:, out])
+        factor = floor[low] / own[low, out]
+        variance[low, out, :] *= factor[:, None]
+        noise[low, out, :] *= np.sqrt(factor)[:, None]
+        noise[low, :, out] *= np.sqrt(factor)[:, None]
     return MatrixEstimate(response, variance, dof, multiple, partial, noise)
 
 

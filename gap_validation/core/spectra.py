@@ -514,11 +514,19 @@ def solve_bands(sums: BandSums) -> LocalEstimate:
         dof[i] = d
         coherence[i] = min(max(1.0 - rss0 / total, 0.0), 1.0) if total > 0 else 0.0
         noise[i] = sigma2
+    raise_by = _noise_raise(noise, dof)
+    variance *= raise_by
+    noise *= raise_by
+    return LocalEstimate(response, variance, dof, coherence, noise)
+
+
+def _noise_raise(noise: np.ndarray, dof: np.ndarray) -> np.ndarray:
+    """Factor per frequency that lifts a noise variance to :func:`neighbour_noise_floor` (1 where it is not below)."""
     floor = neighbour_noise_floor(noise, dof)
     low = np.isfinite(floor) & (noise > 0) & (floor > noise)
-    variance[low] *= floor[low] / noise[low]
-    noise[low] = floor[low]
-    return LocalEstimate(response, variance, dof, coherence, noise)
+    factor = np.ones(noise.shape)
+    factor[low] = floor[low] / noise[low]
+    return factor
 
 
 def neighbour_noise_floor(noise: np.ndarray, dof: np.ndarray) -> np.ndarray:
@@ -728,12 +736,11 @@ def solve_matrix(sums: BandSums) -> MatrixEstimate:
                 partial[i, :, j] = np.where(rss_without > 0,
                                             np.clip(1.0 - rss_diag / rss_without, 0.0, 1.0), 0.0)
     for out in range(p):        # each output's noise never below its neighbours' (as solve_bands)
-        floor = neighbour_noise_floor(own[:, out], dof)
-        low = np.isfinite(floor) & (own[:, out] > 0) & (floor > own[:, out])
-        factor = floor[low] / own[low, out]
-        variance[low, out, :] *= factor[:, None]
-        noise[low, out, :] *= np.sqrt(factor)[:, None]
-        noise[low, :, out] *= np.sqrt(factor)[:, None]
+        raise_by = _noise_raise(own[:, out], dof)
+        low = raise_by != 1.0          # only there: a complex inf times 1 would turn its imaginary part NaN
+        variance[low, out, :] *= raise_by[low, None]
+        noise[low, out, :] *= np.sqrt(raise_by[low])[:, None]
+        noise[low, :, out] *= np.sqrt(raise_by[low])[:, None]
     return MatrixEstimate(response, variance, dof, multiple, partial, noise)
 
 

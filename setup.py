@@ -16,7 +16,10 @@ setup(
         ("share/" + package_name + "/launch", glob("launch/*.py")),
     ],
     python_requires=">=3.10",
-    install_requires=["numpy", "scipy", "PyYAML", "rosbags>=0.10", "matplotlib", "dask[distributed]"],
+    install_requires=["numpy", "scipy", "PyYAML", "rosbags>=0.10", "matplotlib", "dask[distributed]",
+                      # gap-validate linearize / simulate --jsbsim: JSBSim's nonlinear 6-DOF model; the wheel ships
+                      # the aircraft (c172x, J3Cub, pa28 ...). Imported only by gap_validation.jsbsim, lazily.
+                      "jsbsim>=1.2"],
     extras_require={"test": ["pytest", "hypothesis", "pytest-xdist", "mpmath"]},
     zip_safe=True,
     maintainer="gap_validation developers",

@@ -12,8 +12,7 @@ from scipy import signal
 
 from _flights import config_from, raw_config, write_config
 from gap_validation.cli.main import main
-from gap_validation.core.closed_loop import (CouplingMonitor, SurfaceHistory, near_minus_inverse,
-                                             welch_coherence)
+from gap_validation.core.closed_loop import CouplingMonitor, SurfaceHistory, near_minus_inverse
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.models import LinearModel
 from gap_validation.core.simulation import _discrete, damper_gain, simulate_flight, with_options
@@ -88,10 +87,18 @@ def test_closed_loop_hidden_delay_is_found_with_excitation(delayed_loop):
 
 
 @pytest.mark.parametrize("flight", ["clean_loop", "delayed_loop"])
-def test_closed_loop_without_excitation_warns_and_names_nothing(flight, request):
+def test_closed_loop_without_excitation_warns_and_names_nothing_wrong(flight, request):
+    """Without the excitation logged the loop is warned of; only the frequencies where the manoeuvres stand 20 dB
+    above the surface's motion between them (the loop answering turbulence) count, and those are not biased: the
+    clean airframe gets nothing named, the delayed one at most its delay (issue 22)."""
     ch = validate(roll_config(), request.getfixturevalue(flight)).channels["roll"]
-    assert ch.limited_by != "model" and not ch.diagnosis, ch.message
     assert any("feedback" in w and "channels.roll.excitation" in w for w in ch.warnings), ch.warnings
+    if flight == "clean_loop":
+        assert ch.limited_by != "model" and not ch.diagnosis, ch.message
+    else:
+        assert [c.effect for c in ch.diagnosis[:1]] in ([], ["time_delay"]), ch.message
+        if ch.diagnosis:
+            assert ch.diagnosis[0].parameters["seconds"] == pytest.approx(0.035, rel=0.25)
 
 
 def test_excitation_coherence_is_absent_without_the_key(clean_loop):
@@ -113,7 +120,11 @@ def test_coupled_surfaces_without_other_inputs_warn_naming_the_rudder(coupled):
     assert roll.limited_by != "model" and not roll.diagnosis, roll.message
     assert any("position[rudder]" in w and "channels.roll.other_inputs" in w for w in roll.warnings), roll.warnings
     assert "biased" in roll.frequency_reasons
-    assert not result.channels["yaw"].warnings           # the rudder's own sweeps move no aileron
+    # the rudder's own sweeps move no aileron; the roll sweeps move the rudder (the interconnect), too little of the
+    # rudder's energy to bias its response: said, not called biased
+    yaw = result.channels["yaw"]
+    assert all("not validated" not in w for w in yaw.warnings), yaw.warnings
+    assert "biased" not in yaw.frequency_reasons
 
 
 @pytest.mark.parametrize("options", [
@@ -128,16 +139,6 @@ def test_open_loop_flights_of_uncoupled_surfaces_warn_of_nothing(options):
 
 
 # ------------------------------------------------------------------------------------------ units
-def test_welch_coherence_is_scipys():
-    rng = np.random.default_rng(0)
-    u = rng.standard_normal(400)
-    y = np.convolve(u, [0.5, 0.3, 0.1], "same") + rng.standard_normal(400)
-    f_ref, c_ref = signal.coherence(u, y, fs=50.0, nperseg=100)
-    f, c = welch_coherence(u, y, 50.0, 100)
-    np.testing.assert_allclose(f, f_ref)
-    np.testing.assert_allclose(c, c_ref, atol=1e-12)
-
-
 def test_coupling_monitor_sees_an_interconnect_not_an_independent_surface():
     rng = np.random.default_rng(1)
     t = np.arange(0.0, 60.0, 0.01)
@@ -281,5 +282,6 @@ def test_the_node_path_message_by_message_gives_the_replay_result(clean_loop, tm
         router.flush()
         validator.finish()
         live = validator.results().channels["roll"]
-        assert live.epsilon == pytest.approx(replayed.epsilon, rel=1e-9) and live.warnings == replayed.warnings
+        assert (live.epsilon is replayed.epsilon is None or live.epsilon == pytest.approx(replayed.epsilon, rel=1e-9))
+        assert live.warnings == replayed.warnings and live.message == replayed.message
         assert (live.excitation_coherence is None) == (config.channels["roll"].excitation is None)

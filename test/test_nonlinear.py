@@ -140,16 +140,19 @@ def _replay(tmp_path, channel, hidden, seed=1, **options):
 
 
 def test_rate_limited_axis_is_fitted_as_a_rate_limit_not_a_mode(tmp_path):
-    """0.8 rad/s at 0.05 rad sweeps (issue 15): was a structural mode at the grid top; now a rate limit."""
-    config, result = _replay(tmp_path, "pitch", ["pitch:rate_limit:rad_s=0.8"], sweep_amplitude_rad=0.05)
+    """0.8 rad/s at 0.05 rad sweeps (issue 15), also flown at 0.4 of that (issue 22: an amplitude-dependent effect
+    is named only where sweeps at two amplitudes disagree): was a structural mode at the grid top; a rate limit."""
+    config, result = _replay(tmp_path, "pitch", ["pitch:rate_limit:rad_s=0.8"], sweep_amplitude_rad=0.05,
+                             sweep_amplitude_scales=(1.0, 0.4))
     assert result.limited_by == "model"
+    assert result.nonlinearity == NONLINEARITY
     top = result.diagnosis[0]
     assert top["effect"] == "rate_limit", result.message
     assert top["effects"][0]["rad_s"] == pytest.approx(0.8, rel=0.1)
     assert "surface rate limit of 0.7" in result.message or "surface rate limit of 0.8" in result.message
     assert "(nonlinear, amplitude-dependent)" in result.message
     assert top["epsilon"] <= result.epsilon / 2
-    assert all(a == pytest.approx(0.05, rel=0.05) for a in result.input_amplitudes)
+    assert sorted({round(a / 0.05, 1) for a in result.input_amplitudes}) == [0.4, 1.0]
     # applied like the others: the model then describes the flight (at the amplitude flown)
     fixed = config.with_channel_effects("pitch", top["effects"])
     after = replay([tmp_path / "flight"], fixed).result.channels["pitch"]
@@ -166,8 +169,18 @@ def test_sweeps_at_two_amplitudes_call_a_rate_limit_nonlinear(tmp_path):
     assert data["nonlinearity"] == NONLINEARITY and len(data["input_amplitudes"]) == 2
 
 
+def test_one_amplitude_names_no_nonlinear_effect_and_no_mode(tmp_path):
+    """Issue 22: at a single amplitude a rate limit fits like any lag; nothing amplitude-dependent is named from one
+    amplitude's mismatch, and no structural mode either."""
+    _, result = _replay(tmp_path, "pitch", ["pitch:rate_limit:rad_s=0.8"], sweep_amplitude_rad=0.05)
+    assert result.limited_by == "model"
+    named = {e["type"] for c in result.diagnosis for e in c["effects"]}
+    assert not named & {"rate_limit", "backlash", "structural_mode"}, result.message
+
+
 def test_backlash_is_not_named_a_structural_mode(tmp_path):
-    _, result = _replay(tmp_path, "roll", ["roll:backlash:width_rad=0.015"], sweep_amplitude_rad=0.03)
+    _, result = _replay(tmp_path, "roll", ["roll:backlash:width_rad=0.015"], sweep_amplitude_rad=0.03,
+                        sweep_amplitude_scales=(1.0, 2.0))
     assert result.limited_by == "model", result.message
     top = result.diagnosis[0]
     assert top["effect"] == "backlash", result.message

@@ -8,11 +8,18 @@ between LOW and HIGH rad/s, RMS rad/s) to the measured rates: the coherence drop
 should call that band data-limited. ``--closed-loop-gain-margin-db``, ``--turbulence``, ``--log-excitation``,
 ``--coupling`` and ``--cross-response`` fly closed-loop sweeps and coupled surfaces (README, "Closed loop and
 coupled surfaces").
+
+``gap-validate simulate --jsbsim AIRCRAFT --speed-kt V --altitude-ft H --out BAG [--config CFG]`` flies the same
+card in JSBSim's nonlinear model trimmed at V knots true airspeed and H ft (:mod:`gap_validation.jsbsim.flight`):
+the truth is JSBSim, the hidden effects act between the logged surface and the airframe, ``--turbulence`` is
+JSBSim's own (light, moderate, severe or SEVERITY[:WIND_KT][:milspec|tustin]). Without ``--config`` the channels,
+topics and grid are those of ``gap-validate linearize`` at the flown condition.
 """
 from __future__ import annotations
 
 import argparse
 import shutil
+import time
 from pathlib import Path
 
 from gap_validation.bag.reader import BAG_SUFFIXES
@@ -58,13 +65,33 @@ def _seed(text: str) -> int:
     return value
 
 
+def _turbulence(text: str) -> str:
+    """``--turbulence``: RMS [rad/s] >= 0 (synthetic flight), or a JSBSim level checked with ``--jsbsim``."""
+    try:
+        value = float(text)
+    except ValueError:
+        return text
+    if not value >= 0:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
+    return text
+
+
 def register(sub) -> None:
     d = FlightOptions()
     p = sub.add_parser("simulate", help="write a synthetic sweep flight (truth = model + hidden effects)",
                        description=__doc__.split("\n\n")[0])
-    p.add_argument("--config", required=True, metavar="CFG", help="validation config (YAML): models and topics")
-    p.add_argument("--out", required=True, metavar="BAG",
-                   help="new rosbag2 directory (or a bare .mcap / .db3 file)")
+    p.add_argument("--config", metavar="CFG",
+                   help="validation config (YAML): models and topics (required, except with --jsbsim, where the "
+                        "default is the linearisation at the flown condition)")
+    p.add_argument("--jsbsim", metavar="AIRCRAFT",
+                   help="fly the card in JSBSim's nonlinear model of AIRCRAFT (c172x, J3Cub, pa28 ...) instead of the "
+                        "config's linear models; needs --speed-kt and --altitude-ft")
+    p.add_argument("--speed-kt", type=float, metavar="V", help="with --jsbsim: TRUE airspeed of the trim [kt]")
+    p.add_argument("--altitude-ft", type=float, metavar="H",
+                   help="with --jsbsim: altitude of the trim above sea level [ft]")
+    p.add_argument("--save-config", metavar="CFG.yaml",
+                   help="with --jsbsim and no --config: also write the linearised config the flight used")
+    p.add_argument("--out", metavar="BAG", help="new rosbag2 directory (or a bare .mcap / .db3 file; required)")
     p.add_argument("--hidden", action="append", default=[], metavar="CHANNEL:EFFECT:key=value[,key=value]",
                    help="effect in series with the channel's model in the truth (repeatable), "
                         "e.g. pitch:time_delay:seconds=0.04; rate_limit:rad_s=R and backlash:width_rad=B act "
@@ -95,7 +122,7 @@ def register(sub) -> None:
     p.add_argument("--surface-rate-hz", type=_positive(float), default=d.surface_rate_hz,
                    help=f"rate of the input (surface) topics [Hz] (default {d.surface_rate_hz:g})")
     p.add_argument("--amplitude-deg", type=_positive(float), default=None,
-                   help="sweep amplitude [deg] (default 3.4)")
+                   help="sweep amplitude [deg] (default 3.4; with --jsbsim 2, and 2 deg doublets)")
     p.add_argument("--amplitude-scales", type=_amplitude_scales, default=None, metavar="S[,S...]",
                    help="round i of the test card flies its sweeps at S[i mod n] times the amplitude, e.g. 1,0.4 "
                         "(sweeps at different amplitudes reveal a nonlinear response; default: all the same)")
@@ -111,8 +138,10 @@ def register(sub) -> None:
                         "manoeuvre r is injected inside the loop (default: open loop)")
     p.add_argument("--loop-delay-s", type=_positive(float), default=None, metavar="S",
                    help="delay of the flight computer and actuator in the loop [s] (default: one surface sample)")
-    p.add_argument("--turbulence", type=_non_negative, default=0.0, metavar="RMS",
-                   help="turbulence at the rates: first-order filtered noise at 8 rad/s, RMS rad/s (default 0)")
+    p.add_argument("--turbulence", type=_turbulence, default=None, metavar="RMS|LEVEL",
+                   help="turbulence at the rates: first-order filtered noise at 8 rad/s, RMS rad/s (default 0); with "
+                        "--jsbsim JSBSim's Dryden turbulence: light, moderate, severe or SEVERITY[:WIND_KT] "
+                        "(severity 1-7, wind at 20 ft in kt), then optionally :milspec (default) or :tustin")
     p.add_argument("--log-excitation", default=None, metavar="TOPIC",
                    help="log the injected manoeuvre of every channel on TOPIC (its input's joint; a Float64 "
                         "TOPIC/<channel> for Float64 inputs): the config's excitation")
@@ -163,9 +192,16 @@ def options_from_args(args, channels: tuple[str, ...] | None = None, config=None
     ones ``--band-noise`` names; ``config``: to resolve the surfaces of ``--coupling`` and ``--cross-response``)."""
     import math
 
+    turbulence = getattr(args, "turbulence", None)
+    if turbulence is not None:
+        try:
+            turbulence = float(turbulence)
+        except ValueError:
+            raise ConfigError(f"--turbulence {turbulence}: a JSBSim turbulence level needs --jsbsim (without it: "
+                              "the RMS at the rates in rad/s)") from None
     loop = {"closed_loop_gain_margin_db": getattr(args, "closed_loop_gain_margin_db", None),
             "loop_delay_s": getattr(args, "loop_delay_s", None),
-            "turbulence_rms_rad_s": getattr(args, "turbulence", None),
+            "turbulence_rms_rad_s": turbulence,
             "log_excitation_topic": getattr(args, "log_excitation", None)}
     if config is not None:
         loop["coupling"] = tuple(parse_coupling(t, config) for t in getattr(args, "coupling", None) or ()) or None
@@ -189,15 +225,21 @@ def options_from_args(args, channels: tuple[str, ...] | None = None, config=None
 
 
 def run(args) -> int:
+    if getattr(args, "jsbsim", None) is not None:
+        return run_jsbsim(args)
+    extra = [flag for flag, name in (("--speed-kt", "speed_kt"), ("--altitude-ft", "altitude_ft"),
+                                     ("--save-config", "save_config")) if getattr(args, name, None) is not None]
+    if extra:
+        raise ConfigError(f"simulate: {extra[0]} needs --jsbsim AIRCRAFT")
+    if not args.config:
+        raise ConfigError("simulate: missing --config CFG (or fly JSBSim: --jsbsim AIRCRAFT --speed-kt V "
+                          "--altitude-ft H)")
+    if not args.out:
+        raise ConfigError("simulate: missing --out BAG")
     config = load_config(args.config)
     hidden = hidden_effects(args.hidden, config)
     options = options_from_args(args, tuple(config.channels), config)
-    out = Path(args.out)
-    _check_out(out)
-    if out.exists():
-        if not args.force:
-            raise ConfigError(f"--out {out}: exists already (use --force to replace a bag)")
-        _remove_existing(out)
+    out = _prepare_out(args)
     flight = simulate_flight(config, hidden, options, seed=args.seed)
     write_flight(flight, out, args.storage, compress=not args.no_compression,
                  custom_data={"gap_validation.config": str(config.source)})
@@ -223,4 +265,100 @@ def run(args) -> int:
         chosen = options.band_noise_channels or tuple(config.channels)
         print(f"  band noise: {options.band_noise_rms_rad_s:g} rad/s rms at {low:g}-{high:g} rad/s on "
               f"{', '.join(chosen)}")
+    return 0
+
+
+def _prepare_out(args) -> Path:
+    if not args.out:
+        raise ConfigError("simulate: missing --out BAG")
+    out = Path(args.out)
+    _check_out(out)
+    if out.exists():
+        if not args.force:
+            raise ConfigError(f"--out {out}: exists already (use --force to replace a bag)")
+        _remove_existing(out)
+    return out
+
+
+def run_jsbsim(args) -> int:
+    """``simulate --jsbsim``: the card flown in JSBSim (:func:`gap_validation.jsbsim.flight.simulate_jsbsim_flight`)."""
+    import dataclasses
+    import json
+    import math
+
+    from gap_validation.cli.linearize import check_jsbsim_args
+
+    check_jsbsim_args(args, "simulate --jsbsim")
+    if not args.out:
+        raise ConfigError("simulate: missing --out BAG")
+    for flag, name in (("--closed-loop-gain-margin-db", "closed_loop_gain_margin_db"),
+                       ("--loop-delay-s", "loop_delay_s"), ("--log-excitation", "log_excitation"),
+                       ("--coupling", "coupling"), ("--cross-response", "cross_response")):
+        if getattr(args, name, None):
+            raise ConfigError(f"simulate --jsbsim: {flag} is not available (JSBSim flies the card open loop; "
+                              "cross responses and couplings are its own)")
+    if args.config and args.save_config:
+        raise ConfigError("simulate --jsbsim: --save-config writes the linearised config, not wanted with --config")
+    started = time.process_time()
+    from gap_validation.jsbsim.flight import SWEEP_AMPLITUDE_RAD, parse_turbulence, simulate_jsbsim_flight
+    from gap_validation.jsbsim.linearize import DEFAULT_GRID, write_config
+
+    turbulence = parse_turbulence(args.turbulence)
+    config = load_config(args.config) if args.config else None
+    plain = argparse.Namespace(**{**vars(args), "turbulence": None})
+    options = options_from_args(plain, tuple(config.channels) if config else None, config)
+    options = dataclasses.replace(options, doublet_amplitude_rad=SWEEP_AMPLITUDE_RAD,
+                                  sweep_amplitude_rad=math.radians(args.amplitude_deg) if args.amplitude_deg
+                                  else SWEEP_AMPLITUDE_RAD)
+    out = _prepare_out(args)
+    if args.save_config and Path(args.save_config).exists() and not args.force:
+        raise ConfigError(f"--save-config {args.save_config}: exists already (use --force to replace it)")
+    hidden = None
+    if config is not None:
+        hidden = hidden_effects(args.hidden, config)
+    elif args.hidden:                               # the channels of the config to come, checked before the trim
+        from gap_validation.core.simulation import parse_hidden
+        from gap_validation.jsbsim.linearize import CHANNELS, MIMO_CHANNEL
+
+        hidden = {}
+        for text in args.hidden:
+            channel, effect = parse_hidden(text, tuple(CHANNELS) + (MIMO_CHANNEL[0],))
+            hidden.setdefault(channel, []).append(effect)
+    jf = simulate_jsbsim_flight(args.jsbsim, args.speed_kt, args.altitude_ft, config, hidden, options,
+                                seed=args.seed, turbulence=turbulence)
+    flight, config = jf.flight, jf.config
+    source = str(config.source) if args.config else (args.save_config or "linearised at the flown condition")
+    custom = {"gap_validation.config": source,
+              "gap_validation.jsbsim": json.dumps({"aircraft": jf.point.aircraft, "speed_kt_true": jf.point.speed_kt,
+                                                   "altitude_ft": jf.point.altitude_ft, "version": jf.point.version,
+                                                   "turbulence": dataclasses.asdict(jf.turbulence)
+                                                   if jf.turbulence else None,
+                                                   "surface_effects": jf.surface_effects}, sort_keys=True)}
+    write_flight(flight, out, args.storage, compress=not args.no_compression, custom_data=custom)
+    if args.save_config and jf.linearization is not None:
+        write_config(jf.linearization, args.save_config, DEFAULT_GRID)
+    cpu_s = time.process_time() - started
+    p = jf.point
+    print(f"wrote {out}: {flight.duration_s / 60:.1f} min in JSBSim {p.version}, {flight.message_count} messages, "
+          f"seed {args.seed}")
+    print(f"  trim: {p.describe()}")
+    print(f"  flown: {jf.steps} steps of {p.dt_s * 1e3:.3g} ms in {jf.jsbsim_cpu_s:.1f} s CPU "
+          f"({jf.steps / max(jf.jsbsim_s, 1e-9):.0f} steps/s); the whole command {cpu_s:.1f} s CPU")
+    print("  " + (jf.turbulence.describe() + f" (atmosphere/randomseed {jf.turbulence_seed})" if jf.turbulence
+                  else "no turbulence"))
+    if not args.config:
+        print("  config: " + (f"{args.save_config}" if args.save_config else
+                              f"the linearisation (gap-validate linearize --jsbsim {p.aircraft} --speed-kt "
+                              f"{p.speed_kt:g} --altitude-ft {p.altitude_ft:g} --out CFG.yaml writes it)"))
+    for topic, series in flight.topics.items():
+        print(f"  {topic}: {series.msgtype}, {len(series)} messages")
+    for warning in jf.warnings:
+        print(f"  warning: {warning}")
+    for name, ch in config.channels.items():
+        ins = jf.surfaces[name][0]
+        effects = [e for s in ins for e in jf.surface_effects.get(s, [])]
+        truth = " + ".join(describe_effect(e) for e in effects) if effects else "nothing (JSBSim = truth)"
+        n = len(flight.sweeps(name))
+        print(f"  {name} ({', '.join(ins)}): {n} {options.excitation} manoeuvre{'s' if n != 1 else ''}, "
+              f"hidden: {truth}")
     return 0

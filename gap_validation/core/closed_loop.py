@@ -12,31 +12,43 @@ surface moving). Two things break that in flight, and without the config keys th
   :data:`COUPLING_SHARE` of the input's energy names that surface and the key to add.
 - **Feedback.** A damper or an autopilot moves the surface with the measured rate: the direct estimate tends to
   ``-1/C`` where the disturbances drive the surface (Ljung, *System Identification*, ch. 13; Bendat and Piersol
-  ch. 7). Two signs: between the manoeuvres the surface moves coherently with the rate
-  (:class:`TrimCoherenceMonitor`: nothing is flown, yet the surface follows the rate), and, with a configured
-  ``controller``, a measured response closer to ``-1/C`` than to the model (:func:`near_minus_inverse`).
+  ch. 7). Coherence between surface and rate cannot tell it: an open-loop airframe answering a pilot's trim
+  corrections is coherent too. What feedback changes is the response itself. Between the manoeuvres the surface
+  moves with the trim motion (:class:`~gap_validation.core.background.TrimSpectrum`): in open loop the rate answers
+  it as it answers the manoeuvres (the response between manoeuvres is the airframe's), in closed loop the loop
+  drives it from the rate and the response between manoeuvres is ``-1/C``: where the loop gain exceeds one, on the
+  *opposite side* of the airframe's response (``Re(H_trim / H_manoeuvre) < 0``), which no open-loop input can give.
+  :func:`feedback_evidence` tests exactly that, frequency by frequency, against both estimates' random errors;
+  with a configured ``controller`` a measured response closer to ``-1/C`` than to the model is a second sign
+  (:func:`near_minus_inverse`).
 
-Points a warning covers are *data-limited*, never model-limited, and no effect is named from them
-(:func:`with_bias_allowance` gives the diagnosis an estimate whose error covers a bias as large as the response).
+A feedback loop biases a manoeuvre's estimate only by the share of the surface's motion that the manoeuvre does not
+explain: ``b(w) = S_trim(w) / S_manoeuvre(w) |H_trim(w) - H(w)|`` (:func:`feedback_bias`). Points where that
+bound passes the random error -- and every point a coupling warning covers -- are *data-limited*, never
+model-limited, and no effect is named from them (:func:`with_bias_allowance` gives the diagnosis an estimate whose
+error covers a bias as large as the response). A manoeuvre 20 dB above the trim motion is not biased, whatever
+happens between manoeuvres.
 """
 from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
+from scipy.special import ndtri
 
 from gap_validation.core import metrics
+from gap_validation.core.background import TrimResponse
 
 if TYPE_CHECKING:
     from gap_validation.core.estimator import SpectralEstimate
     from gap_validation.core.models import LinearModel
 
-__all__ = ["TrimCoherenceMonitor", "CouplingMonitor", "SurfaceHistory", "welch_coherence", "near_minus_inverse",
-           "with_bias_allowance", "COUPLING_COHERENCE", "COUPLING_GAIN", "COUPLING_SHARE", "TRIM_COHERENCE",
-           "KAPPA_MINUS_INVERSE", "BIAS_ALLOWANCE", "PENDING_RECORDS"]
+__all__ = ["CouplingMonitor", "SurfaceHistory", "FeedbackEvidence", "feedback_evidence",
+           "feedback_bias", "near_minus_inverse", "with_bias_allowance", "COUPLING_COHERENCE", "COUPLING_GAIN",
+           "COUPLING_SHARE", "FEEDBACK_FALSE_ALARM", "KAPPA_MINUS_INVERSE", "BIAS_ALLOWANCE", "PENDING_RECORDS"]
 
 #: Coherence (R^2) between a channel's input and another surface during its manoeuvres that names the surface.
 COUPLING_COHERENCE = 0.6
@@ -46,159 +58,13 @@ COUPLING_GAIN = 0.05
 COUPLING_SHARE = 0.25
 #: Manoeuvres that wait for another surface's samples (whole histories fed one channel after the other).
 PENDING_RECORDS = 64
-#: Median coherence of surface and rate in a trim block (between manoeuvres) that counts as feedback.
-TRIM_COHERENCE = 0.5
+#: Probability, per channel, that an open-loop flight is called closed loop by :func:`feedback_evidence` (split
+#: over the frequencies tested: Bonferroni).
+FEEDBACK_FALSE_ALARM = 1e-3
 #: Chordal distance to ``-1/C`` under which a measured response looks like the inverse of the controller.
 KAPPA_MINUS_INVERSE = 0.2
 #: Relative error given to the points a warning covers (a bias as large as the response, and more).
 BIAS_ALLOWANCE = 1e6
-
-
-class TrimCoherenceMonitor:
-    """Coherence of a channel's surface and rate in blocks of flight, kept for the blocks between manoeuvres.
-
-    Both streams are interpolated onto a coarse uniform grid (``rate_hz``) a block (``block_s``, every half
-    block) at a time; each block keeps its span and the median magnitude-squared coherence
-    (:func:`welch_coherence`, segments of a quarter block, half overlapping: 7 of them) over
-    ``band_rad_s``. Bounded: the last ``max_blocks`` blocks and the samples of one block.
-
-    Parameters
-    ----------
-    band_rad_s : (float, float)
-        Band of the coherence [rad/s] (above the pilot's re-trims, below the rate of the coarse grid).
-    block_s : float
-        Block length [s].
-    rate_hz : float
-        Rate of the coarse grid [Hz].
-    max_blocks : int
-        Blocks kept.
-    """
-
-    def __init__(self, band_rad_s: tuple[float, float] = (2.0, 20.0), block_s: float = 8.0,
-                 rate_hz: float = 50.0, max_blocks: int = 1000) -> None:
-        self.band_rad_s = band_rad_s
-        self.block_s = float(block_s)
-        self.rate_hz = float(rate_hz)
-        self.blocks: deque = deque(maxlen=max_blocks)       # (start_s, end_s, median coherence, u std)
-        self._t = {"u": np.empty(0), "y": np.empty(0)}
-        self._v = {"u": np.empty(0), "y": np.empty(0)}
-        self._start: float | None = None
-
-    def add(self, stream: str, t_s: np.ndarray, values: np.ndarray) -> None:
-        """Samples of the surface (``"u"``) or the rate (``"y"``) in time order.
-
-        Parameters
-        ----------
-        stream : {"u", "y"}
-            Which stream.
-        t_s, values : ndarray
-            Times [s] and values (SI).
-        """
-        t, v = np.asarray(t_s, float).ravel(), np.asarray(values, float).ravel()
-        ok = np.isfinite(t) & np.isfinite(v)
-        t, v = t[ok], v[ok]
-        if t.size == 0:
-            return
-        if self._t[stream].size and t[0] < self._t[stream][-1]:      # time went back: start afresh
-            self._t = {"u": np.empty(0), "y": np.empty(0)}
-            self._v = {"u": np.empty(0), "y": np.empty(0)}
-            self._start = None
-        self._t[stream] = np.concatenate((self._t[stream], t))
-        self._v[stream] = np.concatenate((self._v[stream], v))
-        if self._start is None:
-            self._start = float(t[0])
-        self._blocks()
-
-    def _blocks(self) -> None:
-        while self._start is not None and all(self._t[s].size for s in "uy") and \
-                min(self._t["u"][-1], self._t["y"][-1]) >= self._start + self.block_s:
-            # a gap longer than a block holds no covered block: go to where both streams have data again (absurd
-            # stamps such as 1e19 s would otherwise step half a block at a time across the gap)
-            first = max(float(self._t[s][np.argmax(self._t[s] >= self._start)]) for s in "uy")
-            if first > self._start + self.block_s:
-                self._start = first
-                continue
-            start, end = self._start, self._start + self.block_s
-            if not start + 0.5 * self.block_s > start:    # stamps too large to resolve a block: nothing to judge
-                self._start = None
-                break
-            grid = start + np.arange(int(round(self.block_s * self.rate_hz))) / self.rate_hz
-            u = np.interp(grid, self._t["u"], self._v["u"])
-            y = np.interp(grid, self._t["y"], self._v["y"])
-            covered = all(self._t[s][0] <= start + 1.0 and np.max(np.diff(np.concatenate(
-                ([start], self._t[s][(self._t[s] >= start) & (self._t[s] <= end)], [end])))) < 1.0 for s in "uy")
-            if covered:
-                self.blocks.append((start, end, self._coherence(u, y), float(np.std(u))))
-            self._start = start + 0.5 * self.block_s
-            for s in "uy":
-                keep = self._t[s] >= self._start - 1.0
-                self._t[s], self._v[s] = self._t[s][keep], self._v[s][keep]
-
-    def _coherence(self, u: np.ndarray, y: np.ndarray) -> float:
-        f, c = welch_coherence(u, y, self.rate_hz, max(8, u.size // 4))
-        w = 2.0 * math.pi * f
-        band = (w >= self.band_rad_s[0]) & (w <= self.band_rad_s[1])
-        return float(np.median(c[band])) if band.any() and np.all(np.isfinite(c[band])) else 0.0
-
-    def trim_blocks(self, spans_s: list[tuple[float, float]], margin_s: float = 1.0) -> list[tuple]:
-        """The blocks that overlap none of ``spans_s`` (the channel's manoeuvres) widened by ``margin_s``.
-
-        Parameters
-        ----------
-        spans_s : list of (float, float)
-            Start and end of each manoeuvre [s].
-        margin_s : float
-            Kept clear before and after each [s].
-        """
-        return [b for b in self.blocks if not any(b[0] < e + margin_s and s - margin_s < b[1] for s, e in spans_s)]
-
-    def feedback_share(self, spans_s: list[tuple[float, float]], since_s: float = -math.inf) -> tuple[int, int]:
-        """``(coherent, total)`` trim blocks: how many between the manoeuvres have the surface coherent with the
-        rate (:data:`TRIM_COHERENCE`).
-
-        Parameters
-        ----------
-        spans_s : list of (float, float)
-            The channel's manoeuvres [s].
-        since_s : float
-            Only blocks that start at or after this time [s] (the manoeuvres before it are forgotten).
-        """
-        blocks = [b for b in self.trim_blocks(spans_s) if b[0] >= since_s]
-        return sum(1 for b in blocks if b[2] >= TRIM_COHERENCE), len(blocks)
-
-
-def welch_coherence(u: np.ndarray, y: np.ndarray, fs_hz: float, nperseg: int) -> tuple[np.ndarray, np.ndarray]:
-    """Magnitude-squared coherence by Welch's method: Hann windows of ``nperseg`` samples, half overlapping, each
-    segment's mean removed (what ``scipy.signal.coherence`` computes with its defaults, without its per-call
-    overhead: the monitor calls it every few seconds of flight).
-
-    Parameters
-    ----------
-    u, y : ndarray
-        Two signals of the same length, uniformly sampled.
-    fs_hz : float
-        Sample rate [Hz].
-    nperseg : int
-        Segment length (at most the signals' length).
-
-    Returns
-    -------
-    f_hz, coherence : ndarray
-        Frequencies [Hz] and coherence in [0, 1].
-    """
-    step = nperseg // 2
-    n_seg = 1 + (u.size - nperseg) // step
-    idx = np.arange(nperseg)[None, :] + step * np.arange(n_seg)[:, None]
-    window = np.hanning(nperseg + 1)[:-1]                  # periodic Hann, as scipy's get_window("hann")
-    segments = np.stack([u[idx], y[idx]])
-    segments = (segments - segments.mean(axis=2, keepdims=True)) * window
-    spectra = np.fft.rfft(segments, axis=2)
-    puu = np.mean(np.abs(spectra[0]) ** 2, axis=0)
-    pyy = np.mean(np.abs(spectra[1]) ** 2, axis=0)
-    puy = np.mean(np.conj(spectra[0]) * spectra[1], axis=0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        coherence = np.abs(puy) ** 2 / (puu * pyy)
-    return np.fft.rfftfreq(nperseg, 1.0 / fs_hz), np.where(np.isfinite(coherence), coherence, 0.0)
 
 
 class SurfaceHistory:
@@ -279,6 +145,7 @@ class CouplingMonitor:
         self._r2 = 0.0               # energy-weighted sums over the coupled ones
         self._gain = 0.0
         self.records = 0
+        self.coupled_records = 0     # manoeuvres in which the surface follows the input
         self.pending: deque = deque(maxlen=PENDING_RECORDS)
 
     def observe(self, u: np.ndarray, t0_s: float, dt_s: float, history: SurfaceHistory) -> None:
@@ -328,6 +195,7 @@ class CouplingMonitor:
         self.records += 1
         self.energy += uu
         if r2 >= COUPLING_COHERENCE and abs(gain) >= COUPLING_GAIN:
+            self.coupled_records += 1
             self.coupled_energy += uu
             self._r2 += r2 * uu
             self._gain += gain * uu
@@ -347,6 +215,119 @@ class CouplingMonitor:
             return False, 0.0, 0.0
         r2, gain = self._r2 / self.coupled_energy, self._gain / self.coupled_energy
         return self.coupled_energy >= COUPLING_SHARE * self.energy, r2, gain
+
+
+@dataclass(frozen=True)
+class FeedbackEvidence:
+    """Where the response between manoeuvres points away from the response during them.
+
+    Attributes
+    ----------
+    detected : bool
+        Some frequency tested is on the opposite side beyond chance (:func:`feedback_evidence`).
+    opposite : ndarray of bool
+        Those frequencies.
+    tested : int
+        Frequencies where both estimates were confident.
+    z : ndarray
+        ``(1 - Re(H_trim / H)) / sigma`` per frequency (NaN where not tested).
+    """
+
+    detected: bool
+    opposite: np.ndarray
+    tested: int
+    z: np.ndarray
+
+
+def feedback_evidence(trim: TrimResponse, response: np.ndarray, variance: np.ndarray, confident: np.ndarray,
+                      model: np.ndarray | None = None,
+                      false_alarm: float = FEEDBACK_FALSE_ALARM) -> FeedbackEvidence:
+    """Test for a feedback loop: the response between the manoeuvres on the opposite side of the response during
+    them.
+
+    With the loop gain ``L = C P`` above one and the disturbances driving the surface, the estimate between
+    manoeuvres is ``-1/C = -P/L``: ``Re(H_trim / P) < 0`` wherever ``Re(L) > 0``. In open loop both estimates see
+    the same airframe: ``H_trim / H = 1 + noise``, whose real part is about normal with mean 1 and standard
+    deviation ``sigma = sqrt((v_trim + v)/2)`` (the two estimates' relative variances). A frequency counts as
+    evidence when ``Re(H_trim / H) < 0`` and ``z = (1 - Re(H_trim / H)) / sigma`` passes the one-sided normal
+    quantile of ``false_alarm / n`` (n frequencies tested, Bonferroni): an open-loop flight is called closed loop
+    with probability at most ``false_alarm``. An amplitude-dependent airframe (a rate limit, free play) changes the
+    gain between small trim motion and a manoeuvre, not the sign: it gives no evidence.
+
+    Where the manoeuvres give no confident response (a loop answering turbulence may leave them only part of the
+    band: the trim motion is largest where the loop gain is), the reference ``H`` is the ``model``, scaled by the
+    manoeuvres' response over the model at the nearest frequency where they give one (so that a model of the wrong
+    sign or with a missing delay is corrected by what the manoeuvres measured), with that frequency's variance.
+
+    Parameters
+    ----------
+    trim : TrimResponse
+        The response between manoeuvres.
+    response, variance : ndarray
+        The manoeuvres' pooled response and its variance ``E |dH|^2``.
+    confident : ndarray of bool
+        Frequencies where the manoeuvres' estimate counts.
+    model : ndarray, optional
+        The model's response at the same frequencies (None: only the manoeuvres' frequencies are tested).
+    false_alarm : float
+        Probability of a false call per channel.
+    """
+    h = np.asarray(response, complex)
+    confident = np.asarray(confident, bool) & np.isfinite(h) & (np.abs(h) > 0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel = np.where(confident, np.asarray(variance, float) / np.abs(h) ** 2, np.inf)
+    reference = np.where(confident, h, np.nan + 0j)
+    if model is not None:
+        p = np.asarray(model, complex)
+        known = np.flatnonzero(confident & np.isfinite(p) & (np.abs(p) > 0))
+        if known.size:
+            nearest = known[np.argmin(np.abs(np.arange(h.size)[:, None] - known[None, :]), axis=1)]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                scaled = p * (h[nearest] / p[nearest])
+            reference = np.where(confident, h, scaled)
+            rel = np.where(confident, rel, rel[nearest])
+        else:
+            reference, rel = p, np.zeros(h.shape)
+    tested = trim.confident() & np.isfinite(reference) & (np.abs(reference) > 0) & np.isfinite(rel)
+    z = np.full(h.shape, np.nan)
+    opposite = np.zeros(h.shape, bool)
+    n = int(np.count_nonzero(tested))
+    if n:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = trim.response[tested] / reference[tested]
+            v = trim.relative_variance()[tested] + rel[tested]
+            z[tested] = (1.0 - ratio.real) / np.sqrt(0.5 * v)
+        critical = float(-ndtri(false_alarm / n))
+        opposite[tested] = (ratio.real < 0.0) & (z[tested] > critical)
+    return FeedbackEvidence(bool(opposite.any()), opposite, n, z)
+
+
+def feedback_bias(trim: TrimResponse, response: np.ndarray, variance: np.ndarray,
+                  manoeuvre_power: np.ndarray) -> np.ndarray:
+    """Frequencies whose pooled estimate a feedback loop may bias beyond its random error.
+
+    During a manoeuvre the surface moves with the manoeuvre and, as between manoeuvres, with the loop answering the
+    disturbances; the estimate is the power-weighted mix of the airframe and ``H_trim``: its bias is at most
+    ``S_trim / S_manoeuvre |H_trim - H|`` (where the trim response is unknown, ``2 |H|``: a ``-1/C`` as large as
+    the response). Biased where that passes the random error ``sqrt(variance)``, or where the trim motion was not
+    measured.
+
+    Parameters
+    ----------
+    trim : TrimResponse
+        The response between manoeuvres and the input's trim motion.
+    response, variance : ndarray
+        The manoeuvres' pooled response and its variance.
+    manoeuvre_power : ndarray
+        The input's mean ``|X|^2`` per bin over the manoeuvres, same units as ``trim.input_power``.
+    """
+    h = np.asarray(response, complex)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        share = np.asarray(trim.input_power, float) / np.asarray(manoeuvre_power, float)
+        gap = np.where(np.isfinite(trim.response), np.abs(trim.response - h), 2.0 * np.abs(h))
+        bias = share * gap
+        biased = ~(bias <= np.sqrt(np.asarray(variance, float)))      # NaN (not measured) counts as biased
+    return biased & np.isfinite(h)
 
 
 def near_minus_inverse(controller: "LinearModel", w_rad_s: np.ndarray, measured: np.ndarray,

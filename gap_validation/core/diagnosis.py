@@ -87,7 +87,7 @@ __all__ = [
     "ChannelDiagnosis", "analyse_channel", "fit_effects", "FittedCandidate", "cifer_weight", "cifer_cost",
     "bendat_piersol_random_error", "effective_random_error", "epsilon_noise_scale", "minimum_averages",
     "normalised_mismatch", "frequency_flags", "find_bands", "FAMILIES", "PAIRS", "SIGMA_FACTOR", "BIAS_ERROR",
-    "band_edge_warning",
+    "band_edge_warning", "information_criteria", "INDISTINGUISHABLE",
 ]
 
 #: Noise-only epsilon is Rayleigh with scale ``sigma = e/2``; ``P(eps > k sigma) = exp(-k^2/2)``: k = 4 gives
@@ -99,6 +99,13 @@ IMPROVEMENT_SIGMA_FACTOR = 3.0
 MIN_RELATIVE_IMPROVEMENT = 0.25
 #: A pair must remove at least this fraction of its best single member's epsilon.
 PAIR_RELATIVE_IMPROVEMENT = 0.25
+#: Candidates whose information criterion (:func:`information_criteria`) lies within this of the lowest are
+#: indistinguishable by the data (a Bayes factor below e, "not worth more than a bare mention"; Kass and Raftery
+#: 1995): the one with the fewest parameters is named first, and the sentence says which others fit as well.
+INDISTINGUISHABLE = 2.0
+#: A noise scale more than this many times wider than the coherence allows (the classical random error with the
+#: systematic floor) is no random error: :func:`find_bands` says so rather than "the random error explains it".
+BOUND_CHECK = 10.0
 #: Systematic error floor of a measured response, relative (1 % of |H|, 0.6 deg): interpolation of the
 #: streams onto the grid and timestamp offsets between them. The estimator's own smoothing bias is not in it:
 #: the decisions compare the data with the model seen through the estimator (``estimate.expected``).
@@ -484,7 +491,7 @@ def frequency_flags(eps_w: ArrayLike, mismatch: ArrayLike, coherent: ArrayLike, 
 
 def find_bands(w_rad_s: ArrayLike, eps_w: ArrayLike, mismatch: ArrayLike, coherence: ArrayLike, n_averages: ArrayLike,
                flags: Sequence[str], coherence_threshold: float, min_averages: int = 0,
-               sigma_factor: float = SIGMA_FACTOR) -> list[Band]:
+               sigma_factor: float = SIGMA_FACTOR, sigma: ArrayLike | None = None) -> list[Band]:
     """Runs of adjacent frequencies flagged ``model`` or ``data``, each with its verdict and reason.
 
     A band is model-limited when at least one of its frequencies is; otherwise data-limited. Excluded and
@@ -506,6 +513,11 @@ def find_bands(w_rad_s: ArrayLike, eps_w: ArrayLike, mismatch: ArrayLike, cohere
         Degrees of freedom a usable frequency needs (:func:`minimum_averages`).
     sigma_factor : float
         As for :func:`frequency_flags`.
+    sigma : array_like, optional
+        The noise scale of epsilon(w) each point was judged with: where it is far wider than the coherence allows
+        (:data:`BOUND_CHECK` times the classical bound with the systematic floor) and the classical bound alone
+        puts the mismatch beyond ``sigma_factor``, a data-limited band says it is a bias allowance, not random
+        error.
     """
     bands, start = [], None
     for i, flag in enumerate(list(flags) + ["ok"]):
@@ -514,13 +526,13 @@ def find_bands(w_rad_s: ArrayLike, eps_w: ArrayLike, mismatch: ArrayLike, cohere
             start = i
         elif not inside and start is not None:
             bands.append(_band(np.arange(start, i), w_rad_s, eps_w, mismatch, coherence, n_averages, flags,
-                               coherence_threshold, min_averages, sigma_factor))
+                               coherence_threshold, min_averages, sigma_factor, sigma))
             start = None
     return bands
 
 
 def _band(idx, w_rad_s, eps_w, mismatch, coherence, n_averages, flags, coherence_threshold, min_averages,
-          sigma_factor) -> Band:
+          sigma_factor, sigma=None) -> Band:
     w, eps = np.asarray(w_rad_s, float), np.asarray(eps_w, float)
     peak = idx[int(np.argmax(eps[idx]))]
     k_max = float(np.max(np.asarray(mismatch, float)[idx]))
@@ -536,6 +548,13 @@ def _band(idx, w_rad_s, eps_w, mismatch, coherence, n_averages, flags, coherence
     elif n_min < min_averages:
         reason = (f"too few degrees of freedom ({n_min:.0f} < {min_averages}) for the coherence to mean much; "
                   f"fly the manoeuvre again, or longer, there")
+    elif sigma is not None and (k_coherence := _coherence_mismatch(
+            eps[idx], np.asarray(coherence, float)[idx], np.asarray(n_averages, float)[idx],
+            np.asarray(sigma, float)[idx])) > sigma_factor:
+        reason = (f"the coherence (down to {coh_min:.2f}) and degrees of freedom put the mismatch at "
+                  f"{k_coherence:.0f} noise scales: the larger error allowed there is no random error but a bias "
+                  f"allowance (feedback, or another surface moving with the input: see the warnings); not "
+                  f"validated there")
     else:
         reason = (f"the random error explains the mismatch (at most {k_max:.1f} noise scales, coherence down "
                   f"to {coh_min:.2f}); fly better sweeps there")
@@ -543,6 +562,19 @@ def _band(idx, w_rad_s, eps_w, mismatch, coherence, n_averages, flags, coherence
                 epsilon=float(eps[peak]), limited_by="model" if model else "data", reason=reason,
                 coherence_min=coh_min, mismatch_sigma=k_max if math.isfinite(k_max) else None,
                 min_averages=n_min if math.isfinite(n_min) else None)
+
+
+def _coherence_mismatch(eps_w: np.ndarray, coherence: np.ndarray, dof: np.ndarray, sigma: np.ndarray) -> float:
+    """The largest normalised mismatch, by the classical coherence bound (Bendat and Piersol's random error of a
+    response with this coherence on these degrees of freedom, :func:`bendat_piersol_random_error`, with the
+    systematic floor :data:`BIAS_ERROR`; half of it the noise scale of epsilon), at the points whose noise scale
+    ``sigma`` is more than :data:`BOUND_CHECK` times wider: a check on an error a point was given beyond what its
+    coherence allows (a bias allowance). 0 where none is."""
+    classical = epsilon_noise_scale(np.hypot(bendat_piersol_random_error(coherence, np.maximum(dof, 1.0)), BIAS_ERROR))
+    wide = np.asarray(sigma, float) > BOUND_CHECK * classical
+    k = normalised_mismatch(eps_w, classical, dof)
+    k = np.where(wide & np.isfinite(k), k, 0.0)
+    return float(np.max(k)) if k.size else 0.0
 
 
 # ------------------------------------------------------------------------------------------------ effect families
@@ -814,6 +846,12 @@ class FittedCandidate:
     at_bound : str
         Which parameter sits on which edge of its search range (``"damping at 1 (upper bound)"``), empty when
         none does: such a fit is beyond the search range and never offered as a fix.
+    criterion : float or None
+        Its information criterion among the candidates ranked with it (:func:`information_criteria`).
+    indistinguishable : list of str
+        For the top-ranked candidate: the others the data cannot tell from it (:data:`INDISTINGUISHABLE`).
+    detail : str
+        ``parameter_error`` refitted by its modes: the moves in words (``gain x1.3, mode 4.24 -> 5.1 rad/s ...``).
     """
 
     name: str
@@ -824,6 +862,9 @@ class FittedCandidate:
     replacement: bool = False
     score: _Fit | None = None
     at_bound: str = ""
+    criterion: float | None = None          # information criterion (:func:`information_criteria`), when ranked
+    indistinguishable: list[str] = field(default_factory=list)   # the ranked top's equals
+    detail: str = ""                        # a refit's changes in words
 
 
 def _fit_data(model: LinearModel, ev: _Evidence) -> _FitData | None:
@@ -863,19 +904,175 @@ def _on_bound(x: np.ndarray, lo: np.ndarray, hi: np.ndarray, names: Sequence[str
 
 
 def _fit_parameter_error(model: LinearModel, data: _FitData) -> FittedCandidate | None:
+    """The model's own parameters refitted: its modes moved and its gain scaled (:func:`_mode_fit`: the finding of a
+    model made at another flight condition), or, where that leaves more, its coefficients (:func:`_coefficient_fit`);
+    the one that fits better."""
     refit, at_bound = None, ""
     for factor in COEFFICIENT_RANGES:       # widened once when the fit sits on the bound
         fitted = _coefficient_fit(model, data, factor, start=refit)
         if fitted is None:
-            return None
+            break
         refit, at_bound = fitted
         if not at_bound:
             break
     air = model.airframe
     n_free = int(np.count_nonzero(air.num) + np.count_nonzero(air.den[1:]))
-    return FittedCandidate("parameter_error", n_free, [], refit, replacement=True,
-                           at_bound=f"{at_bound} of the model's, after widening the search to "
-                                    f"x{COEFFICIENT_RANGES[-1]:g}" if at_bound else "")
+    coefficients = None if refit is None else FittedCandidate(
+        "parameter_error", n_free, [], refit, replacement=True,
+        at_bound=f"{at_bound} of the model's, after widening the search to x{COEFFICIENT_RANGES[-1]:g}"
+        if at_bound else "")
+    modes = _mode_fit(model, data)
+    if modes is None:
+        return coefficients
+    moved, words, free, bound = modes
+    candidate = FittedCandidate("parameter_error", free, [], moved, replacement=True, at_bound=bound, detail=words)
+    if coefficients is None:
+        return candidate
+    cost = [data.cost((c.model.freqresp(data.w) / data.p_model)[None, :])[0] for c in (candidate, coefficients)]
+    better = candidate if (cost[0] <= cost[1] or coefficients.at_bound) and not candidate.at_bound else coefficients
+    return better
+
+
+#: A structural mode whose zeros lie this close to one of the model's own pole pairs (relative frequency, and
+#: damping) cancels that pole and puts it where its own poles are: the model's mode moved, not a new mode
+#: (:func:`_moves_own_mode`).
+MODE_MATCH = 0.25
+
+
+def _moves_own_mode(candidate: FittedCandidate, model: LinearModel) -> bool:
+    """Whether a candidate's structural mode only moves one of the model's own modes: its zeros on a pole pair of
+    the model (within :data:`MODE_MATCH`). A linearisation at another speed has the same modes, moved; a structural
+    mode fitted there is that move, and ``parameter_error`` (:func:`_mode_fit`) says it as such."""
+    poles = [(w, z) for w, z in _roots_as_modes(np.roots(np.asarray(model.airframe.den, float))) if z is not None]
+    for effect in candidate.effects:
+        if effect.get("type") != "structural_mode":
+            continue
+        wz, zz = float(effect["zero_frequency_rad_s"]), float(effect["zero_damping"])
+        if any(abs(wz / w - 1.0) <= MODE_MATCH and abs(zz - z) <= MODE_MATCH for w, z in poles if w > 0):
+            return True
+    return False
+
+
+#: A mode of the model (a pole or zero, a complex pair or a real root) is refitted by :func:`_mode_fit` when its
+#: natural frequency lies within this factor of the confident band ...
+MODE_REACH = 3.0
+#: ... each frequency and the gain within this factor of the model's, each damping within this of the model's.
+MODE_RANGE = 3.0
+MODE_DAMPING_RANGE = 0.5
+#: A pole and a zero closer than this (relative frequency, and damping) cancel: they are left as they are.
+CANCEL = 0.02
+
+
+def _roots_as_modes(roots: np.ndarray) -> list[tuple[float, float | None]]:
+    """Roots as modes: ``(w, zeta)`` per complex pair (upper half-plane root), ``(a, None)`` per real root -a."""
+    out = []
+    for r in roots:
+        if abs(r.imag) > 1e-9 * max(abs(r), 1e-300):
+            if r.imag > 0:
+                w = abs(r)
+                out.append((w, -r.real / w))
+        else:
+            out.append((-r.real, None))
+    return out
+
+
+def _modes_poly(modes: list[tuple[float, float | None]]) -> np.ndarray:
+    poly = np.array([1.0])
+    for w, zeta in modes:
+        factor = [1.0, w] if zeta is None else [1.0, 2.0 * zeta * w, w * w]
+        poly = np.polymul(poly, factor)
+    return poly
+
+
+def _mode_fit(model: LinearModel, data: _FitData) -> tuple[LinearModel, str, int, str] | None:
+    """Refit the model's gain and the modes near the confident band: each pole and zero whose natural frequency
+    lies within :data:`MODE_REACH` of the band, a complex pair by its frequency and damping, a real root by its
+    corner (within :data:`MODE_RANGE` and :data:`MODE_DAMPING_RANGE`); the effects kept. What a linearisation at
+    another speed or weight gives: the same modes, moved, and the gains scaled -- not new modes. Returns the
+    refitted model, the moves in words, the parameters fitted, and which sit on their bound (empty: none); None
+    when no mode is near the band."""
+    air = model.airframe
+    num, den = np.asarray(air.num, float), np.asarray(air.den, float)
+    if not np.any(num):
+        return None
+    lead = num[np.flatnonzero(num)[0]]
+    zeros, poles = _roots_as_modes(np.roots(num)), _roots_as_modes(np.roots(den))
+    lo, hi = data.ctx.w_lo / MODE_REACH, data.ctx.w_hi * MODE_REACH
+
+    def near(w: float) -> bool:
+        return lo <= abs(w) <= hi
+
+    # a pole and a zero that (nearly) cancel carry no response (a mode of another axis, barely coupled): they stay
+    def cancels(a: tuple, b: tuple) -> bool:
+        (wa, za), (wb, zb) = a, b
+        return (za is None) == (zb is None) and abs(wa - wb) <= CANCEL * max(abs(wb), 1e-12) and \
+            (za is None or abs(za - zb) <= CANCEL)
+
+    cancelled = {("z", i) for i, z in enumerate(zeros) if any(cancels(z, p) for p in poles)}
+    cancelled |= {("p", i) for i, p in enumerate(poles) if any(cancels(z, p) for z in zeros)}
+    free = [(kind, i) for kind, modes in (("z", zeros), ("p", poles)) for i, (w, _) in enumerate(modes)
+            if near(w) and (kind, i) not in cancelled]
+    if not free:
+        return None
+    x0, lo_b, hi_b, names = [0.0], [-math.log(MODE_RANGE)], [math.log(MODE_RANGE)], ["gain"]
+    for kind, i in free:
+        w, zeta = (zeros if kind == "z" else poles)[i]
+        x0.append(0.0)
+        lo_b.append(-math.log(MODE_RANGE))
+        hi_b.append(math.log(MODE_RANGE))
+        names.append(f"{'zero' if kind == 'z' else 'pole'} at {abs(w):.3g} rad/s")
+        if zeta is not None:
+            x0.append(zeta)
+            lo_b.append(max(-1.0, zeta - MODE_DAMPING_RANGE))
+            hi_b.append(min(2.0, zeta + MODE_DAMPING_RANGE))
+            names.append(f"damping of the {'zero' if kind == 'z' else 'pole'} at {abs(w):.3g} rad/s")
+    x0, lo_b, hi_b = np.array(x0), np.array(lo_b), np.array(hi_b)
+    x0 = np.clip(x0, lo_b + 1e-9 * (hi_b - lo_b), hi_b - 1e-9 * (hi_b - lo_b))
+    s = 1j * data.w
+    others = LinearModel([1.0], [1.0], air.delay_s, model.effects).freqresp(data.w)
+
+    def build(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        z, p = list(zeros), list(poles)
+        pos = 1
+        for kind, i in free:
+            target = z if kind == "z" else p
+            w, zeta = target[i]
+            w = w * math.exp(x[pos])
+            pos += 1
+            if zeta is not None:
+                zeta = x[pos]
+                pos += 1
+            target[i] = (w, zeta)
+        num_new = _modes_poly(z)
+        gain = lead * math.exp(x[0]) * np.prod([w * w if zt is not None else w for w, zt in zeros] or [1.0]) / \
+            np.prod([w * w if zt is not None else w for w, zt in z] or [1.0])
+        return gain * num_new, _modes_poly(p)
+
+    def residuals(x: np.ndarray) -> np.ndarray:
+        n_new, d_new = build(x)
+        p = np.polyval(n_new, s) / np.polyval(d_new, s) * others
+        return data.residuals((p / data.p_model)[None, :])[0]
+
+    from scipy.optimize import least_squares   # scipy.optimize costs 0.6 s at import: only when used
+    sol = least_squares(residuals, x0, bounds=(lo_b, hi_b), method="trf", max_nfev=100 * x0.size)
+    n_new, d_new = build(sol.x)
+    refit = LinearModel(np.array([significant(v, 6) for v in n_new]), np.array([significant(v, 6) for v in d_new]),
+                        air.delay_s, model.effects)
+    tol = BOUND_TOLERANCE * (hi_b - lo_b)
+    edge = [f"{n} ({'lower' if v <= a + t else 'upper'} bound)" for n, v, a, b_, t in zip(names, sol.x, lo_b, hi_b, tol)
+            if v <= a + t or v >= b_ - t]
+    words = [f"gain x{math.exp(sol.x[0]):.3g}"]
+    pos = 1
+    for kind, i in free:
+        w, zeta = (zeros if kind == "z" else poles)[i]
+        w_new = w * math.exp(sol.x[pos])
+        pos += 1
+        what = f"{'zero' if kind == 'z' else 'mode'} {abs(w):.3g} -> {abs(w_new):.3g} rad/s"
+        if zeta is not None:
+            what += f" (damping {zeta:.2f} -> {sol.x[pos]:.2f})"
+            pos += 1
+        words.append(what)
+    return refit, ", ".join(words), int(x0.size), ", ".join(edge)
 
 
 def fit_effects(model: LinearModel, estimate: SpectralEstimate, coherence_threshold: float = 0.6, *,
@@ -948,8 +1145,9 @@ def _real_improvement(ev: _Evidence, before: _Fit, after: _Fit, extra_parameters
 
 
 def _select(ev: _Evidence, base: _Fit, fitted: list[FittedCandidate]) -> list[FittedCandidate]:
-    """Keep the candidates with a real improvement (pairs only when clearly better than their best member);
-    order: adequate explanations, simplest first, then the rest by epsilon."""
+    """Keep the candidates with a real improvement (pairs only when clearly better than their best member) and
+    rank them by parsimony (:func:`information_criteria`): the lowest criterion first, and among the candidates the
+    data cannot tell from it (within :data:`INDISTINGUISHABLE`) the one with the fewest parameters."""
     singles = {c.name: c for c in fitted if not c.members and not c.replacement}
     kept = []
     for cand in fitted:
@@ -965,18 +1163,45 @@ def _select(ev: _Evidence, base: _Fit, fitted: list[FittedCandidate]) -> list[Fi
         kept.append(cand)
     if not kept:
         return []
-    best_eps = min(c.score.eps for c in kept)
-
-    def rank(c: FittedCandidate) -> tuple:
-        if c.score.k_max <= ev.sigma_factor:         # leaves the data within their errors everywhere
-            return 0, c.complexity, c.score.eps
-        tolerance = max(IMPROVEMENT_SIGMA_FACTOR * ev.sigma[c.score.worst], MIN_RELATIVE_IMPROVEMENT * best_eps)
-        if c.score.eps <= best_eps + tolerance:      # as good as the best
-            return 1, c.complexity, c.score.eps
-        return 2, 0, c.score.eps
-
-    ranked = sorted(kept, key=rank)
+    n = 2 * int(np.count_nonzero(ev.confident))
+    criteria = information_criteria([c.score.chi2 for c in kept], [c.complexity for c in kept], n)
+    for cand, value in zip(kept, criteria):
+        cand.criterion = float(value)
+    lowest = min(c.criterion for c in kept)
+    close = [c for c in kept if c.criterion <= lowest + INDISTINGUISHABLE]
+    top = min(close, key=lambda c: (c.complexity, c.criterion))
+    top.indistinguishable = [c.name for c in sorted(close, key=lambda c: c.criterion) if c is not top]
+    ranked = [top] + sorted((c for c in kept if c is not top), key=lambda c: c.criterion)
     return ranked[:_MAX_CANDIDATES]
+
+
+def information_criteria(chi2: Sequence[float], parameters: Sequence[int], residuals: int) -> np.ndarray:
+    """Schwarz's criterion of each candidate on the weighted residuals, corrected for overdispersion.
+
+    The chi-square of a fit, ``sum |ln(P_fit / P_meas)|^2 / e^2`` over the confident frequencies, is ``-2 ln L`` up
+    to a constant when the errors ``e`` are right, on ``N = 2 n`` real residuals. A model that is a little wrong
+    everywhere (real models are off by 5-10 %) leaves a misfit the errors do not cover, and every extra parameter
+    soaks some of it up: the chi-squares are therefore divided by ``c = max(1, min chi2 / (N - p))``, the smallest
+    reduced chi-square among the candidates (quasi-likelihood), before the penalty ``p ln N`` is added
+    (``QBIC = chi2 / c + p ln N``). An extra parameter must then remove more misfit than ``ln N`` times what is left
+    per residual. Nested or not, candidates compare on the same scale.
+
+    Parameters
+    ----------
+    chi2 : sequence of float
+        Each candidate's chi-square.
+    parameters : sequence of int
+        Each candidate's fitted parameters.
+    residuals : int
+        ``N``: real residuals (two per confident frequency).
+    """
+    chi2 = np.asarray(chi2, float)
+    p = np.asarray(parameters, float)
+    n = max(int(residuals), 1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        reduced = np.where(n - p > 0, chi2 / np.maximum(n - p, 1.0), np.inf)
+    c = max(1.0, float(np.min(reduced))) if reduced.size and np.isfinite(np.min(reduced)) else 1.0
+    return chi2 / c + p * math.log(n)
 
 
 def _candidate(c: FittedCandidate, ev: _Evidence, base: _Fit, p_model: np.ndarray, sweeps: Sequence,
@@ -1002,6 +1227,8 @@ def _candidate(c: FittedCandidate, ev: _Evidence, base: _Fit, p_model: np.ndarra
         worst_frequency_rad_s=float(ev.w[score.worst]),
         complexity=c.complexity,
         explains=bool(score.k_max <= ev.sigma_factor),
+        criterion=c.criterion,
+        indistinguishable_from=list(c.indistinguishable),
         cost=cifer_cost(p_fit[conf], ev.p_meas[conf], ev.coherence[conf]),
         cost_before=cifer_cost(p_model[conf], ev.p_meas[conf], ev.coherence[conf]),
         **replacement,
@@ -1021,7 +1248,10 @@ def _sentence(c: FittedCandidate, base: _Fit, ev: _Evidence) -> str:
     """What the candidate is, the epsilon it leaves, and whether it explains the mismatch (the data within their
     errors at every confident frequency, JSON ``explains``)."""
     after = c.score
-    if c.replacement:
+    if c.replacement and c.detail:
+        text = (f"parameter error (a model of another flight condition?): the model's own modes moved and its gain "
+                f"scaled ({c.detail}) bring epsilon from {base.eps:.2f} to {after.eps:.2f}")
+    elif c.replacement:
         text = (f"parameter error: refitting the model's coefficients (same structure) brings epsilon from "
                 f"{base.eps:.2f} to {after.eps:.2f}")
     else:
@@ -1029,10 +1259,19 @@ def _sentence(c: FittedCandidate, base: _Fit, ev: _Evidence) -> str:
         verb = "adding it" if len(c.effects) == 1 else "adding both"
         text = f"missing: {what}; {verb} brings epsilon from {base.eps:.2f} to {after.eps:.2f}"
     if after.k_max <= ev.sigma_factor:
-        return text + ", which explains the mismatch (the rest is within the data's errors)"
-    worst = int(np.argmax(np.where(ev.confident, after.k, -np.inf)))
-    return (text + f", but does not explain the mismatch ({after.k_max:.0f} noise scales left at "
-            f"{ev.w[worst]:.3g} rad/s)")
+        text += ", which explains the mismatch (the rest is within the data's errors)"
+    else:
+        worst = int(np.argmax(np.where(ev.confident, after.k, -np.inf)))
+        text += (f", but does not explain the mismatch ({after.k_max:.0f} noise scales left at "
+                 f"{ev.w[worst]:.3g} rad/s)")
+    if c.indistinguishable:
+        text += (f"; the data cannot tell it from {' or '.join(_NAMES.get(n, n) for n in c.indistinguishable)} "
+                 f"(information criterion within {INDISTINGUISHABLE:g}): it is named for having the fewest parameters")
+    return text
+
+
+#: Effect types in words, for the sentences that compare candidates.
+_NAMES = {"parameter_error": "a refit of the model's coefficients"}
 
 
 def _raw_epsilon(model: LinearModel, sweeps: Sequence, coherence_threshold: float,
@@ -1094,10 +1333,16 @@ def analyse_channel(model: LinearModel, estimate: SpectralEstimate, sweeps: Sequ
     coherent = (ev.coherence >= coherence_threshold) & np.isfinite(ev.p_meas) & (np.abs(ev.p_meas) > 0)
     flags = frequency_flags(base.eps_w, mismatch, coherent, ev.confident, epsilon_threshold, sigma_factor)
     bands = find_bands(ev.w, base.eps_w, mismatch, ev.coherence, ev.n_averages, flags, coherence_threshold,
-                       ev.min_dof, sigma_factor)
+                       ev.min_dof, sigma_factor, ev.sigma)
     result = ChannelDiagnosis(limited_by=_limited_by(ev, base, bands), frequency_flags=flags, bands=bands)
+    from gap_validation.core.nonlinearity import amplitude_dependence
+
+    dependence = amplitude_dependence(sweeps, ev.confident, coherence_threshold, bias_error)
     if fit and result.limited_by == "model":
-        fitted = _diagnose(model, ev, amplitude)
+        # an amplitude-dependent effect is fitted only where amplitude dependence was seen: one amplitude's mismatch
+        # is no evidence of it (a rate limit or free play fits any lag at a single amplitude)
+        nonlinear = dependence is not None and dependence.detected
+        fitted = [c for c in _diagnose(model, ev, amplitude if nonlinear else None) if not _moves_own_mode(c, model)]
         chosen = _select(ev, base, [c for c in fitted if not c.at_bound])
         result.candidates = [_candidate(c, ev, base, p_model, sweeps, coherence_threshold) for c in chosen]
         if not any(c.explains for c in result.candidates):   # said only when no offered fix explains it
@@ -1111,7 +1356,7 @@ def analyse_channel(model: LinearModel, estimate: SpectralEstimate, sweeps: Sequ
         result.margins_caveat = result.margins_caveat or ("the mismatch peaks at the edge of the measured band and "
                                                           "may continue outside it: the margins then do not hold")
     result.message = _message(ev, base, result, coherence_threshold, epsilon_threshold, channel)
-    _call_nonlinearity(result, ev, sweeps, coherence_threshold, bias_error, amplitude)
+    _call_nonlinearity(result, ev, dependence, amplitude)
     return result
 
 
@@ -1174,8 +1419,9 @@ def _winding_warning(model: LinearModel, top: FittedCandidate, result: ChannelDi
 
 
 def _diagnose(model: LinearModel, ev: _Evidence, amplitude=None) -> list[FittedCandidate]:
-    """Singles and the coefficient refit (and the amplitude-dependent effects when the flown amplitude is known);
-    pairs too when no single effect leaves a mismatch within the errors."""
+    """Singles and the coefficient refit (and the amplitude-dependent effects when ``amplitude``, the flown amplitude,
+    is given: only where amplitude dependence was seen); pairs too when no single effect leaves a mismatch within the
+    errors."""
     fitted = _fit_all(model, ev, pairs=False, parameter_error=True)
     if amplitude is not None:
         fitted += _fit_nonlinear(model, ev, amplitude)
@@ -1339,14 +1585,13 @@ def _fit_nonlinear(model: LinearModel, ev: _Evidence, amplitude) -> list[FittedC
     return out
 
 
-def _call_nonlinearity(result: ChannelDiagnosis, ev: _Evidence, sweeps: Sequence, coherence_threshold: float,
-                       bias_error: float, amplitude) -> None:
-    """Compare the sweeps flown at different amplitudes; when they disagree beyond their errors, say
-    :data:`~gap_validation.core.nonlinearity.NONLINEARITY` in the result and the message."""
-    from gap_validation.core.nonlinearity import NONLINEARITY, amplitude_dependence
+def _call_nonlinearity(result: ChannelDiagnosis, ev: _Evidence, found, amplitude) -> None:
+    """The sweeps flown at different amplitudes compared (``found``: :func:`~gap_validation.core.nonlinearity.
+    amplitude_dependence`, None when they do not span different amplitudes); when they disagree beyond their errors,
+    say :data:`~gap_validation.core.nonlinearity.NONLINEARITY` in the result and the message."""
+    from gap_validation.core.nonlinearity import NONLINEARITY
 
     result.amplitude = None if amplitude is None else np.asarray(amplitude(ev.w), float)
-    found = amplitude_dependence(sweeps, ev.confident, coherence_threshold, bias_error)
     if found is None:
         return
     result.nonlinearity_evidence = found.sentence()

@@ -63,13 +63,14 @@ from numpy.typing import ArrayLike
 
 from gap_validation.core.alignment import (_NONE, JUMP_BACK_S, _GridAligner, _StreamResampler, _TimeBase,
                                            jump_back_s)
+from gap_validation.core.background import HANN_BINS_PER_AVERAGE, TrimResponse, TrimSpectrum
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.manoeuvres import Manoeuvre, ManoeuvreRecorder
 from gap_validation.core.numbers import NON_NEGATIVE, POSITIVE, check_number
 from gap_validation.core.records import (KINDS, MIN_ACTIVE_S, RESPONSE_KINDS, SATURATED_SHARE, SWEEP_KINDS, Piece,
                                          classify, period, saturated_share, split_record, trim_noise)
 from gap_validation.core.spectra import (SPECTRA_DEFAULTS, BandSums, MatrixEstimate, expected_estimate,
-                                         record_bands, solve_bands, solve_matrix)
+                                         interpolation_gain, record_bands, solve_bands, solve_matrix)
 from gap_validation.core.sweeps import DETECTOR_DEFAULTS, SweepDetector, TriggerTracker
 
 __all__ = ["FrequencyResponseEstimator", "SpectralEstimate", "ESTIMATOR_DEFAULTS", "RETIRED_OPTIONS",
@@ -95,7 +96,7 @@ ESTIMATOR_DEFAULTS = {
 #: Options of the windowed (Welch) estimator that this one replaced: refused with an explanation.
 RETIRED_OPTIONS = ("window_cycles", "min_window_s", "max_window_s", "overlap", "block_s", "detrend")
 #: Why a frequency has no estimate (:attr:`SpectralEstimate.reasons` counts records per reason).
-NOT_ESTIMABLE_REASONS = ("not_excited", "too_short", "above_grid", "too_few_bins")
+NOT_ESTIMABLE_REASONS = ("not_excited", "too_short", "above_grid", "too_few_bins", "below_trim")
 _BOOL_OPTIONS = ("cubic_interpolation", "detect_sweeps")
 _INT_OPTIONS = ("max_raw_sweeps", "min_bins", "order", "transient_order")
 _EVENT_CAP = 64                  # pending edges
@@ -111,6 +112,13 @@ RATE_STEPS = 128
 #: How far before the detector's start a record reaches back (to the end of the previous record at most) [s]:
 #: a sweep that starts slowly is seen late, and the record must begin at trim.
 LOOKBACK_S = 10.0
+#: A record is judged against the trim motion between the records (:mod:`gap_validation.core.background`): until
+#: this much trim was transformed [s], closed records wait (at most :data:`PENDING_RECORDS` of them; at a break in
+#: the data or at its end they are judged with what is known then).
+TRIM_KNOWN_S = 20.0
+PENDING_RECORDS = 8
+#: Manoeuvres made of steps: not band-limited (:data:`gap_validation.core.spectra.ALIAS_MARGIN`).
+_STEPPED_KINDS = ("doublet", "pulse", "multistep")
 #: Manoeuvres up to this long are offered to the time-domain recorder (doublets, pulses, multisteps) [s].
 _SHORT_MANOEUVRE_S = 20.0
 #: Manoeuvre spans kept for :attr:`FrequencyResponseEstimator.record_spans_s`.
@@ -601,6 +609,8 @@ class FrequencyResponseEstimator:
                                   int(round(LOOKBACK_S * fs)))
         F = w.size
         self._spectra_opts = {k: opts[k] for k in SPECTRA_DEFAULTS}
+        # the trim motion between the records, per frequency (:mod:`gap_validation.core.background`)
+        self._trim = TrimSpectrum(w, S, self._dt, opts["band_fraction"], opts["max_band_fraction"], LOOKBACK_S)
         self._tot = self._new_sums()
         self._reasons = np.zeros((len(NOT_ESTIMABLE_REASONS), F), np.int64)
         self._raw: list[tuple[np.ndarray, int, int, str]] = []    # estimate rows, k0, k1, kind
@@ -615,6 +625,7 @@ class FrequencyResponseEstimator:
         self._own_record = True
         self._piece_stream: dict = {}                        # other_inputs: manoeuvre -> the input it belongs to
         self._spans: deque = deque(maxlen=SPANS_KEPT)     # grid spans of the latest manoeuvres (not checkpointed)
+        self._pending: list[tuple[int, np.ndarray, int, int, int]] = []   # records waiting for the trim motion
         #: Called as ``record_observer(samples, kind, t0_s, dt_s)`` with the grid samples (streams x n) of the
         #: excited span of every manoeuvre of this channel that gives a response, its kind, the time of its first
         #: sample and the grid step (the coupling monitors of :mod:`gap_validation.core.closed_loop`); None:
@@ -1057,6 +1068,8 @@ class FrequencyResponseEstimator:
             self._apply_edge(k, on, src)
         for record in self._rec.end_run():
             self._close_record(*record)
+        self._trim.end_stretch()
+        self._judge_pending(force=True)
         self._last_k = None
 
     # ------------------------------------------------------------------ internals: manoeuvres
@@ -1076,9 +1089,12 @@ class FrequencyResponseEstimator:
             self._push_event(k_switch, False, _ENERGY)
 
     def _apply_edge(self, k: int, on: bool, src: int) -> None:
+        opened = on and not self._rec.open
         records = self._rec.start(k, src) if on else (self._rec.stop(k) or [])
         for record in records:
             self._close_record(*record)
+        if opened or (on and records):      # a new record reaches back into what looked like trim
+            self._trim.cut(self._rec.k0)
 
     def _consume(self, k_a: int, block: np.ndarray) -> None:
         """Released (delayed) contiguous grid samples from index ``k_a``: apply the edges, record."""
@@ -1095,8 +1111,15 @@ class FrequencyResponseEstimator:
             self._feed(pos, block[:, pos - k_a:])
 
     def _feed(self, k_a: int, block: np.ndarray) -> None:
+        was_open = self._rec.open
         for record in self._rec.feed(k_a, block):
             self._close_record(*record)
+        # trim: the samples outside every record (records open only at edges, between feeds)
+        first = k_a if not was_open else (self._rec.last_end_k if not self._rec.open else None)
+        if first is not None and first < k_a + block.shape[1]:
+            self._trim.feed(max(first, k_a), block[:, max(first - k_a, 0):])
+            if self._pending:
+                self._judge_pending()
 
     def _pieces(self, data: np.ndarray, src: int, act0: int, act1: int) -> list[Piece]:
         n = data.shape[1]
@@ -1104,9 +1127,14 @@ class FrequencyResponseEstimator:
             return [Piece(0, n, min(act0, n), max(min(act1, n), min(act0, n)))]
         if len(self._det_streams) > 1:
             return self._multi_pieces(data) if self._conditioned else self._pieces_per_stream(data)
-        det = data[self._det_streams[0]]
-        return split_record(det, self._dt, trim_noise(det, self._dt), self._rec.pre_n, self._rec.post_n,
-                            self._opts["min_quiet_s"])
+        return self._split(data[self._det_streams[0]], 0, n, self._det_streams[0])
+
+    def _motion(self, stream: int) -> float:
+        """Standard deviation of a detection stream's trim motion between the records measured so far
+        (:meth:`TrimSpectrum.std`: a pilot's corrections, a damper answering turbulence; 0 before any): splitting
+        and classifying widen the band about trim by it (:func:`~gap_validation.core.records.trim_tolerance`)."""
+        between = self._trim.std(stream)
+        return between if math.isfinite(between) else 0.0
 
     def _multi_pieces(self, data: np.ndarray) -> list[Piece]:
         """Several inputs without an excitation signal (``other_inputs``): the manoeuvres of every input, each
@@ -1117,7 +1145,7 @@ class FrequencyResponseEstimator:
         noise = {s: max(trim_noise(data[s], self._dt), 1e-12) for s in self._det_streams}
         for s in self._det_streams:
             for piece in split_record(data[s], self._dt, noise[s], self._rec.pre_n, self._rec.post_n,
-                                      self._opts["min_quiet_s"]):
+                                      self._opts["min_quiet_s"], self._motion(s)):
                 if piece.active_end <= piece.active_start:
                     continue
                 span = slice(piece.active_start, piece.active_end)
@@ -1143,7 +1171,9 @@ class FrequencyResponseEstimator:
 
     def _record_full(self, k0: int, data: np.ndarray, src: int, act0: int) -> int:
         """The record buffer is full (``max_record_s``): estimate the manoeuvres it completed and keep the one
-        still going (from its trim on); a single manoeuvre longer than the buffer is cut here."""
+        still going (from its trim on); a single manoeuvre longer than the buffer is cut here. Records waiting for
+        the trim motion are judged first (in time order)."""
+        self._judge_pending(force=True)
         n = data.shape[1]
         pieces = self._pieces(data, src, act0, n)
         going = [p for p in pieces if p.group == pieces[-1].group] if pieces and pieces[-1].end >= n else []
@@ -1160,10 +1190,31 @@ class FrequencyResponseEstimator:
         return n
 
     def _close_record(self, k0: int, data: np.ndarray, src: int, act0: int, act1: int) -> None:
-        """A buffered record closed: split it into manoeuvres, classify them, estimate their responses."""
+        """A buffered record closed: split it into manoeuvres, classify them, estimate their responses.
+
+        A manoeuvre that begins in the record's trim tail, after the detector's end of excitation, and runs to the
+        record's last sample was cut by the record, not flown that short (a sweep that starts slowly is detected
+        seconds late): it is left to the next record, which may reach back to its start."""
         if data.shape[1] < 4:
             return
-        self._estimate_pieces(k0, data, self._pieces(data, src, act0, act1))
+        pieces = self._pieces(data, src, act0, act1)
+        quiet_n = int(round(self._opts["min_quiet_s"] / self._dt))
+        if src != _TRIGGER and pieces and pieces[-1].active_start >= act1 and pieces[-1].start > 0 and \
+                pieces[-1].active_end > data.shape[1] - quiet_n:
+            self._rec.last_end_k = k0 + pieces[-1].start
+            data = data[:, :pieces[-1].start]
+            act1 = min(act1, data.shape[1])
+        self._pending.append((k0, data, src, act0, act1))
+        self._judge_pending(force=len(self._pending) > PENDING_RECORDS)
+
+    def _judge_pending(self, force: bool = False) -> None:
+        """Split, classify and estimate the records that wait for the trim motion: all of them once it is known
+        (:data:`TRIM_KNOWN_S`) or when ``force``-d (a break or the end of the data, a record too long to wait),
+        else only the oldest beyond :data:`PENDING_RECORDS`."""
+        while self._pending and (force or self._trim.seconds >= TRIM_KNOWN_S or len(self._pending) > PENDING_RECORDS):
+            k0, data, src, act0, act1 = self._pending.pop(0)
+            if data.shape[1] >= 4:
+                self._estimate_pieces(k0, data, self._pieces(data, src, act0, act1))
 
     def _pieces_per_stream(self, data: np.ndarray) -> list[Piece]:
         """Several detection streams (a MIMO channel's inputs, flown one at a time): the record split by each
@@ -1174,7 +1225,7 @@ class FrequencyResponseEstimator:
         found = []
         for n, s in enumerate(self._det_streams):
             det = data[s]
-            for piece in self._split(det, 0, det.size):
+            for piece in self._split(det, 0, det.size, s):
                 moved = float(np.var(det[piece.active_start:piece.active_end])) if piece.active_end > \
                     piece.active_start else 0.0
                 found.append((moved, n, Piece(piece.start, piece.end, piece.active_start, piece.active_end,
@@ -1195,46 +1246,46 @@ class FrequencyResponseEstimator:
                 end = piece.end if hi == piece.active_end else hi
                 kept += [Piece(p.start + lo, p.end + lo, p.active_start + lo, p.active_end + lo,
                                piece.group + 1000 * (part + 1) + p.group)
-                         for p in self._split(data[self._det_streams[n]], lo, end)]
+                         for p in self._split(data[self._det_streams[n]], lo, end, self._det_streams[n])]
         return sorted(kept, key=lambda p: (p.start, p.active_start))
 
-    def _split(self, det: np.ndarray, lo: int, hi: int) -> list[Piece]:
-        """:func:`~gap_validation.core.records.split_record` of ``det[lo:hi]`` (indices relative to ``lo``)."""
+    def _split(self, det: np.ndarray, lo: int, hi: int, stream: int) -> list[Piece]:
+        """:func:`~gap_validation.core.records.split_record` of ``det[lo:hi]`` (indices relative to ``lo``; ``det``
+        is stream ``stream``)."""
         seg = det[lo:hi]
         return split_record(seg, self._dt, trim_noise(seg, self._dt), self._rec.pre_n, self._rec.post_n,
-                            self._opts["min_quiet_s"]) if seg.size >= 3 else []
+                            self._opts["min_quiet_s"], self._motion(stream)) if seg.size >= 3 else []
 
-    def _detection_signal(self, data: np.ndarray, piece: Piece) -> np.ndarray:
-        """The signal a manoeuvre is classified by: the detection stream, or with several (a MIMO channel's
+    def _detection_signal(self, data: np.ndarray, piece: Piece) -> int:
+        """The stream a manoeuvre is classified by: the detection stream, or with several (a MIMO channel's
         inputs, flown one at a time) the one that varies most during the manoeuvre."""
         if len(self._det_streams) == 1:
-            return data[self._det_streams[0]]
+            return self._det_streams[0]
         candidates = data[self._det_streams][:, piece.active_start:max(piece.active_end, piece.active_start + 1)]
-        return data[self._det_streams[int(np.argmax(np.var(candidates, axis=1)))]]
+        return self._det_streams[int(np.argmax(np.var(candidates, axis=1)))]
 
     def _estimate_pieces(self, k0: int, data: np.ndarray, pieces: list[Piece]) -> None:
         single = len(self._det_streams) == 1
         det_index = self._det_index(data) if self._conditioned else self._det_streams[0]
         det = data[det_index]
-        noise = trim_noise(det, self._dt)
-        multi = len(self._det_streams) > 1
+        noise, motion = trim_noise(det, self._dt), self._motion(det_index)
         for piece in pieces:
             if piece.active_end <= piece.active_start:
                 continue
-            if not single and self._conditioned:      # other_inputs: each manoeuvre on the input it belongs to
-                det_index = self._piece_stream.get(
-                    (piece.start, piece.end, piece.active_start, piece.active_end), det_index)
+            if not single:
+                if self._conditioned:      # other_inputs: each manoeuvre on the input it belongs to
+                    det_index = self._piece_stream.get(
+                        (piece.start, piece.end, piece.active_start, piece.active_end), det_index)
+                else:                      # MIMO: the input that varies most during the manoeuvre
+                    det_index = self._detection_signal(data, piece)
                 det = data[det_index]
-                noise = trim_noise(det, self._dt)
-            elif not single:                            # MIMO: the input that varies most during the manoeuvre
-                det = self._detection_signal(data, piece)
-                noise = trim_noise(det, self._dt)
+                noise, motion = trim_noise(det, self._dt), self._motion(det_index)
             # other_inputs: a manoeuvre of another input (its own sweep) pools into the average, which needs it to
             # separate the inputs, but is not a sweep of this channel (no raw estimate of its own)
             self._own_record = (not self._conditioned or det_index == self._det_streams[0]
                                 or self._m + self._p < len(self._names))
             self._spans.append((k0 + piece.active_start, k0 + piece.active_end))
-            kind = classify(det, self._dt, piece, noise)
+            kind = classify(det, self._dt, piece, noise, motion)
             self._kinds[kind] += 1
             active_s = (piece.active_end - piece.active_start) * self._dt
             seg = data[:, piece.start:piece.end]
@@ -1269,7 +1320,9 @@ class FrequencyResponseEstimator:
         m, p = self._m, self._p
         instruments = seg[m + p:] if seg.shape[0] > m + p else None
         sums, status = record_bands(seg[:m], seg[m:m + p], self._dt, self._w, instruments=instruments,
-                                    noise_floor=noise ** 2, options=self._spectra_opts,
+                                    noise_floor=noise ** 2, background=self._background(instruments is not None),
+                                    stepped=kind in _STEPPED_KINDS,
+                                    options=self._spectra_opts,
                                     max_rad_s=self.resolved_rad_s, rates_hz=self.stream_rates_hz,
                                     cubic=self._opts["cubic_interpolation"])
         counted = status == 0
@@ -1295,6 +1348,24 @@ class FrequencyResponseEstimator:
         if len(self._raw) > self._opts["max_raw_sweeps"]:
             self._raw.pop(0)
             self._raw_amplitude.pop(0)
+
+    def between_manoeuvres(self) -> TrimResponse:
+        """The response from the first input to the first output between the manoeuvres (the trim motion
+        measured outside every record), its coherence and averages, and the input's trim motion per frequency in
+        the units of the records' input power (:class:`~gap_validation.core.background.TrimResponse`)."""
+        h, coherence, bins = self._trim.response(0, self._m)
+        gain = interpolation_gain(self._w, self.stream_rates_hz[0], self._opts["cubic_interpolation"])
+        return TrimResponse(h, coherence, bins / HANN_BINS_PER_AVERAGE,
+                            self._trim.power([0]) / np.maximum(gain, 1e-3) ** 2)
+
+    def _background(self, instruments: bool) -> np.ndarray:
+        """The excitation's trim motion between the records per frequency (the instruments', else the inputs'
+        summed), as :func:`~gap_validation.core.spectra.record_bands` sees a record: restored for the
+        interpolation of each stream onto the grid, as the records are."""
+        streams = range(self._m + self._p, len(self._names)) if instruments else range(self._m)
+        rates = self.stream_rates_hz
+        gain = {j: interpolation_gain(self._w, rates[j], self._opts["cubic_interpolation"]) for j in streams}
+        return sum(self._trim.power([j]) / np.maximum(gain[j], 1e-3) ** 2 for j in streams)
 
     # ------------------------------------------------------------------ checkpoint
     def state_dict(self) -> dict:
@@ -1326,9 +1397,13 @@ class FrequencyResponseEstimator:
         })
         if self._other_records:
             st["other_records"] = self._other_records
+        st["pending_n"] = len(self._pending)
+        for i, (k0, data, src, act0, act1) in enumerate(self._pending):
+            st[f"pending{i}.data"] = data.copy()
+            st[f"pending{i}.meta"] = np.array([k0, src, act0, act1], np.int64)
         st.update(self._tot.state_dict("tot."))
         parts = {"align": self._align, "trig": self._trig, "tbase": self._trig_base, "man": self._man,
-                 "rec": self._rec}
+                 "rec": self._rec, "trim": self._trim}
         parts.update({f"s{i}": s for i, s in enumerate(self._streams)})
         parts.update({f"det{i}": d for i, d in enumerate(self._dets)})
         for prefix, part in parts.items():
@@ -1400,10 +1475,17 @@ class FrequencyResponseEstimator:
         self._dl_n, self._dl_k0 = int(st["dl_n"]), int(st["dl_k0"])
         self._n_sweeps = int(st["n_sweeps"])
         self._span = [int(v) for v in st["span"]]
-        self._reasons[:] = st["reasons"]
+        reasons = np.asarray(st["reasons"], np.int64)           # older checkpoints hold fewer reasons
+        self._reasons[:] = 0
+        self._reasons[:reasons.shape[0]] = reasons
         self._longest_n = int(st["longest_n"])
         self._saturated = int(st["saturated"])
         self._other_records = int(st.get("other_records", 0))
+        self._pending = []
+        for i in range(int(st.get("pending_n", 0))):
+            k0, src, act0, act1 = (int(v) for v in np.asarray(st[f"pending{i}.meta"], np.int64))
+            data = np.asarray(st[f"pending{i}.data"], float).reshape(len(self._names), -1)
+            self._pending.append((k0, data.copy(), src, act0, act1))
         self._tot = BandSums.from_state(st, "tot.")
         meta = np.asarray(st["raw_meta"], np.int64).reshape(-1, 2)
         kinds = [str(k) for k in np.atleast_1d(st["raw_kind"])]
@@ -1416,6 +1498,8 @@ class FrequencyResponseEstimator:
         self._counted = Counter({k: int(v) for k, v in zip(KINDS, st["counted_counts"]) if int(v)})
         parts = {"align": self._align, "trig": self._trig, "tbase": self._trig_base, "man": self._man,
                  "rec": self._rec}
+        if any(k.startswith("trim.") for k in st):     # checkpoints before the trim spectrum start without it
+            parts["trim"] = self._trim
         parts.update({f"s{i}": s for i, s in enumerate(self._streams)})
         parts.update({f"det{i}": d for i, d in enumerate(self._dets)})
         for prefix, part in parts.items():

@@ -44,7 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["Piece", "split_record", "classify", "trim_noise", "period", "KINDS", "RESPONSE_KINDS", "SWEEP_KINDS",
-           "trim_tolerance", "saturated_share", "SATURATED_SHARE"]
+           "trim_tolerance", "saturated_share", "SATURATED_SHARE", "TRIM_MOTION_SHARE"]
 
 #: Every kind :func:`classify` returns.
 KINDS = ("chirp", "multisine", "multistep", "doublet", "pulse", "broadband", "step")
@@ -81,17 +81,27 @@ class Piece:
     group: int = 0
 
 
-def trim_tolerance(excursion: float, noise_std: float) -> float:
-    """Half-width of the band about trim that counts as "at trim": ``max(4 noise, 10 % of the excursion)``.
+#: The trim motion widens the band about trim to at most this share of the excursion: a manoeuvre only a few times
+#: larger than the trim motion is still a manoeuvre, and its slow parts must not read as trim.
+TRIM_MOTION_SHARE = 0.25
+
+
+def trim_tolerance(excursion: float, noise_std: float, trim_std: float = 0.0) -> float:
+    """Half-width of the band about trim that counts as "at trim": ``max(4 noise, 10 % of the excursion)``, widened
+    to four standard deviations of the trim motion (a pilot's corrections, a damper answering turbulence: measured
+    between the manoeuvres) but not beyond :data:`TRIM_MOTION_SHARE` of the excursion.
 
     Parameters
     ----------
     excursion : float
         Largest deviation of the excitation from trim.
     noise_std : float
-        Noise standard deviation at trim.
+        Noise standard deviation at trim (the sensor's, from the ends of the stretch).
+    trim_std : float
+        Standard deviation of the trim motion between manoeuvres (0 when unknown).
     """
-    return max(4.0 * max(noise_std, 0.0), 0.1 * excursion)
+    motion = min(4.0 * max(trim_std, 0.0), TRIM_MOTION_SHARE * excursion) if trim_std > 0 else 0.0
+    return max(4.0 * max(noise_std, 0.0), 0.1 * excursion, motion)
 
 
 #: An excited stretch shorter than this [s] ...
@@ -162,7 +172,7 @@ def _restarts(dev: np.ndarray, tol: float, lo: int, hi: int) -> list[int]:
 
 
 def split_record(u: np.ndarray, dt: float, noise_std: float, pre_n: int, post_n: int,
-                 min_quiet_s: float = 1.0) -> list[Piece]:
+                 min_quiet_s: float = 1.0, trim_std: float = 0.0) -> list[Piece]:
     """Split a buffered excited stretch into the manoeuvres flown (see the module docstring).
 
     Parameters
@@ -177,6 +187,9 @@ def split_record(u: np.ndarray, dt: float, noise_std: float, pre_n: int, post_n:
         Samples of trim kept before and after each manoeuvre at most.
     min_quiet_s : float
         Shortest stretch at trim that separates two manoeuvres [s].
+    trim_std : float
+        Standard deviation of the trim motion between manoeuvres (0 when unknown): it widens the band about
+        trim (:func:`trim_tolerance`); noise spikes are judged against ``noise_std`` alone.
 
     Returns
     -------
@@ -190,7 +203,7 @@ def split_record(u: np.ndarray, dt: float, noise_std: float, pre_n: int, post_n:
     before, after = _levels(u, dt, pre_n, post_n)
     dev = u - before
     excursion = float(np.percentile(np.abs(dev), 99))
-    tol = trim_tolerance(excursion, noise_std)
+    tol = trim_tolerance(excursion, noise_std, trim_std)
     at_trim = (np.abs(u - before) <= tol) | (np.abs(u - after) <= tol)
     active = ~at_trim
     if not active.any():
@@ -314,7 +327,7 @@ def _is_periodic(dev: np.ndarray, dt: float) -> bool:
     return period(dev, dt) > 0
 
 
-def classify(u: np.ndarray, dt: float, piece: Piece, noise_std: float) -> str:
+def classify(u: np.ndarray, dt: float, piece: Piece, noise_std: float, trim_std: float = 0.0) -> str:
     """The kind of one manoeuvre (see the module docstring).
 
     Parameters
@@ -327,6 +340,8 @@ def classify(u: np.ndarray, dt: float, piece: Piece, noise_std: float) -> str:
         The manoeuvre.
     noise_std : float
         Noise standard deviation of the excitation at trim.
+    trim_std : float
+        Standard deviation of the trim motion between manoeuvres (0 when unknown).
 
     Returns
     -------
@@ -346,11 +361,11 @@ def classify(u: np.ndarray, dt: float, piece: Piece, noise_std: float) -> str:
     if dev.size == 0:
         return "broadband"
     excursion = float(np.max(np.abs(dev)))
-    tol = trim_tolerance(excursion, noise_std)
+    tol = trim_tolerance(excursion, noise_std, trim_std)
+    if _is_chirp(_detrended(dev), tol):  # a sweep is a sweep even where the trim moved meanwhile (a long one)
+        return "chirp"
     if before is not None and after is not None and abs(after - before) > max(0.3 * excursion, 2.0 * tol):
         return "step"
-    if _is_chirp(dev, tol):
-        return "chirp"
     if _is_periodic(dev, dt):
         return "multisine"
     levels = _plateaus(dev, dt, tol)
@@ -362,6 +377,15 @@ def classify(u: np.ndarray, dt: float, piece: Piece, noise_std: float) -> str:
             return "doublet"
         return "multistep"
     return "broadband"
+
+
+def _detrended(dev: np.ndarray) -> np.ndarray:
+    """``dev`` less its least-squares straight line: the trim's drift over a long manoeuvre (a pilot's
+    corrections, a slow mode) moves the crossings of a fixed level, not those about the drifting one."""
+    if dev.size < 3:
+        return dev
+    x = np.arange(dev.size, dtype=float)
+    return dev - np.polyval(np.polyfit(x, dev, 1), x)
 
 
 def _flat_share(dev: np.ndarray, dt: float, tol: float) -> float:

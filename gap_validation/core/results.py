@@ -199,6 +199,11 @@ class Candidate(_JsonView):
         ``parameter_error`` only: the refitted ``model`` mapping that replaces the config's.
     note : str or None
         ``parameter_error`` only: says so.
+    criterion : float or None
+        Its information criterion among the candidates (the diagnosis' parsimony: lower is better).
+    indistinguishable_from : list of str
+        The candidates the data cannot tell from this one (the top one only; it is named for having the fewest
+        parameters).
     """
 
     effect: str
@@ -217,6 +222,8 @@ class Candidate(_JsonView):
     cost_before: float | None = None
     model: dict | None = None
     note: str | None = None
+    criterion: float | None = None
+    indistinguishable_from: list = field(default_factory=list)
 
     def to_json_dict(self) -> dict:
         """The JSON object of DESIGN.md's ``diagnosis`` entries (``model`` and ``note`` only when refitted)."""
@@ -225,7 +232,8 @@ class Candidate(_JsonView):
                "improvement": self.improvement, "epsilon_before": self.epsilon_before,
                "epsilon_raw": self.epsilon_raw, "worst_frequency_rad_s": self.worst_frequency_rad_s,
                "complexity": self.complexity, "explains": self.explains, "cost": self.cost,
-               "cost_before": self.cost_before}
+               "cost_before": self.cost_before, "criterion": self.criterion,
+               "indistinguishable_from": list(self.indistinguishable_from)}
         if self.model is not None:
             out["model"] = self.model
             out["note"] = self.note

@@ -863,10 +863,21 @@ def simulate_flight(config: ValidationConfig, hidden: dict[str, list[dict]] | No
                     active[(t_s >= seg.start_s) & (t_s <= seg.end_s)] = 1.0
             measured[(name, "trigger")] = (active, 0.0, 0.0)
 
-    topics = {}
     if opt.log_excitation_topic:
         plans = plan_topics(_with_logged_excitation(config, opt.log_excitation_topic))
     _extra_measured(plans, config, references, measured)
+    topics = _sample_topics(plans, measured, t_s, duration_s, opt, rng)
+    return SimulatedFlight(topics=topics, segments=segments, truth=truth, hidden=hidden, t_s=t_s,
+                           inputs=inputs, outputs=outputs, duration_s=duration_s,
+                           start_time_s=opt.start_time_s, seed=seed, options=opt,
+                           loop_gains={} if loop is None else dict(loop.gains))
+
+
+def _sample_topics(plans: dict, measured: dict, t_s: np.ndarray, duration_s: float, opt: FlightOptions,
+                   rng: np.random.Generator) -> dict[str, TopicSeries]:
+    """Topic -> :class:`TopicSeries`: every planned topic sampled at its rate (jitter, drops, latency) from the
+    series ``measured[(channel, stream)] = (series on t_s, noise std, lsb)``, with white noise and quantisation."""
+    topics = {}
     for topic, plan in plans.items():
         rate = opt.imu_rate_hz if plan.role == "imu" else opt.surface_rate_hz
         stamps, receive = _sample_times(duration_s, rate, opt, rng)
@@ -883,10 +894,7 @@ def simulate_flight(config: ValidationConfig, hidden: dict[str, list[dict]] | No
             values[spec.field] = sampled / spec.scale
         topics[topic] = TopicSeries(topic, plan.msgtype, opt.start_time_s + stamps, opt.start_time_s + receive,
                                     values, plan.joint_names)
-    return SimulatedFlight(topics=topics, segments=segments, truth=truth, hidden=hidden, t_s=t_s,
-                           inputs=inputs, outputs=outputs, duration_s=duration_s,
-                           start_time_s=opt.start_time_s, seed=seed, options=opt,
-                           loop_gains={} if loop is None else dict(loop.gains))
+    return topics
 
 
 def _channel_input(name: str, t_s: np.ndarray, segments: list[Segment], opt: FlightOptions,

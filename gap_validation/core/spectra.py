@@ -52,13 +52,32 @@ SPECTRA_DEFAULTS = {
     "transient_order": 0,         # degree of the transient polynomial (one per record; -1: none)
 }
 #: :func:`record_bands` status codes: why a record does not count at a frequency (0: it counts).
-STATUS_NOT_EXCITED, STATUS_TOO_SHORT, STATUS_ABOVE_GRID, STATUS_TOO_FEW_BINS = 1, 2, 3, 4
+STATUS_NOT_EXCITED, STATUS_TOO_SHORT, STATUS_ABOVE_GRID, STATUS_TOO_FEW_BINS, STATUS_BELOW_TRIM = 1, 2, 3, 4, 5
 #: Extra polynomial degree over which a model is expanded for :func:`expected_estimate`.
 EXTRA_ORDER = 4
 #: A band's centre power must be at least this fraction of the record's in-band level (20 dB) ...
 _RELATIVE_EXCITATION = 1e-2
-#: ... and at least this multiple of the input's noise floor (20 dB), when the floor is known.
+#: ... and at least this multiple of the input's noise floor (20 dB), when only the noise at the record's ends is
+#: known (white noise from half a second of trim: it says nothing of coloured trim motion) ...
 _EXCITATION_SNR = 1e2
+#: The floor is the trim motion between the manoeuvres wherever it was measured on this flight at that frequency
+#: (:class:`gap_validation.core.background.TrimSpectrum`): the manoeuvre then carries at least 99 % of the input's
+#: power there, and what is not the manoeuvre -- sensor noise, which biases the response low by its share (errors
+#: in variables), or trim motion -- stays within the 1 % systematic floor of the diagnosis. A line elsewhere in the
+#: spectrum (a vibration answered by a rate loop) raises the floor only at its own frequencies. Under "nothing
+#: flown" the central bins' mean power over the background is Gamma(n, 1/n) on n >= 1 bins: it never reaches 100.
+#: A sampled input carries a frequency only while it is band-limited: its power near the top of what its stream
+#: resolves (:data:`ALIAS_BAND`, a fraction of the Nyquist frequency of the input's own rate or of the grid) must
+#: stay this far below its power at the frequency (20 dB): what lies there continues, folded back unseen, above the
+#: Nyquist frequency. A manoeuvre with steps (a doublet, a 3-2-1-1) has power
+#: falling only as 1/w^2 and continues above the Nyquist frequency, folded back unseen: a step sampled between its
+#: samples is timed within half a sample interval only, an error in phase of w T/2 that grows with frequency (a
+#: doublet logged at 50 Hz: 30 deg at 56 rad/s, seen on the second simulator). The error relative to the step's
+#: response is about the square root of that power ratio (10 % at 20 dB).
+ALIAS_MARGIN = 1e2
+#: Band near the top of what a stream resolves whose input power :data:`ALIAS_MARGIN` compares [fraction of the
+#: stream's Nyquist frequency].
+ALIAS_BAND = (0.6, 0.8)
 #: Bins with less than this fraction of the largest input power near a frequency carry no input (between a
 #: multisine's lines, another axis' harmonics, the nulls of a doublet): they are left out of its band.
 _BIN_FLOOR = 1e-2
@@ -253,7 +272,7 @@ def band_bins(w_bins: np.ndarray, w: float, band_fraction: float, min_bins: int,
     return np.sort(cand[np.argsort(dist, kind="stable")[:min_bins]])
 
 
-def band_excited(power: np.ndarray, r: np.ndarray, reference: float, floor: float) -> bool:
+def band_excited(power: np.ndarray, r: np.ndarray, reference: float, floor: float, alias: float = 0.0) -> bool:
     """Whether a record excites its input at a band's centre.
 
     Parameters
@@ -265,14 +284,18 @@ def band_excited(power: np.ndarray, r: np.ndarray, reference: float, floor: floa
     reference : float
         The record's in-band level of ``|X|^2`` (:func:`record_bands`).
     floor : float
-        ``|X|^2`` of the input's noise (its variance per sample); 0 when unknown.
+        ``|X|^2`` of what is not the manoeuvre at this frequency: the trim motion measured between the manoeuvres,
+        else the input's noise (its variance per sample); 0 when unknown.
+    alias : float
+        The record's mean ``|X|^2`` near the top of what its excitation's stream resolves (:data:`ALIAS_BAND`).
 
     Returns
     -------
     bool
         The mean power of the central bins (``|r| <= 0.25`` of the band, at least the nearest bin) is within
-        20 dB of ``reference`` and 20 dB above ``floor``, and the band's power is not all on one side
-        (power-weighted mean of ``r`` within half the band's extent): no extrapolation past the end of a sweep.
+        20 dB of ``reference``, 20 dB above ``floor`` and 20 dB above ``alias`` (:data:`ALIAS_MARGIN`), and the
+        band's power is not all on one side (power-weighted mean of ``r`` within half the band's extent): no
+        extrapolation past the end of a sweep.
     """
     extent = max(float(np.max(np.abs(r))), 1e-12)
     central = np.abs(r) <= 0.25 * extent
@@ -280,9 +303,21 @@ def band_excited(power: np.ndarray, r: np.ndarray, reference: float, floor: floa
         central = np.abs(r) == np.min(np.abs(r))
     level = float(np.mean(power[central]))
     total = float(np.sum(power))
-    if not (total > 0.0 and level >= _RELATIVE_EXCITATION * reference and level >= _EXCITATION_SNR * floor):
+    if not (total > 0.0 and level >= _RELATIVE_EXCITATION * reference and level >= _EXCITATION_SNR * floor
+            and level >= ALIAS_MARGIN * alias):
         return False
     return abs(float(np.sum(power * r)) / total) <= 0.5 * extent
+
+
+def _alias_level(power: np.ndarray, w_bins: np.ndarray, dt: float, rates_hz: Sequence[float]) -> float:
+    """Mean excitation power over :data:`ALIAS_BAND` of the lowest Nyquist frequency among the excitation's streams
+    (their own rates, and the grid's); 0 when that band holds no bin."""
+    nyquist = math.pi / dt
+    for rate in rates_hz:
+        if math.isfinite(rate) and rate > 0:
+            nyquist = min(nyquist, math.pi * rate)
+    band = (w_bins >= ALIAS_BAND[0] * nyquist) & (w_bins <= ALIAS_BAND[1] * nyquist)
+    return float(np.mean(power[band])) if band.any() else 0.0
 
 
 def _kernel_gain_table(cubic: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -330,6 +365,7 @@ def _vander(r: np.ndarray, degree: int) -> np.ndarray:
 
 def record_bands(inputs: np.ndarray, outputs: np.ndarray, dt: float, w_rad_s: np.ndarray, *,
                  instruments: np.ndarray | None = None, noise_floor: float = 0.0,
+                 background: np.ndarray | None = None, stepped: bool = False,
                  options: dict | None = None, max_rad_s: float = math.inf, rates_hz: Sequence[float] | None = None,
                  cubic: bool = True) -> tuple[BandSums, np.ndarray]:
     """Local polynomial sums of one record at every analysis frequency, and where the record is excited.
@@ -348,6 +384,10 @@ def record_bands(inputs: np.ndarray, outputs: np.ndarray, dt: float, w_rad_s: np
         Excitation signals (instrumental variables); default: the inputs (least squares).
     noise_floor : float
         Variance per sample of the excitation's noise (0: unknown); see :func:`band_excited`.
+    background : ndarray, (F,), optional
+        The excitation's trim motion between manoeuvres per analysis frequency, in the same units as the
+        record's normalised ``|X|^2`` (:meth:`gap_validation.core.background.TrimSpectrum.power`); NaN where it was
+        not measured (``noise_floor`` stands in there).
     options : dict, optional
         :data:`SPECTRA_DEFAULTS` entries.
     max_rad_s : float
@@ -358,6 +398,10 @@ def record_bands(inputs: np.ndarray, outputs: np.ndarray, dt: float, w_rad_s: np
         :func:`interpolation_gain`, so streams sampled at different rates do not bias the response.
     cubic : bool
         The interpolation onto the grid was cubic (else linear).
+    stepped : bool
+        The manoeuvre is made of steps (a doublet, a pulse, a multistep): not band-limited, its power near the top of
+        what its stream carries continues above it (:data:`ALIAS_MARGIN`); a sweep or a multisine is held to that
+        only when its own power reaches the band (flown past what the stream carries).
 
     Returns
     -------
@@ -367,7 +411,8 @@ def record_bands(inputs: np.ndarray, outputs: np.ndarray, dt: float, w_rad_s: np
         0 where the record counts, else why not: 1 the input is not excited there (:func:`band_excited`),
         2 the record is too short to resolve the frequency (band beyond ``max_band_fraction``), 3 the band
         reaches above what the streams resolve (``max_rad_s``, or 0.8 of the grid's Nyquist frequency), 4 too
-        few bins with input left for a degree of freedom.
+        few bins with input left for a degree of freedom, 5 the input is excited but not 20 dB above its trim
+        motion between the manoeuvres (``background``).
     """
     opts = {**SPECTRA_DEFAULTS, **(options or {})}
     order, t_order = int(opts["order"]), int(opts["transient_order"])
@@ -403,14 +448,22 @@ def record_bands(inputs: np.ndarray, outputs: np.ndarray, dt: float, w_rad_s: np
     status[:] = [STATUS_TOO_SHORT if b.size == 0 else STATUS_ABOVE_GRID if not usable[b].all() else 0
                  for b in bands]
     bands = [b if status[i] == 0 else b[:0] for i, b in enumerate(bands)]
+    alias = _alias_level(power, w_bins, dt, [rates[j] for j in (range(m + p, m + p + q) if instruments is not None
+                                                                else range(m))] if rates_hz is not None else [])
     centre = [float(np.mean(power[b])) for b in bands if b.size]
     reference = float(np.median([c for c in centre if c >= 1e-3 * max(centre)])) if centre else 0.0
+    if rates_hz is None or not (stepped or alias >= _RELATIVE_EXCITATION * reference):
+        alias = 0.0          # samples of the grid itself, or a band-limited manoeuvre that stays below the band
     for i, (wi, sel) in enumerate(zip(w, bands)):
         if sel.size == 0:
             continue
         r = (w_bins[sel] - wi) / (opts["band_fraction"] * wi)
-        if not band_excited(power[sel], r, reference, noise_floor):
+        if not band_excited(power[sel], r, reference, noise_floor, alias):
             status[i] = STATUS_NOT_EXCITED
+            continue
+        if background is not None and math.isfinite(background[i]) and background[i] > 0 and \
+                not band_excited(power[sel], r, reference, float(background[i]), alias):
+            status[i] = STATUS_BELOW_TRIM
             continue
         dof = sel.size - (t_order + 1)
         # bins carrying the input (the participation ratio of its power) must outnumber the response's

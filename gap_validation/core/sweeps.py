@@ -7,8 +7,12 @@ live flight nobody marks the sweeps, so they are found in the control-surface (i
   (default 2 s) *after removing a least-squares straight line*. Removing the line makes a trim offset, a slow
   trim ramp and the slow part of a sweep invisible, so only oscillation counts; a step (trim change) shows up
   for about one window only.
-* **Quiet level** ``q``: the minimum over the last ``quiet_window_s`` (default 300 s) of one-second means of
-  ``e``: the noise floor between experiments. It adapts to units and sensor noise, so thresholds are ratios.
+* **Quiet level** ``q``: the 10th percentile (:data:`QUIET_QUANTILE`) of the one-second means of ``e`` over the last
+  ``quiet_window_s`` (default 300 s) of trim: blocks whose mean stays below the on-threshold (blocks loud for
+  ``quiet_window_s`` become the new trim). It adapts to units and sensor noise, so thresholds are ratios; a low
+  quantile rather than the minimum, because trim motion is random and its quietest second is several times below
+  its ordinary ones; quiet blocks only, because a manoeuvre that fills most of the first minutes would otherwise
+  raise the level above itself.
 * **Hysteresis**: a sweep starts when ``e > on_ratio * q`` (default 4) and ends when ``e < off_ratio * q``
   (default 2) has held for ``hold_s`` (default 2 s); short dips (zero crossings of the slow start of a sweep)
   do not end it. ``min_excitation`` (input units, default 1e-6) is an absolute floor for noise-free inputs.
@@ -29,6 +33,7 @@ trigger).
 """
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -49,6 +54,13 @@ DETECTOR_DEFAULTS = {
     "quiet_window_s": 300.0,
 }
 
+#: The quiet level is this quantile of the one-second block energies of the last ``quiet_window_s``, not their
+#: minimum: trim motion (a pilot's corrections, turbulence answered by the surfaces) is a random process whose
+#: energy over a 2 s window fluctuates by a factor of several (a chi-square on few degrees of freedom), so its own
+#: quietest second, taken as the floor, lets its ordinary seconds cross ``on_ratio`` times it (seen on the second
+#: simulator: 20 "sweeps" of trim on a channel flown 3). A low quantile keeps the floor below any manoeuvre as long
+#: as trim fills a tenth of the window.
+QUIET_QUANTILE = 0.1
 _QUIET_BLOCK_S = 1.0        # the quiet level is tracked on one-second means of the excitation energy
 _CHUNK = 8192               # windowed sums are formed over at most this many samples (float64 precision)
 
@@ -131,6 +143,22 @@ def _growing_detrended_std(x: np.ndarray, min_n: int) -> np.ndarray:
     return out
 
 
+def quiet_quantile(blocks: np.ndarray) -> np.ndarray:
+    """The quiet level of each row of one-second block energies: their :data:`QUIET_QUANTILE` over the finite
+    entries (inf where there are none).
+
+    Parameters
+    ----------
+    blocks : ndarray, (rows, n)
+        Block means of the excitation energy; inf for blocks not seen yet.
+    """
+    blocks = np.sort(np.asarray(blocks, dtype=float), axis=1)
+    count = np.sum(np.isfinite(blocks), axis=1)
+    index = np.floor(QUIET_QUANTILE * np.maximum(count - 1, 0)).astype(np.int64)
+    level = blocks[np.arange(blocks.shape[0]), index]
+    return np.where(count > 0, level, np.inf)
+
+
 class SweepDetector:
     """Online detector of excited stretches of a uniformly sampled input (hysteresis on detrended energy).
 
@@ -164,8 +192,9 @@ class SweepDetector:
         self._blk_sum = 0.0            # sum / count of defined energies in the block in progress
         self._blk_def = 0
         self._blk_len = 0              # samples in the block in progress
-        self._quiet = np.full(self.quiet_blocks, np.inf)   # one-second means, oldest first
+        self._quiet = np.full(self.quiet_blocks, np.inf)   # one-second means at trim, oldest first
         self._quiet_n = 0
+        self._loud_blocks = 0          # consecutive blocks above the on-threshold
         self._active = False
         self._quiet_count = 0          # length of the quiet stretch in progress while active [samples]
         self._quiet_start_k = 0
@@ -185,7 +214,7 @@ class SweepDetector:
     @property
     def quiet_level(self) -> float:
         """Current quiet level ``q`` (input units; inf before one second of data)."""
-        return float(np.min(self._quiet[: self._quiet_n])) if self._quiet_n else float("inf")
+        return float(quiet_quantile(self._quiet[None, : self._quiet_n])[0]) if self._quiet_n else float("inf")
 
     # ------------------------------------------------------------------ processing
     def start_run(self, k0: int) -> None:
@@ -252,48 +281,42 @@ class SweepDetector:
         keep = min(self.window_n - 1, xx.size)
         self._hist[:keep] = xx[xx.size - keep:]
         self._hist_n = keep
-        q = self._quiet_levels(energy)
-        on_thr = np.maximum(self.on_ratio * q, self.min_excitation)
-        off_thr = np.maximum(self.off_ratio * q, self.min_excitation * self.off_ratio / self.on_ratio)
-        defined = np.isfinite(energy)
-        above = defined & (energy > on_thr)
-        below = ~defined | (energy < off_thr)
-        return self._hysteresis(int(k0), above, below)
+        edges: list[tuple[int, bool]] = []
+        pos = 0
+        while pos < n:                  # one-second blocks: the quiet level changes only when one completes
+            take = min(n - pos, self.block_n - self._blk_len)
+            e = energy[pos:pos + take]
+            q = self.quiet_level
+            on_thr = max(self.on_ratio * q, self.min_excitation)
+            off_thr = max(self.off_ratio * q, self.min_excitation * self.off_ratio / self.on_ratio)
+            defined = np.isfinite(e)
+            found = self._hysteresis(int(k0) + pos, defined & (e > on_thr), ~defined | (e < off_thr))
+            edges += found
+            self._blk_sum += float(np.sum(e[defined]))
+            self._blk_def += int(np.count_nonzero(defined))
+            self._blk_len += take
+            pos += take
+            if self._blk_len == self.block_n:
+                self._end_block()
+        return edges
 
-    def _quiet_levels(self, energy: np.ndarray) -> np.ndarray:
-        """Quiet level for each sample: min over the completed one-second blocks before its block."""
-        n = energy.size
-        bn = self.block_n
-        pos = self._blk_len + np.arange(n)
-        block = pos // bn                                   # 0: the block in progress at the chunk start
-        n_done = int((self._blk_len + n) // bn)              # blocks completed in this chunk
-        defined = np.isfinite(energy)
-        vals = np.where(defined, energy, 0.0)
-        sums = np.bincount(block, weights=vals, minlength=n_done + 1)
-        cnts = np.bincount(block, weights=defined.astype(float), minlength=n_done + 1)
-        sums[0] += self._blk_sum
-        cnts[0] += self._blk_def
-        means = np.full(n_done, np.inf)
-        ok = cnts[:n_done] > 0
-        means[ok] = sums[:n_done][ok] / cnts[:n_done][ok]
-        ring = np.concatenate((self._quiet[: self._quiet_n], means))
-        L = self._quiet_n
-        qb = self.quiet_blocks
-        # level for block b (0..n_done) = min(ring[max(0, L+b-qb) : L+b])
-        padded = np.concatenate((np.full(qb, np.inf), ring))
-        ends = L + np.arange(n_done + 1)                  # exclusive ends in ring coordinates
-        if n_done + 1 <= 4:
-            level = np.array([padded[e: e + qb].min() for e in ends])
-        else:
-            view = np.lib.stride_tricks.sliding_window_view(padded, qb)
-            level = view[ends].min(axis=1)
-        keep = min(qb, ring.size)
-        self._quiet[:keep] = ring[ring.size - keep:]
-        self._quiet_n = keep
-        self._blk_len = int((self._blk_len + n) % bn)
-        self._blk_sum = float(sums[n_done]) if self._blk_len else 0.0
-        self._blk_def = int(cnts[n_done]) if self._blk_len else 0
-        return level[block]
+    def _end_block(self) -> None:
+        """A one-second block completed: its mean energy joins the quiet ring if it stays below the on-threshold in
+        force during it -- the quiet level is the trim motion's, not the manoeuvres' (a manoeuvre filling most of the
+        first minutes would otherwise raise it above itself), while trim that a chance-low level let start an
+        excitation still raises it back -- or once blocks have been loud for ``quiet_window_s`` (the new trim)."""
+        q = self.quiet_level
+        mean = self._blk_sum / self._blk_def if self._blk_def else math.nan
+        loud = not mean < max(self.on_ratio * q, self.min_excitation)
+        self._loud_blocks = self._loud_blocks + 1 if loud else 0
+        if self._blk_def and (not loud or self._loud_blocks >= self.quiet_blocks):
+            if self._quiet_n < self.quiet_blocks:
+                self._quiet[self._quiet_n] = mean
+                self._quiet_n += 1
+            else:
+                self._quiet[:-1] = self._quiet[1:]
+                self._quiet[-1] = mean
+        self._blk_sum, self._blk_def, self._blk_len = 0.0, 0, 0
 
     def _hysteresis(self, k0: int, above: np.ndarray, below: np.ndarray) -> list[tuple[int, bool]]:
         n = above.size
@@ -370,7 +393,7 @@ class SweepDetector:
             "blk_def": self._blk_def, "blk_len": self._blk_len, "quiet": self._quiet.copy(),
             "quiet_n": self._quiet_n, "active": int(self._active), "quiet_count": self._quiet_count,
             "quiet_start_k": self._quiet_start_k, "run_start_k": self._run_start_k,
-            "last_edge_k": self._last_edge_k,
+            "last_edge_k": self._last_edge_k, "loud_blocks": self._loud_blocks,
         }
 
     def load_state(self, state: dict) -> None:
@@ -393,6 +416,7 @@ class SweepDetector:
         self._quiet_start_k = int(state["quiet_start_k"])
         self._run_start_k = int(state["run_start_k"])
         self._last_edge_k = int(state["last_edge_k"])
+        self._loud_blocks = int(state.get("loud_blocks", 0))
 
 
 class TriggerTracker:

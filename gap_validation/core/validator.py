@@ -17,13 +17,13 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from gap_validation.core import metrics, robust
-from gap_validation.core.closed_loop import (CouplingMonitor, SurfaceHistory, TrimCoherenceMonitor,
+from gap_validation.core.closed_loop import (CouplingMonitor, SurfaceHistory, feedback_bias, feedback_evidence,
                                              near_minus_inverse, with_bias_allowance)
 from gap_validation.core.config import (EXCITATION_STREAM, OTHER_INPUT_STREAM, STREAMS, ChannelConfig,
                                         SignalSpec, ValidationConfig)
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.diagnosis import confident_points, sweep_points
-from gap_validation.core.estimator import (ESTIMATOR_DEFAULTS, SPANS_KEPT, FrequencyResponseEstimator,
+from gap_validation.core.estimator import (ESTIMATOR_DEFAULTS, FrequencyResponseEstimator,
                                           SpectralEstimate)
 from gap_validation.core.margins import margins_from_epsilon
 from gap_validation.core.records import SATURATED_SHARE
@@ -182,18 +182,16 @@ class OnlineValidator:
         self._feed_monitors(channel, histories, whole=True)
 
     def _feed_monitors(self, channel: str, histories: dict, whole: bool = False) -> None:
-        """The closed-loop and coupling monitors (:mod:`gap_validation.core.closed_loop`) see the channel's input
-        and output too: its trim monitor both, the history of its surface its input (other channels' coupling
-        monitors read it at the times of their manoeuvres). ``whole``: whole recorded histories (library use)."""
+        """The coupling monitors (:mod:`gap_validation.core.closed_loop`) see the channel's input too: the
+        history of its surface (other channels' coupling monitors read it at the times of their manoeuvres).
+        ``whole``: whole recorded histories (library use)."""
         mon = self._monitors.get(channel)
         if mon is None:
             return
         for stream, (t, v) in histories.items():
-            if stream not in ("input", "output"):
+            if stream != "input":
                 continue
             t, v = np.asarray(t, float), np.asarray(v, float)
-            if mon.trim is not None:
-                mon.trim.add("u" if stream == "input" else "y", t, v)
             if stream == "input":
                 mon.history.add(t, v, whole=whole)
                 for other in self._monitors.values():
@@ -344,6 +342,8 @@ class OnlineValidator:
         avg = est.averaged()
         if avg is None:
             result.message = "no sweep found: " + _why_nothing(est, channel)
+            if channel.excitation is None:       # a loop can leave the manoeuvres nothing: say so if it shows
+                result.warnings.extend(_feedback_warnings(channel, est, None, None))
             return result
         excited = np.flatnonzero(avg.excited)
         if excited.size:
@@ -498,6 +498,12 @@ class OnlineValidator:
         _nonlinearity_result(found, sweeps, result)
         if found.message:
             result.message = found.message
+        if result.nonlinearity and any(_COUPLED in w for w in result.warnings):
+            # sweeps that mix another surface differ for that reason, not for their amplitude: no verdict
+            result.message = result.message.replace(f"; {result.nonlinearity}: {result.nonlinearity_evidence}", "")
+            result.nonlinearity = None
+            result.nonlinearity_evidence = (f"not judged: another surface moved with this input in some manoeuvres "
+                                            f"({result.nonlinearity_evidence})")
 
     # ------------------------------------------------------------------ checkpoint
     def state_dict(self) -> dict:
@@ -550,6 +556,7 @@ REASON_WORDS = {
     "too_short": "the manoeuvres are too short to resolve it",
     "above_resolution": "above what the streams' sample rates resolve",
     "too_few_bins": "too few spectral lines of the excitation there",
+    "below_trim": "the manoeuvres do not stand 20 dB above the surface's own motion between them there",
     "too_few_dof": "too few degrees of freedom",
     "low_coherence": "low coherence",
     "biased": "the response may be biased by feedback or another surface (see the warnings)",
@@ -577,7 +584,7 @@ def _frequency_reasons(avg: SpectralEstimate, confident: np.ndarray, coherence_t
     """Per frequency: None where the estimate is confident, else why not (a key of :data:`REASON_WORDS`)."""
     out: list = []
     codes = {"not_excited": "not_excited", "too_short": "too_short", "above_grid": "above_resolution",
-             "too_few_bins": "too_few_bins"}
+             "too_few_bins": "too_few_bins", "below_trim": "below_trim"}
     for i in range(np.size(avg.w_rad_s)):
         if confident[i]:
             out.append(None)
@@ -622,6 +629,11 @@ def _why_nothing(est: FrequencyResponseEstimator, channel: ChannelConfig) -> str
     if worst == "too_few_bins" and reasons[worst]:
         return (f"{flown} flown, too few degrees of freedom at {w.min():.3g}-{w.max():.3g} rad/s (too few "
                 f"excited spectral lines per band); fly longer or more manoeuvres")
+    if reasons.get("below_trim"):
+        return (f"{flown} flown, none stands 20 dB above the surface's own motion between the manoeuvres at "
+                f"{w.min():.3g}-{w.max():.3g} rad/s (trim corrections, or a loop answering turbulence: the "
+                f"manoeuvres do not dominate the surface there); fly larger manoeuvres, or log the injected signal "
+                f"and add channels.{channel.name}.excitation")
     return f"{flown} flown, none excites {w.min():.3g}-{w.max():.3g} rad/s enough (relative and to the input noise)"
 
 
@@ -641,11 +653,9 @@ def _measurement_key(channel: ChannelConfig) -> str:
 
 @dataclass
 class _Monitors:
-    """A channel's closed-loop sign (its trim monitor; None with an ``excitation``), the latest samples of its
-    surface (other channels' coupling monitors read them) and its coupling monitors (other channel -> monitor of
-    that channel's surface)."""
+    """The latest samples of a channel's surface (other channels' coupling monitors read them) and its coupling
+    monitors (other channel -> monitor of that channel's surface)."""
 
-    trim: TrimCoherenceMonitor | None
     history: SurfaceHistory
     coupling: dict = field(default_factory=dict)
 
@@ -664,11 +674,16 @@ def _monitors_for(config: ValidationConfig) -> dict[str, _Monitors]:
                     if other != name and signal not in listed}
         options = {**ESTIMATOR_DEFAULTS, **ch.estimator}
         keep_s = float(options["max_record_s"]) + float(options["max_lag_s"]) + 60.0
-        out[name] = _Monitors(None if ch.excitation is not None else TrimCoherenceMonitor(), SurfaceHistory(keep_s),
-                              coupling)
+        out[name] = _Monitors(SurfaceHistory(keep_s), coupling)
     return out
 
 
+#: Manoeuvres in which another surface follows the input that make the light coupling warning: an interconnect moves
+#: the other surface in every manoeuvre of the axis that drives it; one chance alignment (two re-trims at once)
+#: is no interconnect.
+COUPLED_RECORDS = 2
+#: Words every coupling warning holds (:func:`_closed_loop_checks`).
+_COUPLED = "with this channel's input"
 #: The ``frequency_reasons`` key of the points a closed-loop or coupling warning covers.
 BIASED = "biased"
 
@@ -683,26 +698,24 @@ def _closed_loop_checks(channel: ChannelConfig, monitors: _Monitors, config: Val
     where = f"channels.{channel.name}"
     for other, monitor in monitors.coupling.items():
         coupled, coherence, gain = monitor.coupled()
-        if not coupled:
-            continue
-        suspect |= np.isfinite(p_meas)
         spec = config.channels[other].input
-        warnings.append(f"the {other} surface ({spec.topic} {spec.field}) moves with this channel's input during "
-                        f"its manoeuvres (coherence {coherence:.2f}, {gain:.2g} x the input): the measured response "
-                        f"mixes both surfaces and is not validated; add it to {where}.other_inputs (and fly its own "
-                        f"sweeps)")
-    if channel.excitation is None:
-        spans = est.record_spans_s
-        # the estimator keeps the latest manoeuvres only: blocks before the oldest it remembers are not judged
-        since = spans[0][0] if len(spans) >= SPANS_KEPT else -np.inf
-        coherent, total = monitors.trim.feedback_share(spans, since) if monitors.trim is not None else (0, 0)
-        if total >= 2 and coherent >= max(2, 0.5 * total):
+        if coupled:
             suspect |= np.isfinite(p_meas)
-            warnings.append(f"between the manoeuvres the surface ({channel.input.topic} {channel.input.field}) "
-                            f"moves coherently with the rate ({coherent} of {total} trim stretches of "
-                            f"{monitors.trim.block_s:g} s): a feedback loop (damper, autopilot) drives it, so the "
-                            f"measured response is biased towards -1/C and not validated; log the injected signal "
-                            f"and add {where}.excitation")
+            warnings.append(f"the {other} surface ({spec.topic} {spec.field}) moves with this channel's input during "
+                            f"its manoeuvres (coherence {coherence:.2f}, {gain:.2g} x the input): the measured "
+                            f"response mixes both surfaces and is not validated; add it to {where}.other_inputs (and "
+                            f"fly its own sweeps)")
+        elif monitor.coupled_records >= COUPLED_RECORDS:
+            warnings.append(f"the {other} surface ({spec.topic} {spec.field}) moved with this channel's input in "
+                            f"{monitor.coupled_records} of its {monitor.records} manoeuvres (an interconnect, or this "
+                            f"surface flown through another axis' manoeuvres): those mix both surfaces, though too "
+                            f"little of the input's energy to bias the pooled response beyond its errors; add it to "
+                            f"{where}.other_inputs to separate them")
+    if channel.excitation is None:
+        found = _feedback_warnings(channel, est, w, p_meas)
+        if found:
+            suspect |= found.biased
+            warnings.extend(found)
         if channel.controller is not None and not channel.is_mimo:
             inverse = near_minus_inverse(channel.controller, w, p_meas, p_model) & confident
             if inverse.any():
@@ -712,6 +725,57 @@ def _closed_loop_checks(channel: ChannelConfig, monitors: _Monitors, config: Val
                                 f"{band[0]:.3g}-{band[-1]:.3g} rad/s: feedback drives the surface there, not "
                                 f"validated; log the injected signal and add {where}.excitation")
     return suspect, warnings
+
+
+class _FeedbackWarnings(list):
+    """The feedback warning (none or one line) and the points of the validated grid it leaves biased."""
+
+    biased: np.ndarray
+
+
+def _feedback_warnings(channel: ChannelConfig, est: FrequencyResponseEstimator, w: np.ndarray | None,
+                       p_meas: np.ndarray | None) -> _FeedbackWarnings:
+    """The feedback test (:func:`~gap_validation.core.closed_loop.feedback_evidence`) on the estimator's whole grid:
+    the response between the manoeuvres against the pooled response of the manoeuvres, and the model where they give
+    none (or nothing at all). With the validated grid ``w`` and response ``p_meas``, the points the loop may bias
+    (:func:`~gap_validation.core.closed_loop.feedback_bias`)."""
+    out = _FeedbackWarnings()
+    out.biased = np.zeros(0 if w is None else np.size(w), bool)
+    full = est.averaged()
+    trim = est.between_manoeuvres()
+    grid = est.w_rad_s
+    if full is None:
+        nothing = np.full(grid.shape, np.nan + 0j)
+        response, variance, confident = nothing, np.full(grid.shape, np.inf), np.zeros(grid.shape, bool)
+        model = channel.model.freqresp(grid)
+    else:
+        response, variance = full.response, full.variance
+        confident = confident_points(full, channel.coherence_threshold)
+        model = _flown_model(channel, full, list(est.sweeps)).freqresp(grid)
+    evidence = feedback_evidence(trim, response, variance, confident, model)
+    if not evidence.detected:
+        return out
+    if w is not None and full is not None:
+        index = _grid_index(grid, w)
+        picked = type(trim)(*(np.asarray(a)[index] for a in (trim.response, trim.coherence, trim.dof,
+                                                             trim.input_power)))
+        power = np.asarray(full.sums.input_power, float)[index] / np.maximum(full.sums.bins[index], 1)
+        out.biased = feedback_bias(picked, p_meas, np.asarray(full.variance, float)[index], power)
+    out.append(f"between the manoeuvres the surface ({channel.input.topic} {channel.input.field}) moves against "
+               f"the rate, opposite to the airframe's response, at {_span(grid[evidence.opposite])}: a feedback loop "
+               f"(damper, autopilot) drives it, so the measured response is biased towards -1/C where the manoeuvres "
+               f"do not dominate the surface's motion (those points are not validated); log the injected signal and "
+               f"add channels.{channel.name}.excitation")
+    return out
+
+
+def _grid_index(w_all: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Indices of the frequencies ``w`` (a selection of the estimator's grid) in ``w_all``."""
+    return np.searchsorted(np.asarray(w_all, float), np.asarray(w, float))
+
+
+def _span(w: np.ndarray) -> str:
+    return f"{w[0]:.3g} rad/s" if w.size == 1 or w[0] == w[-1] else f"{w[0]:.3g}-{w[-1]:.3g} rad/s"
 
 
 def _closed_loop_coherences(channel: ChannelConfig, avg: SpectralEstimate, result: ChannelResult) -> None:

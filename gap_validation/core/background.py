@@ -1,0 +1,333 @@
+"""The trim motion between manoeuvres, per frequency: what the flight does when nobody flies a manoeuvre.
+
+Between manoeuvres the surfaces are not still: a pilot corrects the trim, turbulence is answered by a damper or an
+autopilot, a vibration line rides on a rate controller's output. That motion is the background against which a
+manoeuvre must stand out, and it says something of its own: in open loop the surface's trim motion drives the
+airframe like any input (the response between manoeuvres is the plant), in closed loop the loop drives the surface
+from the measured rate (the response between manoeuvres tends to ``-1/C``).
+
+:class:`TrimSpectrum` measures it on the flight itself. The estimator hands it every grid sample that lies outside
+its records (manoeuvres with their trim margins); a stretch of trim is cut into segments of at most
+:data:`SEGMENT_S` (half overlapping; the last part of a stretch as a shorter segment of at least
+:data:`MIN_SEGMENT_S`), each segment's straight line is removed, it is Hann-windowed and transformed, and per
+analysis frequency the cross-spectral matrix of every stream over the segment's bins near that frequency is added
+up (Welch's method, with the local bands of :mod:`gap_validation.core.spectra`: ``|w_k - w| <= band_fraction w``, at
+least the nearest bins within :data:`NEAR_BINS` spacings; a segment too short to resolve ``w`` adds nothing there).
+
+Units: the transform is normalised by the window's energy (``sqrt(sum w^2)``), so white noise of variance
+``s^2`` gives ``E |X_k|^2 = s^2`` per bin, whatever the segment length, and a stationary process the same
+``|X_k|^2`` as the normalised whole-record DFT of :func:`gap_validation.core.spectra.record_bands` (which divides by
+``sqrt(N)``): the two are compared directly.
+
+The last :data:`GUARD_S` of trim before the newest sample is held back: a manoeuvre is detected up to several
+seconds after it began (a slow sweep), and the record that then opens reaches back into what looked like trim.
+Nothing grows with the flight: a bounded buffer of pending samples and a few small matrices per frequency.
+"""
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+__all__ = ["TrimSpectrum", "TrimResponse", "SEGMENT_S", "MIN_SEGMENT_S", "GUARD_S", "NEAR_BINS", "TRIM_COHERENCE",
+           "TRIM_CHANCE", "MIN_TRIM_AVERAGES", "HANN_BINS_PER_AVERAGE"]
+
+#: Longest segment of trim transformed at once [s] (half-overlapping segments in a longer stretch).
+SEGMENT_S = 20.0
+#: Shortest stretch of trim that adds anything [s].
+MIN_SEGMENT_S = 2.0
+#: Trim this recent is held back until no record reaches back into it [s] (the estimator's look-back, 10 s).
+GUARD_S = 10.0
+#: A frequency's band holds the bins within ``band_fraction w`` of it, and at least those within this many bin
+#: spacings (Hann: the main lobe is 2 spacings wide); a segment whose band would reach past ``max_band_fraction w``
+#: does not resolve the frequency.
+NEAR_BINS = 1.5
+#: Segments whose powers and spreads are kept for the medians (the latest ones: with half-overlapping 20 s segments,
+#: the last 10 minutes of trim).
+SEGMENTS_KEPT = 64
+#: Trim coherence a frequency needs before its response between manoeuvres counts, and the chance that noise alone
+#: reaches it (the magnitude-squared coherence of n independent averages with none there: ``P = (1 - c)^(n - 1)``,
+#: Carter 1973).
+TRIM_COHERENCE = 0.6
+TRIM_CHANCE = 1e-3
+#: ... on at least this many independent averages: below, the coherence estimate is biased high (one average gives
+#: exactly 1) and the error formula of :meth:`TrimResponse.relative_variance` does not hold.
+MIN_TRIM_AVERAGES = 8
+#: Adjacent bins of a Hann-windowed segment are correlated (|rho| = 1/2): a band of b bins holds about b / 1.5
+#: independent averages.
+HANN_BINS_PER_AVERAGE = 1.5
+
+
+class TrimSpectrum:
+    """Cross-spectra of a channel's streams between its manoeuvres (see the module docstring).
+
+    Parameters
+    ----------
+    w_rad_s : ndarray
+        Analysis frequencies [rad/s].
+    n_streams : int
+        Streams per sample (the estimator's: inputs, outputs, instruments).
+    dt : float
+        Grid step [s].
+    band_fraction, max_band_fraction : float
+        The estimator's local bands (:data:`gap_validation.core.spectra.SPECTRA_DEFAULTS`).
+    guard_s : float
+        Trim held back [s] (:data:`GUARD_S`).
+    """
+
+    def __init__(self, w_rad_s: np.ndarray, n_streams: int, dt: float, band_fraction: float = 0.1,
+                 max_band_fraction: float = 0.6, guard_s: float = GUARD_S) -> None:
+        self.w = np.asarray(w_rad_s, float).copy()
+        self.n = int(n_streams)
+        self.dt = float(dt)
+        self.band_fraction = float(band_fraction)
+        self.max_band_fraction = float(max_band_fraction)
+        self.segment_n = max(8, int(round(SEGMENT_S / dt)))
+        self.min_n = max(8, int(round(MIN_SEGMENT_S / dt)))
+        self.guard_n = max(0, int(round(guard_s / dt)))
+        F, S = self.w.size, self.n
+        self.sums = np.zeros((F, S, S), complex)     # sum over segments and bins of X X^H
+        self.bins = np.zeros(F, np.int64)            # bins added per frequency
+        self.samples = 0                             # samples transformed
+        self.segments = 0
+        # per kept segment: each stream's mean |X|^2 per frequency (NaN: not resolved) and its detrended std
+        self.seg_power = np.full((SEGMENTS_KEPT, F, S), np.nan)
+        self.seg_std = np.full((SEGMENTS_KEPT, S), np.nan)
+        self.seg_bins = np.zeros((SEGMENTS_KEPT, F))        # bins behind each kept segment's powers
+        self._pend = np.zeros((S, self.segment_n + self.guard_n + 1))
+        self._pend_n = 0
+        self._pend_k = 0                             # grid index of the first pending sample
+        self._covered = 0                            # leading pending samples already transformed
+
+    # ------------------------------------------------------------------ data in
+    def feed(self, k_a: int, block: np.ndarray) -> None:
+        """Trim samples (streams x n) from grid index ``k_a``; a jump in the index ends the stretch before it.
+
+        Parameters
+        ----------
+        k_a : int
+            Grid index of ``block[:, 0]``.
+        block : ndarray
+            Samples of every stream.
+        """
+        block = np.asarray(block, float)
+        if block.shape[1] == 0:
+            return
+        if self._pend_n and k_a != self._pend_k + self._pend_n:
+            self.end_stretch()
+        if not self._pend_n:
+            self._pend_k = int(k_a)
+        pos = 0
+        while pos < block.shape[1]:
+            room = self._pend.shape[1] - self._pend_n
+            take = min(room, block.shape[1] - pos)
+            self._pend[:, self._pend_n:self._pend_n + take] = block[:, pos:pos + take]
+            self._pend_n += take
+            pos += take
+            self._release()
+
+    def cut(self, k: int) -> None:
+        """A record now begins at grid index ``k``: pending trim from ``k`` on belongs to it; the stretch before
+        ``k`` is complete.
+
+        Parameters
+        ----------
+        k : int
+            First grid index of the record.
+        """
+        keep = int(min(max(k - self._pend_k, 0), self._pend_n))
+        self._pend_n = keep
+        self._covered = min(self._covered, keep)
+        self.end_stretch()
+
+    def end_stretch(self) -> None:
+        """The stretch of trim in progress ends (a record begins, the data break, or the end of data): what has
+        not been transformed yet is, in half-overlapping segments, the last one ending at the stretch's end (a
+        remainder shorter than :data:`MIN_SEGMENT_S` after segments already transformed adds nothing)."""
+        n, covered = self._pend_n, self._covered
+        if covered and n - covered >= self.min_n:
+            self._segment(self._pend[:, max(0, n - self.segment_n):n])
+        elif not covered and n >= self.min_n:
+            if n <= self.segment_n:
+                self._segment(self._pend[:, :n])
+            else:   # half-overlapping segments covering the stretch, the last one ending at its end
+                step = self.segment_n // 2
+                starts = list(range(0, n - self.segment_n + 1, step))
+                if starts[-1] + self.segment_n < n:
+                    starts.append(n - self.segment_n)
+                for a in starts:
+                    self._segment(self._pend[:, a:a + self.segment_n])
+        self._pend_n = 0
+        self._covered = 0
+
+    def _release(self) -> None:
+        """Transform the segments that the guard no longer holds back (the first ``segment_n`` pending samples
+        once ``guard_n`` newer ones exist), half overlapping."""
+        while self._pend_n >= self.segment_n + self.guard_n:
+            self._segment(self._pend[:, :self.segment_n])
+            step = self.segment_n // 2
+            rest = self._pend_n - step
+            self._pend[:, :rest] = self._pend[:, step:self._pend_n]
+            self._pend_n, self._pend_k = rest, self._pend_k + step
+            self._covered = self.segment_n - step
+
+    def _segment(self, x: np.ndarray) -> None:
+        n = x.shape[1]
+        t = np.arange(n, dtype=float)
+        t -= t.mean()
+        centred = x - x.mean(axis=1, keepdims=True)
+        slope = centred @ t / float(t @ t)
+        detrended = centred - slope[:, None] * t[None, :]
+        window = np.hanning(n + 1)[:-1] if n > 1 else np.ones(1)
+        spec = np.fft.rfft(detrended * window, axis=1) / math.sqrt(float(window @ window))
+        w_bins = 2.0 * math.pi * np.fft.rfftfreq(n, self.dt)
+        spacing = w_bins[1] - w_bins[0]
+        top = 0.8 * math.pi / self.dt
+        half = np.maximum(self.band_fraction * self.w, NEAR_BINS * spacing)
+        ok = (half <= self.max_band_fraction * self.w) & (self.w + half <= top)
+        if ok.any():
+            outer = spec.T[:, :, None] * spec.T.conj()[:, None, :]           # bins x S x S
+            cum = np.concatenate((np.zeros((1, self.n, self.n), complex), np.cumsum(outer, axis=0)))
+            lo = np.clip(np.ceil((self.w - half) / spacing - 1e-9).astype(np.int64), 1, w_bins.size - 1)
+            hi = np.clip(np.floor((self.w + half) / spacing + 1e-9).astype(np.int64), 0, w_bins.size - 1)
+            ok &= hi >= lo
+            idx = np.flatnonzero(ok)
+            band = cum[hi[idx] + 1] - cum[lo[idx]]
+            count = hi[idx] - lo[idx] + 1
+            self.sums[idx] += band
+            self.bins[idx] += count
+        slot = self.segments % SEGMENTS_KEPT
+        self.seg_power[slot] = np.nan
+        self.seg_bins[slot] = 0.0
+        if ok.any():
+            self.seg_power[slot, idx] = np.real(np.diagonal(band, axis1=1, axis2=2)) / count[:, None]
+            self.seg_bins[slot, idx] = count
+        self.seg_std[slot] = np.sqrt(np.mean(detrended ** 2, axis=1))
+        self.samples += n
+        self.segments += 1
+
+    # ------------------------------------------------------------------ results
+    @property
+    def seconds(self) -> float:
+        """Trim transformed so far [s]."""
+        return self.samples * self.dt
+
+    def power(self, streams: Sequence[int]) -> np.ndarray:
+        """The ``streams``' summed trim power per frequency, mean ``|X|^2`` per bin in
+        :func:`~gap_validation.core.spectra.record_bands`' units: the median over the kept segments that resolve
+        the frequency (NaN where none does). A median, so that a stretch of manoeuvre the detector missed (the slow
+        start of a faint sweep) does not raise the floor the next manoeuvres are measured against.
+
+        Parameters
+        ----------
+        streams : sequence of int
+            Stream indices.
+        """
+        per_segment = np.sum(self.seg_power[:, :, list(streams)], axis=2)          # NaN where unresolved
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)                         # all-NaN columns
+            median = np.nanmedian(per_segment, axis=0)
+            k = np.nanmedian(np.where(self.seg_bins > 0, self.seg_bins, np.nan), axis=0) / HANN_BINS_PER_AVERAGE
+        # a segment's band power is about Gamma(k, 1/k) on k averages: its median is (1 - 1/(9k))^3 of its mean
+        # (Wilson and Hilferty), so the median over segments is raised by that to estimate the mean
+        return median / (1.0 - 1.0 / (9.0 * np.maximum(k, 0.5))) ** 3
+
+    def std(self, stream: int) -> float:
+        """Standard deviation of one stream's trim motion about a straight line: the median over the kept
+        segments (NaN before any).
+
+        Parameters
+        ----------
+        stream : int
+            Stream index.
+        """
+        values = self.seg_std[:, stream]
+        values = values[np.isfinite(values)]
+        return float(np.median(values)) if values.size else float("nan")
+
+    def response(self, inp: int, out: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The response from stream ``inp`` to stream ``out`` between manoeuvres (``S_yu / S_uu``), its coherence
+        and its degrees of freedom (bins; Hann-windowed half-overlapping segments count about 1/1.9 of that).
+
+        Parameters
+        ----------
+        inp, out : int
+            Stream indices.
+        """
+        with np.errstate(invalid="ignore", divide="ignore"):
+            suu = self.sums[:, inp, inp].real
+            syy = self.sums[:, out, out].real
+            syu = self.sums[:, out, inp]
+            h = np.where(self.bins > 0, syu / suu, np.nan + 0j)
+            coherence = np.where(self.bins > 0, np.abs(syu) ** 2 / (suu * syy), 0.0)
+        return h, np.nan_to_num(coherence), self.bins.copy()
+
+    # ------------------------------------------------------------------ checkpoint
+    def state_dict(self) -> dict:
+        """State as numpy arrays and numbers (fixed size)."""
+        return {"sums": self.sums.copy(), "bins": self.bins.copy(), "seg_power": self.seg_power.copy(),
+                "seg_std": self.seg_std.copy(), "seg_bins": self.seg_bins.copy(), "samples": self.samples, "segments": self.segments,
+                "pend": self._pend[:, :self._pend_n].copy(), "pend_k": self._pend_k, "covered": self._covered}
+
+    def load_state(self, st: dict) -> None:
+        """Inverse of :meth:`state_dict`.
+
+        Parameters
+        ----------
+        st : dict
+            From :meth:`state_dict`.
+        """
+        self.sums[:] = st["sums"]
+        self.bins[:] = st["bins"]
+        self.seg_power[:] = st["seg_power"]
+        self.seg_std[:] = st["seg_std"]
+        self.seg_bins[:] = st["seg_bins"]
+        self.samples, self.segments = int(st["samples"]), int(st["segments"])
+        pend = np.asarray(st["pend"], float).reshape(self.n, -1)
+        self._pend_n = pend.shape[1]
+        self._pend[:, :self._pend_n] = pend
+        self._pend_k = int(st["pend_k"])
+        self._covered = int(st.get("covered", 0))
+
+
+@dataclass(frozen=True)
+class TrimResponse:
+    """The response between manoeuvres (first input to first output), from the trim spectra.
+
+    Attributes
+    ----------
+    response : ndarray, (F,) complex
+        ``S_yu / S_uu`` over the trim stretches (NaN where no trim resolved the frequency).
+    coherence : ndarray, (F,)
+        Its magnitude-squared coherence.
+    dof : ndarray, (F,)
+        Independent spectral averages behind it (Hann-windowed segments: :data:`HANN_BINS_PER_AVERAGE` bins each).
+    input_power : ndarray, (F,)
+        The input's trim motion, mean ``|X|^2`` per bin in the records' units (NaN where unknown).
+    """
+
+    response: np.ndarray
+    coherence: np.ndarray
+    dof: np.ndarray
+    input_power: np.ndarray
+
+    def relative_variance(self) -> np.ndarray:
+        """``E |dH|^2 / |H|^2`` of the trim response: ``(1 - g^2) / (g^2 n_d)`` (Bendat and Piersol, ch. 9)."""
+        g2 = np.clip(np.asarray(self.coherence, float), 1e-12, 1.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(self.dof > 0, (1.0 - g2) / (g2 * np.maximum(self.dof, 1e-12)), np.inf)
+
+    def confident(self) -> np.ndarray:
+        """Frequencies with at least :data:`MIN_TRIM_AVERAGES` independent averages whose trim coherence passes
+        :data:`TRIM_COHERENCE` and could not come from noise alone: ``(1 - c)^(n - 1) <= TRIM_CHANCE / F`` over the
+        F frequencies with enough averages (Bonferroni: noise alone passes somewhere on a channel with probability
+        at most :data:`TRIM_CHANCE`)."""
+        g2 = np.clip(np.nan_to_num(np.asarray(self.coherence, float)), 0.0, 1.0)
+        n = np.asarray(self.dof, float)
+        enough = np.isfinite(self.response) & (n >= MIN_TRIM_AVERAGES)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            chance = np.where(n >= 2, (1.0 - g2) ** np.maximum(n - 1.0, 1.0), 1.0)
+        return enough & (g2 >= TRIM_COHERENCE) & (chance <= TRIM_CHANCE / max(int(np.count_nonzero(enough)), 1))

@@ -1,0 +1,210 @@
+"""Tests of gap_validation.core.background (the trim motion between manoeuvres) and of the judgements built on it:
+the excitation floor (spectra.record_bands' ``background``), the feedback test and its bias bound
+(closed_loop.feedback_evidence, feedback_bias) and the detector's quiet level (sweeps.quiet_quantile).
+
+Each judgement is a test with a stated null distribution; these tests check the statistic against an independent
+estimator (scipy's Welch estimates) and measure the false-positive rate on seeded draws under the null."""
+import numpy as np
+import pytest
+from scipy import signal
+
+from gap_validation.core.background import (MIN_TRIM_AVERAGES, TrimResponse, TrimSpectrum)
+from gap_validation.core.closed_loop import FEEDBACK_FALSE_ALARM, feedback_bias, feedback_evidence
+from gap_validation.core.spectra import STATUS_BELOW_TRIM, record_bands
+from gap_validation.core.sweeps import SweepDetector, quiet_quantile
+
+DT = 0.01
+W = np.logspace(0.0, np.log10(40.0), 30)
+
+
+def _trim(x, guard_s=0.0):
+    spec = TrimSpectrum(W, x.shape[0], DT, guard_s=guard_s)
+    spec.feed(0, x)
+    spec.end_stretch()
+    return spec
+
+
+def test_white_noise_gives_its_variance_per_bin_in_the_records_units():
+    rng = np.random.default_rng(1)
+    x = 0.3 * rng.standard_normal((1, 400_000))
+    spec = _trim(x)
+    # the sums' means are Welch's estimate; the floor is the median over the kept segments (bias-corrected): both
+    # the variance per bin, the median within its scatter (64 segments of a few bins: about 15 %)
+    np.testing.assert_allclose(spec.sums[:, 0, 0].real / spec.bins, 0.09, rtol=0.08)
+    np.testing.assert_allclose(spec.power([0]), 0.09, rtol=0.35)
+    assert np.median(spec.power([0])) == pytest.approx(0.09, rel=0.1)
+    # the record's normalised DFT (record_bands divides by sqrt(N)) of the same noise has the same level
+    fx = np.fft.rfft(x[0, :6000]) / np.sqrt(6000)
+    assert np.mean(np.abs(fx[10:]) ** 2) == pytest.approx(0.09, rel=0.1)
+
+
+def test_the_response_between_manoeuvres_is_scipys_welch_estimate():
+    """S_yu / S_uu over a band equals scipy.signal.csd / welch with the same segments (Hann, half overlap, a
+    straight line removed per segment), summed over the band's bins."""
+    rng = np.random.default_rng(2)
+    n = 4000                                            # one 40 s stretch: 20 s segments, half overlapping
+    u = signal.lfilter([1.0], [1.0, -0.9], rng.standard_normal(n))
+    b, a = signal.butter(2, 0.1)
+    y = signal.lfilter(b, a, u) + 0.05 * rng.standard_normal(n)
+    spec = _trim(np.stack([u, y]))
+    h, coherence, bins = spec.response(0, 1)
+    f, pyu = signal.csd(u, y, fs=1 / DT, window="hann", nperseg=2000, noverlap=1000, detrend="linear")
+    _, puu = signal.welch(u, fs=1 / DT, window="hann", nperseg=2000, noverlap=1000, detrend="linear")
+    _, pyy = signal.welch(y, fs=1 / DT, window="hann", nperseg=2000, noverlap=1000, detrend="linear")
+    w_bins = 2 * np.pi * f
+    for i in np.flatnonzero(bins > 0):
+        half = max(0.1 * W[i], 1.5 * (w_bins[1] - w_bins[0]))
+        sel = np.abs(w_bins - W[i]) <= half + 1e-9
+        ref = np.sum(pyu[sel]) / np.sum(puu[sel])
+        assert h[i] == pytest.approx(ref, rel=1e-6)
+        coh = np.abs(np.sum(pyu[sel])) ** 2 / (np.sum(puu[sel]) * np.sum(pyy[sel]))
+        assert coherence[i] == pytest.approx(coh, rel=1e-6)
+
+
+def test_trim_held_back_by_the_guard_is_given_to_the_record_that_reaches_back():
+    spec = TrimSpectrum(W, 1, DT, guard_s=10.0)
+    rng = np.random.default_rng(3)
+    spec.feed(0, rng.standard_normal((1, 2500)))       # 25 s: nothing released yet (20 s segment + 10 s guard)
+    assert spec.segments == 0
+    spec.cut(2000)                                     # a record starting at 20 s takes the last 5 s
+    assert spec.samples == 2000
+
+
+def test_a_stray_manoeuvre_in_the_trim_does_not_raise_the_floor():
+    """The floor is a median over segments: one segment holding a missed sweep leaves it at the trim level."""
+    rng = np.random.default_rng(4)
+    spec = TrimSpectrum(W, 1, DT, guard_s=0.0)
+    for k in range(9):
+        x = 0.003 * rng.standard_normal((1, 2000))
+        if k == 4:
+            t = np.arange(2000) * DT
+            x = x + 0.05 * np.sin(2 * np.pi * 2.0 * t)
+        spec.feed(k * 10_000, x)
+    spec.end_stretch()
+    assert np.nanmedian(spec.power([0])) == pytest.approx(0.003 ** 2, rel=0.3)
+    assert spec.std(0) == pytest.approx(0.003, rel=0.1)
+
+
+def test_a_record_of_trim_motion_is_below_trim_and_a_sweep_above_it_counts():
+    rng = np.random.default_rng(5)
+    trim = signal.lfilter([1.0], [1.0, -0.95], 0.0005 * rng.standard_normal(40_000))
+    background = _trim(trim[None, :]).power([0])
+    t = np.arange(3000) * DT
+    wander = signal.lfilter([1.0], [1.0, -0.95], 0.0005 * rng.standard_normal(t.size))
+    _, status = record_bands(wander[None, :], wander[None, :], DT, W, background=background)
+    assert not np.any(status == 0)
+    assert np.any(status == STATUS_BELOW_TRIM)
+    sweep = wander + 0.05 * signal.chirp(t, 0.3, t[-1], 5.0, method="logarithmic")
+    _, status = record_bands(sweep[None, :], sweep[None, :], DT, W, background=background)
+    assert np.count_nonzero(status == 0) >= 15
+
+
+def _trim_response(h, n_avg=40, coherence=0.9):
+    f = h.size
+    return TrimResponse(np.asarray(h, complex), np.full(f, coherence), np.full(f, float(n_avg)), np.ones(f))
+
+
+def test_open_loop_is_called_closed_loop_at_most_at_the_stated_rate():
+    """Under "no feedback" the trim and manoeuvre responses are the same airframe plus their noise: over 4000
+    seeded channels of 30 frequencies the feedback test fires at most at FEEDBACK_FALSE_ALARM (1e-3)."""
+    rng = np.random.default_rng(6)
+    p = (1.0 + 1j * W / 5.0) ** -2
+    n_avg, coherence = 12, 0.7
+    v_trim = (1 - coherence) / (coherence * n_avg)
+    v_man = 0.02 ** 2
+    calls = 0
+    draws = 4000
+    for _ in range(draws):
+        noise_t = np.sqrt(v_trim / 2) * (rng.standard_normal(W.size) + 1j * rng.standard_normal(W.size))
+        noise_m = np.sqrt(v_man / 2) * (rng.standard_normal(W.size) + 1j * rng.standard_normal(W.size))
+        trim = _trim_response(p * (1 + noise_t), n_avg, coherence)
+        calls += feedback_evidence(trim, p * (1 + noise_m), v_man * np.abs(p) ** 2, np.ones(W.size, bool)).detected
+    assert calls / draws <= FEEDBACK_FALSE_ALARM + 3 * np.sqrt(FEEDBACK_FALSE_ALARM / draws)
+
+
+def test_a_loop_answering_turbulence_is_found_and_a_rate_limit_is_not_a_loop():
+    p = 8.0 / (1.0 + 1j * W / 5.0)
+    controller = 0.4 * np.exp(-1j * W * 0.02)
+    trim = _trim_response(-1.0 / controller)                 # between manoeuvres the loop: -1/C
+    found = feedback_evidence(trim, p, (0.02 * np.abs(p)) ** 2, np.ones(W.size, bool))
+    assert found.detected and found.opposite[W < 5].all()
+    smaller = _trim_response(p * np.where(W > 10, 0.6, 1.0))  # a rate limit: the gain changes, not the sign
+    assert not feedback_evidence(smaller, p, (0.02 * np.abs(p)) ** 2, np.ones(W.size, bool)).detected
+
+
+def test_without_a_manoeuvre_response_the_model_is_the_reference_scaled_where_the_manoeuvres_measured():
+    p = 8.0 / (1.0 + 1j * W / 5.0)
+    trim = _trim_response(-p * 1.05)                         # open loop, the airframe -P: the model's sign is wrong
+    measured = np.where(W > 20, -p, np.nan)                  # the manoeuvres measured only above 20 rad/s
+    variance = np.where(W > 20, (0.02 * np.abs(p)) ** 2, np.inf)
+    assert not feedback_evidence(trim, measured, variance, W > 20, model=p).detected
+    loop = _trim_response(p * -2.0)
+    assert feedback_evidence(loop, np.full(W.size, np.nan), np.full(W.size, np.inf), np.zeros(W.size, bool),
+                             model=p).detected
+
+
+def test_trim_estimates_on_few_averages_are_not_compared():
+    p = 8.0 / (1.0 + 1j * W / 5.0)
+    few = _trim_response(-p, n_avg=MIN_TRIM_AVERAGES - 1, coherence=0.999)
+    assert not few.confident().any()
+
+
+def test_a_manoeuvre_20_db_above_the_trim_motion_is_not_biased():
+    p = 8.0 / (1.0 + 1j * W / 5.0)
+    trim = TrimResponse(-2.0 * p, np.full(W.size, 0.9), np.full(W.size, 40.0), np.ones(W.size))
+    variance = (0.05 * np.abs(p)) ** 2
+    assert not feedback_bias(trim, p, variance, np.full(W.size, 100.0)).any()          # 20 dB: 1 % x |3 P|
+    assert feedback_bias(trim, p, variance, np.full(W.size, 3.0)).all()                # 5 dB
+
+
+def test_quiet_quantile_is_the_tenth_percentile_of_the_blocks_seen():
+    blocks = np.array([[5.0, 1.0, 2.0, 3.0, 4.0, 6.0, 7.0, 8.0, 9.0, 10.0, np.inf, np.inf]])
+    assert quiet_quantile(blocks)[0] == 1.0
+    more = np.array([np.concatenate((np.arange(1.0, 21.0), [np.inf]))])
+    assert quiet_quantile(more)[0] == 2.0
+    assert quiet_quantile(np.full((1, 4), np.inf))[0] == np.inf
+
+
+def test_random_trim_motion_makes_no_manoeuvre():
+    """A pilot's corrections (a new random trim every 0.2 s, linearly joined) for 20 minutes: no excitation is
+    detected, where the minimum of the one-second energies as the quiet level found dozens."""
+    rng = np.random.default_rng(7)
+    knots = 0.003 * rng.standard_normal(6001)
+    t = np.arange(0.0, 1200.0, DT)
+    u = np.interp(t, np.arange(knots.size) * 0.2, knots) + 0.0005 * rng.standard_normal(t.size)
+    det = SweepDetector(1 / DT)
+    det.start_run(0)
+    edges = det.process(0, u) + det.end_run(u.size)
+    assert not [e for e in edges if e[1]]
+    chirp = u + np.where((t > 600) & (t < 625), 0.012 * np.sin(2 * np.pi * (0.5 + 0.1 * (t - 600)) * (t - 600)), 0)
+    det = SweepDetector(1 / DT)
+    det.start_run(0)
+    edges = det.process(0, chirp) + det.end_run(u.size)
+    starts = [k * DT for k, on in edges if on]
+    assert len(starts) == 1 and 595 < starts[0] < 610
+
+
+def test_an_error_wider_than_the_coherence_allows_is_not_called_random():
+    """Issue 22: a channel whose response is the model's with the opposite sign, at coherence 0.98 on 60 degrees of
+    freedom, cannot be "explained by the random error"; where a bias allowance widened its errors (a feedback or
+    coupling warning), the band says so instead."""
+    from types import SimpleNamespace
+
+    from gap_validation.core.closed_loop import BIAS_ALLOWANCE
+    from gap_validation.core.diagnosis import analyse_channel, bendat_piersol_random_error
+    from gap_validation.core.models import LinearModel
+
+    model = LinearModel([5.0], [1.0, 5.0])
+    p = model.freqresp(W)
+    measured = -p * (1.0 + 0.02j)                           # the opposite sign, within 1 deg
+    coherence, dof = np.full(W.size, 0.98), np.full(W.size, 60.0)
+    honest = bendat_piersol_random_error(coherence, dof)
+
+    def estimate(error):
+        return SimpleNamespace(w_rad_s=W, response=measured, coherence=coherence, n_averages=dof, random_error=error,
+                               coefficients=3, variance=2 * (error * np.abs(measured)) ** 2)
+
+    assert analyse_channel(model, estimate(honest), [], 0.6, fit=False).limited_by == "model"
+    allowed = analyse_channel(model, estimate(np.full(W.size, BIAS_ALLOWANCE)), [], 0.6, fit=False)
+    assert allowed.limited_by == "data"
+    assert all("bias allowance" in b.reason and "random error explains" not in b.reason for b in allowed.bands)

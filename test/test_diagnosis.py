@@ -506,3 +506,49 @@ def test_a_diagnosed_lag_passes_the_winding_condition_and_says_nothing():
     found = analyse_channel(PITCH, *measure(PITCH, [HIDDEN["first_order_lag"]], 0), THRESHOLD)
     assert found.candidates[0]["effect"] == "first_order_lag"
     assert not any("winding" in w for w in found.warnings) and "winding" not in found.margins_caveat
+
+
+# ------------------------------------------------------------------------------------------------ issue 22
+
+
+def _exact_estimate(w, response, error=0.01, coherence=0.99, dof=40.0):
+    """An averaged estimate whose response is ``response`` with a relative random error ``error``."""
+    from types import SimpleNamespace
+
+    return SimpleNamespace(w_rad_s=w, response=np.asarray(response, complex), coherence=np.full(w.size, coherence),
+                           n_averages=np.full(w.size, dof), random_error=np.full(w.size, error), coefficients=3,
+                           variance=2 * (error * np.abs(response)) ** 2)
+
+
+def test_a_model_of_another_flight_condition_is_a_parameter_error_not_a_new_mode():
+    """Issue 22: the truth is the model's short period moved (5 -> 6.2 rad/s, damping 0.6 -> 0.45) and its gain
+    scaled (x1.3), as a linearisation at another speed: the diagnosis names parameter_error (the mode moved, said
+    in words), never a structural mode, delay or lag."""
+    w = np.geomspace(1.0, 40.0, 40)
+    model = LinearModel([-100.0, -400.0], [1.0, 6.0, 25.0])
+    truth = LinearModel([-130.0, -520.0 * 6.2 ** 2 / 25.0], [1.0, 2 * 0.45 * 6.2, 6.2 ** 2])
+    found = analyse_channel(model, _exact_estimate(w, truth.freqresp(w)), [], 0.6)
+    assert found.limited_by == "model"
+    top = found.candidates[0]
+    assert top.effect == "parameter_error", found.message
+    assert "moved" in top.sentence and "5 -> 6.2" in top.sentence, top.sentence
+    assert top.explains and top.effects == []
+
+
+def test_the_simplest_of_candidates_the_data_cannot_tell_apart_is_named_first():
+    """Issue 22: a 40 ms delay fits as well as lag pairs that approximate it over the band; the one-parameter delay
+    is named first (Schwarz's criterion), and a pair is never preferred for a little extra fit."""
+    from gap_validation.core.diagnosis import information_criteria
+
+    w = np.geomspace(1.0, 30.0, 40)
+    model = LinearModel([-133.7, -990.76], [1.0, 23.37, 235.93])
+    truth = model.with_effects([{"type": "time_delay", "seconds": 0.04}])
+    found = analyse_channel(model, _exact_estimate(w, truth.freqresp(w), error=0.02), [], 0.6)
+    top = found.candidates[0]
+    assert top.effect == "time_delay" and top.parameters["seconds"] == pytest.approx(0.04, rel=0.05), found.message
+    assert all(c.criterion >= top.criterion - 2.0 for c in found.candidates)
+    # the criterion: chi-square over the overdispersion of the best fit, plus ln N per parameter
+    crit = information_criteria([200.0, 160.0], [1, 3], 80)           # overdispersed: the best fit's 160 / 77
+    assert crit[0] == pytest.approx(200.0 / (160.0 / 77.0) + np.log(80))
+    assert crit[1] == pytest.approx(77.0 + 3 * np.log(80))
+    assert information_criteria([50.0], [2], 80)[0] == pytest.approx(50.0 + 2 * np.log(80))   # within the errors

@@ -36,7 +36,8 @@ def _imports(paths) -> set[str]:
                 found |= {alias.name.split(".")[0] for alias in node.names}
             elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
                 found.add(node.module.split(".")[0])
-    local = {p.stem for p in (ROOT / "test").glob("*.py")} | {"gap_validation"}   # the suite's own modules
+    local = ({p.stem for p in (ROOT / "test").glob("*.py")} | {p.stem for p in (ROOT / "benchmarks").glob("*.py")}
+             | {"gap_validation"})                   # the suite's own modules, and the benchmarks it runs a case of
     return {m for m in found if m not in sys.stdlib_module_names and m not in local and not m.startswith("_")}
 
 

@@ -24,11 +24,16 @@ Data path (one pass, bounded delay)
    into several records), then split into the manoeuvres flown (a second of trim between them, or a restart of
    the swept frequency) and each is classified (chirp, multisine, multistep, doublet, pulse, broadband, or a trim
    step, which gives no response).
+   **Trim** (issue 22): every grid sample outside the records feeds :class:`~gap_validation.core.background.
+   TrimSpectrum`, the trim motion per frequency between manoeuvres; a closed record waits for
+   :data:`TRIM_KNOWN_S` of it (at most :data:`PENDING_RECORDS` records, or until the data break or end), because
+   what counts as excited, and as a manoeuvre at all, is judged against it.
 4. **Local polynomial estimate** (:mod:`gap_validation.core.spectra`): each record is transformed whole and the
    response at every analysis frequency is fitted to the DFT bins around it with the record's transient
    (leakage, initial and final conditions) removed; the fits of all records add up (pooled estimate) and the
    last ``max_raw_sweeps`` records are kept one by one (raw estimates). A record counts at a frequency only
-   where its input is excited there and its bins resolve it.
+   where its input is excited there -- 20 dB above the trim motion at that frequency, above its own noise and, for
+   a stepped manoeuvre, above what folds back from past the Nyquist frequency -- and its bins resolve it.
 
 Why whole records rather than averaged windows
 -----------------------------------------------

@@ -195,6 +195,7 @@ class SweepDetector:
         self._quiet = np.full(self.quiet_blocks, np.inf)   # one-second means at trim, oldest first
         self._quiet_n = 0
         self._loud_blocks = 0          # consecutive blocks above the on-threshold
+        self._level = math.inf         # the quiet level in force (:func:`quiet_quantile` of the ring)
         self._active = False
         self._quiet_count = 0          # length of the quiet stretch in progress while active [samples]
         self._quiet_start_k = 0
@@ -214,7 +215,7 @@ class SweepDetector:
     @property
     def quiet_level(self) -> float:
         """Current quiet level ``q`` (input units; inf before one second of data)."""
-        return float(quiet_quantile(self._quiet[None, : self._quiet_n])[0]) if self._quiet_n else float("inf")
+        return self._level
 
     # ------------------------------------------------------------------ processing
     def start_run(self, k0: int) -> None:
@@ -281,42 +282,45 @@ class SweepDetector:
         keep = min(self.window_n - 1, xx.size)
         self._hist[:keep] = xx[xx.size - keep:]
         self._hist_n = keep
-        edges: list[tuple[int, bool]] = []
-        pos = 0
-        while pos < n:                  # one-second blocks: the quiet level changes only when one completes
-            take = min(n - pos, self.block_n - self._blk_len)
-            e = energy[pos:pos + take]
-            q = self.quiet_level
-            on_thr = max(self.on_ratio * q, self.min_excitation)
-            off_thr = max(self.off_ratio * q, self.min_excitation * self.off_ratio / self.on_ratio)
-            defined = np.isfinite(e)
-            found = self._hysteresis(int(k0) + pos, defined & (e > on_thr), ~defined | (e < off_thr))
-            edges += found
-            self._blk_sum += float(np.sum(e[defined]))
-            self._blk_def += int(np.count_nonzero(defined))
-            self._blk_len += take
-            pos += take
-            if self._blk_len == self.block_n:
-                self._end_block()
-        return edges
+        # the quiet level changes only when a one-second block completes: each block's level, in turn
+        bn = self.block_n
+        block = (self._blk_len + np.arange(n)) // bn                 # 0: the block in progress at the chunk start
+        n_done = int((self._blk_len + n) // bn)
+        defined = np.isfinite(energy)
+        sums = np.bincount(block, weights=np.where(defined, energy, 0.0), minlength=n_done + 1)
+        counts = np.bincount(block, weights=defined.astype(float), minlength=n_done + 1)
+        sums[0] += self._blk_sum
+        counts[0] += self._blk_def
+        levels = np.empty(n_done + 1)
+        for b in range(n_done + 1):
+            levels[b] = self._level
+            if b < n_done:
+                self._end_block(float(sums[b]), int(counts[b]))
+        self._blk_len = int((self._blk_len + n) % bn)
+        self._blk_sum = float(sums[n_done]) if self._blk_len else 0.0
+        self._blk_def = int(counts[n_done]) if self._blk_len else 0
+        q = levels[block]
+        on_thr = np.maximum(self.on_ratio * q, self.min_excitation)
+        off_thr = np.maximum(self.off_ratio * q, self.min_excitation * self.off_ratio / self.on_ratio)
+        return self._hysteresis(int(k0), defined & (energy > on_thr), ~defined | (energy < off_thr))
 
-    def _end_block(self) -> None:
-        """A one-second block completed: its mean energy joins the quiet ring if it stays below the on-threshold in
-        force during it -- the quiet level is the trim motion's, not the manoeuvres' (a manoeuvre filling most of the
-        first minutes would otherwise raise it above itself), while trim that a chance-low level let start an
-        excitation still raises it back -- or once blocks have been loud for ``quiet_window_s`` (the new trim)."""
-        q = self.quiet_level
-        mean = self._blk_sum / self._blk_def if self._blk_def else math.nan
-        loud = not mean < max(self.on_ratio * q, self.min_excitation)
+    def _end_block(self, total: float, count: int) -> None:
+        """A one-second block completed (``total`` of its ``count`` defined energies): its mean joins the quiet ring
+        if it stays below the on-threshold in force during it -- the quiet level is the trim motion's, not the
+        manoeuvres' (a manoeuvre filling most of the first minutes would otherwise raise it above itself), while trim
+        that a chance-low level let start an excitation still raises it back -- or once blocks have been loud for
+        ``quiet_window_s`` (the new trim)."""
+        mean = total / count if count else math.nan
+        loud = not mean < max(self.on_ratio * self._level, self.min_excitation)
         self._loud_blocks = self._loud_blocks + 1 if loud else 0
-        if self._blk_def and (not loud or self._loud_blocks >= self.quiet_blocks):
+        if count and (not loud or self._loud_blocks >= self.quiet_blocks):
             if self._quiet_n < self.quiet_blocks:
                 self._quiet[self._quiet_n] = mean
                 self._quiet_n += 1
             else:
                 self._quiet[:-1] = self._quiet[1:]
                 self._quiet[-1] = mean
-        self._blk_sum, self._blk_def, self._blk_len = 0.0, 0, 0
+            self._level = float(quiet_quantile(self._quiet[None, : self._quiet_n])[0])
 
     def _hysteresis(self, k0: int, above: np.ndarray, below: np.ndarray) -> list[tuple[int, bool]]:
         n = above.size
@@ -417,6 +421,7 @@ class SweepDetector:
         self._run_start_k = int(state["run_start_k"])
         self._last_edge_k = int(state["last_edge_k"])
         self._loud_blocks = int(state.get("loud_blocks", 0))
+        self._level = float(quiet_quantile(self._quiet[None, : self._quiet_n])[0]) if self._quiet_n else math.inf
 
 
 class TriggerTracker:

@@ -314,6 +314,17 @@ class TrimResponse:
     dof: np.ndarray
     input_power: np.ndarray
 
+    def take(self, index: np.ndarray) -> "TrimResponse":
+        """The response at the frequencies ``index`` only.
+
+        Parameters
+        ----------
+        index : ndarray
+            Indices (or a mask) of the frequencies kept.
+        """
+        return TrimResponse(*(np.asarray(a)[index] for a in (self.response, self.coherence, self.dof,
+                                                             self.input_power)))
+
     def relative_variance(self) -> np.ndarray:
         """``E |dH|^2 / |H|^2`` of the trim response: ``(1 - g^2) / (g^2 n_d)`` (Bendat and Piersol, ch. 9)."""
         g2 = np.clip(np.asarray(self.coherence, float), 1e-12, 1.0)

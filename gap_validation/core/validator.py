@@ -343,8 +343,9 @@ class OnlineValidator:
         if avg is None:
             result.message = "no sweep found: " + _why_nothing(est, channel)
             if channel.excitation is None:       # a loop can leave the manoeuvres nothing: say so if it shows
-                result.warnings.extend(_feedback_warnings(channel, est, None, None))
+                result.warnings.extend(_feedback_warnings(channel, est, None, None, None)[0])
             return result
+        full = avg
         excited = np.flatnonzero(avg.excited)
         if excited.size:
             result.excited_band_rad_s = (float(avg.w_rad_s[excited[0]]), float(avg.w_rad_s[excited[-1]]))
@@ -376,7 +377,7 @@ class OnlineValidator:
         if raw:
             result.epsilon_raw, result.epsilon_raw_frequency_rad_s = max(raw, key=lambda r: r[0])
             result.margins_raw = margins_from_epsilon(result.epsilon_raw)
-        suspect, warnings = _closed_loop_checks(channel, self._monitors[name], self._config, est, w, p_meas,
+        suspect, warnings = _closed_loop_checks(channel, self._monitors[name], self._config, est, full, w, p_meas,
                                                 p_model, confident)
         result.warnings.extend(warnings)
         if suspect.any():
@@ -689,10 +690,11 @@ BIASED = "biased"
 
 
 def _closed_loop_checks(channel: ChannelConfig, monitors: _Monitors, config: ValidationConfig,
-                        est: FrequencyResponseEstimator, w: np.ndarray, p_meas: np.ndarray,
+                        est: FrequencyResponseEstimator, full: SpectralEstimate, w: np.ndarray, p_meas: np.ndarray,
                         p_model: np.ndarray, confident: np.ndarray) -> tuple[np.ndarray, list[str]]:
     """Warnings instead of guesses (:mod:`gap_validation.core.closed_loop`): the points whose response may be
-    biased by another surface or by feedback, and one line per cause naming what to add to the config."""
+    biased by another surface or by feedback, and one line per cause naming what to add to the config. ``full`` is
+    the pooled estimate on the estimator's whole grid; ``w`` the validated frequencies."""
     suspect = np.zeros(w.size, bool)
     warnings = []
     where = f"channels.{channel.name}"
@@ -712,10 +714,9 @@ def _closed_loop_checks(channel: ChannelConfig, monitors: _Monitors, config: Val
                             f"little of the input's energy to bias the pooled response beyond its errors; add it to "
                             f"{where}.other_inputs to separate them")
     if channel.excitation is None:
-        found = _feedback_warnings(channel, est, w, p_meas)
-        if found:
-            suspect |= found.biased
-            warnings.extend(found)
+        found, biased = _feedback_warnings(channel, est, full, w, p_meas)
+        suspect |= biased
+        warnings.extend(found)
         if channel.controller is not None and not channel.is_mimo:
             inverse = near_minus_inverse(channel.controller, w, p_meas, p_model) & confident
             if inverse.any():
@@ -727,21 +728,14 @@ def _closed_loop_checks(channel: ChannelConfig, monitors: _Monitors, config: Val
     return suspect, warnings
 
 
-class _FeedbackWarnings(list):
-    """The feedback warning (none or one line) and the points of the validated grid it leaves biased."""
-
-    biased: np.ndarray
-
-
-def _feedback_warnings(channel: ChannelConfig, est: FrequencyResponseEstimator, w: np.ndarray | None,
-                       p_meas: np.ndarray | None) -> _FeedbackWarnings:
+def _feedback_warnings(channel: ChannelConfig, est: FrequencyResponseEstimator, full: SpectralEstimate | None,
+                       w: np.ndarray | None, p_meas: np.ndarray | None) -> tuple[list[str], np.ndarray]:
     """The feedback test (:func:`~gap_validation.core.closed_loop.feedback_evidence`) on the estimator's whole grid:
     the response between the manoeuvres against the pooled response of the manoeuvres, and the model where they give
-    none (or nothing at all). With the validated grid ``w`` and response ``p_meas``, the points the loop may bias
-    (:func:`~gap_validation.core.closed_loop.feedback_bias`)."""
-    out = _FeedbackWarnings()
-    out.biased = np.zeros(0 if w is None else np.size(w), bool)
-    full = est.averaged()
+    none (or nothing at all): the warning (none or one line) and, on the validated grid ``w`` with response
+    ``p_meas``, the points the loop may bias (:func:`~gap_validation.core.closed_loop.feedback_bias`). ``full``
+    is the estimator's pooled estimate on its whole grid (None before any manoeuvre)."""
+    biased = np.zeros(0 if w is None else np.size(w), bool)
     trim = est.between_manoeuvres()
     grid = est.w_rad_s
     if full is None:
@@ -754,19 +748,17 @@ def _feedback_warnings(channel: ChannelConfig, est: FrequencyResponseEstimator, 
         model = _flown_model(channel, full, list(est.sweeps)).freqresp(grid)
     evidence = feedback_evidence(trim, response, variance, confident, model)
     if not evidence.detected:
-        return out
+        return [], biased
     if w is not None and full is not None:
         index = _grid_index(grid, w)
-        picked = type(trim)(*(np.asarray(a)[index] for a in (trim.response, trim.coherence, trim.dof,
-                                                             trim.input_power)))
+        picked = trim.take(index)
         power = np.asarray(full.sums.input_power, float)[index] / np.maximum(full.sums.bins[index], 1)
-        out.biased = feedback_bias(picked, p_meas, np.asarray(full.variance, float)[index], power)
-    out.append(f"between the manoeuvres the surface ({channel.input.topic} {channel.input.field}) moves against "
-               f"the rate, opposite to the airframe's response, at {_span(grid[evidence.opposite])}: a feedback loop "
-               f"(damper, autopilot) drives it, so the measured response is biased towards -1/C where the manoeuvres "
-               f"do not dominate the surface's motion (those points are not validated); log the injected signal and "
-               f"add channels.{channel.name}.excitation")
-    return out
+        biased = feedback_bias(picked, p_meas, np.asarray(full.variance, float)[index], power)
+    return [f"between the manoeuvres the surface ({channel.input.topic} {channel.input.field}) moves against the "
+            f"rate, opposite to the airframe's response, at {_span(grid[evidence.opposite])}: a feedback loop (damper, "
+            f"autopilot) drives it, so the measured response is biased towards -1/C where the manoeuvres do not "
+            f"dominate the surface's motion (those points are not validated); log the injected signal and add "
+            f"channels.{channel.name}.excitation"], biased
 
 
 def _grid_index(w_all: np.ndarray, w: np.ndarray) -> np.ndarray:

@@ -192,6 +192,7 @@ def fly(flight: dict) -> list[dict]:
                      "nonlinear": ch.nonlinearity is not None, "compared": ch.nonlinearity_evidence is not None,
                      "warnings": list(ch.warnings),
                      "feedback": any("feedback loop" in w for w in ch.warnings),
+                     "convention": bool(ch.conventions),
                      "coupling": any("other_inputs" in w for w in ch.warnings)})
     return rows
 
@@ -223,15 +224,17 @@ def _verdict(rows: list[dict]) -> tuple[bool, str]:
     model = sum(r["limited_by"] == "model" for r in open_loop) / n
     named = sum(r["diagnosed"] for r in open_loop) / n
     feedback = sum(r["feedback"] for r in open_loop) / n
+    conventions = sum(r["convention"] for r in rows) / max(len(rows), 1)
     warned = sum(r["feedback"] for r in closed) / len(closed) if closed else float("nan")
     wrong = sum(r["diagnosed"] for r in closed)
     compared = sum(r["compared"] for r in rows)
     nonlinear = sum(r["nonlinear"] for r in rows)
     ok = model <= 0.01 and named <= 0.01 and feedback <= 0.01 and (not closed or warned >= 0.95) and \
-        nonlinear <= 0.01 * max(compared, 1)
+        nonlinear <= 0.01 * max(compared, 1) and conventions <= 0.01
     text = (f"open loop ({len(open_loop)} channels): model-limited {100 * model:.2f} %, a named effect "
-            f"{100 * named:.2f} %, a feedback warning {100 * feedback:.2f} % (goals <= 1 %); called nonlinear "
-            f"{nonlinear} of {compared} channels with sweeps at two amplitudes")
+            f"{100 * named:.2f} %, a feedback warning {100 * feedback:.2f} % (goals <= 1 %); a convention error "
+            f"(sign, units, frame, clock) named on {100 * conventions:.2f} % of all channels (goal <= 1 %); called "
+            f"nonlinear {nonlinear} of {compared} channels with sweeps at two amplitudes")
     if closed:
         text += (f"; closed loop without the excitation ({len(closed)} channels): warned {100 * warned:.1f} % "
                  f"(goal >= 95 %), an effect named on {wrong}")
@@ -290,8 +293,8 @@ def main(argv=None) -> int:
     all_ok &= ok
     if args.show:
         for r in rows:
-            wrong = (r["feedback"] != r["closed"]) or (not r["closed"] and (r["limited_by"] == "model" or
-                                                                             r["diagnosed"] or r["nonlinear"]))
+            wrong = (r["feedback"] != r["closed"]) or r["convention"] or \
+                (not r["closed"] and (r["limited_by"] == "model" or r["diagnosed"] or r["nonlinear"]))
             if wrong or r["coupling"]:
                 print(f"  {r['simulator']} {r['kind']} {r['channel']} {r['airframe']} seed {r['seed']}: "
                       f"{r['message'][:300]} {r['warnings']}")

@@ -206,7 +206,18 @@ def _apply_diagnosis(config, result, out_path: str, history: Path | None, force:
 
     raw = copy.deepcopy(config.raw)
     applied, left = [], []
+    done = set()
     for name, ch in result.channels.items():
+        if ch.conventions:       # a sign, units, the body frame or a clock (issue 23): the streams, not the model
+            for change in (c for convention in ch.conventions for c in convention.changes):
+                key = (change["channel"], change["stream"], change["key"])
+                if key not in done:
+                    raw["channels"][change["channel"]][change["stream"]][change["key"]] = change["value"]
+                    done.add(key)
+            line = f"{ch.conventions[0].fix} ({ch.conventions[0].kind.replace('_', ' ')}, not physics)"
+            if not any(line in a for a in applied):        # one fix for the channels that share it
+                applied.append(f"{name}: {line}")
+            continue
         if ch.diagnosis and config.channels[name].is_mimo:   # MIMO models take no effects yet: say what to change
             print(f"gap-validate: --apply-diagnosis: {name}: not applied (a MIMO model takes no effects yet; "
                   f"change its model by hand): {ch.diagnosis[0].sentence}", file=sys.stderr)

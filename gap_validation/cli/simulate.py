@@ -151,6 +151,14 @@ def register(sub) -> None:
     p.add_argument("--cross-response", action="append", default=[], metavar="OUTPUT:SURFACE:GAIN[:WN[:DAMPING]]",
                    help="the rate of channel OUTPUT also responds to SURFACE through GAIN wn^2/(s^2+2 zeta wn s+wn^2) "
                         "(default wn 3 rad/s, damping 0.2), e.g. roll:rudder:-3:3:0.15 (repeatable)")
+    p.add_argument("--flip", action="append", default=[], metavar="CHANNEL:input|output",
+                   help="log that stream with the opposite sign (a reversed surface or rate; repeatable)")
+    p.add_argument("--degrees", action="store_true",
+                   help="log every surface in degrees where the config says radians")
+    p.add_argument("--imu-frame", choices=("frd", "flu"), default="frd",
+                   help="flu: log the rates in ROS's body frame (REP 103: y left, z up; the model's is FRD)")
+    p.add_argument("--stamp-offset", action="append", default=[], metavar="TOPIC:SECONDS",
+                   help="stamp that topic's messages SECONDS late (another clock; repeatable)")
     p.add_argument("--no-compression", action="store_true", help="no zstd chunk compression (mcap)")
     p.add_argument("--force", action="store_true", help="replace BAG if it exists and is a bag")
     p.set_defaults(func=run)
@@ -207,6 +215,7 @@ def options_from_args(args, channels: tuple[str, ...] | None = None, config=None
         loop["coupling"] = tuple(parse_coupling(t, config) for t in getattr(args, "coupling", None) or ()) or None
         loop["cross_responses"] = tuple(parse_cross_response(t, config)
                                         for t in getattr(args, "cross_response", None) or ()) or None
+    mistakes = _mistakes(args, config)
     band = {}
     if getattr(args, "band_noise", None) is not None:
         band_rad_s, rms, chosen = parse_band_noise(args.band_noise, channels)
@@ -220,8 +229,45 @@ def options_from_args(args, channels: tuple[str, ...] | None = None, config=None
         sweeps_per_channel=args.sweeps, sweep_duration_s=args.sweep_duration, imu_rate_hz=args.imu_rate_hz,
         surface_rate_hz=args.surface_rate_hz, noise=args.noise, drop_probability=args.drop_probability,
         sweep_amplitude_rad=math.radians(args.amplitude_deg) if args.amplitude_deg else None,
-        sweep_amplitude_scales=getattr(args, "amplitude_scales", None), **band, **loop,
+        sweep_amplitude_scales=getattr(args, "amplitude_scales", None), **band, **loop, **mistakes,
     ).check()
+
+
+def _mistakes(args, config) -> dict:
+    """The mistakes ``--flip``, ``--degrees``, ``--imu-frame`` and ``--stamp-offset`` fly (issue 23), as
+    :class:`FlightOptions` fields; a bad one is a one-line ConfigError naming it."""
+    flips = []
+    for text in getattr(args, "flip", None) or ():
+        channel, _, stream = str(text).partition(":")
+        if stream not in ("input", "output") or (config is not None and channel not in config.channels):
+            known = ", ".join(config.channels) if config is not None else "the config's"
+            raise ConfigError(f"--flip {text}: expected CHANNEL:input or CHANNEL:output (channels: {known})")
+        flips.append((channel, stream))
+    offsets = []
+    for text in getattr(args, "stamp_offset", None) or ():
+        topic, _, seconds = str(text).rpartition(":")
+        try:
+            value = float(seconds)
+        except ValueError:
+            value = float("nan")
+        if not topic or value != value or abs(value) == float("inf"):
+            raise ConfigError(f"--stamp-offset {text}: expected TOPIC:SECONDS, e.g. /control_surfaces:0.04")
+        topics = set(config.topics()) if config is not None else None
+        topic = topic if topic.startswith("/") else "/" + topic
+        if topics is not None and topic not in topics:
+            raise ConfigError(f"--stamp-offset {text}: the config reads no topic {topic} "
+                              f"(it reads {', '.join(sorted(topics))})")
+        offsets.append((topic, value))
+    out = {}
+    if flips:
+        out["flips"] = tuple(flips)
+    if getattr(args, "degrees", False):
+        out["surfaces_in_degrees"] = True
+    if getattr(args, "imu_frame", "frd") != "frd":
+        out["imu_frame"] = args.imu_frame
+    if offsets:
+        out["stamp_offsets"] = tuple(offsets)
+    return out
 
 
 def run(args) -> int:

@@ -34,19 +34,55 @@ _CHANNEL_KEYS = {"input", "output", "inputs", "outputs", "model", "frequencies",
 EXCITATION_STREAM = "excitation"
 #: Stream name of the j-th of a channel's ``other_inputs`` (``other_input0``, ``other_input1`` ...).
 OTHER_INPUT_STREAM = "other_input{}"
-_SIGNAL_KEYS = {"topic", "field", "scale", "type"}
+_SIGNAL_KEYS = {"topic", "field", "scale", "type", "offset", "time_offset_s", "frame"}
+#: Body frames an IMU rate output may be given in (ROS REP 103: x forward, y left, z up; aircraft: x forward,
+#: y right, z down); ``flu`` reverses the y and z components, to the models' FRD.
+FRAMES = ("flu", "frd")
 _GRID_KEYS = {"min_rad_s", "max_rad_s", "count"}
 
 
 @dataclass(frozen=True)
 class SignalSpec:
     """Where a signal comes from: ``topic``, ``field`` path into the message, ``scale`` to SI units, and the
-    message ``type`` (e.g. ``sensor_msgs/msg/Imu``; ``None``: discovered from the bag or the graph)."""
+    message ``type`` (e.g. ``sensor_msgs/msg/Imu``; ``None``: discovered from the bag or the graph).
+
+    Issue 23's corrections of the usual mistakes: the value is ``(raw + offset) * scale`` (``offset`` in the raw
+    units, e.g. a servo's PWM centre), times -1 for the y and z components of a rate given in the ROS body frame
+    (``frame: flu``; the models are FRD), and ``time_offset_s`` is added to the stream's stamps (a topic stamped by
+    another clock)."""
 
     topic: str
     field: str
     scale: float = 1.0
     type: str | None = None
+    offset: float = 0.0
+    time_offset_s: float = 0.0
+    frame: str | None = None
+
+    @property
+    def gain(self) -> float:
+        """What a raw value (plus ``offset``) is multiplied by: ``scale``, with the sign of the body frame."""
+        return -self.scale if self.frame == "flu" and self.field.rsplit(".", 1)[-1] in ("y", "z") else self.scale
+
+    def value(self, raw):
+        """The signal in SI units and the models' frame from raw values (numbers or arrays).
+
+        Parameters
+        ----------
+        raw : float or ndarray
+            Values as read from the message.
+        """
+        return (raw + self.offset) * self.gain if self.offset else raw * self.gain
+
+    def raw(self, value):
+        """Inverse of :meth:`value` (what a simulated flight writes for a signal value).
+
+        Parameters
+        ----------
+        value : float or ndarray
+            Values in SI units and the models' frame.
+        """
+        return value / self.gain - self.offset
 
 
 @dataclass(frozen=True)
@@ -254,13 +290,25 @@ def _signal(value: Any, source: str, path: str) -> SignalSpec:
     except ConfigError as err:
         raise _fail(source, f"{path}.field", str(err)) from None
     scale = _number(data.get("scale", 1.0), source, f"{path}.scale", NONZERO)
+    offset = _number(data.get("offset", 0.0), source, f"{path}.offset")
+    time_offset = _number(data.get("time_offset_s", 0.0), source, f"{path}.time_offset_s")
+    frame = data.get("frame")
+    if frame is not None:
+        if not isinstance(frame, str) or frame.strip().lower() not in FRAMES:
+            raise _fail(source, f"{path}.frame", f"expected one of {', '.join(FRAMES)} (ROS REP 103 body frame: flu; "
+                                                 f"aircraft: frd), got {frame!r}")
+        frame = frame.strip().lower()
+        if spec_field.rsplit(".", 1)[-1] not in ("x", "y", "z"):
+            raise _fail(source, f"{path}.frame", f"applies to a rate's x, y or z component, not to field "
+                                                 f"{spec_field!r}")
     msg_type = data.get("type")
     if msg_type is not None:
         msg_type = _string(msg_type, source, f"{path}.type")
         if msg_type.count("/") == 1:  # sensor_msgs/Imu -> sensor_msgs/msg/Imu
             pkg, name = msg_type.split("/")
             msg_type = f"{pkg}/msg/{name}"
-    return SignalSpec(topic=topic, field=spec_field, scale=scale, type=msg_type)
+    return SignalSpec(topic=topic, field=spec_field, scale=scale, type=msg_type, offset=offset,
+                      time_offset_s=time_offset, frame=frame)
 
 
 #: Points per decade of the grid a channel without ``frequencies`` gets (:func:`flown_grid`).

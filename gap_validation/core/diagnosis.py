@@ -168,6 +168,9 @@ class ChannelDiagnosis:
         sweeps do not span different amplitudes.
     amplitude : ndarray or None
         Input amplitude flown per frequency (:func:`~gap_validation.core.nonlinearity.flown_amplitude`).
+    convention : ConventionFit or None
+        The sign, units or clock factor the data are the model times (:mod:`gap_validation.core.conventions`),
+        leaving them within their errors: no physical diagnosis then.
     """
 
     limited_by: str = "none"
@@ -181,6 +184,7 @@ class ChannelDiagnosis:
     nonlinearity: str | None = None
     nonlinearity_evidence: str | None = None
     amplitude: np.ndarray | None = None
+    convention: object = None
 
 
 # ------------------------------------------------------------------------------------------------ statistics
@@ -1338,7 +1342,9 @@ def analyse_channel(model: LinearModel, estimate: SpectralEstimate, sweeps: Sequ
     from gap_validation.core.nonlinearity import amplitude_dependence
 
     dependence = amplitude_dependence(sweeps, ev.confident, coherence_threshold, bias_error)
-    if fit and result.limited_by == "model":
+    # a sign, units or a clock (issue 23) before any physics: checked on the cheap path too (the node warns at once)
+    result.convention = _convention(model, ev, base) if result.limited_by == "model" else None
+    if fit and result.limited_by == "model" and result.convention is None:
         # an amplitude-dependent effect is fitted only where amplitude dependence was seen: one amplitude's mismatch
         # is no evidence of it (a rate limit or free play fits any lag at a single amplitude)
         nonlinear = dependence is not None and dependence.detected
@@ -1349,8 +1355,8 @@ def analyse_channel(model: LinearModel, estimate: SpectralEstimate, sweeps: Sequ
             result.beyond_range = [f"{c.name} ({c.at_bound})" for c in _select(ev, base, fitted) if c.at_bound]
         if chosen:
             _winding_warning(model, chosen[0], result)
-    edge = band_edge_warning(ev.w, base.eps_w, metrics.chordal_distance(p_model, ev.p_meas), base.k, ev.confident,
-                             sigma_factor)
+    edge = None if result.convention is not None else band_edge_warning(
+        ev.w, base.eps_w, metrics.chordal_distance(p_model, ev.p_meas), base.k, ev.confident, sigma_factor)
     if edge:
         result.warnings.insert(0, edge)
         result.margins_caveat = result.margins_caveat or ("the mismatch peaks at the edge of the measured band and "
@@ -1358,6 +1364,31 @@ def analyse_channel(model: LinearModel, estimate: SpectralEstimate, sweeps: Sequ
     result.message = _message(ev, base, result, coherence_threshold, epsilon_threshold, channel)
     _call_nonlinearity(result, ev, dependence, amplitude)
     return result
+
+
+def _convention(model: LinearModel, ev: _Evidence, base: _Fit):
+    """The convention factor (:mod:`gap_validation.core.conventions`: a sign, units, a clock) that leaves the data
+    within their errors where the model alone does not, the one with the smallest chi-square; None when none does.
+    A lead (the rate ahead of the surface) is fitted; a lag is physics (a delay), not a clock."""
+    from gap_validation.core.conventions import candidates, clock, fit_clock
+
+    if base.worst < 0 or base.k_max <= ev.sigma_factor or np.count_nonzero(ev.confident) < _MIN_POINTS:
+        return None
+    p = model.freqresp
+    tried = candidates()
+    u = ev.confident
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = ev.p_meas[u] / p(ev.w[u])
+        weight = 1.0 / np.maximum((2.0 * ev.sigma[u]) ** 2, 1e-12)
+    lead = fit_clock(ev.w[u], ratio, np.where(np.isfinite(ratio), weight, 0.0))
+    if lead > 0.0:
+        tried.append(clock(lead))
+    best, best_chi2 = None, math.inf
+    for candidate in tried:
+        score = ev.fit(lambda w, c=candidate: c.response(w) * p(w))
+        if score.k_max <= ev.sigma_factor and score.chi2 < best_chi2:
+            best, best_chi2 = candidate, score.chi2
+    return best
 
 
 def band_edge_warning(w_rad_s: ArrayLike, eps_w: ArrayLike, kappa: ArrayLike, mismatch: ArrayLike,

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from gap_validation.core.conventions import Convention
 from gap_validation.core.manoeuvres import Manoeuvre
 from gap_validation.core.margins import Margins, margins_from_epsilon, margins_note
 
@@ -362,6 +363,8 @@ class ChannelResult:
     # fits that sat on a search bound (never offered as a fix), said when no offered fix explains the mismatch:
     # "gain (factor at -10 (lower bound))"
     beyond_range: list[str] = field(default_factory=list)
+    # a sign, units, the body frame or a clock (issue 23): core.conventions.Convention, none when the config is right
+    conventions: list = field(default_factory=list)
     # closed loop and coupled surfaces (issue 13): per frequency, only with the config keys
     excitation_coherence: dict | None = None      # {"r_to_u": array, "r_to_y": array} with an ``excitation``
     partial_coherence: np.ndarray | None = None   # with ``other_inputs``
@@ -442,6 +445,7 @@ class ChannelResult:
             "nonlinearity_evidence": self.nonlinearity_evidence,
             "input_amplitudes": [_num(a) for a in self.input_amplitudes],
             "beyond_range": list(self.beyond_range),
+            "conventions": [c.to_json_dict() for c in self.conventions],
         }
         for entry, response in zip(out["raw_sweeps"], self.sweep_measured if samples else ()):
             entry["measured"] = _mag_phase(response, self.model)
@@ -494,10 +498,12 @@ class ChannelResult:
                  nonlinearity=data.get("nonlinearity"), nonlinearity_evidence=data.get("nonlinearity_evidence"),
                  input_amplitudes=[float(a) if a is not None else float("nan")
                                    for a in data.get("input_amplitudes") or []],
-                 beyond_range=[str(b) for b in data.get("beyond_range") or []])
+                 beyond_range=[str(b) for b in data.get("beyond_range") or []],
+                 conventions=[Convention.from_json_dict(c) for c in data.get("conventions") or []])
         band = data.get("excited_band_rad_s")
         ch.excited_band_rad_s = (float(band[0]), float(band[1])) if band and None not in band else None
-        ch.margins = margins_from_epsilon(ch.epsilon if ch.epsilon is not None else float("nan"))
+        ch.margins = margins_from_epsilon(ch.epsilon if ch.epsilon is not None and not ch.conventions
+                                          else float("nan"))
         if ch.epsilon_raw is not None:
             ch.margins_raw = margins_from_epsilon(ch.epsilon_raw)
         for key in ("frequency_rad_s", "coherence", "random_error", "kappa", "epsilon_per_frequency",

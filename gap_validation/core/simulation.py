@@ -33,7 +33,7 @@ from gap_validation.core.effects import validate_effect
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.fields import FieldPath
 from gap_validation.core.layouts import JOINT_STATE, LAYOUTS, infer_type
-from gap_validation.core.numbers import NON_NEGATIVE, POSITIVE, Interval, check_number
+from gap_validation.core.numbers import FINITE as FINITE_NUMBER, NON_NEGATIVE, POSITIVE, Interval, check_number
 
 __all__ = [
     "FlightOptions", "Segment", "TopicSeries", "SimulatedFlight", "parse_hidden", "hidden_effects",
@@ -183,6 +183,11 @@ class FlightOptions:
     log_excitation_topic: str | None = None
     coupling: tuple = ()
     cross_responses: tuple = ()
+    # the mistakes every user makes (issue 23): what the logged topics get wrong relative to the config
+    flips: tuple = ()                      # (channel, "input"|"output"): that stream logged with the opposite sign
+    surfaces_in_degrees: bool = False      # every input (surface) logged in degrees where the config says radians
+    imu_frame: str = "frd"                 # "flu": IMU rate outputs logged in ROS's body frame (y and z reversed)
+    stamp_offsets: tuple = ()              # (topic, seconds): that topic stamped late by seconds
 
     def check(self) -> "FlightOptions":
         """Raise :class:`ConfigError` naming the first option out of range; return self."""
@@ -219,7 +224,21 @@ class FlightOptions:
         self._check_band_noise()
         self._check_amplitude_scales()
         _check_loop_options(self)
+        self._check_mistakes()
         return self
+
+    def _check_mistakes(self) -> None:
+        for item in self.flips:
+            if not (isinstance(item, tuple) and len(item) == 2 and item[1] in ("input", "output")):
+                raise ConfigError(f"simulation option flips: expected (channel, 'input' or 'output') pairs, got "
+                                  f"{item!r}")
+        if self.imu_frame not in ("frd", "flu"):
+            raise ConfigError(f"simulation option imu_frame: expected frd or flu, got {self.imu_frame!r}")
+        for item in self.stamp_offsets:
+            if not (isinstance(item, tuple) and len(item) == 2 and isinstance(item[0], str)):
+                raise ConfigError(f"simulation option stamp_offsets: expected (topic, seconds) pairs, got {item!r}")
+            check_number(item[1], f"simulation option stamp_offsets {item[0]}", FINITE_NUMBER,
+                         expected="a finite number of seconds")
 
     def _check_amplitude_scales(self) -> None:
         scales = self.sweep_amplitude_scales
@@ -351,7 +370,7 @@ class SimulatedFlight:
         for stream in channel.input_streams + channel.output_streams:
             spec = channel.signal(stream)
             series = self.topics[spec.topic]
-            out[stream] = (series.stamp_s, series.values[spec.field] * spec.scale)
+            out[stream] = (series.stamp_s + spec.time_offset_s, spec.value(series.values[spec.field]))
         return out
 
     @property
@@ -878,6 +897,7 @@ def _sample_topics(plans: dict, measured: dict, t_s: np.ndarray, duration_s: flo
     """Topic -> :class:`TopicSeries`: every planned topic sampled at its rate (jitter, drops, latency) from the
     series ``measured[(channel, stream)] = (series on t_s, noise std, lsb)``, with white noise and quantisation."""
     topics = {}
+    late = dict(opt.stamp_offsets)
     for topic, plan in plans.items():
         rate = opt.imu_rate_hz if plan.role == "imu" else opt.surface_rate_hz
         stamps, receive = _sample_times(duration_s, rate, opt, rng)
@@ -891,10 +911,35 @@ def _sample_topics(plans: dict, measured: dict, t_s: np.ndarray, duration_s: flo
             sampled = np.interp(stamps, t_s, series) + noise_std * rng.standard_normal(stamps.size)
             if lsb > 0:
                 sampled = np.round(sampled / lsb) * lsb
-            values[spec.field] = sampled / spec.scale
-        topics[topic] = TopicSeries(topic, plan.msgtype, opt.start_time_s + stamps, opt.start_time_s + receive,
-                                    values, plan.joint_names)
+            values[spec.field] = _logged(spec, sampled, name, stream, opt)
+        # the config's own time offset is what the stamps lack; a stamp offset flown is a mistake on top of it
+        shift = late.get(topic, 0.0) - _topic_time_offset(topic, plan.entries)
+        topics[topic] = TopicSeries(topic, plan.msgtype, opt.start_time_s + stamps + shift,
+                                    opt.start_time_s + receive, values, plan.joint_names)
     return topics
+
+
+def _logged(spec: SignalSpec, value: np.ndarray, channel: str, stream: str, opt: FlightOptions) -> np.ndarray:
+    """What a topic carries for a signal ``value`` (SI, the models' frame): the config's raw units
+    (:meth:`SignalSpec.raw`), then the mistakes flown (:class:`FlightOptions`: a reversed stream, surfaces in degrees,
+    rates in ROS's body frame)."""
+    raw = spec.raw(value)
+    if (channel, stream) in opt.flips:
+        raw = -raw
+    if opt.surfaces_in_degrees and stream == "input":
+        raw = raw * (180.0 / math.pi)
+    if opt.imu_frame == "flu" and stream == "output" and spec.field.rsplit(".", 1)[-1] in ("y", "z"):
+        raw = -raw
+    return raw
+
+
+def _topic_time_offset(topic: str, entries) -> float:
+    """The config's ``time_offset_s`` of a topic's streams (one value: the stamps are the topic's)."""
+    offsets = {float(spec.time_offset_s) for _, stream, spec, _ in entries if stream != "trigger"}
+    if len(offsets) > 1:
+        raise ConfigError(f"simulate: the streams of {topic} have different time_offset_s ({sorted(offsets)}): a "
+                          f"simulated topic has one clock")
+    return offsets.pop() if offsets else 0.0
 
 
 def _channel_input(name: str, t_s: np.ndarray, segments: list[Segment], opt: FlightOptions,

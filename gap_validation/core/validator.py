@@ -322,7 +322,9 @@ class OnlineValidator:
             Run the diagnosis (effect fitting); default: as constructed.
         """
         diagnose = self._diagnose if diagnose is None else diagnose
+        self._found_conventions: dict = {}
         channels = {name: self._channel_result(name, ch, diagnose) for name, ch in self._config.channels.items()}
+        _name_conventions(self._config, channels, self._found_conventions)
         for name, channel in self._config.channels.items():
             self._check_controller(channel, channels[name])
         return ValidationResult(channels=channels, config_source=self._config.source, sources=list(self.sources))
@@ -490,6 +492,8 @@ class OnlineValidator:
             found = diagnosis.analyse_channel(channel.model, avg, sweeps, channel.coherence_threshold, fit=fit)
             self._diagnosis_cache[name] = (key, found)
         result.limited_by = found.limited_by
+        if found.convention is not None:
+            self._found_conventions[name] = found.convention
         result.frequency_flags = list(found.frequency_flags)
         result.bands = list(found.bands)
         result.diagnosis = list(found.candidates)
@@ -726,6 +730,24 @@ def _closed_loop_checks(channel: ChannelConfig, monitors: _Monitors, config: Val
                                 f"{band[0]:.3g}-{band[-1]:.3g} rad/s: feedback drives the surface there, not "
                                 f"validated; log the injected signal and add {where}.excitation")
     return suspect, warnings
+
+
+def _name_conventions(config: ValidationConfig, channels: dict[str, ChannelResult], found: dict) -> None:
+    """The convention errors the channels' data showed (a sign, units, a clock: issue 23), looked at together
+    (:func:`gap_validation.core.conventions.resolve`: pitch and yaw reversed with roll right is the body frame), into
+    each channel's ``conventions``, its message, and no margins until fixed."""
+    if not found:
+        return
+    from gap_validation.core.conventions import resolve
+
+    fitting = {name for name, ch in channels.items() if ch.limited_by == "none" and ch.epsilon is not None}
+    named = resolve(found, lambda ch, stream: config.channels[ch].signal(stream), fitting)
+    for name, conventions in named.items():
+        ch = channels[name]
+        ch.conventions = conventions
+        ch.message = (ch.message + "; " if ch.message else "") + "not physics: " + conventions[0].sentence
+        ch.margins = ch.margins_raw = margins_from_epsilon(float("nan"))
+        ch.margins_caveat = f"a {conventions[0].kind.replace('_', ' ')} error in the config: not given until it is fixed"
 
 
 def _feedback_warnings(channel: ChannelConfig, est: FrequencyResponseEstimator, full: SpectralEstimate | None,

@@ -56,13 +56,16 @@ def stamp_seconds(msg: Any) -> float | None:
 
 @dataclass(frozen=True)
 class Route:
-    """One configured signal a topic feeds: channel, stream, parsed path and scale (to SI units)."""
+    """One configured signal a topic feeds: channel, stream, parsed path, the gain to SI units and the models' body
+    frame (``SignalSpec.gain``), the raw ``offset`` added before it and the ``time_offset_s`` added to the stamps."""
 
     channel: str
     stream: str
     path: FieldPath
     scale: float
     spec: Any = None
+    offset: float = 0.0
+    time_offset_s: float = 0.0
 
 
 class _TopicBuffer:
@@ -198,7 +201,8 @@ class MessageRouter:
         self.max_batch_s = float(max_batch_s)
         self.time_offset_s = 0.0
         self.routes: dict[str, tuple[Route, ...]] = {
-            topic: tuple(Route(channel, stream, FieldPath.parse(spec.field), float(spec.scale), spec)
+            topic: tuple(Route(channel, stream, FieldPath.parse(spec.field), float(spec.gain), spec,
+                               float(spec.offset), float(spec.time_offset_s))
                          for channel, stream, spec in entries)
             for topic, entries in config.topics().items()
         }
@@ -369,12 +373,13 @@ class MessageRouter:
         t_all, raw = buf.take()
         for j, route in enumerate(self.routes[topic]):
             state = self._streams[(route.channel, route.stream)]
-            values = raw[:, j] * route.scale
-            finite = np.isfinite(values) & np.isfinite(t_all)
+            values = (raw[:, j] + route.offset) * route.scale if route.offset else raw[:, j] * route.scale
+            t_route = t_all + route.time_offset_s if route.time_offset_s else t_all
+            finite = np.isfinite(values) & np.isfinite(t_route)
             n_bad = int(finite.size - np.count_nonzero(finite))
             precounted, state.precounted = state.precounted, 0
             self._count_bad(route, "not finite", n_bad - precounted)
-            t, values = t_all[finite], values[finite]
+            t, values = t_route[finite], values[finite]
             if t.size == 0:
                 continue
             in_order, jumps = increasing(t, state.last_t, state.jump_s)

@@ -191,6 +191,7 @@ def channel_status(result: ChannelResult, *, warn_epsilon: float = WARN_EPSILON,
     values.append(("margins_guaranteed", "true" if result.margins_guaranteed else "false"))
     values.append(("margins_note", result.margins_text() or ""))
     values.append(("nonlinearity", nonlinearity or result.nonlinearity or ""))
+    values.append(("conventions", json.dumps([c.to_json_dict() for c in result.conventions])))
     for key, value in (extra_values or {}).items():
         values.append((key, _value_text(value)))
 
@@ -212,6 +213,9 @@ def channel_status(result: ChannelResult, *, warn_epsilon: float = WARN_EPSILON,
             ": WARN, data-limited (fly better sweeps)"
     else:
         level, summary = "OK", "receiving data, waiting for a sweep (no estimate yet)"
+    if result.conventions:       # a sign, units, the body frame or a clock (issue 23): WARN at once, the fix first
+        level = max(level, "WARN", key=_ORDER.index)
+        summary = f"{result.conventions[0].sentence}: {level}"
     noted = "; ".join(notes)
     if waiting_reason:
         resumed = f" (resumed: {summary})" if result.epsilon is not None else ""

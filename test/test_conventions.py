@@ -149,10 +149,14 @@ def test_the_second_simulators_clean_flight_against_configs_with_each_mistake(tm
 
     nominal = yaml.safe_load((where / "nominal.yaml").read_text())
 
-    def run(change):
+    def run(change, fixes=()):
         raw = copy.deepcopy(nominal)
         change(raw["channels"])
+        for fix in fixes:
+            raw["channels"][fix["channel"]][fix["stream"]][fix["key"]] = fix["value"]
         return replay([where / "bag"], parse_config(raw, "rewritten.yaml")).result.channels
+
+    clean = run(lambda chs: None)
 
     def sign(chs):
         chs["roll"]["model"]["numerator"] = [-v for v in chs["roll"]["model"]["numerator"]]
@@ -181,3 +185,8 @@ def test_the_second_simulators_clean_flight_against_configs_with_each_mistake(tm
             assert not ch.diagnosis, (change.__name__, name, ch.message)
             if name in expected:
                 assert ch.conventions[0].stream == stream, (change.__name__, ch.conventions[0])
+        # the written fix gives the clean config's numbers back
+        fixed = run(change, [fix for ch in channels.values() for c in ch.conventions for fix in c.changes])
+        for name, ch in fixed.items():
+            assert not ch.conventions and ch.limited_by != "model", (change.__name__, name, ch.message)
+            assert ch.epsilon == pytest.approx(clean[name].epsilon, rel=0.05, abs=0.01), (change.__name__, name)

@@ -87,3 +87,35 @@ def test_the_last_diagnosis_nonlinearity_verdict_is_a_value():
     assert status()["nonlinearity"] == verdict and status()["diagnosis"] == "none"
     task.forget_diagnosis()
     assert status()["nonlinearity"] == ""
+
+
+def test_the_run_ends_on_silence_the_node_heard_not_on_old_reception_stamps():
+    """A node stalled (start-up under load, a long computation) takes messages whose transport reception times
+    are already older than ``end_of_data_timeout``: the data did not stop, so the run does not end; it ends once
+    the node has counted nothing new for the timeout (seen flaking under CI load: a run cut after the first
+    500 messages of a flight)."""
+    import numpy as np
+
+    from gap_validation.config import load_config
+    from gap_validation.core.validator import OnlineValidator
+    from gap_validation.messages.router import MessageRouter
+    from gap_validation.ros.status import ChannelTask
+    from pathlib import Path
+
+    config = load_config(Path(__file__).resolve().parents[1] / "config" / "ultrastick25e.yaml")
+    task = ChannelTask("pitch", config.channels["pitch"])
+    router = MessageRouter(config, OnlineValidator(config, diagnose=False))
+    t = np.arange(0.0, 1.0, 0.01)
+    for stream in ("input", "output"):
+        router.validator.add_samples("pitch", stream, t, np.zeros_like(t))
+    counts = {"input": 100, "output": 100}
+    router.samples = lambda channel, stream: counts[stream]
+    arrivals = {config.channels["pitch"].signal(s).topic: 100.0 for s in ("input", "output")}
+    taken = {topic: 112.0 for topic in arrivals}
+    task.update_seen(router, arrivals, 112.5, taken)     # received at 100 s, taken at 112 s (the node was stalled)
+    assert task.last_seen == {"input": 100.0, "output": 100.0}      # the age is the reception's
+    assert not task.run_ended(112.5, 10.0)
+    task.update_seen(router, arrivals, 121.0, taken)
+    assert not task.run_ended(121.0, 10.0)
+    task.update_seen(router, arrivals, 122.5, taken)
+    assert task.run_ended(122.5, 10.0) and not task.run_ended(130.0, 10.0)      # once

@@ -307,7 +307,7 @@ class ValidatorNode(Node):
         """One deserialised message of ``topic`` (tests, tools): to the router (never raises); publishes
         overdue diagnostics."""
         now_s = self._now_s()
-        self.topics.last_arrival[topic] = now_s
+        self.topics.last_arrival[topic] = self.topics.last_taken[topic] = now_s
         self.topics.route(topic, msg, now_s)
         self._diagnostics_overdue(now_s)
 
@@ -319,7 +319,7 @@ class ValidatorNode(Node):
     def _update_seen(self, now_s: float) -> None:
         ended = []
         for name, task in self._tasks.items():
-            task.update_seen(self.router, self.topics.last_arrival, now_s)
+            task.update_seen(self.router, self.topics.last_arrival, now_s, self.topics.last_taken)
             if task.run_ended(now_s, self._param("end_of_data_timeout")):
                 ended.append(name)
         if ended:       # inputs silent for end_of_data_timeout: close the last manoeuvre of the flight

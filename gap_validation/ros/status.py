@@ -245,7 +245,12 @@ class ChannelTask:
     Attributes
     ----------
     last_seen : dict
-        Stream -> node time [s] of the arrival that last brought the stream a sample.
+        Stream -> node time [s] of the arrival that last brought the stream a sample (the transport's reception
+        time: the age of the data).
+    noticed : dict
+        Stream -> node time [s] at which the node took the message that last brought the stream a sample (the end
+        of the run is silence the node heard: a node stalled while messages waited in its queues takes them
+        late, their reception times are old, yet the data never stopped).
     top : Candidate or None
         Top candidate of the last full diagnosis taken for the current model.
     diagnosed : bool
@@ -258,6 +263,7 @@ class ChannelTask:
         self.name = name
         self.channel = channel
         self.last_seen: dict[str, float] = {}
+        self.noticed: dict[str, float] = {}
         self._seen_count: dict[str, int] = {}
         self.top: Candidate | None = None
         self.diagnosed = False
@@ -265,8 +271,8 @@ class ChannelTask:
         self._run_open = False
 
     def run_ended(self, now_s: float, timeout_s: float) -> bool:
-        """True once when every stream of the channel has been silent for ``timeout_s`` since its last sample:
-        the run of data ended (landing, a stopped bag), so the manoeuvre in progress can be closed, as the
+        """True once when every stream of the channel has been silent for ``timeout_s`` since the node counted its
+        last sample (:attr:`noticed`, not the reception time of a message taken late): the run of data ended (landing, a stopped bag), so the manoeuvre in progress can be closed, as the
         estimator would when the next sample came after the gap.
 
         Parameters
@@ -276,9 +282,9 @@ class ChannelTask:
         timeout_s : float
             Silence that ends the run [s] (the node's ``end_of_data_timeout``).
         """
-        if not self._run_open or len(self.last_seen) < len(self.streams):
+        if not self._run_open or len(self.noticed) < len(self.streams):
             return False
-        if all(now_s - seen > timeout_s for seen in self.last_seen.values()):
+        if all(now_s - seen > timeout_s for seen in self.noticed.values()):
             self._run_open = False
             return True
         return False
@@ -316,8 +322,10 @@ class ChannelTask:
         """The model or the spectra changed: the last diagnosis no longer holds."""
         self.top, self.diagnosed, self.nonlinearity = None, False, None
 
-    def update_seen(self, router: MessageRouter, arrivals: Mapping[str, float], now_s: float) -> None:
-        """Note which streams got new samples since the last call, stamped with their topic's last arrival.
+    def update_seen(self, router: MessageRouter, arrivals: Mapping[str, float], now_s: float,
+                    taken: Mapping[str, float] | None = None) -> None:
+        """Note which streams got new samples since the last call, stamped with their topic's last arrival (and
+        the time the node took it).
 
         Parameters
         ----------
@@ -327,11 +335,16 @@ class ChannelTask:
             Topic -> node time [s] of its last message.
         now_s : float
             Node time [s] (for a topic without an arrival).
+        taken : mapping, optional
+            Topic -> node time [s] at which its last message was taken (default: ``now_s``).
         """
+        taken = {} if taken is None else taken
         for stream in self.streams:
             count = router.samples(self.name, stream)
             if count > self._seen_count.get(stream, 0):
-                self.last_seen[stream] = arrivals.get(self.channel.signal(stream).topic, now_s)
+                topic = self.channel.signal(stream).topic
+                self.last_seen[stream] = arrivals.get(topic, now_s)
+                self.noticed[stream] = max(taken.get(topic, now_s), self.last_seen[stream])
                 self._run_open = True
             self._seen_count[stream] = count
 

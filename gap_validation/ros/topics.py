@@ -66,7 +66,11 @@ class Topics:
     raw : dict of str to TopicDecoder
         Topic -> decoding step of its raw subscription.
     last_arrival : dict of str to float
-        Topic -> node time [s] of its last message.
+        Topic -> node time [s] of its last message (the transport's reception time: the age of the data).
+    last_taken : dict of str to float
+        Topic -> node time [s] at which the node last took a message of it (late after a stall of the node: the
+        end of a run is silence the node heard, :meth:`ChannelTask.run_ended
+        <gap_validation.ros.status.ChannelTask.run_ended>`).
     gaps : dict of str to StampGaps
         Topic -> messages missing from its stamps.
     graph_due : bool
@@ -79,6 +83,7 @@ class Topics:
         self.intakes: dict[str, Intake] = {}
         self.raw: dict[str, TopicDecoder] = {}
         self.last_arrival: dict[str, float] = {}
+        self.last_taken: dict[str, float] = {}
         self.gaps: dict[str, StampGaps] = {}
         self.graph_due = False
 
@@ -316,6 +321,7 @@ class Topics:
                     self.node._log_once(f"raw:{topic}:{type(err).__name__}", "error",
                                         f"topic {topic}: message skipped ({one_line(err)})")
         self.last_arrival[topic] = t_rx
+        self.last_taken[topic] = now_s
 
     def _on_executor_message(self, topic: str, msg: Any) -> None:
         """Subscription callback, should an executor still hand a message over (before it saw the subscription

@@ -4,9 +4,10 @@ The console script runs as a child process (``python -m gap_validation.ros.main`
 publishes the bundled flight over DDS from its own rclpy Context: the first 60 s (in the middle of the first
 sweep), waits until /diagnostics show every sample arrived and a checkpoint was written after that, SIGKILLs the
 node, restarts it on the same ``state_file`` and checks that its state equals the checkpoint (bit for bit) and its
-/diagnostics the numbers of that state; then the flight goes on to 120 s (the sweep completes) and, once the node has closed the run (its inputs silent for
-``end_of_data_timeout`` since it took their last message), the state matches an uninterrupted in-process run of the
-same messages (checkpoints are polled until then: under load the node takes messages late).
+/diagnostics the numbers of that state; then the flight goes on to 120 s (the sweep completes) and, once the node
+has closed the run (its inputs silent for ``end_of_data_timeout`` since it took their last message), the state
+matches an uninterrupted in-process run of the same messages (checkpoints are polled until then: under load the
+node takes messages late).
 """
 from __future__ import annotations
 

@@ -272,8 +272,9 @@ class ChannelTask:
 
     def run_ended(self, now_s: float, timeout_s: float) -> bool:
         """True once when every stream of the channel has been silent for ``timeout_s`` since the node counted its
-        last sample (:attr:`noticed`, not the reception time of a message taken late): the run of data ended (landing, a stopped bag), so the manoeuvre in progress can be closed, as the
-        estimator would when the next sample came after the gap.
+        last sample (:attr:`noticed`, not the reception time of a message taken late): the run of data ended
+        (landing, a stopped bag), so the manoeuvre in progress can be closed, as the estimator would when the next
+        sample came after the gap.
 
         Parameters
         ----------

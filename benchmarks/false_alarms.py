@@ -148,11 +148,12 @@ def _validate(config, histories: dict) -> OnlineValidator:
 
 
 def _topic_histories(config, topics) -> dict:
-    return {name: {"input": (topics[ch.input.topic].stamp_s, topics[ch.input.topic].values[ch.input.field]
-                             * ch.input.scale),
-                   "output": (topics[ch.output.topic].stamp_s, topics[ch.output.topic].values[ch.output.field]
-                              * ch.output.scale)}
-            for name, ch in config.channels.items()}
+    out = {}
+    for name, ch in config.channels.items():
+        streams = {"input": ch.input, "output": ch.output, **dict(ch.extra_streams())}   # the airspeed too
+        out[name] = {stream: (topics[spec.topic].stamp_s, spec.value(topics[spec.topic].values[spec.field]))
+                     for stream, spec in streams.items()}
+    return out
 
 
 def fly(flight: dict) -> list[dict]:

@@ -190,3 +190,26 @@ def test_siso_controller_errors_name_the_key():
     data["channels"]["pitch"]["controller"] = {"numerator": [1.0, 2.0, 3.0], "denominator": [1.0]}
     with pytest.raises(ConfigError, match=r"^cfg\.yaml: channels\.pitch\.controller: improper model"):
         parse_config(data, "cfg.yaml")
+
+
+def test_an_airspeed_stream_with_the_trim_it_scales_to():
+    airspeed = {"topic": "/airspeed", "field": "data", "scale": 0.514444, "trim_m_s": 51.4}
+    ch = parse_config(with_change(("channels", "pitch", "airspeed"), airspeed), "cfg.yaml").channels["pitch"]
+    assert ch.airspeed.topic == "/airspeed" and ch.airspeed.scale == pytest.approx(0.514444)
+    assert ch.trim_airspeed_m_s == 51.4
+    assert [s for s, _ in ch.extra_streams()] == ["airspeed"] and ch.signal("airspeed") is ch.airspeed
+
+
+@pytest.mark.parametrize("value,needle", [
+    ({"topic": "/airspeed", "field": "data"}, "channels.pitch.airspeed.trim_m_s: missing"),
+    ({"topic": "/airspeed", "field": "data", "trim_m_s": 0}, "channels.pitch.airspeed.trim_m_s"),
+    ({"topic": "/airspeed", "field": "data", "trim_m_s": "fast"}, "channels.pitch.airspeed.trim_m_s"),
+    ({"topic": "/airspeed", "field": "data", "trim_m_s": 50, "frame": "flu"}, "channels.pitch.airspeed.frame"),
+    ({"topic": "/airspeed", "field": "data", "trim_m_s": 50, "units": "kt"}, "channels.pitch.airspeed.units: unknown"),
+    ({"field": "data", "trim_m_s": 50}, "channels.pitch.airspeed.topic: missing"),
+    (51.4, "channels.pitch.airspeed: expected a mapping"),
+])
+def test_airspeed_errors_name_the_key(value, needle):
+    with pytest.raises(ConfigError) as err:
+        parse_config(with_change(("channels", "pitch", "airspeed"), value), "cfg.yaml")
+    assert "\n" not in str(err.value) and needle in str(err.value)

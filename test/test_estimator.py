@@ -451,3 +451,78 @@ def test_a_full_record_buffer_keeps_the_manoeuvre_in_progress():
     est = estimate(*_grid_flight(u), max_record_s=100.0)
     assert [s.kind for s in est.sweeps] == ["chirp", "chirp"]
     assert est.sweeps[1].end_s - est.sweeps[1].start_s >= 58.0     # the 60 s sweep, tapered ends aside
+
+
+# ------------------------------------------------------------------------------------- the flight condition
+def _off_condition_flight(speed_ratio, seed=11, trim=-0.02):
+    """Three sweeps flown with the airspeed ``speed_ratio(t)`` times the model's: the control power, and so the
+    response to the surface's deviation from its trim (``trim`` rad), scales with the dynamic pressure
+    ``speed_ratio^2``. The airspeed is logged at 20 Hz with 0.1 m/s of noise about a 30 m/s trim."""
+    t = np.arange(0.0, 300.0, 1.0 / FINE_HZ)
+    u = np.full(t.size, trim)
+    for start, length in ((20.0, 70.0), (110.0, 70.0), (200.0, 70.0)):
+        u += log_sweep(t - start, 0.1, 12.0, length, 0.05)
+    q = speed_ratio(t) ** 2
+    ti, ui, to, yo = measure(t, u, simulate(trim + (u - trim) * q), 50.0, 200.0, seed=seed, noise_out=0.05)
+    rng = np.random.default_rng(seed + 1)
+    ta = np.arange(0.0, 300.0, 0.05)
+    return {"input": (ti, ui), "output": (to, yo), "airspeed": (ta, 30.0 * speed_ratio(ta) + rng.normal(0, 0.1,
+                                                                                                        ta.size))}
+
+
+@pytest.mark.parametrize("constant, speed_ratio, trim", [
+    (True, lambda t: np.full(np.shape(t), 1.2), -0.02),
+    (False, lambda t: 1.0 + 0.15 * np.sin(2 * np.pi * t / 47.0), -0.02),
+    (False, lambda t: 1.0 + 0.15 * np.sin(2 * np.pi * t / 5.0), -0.1)],
+    ids=["20 % fast throughout", "+-15 % slowly", "+-15 % at 1.3 rad/s, 0.1 rad of trim"])
+def test_an_airspeed_stream_brings_the_response_to_the_model_condition(constant, speed_ratio, trim):
+    """Principle: control power scales with the dynamic pressure, so the surface scaled by (V / V_trim)^2 is the
+    input the model at V_trim sees. Flown 20 % fast the plain estimate is 1.44 times the model's response (far
+    outside its error); with the airspeed logged the flights agree with the model within their errors. Only the
+    deviation from trim is scaled (at trim the surface's moment balances the rest, all scaling together): scaling
+    the whole deflection would add 0.1 rad of trim times the gusts' 15 % at 1.3 rad/s as a false input."""
+    streams = _off_condition_flight(speed_ratio, trim=trim)
+    plain = FrequencyResponseEstimator(W_RAD_S)
+    plain.add_histories({k: v for k, v in streams.items() if k != "airspeed"})
+    plain.flush()
+    held = FrequencyResponseEstimator(W_RAD_S, ("input", "output", "airspeed"), trim_airspeed=30.0)
+    held.add_histories(streams)
+    held.flush()
+    h_true = true_response(W_RAD_S)
+    avg = held.averaged()
+    assert held.n_sweeps == plain.n_sweeps == 3
+    assert fraction_within(avg.response, h_true, avg.random_error, dof=avg.n_averages) >= 0.9
+    ratio = held.dynamic_pressure_ratio
+    assert ratio["clipped"] == 0
+    if constant:
+        assert ratio["min"] > 1.38 and ratio["max"] < 1.50 and ratio["mean"] == pytest.approx(1.44, abs=0.005)
+        gain = np.abs(plain.averaged().response / h_true)
+        assert np.median(gain) == pytest.approx(1.44, rel=0.02)
+        assert fraction_within(plain.averaged().response, h_true, plain.averaged().random_error,
+                               dof=plain.averaged().n_averages) < 0.1
+    else:
+        assert ratio["min"] < 0.75 and ratio["max"] > 1.3 and ratio["mean"] == pytest.approx(1.01, abs=0.03)
+
+
+def test_the_airspeed_stream_resumes_from_a_checkpoint():
+    streams = _off_condition_flight(lambda t: 1.0 + 0.15 * np.sin(2 * np.pi * t / 47.0))
+    whole = FrequencyResponseEstimator(W_RAD_S, ("input", "output", "airspeed"), trim_airspeed=30.0)
+    whole.add_histories(streams)
+    whole.flush()
+    cut = {k: (t[t < 150.0], v[t < 150.0]) for k, (t, v) in streams.items()}
+    rest = {k: (t[t >= 150.0], v[t >= 150.0]) for k, (t, v) in streams.items()}
+    first = FrequencyResponseEstimator(W_RAD_S, ("input", "output", "airspeed"), trim_airspeed=30.0)
+    first.add_histories(cut)
+    resumed = FrequencyResponseEstimator.from_state(copy.deepcopy(first.state_dict()))
+    assert resumed.trim_airspeed == 30.0
+    resumed.add_histories(rest)
+    resumed.flush()
+    assert resumed.dynamic_pressure_ratio == whole.dynamic_pressure_ratio
+    np.testing.assert_allclose(resumed.averaged().gxy, whole.averaged().gxy, rtol=1e-9)
+
+
+def test_a_bad_trim_airspeed_is_a_config_error():
+    with pytest.raises(ConfigError, match="trim_airspeed"):
+        FrequencyResponseEstimator(W_RAD_S, ("input", "output", "airspeed"), trim_airspeed=-3.0)
+    with pytest.raises(ConfigError, match="the airspeed"):
+        FrequencyResponseEstimator(W_RAD_S, ("input", "output"), trim_airspeed=30.0)

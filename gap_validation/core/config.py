@@ -29,9 +29,11 @@ STREAMS = ("input", "output", "trigger")
 
 _TOP_KEYS = {"channels", "aircraft", "description", "history"}
 _CHANNEL_KEYS = {"input", "output", "inputs", "outputs", "model", "frequencies", "coherence_threshold", "trigger",
-                 "estimator", "controller", "excitation", "other_inputs"}
+                 "estimator", "controller", "excitation", "other_inputs", "airspeed"}
 #: Stream name of the channel's injected excitation (closed-loop flights; the estimator's instrument).
 EXCITATION_STREAM = "excitation"
+#: Stream of a channel's ``airspeed`` (the flight condition: the inputs are scaled by the dynamic pressure ratio).
+AIRSPEED_STREAM = "airspeed"
 #: Stream name of the j-th of a channel's ``other_inputs`` (``other_input0``, ``other_input1`` ...).
 OTHER_INPUT_STREAM = "other_input{}"
 _SIGNAL_KEYS = {"topic", "field", "scale", "type", "offset", "time_offset_s", "frame"}
@@ -127,6 +129,8 @@ class ChannelConfig:
     controller_spec: dict | None = None
     excitation: SignalSpec | None = None
     other_inputs: tuple[SignalSpec, ...] = ()
+    airspeed: SignalSpec | None = None
+    trim_airspeed_m_s: float | None = None
 
     @property
     def is_mimo(self) -> bool:
@@ -144,6 +148,8 @@ class ChannelConfig:
         """
         if stream == EXCITATION_STREAM:
             return self.excitation
+        if stream == AIRSPEED_STREAM:
+            return self.airspeed
         if stream.startswith("other_input") and stream[len("other_input"):].isdigit():
             j = int(stream[len("other_input"):])
             return self.other_inputs[j] if j < len(self.other_inputs) else None
@@ -156,11 +162,13 @@ class ChannelConfig:
         return {"input": self.input, "output": self.output, "trigger": self.trigger}[stream]
 
     def extra_streams(self) -> list[tuple[str, SignalSpec]]:
-        """The channel's streams beyond :data:`STREAMS`: each of ``other_inputs`` (``other_input0`` ...) and
-        the ``excitation``, as ``(stream, spec)`` in that order (empty without those keys)."""
+        """The channel's streams beyond :data:`STREAMS`: each of ``other_inputs`` (``other_input0`` ...), the
+        ``excitation`` and the ``airspeed``, as ``(stream, spec)`` in that order (empty without those keys)."""
         out = [(OTHER_INPUT_STREAM.format(j), spec) for j, spec in enumerate(self.other_inputs)]
         if self.excitation is not None:
             out.append((EXCITATION_STREAM, self.excitation))
+        if self.airspeed is not None:
+            out.append((AIRSPEED_STREAM, self.airspeed))
         return out
 
     @property
@@ -398,6 +406,7 @@ def _channel(name: str, value: Any, source: str) -> ChannelConfig:
     _check_estimator_options(estimator, source, f"{path}.estimator")
     input_spec = None if mimo else _signal(data["input"], source, f"{path}.input")   # checked before it is compared
     excitation, other_inputs = _closed_loop_signals(data, source, path, mimo, input_spec)
+    airspeed, trim_airspeed = _airspeed(data.get("airspeed"), source, f"{path}.airspeed")
     return ChannelConfig(
         name=name,
         input=input_spec,
@@ -416,7 +425,25 @@ def _channel(name: str, value: Any, source: str) -> ChannelConfig:
         controller_spec=controller_spec,
         excitation=excitation,
         other_inputs=other_inputs,
+        airspeed=airspeed,
+        trim_airspeed_m_s=trim_airspeed,
     )
+
+
+def _airspeed(value: Any, source: str, path: str) -> tuple[SignalSpec | None, float | None]:
+    """A channel's ``airspeed``: a signal spec plus ``trim_m_s``, the airspeed the model is for (in the signal's
+    SI units, m/s)."""
+    if value is None:
+        return None, None
+    data = dict(_mapping(value, source, path, _SIGNAL_KEYS | {"trim_m_s"}))
+    if "trim_m_s" not in data:
+        raise _fail(source, f"{path}.trim_m_s", "missing (the airspeed the model is for, m/s: the inputs are scaled "
+                                                "by (airspeed / trim_m_s)^2)")
+    trim = _number(data.pop("trim_m_s"), source, f"{path}.trim_m_s", POSITIVE)
+    spec = _signal(data, source, path)
+    if spec.frame is not None:
+        raise _fail(source, f"{path}.frame", "applies to a body rate, not to an airspeed")
+    return spec, trim
 
 
 def _closed_loop_signals(data: dict, source: str, path: str, mimo: bool, own_input: SignalSpec | None = None

@@ -105,6 +105,11 @@ NOT_ESTIMABLE_REASONS = ("not_excited", "too_short", "above_grid", "too_few_bins
 _BOOL_OPTIONS = ("cubic_interpolation", "detect_sweeps")
 _INT_OPTIONS = ("max_raw_sweeps", "min_bins", "order", "transient_order")
 _EVENT_CAP = 64                  # pending edges
+#: Dynamic pressure ratios an airspeed stream may scale the inputs by (airspeed 50-200 % of the model's trim);
+#: samples beyond are clipped and counted (:attr:`FrequencyResponseEstimator.dynamic_pressure_ratio`).
+DYNAMIC_PRESSURE_RANGE = (0.25, 4.0)
+#: Time constant of the input's trim level followed outside the manoeuvres [s] (the airspeed scaling leaves it).
+TRIM_FOLLOW_S = 2.0
 _BUFFER_CAP = 256                # samples per stream buffered before processing (amortises per-call cost)
 _ENERGY, _TRIGGER = 0, 1         # source of a record
 _STATE_VERSION = 3               # 3: records and local polynomial sums (1, 2: windowed spectra, not resumable)
@@ -546,6 +551,11 @@ class FrequencyResponseEstimator:
         (regressors), then ``outputs`` outputs, then any instruments (injected excitation signals).
     inputs, outputs : int
         How many of ``streams`` are inputs and outputs (the rest are instruments).
+    trim_airspeed : float, optional
+        With it, the last of ``streams`` is the airspeed (the flight condition), not an instrument: on the grid
+        every input sample is multiplied by ``(airspeed / trim_airspeed)^2``, the dynamic pressure relative to the
+        model's (control power scales with it), so a flight that strays from the model's condition is compared
+        at that condition. :attr:`dynamic_pressure_ratio` says how far it strayed.
     **options
         See :data:`ESTIMATOR_DEFAULTS` and the module docstring. Unknown names raise
         :class:`~gap_validation.core.errors.ConfigError` naming the key.
@@ -561,14 +571,18 @@ class FrequencyResponseEstimator:
     OPTIONS = tuple(ESTIMATOR_DEFAULTS)
 
     def __init__(self, w_rad_s: ArrayLike, streams: Sequence[str] = ("input", "output"), inputs: int = 1,
-                 outputs: int = 1, **options: Any) -> None:
+                 outputs: int = 1, trim_airspeed: float | None = None, **options: Any) -> None:
         w = np.atleast_1d(np.asarray(w_rad_s, dtype=float))
         if w.ndim != 1 or w.size == 0 or not np.all(np.isfinite(w)) or np.any(w <= 0):
             raise ConfigError(f"estimator frequencies: expected positive finite rad/s values, got {w_rad_s!r}")
         names = tuple(str(s) for s in streams)
-        if len(set(names)) != len(names) or inputs < 1 or outputs < 1 or inputs + outputs > len(names):
+        scheduled = trim_airspeed is not None
+        if len(set(names)) != len(names) or inputs < 1 or outputs < 1 or \
+                inputs + outputs + int(scheduled) > len(names):
             raise ConfigError(f"estimator streams {names!r}: need distinct names, at least one input and one "
-                              f"output ({inputs} inputs, {outputs} outputs)")
+                              f"output ({inputs} inputs, {outputs} outputs{', the airspeed' if scheduled else ''})")
+        if scheduled and not (math.isfinite(trim_airspeed) and trim_airspeed > 0):
+            raise ConfigError(f"estimator trim_airspeed: expected a positive airspeed [m/s], got {trim_airspeed!r}")
         opts = _validate_options(w, options)
         self._w = w.copy()
         self._opts = opts
@@ -579,25 +593,32 @@ class FrequencyResponseEstimator:
         self._m, self._p = int(inputs), int(outputs)
         fs = opts["sample_rate_hz"]
         self._dt = 1.0 / fs
-        S = len(names)
+        self._trim_airspeed = None if trim_airspeed is None else float(trim_airspeed)
+        #: dynamic pressure ratio over the flight's grid samples: count, sum, min, max, and samples clipped
+        self._q_stats = np.array([0.0, 0.0, np.inf, -np.inf, 0.0])
+        #: each input's trim level (followed outside the manoeuvres, held in them): what is not scaled
+        self._u_trim = np.full(int(inputs), np.nan)
+        S_all = len(names)                       # every stream resampled and aligned
+        S = S_all - int(scheduled)               # the data streams the records hold (the airspeed is not one)
+        self._S = S
         self._det_streams = list(range(self._m + self._p, S)) or list(range(self._m))
         self._dets = [SweepDetector(fs, **{k: opts[k] for k in DETECTOR_DEFAULTS}) for _ in self._det_streams]
         self._det_on = [False] * len(self._dets)
         self._man = ManoeuvreRecorder(fs)
         self._trig = TriggerTracker()
         self._streams = [_StreamResampler(self._dt, opts["max_gap_s"], opts["cubic_interpolation"])
-                         for _ in range(S)]
-        self._align = _GridAligner(S, max(16, int(math.ceil(opts["max_lag_s"] * fs))))
+                         for _ in range(S_all)]
+        self._align = _GridAligner(S_all, max(16, int(math.ceil(opts["max_lag_s"] * fs))))
         self._delay_n = max(d.lookahead_samples for d in self._dets)
-        self._dl = np.zeros((S, self._delay_n))
+        self._dl = np.zeros((S_all, self._delay_n))       # the airspeed too: the scaling follows the edges
         self._dl_n = 0
         self._dl_k0 = 0
-        self._buf = np.zeros((S, 2, _BUFFER_CAP))          # stream, (t, value), sample
-        self._buf_n = [0] * S
+        self._buf = np.zeros((S_all, 2, _BUFFER_CAP))      # stream, (t, value), sample
+        self._buf_n = [0] * S_all
         # per stream: its first RATE_STEPS sample intervals (the rate is their median: fixed by the data alone,
         # not by how the samples were cut into calls), how many, and the last sample time
-        self._steps = np.zeros((S, RATE_STEPS))
-        self._spacing = np.zeros((S, 2))                     # per stream: intervals kept, last t
+        self._steps = np.zeros((S_all, RATE_STEPS))
+        self._spacing = np.zeros((S_all, 2))                 # per stream: intervals kept, last t
         self._spacing[:, 1] = -np.inf
         self._t0 = float("nan")
         self._last_k: int | None = None
@@ -638,7 +659,7 @@ class FrequencyResponseEstimator:
         self.record_observer = None
 
     def _new_sums(self) -> BandSums:
-        q = len(self._names) - self._m - self._p
+        q = self._S - self._m - self._p
         return BandSums.zeros(self._w.size, self._m, self._p, q or None, self._opts["order"])
 
     # ------------------------------------------------------------------ properties
@@ -721,7 +742,7 @@ class FrequencyResponseEstimator:
         (dropped messages and jitter aside; the same however the samples were cut into calls), to three
         significant digits; inf before two samples."""
         rates = []
-        for s in range(self._steps.shape[0]):
+        for s in range(self._S):                 # the data streams (the airspeed's rate carries no band)
             n = int(self._spacing[s, 0])
             step = float(np.median(self._steps[s, :n])) if n else 0.0
             rates.append(float(f"{1.0 / step:.3g}") if step > 0 else np.inf)
@@ -1032,6 +1053,50 @@ class FrequencyResponseEstimator:
             self._run_chunk(k0, vals[:, a:b])
             self._last_k = int(idx[b - 1])
 
+    def _at_trim_condition(self, vals: np.ndarray) -> np.ndarray:
+        """The data streams with each input's deviation from its trim scaled by the dynamic pressure ratio
+        ``(V / V_trim)^2`` of the last stream, the airspeed (within :data:`DYNAMIC_PRESSURE_RANGE`: beyond it the
+        sample is clipped and counted, a flight that far from the model's condition is not a test of it).
+
+        Only the deviation: the model is about trim, where the surface's moment at the trim deflection balances
+        the rest of the airframe's, all of them scaling with the dynamic pressure together. The trim level is
+        followed outside the manoeuvres (time constant :data:`TRIM_FOLLOW_S`) and held while one is recorded; the
+        manoeuvres are found on the logged surface, before scaling."""
+        m = self._m
+        if not self._rec.open or np.isnan(self._u_trim).any():
+            first = np.isnan(self._u_trim)
+            self._u_trim[first] = vals[:m, 0][first]
+            alpha = 1.0 - math.exp(-vals.shape[1] * self._dt / TRIM_FOLLOW_S)
+            self._u_trim += alpha * (np.mean(vals[:m], axis=1) - self._u_trim)
+        ratio = (vals[-1] / self._trim_airspeed) ** 2
+        low, high = DYNAMIC_PRESSURE_RANGE
+        clipped = np.clip(ratio, low, high)
+        st = self._q_stats
+        st[0] += ratio.size
+        st[1] += float(np.sum(clipped))
+        st[2] = min(st[2], float(np.min(clipped)))
+        st[3] = max(st[3], float(np.max(clipped)))
+        st[4] += float(np.count_nonzero(clipped != ratio))
+        out = vals[:-1].copy()
+        trim = self._u_trim[:, None]
+        out[:m] = trim + (out[:m] - trim) * clipped
+        return out
+
+    @property
+    def dynamic_pressure_ratio(self) -> dict | None:
+        """With an airspeed stream: the dynamic pressure relative to the model's, ``(V / V_trim)^2``, over the
+        flight's grid samples (``mean``, ``min``, ``max``; ``clipped``: samples beyond
+        :data:`DYNAMIC_PRESSURE_RANGE`); None without one or before a sample."""
+        n, total, low, high, clipped = self._q_stats
+        if self._trim_airspeed is None or not n:
+            return None
+        return {"mean": total / n, "min": low, "max": high, "clipped": int(clipped)}
+
+    @property
+    def trim_airspeed(self) -> float | None:
+        """The airspeed the inputs are scaled to [m/s] (None: not scaled)."""
+        return self._trim_airspeed
+
     def _run_chunk(self, k0: int, block: np.ndarray) -> None:
         if not self._trigger_mode:
             self._detect([det.process(k0, block[s]) for det, s in zip(self._dets, self._det_streams)])
@@ -1116,6 +1181,8 @@ class FrequencyResponseEstimator:
             self._feed(pos, block[:, pos - k_a:])
 
     def _feed(self, k_a: int, block: np.ndarray) -> None:
+        if self._trim_airspeed is not None:
+            block = self._at_trim_condition(block)
         was_open = self._rec.open
         for record in self._rec.feed(k_a, block):
             self._close_record(*record)
@@ -1288,7 +1355,7 @@ class FrequencyResponseEstimator:
             # other_inputs: a manoeuvre of another input (its own sweep) pools into the average, which needs it to
             # separate the inputs, but is not a sweep of this channel (no raw estimate of its own)
             self._own_record = (not self._conditioned or det_index == self._det_streams[0]
-                                or self._m + self._p < len(self._names))
+                                or self._m + self._p < self._S)
             self._spans.append((k0 + piece.active_start, k0 + piece.active_end))
             kind = classify(det, self._dt, piece, noise, motion)
             self._kinds[kind] += 1
@@ -1367,7 +1434,7 @@ class FrequencyResponseEstimator:
         """The excitation's trim motion between the records per frequency (the instruments', else the inputs'
         summed), as :func:`~gap_validation.core.spectra.record_bands` sees a record: restored for the
         interpolation of each stream onto the grid, as the records are."""
-        streams = range(self._m + self._p, len(self._names)) if instruments else range(self._m)
+        streams = range(self._m + self._p, self._S) if instruments else range(self._m)
         rates = self.stream_rates_hz
         gain = {j: interpolation_gain(self._w, rates[j], self._opts["cubic_interpolation"]) for j in streams}
         return sum(self._trim.power([j]) / np.maximum(gain[j], 1e-3) ** 2 for j in streams)
@@ -1380,6 +1447,10 @@ class FrequencyResponseEstimator:
         """
         st: dict = {"version": _STATE_VERSION, "w_rad_s": self._w.copy(),
                     "streams": np.array(self._names), "inputs": self._m, "outputs": self._p}
+        if self._trim_airspeed is not None:
+            st["trim_airspeed"] = self._trim_airspeed
+            st["q_stats"] = self._q_stats.copy()
+            st["u_trim"] = self._u_trim.copy()
         for name, value in self._opts.items():
             st["opt." + name] = int(value) if name in _BOOL_OPTIONS + _INT_OPTIONS else float(value)
         ev = np.zeros((_EVENT_CAP, 3), np.int64)
@@ -1450,8 +1521,9 @@ class FrequencyResponseEstimator:
                 opts[name] = (bool(value) if name in _BOOL_OPTIONS else
                               int(value) if name in _INT_OPTIONS else float(value))
             names = [str(s) for s in np.atleast_1d(state["streams"])]
+            trim_airspeed = float(state["trim_airspeed"]) if "trim_airspeed" in state else None
             self = cls(np.asarray(state["w_rad_s"], float), names, int(state["inputs"]), int(state["outputs"]),
-                       **opts)
+                       trim_airspeed, **opts)
             self._load(state)
         except KeyError as err:
             raise DataError(f"estimator state: missing key {err.args[0]!r}") from None
@@ -1463,6 +1535,9 @@ class FrequencyResponseEstimator:
         return self
 
     def _load(self, st: dict) -> None:
+        if self._trim_airspeed is not None:
+            self._q_stats[:] = np.asarray(st["q_stats"], float)
+            self._u_trim[:] = np.asarray(st["u_trim"], float)
         self._t0 = float(st["t0"])
         last_k = int(st["last_k"])
         self._last_k = None if last_k == _NONE else last_k
@@ -1489,7 +1564,7 @@ class FrequencyResponseEstimator:
         self._pending = []
         for i in range(int(st.get("pending_n", 0))):
             k0, src, act0, act1 = (int(v) for v in np.asarray(st[f"pending{i}.meta"], np.int64))
-            data = np.asarray(st[f"pending{i}.data"], float).reshape(len(self._names), -1)
+            data = np.asarray(st[f"pending{i}.data"], float).reshape(self._S, -1)
             self._pending.append((k0, data.copy(), src, act0, act1))
         self._tot = BandSums.from_state(st, "tot.")
         meta = np.asarray(st["raw_meta"], np.int64).reshape(-1, 2)

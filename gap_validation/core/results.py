@@ -342,6 +342,8 @@ class ChannelResult:
     excitation: str | None = None                                    # kind flown (chirp, multisine, ...)
     excited_band_rad_s: tuple[float, float] | None = None            # where the flight excited the input
     manoeuvres_by_kind: dict[str, int] = field(default_factory=dict)  # manoeuvres that gave a response
+    # with an airspeed stream: (V / V_trim)^2 over the flight (mean, min, max, clipped), the inputs scaled by it
+    dynamic_pressure_ratio: dict | None = None
     degrees_of_freedom: np.ndarray | None = None                     # of the noise estimate, per frequency
     frequency_reasons: list = field(default_factory=list)            # per frequency: why not confident, or None
     # the controller check (a channel with a controller): b(P1, C) and b > nu-gap (core.robust)
@@ -446,6 +448,8 @@ class ChannelResult:
             "input_amplitudes": [_num(a) for a in self.input_amplitudes],
             "beyond_range": list(self.beyond_range),
             "conventions": [c.to_json_dict() for c in self.conventions],
+            "dynamic_pressure_ratio": None if self.dynamic_pressure_ratio is None else {
+                k: _num(v) if k != "clipped" else int(v) for k, v in self.dynamic_pressure_ratio.items()},
         }
         for entry, response in zip(out["raw_sweeps"], self.sweep_measured if samples else ()):
             entry["measured"] = _mag_phase(response, self.model)
@@ -499,7 +503,8 @@ class ChannelResult:
                  input_amplitudes=[float(a) if a is not None else float("nan")
                                    for a in data.get("input_amplitudes") or []],
                  beyond_range=[str(b) for b in data.get("beyond_range") or []],
-                 conventions=[Convention.from_json_dict(c) for c in data.get("conventions") or []])
+                 conventions=[Convention.from_json_dict(c) for c in data.get("conventions") or []],
+                 dynamic_pressure_ratio=data.get("dynamic_pressure_ratio"))
         band = data.get("excited_band_rad_s")
         ch.excited_band_rad_s = (float(band[0]), float(band[1])) if band and None not in band else None
         ch.margins = margins_from_epsilon(ch.epsilon if ch.epsilon is not None and not ch.conventions

@@ -28,7 +28,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from gap_validation.core.config import ChannelConfig, SignalSpec, ValidationConfig
+from gap_validation.core.config import AIRSPEED_STREAM, ChannelConfig, SignalSpec, ValidationConfig
 from gap_validation.core.effects import validate_effect
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.fields import FieldPath
@@ -1395,9 +1395,10 @@ def _with_logged_excitation(config: ValidationConfig, topic: str | None) -> Vali
 
 
 def _extra_measured(plans: dict, config: ValidationConfig, references: dict, measured: dict) -> None:
-    """The series behind the planned topics' ``excitation`` and ``other_input<j>`` streams: the channel's
-    injected manoeuvre (logged exactly), and the other surface's measured deflection (the channel whose input
-    is that topic and field; trim alone when no channel flies it)."""
+    """The series behind the planned topics' ``excitation``, ``other_input<j>`` and ``airspeed`` streams: the
+    channel's injected manoeuvre (logged exactly), the other surface's measured deflection (the channel whose
+    input is that topic and field; trim alone when no channel flies it), and the channel's trim airspeed (this
+    simulator's airframe flies at the model's condition)."""
     by_signal = {(ch.input.topic, ch.input.field): name for name, ch in config.channels.items()
                  if ch.input is not None}
     for plan in plans.values():
@@ -1406,6 +1407,9 @@ def _extra_measured(plans: dict, config: ValidationConfig, references: dict, mea
                 continue
             if stream == "excitation":
                 measured[(name, stream)] = (np.asarray(references[name], float), 0.0, 0.0)
+            elif stream == AIRSPEED_STREAM:    # this airframe flies at one condition: the model's
+                trim = config.channels[name].trim_airspeed_m_s
+                measured[(name, stream)] = (np.full(np.shape(next(iter(references.values()))), trim), 0.0, 0.0)
             elif stream.startswith("other_input"):
                 owner = by_signal.get((spec.topic, spec.field))
                 if owner is not None:

@@ -19,7 +19,7 @@ from numpy.typing import ArrayLike
 from gap_validation.core import metrics, robust
 from gap_validation.core.closed_loop import (CouplingMonitor, SurfaceHistory, feedback_bias, feedback_evidence,
                                              near_minus_inverse, with_bias_allowance)
-from gap_validation.core.config import (EXCITATION_STREAM, OTHER_INPUT_STREAM, STREAMS, ChannelConfig,
+from gap_validation.core.config import (AIRSPEED_STREAM, EXCITATION_STREAM, OTHER_INPUT_STREAM, STREAMS, ChannelConfig,
                                         SignalSpec, ValidationConfig)
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.diagnosis import confident_points, sweep_points
@@ -45,18 +45,19 @@ def _sup(metric, w: np.ndarray, p_model: np.ndarray, p_meas: np.ndarray,
 
 
 def _estimator_for(channel: ChannelConfig) -> FrequencyResponseEstimator:
+    # the airspeed (the flight condition), when the channel has one, is the last stream: it scales the inputs
+    airspeed = [AIRSPEED_STREAM] if channel.airspeed is not None else []
+    trim = channel.trim_airspeed_m_s if channel.airspeed is not None else None
     if channel.is_mimo:   # streams inputs[j], outputs[i]: the whole matrix from the pooled sums
         return FrequencyResponseEstimator(channel.frequencies.values(),
-                                          channel.input_streams + channel.output_streams,
-                                          len(channel.inputs), len(channel.outputs), **channel.estimator)
-    if not channel.other_inputs and channel.excitation is None:
-        return FrequencyResponseEstimator(channel.frequencies.values(), **channel.estimator)
+                                          channel.input_streams + channel.output_streams + tuple(airspeed),
+                                          len(channel.inputs), len(channel.outputs), trim, **channel.estimator)
     # other_inputs are more inputs (the channel's response is the first input's column); the excitation is the
     # instrument (instrumental variables) and the detection signal
     others = [OTHER_INPUT_STREAM.format(j) for j in range(len(channel.other_inputs))]
     streams = ["input", *others, "output"] + ([EXCITATION_STREAM] if channel.excitation is not None else [])
-    return FrequencyResponseEstimator(channel.frequencies.values(), streams, inputs=1 + len(others), outputs=1,
-                                      **channel.estimator)
+    return FrequencyResponseEstimator(channel.frequencies.values(), streams + airspeed, inputs=1 + len(others),
+                                      outputs=1, trim_airspeed=trim, **channel.estimator)
 
 
 def _same_measurement(a: ChannelConfig, b: ChannelConfig) -> bool:
@@ -339,6 +340,7 @@ class OnlineValidator:
                                bad_samples=dict(self._bad[name]), epsilon_previous=self._previous.get(name),
                                model_description=_describe_model(channel), model_spec=channel.model_spec)
         result.excitation = est.excitation
+        result.dynamic_pressure_ratio = est.dynamic_pressure_ratio
         result.manoeuvres_by_kind = est.counted_kinds
         self._time_domain(name, channel, est, result)
         avg = est.averaged()
@@ -401,6 +403,7 @@ class OnlineValidator:
                                bad_samples=dict(self._bad[name]), epsilon_previous=None,
                                model_description=_describe_model(channel), model_spec=channel.model_spec)
         result.excitation = est.excitation
+        result.dynamic_pressure_ratio = est.dynamic_pressure_ratio
         result.manoeuvres_by_kind = est.counted_kinds
         avg, matrix = est.averaged(), est.averaged_matrix()
         if avg is None or matrix is None:
@@ -653,6 +656,8 @@ def _measurement_key(channel: ChannelConfig) -> str:
         key += (tuple(signal(s) for s in channel.inputs), tuple(signal(s) for s in channel.outputs))
     if channel.excitation is not None or channel.other_inputs:     # only then: older checkpoints stay valid
         key += (signal(channel.excitation), tuple(signal(s) for s in channel.other_inputs))
+    if channel.airspeed is not None:
+        key += (signal(channel.airspeed), channel.trim_airspeed_m_s)
     return repr(key)
 
 

@@ -21,15 +21,19 @@ topic rates, jitter, drops, surface and gyro noise and quantisation). What diffe
 - JSBSim holds a surface for a whole step: the airframe gets the card at the middle of each step, so the staircase
   has no mean delay against the smooth logged surface (without it the measured phase lags by half a step,
   ``w dt / 2``: 7 deg at 30 rad/s).
+- **Airspeed** logged where a channel has an ``airspeed`` stream (the configs of :func:`config_mapping` have one on
+  ``/airspeed``): JSBSim's true airspeed [m/s] with :data:`AIRSPEED_NOISE_M_S` of noise.
 - **Rates** logged: the body rates p, q, r of JSBSim (``velocities/p-rad_sec`` ...) with the gyro noise and
   quantisation of :class:`FlightOptions`. No synthetic gusts (``gust_rms_rad_s``): the only disturbances are
   JSBSim's own turbulence (``--turbulence``, seeded through ``atmosphere/randomseed``) and the band noise.
 - **Pilot re-trims** (:func:`~gap_validation.core.flight_card.pilot_trim`, without its random constant: the trim
   is JSBSim's) appear in the logged surface only, as in the synthetic flight: they stand for the trim changes that
-  keep the aircraft at its condition, so the airframe does not see them. A **pilot** (:class:`Pilot`) flies the
-  aircraft back to wings level and its trimmed pitch attitude in the gaps between manoeuvres when it has wandered,
-  and recovers it in a manoeuvre only when it departs (the nonlinear aircraft is not held at trim by anything
-  else: without him a c172x at 60 kt spirals into the ground within minutes of the card).
+  keep the aircraft at its condition, so the airframe does not see them. A **pilot** (:class:`Pilot`) holds the
+  flight condition the model was linearised at: he flies wings level and the trimmed pitch attitude (the altitude
+  through it) back when they have wandered, on every axis no manoeuvre is sweeping, recovers a swept axis only when
+  the aircraft departs, and holds the airspeed on the throttle throughout (the nonlinear aircraft is not held at
+  trim by anything else: without him a c172x at 60 kt spirals into the ground within minutes of the card, and in
+  light turbulence a c172x at 100 kt flies its sweeps 25-31 % above the trim's dynamic pressure).
 - Amplitudes: 2 deg sweeps and doublets by default (:data:`SWEEP_AMPLITUDE_RAD`). Small enough that the aircraft
   stays near trim and its response near the linearisation (c172x, 100 kt: within about 0.5 dB and 4 deg from
   1 to 30 rad/s, noise-free), large enough that the gyro and surface noise of :class:`FlightOptions` (sized for
@@ -44,7 +48,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from gap_validation.core.config import FrequencyGrid, ValidationConfig, parse_config
+from gap_validation.core.config import AIRSPEED_STREAM, FrequencyGrid, ValidationConfig, parse_config
 from gap_validation.core.effects import is_nonlinear, validate_effect
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.fields import FieldPath
@@ -53,8 +57,9 @@ from gap_validation.core.flight_card import (band_noises, card_segments, card_un
 from gap_validation.core.models import LinearModel
 from gap_validation.core.simulation import (SWEEP_SEGMENTS, FlightOptions, SimulatedFlight, plan_topics,
                                             truth_models, with_options)
-from gap_validation.jsbsim.linearize import (DEFAULT_GRID, POSITIONS, RATES, SURFACES, Linearization, TrimPoint,
-                                             Trimmed, config_mapping, drift_warnings, linearize, quiet_jsbsim)
+from gap_validation.jsbsim.linearize import (DEFAULT_GRID, KT_TO_M_S, POSITIONS, RATES, SURFACES, Linearization,
+                                             TrimPoint, Trimmed, config_mapping, drift_warnings, linearize,
+                                             quiet_jsbsim)
 
 __all__ = ["Turbulence", "TURBULENCE_LEVELS", "parse_turbulence", "jsbsim_options", "JSBSimFlight",
            "simulate_jsbsim_flight", "fly", "Flown", "HiddenEffects", "Pilot", "pilot_for", "channel_surfaces",
@@ -66,6 +71,8 @@ SWEEP_AMPLITUDE_RAD = math.radians(2.0)
 TURBULENCE_TYPES = {"milspec": 3, "tustin": 4}
 #: MIL-F-8785C reference intensities of JSBSim's FGWinds: name -> (severity, wind at 20 ft [kt]).
 TURBULENCE_LEVELS = {"light": (3, 15.0), "moderate": (4, 30.0), "severe": (6, 45.0)}
+#: Noise of the logged airspeed [m/s] (a pitot-static sensor's, about 0.3 kt).
+AIRSPEED_NOISE_M_S = 0.15
 #: IMU fields of the body rates.
 _RATE_FIELDS = {("angular_velocity", "x"): "p", ("angular_velocity", "y"): "q", ("angular_velocity", "z"): "r"}
 #: Spawn key of the turbulence seed (a stream of the flight's seed of its own).
@@ -202,7 +209,7 @@ def channel_surfaces(config: ValidationConfig) -> dict[str, tuple[tuple[str, ...
         ins = tuple(_surface_of(ch.signal(s), f"channel {name} {s}") for s in ch.input_streams)
         outs = tuple(_rate_of(ch.signal(s), f"channel {name} {s}") for s in ch.output_streams)
         for stream, spec in ch.extra_streams():
-            if stream != "excitation":
+            if stream not in ("excitation", AIRSPEED_STREAM):
                 _surface_of(spec, f"channel {name} {stream}")
         out[name] = (ins, outs)
     return out
@@ -291,21 +298,29 @@ class HiddenEffects:
 
 @dataclass(frozen=True)
 class Pilot:
-    """The pilot: wings level on the ailerons and the trimmed pitch attitude on the elevator, when needed.
+    """The pilot: wings level on the ailerons, the trimmed pitch attitude (and altitude) on the elevator, the
+    airspeed on the throttle.
 
-    As test pilots fly a card: hands off during a manoeuvre (the stick held where it was) unless the aircraft
-    departs (bank beyond ``recover_bank_rad``, or pitch attitude ``recover_pitch_rad`` from trim); in the gaps
-    between manoeuvres the aircraft is flown back once it has wandered (``wander_*``); either way until bank and
-    pitch are back within ``level_*``. A recovery begun in a gap ends when the next manoeuvre starts.
+    As test pilots fly a card: hands off the swept control during a manoeuvre (the stick held where it was on that
+    axis) unless the aircraft departs (bank beyond ``recover_bank_rad``, or pitch attitude ``recover_pitch_rad``
+    from trim); the other axis, and both in the gaps between manoeuvres, are flown back once they have wandered
+    (``wander_*``: bank, pitch attitude, or altitude ``wander_altitude_ft`` from trim), until back within
+    ``level_*``. The pitch attitude flown to is the trim's plus ``k_altitude`` per foot below the trimmed altitude
+    (at most ``altitude_pitch_rad``): the altitude is flown back at the pilot's pace. The throttle holds the true
+    airspeed all the time (``k_speed``, integral time ``speed_ti_s``): the flight condition the model was
+    linearised at is the one flown, as a test pilot keeps it (measured, c172x at 100 kt in light turbulence, a
+    6-minute card: without the off-axis, altitude and speed holds the aircraft sinks 2300 ft and flies its roll and
+    yaw sweeps 11-14 kt fast, dynamic pressure +25-31 %, and the response follows).
 
     Why: nothing else holds the nonlinear aircraft at its trim. Without a pilot a c172x at 60 kt spirals into the
     ground 4 minutes into the default card, and light turbulence does the same to a c172x at 100 kt. An attitude
     hold flown all the time reacts to the sweeps' own low-frequency motion and puts pilot inputs into the validated
     band and into the estimator's records (measured, noise-free c172x at 100 kt: pitch epsilon 0.054 -> 0.13), and
     so does a recovery at 30 deg of bank or 10 deg of pitch, which 2 deg sweeps reach at their start (0.5 rad/s).
-    The pilot does not hold the altitude: a J3Cub at 60 kt still sinks 3000 ft over the 33 minutes of the card.
+    The swept axis alone is hands off: the other is held as a test pilot holds it (a roll sweep flown with the pitch
+    attitude let go pumps the phugoid and dives the aircraft).
 
-    ``aileron = -k_phi phi``, ``elevator = -k_theta (theta - theta_trim)``, each through a first-order lag of
+    ``aileron = -k_phi phi``, ``elevator = -k_theta (theta - theta_ref)``, each through a first-order lag of
     ``lag_s`` (the pilot's hand) and limited to ``limit_rad``. The gains give the attitude loops a crossover of
     ``bandwidth_rad_s`` from the aircraft's short-term rate response to the surface (:func:`pilot_for`). The
     corrections are logged with the surface and reach the airframe through the hidden effects like the card.
@@ -325,9 +340,19 @@ class Pilot:
     recover_bank_rad, recover_pitch_rad : float
         Departure from the trimmed attitude that makes the pilot take over in a manoeuvre [rad].
     wander_bank_rad, wander_pitch_rad : float
-        Departure that makes him fly the aircraft back in a gap between manoeuvres [rad].
+        Departure that makes him fly an axis back when he is not sweeping it [rad].
     level_bank_rad, level_pitch_rad : float
         Where he lets go again [rad].
+    k_altitude : float
+        Pitch attitude added per foot below the trimmed altitude [rad/ft] (0: no altitude hold).
+    altitude_pitch_rad : float
+        Largest pitch attitude added for the altitude [rad].
+    wander_altitude_ft, level_altitude_ft : float
+        Altitude error that makes him fly the pitch axis back, and where he lets go [ft].
+    k_speed : float
+        Throttle per unit of relative airspeed error (``(V_trim - V) / V_trim``) (0: throttle held at trim).
+    speed_ti_s : float
+        Integral time of the airspeed hold [s].
     """
 
     k_phi: float
@@ -342,10 +367,19 @@ class Pilot:
     wander_pitch_rad: float = math.radians(3.0)
     level_bank_rad: float = math.radians(2.0)
     level_pitch_rad: float = math.radians(1.0)
+    k_altitude: float = 0.0
+    altitude_pitch_rad: float = math.radians(3.0)
+    wander_altitude_ft: float = 100.0
+    level_altitude_ft: float = 30.0
+    k_speed: float = 0.0
+    speed_ti_s: float = 30.0
 
 
 #: Default crossover of the pilot's attitude hold [rad/s] (:class:`Pilot`).
 PILOT_BANDWIDTH_RAD_S = 0.2
+#: Crossovers of his altitude and airspeed holds, each a quarter and a half of the attitude's [rad/s] (outer
+#: loops slower than the loop they act through).
+ALTITUDE_BANDWIDTH_SHARE, SPEED_BANDWIDTH_SHARE = 0.25, 0.5
 
 
 def pilot_for(aircraft: str, speed_kt: float, altitude_ft: float, bandwidth_rad_s: float = PILOT_BANDWIDTH_RAD_S,
@@ -380,9 +414,19 @@ def pilot_for(aircraft: str, speed_kt: float, altitude_ft: float, bandwidth_rad_
         flown = fly(twin, deviation, split, check_envelope=False)
         rates.append(flown.rates[-1, rate] / step)
     k_phi, k_theta = (bandwidth_rad_s / r if abs(r) > 1e-6 else 0.0 for r in rates)
-    point = Trimmed(aircraft, speed_kt, altitude_ft).point
+    twin = Trimmed(aircraft, speed_kt, altitude_ft)
+    point = twin.point
+    v0 = speed_kt * _KT_TO_FPS
+    # the airspeed's relative rate of change 3 s after a throttle step of 0.1, surfaces at trim (1/s per unit)
+    step_th, seconds = 0.1, 3.0
+    throttle = [min(1.0, t + step_th) for t in point.throttle]
+    flown = fly(twin, np.zeros((int(round(seconds / point.dt_s)), len(SURFACES))), split, check_envelope=False,
+                throttle=throttle)
+    accel = (flown.airspeed_kt[-1] * _KT_TO_FPS - v0) / seconds / v0 / step_th
+    k_speed = SPEED_BANDWIDTH_SHARE * bandwidth_rad_s / accel if accel > 1e-6 else 0.0
     return Pilot(k_phi=k_phi, k_theta=k_theta, theta_trim_rad=math.radians(point.theta_deg),
-                 bandwidth_rad_s=bandwidth_rad_s)
+                 bandwidth_rad_s=bandwidth_rad_s, k_altitude=ALTITUDE_BANDWIDTH_SHARE * bandwidth_rad_s / v0,
+                 k_speed=k_speed)
 
 
 @dataclass
@@ -397,15 +441,20 @@ class Flown:
         n x 3: the pilot's corrections per surface (aileron, elevator, rudder) [rad] (zeros without a pilot).
     airframe : ndarray
         n x 3: the surface deviations the airframe got (through the hidden effects) [rad].
+    airspeed_kt, altitude_ft : ndarray
+        n: true airspeed [kt] and altitude above sea level [ft] after each step (the flight condition flown).
     """
 
     rates: np.ndarray
     pilot: np.ndarray
     airframe: np.ndarray
+    airspeed_kt: np.ndarray = field(default_factory=lambda: np.empty(0))
+    altitude_ft: np.ndarray = field(default_factory=lambda: np.empty(0))
 
 
 def fly(trimmed: Trimmed, deviations: np.ndarray, split: np.ndarray, *, effects: dict | None = None,
-        pilot: Pilot | None = None, pilot_flies: np.ndarray | None = None, check_envelope: bool = True) -> Flown:
+        pilot: Pilot | None = None, pilot_flies: np.ndarray | None = None, check_envelope: bool = True,
+        throttle: list[float] | None = None) -> Flown:
     """Fly the trimmed aircraft with its surfaces set step by step; the body rates after each step.
 
     Step k sets the surfaces to trim + ``H(deviations[k] + pilot_k)`` (``H``: the surface's hidden effects),
@@ -428,8 +477,11 @@ def fly(trimmed: Trimmed, deviations: np.ndarray, split: np.ndarray, *, effects:
     pilot : Pilot, optional
         The pilot (default: none, hands off throughout).
     pilot_flies : ndarray, optional
-        n booleans: the gaps between manoeuvres, where the pilot flies the aircraft back once it has wandered
-        (default: all steps); elsewhere he holds the stick still unless the aircraft departs (:class:`Pilot`).
+        n x 2 booleans (or n, for both): where the pilot flies the roll (ailerons) and the pitch (elevator) axis
+        back once it has wandered, i.e. where no manoeuvre sweeps that axis (default: all steps); elsewhere he
+        holds that stick still unless the aircraft departs (:class:`Pilot`).
+    throttle : list of float, optional
+        Throttle commands held throughout, one per engine (default: the trim's, or the pilot's airspeed hold).
     check_envelope : bool
         Stop with a ConfigError when the aircraft banks beyond 75 deg, pitches beyond 45 deg or descends below
         50 ft (the card is too strong for a linear validation).
@@ -439,11 +491,13 @@ def fly(trimmed: Trimmed, deviations: np.ndarray, split: np.ndarray, *, effects:
     nodes, write = trimmed._nodes, trimmed._write
     manager = fdm.get_property_manager()
     p_node, q_node, r_node = trimmed.rate_nodes()
-    phi_node, theta_node, height_node = (manager.get_node(p) for p in
-                                         ("attitude/phi-rad", "attitude/theta-rad", "position/h-agl-ft"))
+    phi_node, theta_node, height_node, vt_node, h_node = (
+        manager.get_node(p) for p in ("attitude/phi-rad", "attitude/theta-rad", "position/h-agl-ft",
+                                      "velocities/vt-fps", "position/h-sl-ft"))
     deviations = np.asarray(deviations, float)
     n = deviations.shape[0]
     rates, corrections, airframe = np.empty((n, 3)), np.zeros((n, 3)), np.empty((n, 3))
+    airspeed, altitude = np.empty(n), np.empty(n)
     filters = [(effects or {}).get(s) or HiddenEffects([], trimmed.point.dt_s) for s in SURFACES]
     base = np.array([trimmed.point.positions_rad[p] for p in POSITIONS])
     split = np.asarray(split, float)
@@ -452,33 +506,57 @@ def fly(trimmed: Trimmed, deviations: np.ndarray, split: np.ndarray, *, effects:
     every = max(1, int(round(0.5 / trimmed.point.dt_s)))
     dt = trimmed.point.dt_s
     alpha = 0.0 if pilot is None else min(1.0, dt / pilot.lag_s)
-    flies = np.ones(n, bool) if pilot_flies is None else np.asarray(pilot_flies, bool)
+    flies = np.ones((n, 2), bool) if pilot_flies is None else np.asarray(pilot_flies, bool)
+    if flies.ndim == 1:
+        flies = np.repeat(flies[:, None], 2, axis=1)
     held = [0.0, 0.0, 0.0]
-    wandered = departed = False
+    wandered, departed = [False, False], False
+    throttle_nodes = [manager.get_node(f"fcs/throttle-cmd-norm[{i}]") for i in range(len(trimmed.point.throttle))]
+    throttle_trim = list(trimmed.point.throttle)
+    if throttle is not None:
+        for node, value in zip(throttle_nodes, throttle):
+            node.set_double_value(float(value))
+    v_trim = trimmed.point.speed_kt * _KT_TO_FPS
+    h_trim = trimmed.point.altitude_ft
+    speed_hold = pilot is not None and pilot.k_speed > 0 and throttle is None
+    integral = 0.0
     previous = [None] * len(nodes)
     run = fdm.run
     with quiet_jsbsim():
         for k in range(n):
             if pilot is not None:
                 phi, theta = phi_node.get_double_value(), theta_node.get_double_value()
-                bank, pitch = abs(phi), abs(theta - pilot.theta_trim_rad)
-                back = bank < pilot.level_bank_rad and pitch < pilot.level_pitch_rad
-                if not flies[k]:
-                    wandered = False                     # a manoeuvre starts: hands off
-                elif bank > pilot.wander_bank_rad or pitch > pilot.wander_pitch_rad:
-                    wandered = True
-                elif back:
-                    wandered = False
-                if bank > pilot.recover_bank_rad or pitch > pilot.recover_pitch_rad:
+                below = h_trim - h_node.get_double_value()
+                theta_ref = pilot.theta_trim_rad + min(max(pilot.k_altitude * below, -pilot.altitude_pitch_rad),
+                                                       pilot.altitude_pitch_rad)
+                bank, pitch = abs(phi), abs(theta - theta_ref)
+                off = (bank > pilot.wander_bank_rad,
+                       pitch > pilot.wander_pitch_rad or abs(below) > pilot.wander_altitude_ft)
+                level = (bank < pilot.level_bank_rad,
+                         pitch < pilot.level_pitch_rad and abs(below) < pilot.level_altitude_ft)
+                for j in (0, 1):
+                    if not flies[k, j]:
+                        wandered[j] = False              # a manoeuvre sweeps this axis: hands off it
+                    elif off[j]:
+                        wandered[j] = True
+                    elif level[j]:
+                        wandered[j] = False
+                if bank > pilot.recover_bank_rad or abs(theta - pilot.theta_trim_rad) > pilot.recover_pitch_rad:
                     departed = True
-                elif back:
+                elif level[0] and pitch < pilot.level_pitch_rad:
                     departed = False
-                if wandered or departed:
-                    targets = (-pilot.k_phi * phi, -pilot.k_theta * (theta - pilot.theta_trim_rad))
-                    for j in (0, 1):
+                targets = (-pilot.k_phi * phi, -pilot.k_theta * (theta - theta_ref))
+                for j in (0, 1):
+                    if wandered[j] or departed:
                         value = held[j] + alpha * (targets[j] - held[j])
                         held[j] = min(max(value, -pilot.limit_rad), pilot.limit_rad)
                 corrections[k] = held
+                if speed_hold:
+                    error = (v_trim - vt_node.get_double_value()) / v_trim
+                    integral += error * dt
+                    push = pilot.k_speed * (error + integral / pilot.speed_ti_s)
+                    for node, trim in zip(throttle_nodes, throttle_trim):
+                        node.set_double_value(min(max(trim + push, 0.0), 1.0))
             command = deviations[k] + corrections[k]
             surface = [filters[j](float(command[j])) for j in range(3)]
             airframe[k] = surface
@@ -499,6 +577,8 @@ def fly(trimmed: Trimmed, deviations: np.ndarray, split: np.ndarray, *, effects:
             rates[k, 0] = p_node.get_double_value()
             rates[k, 1] = q_node.get_double_value()
             rates[k, 2] = r_node.get_double_value()
+            airspeed[k] = vt_node.get_double_value()
+            altitude[k] = h_node.get_double_value()
             if check_envelope and k % every == 0:
                 phi_deg = math.degrees(phi_node.get_double_value())
                 theta_deg = math.degrees(theta_node.get_double_value())
@@ -512,7 +592,8 @@ def fly(trimmed: Trimmed, deviations: np.ndarray, split: np.ndarray, *, effects:
                         "turbulence, or trim higher")
     if not np.all(np.isfinite(rates)):
         raise ConfigError(f"JSBSim {trimmed.aircraft}: the simulation diverged (non-finite rates)")
-    return Flown(rates=rates, pilot=corrections, airframe=airframe)
+    return Flown(rates=rates, pilot=corrections, airframe=airframe, airspeed_kt=airspeed / _KT_TO_FPS,
+                 altitude_ft=altitude)
 
 
 def _set_turbulence(trimmed: Trimmed, turbulence: Turbulence | None, seed: int) -> int | None:
@@ -643,9 +724,14 @@ def simulate_jsbsim_flight(aircraft: str, speed_kt: float, altitude_ft: float, c
 
     units = card_units(config)
     names = tuple(config.channels)
-    pilot_flies = np.ones(n, bool)                         # the gaps between manoeuvres (1 s clear of them)
+    pilot_flies = np.ones((n, 2), bool)                    # axes no manoeuvre sweeps (1 s clear of them)
     for seg in segments:
-        pilot_flies[(t_s >= seg.start_s - 1.0) & (t_s <= seg.end_s + 1.0)] = False
+        ins = surfaces[seg.channel][0]
+        moved = ins if seg.input_index is None else (ins[seg.input_index],)
+        swept = [j for j, s in enumerate(("aileron", "elevator")) if s in moved]
+        during = (t_s >= seg.start_s - 1.0) & (t_s <= seg.end_s + 1.0)
+        for j in swept:
+            pilot_flies[during, j] = False
     logged = {s: np.zeros(n) for s in SURFACES}            # the card's deviation on t_s (what is logged)
     flown = np.zeros((n, len(SURFACES)))                   # the same on t_mid (what the airframe is given)
     unit_series = {}
@@ -688,6 +774,8 @@ def simulate_jsbsim_flight(aircraft: str, speed_kt: float, altitude_ft: float, c
             if stream == "excitation":
                 measured[(name, stream)] = (sum(unit_series[(name, j)] for j in
                                                 (range(len(ins)) if ch.is_mimo else (None,))), 0.0, 0.0)
+            elif stream == AIRSPEED_STREAM:      # true airspeed [m/s], as a pitot-static system logs it
+                measured[(name, stream)] = (done.airspeed_kt * KT_TO_M_S, AIRSPEED_NOISE_M_S, 0.0)
             else:
                 measured[(name, stream)] = (surface_logged[_surface_of(spec, name)], *surface_noise)
         if ch.trigger is not None:

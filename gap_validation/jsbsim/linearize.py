@@ -625,6 +625,10 @@ def linearize(aircraft: str, speed_kt: float, altitude_ft: float) -> Linearizati
 
 # ------------------------------------------------------------------------------------------------ the config
 #: The config's signals (DESIGN.md default topics): surface joint -> input, rate -> IMU field.
+#: Topic of the true airspeed (std_msgs/Float64, m/s) in the configs :func:`config_mapping` writes.
+AIRSPEED_TOPIC = "/airspeed"
+#: Knots to metres per second.
+KT_TO_M_S = 0.514444
 INPUT_FIELDS = {"aileron": "position[aileron]", "elevator": "position[elevator]", "rudder": "position[rudder]"}
 OUTPUT_FIELDS = {"p": "angular_velocity.x", "q": "angular_velocity.y", "r": "angular_velocity.z"}
 #: SISO channels: name -> (surface, rate).
@@ -638,7 +642,7 @@ def _signal(topic: str, field_text: str) -> dict:
 
 
 def config_mapping(lin: Linearization, grid: FrequencyGrid = DEFAULT_GRID, *, surface_topic: str = "/control_surfaces",
-                   imu_topic: str = "/imu") -> dict:
+                   imu_topic: str = "/imu", airspeed_topic: str | None = AIRSPEED_TOPIC) -> dict:
     """The validation config (DESIGN.md) of the linearisation, as a mapping: SISO ``roll``, ``pitch``, ``yaw`` and
     the MIMO ``lateral`` (aileron and rudder to p and r).
 
@@ -650,10 +654,16 @@ def config_mapping(lin: Linearization, grid: FrequencyGrid = DEFAULT_GRID, *, su
         Frequency grid of every channel.
     surface_topic, imu_topic : str
         JointState topic of the surfaces, Imu topic of the rates.
+    airspeed_topic : str or None
+        Float64 topic of the true airspeed [m/s], each channel's ``airspeed`` with the trim's as ``trim_m_s`` (the
+        inputs scaled by the dynamic pressure ratio); None: no ``airspeed`` key.
     """
     a, b, c = (_rounded(m) for m in (lin.a, lin.b, lin.c))
     frequencies = {"min_rad_s": float(grid.min_rad_s), "max_rad_s": float(grid.max_rad_s), "count": int(grid.count)}
     channels: dict = {}
+    airspeed = None if airspeed_topic is None else {
+        "topic": airspeed_topic, "field": "data",
+        "trim_m_s": float(f"{lin.point.speed_kt * KT_TO_M_S:.6g}")}
     for name, (surface, rate) in CHANNELS.items():
         channels[name] = {
             "input": _signal(surface_topic, INPUT_FIELDS[surface]),
@@ -662,6 +672,8 @@ def config_mapping(lin: Linearization, grid: FrequencyGrid = DEFAULT_GRID, *, su
             "model": {"state_space": {"A": a, "B": b, "C": c, "input": SURFACES.index(surface),
                                       "output": RATES.index(rate)}},
         }
+        if airspeed is not None:
+            channels[name]["airspeed"] = dict(airspeed)
     name, surfaces, rates = MIMO_CHANNEL
     cols = [SURFACES.index(s) for s in surfaces]
     rows = [RATES.index(r) for r in rates]
@@ -672,6 +684,8 @@ def config_mapping(lin: Linearization, grid: FrequencyGrid = DEFAULT_GRID, *, su
         "model": {"state_space": {"A": a, "B": [[row[j] for j in cols] for row in b],
                                   "C": [c[i] for i in rows]}},
     }
+    if airspeed is not None:
+        channels[name]["airspeed"] = dict(airspeed)
     point = lin.point
     return {"aircraft": f"JSBSim {point.aircraft}",
             "description": (f"FGLinearization of {point.aircraft} at {point.speed_kt:g} kt true airspeed, "
@@ -734,6 +748,9 @@ def config_text(lin: Linearization, grid: FrequencyGrid = DEFAULT_GRID) -> str:
         "#     (lags, rate limits, free play) are NOT in the model (FGLinearization runs the FCS in trim mode);",
         "#     gap-validate simulate --jsbsim sets the surfaces directly, so they are not in its flights either.",
         "#   outputs: body rates p, q, r [rad/s] (velocities/p-rad_sec ...), IMU angular_velocity.x/y/z (FRD).",
+        f"#   airspeed: true airspeed [m/s] on {AIRSPEED_TOPIC} (std_msgs/Float64); the inputs are scaled by",
+        f"#     (airspeed / {p.speed_kt * KT_TO_M_S:.6g})^2, the dynamic pressure relative to the trim's (delete the",
+        "#     key when the flight log has no airspeed).",
         f"#   states: {', '.join(f'{s} [{u}]' for s, u in zip(lin.states, lin.state_units))}",
         "#     (FGLinearization's Psi, Latitude, Longitude, Alt left out: they do not feed back into the rates)",
         f"#   poles [rad/s]: {poles}",
@@ -753,6 +770,8 @@ def config_text(lin: Linearization, grid: FrequencyGrid = DEFAULT_GRID) -> str:
             lines += [f"      - {_flow(s)}" for s in ch["inputs"]]
             lines.append("    outputs:")
             lines += [f"      - {_flow(s)}" for s in ch["outputs"]]
+        if "airspeed" in ch:
+            lines.append(f"    airspeed: {_flow(ch['airspeed'])}")
         lines.append(f"    frequencies: {_flow(ch['frequencies'])}")
         ss = ch["model"]["state_space"]
         lines += ["    model:", "      state_space:"]

@@ -67,6 +67,11 @@ def channel_sentences(ch: ChannelResult) -> list[str]:
         text = top.sentence or f"missing: {top.effect}"
         if text not in ch.message:
             out.append(text)
+    q = ch.dynamic_pressure_ratio
+    if q:
+        clipped = f"; {q['clipped']} samples beyond 0.25-4 clipped" if q.get("clipped") else ""
+        out.append(f"flown at {q['min']:.2f}-{q['max']:.2f} of the model's dynamic pressure (mean {q['mean']:.2f}, "
+                   f"from the airspeed): the surfaces scaled to the model's{clipped}")
     bad = sum(ch.bad_samples.values())
     if bad:
         reasons = ", ".join(f"{k} x{v}" for k, v in sorted(ch.bad_samples.items()))

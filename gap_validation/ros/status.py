@@ -192,6 +192,7 @@ def channel_status(result: ChannelResult, *, warn_epsilon: float = WARN_EPSILON,
     values.append(("margins_note", result.margins_text() or ""))
     values.append(("nonlinearity", nonlinearity or result.nonlinearity or ""))
     values.append(("conventions", json.dumps([c.to_json_dict() for c in result.conventions])))
+    values.append(("dynamic_pressure_ratio", json.dumps(data.get("dynamic_pressure_ratio"))))
     for key, value in (extra_values or {}).items():
         values.append((key, _value_text(value)))
 

@@ -11,7 +11,7 @@ model called model-limited, given a named effect, or warned of a feedback loop i
 * **second** (``../shared/flights``, written apart: a pilot whose trim corrections move every surface all the time,
   surface-equivalent gusts, jittered and dropped stamps; ``benchmarks/_other_simulators.py``): random sweeps, gusts
   and rates; one flight in four flies pitch inside the generator's rate damper, without the excitation logged.
-* **jsbsim** (the nonlinear 6-DOF of FlightGear and ArduPilot SITL; ``gap_validation.jsbsim``): the c172x, J3Cub
+* **jsbsim** (the nonlinear 6-DOF of FlightGear and ArduPilot SITL; ``gap_validation.jsbsim``): the c172x, c182
   and pa28 at their trim conditions, calm and in JSBSim's light turbulence, against JSBSim's own linearisation at
   the flown condition (5-10 % off the nonlinear model at some frequencies: a real model's error).
 
@@ -26,6 +26,7 @@ written). Seeded: the same ``--seed`` gives the same flights.
     python benchmarks/false_alarms.py                                   # 240 + 60 + 30 flights, the README tables
     python benchmarks/false_alarms.py --flights 40 --second 20 --jsbsim 9     # quicker
     python benchmarks/false_alarms.py --simulators ours                 # one simulator
+    python benchmarks/false_alarms.py --simulators jsbsim --airspeed    # JSBSim with the airspeed logged
 """
 from __future__ import annotations
 
@@ -127,13 +128,15 @@ def draw_jsbsim(rng: np.random.Generator, index: int) -> dict:
 _JSBSIM_CONFIGS: dict = {}
 
 
-def _jsbsim_config(aircraft: str, speed_kt: float, altitude_ft: float):
-    """JSBSim's linearisation at the flown condition, its SISO channels (cached per worker)."""
-    key = (aircraft, speed_kt, altitude_ft)
+def _jsbsim_config(aircraft: str, speed_kt: float, altitude_ft: float, airspeed: bool = False):
+    """JSBSim's linearisation at the flown condition, its SISO channels (cached per worker); with ``airspeed``
+    each channel's airspeed stream (the inputs' deviations scaled by the dynamic pressure ratio)."""
+    key = (aircraft, speed_kt, altitude_ft, airspeed)
     if key not in _JSBSIM_CONFIGS:
-        from gap_validation.jsbsim.linearize import config_mapping, linearize
+        from gap_validation.jsbsim.linearize import AIRSPEED_TOPIC, config_mapping, linearize
 
-        data = config_mapping(linearize(aircraft, speed_kt, altitude_ft))
+        data = config_mapping(linearize(aircraft, speed_kt, altitude_ft),
+                              airspeed_topic=AIRSPEED_TOPIC if airspeed else None)
         data["channels"] = {k: v for k, v in data["channels"].items() if k in ("roll", "pitch", "yaw")}
         _JSBSIM_CONFIGS[key] = parse_config(data, f"JSBSim {aircraft} linearised at {speed_kt:g} kt")
     return _JSBSIM_CONFIGS[key]
@@ -169,7 +172,8 @@ def fly(flight: dict) -> list[dict]:
     elif simulator == "jsbsim":
         from gap_validation.jsbsim.flight import jsbsim_options, parse_turbulence, simulate_jsbsim_flight
 
-        config = _jsbsim_config(flight["aircraft"], flight["speed_kt"], flight["altitude_ft"])
+        config = _jsbsim_config(flight["aircraft"], flight["speed_kt"], flight["altitude_ft"],
+                                flight.get("airspeed", False))
         flown = simulate_jsbsim_flight(flight["aircraft"], flight["speed_kt"], flight["altitude_ft"], config,
                                        options=jsbsim_options(**flight["options"]), seed=flight["seed"],
                                        turbulence=parse_turbulence("light" if flight["turbulent"] else None))
@@ -249,6 +253,8 @@ def main(argv=None) -> int:
     parser.add_argument("--second", type=int, default=60, help="flights of the second simulator")
     parser.add_argument("--jsbsim", type=int, default=30, help="JSBSim flights")
     parser.add_argument("--simulators", default="ours,second,jsbsim")
+    parser.add_argument("--airspeed", action="store_true",
+                        help="JSBSim configs with the airspeed stream (the surfaces scaled by the dynamic pressure)")
     parser.add_argument("--seed", type=int, default=12)
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--show", action="store_true", help="print every false alarm")
@@ -270,7 +276,7 @@ def main(argv=None) -> int:
             flights += [other.draw_second(rng, i) for i in range(args.second)]
     if "jsbsim" in chosen:
         rng = np.random.default_rng([args.seed, 3])
-        flights += [draw_jsbsim(rng, i) for i in range(args.jsbsim)]
+        flights += [{**draw_jsbsim(rng, i), "airspeed": args.airspeed} for i in range(args.jsbsim)]
     start = time.perf_counter()
     rows: list[dict] = []
     with concurrent.futures.ProcessPoolExecutor(max_workers=args.workers) as pool:

@@ -38,6 +38,10 @@ def register(sub) -> None:
     p.add_argument("--out", metavar="CFG.yaml", help="the config to write (required)")
     p.add_argument("--frequencies", type=_grid, default=None, metavar="MIN:MAX[:COUNT]",
                    help="frequency grid of every channel [rad/s] (default 1:30:40)")
+    p.add_argument("--airspeed-topic", metavar="TOPIC", default=None,
+                   help="give every channel an airspeed stream on TOPIC (std_msgs/Float64, true airspeed m/s) "
+                        "with the trim's: the surfaces' deviations are scaled by the dynamic pressure ratio "
+                        "(simulate --jsbsim then logs it)")
     p.add_argument("--force", action="store_true", help="replace CFG.yaml if it exists")
     p.set_defaults(func=run)
 
@@ -74,7 +78,10 @@ def run(args) -> int:
 
     grid = args.frequencies or DEFAULT_GRID
     lin = linearize(args.jsbsim, args.speed_kt, args.altitude_ft)
-    write_config(lin, out, grid)
+    topic = args.airspeed_topic
+    if topic is not None and (not topic.strip() or " " in topic):
+        raise ConfigError(f"--airspeed-topic {topic!r}: expected a ROS topic name such as /airspeed")
+    write_config(lin, out, grid, None if topic is None else "/" + topic.lstrip("/"))
     poles = ", ".join(f"{z.real:.3g}{z.imag:+.3g}j" if abs(z.imag) > 1e-9 else f"{z.real:.3g}" for z in lin.poles())
     print(f"wrote {out}: JSBSim {lin.point.version} {lin.point.describe()}")
     print(f"  channels roll (aileron -> p), pitch (elevator -> q), yaw (rudder -> r), lateral (aileron, rudder -> "

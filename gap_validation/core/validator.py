@@ -341,6 +341,7 @@ class OnlineValidator:
                                model_description=_describe_model(channel), model_spec=channel.model_spec)
         result.excitation = est.excitation
         result.dynamic_pressure_ratio = est.dynamic_pressure_ratio
+        result.warnings.extend(_condition_warnings(result.dynamic_pressure_ratio))
         result.manoeuvres_by_kind = est.counted_kinds
         self._time_domain(name, channel, est, result)
         avg = est.averaged()
@@ -404,6 +405,7 @@ class OnlineValidator:
                                model_description=_describe_model(channel), model_spec=channel.model_spec)
         result.excitation = est.excitation
         result.dynamic_pressure_ratio = est.dynamic_pressure_ratio
+        result.warnings.extend(_condition_warnings(result.dynamic_pressure_ratio))
         result.manoeuvres_by_kind = est.counted_kinds
         avg, matrix = est.averaged(), est.averaged_matrix()
         if avg is None or matrix is None:
@@ -605,6 +607,22 @@ def _frequency_reasons(avg: SpectralEstimate, confident: np.ndarray, coherence_t
             out.append("too_few_dof")
         continue
     return out
+
+
+#: Mean dynamic pressure ratios within which the airspeed scaling stands for the flight condition: the scaling
+#: corrects the control power; the aerodynamic modes move with the square root of the dynamic pressure, 5 % at
+#: the edges of this range.
+CONDITION_RANGE = (0.9, 1.1)
+
+
+def _condition_warnings(ratio: dict | None) -> list[str]:
+    """A warning when the flight's mean dynamic pressure is off the model's by more than :data:`CONDITION_RANGE`."""
+    if not ratio or CONDITION_RANGE[0] <= ratio["mean"] <= CONDITION_RANGE[1]:
+        return []
+    return [f"flown at {ratio['mean']:.2f} of the model's dynamic pressure on average (airspeed "
+            f"{ratio['mean'] ** 0.5:.2f} of its trim_m_s): the airspeed scaling corrects the control power, not the "
+            f"modes, which move with speed (about {100 * abs(ratio['mean'] ** 0.5 - 1):.0f} %); this is not the model's "
+            f"flight condition: validate a model of the flown one"]
 
 
 def _why_nothing(est: FrequencyResponseEstimator, channel: ChannelConfig) -> str:

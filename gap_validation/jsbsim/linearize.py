@@ -642,7 +642,7 @@ def _signal(topic: str, field_text: str) -> dict:
 
 
 def config_mapping(lin: Linearization, grid: FrequencyGrid = DEFAULT_GRID, *, surface_topic: str = "/control_surfaces",
-                   imu_topic: str = "/imu", airspeed_topic: str | None = AIRSPEED_TOPIC) -> dict:
+                   imu_topic: str = "/imu", airspeed_topic: str | None = None) -> dict:
     """The validation config (DESIGN.md) of the linearisation, as a mapping: SISO ``roll``, ``pitch``, ``yaw`` and
     the MIMO ``lateral`` (aileron and rudder to p and r).
 
@@ -656,7 +656,7 @@ def config_mapping(lin: Linearization, grid: FrequencyGrid = DEFAULT_GRID, *, su
         JointState topic of the surfaces, Imu topic of the rates.
     airspeed_topic : str or None
         Float64 topic of the true airspeed [m/s], each channel's ``airspeed`` with the trim's as ``trim_m_s`` (the
-        inputs scaled by the dynamic pressure ratio); None: no ``airspeed`` key.
+        inputs' deviations scaled by the dynamic pressure ratio); None (default): no ``airspeed`` key.
     """
     a, b, c = (_rounded(m) for m in (lin.a, lin.b, lin.c))
     frequencies = {"min_rad_s": float(grid.min_rad_s), "max_rad_s": float(grid.max_rad_s), "count": int(grid.count)}
@@ -716,7 +716,7 @@ def _matrix_block(name: str, rows: list, indent: str, anchor: str | None = None)
     return [head] + [f"{indent}  - {_flow(row)}" for row in rows]
 
 
-def config_text(lin: Linearization, grid: FrequencyGrid = DEFAULT_GRID) -> str:
+def config_text(lin: Linearization, grid: FrequencyGrid = DEFAULT_GRID, airspeed_topic: str | None = None) -> str:
     """The config of :func:`config_mapping` as YAML text with a header comment (aircraft, condition, trim,
     conventions, JSBSim version); the SISO channels share one A, B, C through YAML anchors.
 
@@ -726,8 +726,10 @@ def config_text(lin: Linearization, grid: FrequencyGrid = DEFAULT_GRID) -> str:
         From :func:`linearize`.
     grid : FrequencyGrid
         Frequency grid of every channel.
+    airspeed_topic : str, optional
+        Each channel's ``airspeed`` on this topic (:func:`config_mapping`).
     """
-    data = config_mapping(lin, grid)
+    data = config_mapping(lin, grid, airspeed_topic=airspeed_topic)
     p = lin.point
     poles = ", ".join(_pole_text(z) for z in lin.poles())
     residual = max(abs(v) for v in p.residuals.values())
@@ -748,9 +750,9 @@ def config_text(lin: Linearization, grid: FrequencyGrid = DEFAULT_GRID) -> str:
         "#     (lags, rate limits, free play) are NOT in the model (FGLinearization runs the FCS in trim mode);",
         "#     gap-validate simulate --jsbsim sets the surfaces directly, so they are not in its flights either.",
         "#   outputs: body rates p, q, r [rad/s] (velocities/p-rad_sec ...), IMU angular_velocity.x/y/z (FRD).",
-        f"#   airspeed: true airspeed [m/s] on {AIRSPEED_TOPIC} (std_msgs/Float64); the inputs are scaled by",
-        f"#     (airspeed / {p.speed_kt * KT_TO_M_S:.6g})^2, the dynamic pressure relative to the trim's (delete the",
-        "#     key when the flight log has no airspeed).",
+        *([f"#   airspeed: true airspeed [m/s] on {airspeed_topic} (std_msgs/Float64); the inputs' deviations from",
+           f"#     trim are scaled by (airspeed / {p.speed_kt * KT_TO_M_S:.6g})^2, the dynamic pressure relative to the",
+           "#     trim's (the control power; the modes move with speed too)."] if airspeed_topic else []),
         f"#   states: {', '.join(f'{s} [{u}]' for s, u in zip(lin.states, lin.state_units))}",
         "#     (FGLinearization's Psi, Latitude, Longitude, Alt left out: they do not feed back into the rates)",
         f"#   poles [rad/s]: {poles}",
@@ -798,7 +800,8 @@ def _pole_text(z: complex) -> str:
     return f"{z.real:.4g}{z.imag:+.4g}j"
 
 
-def write_config(lin: Linearization, path: str | os.PathLike, grid: FrequencyGrid = DEFAULT_GRID) -> Path:
+def write_config(lin: Linearization, path: str | os.PathLike, grid: FrequencyGrid = DEFAULT_GRID,
+                 airspeed_topic: str | None = None) -> Path:
     """Write :func:`config_text` to ``path`` atomically.
 
     Parameters
@@ -809,6 +812,8 @@ def write_config(lin: Linearization, path: str | os.PathLike, grid: FrequencyGri
         The config file.
     grid : FrequencyGrid
         Frequency grid of every channel.
+    airspeed_topic : str, optional
+        Each channel's ``airspeed`` on this topic (:func:`config_mapping`).
 
     Raises
     ------
@@ -819,7 +824,7 @@ def write_config(lin: Linearization, path: str | os.PathLike, grid: FrequencyGri
 
     path = Path(path)
     try:
-        atomic_write_text(path, config_text(lin, grid))
+        atomic_write_text(path, config_text(lin, grid, airspeed_topic))
     except OSError as err:
         raise DataError(f"{path}: cannot write config ({err.strerror or err})") from None
     return path

@@ -141,3 +141,31 @@ def test_a_change_ends_at_its_deadline_when_a_publisher_never_matches():
     with pytest.raises(RuntimeError):
         intake.settle(RELIABLE, publishers=1, deadline=9.0, subscription=FakeSubscription())
     assert message_key({"source_timestamp": None, "publication_sequence_number": None}) is None
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_messages_one_subscription_dropped_come_in_publication_order(seed):
+    """Both subscriptions drained (publishers not known yet): the best-effort one drops messages under load that
+    the reliable one delivers. Taken once each and in the order they were published: the reliable queue's fill-ins
+    after the best-effort queue's later messages would be a time jump back (a new segment: a manoeuvre cut in
+    two, seen on a node under load)."""
+    rng = random.Random(seed)
+    best, reliable = FakeSubscription(matched=1), FakeSubscription(matched=0)
+    intake = Intake("/imu", "sensor_msgs/msg/Imu", "fields", {RELIABLE: reliable, BEST_EFFORT: best}, None)
+    taken, seq = [], 0
+    for round_ in range(30):
+        if round_ == 10:       # the publishers are known reliable: both drained until the reliable one matched
+            intake.settle(RELIABLE, publishers=1, deadline=100.0)
+        if round_ == 20:
+            reliable.matched = 1
+        for _ in range(rng.randint(1, 60)):
+            reliable.deliver(seq)
+            if rng.random() > 0.3:                    # best effort: three in ten lost
+                best.deliver(seq)
+            seq += 1
+        retire = intake.retire_due(float(round_))
+        taken += intake.drain(1000)
+        if retire:
+            intake.retired()
+            best.queue.clear()
+    assert [info["publication_sequence_number"] for _, info in taken] == list(range(seq))

@@ -126,6 +126,12 @@ def message_key(info: dict) -> tuple | None:
     return None if source is None and sequence is None else (source, sequence)
 
 
+def _publication_order(item: tuple) -> tuple:
+    """Sort key of a taken message: its source timestamp, then its sequence number (0 where missing)."""
+    info = item[1]
+    return (info.get("source_timestamp") or 0, info.get("publication_sequence_number") or 0)
+
+
 class Intake:
     """One topic's subscriptions, drained in one wake-up: one, or two while the reliability is being settled.
 
@@ -225,7 +231,8 @@ class Intake:
         return self._keys is not None
 
     def drain(self, limit: int) -> list:
-        """Every waiting message, ``[(message or bytes, info), ...]``, each once, in the order they came.
+        """Every waiting message, ``[(message or bytes, info), ...]``, each once, in the order they were published
+        (with several subscriptions: their source timestamps).
 
         Parameters
         ----------
@@ -251,6 +258,9 @@ class Intake:
             else:
                 keys.add(key)
                 out.append(item)
+        # in the order they were published: a message one queue dropped (best effort under load) and the other
+        # delivered would otherwise come after later ones, a time jump back to the router (a manoeuvre cut in two)
+        out.sort(key=_publication_order)
         if len(self.subscriptions) == 1:
             self._linger -= 1
             if self._linger <= 0:

@@ -553,9 +553,10 @@ class FrequencyResponseEstimator:
         How many of ``streams`` are inputs and outputs (the rest are instruments).
     trim_airspeed : float, optional
         With it, the last of ``streams`` is the airspeed (the flight condition), not an instrument: on the grid
-        every input sample is multiplied by ``(airspeed / trim_airspeed)^2``, the dynamic pressure relative to the
-        model's (control power scales with it), so a flight that strays from the model's condition is compared
-        at that condition. :attr:`dynamic_pressure_ratio` says how far it strayed.
+        each input's deviation from its trim is multiplied by ``(airspeed / trim_airspeed)^2``, the dynamic
+        pressure relative to the model's (control power scales with it), so gusts and small drifts of the
+        condition do not read as a model error (:meth:`_at_trim_condition`). :attr:`dynamic_pressure_ratio` says
+        how far the flight strayed.
     **options
         See :data:`ESTIMATOR_DEFAULTS` and the module docstring. Unknown names raise
         :class:`~gap_validation.core.errors.ConfigError` naming the key.

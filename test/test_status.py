@@ -119,3 +119,39 @@ def test_the_run_ends_on_silence_the_node_heard_not_on_old_reception_stamps():
     assert not task.run_ended(121.0, 10.0)
     task.update_seen(router, arrivals, 122.5, taken)
     assert task.run_ended(122.5, 10.0) and not task.run_ended(130.0, 10.0)      # once
+
+
+def test_what_the_full_diagnosis_adds_joins_the_status_as_in_replay():
+    """Parity with replay (issue 26): the node's status comes from the cheap result, the diagnosis from a worker;
+    the warnings and the margins caveat the diagnosis adds (the diagnosed model failing the winding-number
+    condition) must reach the status, once, and go when the diagnosis is forgotten."""
+    from gap_validation.core.margins import margins_from_epsilon
+    from gap_validation.core.results import ChannelResult
+    from gap_validation.messages.router import MessageRouter
+    from gap_validation.core.config import parse_config
+    from gap_validation.core.validator import OnlineValidator
+    from gap_validation.ros.status import ChannelTask
+
+    config = parse_config({"channels": {"pitch": {
+        "input": {"topic": "/s", "field": "data"}, "output": {"topic": "/imu", "field": "angular_velocity.y"},
+        "model": {"numerator": [1.0], "denominator": [1.0, 1.0]}}}}, "cfg.yaml")
+    task = ChannelTask("pitch", config.channels["pitch"])
+    router = MessageRouter(config, OnlineValidator(config, diagnose=False))
+    cheap = ChannelResult(name="pitch", sweeps=3, epsilon=0.3, nu_gap=0.25, limited_by="model",
+                          margins=margins_from_epsilon(0.3), warnings=["the manoeuvres' edge warning"])
+    winding = ("the model and the diagnosed model (time_delay) fail the winding-number condition (...): if the "
+               "diagnosis is right, the nu-gap between the model and the aircraft is 1")
+
+    def values():
+        status = task.run(cheap, 0.0, router, lambda topic: 0, stale_timeout_s=1e9)
+        return dict(status.values)
+
+    before = values()
+    assert json.loads(before["warnings"]) == ["the manoeuvres' edge warning"] and before["margins_guaranteed"] == "true"
+    task.take_diagnosis(None, None, ["the manoeuvres' edge warning", winding], "the diagnosed model fails ...")
+    after = values()
+    assert json.loads(after["warnings"]) == ["the manoeuvres' edge warning", winding]
+    assert after["margins_guaranteed"] == "false" and "the diagnosed model fails" in after["margins_note"]
+    assert cheap.warnings == ["the manoeuvres' edge warning"] and not cheap.margins_caveat   # not changed in place
+    task.forget_diagnosis()
+    assert values() == before

@@ -412,7 +412,8 @@ class ValidatorNode(Node):
     def _take_diagnosis(self, result: ValidationResult) -> None:
         for name, ch in result.channels.items():
             if (ch.epsilon is not None or (ch.mimo is not None and ch.nu_gap is not None)) and name in self._tasks:
-                self._tasks[name].take_diagnosis(ch.diagnosis[0] if ch.diagnosis else None, ch.nonlinearity)
+                self._tasks[name].take_diagnosis(ch.diagnosis[0] if ch.diagnosis else None, ch.nonlinearity,
+                                                 ch.warnings, ch.margins_caveat)
 
     def wait_for_diagnosis(self, timeout_s: float = 60.0) -> bool:
         """Block until the running full diagnosis (if any) is done and take its result (tests, tools)."""

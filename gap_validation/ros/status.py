@@ -32,6 +32,7 @@ exact); missing numbers are ``null`` (margins for epsilon >= 1: no guarantee).
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import dataclass, field
 from typing import Any, Callable, Collection, Mapping, Sequence
@@ -258,6 +259,10 @@ class ChannelTask:
         Whether a full diagnosis has been taken for the current model.
     nonlinearity : str or None
         That diagnosis' amplitude-dependence verdict (value ``nonlinearity``).
+    diagnosis_warnings : list of str
+        That diagnosis' result's warnings (those the cheap result lacks join the status's ``warnings``).
+    diagnosis_caveat : str
+        That diagnosis' margins caveat (the status's ``margins_guaranteed``, ``margins_note``).
     """
 
     def __init__(self, name: str, channel: ChannelConfig):
@@ -269,6 +274,8 @@ class ChannelTask:
         self.top: Candidate | None = None
         self.diagnosed = False
         self.nonlinearity: str | None = None
+        self.diagnosis_warnings: list[str] = []
+        self.diagnosis_caveat = ""
         self._run_open = False
 
     def run_ended(self, now_s: float, timeout_s: float) -> bool:
@@ -308,7 +315,8 @@ class ChannelTask:
         """The node's router was replaced (reload, reset): its sample counts start again."""
         self._seen_count = {}
 
-    def take_diagnosis(self, candidate: Candidate | None, nonlinearity: str | None = None) -> None:
+    def take_diagnosis(self, candidate: Candidate | None, nonlinearity: str | None = None,
+                       warnings: Sequence[str] = (), margins_caveat: str = "") -> None:
         """A full diagnosis finished for the current model; ``candidate`` is its top (None: no effect helps).
 
         Parameters
@@ -317,12 +325,19 @@ class ChannelTask:
             The top candidate.
         nonlinearity : str, optional
             Its amplitude-dependence verdict (sweeps at different amplitudes disagree), None when not found.
+        warnings : sequence of str
+            The full result's warnings: those the diagnosis adds (e.g. the diagnosed model failing the
+            winding-number condition) join the cheap result's in :meth:`run`, as in replay's result.
+        margins_caveat : str
+            The full result's margins caveat (the same).
         """
         self.top, self.diagnosed, self.nonlinearity = candidate, True, nonlinearity
+        self.diagnosis_warnings, self.diagnosis_caveat = list(warnings), margins_caveat
 
     def forget_diagnosis(self) -> None:
         """The model or the spectra changed: the last diagnosis no longer holds."""
         self.top, self.diagnosed, self.nonlinearity = None, False, None
+        self.diagnosis_warnings, self.diagnosis_caveat = [], ""
 
     def update_seen(self, router: MessageRouter, arrivals: Mapping[str, float], now_s: float,
                     taken: Mapping[str, float] | None = None) -> None:
@@ -412,6 +427,11 @@ class ChannelTask:
         """
         waiting, stale, ages = self.reasons(now_s, stale_timeout_s, pending)
         state = "off" if diagnosis_off else ("done" if self.diagnosed else "pending")
+        added = [w for w in self.diagnosis_warnings if w not in result.warnings]
+        if added or (self.diagnosis_caveat and not result.margins_caveat):   # what the full diagnosis adds
+            result = dataclasses.replace(result, warnings=list(result.warnings) + added,
+                                         margins_caveat=result.margins_caveat or (
+                                             self.diagnosis_caveat if result.margins.guaranteed else ""))
         mimo = getattr(self.channel, "is_mimo", False)
         extra = {**ages, "samples_input": sum(router.samples(self.name, s) for s in self.channel.input_streams)
                  if mimo else router.samples(self.name, "input"),

@@ -198,6 +198,8 @@ def fly(flight: dict) -> list[dict]:
                      "warnings": list(ch.warnings),
                      "feedback": any("feedback loop" in w for w in ch.warnings),
                      "convention": bool(ch.conventions),
+                     "lead_share": (ch.rate_leads_surface or {}).get("share", float("nan")),
+                     "lead_p": (ch.rate_leads_surface or {}).get("p_value", float("nan")),
                      "coupling": any("other_inputs" in w for w in ch.warnings)})
     return rows
 
@@ -243,7 +245,24 @@ def _verdict(rows: list[dict]) -> tuple[bool, str]:
     if closed:
         text += (f"; closed loop without the excitation ({len(closed)} channels): warned {100 * warned:.1f} % "
                  f"(goal >= 95 %), an effect named on {wrong}")
-    return ok, text + (": PASS" if ok else ": FAIL")
+    return ok, text + (": PASS" if ok else ": FAIL") + _lead_shares(open_loop, closed)
+
+
+def _lead_shares(open_loop: list[dict], closed: list[dict]) -> str:
+    """The lead test's share (background.LeadTest) on open- and closed-loop channels: its false-positive margin."""
+    def spread(rows, significant=False):
+        shares = np.array([r["lead_share"] for r in rows if not significant or r["lead_p"] < 1e-3], float)
+        shares = shares[np.isfinite(shares)]
+        return shares if shares.size else np.array([np.nan])
+
+    text = ""
+    if open_loop:
+        q = np.percentile(spread(open_loop), [50, 99, 100])
+        text += (f"\n  lead share, open loop: median {100 * q[0]:.1f} %, 99th percentile {100 * q[1]:.1f} %, largest "
+                 f"{100 * q[2]:.1f} % (largest with F beyond chance {100 * np.max(spread(open_loop, True)):.1f} %)")
+    if closed:
+        text += f"; closed loop: smallest {100 * np.min(spread(closed)):.1f} %"
+    return text
 
 
 def main(argv=None) -> int:

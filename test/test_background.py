@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from gap_validation.core.background import (MIN_TRIM_AVERAGES, TrimResponse, TrimSpectrum)
-from gap_validation.core.closed_loop import FEEDBACK_FALSE_ALARM, feedback_bias, feedback_evidence
+from gap_validation.core.background import (MIN_TRIM_AVERAGES, LeadTest, TrimResponse, TrimSpectrum)
+from gap_validation.core.closed_loop import FEEDBACK_FALSE_ALARM, LEAD_SHARE, feedback_bias, feedback_evidence, rate_leads
 from gap_validation.core.spectra import STATUS_BELOW_TRIM, record_bands
 from gap_validation.core.sweeps import SweepDetector, quiet_quantile
 
@@ -155,6 +155,77 @@ def test_a_manoeuvre_20_db_above_the_trim_motion_is_not_biased():
     variance = (0.05 * np.abs(p)) ** 2
     assert not feedback_bias(trim, p, variance, np.full(W.size, 100.0)).any()          # 20 dB: 1 % x |3 P|
     assert feedback_bias(trim, p, variance, np.full(W.size, 3.0)).all()                # 5 dB
+
+
+def _airframe_trim(rng, n, loop_gain=0.0, pilot=0.003, gust=0.02, noise=0.002):
+    """Trim at 100 Hz: a roll-rate airframe 50 / (s + 10) (discretised), a pilot's slow corrections (white noise
+    through 1 s knots, as the second simulator's), gusts at the surface, sensor noise on both logged signals; with
+    ``loop_gain`` a damper u = -K y_measured one step late adds to the pilot's input."""
+    knots = rng.standard_normal(n // 100 + 2)
+    command = pilot * np.interp(np.arange(n) / 100, np.arange(knots.size), knots)
+    b, a = signal.butter(1, 2.0 / (np.pi * 100))
+    d = signal.lfilter(b, a, rng.standard_normal(n))
+    d *= gust / d.std()
+    pole = np.exp(-10 * DT)
+    y = np.zeros(n)
+    u = np.zeros(n)
+    y_meas = np.zeros(n)
+    for k in range(1, n):
+        u[k] = command[k] - loop_gain * y_meas[k - 1]
+        y[k] = pole * y[k - 1] + 5.0 * (1 - pole) * (u[k - 1] + d[k - 1])
+        y_meas[k] = y[k] + noise * rng.standard_normal()
+    return np.stack([u + 0.1 * noise * rng.standard_normal(n), y_meas])
+
+
+def test_the_lead_test_is_the_nested_least_squares_f_test_and_regresses_each_sample_once():
+    """One segment: the share and F equal two least-squares fits of the surface on the lags (numpy's lstsq on the
+    detrended data, built here independently). A long stretch fed through the half-overlapping spectra: every sample
+    after the first lags regressed once."""
+    rng = np.random.default_rng(11)
+    x = _airframe_trim(rng, 3500, loop_gain=0.05)      # 35 s: more than LEAD_MIN_S
+    lead = LeadTest(DT, 0, 1)
+    t = np.arange(x.shape[1]) - (x.shape[1] - 1) / 2
+    detrended = x - x.mean(axis=1, keepdims=True)
+    detrended -= np.outer(detrended @ t / (t @ t), t)
+    lead.add(detrended)
+    p, step = lead.lags, lead.step
+    assert (p, step) == (12, 2)                        # 0.25 s at 100 Hz in at most 16 lags: 1, 3, 5, ... 23 steps
+    rows = np.arange(1 + (p - 1) * step, x.shape[1])
+    own = np.stack([detrended[0, rows - 1 - j * step] for j in range(p)], axis=1)
+    rate = np.stack([detrended[1, rows - 1 - j * step] for j in range(p)], axis=1)
+    target = detrended[0, rows]
+    rss_own = np.sum((target - own @ np.linalg.lstsq(own, target, rcond=None)[0]) ** 2)
+    both = np.hstack((own, rate))
+    rss_both = np.sum((target - both @ np.linalg.lstsq(both, target, rcond=None)[0]) ** 2)
+    got = lead.result()
+    assert got.rows == rows.size and got.lags == p and got.lags_s == pytest.approx(0.23)
+    assert got.share == pytest.approx((rss_own - rss_both) / rss_own, rel=1e-6)
+    assert got.f == pytest.approx((rss_own - rss_both) / p / (rss_both / (rows.size - 2 * p)), rel=1e-6)
+    spec = TrimSpectrum(W, 2, DT, guard_s=0.0, lead=(0, 1))
+    spec.feed(0, _airframe_trim(rng, 9000))
+    spec.end_stretch()
+    assert spec.lead.rows == 9000 - 1 - (p - 1) * step
+
+
+def test_a_pilots_corrections_do_not_lead_and_a_damper_does():
+    """Open loop the rate's past adds nothing once the surface's own past is known: over 100 seeded minutes of a
+    pilot's corrections with gusts, the share stays below LEAD_SHARE and rate_leads never fires; a damper answering
+    the same gusts leads, whatever the pilot does beside it."""
+    rng = np.random.default_rng(12)
+    shares = []
+    for _ in range(100):
+        spec = TrimSpectrum(W, 2, DT, guard_s=0.0, lead=(0, 1))
+        spec.feed(0, _airframe_trim(rng, 6000))
+        spec.end_stretch()
+        result = spec.lead.result()
+        shares.append(result.share)
+        assert not rate_leads(result)
+    assert max(shares) < LEAD_SHARE / 5
+    for gain in (0.05, 0.2):
+        spec = TrimSpectrum(W, 2, DT, guard_s=0.0, lead=(0, 1))
+        spec.feed(0, _airframe_trim(rng, 6000, loop_gain=gain))
+        spec.end_stretch()
+        assert rate_leads(spec.lead.result()), gain
 
 
 def test_quiet_quantile_is_the_tenth_percentile_of_the_blocks_seen():

@@ -285,3 +285,21 @@ def test_the_node_path_message_by_message_gives_the_replay_result(clean_loop, tm
         assert (live.epsilon is replayed.epsilon is None or live.epsilon == pytest.approx(replayed.epsilon, rel=1e-9))
         assert live.warnings == replayed.warnings and live.message == replayed.message
         assert (live.excitation_coherence is None) == (config.channels["roll"].excitation is None)
+
+
+def test_a_loop_that_drowns_the_manoeuvres_is_found_by_which_signal_leads():
+    """A yaw damper answering turbulence moves the rudder more than the sweep flown inside it: no manoeuvre stands
+    20 dB above that motion, and the response between manoeuvres is not on the opposite side of the airframe's (the
+    loop's phase is past 90 deg where it is coherent). The rate leading the rudder between the manoeuvres says it is
+    a loop (background.LeadTest); the same flight open loop says nothing of the kind (issue 22)."""
+    data = raw_config()
+    data["channels"] = {"yaw": data["channels"]["yaw"]}
+    config = config_from(data, "yaw_loop.yaml")
+    options = dict(excitation="chirp", turbulence_rms_rad_s=0.06, sweeps_per_channel=1, sweep_duration_s=100.0,
+                   quiet_s=11.0, noise=0.8)
+    ch = validate(config, simulate_flight(config, {}, with_options(closed_loop_gain_margin_db=9.6, **options),
+                                          seed=212670877)).channels["yaw"]
+    assert ch.message.startswith("no sweep found") and "stands 20 dB" in ch.message, ch.message
+    assert any("the rate leads" in w and "feedback loop" in w for w in ch.warnings), ch.warnings
+    open_loop = validate(config, simulate_flight(config, {}, with_options(**options), seed=212670877)).channels["yaw"]
+    assert not any("feedback" in w for w in open_loop.warnings), open_loop.warnings

@@ -32,7 +32,7 @@ from typing import Sequence
 
 import numpy as np
 
-__all__ = ["TrimSpectrum", "TrimResponse", "SEGMENT_S", "MIN_SEGMENT_S", "GUARD_S", "NEAR_BINS", "TRIM_COHERENCE",
+__all__ = ["TrimSpectrum", "TrimResponse", "LeadTest", "LeadResult", "LEAD_LAGS_S", "LEAD_LAGS", "LEAD_MIN_S", "SEGMENT_S", "MIN_SEGMENT_S", "GUARD_S", "NEAR_BINS", "TRIM_COHERENCE",
            "TRIM_CHANCE", "MIN_TRIM_AVERAGES", "HANN_BINS_PER_AVERAGE"]
 
 #: Longest segment of trim transformed at once [s] (half-overlapping segments in a longer stretch).
@@ -61,6 +61,139 @@ MIN_TRIM_AVERAGES = 8
 HANN_BINS_PER_AVERAGE = 1.5
 
 
+#: The lead test regresses the surface on its own past and the rate's over this long [s] (a damper or an autopilot
+#: answers within it; a pilot's corrections and the airframe's response are in the surface's own past) ...
+LEAD_LAGS_S = 0.25
+#: ... in at least and at most this many grid steps.
+LEAD_LAGS = (3, 16)
+#: Trim regressed before the test says anything [s]: a few seconds after one manoeuvre hold one transient, not a
+#: process (a slow mode settling in the rate can stand in for the surface's own slow shape).
+LEAD_MIN_S = 30.0
+
+
+@dataclass(frozen=True)
+class LeadResult:
+    """What the rate's past says of the surface's next move between manoeuvres (:class:`LeadTest`).
+
+    Attributes
+    ----------
+    share : float
+        Fraction of the surface's motion unpredictable from its own past that the rate's past explains.
+    f : float
+        The nested F statistic of the rate's lags.
+    p_value : float
+        Its chance under "the rate does not lead the surface" (F with ``lags`` and ``rows - 2 lags`` degrees).
+    rows : int
+        Samples regressed.
+    lags : int
+        Lags of each signal.
+    lags_s : float
+        The span they cover [s].
+    """
+
+    share: float
+    f: float
+    p_value: float
+    rows: int
+    lags: int
+    lags_s: float
+
+
+class LeadTest:
+    """Which signal leads between the manoeuvres: does the rate's past predict the surface's next move?
+
+    The lags span :data:`LEAD_LAGS_S`: the newest sample, then at most ``LEAD_LAGS[1]`` in all, spaced further apart
+    on a fine grid.
+
+    In open loop the surface's trim motion (a pilot's corrections, sensor noise) is made without looking at the
+    rate: once the surface's own past is known, the rate's past adds nothing (Granger 1969); the F statistic of the
+    rate's lags then follows its F law. A loop (damper, autopilot, a pilot holding an attitude) moves the surface
+    from the rate: the rate's past explains a share of what the surface's own past does not. Each trim sample is
+    regressed once (the spectra's half-overlapping segments are not counted twice), on its segment's detrended
+    values.
+
+    Parameters
+    ----------
+    dt : float
+        Grid step [s].
+    inp, out : int
+        Stream indices of the surface and the rate.
+    """
+
+    def __init__(self, dt: float, inp: int, out: int) -> None:
+        self.dt = float(dt)
+        # on a fine grid the lags are spaced so that they still span LEAD_LAGS_S
+        self.step = max(1, int(math.ceil(LEAD_LAGS_S / self.dt / LEAD_LAGS[1])))
+        self.lags = int(np.clip(round(LEAD_LAGS_S / (self.dt * self.step)), *LEAD_LAGS))
+        # the newest sample of each first: a loop's surface answers the rate's newest innovation, which the
+        # surface's own past does not hold yet
+        self.back = 1 + self.step * np.arange(self.lags)
+        self.inp, self.out = int(inp), int(out)
+        k = 2 * self.lags + 1
+        self.gram = np.zeros((k, k))
+        self.rows = 0
+
+    def add(self, x: np.ndarray, fresh: int = 0) -> None:
+        """Regress the samples of ``x`` (streams x n) from index ``fresh`` on (each on the ``lags`` before it).
+
+        Parameters
+        ----------
+        x : ndarray
+            A detrended stretch of trim.
+        fresh : int
+            First sample not regressed before.
+        """
+        n = x.shape[1]
+        first = max(int(self.back[-1]), int(fresh))
+        if n - first < 1:
+            return
+        t = np.arange(first, n)[:, None]
+        z = np.hstack((x[self.inp][t - self.back], x[self.out][t - self.back], x[self.inp][t]))
+        self.gram += z.T @ z
+        self.rows += z.shape[0]
+
+    def result(self) -> LeadResult | None:
+        """The test on everything regressed so far (None before :data:`LEAD_MIN_S` of trim)."""
+        p = self.lags
+        if self.rows < max(20 * p, LEAD_MIN_S / self.dt):
+            return None
+        g = self.gram
+        target = 2 * p
+
+        def residual(cols: np.ndarray) -> float:
+            a = g[np.ix_(cols, cols)]
+            b = g[cols, target]
+            coef = np.linalg.lstsq(a, b, rcond=1e-12)[0]
+            return float(g[target, target] - b @ coef)
+
+        own = residual(np.arange(p))
+        both = residual(np.arange(2 * p))
+        if not (own > 0.0 and both > 0.0):
+            return None
+        dof = self.rows - 2 * p
+        f = max(own - both, 0.0) / p / (both / dof)
+        from scipy.special import fdtrc
+
+        return LeadResult(max(own - both, 0.0) / own, f, float(fdtrc(p, dof, f)), int(self.rows), p,
+                          float(self.back[-1]) * self.dt)
+
+    def state_dict(self) -> dict:
+        """State as arrays and numbers (fixed size)."""
+        return {"gram": self.gram.copy(), "rows": self.rows}
+
+    def load_state(self, st: dict) -> None:
+        """Inverse of :meth:`state_dict` (a state without it: nothing regressed).
+
+        Parameters
+        ----------
+        st : dict
+            From :meth:`state_dict`.
+        """
+        if "gram" in st and np.shape(st["gram"]) == self.gram.shape:
+            self.gram[:] = st["gram"]
+            self.rows = int(st["rows"])
+
+
 class TrimSpectrum:
     """Cross-spectra of a channel's streams between its manoeuvres (see the module docstring).
 
@@ -76,10 +209,14 @@ class TrimSpectrum:
         The estimator's local bands (:data:`gap_validation.core.spectra.SPECTRA_DEFAULTS`).
     guard_s : float
         Trim held back [s] (:data:`GUARD_S`).
+    lead : (int, int), optional
+        Surface and rate stream indices of a :class:`LeadTest` run on the same trim.
     """
 
     def __init__(self, w_rad_s: np.ndarray, n_streams: int, dt: float, band_fraction: float = 0.1,
-                 max_band_fraction: float = 0.6, guard_s: float = GUARD_S) -> None:
+                 max_band_fraction: float = 0.6, guard_s: float = GUARD_S,
+                 lead: tuple[int, int] | None = None) -> None:
+        self.lead = LeadTest(dt, *lead) if lead is not None else None
         self.w = np.asarray(w_rad_s, float).copy()
         self.n = int(n_streams)
         self.dt = float(dt)
@@ -149,7 +286,8 @@ class TrimSpectrum:
         remainder shorter than :data:`MIN_SEGMENT_S` after segments already transformed adds nothing)."""
         n, covered = self._pend_n, self._covered
         if covered and n - covered >= self.min_n:
-            self._segment(self._pend[:, max(0, n - self.segment_n):n])
+            a = max(0, n - self.segment_n)
+            self._segment(self._pend[:, a:n], covered - a)
         elif not covered and n >= self.min_n:
             if n <= self.segment_n:
                 self._segment(self._pend[:, :n])
@@ -158,8 +296,10 @@ class TrimSpectrum:
                 starts = list(range(0, n - self.segment_n + 1, step))
                 if starts[-1] + self.segment_n < n:
                     starts.append(n - self.segment_n)
+                seen = 0
                 for a in starts:
-                    self._segment(self._pend[:, a:a + self.segment_n])
+                    self._segment(self._pend[:, a:a + self.segment_n], seen - a)
+                    seen = a + self.segment_n
         self._pend_n = 0
         self._covered = 0
 
@@ -167,20 +307,24 @@ class TrimSpectrum:
         """Transform the segments that the guard no longer holds back (the first ``segment_n`` pending samples
         once ``guard_n`` newer ones exist), half overlapping."""
         while self._pend_n >= self.segment_n + self.guard_n:
-            self._segment(self._pend[:, :self.segment_n])
+            self._segment(self._pend[:, :self.segment_n], self._covered)
             step = self.segment_n // 2
             rest = self._pend_n - step
             self._pend[:, :rest] = self._pend[:, step:self._pend_n]
             self._pend_n, self._pend_k = rest, self._pend_k + step
             self._covered = self.segment_n - step
 
-    def _segment(self, x: np.ndarray) -> None:
+    def _segment(self, x: np.ndarray, fresh: int = 0) -> None:
+        """Add one segment ``x`` (streams x n); its samples from ``fresh`` on were in no segment before (the
+        lead test counts each sample once)."""
         n = x.shape[1]
         t = np.arange(n, dtype=float)
         t -= t.mean()
         centred = x - x.mean(axis=1, keepdims=True)
         slope = centred @ t / float(t @ t)
         detrended = centred - slope[:, None] * t[None, :]
+        if self.lead is not None:
+            self.lead.add(detrended, max(int(fresh), 0))
         window = np.hanning(n + 1)[:-1] if n > 1 else np.ones(1)
         spec = np.fft.rfft(detrended * window, axis=1) / math.sqrt(float(window @ window))
         w_bins = 2.0 * math.pi * np.fft.rfftfreq(n, self.dt)
@@ -270,7 +414,8 @@ class TrimSpectrum:
         """State as numpy arrays and numbers (fixed size)."""
         return {"sums": self.sums.copy(), "bins": self.bins.copy(), "seg_power": self.seg_power.copy(),
                 "seg_std": self.seg_std.copy(), "seg_bins": self.seg_bins.copy(), "samples": self.samples, "segments": self.segments,
-                "pend": self._pend[:, :self._pend_n].copy(), "pend_k": self._pend_k, "covered": self._covered}
+                "pend": self._pend[:, :self._pend_n].copy(), "pend_k": self._pend_k, "covered": self._covered,
+                **({f"lead_{k}": v for k, v in self.lead.state_dict().items()} if self.lead is not None else {})}
 
     def load_state(self, st: dict) -> None:
         """Inverse of :meth:`state_dict`.
@@ -291,6 +436,8 @@ class TrimSpectrum:
         self._pend[:, :self._pend_n] = pend
         self._pend_k = int(st["pend_k"])
         self._covered = int(st.get("covered", 0))
+        if self.lead is not None:
+            self.lead.load_state({k[5:]: v for k, v in st.items() if k.startswith("lead_")})
 
 
 @dataclass(frozen=True)

@@ -40,7 +40,7 @@ import numpy as np
 from scipy.special import ndtri
 
 from gap_validation.core import metrics
-from gap_validation.core.background import TrimResponse
+from gap_validation.core.background import LeadResult, TrimResponse
 
 if TYPE_CHECKING:
     from gap_validation.core.estimator import SpectralEstimate
@@ -48,7 +48,7 @@ if TYPE_CHECKING:
 
 __all__ = ["CouplingMonitor", "SurfaceHistory", "FeedbackEvidence", "feedback_evidence",
            "feedback_bias", "near_minus_inverse", "with_bias_allowance", "COUPLING_COHERENCE", "COUPLING_GAIN",
-           "COUPLING_SHARE", "FEEDBACK_FALSE_ALARM", "KAPPA_MINUS_INVERSE", "BIAS_ALLOWANCE", "PENDING_RECORDS"]
+           "COUPLING_SHARE", "FEEDBACK_FALSE_ALARM", "LEAD_SHARE", "rate_leads", "KAPPA_MINUS_INVERSE", "BIAS_ALLOWANCE", "PENDING_RECORDS"]
 
 #: Coherence (R^2) between a channel's input and another surface during its manoeuvres that names the surface.
 COUPLING_COHERENCE = 0.6
@@ -61,6 +61,12 @@ PENDING_RECORDS = 64
 #: Probability, per channel, that an open-loop flight is called closed loop by :func:`feedback_evidence` (split
 #: over the frequencies tested: Bonferroni).
 FEEDBACK_FALSE_ALARM = 1e-3
+#: Share of the surface's unpredictable trim motion that the rate's past must explain before the lead test
+#: (:class:`~gap_validation.core.background.LeadTest`) calls it a loop: a loop driving less moves an estimate drowned
+#: in the trim motion by less than a tenth, the margin between a model that fits and one that does not (epsilon
+#: 0.1-0.15). Resampling, gyro filters and deterministic inputs leave small shares in open loop (measured: at most
+#: 2 % with the F test passed on the second simulator and JSBSim; see docs/JUDGEMENTS.md).
+LEAD_SHARE = 0.1
 #: Chordal distance to ``-1/C`` under which a measured response looks like the inverse of the controller.
 KAPPA_MINUS_INVERSE = 0.2
 #: Relative error given to the points a warning covers (a bias as large as the response, and more).
@@ -300,6 +306,21 @@ def feedback_evidence(trim: TrimResponse, response: np.ndarray, variance: np.nda
         critical = float(-ndtri(false_alarm / n))
         opposite[tested] = (ratio.real < 0.0) & (z[tested] > critical)
     return FeedbackEvidence(bool(opposite.any()), opposite, n, z)
+
+
+def rate_leads(lead: LeadResult | None, false_alarm: float = FEEDBACK_FALSE_ALARM) -> bool:
+    """Whether the lead test (:class:`~gap_validation.core.background.LeadResult`, None before enough trim) says a
+    loop moves the surface between the manoeuvres: the rate's past explains at least :data:`LEAD_SHARE` of what the
+    surface's own past does not, beyond chance (``p_value < false_alarm``).
+
+    Parameters
+    ----------
+    lead : LeadResult or None
+        The estimator's :meth:`~gap_validation.core.estimator.FrequencyResponseEstimator.surface_led`.
+    false_alarm : float
+        Chance of the F statistic under "the rate does not lead".
+    """
+    return lead is not None and lead.p_value < false_alarm and lead.share >= LEAD_SHARE
 
 
 def feedback_bias(trim: TrimResponse, response: np.ndarray, variance: np.ndarray,

@@ -68,7 +68,7 @@ from numpy.typing import ArrayLike
 
 from gap_validation.core.alignment import (_NONE, JUMP_BACK_S, _GridAligner, _StreamResampler, _TimeBase,
                                            jump_back_s)
-from gap_validation.core.background import HANN_BINS_PER_AVERAGE, TrimResponse, TrimSpectrum
+from gap_validation.core.background import HANN_BINS_PER_AVERAGE, LeadResult, TrimResponse, TrimSpectrum
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.manoeuvres import Manoeuvre, ManoeuvreRecorder
 from gap_validation.core.numbers import NON_NEGATIVE, POSITIVE, check_number
@@ -637,7 +637,8 @@ class FrequencyResponseEstimator:
         F = w.size
         self._spectra_opts = {k: opts[k] for k in SPECTRA_DEFAULTS}
         # the trim motion between the records, per frequency (:mod:`gap_validation.core.background`)
-        self._trim = TrimSpectrum(w, S, self._dt, opts["band_fraction"], opts["max_band_fraction"], LOOKBACK_S)
+        self._trim = TrimSpectrum(w, S, self._dt, opts["band_fraction"], opts["max_band_fraction"], LOOKBACK_S,
+                                  lead=(0, self._m))
         self._tot = self._new_sums()
         self._reasons = np.zeros((len(NOT_ESTIMABLE_REASONS), F), np.int64)
         self._raw: list[tuple[np.ndarray, int, int, str]] = []    # estimate rows, k0, k1, kind
@@ -1430,6 +1431,11 @@ class FrequencyResponseEstimator:
         gain = interpolation_gain(self._w, self.stream_rates_hz[0], self._opts["cubic_interpolation"])
         return TrimResponse(h, coherence, bins / HANN_BINS_PER_AVERAGE,
                             self._trim.power([0]) / np.maximum(gain, 1e-3) ** 2)
+
+    def surface_led(self) -> "LeadResult | None":
+        """Whether the rate leads the surface between the manoeuvres (the first input and output;
+        :class:`~gap_validation.core.background.LeadTest`); None before enough trim."""
+        return self._trim.lead.result() if self._trim.lead is not None else None
 
     def _background(self, instruments: bool) -> np.ndarray:
         """The excitation's trim motion between the records per frequency (the instruments', else the inputs'

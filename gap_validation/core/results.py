@@ -344,6 +344,9 @@ class ChannelResult:
     manoeuvres_by_kind: dict[str, int] = field(default_factory=dict)  # manoeuvres that gave a response
     # with an airspeed stream: (V / V_trim)^2 over the flight (mean, min, max, clipped), the inputs scaled by it
     dynamic_pressure_ratio: dict | None = None
+    # the lead test between the manoeuvres (background.LeadTest): share, f, p_value, rows, lags_s; None before
+    # enough trim
+    rate_leads_surface: dict | None = None
     degrees_of_freedom: np.ndarray | None = None                     # of the noise estimate, per frequency
     frequency_reasons: list = field(default_factory=list)            # per frequency: why not confident, or None
     # the controller check (a channel with a controller): b(P1, C) and b > nu-gap (core.robust)
@@ -450,6 +453,8 @@ class ChannelResult:
             "conventions": [c.to_json_dict() for c in self.conventions],
             "dynamic_pressure_ratio": None if self.dynamic_pressure_ratio is None else {
                 k: _num(v) if k != "clipped" else int(v) for k, v in self.dynamic_pressure_ratio.items()},
+            "rate_leads_surface": None if self.rate_leads_surface is None else {
+                k: int(v) if k == "rows" else _num(v) for k, v in self.rate_leads_surface.items()},
         }
         for entry, response in zip(out["raw_sweeps"], self.sweep_measured if samples else ()):
             entry["measured"] = _mag_phase(response, self.model)
@@ -504,7 +509,8 @@ class ChannelResult:
                                    for a in data.get("input_amplitudes") or []],
                  beyond_range=[str(b) for b in data.get("beyond_range") or []],
                  conventions=[Convention.from_json_dict(c) for c in data.get("conventions") or []],
-                 dynamic_pressure_ratio=data.get("dynamic_pressure_ratio"))
+                 dynamic_pressure_ratio=data.get("dynamic_pressure_ratio"),
+                 rate_leads_surface=data.get("rate_leads_surface"))
         band = data.get("excited_band_rad_s")
         ch.excited_band_rad_s = (float(band[0]), float(band[1])) if band and None not in band else None
         ch.margins = margins_from_epsilon(ch.epsilon if ch.epsilon is not None and not ch.conventions

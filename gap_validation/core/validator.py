@@ -18,7 +18,7 @@ from numpy.typing import ArrayLike
 
 from gap_validation.core import metrics, robust
 from gap_validation.core.closed_loop import (CouplingMonitor, SurfaceHistory, feedback_bias, feedback_evidence,
-                                             near_minus_inverse, with_bias_allowance)
+                                             near_minus_inverse, rate_leads, with_bias_allowance)
 from gap_validation.core.config import (AIRSPEED_STREAM, EXCITATION_STREAM, OTHER_INPUT_STREAM, STREAMS, ChannelConfig,
                                         SignalSpec, ValidationConfig)
 from gap_validation.core.errors import ConfigError, DataError
@@ -343,6 +343,9 @@ class OnlineValidator:
         result.dynamic_pressure_ratio = est.dynamic_pressure_ratio
         result.warnings.extend(_condition_warnings(result.dynamic_pressure_ratio))
         result.manoeuvres_by_kind = est.counted_kinds
+        lead = est.surface_led()
+        result.rate_leads_surface = None if lead is None else {
+            "share": lead.share, "f": lead.f, "p_value": lead.p_value, "rows": lead.rows, "lags_s": lead.lags_s}
         self._time_domain(name, channel, est, result)
         avg = est.averaged()
         if avg is None:
@@ -792,14 +795,27 @@ def _feedback_warnings(channel: ChannelConfig, est: FrequencyResponseEstimator, 
         confident = confident_points(full, channel.coherence_threshold)
         model = _flown_model(channel, full, list(est.sweeps)).freqresp(grid)
     evidence = feedback_evidence(trim, response, variance, confident, model)
-    if not evidence.detected:
+    lead = est.surface_led()
+    # the lead test speaks where the trim motion drowns the manoeuvres (or no manoeuvre left it): elsewhere a
+    # manoeuvre 20 dB above that motion is not biased by it, whatever moves the surface between manoeuvres
+    drowned = est.not_estimable.get("below_trim", 0) > 0 or not any(est.kinds.values())
+    led = not evidence.detected and drowned and rate_leads(lead)
+    if not (evidence.detected or led):
         return [], biased
     if w is not None and full is not None:
         index = _grid_index(grid, w)
         picked = trim.take(index)
         power = np.asarray(full.sums.input_power, float)[index] / np.maximum(full.sums.bins[index], 1)
         biased = feedback_bias(picked, p_meas, np.asarray(full.variance, float)[index], power)
-    return [f"between the manoeuvres the surface ({channel.input.topic} {channel.input.field}) moves against the "
+    surface = f"the surface ({channel.input.topic} {channel.input.field})"
+    if led:
+        return [f"between the manoeuvres the rate leads {surface}: its last {lead.lags_s:.2g} s explain "
+                f"{100 * lead.share:.0f} % of the surface's motion that the surface's own past does not (F test: chance "
+                f"{max(lead.p_value, 1e-300):.1g}): a feedback loop (damper, autopilot, a pilot holding an attitude) drives it, and "
+                f"that motion drowns the manoeuvres, so the measured response is biased towards -1/C where they do "
+                f"not dominate it (those points are not validated); log the injected signal and add "
+                f"channels.{channel.name}.excitation"], biased
+    return [f"between the manoeuvres {surface} moves against the "
             f"rate, opposite to the airframe's response, at {_span(grid[evidence.opposite])}: a feedback loop (damper, "
             f"autopilot) drives it, so the measured response is biased towards -1/C where the manoeuvres do not "
             f"dominate the surface's motion (those points are not validated); log the injected signal and add "

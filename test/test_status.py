@@ -14,7 +14,8 @@ def test_channel_status_levels_and_messages():
     ch = ChannelResult(name="pitch", sweeps=3, epsilon=0.62, epsilon_previous=0.71, nu_gap=0.4,
                        worst_frequency_rad_s=25.0, limited_by="model",
                        bands=[{"min_rad_s": 20.0, "max_rad_s": 40.0, "limited_by": "model"}],
-                       margins=margins_from_epsilon(0.62), bad_samples={"input: not finite": 2})
+                       margins=margins_from_epsilon(0.62), bad_samples={"input: not finite": 2},
+                       rate_leads_surface={"share": 0.004, "f": 1.2, "p_value": 0.3, "rows": 9000, "lags_s": 0.23})
     top = {"effect": "time_delay", "effects": [{"type": "time_delay", "seconds": 0.045}], "epsilon": 0.06,
            "sentence": "missing: time delay of 45 ms; adding it brings epsilon from 0.62 to 0.06"}
     status = channel_status(ch, candidate=top, diagnosis_state="done")
@@ -25,6 +26,7 @@ def test_channel_status_levels_and_messages():
     assert values["bad_samples"] == "2" and json.loads(values["bad_samples_by_reason"]) == {"input: not finite": 2}
     assert json.loads(values["diagnosis_effects"]) == [{"type": "time_delay", "seconds": 0.045}]
     assert float(values["phase_margin_deg"]) == pytest.approx(2 * math.degrees(math.asin(0.62)))
+    assert json.loads(values["rate_leads_surface"])["rows"] == 9000      # the lead test, as in the JSON
     ch.epsilon = 0.3
     assert channel_status(ch).level == "WARN"
     ch.epsilon = 0.1

@@ -194,6 +194,7 @@ def channel_status(result: ChannelResult, *, warn_epsilon: float = WARN_EPSILON,
     values.append(("nonlinearity", nonlinearity or result.nonlinearity or ""))
     values.append(("conventions", json.dumps([c.to_json_dict() for c in result.conventions])))
     values.append(("dynamic_pressure_ratio", json.dumps(data.get("dynamic_pressure_ratio"))))
+    values.append(("rate_leads_surface", json.dumps(data.get("rate_leads_surface"))))
     for key, value in (extra_values or {}).items():
         values.append((key, _value_text(value)))
 

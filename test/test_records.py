@@ -53,6 +53,19 @@ def test_a_restart_of_the_swept_frequency_separates_different_sweeps():
     assert kinds_of(u) == ["chirp"] * 3
 
 
+def test_crossings_lost_near_the_top_of_a_sweep_do_not_start_a_new_one():
+    """A low-SNR sweep: for half a second near its top the surface stays within the trim band (its crossings are
+    lost); one long half-period among short ones is no restart: a new sweep stays at its low start frequency for
+    several half-periods (seen on the second simulator's lowsnr flight: a 25 s chirp split at 22.4 s)."""
+    sweep = chirp(40.0)
+    t = np.arange(sweep.size) * DT
+    sweep[(t > 36.0) & (t < 36.5)] *= 0.02
+    u = card(sweep)
+    assert kinds_of(u) == ["chirp"] and len(pieces_of(u)) == 1
+    # a real restart right after it still splits
+    assert kinds_of(card(sweep, chirp(50.0, 0.7, 30.0))) == ["chirp", "chirp"]
+
+
 def test_identical_sweeps_back_to_back_are_one_periodic_record():
     # three identical chirps without trim between them ARE a periodic excitation (a multisine)
     assert kinds_of(card(chirp(60.0), chirp(60.0), chirp(60.0))) == ["multisine"]

@@ -12,8 +12,9 @@ Splitting (:func:`split_record`)
   peaks are far from it), so the slow start of a sweep is not split.
 * **A restart of the swept frequency.** Sweeps flown back to back without a pause: the zero crossings of the
   excitation about trim give its instantaneous frequency; where a monotonic trend (at least eight
-  half-periods rising, or falling) is followed by a half-period at least four times longer (shorter), a new
-  sweep starts -- unless the excitation is periodic: a Schroeder-phased multisine sweeps within each of its
+  half-periods rising, or falling) is followed by a half-period at least four times longer (shorter), and the
+  median of the next three is too (a new sweep stays at its start frequency; crossings lost in noise give one
+  long half-period among short ones: seen splitting the top of low-SNR chirps), a new sweep starts -- unless the excitation is periodic: a Schroeder-phased multisine sweeps within each of its
   periods, and identical sweeps flown back to back *are* a periodic excitation; either stays one record (a
   multisine of several periods, the best record there is for a frequency response). Fly a second of trim
   between identical sweeps to have them counted one by one.
@@ -56,6 +57,7 @@ SWEEP_KINDS = ("chirp", "multisine", "multistep", "broadband")
 _TREND_HALF_PERIODS = 20
 _TREND_WINDOW = 100          # the trend before a restart is judged on at most this many half-periods
 _RESTART_RATIO = 4.0
+_RESTART_CONFIRM = 3         # ... and the median of the next this many half-periods too
 _MIN_PLATEAU_S = 0.15
 
 
@@ -163,6 +165,14 @@ def _restarts(dev: np.ndarray, tol: float, lo: int, hi: int) -> list[int]:
         recent = sorted(values[j - 3:j])[1]              # median of the last three
         longer, shorter = values[j] >= _RESTART_RATIO * recent, values[j] * _RESTART_RATIO <= recent
         if not (longer or shorter):                      # the cheap test first: most half-periods go on
+            continue
+        # a new sweep stays at its start frequency for several half-periods; crossings lost to noise give one
+        # long (or short) half-period among the others
+        after = values[j + 1:j + 1 + _RESTART_CONFIRM]
+        if len(after) < _RESTART_CONFIRM:
+            continue
+        lasting = sorted(after)[len(after) // 2]
+        if (longer and lasting < _RESTART_RATIO * recent) or (shorter and lasting * _RESTART_RATIO > recent):
             continue
         trend = _rank_trend(half[max(first, j - _TREND_WINDOW):j])
         if (longer and trend <= -0.8) or (shorter and trend >= 0.8):

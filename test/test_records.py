@@ -62,8 +62,11 @@ def test_crossings_lost_near_the_top_of_a_sweep_do_not_start_a_new_one():
     sweep[(t > 36.0) & (t < 36.5)] *= 0.02
     u = card(sweep)
     assert kinds_of(u) == ["chirp"] and len(pieces_of(u)) == 1
-    # a real restart right after it still splits
+    # a real restart right after it still splits, and so does a doublet half a second after it (two half-periods
+    # left in the group: the lasting test takes those there are)
     assert kinds_of(card(sweep, chirp(50.0, 0.7, 30.0))) == ["chirp", "chirp"]
+    doublet = 0.05 * multistep(np.arange(0.0, 2.0, DT), 0.5, (1, 1), 0.04)
+    assert kinds_of(card(sweep, 0.5, doublet)) == ["chirp", "doublet"]
 
 
 def test_identical_sweeps_back_to_back_are_one_periodic_record():

@@ -32,8 +32,9 @@ from typing import Sequence
 
 import numpy as np
 
-__all__ = ["TrimSpectrum", "TrimResponse", "LeadTest", "LeadResult", "LEAD_LAGS_S", "LEAD_LAGS", "LEAD_MIN_S", "SEGMENT_S", "MIN_SEGMENT_S", "GUARD_S", "NEAR_BINS", "TRIM_COHERENCE",
-           "TRIM_CHANCE", "MIN_TRIM_AVERAGES", "HANN_BINS_PER_AVERAGE"]
+__all__ = ["TrimSpectrum", "TrimResponse", "LeadTest", "LeadResult", "LEAD_LAGS_S", "LEAD_LAGS", "LEAD_MIN_S",
+           "SEGMENT_S", "MIN_SEGMENT_S", "GUARD_S", "NEAR_BINS", "TRIM_COHERENCE", "TRIM_CHANCE", "MIN_TRIM_AVERAGES",
+           "HANN_BINS_PER_AVERAGE"]
 
 #: Longest segment of trim transformed at once [s] (half-overlapping segments in a longer stretch).
 SEGMENT_S = 20.0
@@ -64,7 +65,7 @@ HANN_BINS_PER_AVERAGE = 1.5
 #: The lead test regresses the surface on its own past and the rate's over this long [s] (a damper or an autopilot
 #: answers within it; a pilot's corrections and the airframe's response are in the surface's own past) ...
 LEAD_LAGS_S = 0.25
-#: ... in at least and at most this many grid steps.
+#: ... in at least and at most this many lags of each (spaced further apart on a fine grid).
 LEAD_LAGS = (3, 16)
 #: Trim regressed before the test says anything [s]: a few seconds after one manoeuvre hold one transient, not a
 #: process (a slow mode settling in the rate can stand in for the surface's own slow shape).
@@ -102,15 +103,13 @@ class LeadResult:
 class LeadTest:
     """Which signal leads between the manoeuvres: does the rate's past predict the surface's next move?
 
-    The lags span :data:`LEAD_LAGS_S`: the newest sample, then at most ``LEAD_LAGS[1]`` in all, spaced further apart
-    on a fine grid.
-
     In open loop the surface's trim motion (a pilot's corrections, sensor noise) is made without looking at the
     rate: once the surface's own past is known, the rate's past adds nothing (Granger 1969); the F statistic of the
     rate's lags then follows its F law. A loop (damper, autopilot, a pilot holding an attitude) moves the surface
     from the rate: the rate's past explains a share of what the surface's own past does not. Each trim sample is
     regressed once (the spectra's half-overlapping segments are not counted twice), on its segment's detrended
-    values.
+    values. The lags span :data:`LEAD_LAGS_S`: the newest sample, then at most ``LEAD_LAGS[1]`` in all, spaced
+    further apart on a fine grid.
 
     Parameters
     ----------

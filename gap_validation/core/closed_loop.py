@@ -48,7 +48,8 @@ if TYPE_CHECKING:
 
 __all__ = ["CouplingMonitor", "SurfaceHistory", "FeedbackEvidence", "feedback_evidence",
            "feedback_bias", "near_minus_inverse", "with_bias_allowance", "COUPLING_COHERENCE", "COUPLING_GAIN",
-           "COUPLING_SHARE", "FEEDBACK_FALSE_ALARM", "LEAD_SHARE", "rate_leads", "KAPPA_MINUS_INVERSE", "BIAS_ALLOWANCE", "PENDING_RECORDS"]
+           "COUPLING_SHARE", "FEEDBACK_FALSE_ALARM", "LEAD_SHARE", "rate_leads", "KAPPA_MINUS_INVERSE",
+           "BIAS_ALLOWANCE", "PENDING_RECORDS"]
 
 #: Coherence (R^2) between a channel's input and another surface during its manoeuvres that names the surface.
 COUPLING_COHERENCE = 0.6

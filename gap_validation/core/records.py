@@ -13,7 +13,7 @@ Splitting (:func:`split_record`)
 * **A restart of the swept frequency.** Sweeps flown back to back without a pause: the zero crossings of the
   excitation about trim give its instantaneous frequency; where a monotonic trend (at least eight
   half-periods rising, or falling) is followed by a half-period at least four times longer (shorter), and the
-  median of the next three is too (a new sweep stays at its start frequency; crossings lost in noise give one
+  median of the next three (of those left in the group) is too (a new sweep stays at its start frequency; crossings lost in noise give one
   long half-period among short ones: seen splitting the top of low-SNR chirps), a new sweep starts -- unless the excitation is periodic: a Schroeder-phased multisine sweeps within each of its
   periods, and identical sweeps flown back to back *are* a periodic excitation; either stays one record (a
   multisine of several periods, the best record there is for a frequency response). Fly a second of trim
@@ -57,7 +57,7 @@ SWEEP_KINDS = ("chirp", "multisine", "multistep", "broadband")
 _TREND_HALF_PERIODS = 20
 _TREND_WINDOW = 100          # the trend before a restart is judged on at most this many half-periods
 _RESTART_RATIO = 4.0
-_RESTART_CONFIRM = 3         # ... and the median of the next this many half-periods too
+_RESTART_CONFIRM = 3         # ... and the median of the next this many half-periods too (of those left, if fewer)
 _MIN_PLATEAU_S = 0.15
 
 
@@ -168,10 +168,10 @@ def _restarts(dev: np.ndarray, tol: float, lo: int, hi: int) -> list[int]:
             continue
         # a new sweep stays at its start frequency for several half-periods; crossings lost to noise give one
         # long (or short) half-period among the others
-        after = values[j + 1:j + 1 + _RESTART_CONFIRM]
-        if len(after) < _RESTART_CONFIRM:
+        after = values[j + 1:j + 1 + _RESTART_CONFIRM]     # fewer at the end of a group (a doublet after a sweep)
+        if not after:
             continue
-        lasting = sorted(after)[len(after) // 2]
+        lasting = sorted(after)[(len(after) - 1) // 2] if longer else sorted(after)[len(after) // 2]
         if (longer and lasting < _RESTART_RATIO * recent) or (shorter and lasting * _RESTART_RATIO > recent):
             continue
         trend = _rank_trend(half[max(first, j - _TREND_WINDOW):j])

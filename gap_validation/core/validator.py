@@ -810,11 +810,11 @@ def _feedback_warnings(channel: ChannelConfig, est: FrequencyResponseEstimator, 
     surface = f"the surface ({channel.input.topic} {channel.input.field})"
     if led:
         return [f"between the manoeuvres the rate leads {surface}: its last {lead.lags_s:.2g} s explain "
-                f"{100 * lead.share:.0f} % of the surface's motion that the surface's own past does not (F test: chance "
-                f"{max(lead.p_value, 1e-300):.1g}): a feedback loop (damper, autopilot, a pilot holding an attitude) drives it, and "
-                f"that motion drowns the manoeuvres, so the measured response is biased towards -1/C where they do "
-                f"not dominate it (those points are not validated); log the injected signal and add "
-                f"channels.{channel.name}.excitation"], biased
+                f"{100 * lead.share:.0f} % of the surface's motion that the surface's own past does not (F test: "
+                f"chance {max(lead.p_value, 1e-300):.1g}): a feedback loop (damper, autopilot, a pilot holding an "
+                f"attitude) drives it, and that motion drowns the manoeuvres, so the measured response is biased "
+                f"towards -1/C where they do not dominate it (those points are not validated); log the injected "
+                f"signal and add channels.{channel.name}.excitation"], biased
     return [f"between the manoeuvres {surface} moves against the "
             f"rate, opposite to the airframe's response, at {_span(grid[evidence.opposite])}: a feedback loop (damper, "
             f"autopilot) drives it, so the measured response is biased towards -1/C where the manoeuvres do not "

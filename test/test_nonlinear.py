@@ -184,7 +184,9 @@ def test_backlash_is_not_named_a_structural_mode(tmp_path):
     assert result.limited_by == "model", result.message
     top = result.diagnosis[0]
     assert top["effect"] == "backlash", result.message
-    assert top["effects"][0]["width_rad"] == pytest.approx(0.015, rel=0.1)
+    # within the 25 % a named effect must meet (issue 22); measured 0.0166 since records keep the pause after their
+    # manoeuvre (0.015 with the pause split at its midpoint)
+    assert top["effects"][0]["width_rad"] == pytest.approx(0.015, rel=0.25)
     assert "structural mode" not in result.message
 
 

@@ -36,9 +36,11 @@ def test_three_chirps_a_few_seconds_apart_are_three_sweeps():
     u = card(chirp(60.0), 3.0, chirp(60.0), 3.0, chirp(60.0))
     pieces = pieces_of(u)
     assert kinds_of(u) == ["chirp"] * 3
-    # each keeps trim around it (half of each 3 s pause) and no two overlap
-    assert all(a.end <= b.start for a, b in zip(pieces, pieces[1:]))
+    # each keeps the trim before it from half of each 3 s pause on, and after it up to the next manoeuvre's start
+    # (its response settles there): never a sample of another manoeuvre
+    assert all(a.end <= b.active_start and a.active_end <= b.start for a, b in zip(pieces, pieces[1:]))
     assert all(p.active_start - p.start >= int(1.0 / DT) for p in pieces)
+    assert all(a.end - a.active_end >= int(2.9 / DT) for a in pieces[:-1])
 
 
 def test_one_second_of_trim_separates_and_less_does_not():

@@ -18,8 +18,10 @@ Splitting (:func:`split_record`)
   periods, and identical sweeps flown back to back *are* a periodic excitation; either stays one record (a
   multisine of several periods, the best record there is for a frequency response). Fly a second of trim
   between identical sweeps to have them counted one by one.
-Each manoeuvre keeps the trim around it, up to half of every pause (the response must settle before the
-record ends; the estimator's transient term takes what has not).
+Each manoeuvre keeps the trim before it from half the pause on, and the trim after it up to the next manoeuvre's
+start (its response settles in the pause: the records of two manoeuvres share the pause's second half, where the
+first one's response ends and the next one has not begun); the estimator's transient term takes what has not
+settled.
 
 Kinds (:func:`classify`)
 ------------------------
@@ -243,7 +245,7 @@ def split_record(u: np.ndarray, dt: float, noise_std: float, pre_n: int, post_n:
         prev_end = active_spans[i - 1][1] if i else 0
         next_start = active_spans[i + 1][0] if i + 1 < len(active_spans) else u.size
         start = max(a - pre_n, (prev_end + a + 1) // 2 if i else 0)
-        end = min(b + post_n, (b + next_start) // 2 if i + 1 < len(active_spans) else u.size)
+        end = min(b + post_n, next_start)    # its response settles until the next manoeuvre begins
         pieces.append(Piece(int(start), int(end), int(a), int(b), g))
     return pieces
 

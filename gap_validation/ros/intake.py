@@ -28,6 +28,7 @@ loses messages of a burst when the machine is busy), a best-effort one is receiv
 """
 from __future__ import annotations
 
+import time
 from typing import Any, Iterable, Sequence
 
 __all__ = ["Intake", "take_all", "choose_reliability", "publisher_note", "message_key", "RELIABLE", "BEST_EFFORT"]
@@ -160,6 +161,8 @@ class Intake:
 
     #: Drains after the last extra subscription went during which duplicates are still looked for.
     LINGER = 2
+    #: Longest a message waits for the reliable queue to pass it [s] (:meth:`drain`).
+    HOLD_S = 1.0
 
     def __init__(self, topic: str, type_name: str, type_source: str, subscriptions: dict[str, Any],
                  reliability: str | None):
@@ -174,6 +177,8 @@ class Intake:
         self._deadline = float("inf")
         self._keys: set | None = set() if len(self.subscriptions) > 1 else None
         self._linger = 0
+        self._held: list = []                   # (monotonic time taken, message) waiting for the reliable queue
+        self._reliable_last: tuple = (0, 0)     # publication order of the reliable queue's latest message
 
     @property
     def current(self) -> Any:
@@ -230,39 +235,59 @@ class Intake:
         """More than one subscription is drained (or duplicates of one just gone are still looked for)."""
         return self._keys is not None
 
-    def drain(self, limit: int) -> list:
+    def drain(self, limit: int, now: float | None = None) -> list:
         """Every waiting message, ``[(message or bytes, info), ...]``, each once, in the order they were published
         (with several subscriptions: their source timestamps).
+
+        While a reliable subscription with a publisher is drained beside another, a message only the other one
+        delivered and published after the reliable queue's latest waits (at most :attr:`HOLD_S`): a reliable queue
+        delivers in order, so after a loss on the wire it holds every later message back until the lost one is
+        resent, and the best-effort queue runs ahead. Handed out at once, the resent message would come after
+        later ones: a time jump back to the router (a manoeuvre cut in two).
 
         Parameters
         ----------
         limit : int
             Most messages taken per subscription.
+        now : float, optional
+            Monotonic time [s] of the drain (default: now), for :attr:`HOLD_S`.
         """
         if self._keys is None:
             (only,) = self.subscriptions.values()
             return take_all(only, limit)
+        now = time.monotonic() if now is None else now
         got = []
-        for reliability, sub in self.subscriptions.items():   # the one that stays last
-            if reliability != self.reliability:
-                got += take_all(sub, limit)
-        if self.current is not None:
-            got += take_all(self.current, limit)
-        keys, out = self._keys, []
+        order = [r for r in self.subscriptions if r != self.reliability] + ([self.reliability] if self.current else [])
+        for reliability in order:   # the one that stays last
+            taken = take_all(self.subscriptions[reliability], limit)
+            if reliability == RELIABLE and taken:
+                self._reliable_last = max(self._reliable_last, *map(_publication_order, taken))
+            got += taken
+        reliable = self.subscriptions.get(RELIABLE)
+        keys = self._keys
         for item in got:
             key = message_key(item[1])
             if key is None:
-                out.append(item)
+                self._held.append((now, item))
             elif key in keys:
                 self.duplicates += 1
             else:
                 keys.add(key)
+                self._held.append((now, item))
+        waiting = reliable is not None and reliable.get_publisher_count() > 0
+        out, held = [], []
+        for since, item in self._held:
+            if waiting and now - since < self.HOLD_S and message_key(item[1]) is not None \
+                    and _publication_order(item) > self._reliable_last:
+                held.append((since, item))
+            else:
                 out.append(item)
+        self._held = held
         # in the order they were published: a message one queue dropped (best effort under load) and the other
-        # delivered would otherwise come after later ones, a time jump back to the router (a manoeuvre cut in two)
+        # delivered would otherwise come after later ones
         out.sort(key=_publication_order)
         if len(self.subscriptions) == 1:
             self._linger -= 1
-            if self._linger <= 0:
+            if self._linger <= 0 and not self._held:
                 self._keys = None
         return out

@@ -408,6 +408,58 @@ def test_flight_over_dds_arrives_complete_and_gives_the_same_state(flight, typed
 
 
 # ------------------------------------------------------------------------------------------------ checkpoint
+def test_plot_topics_redraw_the_replayed_curves_are_latched_and_sent_only_on_change(flight, typed, fed, ros,
+                                                                                   tmp_path):
+    """``~/<channel>/frequency_response`` and ``~/<channel>/verdict`` (docs/NODE_TOPICS.md): a subscriber that comes
+    after the node published gets them (transient local); read back, the curves equal replay's JSON of the same
+    flight point for point, NaN elsewhere on the grid; the verdict's numbers equal replay's; publishing again
+    without new data sends nothing."""
+    from std_msgs.msg import Float64MultiArray, String
+
+    from gap_validation.core.plottable import CURVES, flags_from_codes, read_table
+    from gap_validation.ros.plots import LATCHED
+
+    node = resume(ros, fed, tmp_path, typed)
+    node.publish_diagnostics()
+    tables, verdicts = {}, {}
+    for name in flight.replayed.channels:
+        ros.helper.create_subscription(Float64MultiArray, f"/gap_validator/{name}/frequency_response",
+                                       lambda m, n=name: tables.setdefault(n, []).append(m), LATCHED)
+        ros.helper.create_subscription(String, f"/gap_validator/{name}/verdict",
+                                       lambda m, n=name: verdicts.setdefault(n, []).append(m), LATCHED)
+    ros.wait(lambda: len(tables) == len(verdicts) == len(flight.replayed.channels))
+    for name, ch in flight.replayed.channels.items():
+        (msg,) = tables[name]
+        rows, freqs = msg.layout.dim
+        assert rows.label.split(",") == list(CURVES) and freqs.label == "frequency"
+        curves = read_table(msg.data, rows.label.split(","))
+        grid = load_config(typed).channels[name].frequencies.values()
+        np.testing.assert_allclose(curves["frequency_rad_s"], grid, rtol=1e-12)
+        np.testing.assert_allclose(curves["log10_frequency_rad_s"], np.log10(grid), rtol=1e-12)
+        data = ch.to_json_dict(samples=False)
+        cols = [int(np.argmin(np.abs(grid - w))) for w in data["frequency_rad_s"]]
+        np.testing.assert_allclose(grid[cols], data["frequency_rad_s"], rtol=1e-12)
+        expect = {"measured_magnitude_db": data["measured"]["magnitude_db"],
+                  "measured_phase_deg": data["measured"]["phase_deg"],
+                  "model_magnitude_db": data["model"]["magnitude_db"], "model_phase_deg": data["model"]["phase_deg"],
+                  "coherence": data["coherence"], "epsilon": data["epsilon_per_frequency"], "kappa": data["kappa"],
+                  "random_error": data["random_error"]}
+        others = np.setdiff1d(np.arange(grid.size), cols)
+        for curve, values in expect.items():
+            want = np.array([np.nan if v is None else v for v in values], dtype=float)
+            np.testing.assert_allclose(curves[curve][cols], want, rtol=1e-9, atol=1e-12, err_msg=f"{name} {curve}")
+            assert np.isnan(curves[curve][others]).all(), f"{name} {curve}"
+        assert flags_from_codes(curves["flag"][cols]) == data["frequency_flags"]
+        verdict = json.loads(verdicts[name][-1].data)
+        assert verdict["channel"] == name and verdict["sweeps"] == ch.sweeps
+        assert verdict["epsilon"] == pytest.approx(ch.epsilon, abs=1e-9)
+        assert verdict["nu_gap"] == pytest.approx(ch.nu_gap, abs=1e-9)
+        assert verdict["limited_by"] == ch.limited_by and isinstance(verdict["warnings"], list)
+    sent = node._plots.published
+    node.publish_diagnostics()
+    assert node._plots.published == sent      # nothing changed: nothing sent
+
+
 def test_restart_from_checkpoint_reproduces_the_estimates(flight, typed, fed, ros, tmp_path):
     full = fed["result"]
     # resume from the checkpoint of the whole flight: identical numbers

@@ -79,6 +79,7 @@ from gap_validation.ros.intake import Intake
 from gap_validation.ros.jobs import Jobs
 from gap_validation.ros.message_types import topic_types
 from gap_validation.ros.parameters import PARAMETERS, check_parameters, unknown_parameters
+from gap_validation.ros.plots import PlotTopics
 from gap_validation.ros.stamp_gaps import StampGaps
 from gap_validation.ros.status import ChannelStatus, ChannelTask
 from gap_validation.ros.topics import Topics
@@ -174,6 +175,7 @@ class ValidatorNode(Node):
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.topics.subscribe_all()
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self._plots = PlotTopics(self)
         self.create_service(Trigger, "~/reload", self._srv_reload)
         self.create_service(Trigger, "~/reset", self._srv_reset)
         self._save_srv = self.create_service(Trigger, "~/save_results", self._srv_save_results)
@@ -385,11 +387,16 @@ class ValidatorNode(Node):
             self.last_result = result
             self._diagnosis.schedule(result, self.validator, self.config, self._generation,
                                      self._param("diagnosis_period"))
-            array = self.diagnostic_array(self.statuses(result, now_s))
+            statuses = self.statuses(result, now_s)
+            array = self.diagnostic_array(statuses)
         except Exception as err:  # noqa: BLE001 - keep publishing next time
             self._log_once(f"diagnostics:{type(err).__name__}", "error", f"diagnostics failed: {one_line(err)}")
             return None
         self._diag_pub.publish(array)
+        try:
+            self._plots.publish(result, statuses)
+        except Exception as err:  # noqa: BLE001 - the plots never stop the diagnostics
+            self._log_once(f"plots:{type(err).__name__}", "error", f"plot topics failed: {one_line(err)}")
         return array
 
     def _flush(self) -> None:
@@ -448,6 +455,7 @@ class ValidatorNode(Node):
         self.topics.retype(types)   # keeps what the graph taught about types
         self.config = config
         self._sync_tasks()
+        self._plots.sync(self.config.channels)
         self._new_router()
         self.topics.subscribe_all()
         self._generation += 1

@@ -42,7 +42,8 @@ from gap_validation.core.margins import STANDARD_EPSILON, WARN_EPSILON
 from gap_validation.core.results import Candidate, ChannelResult
 from gap_validation.messages.router import MessageRouter
 
-__all__ = ["ChannelStatus", "ChannelTask", "channel_status", "candidate_sentence", "STREAMS"]
+__all__ = ["ChannelStatus", "ChannelTask", "channel_status", "candidate_sentence", "verdict_mapping", "STREAMS",
+           "VERDICT_KEYS"]
 
 _JSON_VALUES = ("nu_gap", "epsilon", "epsilon_raw", "epsilon_previous", "gain_margin_db", "phase_margin_deg",
                 "disk_margin", "worst_frequency_rad_s", "sweeps", "limited_by", "points_excluded")
@@ -233,6 +234,29 @@ def channel_status(result: ChannelResult, *, warn_epsilon: float = WARN_EPSILON,
     if noted:
         return ChannelStatus(result.name, max(level, "WARN", key=_ORDER.index), f"{noted}; {summary}", values)
     return ChannelStatus(result.name, level, summary, values)
+
+
+#: The status values a channel's ``~/<channel>/verdict`` carries (numbers as numbers, lists as lists): what the
+#: model is worth, not the ages and counts that change with every message.
+VERDICT_KEYS = _JSON_VALUES + ("nu_gap_frequency_rad_s", "diagnosis", "diagnosis_effects", "diagnosis_epsilon",
+                               "margins_guaranteed", "margins_note", "warnings", "nonlinearity", "conventions")
+
+
+def verdict_mapping(status: ChannelStatus) -> dict:
+    """The channel's verdict as one mapping: ``channel``, ``level``, ``message`` and the :data:`VERDICT_KEYS`
+    values of its status, read back from their text (``null`` -> None, numbers, JSON lists)."""
+    values = dict(status.values)
+    out: dict = {"channel": status.channel, "level": status.level, "message": status.message}
+    for key in VERDICT_KEYS:
+        text = values.get(key)
+        if text is None:
+            continue
+        try:
+            out[key] = json.loads(text) if text[:1] in "[{-0123456789" or text in ("null", "true", "false") \
+                else text
+        except ValueError:
+            out[key] = text
+    return out
 
 
 class ChannelTask:

@@ -46,6 +46,7 @@ from gap_validation.ros.message_types import message_class  # noqa: E402
 from gap_validation.ros.node import ValidatorNode  # noqa: E402
 from gap_validation.ros.parameters import PARAMETERS  # noqa: E402
 from gap_validation.bag.replay import replay  # noqa: E402
+from gap_validation.core.validator import OnlineValidator  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "config" / "ultrastick25e.yaml"
@@ -185,7 +186,8 @@ class Flight:
         self.classes = {topic: message_class(t) for topic, t in self.types.items()}
         self.hidden = _hidden_of(bag)
         started = time.perf_counter()
-        self.replayed = replay([bag], self.config, diagnose=False).result
+        outcome = replay([bag], self.config, diagnose=False)
+        self.replayed, self.replay_validator = outcome.result, outcome.validator
         self.replay_s = time.perf_counter() - started
 
     @property
@@ -408,6 +410,39 @@ def test_flight_over_dds_arrives_complete_and_gives_the_same_state(flight, typed
 
 
 # ------------------------------------------------------------------------------------------------ checkpoint
+def _same_json(a, b, where: str = "") -> list[str]:
+    """Where two JSON trees differ (numbers to 1e-9 relative, NaN equal to NaN)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        out = [f"{where}.{k}: only in {'the node' if k in a else 'replay'}" for k in set(a) ^ set(b)]
+        return out + [d for k in a if k in b for d in _same_json(a[k], b[k], f"{where}.{k}")]
+    if isinstance(a, list) and isinstance(b, list):
+        if len(a) != len(b):
+            return [f"{where}: {len(a)} != {len(b)} items"]
+        return [d for i, (x, y) in enumerate(zip(a, b)) for d in _same_json(x, y, f"{where}[{i}]")]
+    if isinstance(a, float) and isinstance(b, float):
+        return [] if a == pytest.approx(b, rel=1e-9, abs=1e-12, nan_ok=True) else [f"{where}: {a!r} != {b!r}"]
+    return [] if a == b else [f"{where}: {a!r} != {b!r}"]
+
+
+def test_node_and_replay_give_the_same_json_field_by_field_and_the_same_trim(flight, fed, typed):
+    """Parity (one data path): after the flight the node (messages as they come, pushed every 2048 samples or 2 s)
+    and replay (its own batches) give the same JSON, every number, warning and verdict (1e-9), and the same
+    spectra of the trim between the manoeuvres, which the JSON shows only through its judgements and which once
+    depended on where a batch ended (the samples after a record's end that came before the block that closed it
+    were lost)."""
+    node = OnlineValidator.from_state(load_config(typed), load_state(fed["state"]), diagnose=False)
+    mine = node.results(diagnose=False).to_json_dict()
+    theirs = flight.replayed.to_json_dict()
+    for key in ("sources", "config"):      # the files: replay's bag; the node's config is the typed copy
+        mine.pop(key), theirs.pop(key)
+    assert _same_json(mine, theirs) == []
+    for name in flight.config.channels:
+        a, b = node._estimators[name]._trim, flight.replay_validator._estimators[name]._trim
+        assert (a.samples, a.segments, a.lead.rows) == (b.samples, b.segments, b.lead.rows), name
+        np.testing.assert_allclose(a.sums, b.sums, rtol=1e-9, atol=1e-18, err_msg=name)
+        np.testing.assert_allclose(a.lead.gram, b.lead.gram, rtol=1e-9, atol=1e-18, err_msg=name)
+
+
 def test_plot_topics_redraw_the_replayed_curves_are_latched_and_sent_only_on_change(flight, typed, fed, ros,
                                                                                    tmp_path):
     """``~/<channel>/frequency_response`` and ``~/<channel>/verdict`` (docs/NODE_TOPICS.md): a subscriber that comes

@@ -418,6 +418,7 @@ class _RecordBuffer:
         self.n, self.pre_n, self.post_n, self.cap = n_streams, pre_n, post_n, cap
         self.lookback_n = max(lookback_n, pre_n)
         self.last_end_k = _NONE
+        self.closed_span: tuple[int, np.ndarray] | None = None    # (k0, samples) of the last record closed
         self.on_full = on_full
         self.ring = np.zeros((n_streams, 0))
         self.ring_k = 0
@@ -515,6 +516,9 @@ class _RecordBuffer:
         act0 = max(0, self.on_k - self.k0)
         act1 = n if self.off_k == _NONE else max(act0, min(n, self.off_k - self.k0))
         out = (self.k0, self.buf[:, :n].copy(), self.src, act0, act1)
+        # every sample fed so far, the ones after the record's end included (the pre_n of quiet that closed it,
+        # fed in earlier blocks): the trim after the record begins at its end whatever the blocks were
+        self.closed_span = (self.k0, self.buf[:, :self.buf_n].copy())
         self.last_end_k = self.k0 + n
         self.open = False
         self.buf_n = 0
@@ -1186,10 +1190,18 @@ class FrequencyResponseEstimator:
         if self._trim_airspeed is not None:
             block = self._at_trim_condition(block)
         was_open = self._rec.open
+        self._rec.closed_span = None
         for record in self._rec.feed(k_a, block):
             self._close_record(*record)
         # trim: the samples outside every record (records open only at edges, between feeds)
         first = k_a if not was_open else (self._rec.last_end_k if not self._rec.open else None)
+        if first is not None and first < k_a and self._rec.closed_span is not None:
+            # the record closed pre_n samples after its end: those came in earlier blocks, held by the record
+            span_k, span = self._rec.closed_span
+            a = max(first, span_k)
+            if a < k_a <= span_k + span.shape[1]:
+                self._trim.feed(a, span[:, a - span_k:k_a - span_k])
+        self._rec.closed_span = None
         if first is not None and first < k_a + block.shape[1]:
             self._trim.feed(max(first, k_a), block[:, max(first - k_a, 0):])
             if self._pending:

@@ -19,7 +19,10 @@ setup(
     install_requires=["numpy", "scipy", "PyYAML", "rosbags>=0.10", "matplotlib", "dask[distributed]",
                       # gap-validate linearize / simulate --jsbsim: JSBSim's nonlinear 6-DOF model; the wheel ships
                       # the aircraft (c172x, J3Cub, pa28 ...). Imported only by gap_validation.jsbsim, lazily.
-                      "jsbsim>=1.2"],
+                      "jsbsim>=1.2",
+                      # gap-validate replay --annotate: one MCAP file Foxglove opens (rosbags writes a rosbag2
+                      # directory); imported only by gap_validation.bag.annotate, lazily.
+                      "mcap>=1.1"],
     extras_require={"test": ["pytest", "hypothesis", "pytest-xdist", "mpmath"]},
     zip_safe=True,
     maintainer="gap_validation developers",

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _parity import json_differences
 from _ros import domain_id
 import yaml
 
@@ -410,20 +411,6 @@ def test_flight_over_dds_arrives_complete_and_gives_the_same_state(flight, typed
 
 
 # ------------------------------------------------------------------------------------------------ checkpoint
-def _same_json(a, b, where: str = "") -> list[str]:
-    """Where two JSON trees differ (numbers to 1e-9 relative, NaN equal to NaN)."""
-    if isinstance(a, dict) and isinstance(b, dict):
-        out = [f"{where}.{k}: only in {'the node' if k in a else 'replay'}" for k in set(a) ^ set(b)]
-        return out + [d for k in a if k in b for d in _same_json(a[k], b[k], f"{where}.{k}")]
-    if isinstance(a, list) and isinstance(b, list):
-        if len(a) != len(b):
-            return [f"{where}: {len(a)} != {len(b)} items"]
-        return [d for i, (x, y) in enumerate(zip(a, b)) for d in _same_json(x, y, f"{where}[{i}]")]
-    if isinstance(a, float) and isinstance(b, float):
-        return [] if a == pytest.approx(b, rel=1e-9, abs=1e-12, nan_ok=True) else [f"{where}: {a!r} != {b!r}"]
-    return [] if a == b else [f"{where}: {a!r} != {b!r}"]
-
-
 def test_node_and_replay_give_the_same_json_field_by_field_and_the_same_trim(flight, fed, typed):
     """Parity (one data path): after the flight the node (messages as they come, pushed every 2048 samples or 2 s)
     and replay (its own batches) give the same JSON, every number, warning and verdict (1e-9), and the same
@@ -435,7 +422,7 @@ def test_node_and_replay_give_the_same_json_field_by_field_and_the_same_trim(fli
     theirs = flight.replayed.to_json_dict()
     for key in ("sources", "config"):      # the files: replay's bag; the node's config is the typed copy
         mine.pop(key), theirs.pop(key)
-    assert _same_json(mine, theirs) == []
+    assert json_differences(mine, theirs) == []
     for name in flight.config.channels:
         a, b = node._estimators[name]._trim, flight.replay_validator._estimators[name]._trim
         assert (a.samples, a.segments, a.lead.rows) == (b.samples, b.segments, b.lead.rows), name

@@ -153,11 +153,43 @@ def _after_topic(text: str, topic: str) -> str:
     return text.split(marker, 1)[1] if marker in text else text
 
 
+#: ``on_tick(t_ns, validator, router)``: bag time [ns], the validator, its router (flushed).
+TickCallback = Callable[[int, OnlineValidator, MessageRouter], None]
+#: Records per batch when ticks are asked for (about 0.3 s of a 200 Hz IMU and 100 Hz surfaces).
+TICK_RECORDS = 64
+
+
+class _Ticks:
+    """``on_tick`` every ``tick_s`` of bag time from the first record on, and at the end."""
+
+    def __init__(self, on_tick: TickCallback, tick_s: float, validator: OnlineValidator, router: MessageRouter):
+        self.on_tick, self.validator, self.router = on_tick, validator, router
+        self.period_ns = max(1, int(round(float(tick_s) * 1e9)))
+        self.next_ns: int | None = None
+        self.last_ns: int | None = None
+
+    def reached(self, t_ns: int) -> None:
+        """Records up to bag time ``t_ns`` were routed: the ticks due."""
+        if self.next_ns is None:
+            self.next_ns = t_ns + self.period_ns
+        self.last_ns = t_ns if self.last_ns is None else max(self.last_ns, t_ns)
+        while self.next_ns <= t_ns:
+            self.router.flush()
+            self.on_tick(self.next_ns, self.validator, self.router)
+            self.next_ns += self.period_ns
+
+    def end(self) -> None:
+        """The data ended (the last manoeuvre closed): one last tick at the last record's time."""
+        if self.last_ns is not None:
+            self.on_tick(self.last_ns, self.validator, self.router)
+
+
 class _BagReplay:
     """Streams one bag into the router."""
 
     def __init__(self, bag: Bag, router: MessageRouter, report: BagReport, fast: bool,
-                 progress: Callable[[int], None]):
+                 progress: Callable[[int], None], ticks: "_Ticks | None" = None):
+        self.ticks = ticks
         self.bag = bag
         self.router = router
         self.report = report
@@ -174,10 +206,13 @@ class _BagReplay:
                                                           errors=(DataError,), on_disagree=_disagree))
         count = 0
         try:
-            for batch in self.bag.record_batches(list(present), REPLAY_RECORDS):
+            size = REPLAY_RECORDS if self.ticks is None else TICK_RECORDS
+            for batch in self.bag.record_batches(list(present), size):
                 count += len(batch)
                 self._route_batch(batch)
                 self.progress(len(batch))
+                if self.ticks is not None and len(batch):
+                    self.ticks.reached(int(batch.t_ns[-1]))
         finally:
             self.report.messages = count
             for topic, state in self.states.items():
@@ -310,7 +345,8 @@ def _channel_checks(config: ValidationConfig, router: MessageRouter) -> tuple[li
 
 
 def replay(bags: Sequence[str | Path], config: ValidationConfig, *, progress: ProgressCallback | None = None,
-           fast: bool = True, validator: OnlineValidator | None = None, diagnose: bool = True) -> ReplayOutcome:
+           fast: bool = True, validator: OnlineValidator | None = None, diagnose: bool = True,
+           on_tick: TickCallback | None = None, tick_s: float = 1.0) -> ReplayOutcome:
     """Validate the config's models against recorded flights.
 
     Parameters
@@ -327,6 +363,13 @@ def replay(bags: Sequence[str | Path], config: ValidationConfig, *, progress: Pr
         Continue an existing validator (default: a new one for ``config``).
     diagnose : bool
         Let the new validator run the diagnosis (effect fitting) in its results.
+    on_tick : callable, optional
+        ``on_tick(t_ns, validator, router)`` every ``tick_s`` of bag time, the router flushed up to there (the
+        records are then read in small batches: the tick comes at most :data:`TICK_RECORDS` records late), and
+        once more at the end of the last bag after the last manoeuvre closed: what a node would have seen at each
+        moment (``--annotate``).
+    tick_s : float
+        Period of ``on_tick`` [s] of bag time.
 
     Returns
     -------
@@ -351,9 +394,10 @@ def replay(bags: Sequence[str | Path], config: ValidationConfig, *, progress: Pr
         if progress is not None and n:
             progress(min(done[0], total), total)
 
+    ticks = _Ticks(on_tick, tick_s, validator, router) if on_tick is not None else None
     for bag, report in opened:
         try:
-            _BagReplay(bag, router, report, fast, advance).run()
+            _BagReplay(bag, router, report, fast, advance, ticks).run()
             if report.messages:
                 validator.sources.append(str(bag.path))
         except DataError as err:
@@ -369,6 +413,8 @@ def replay(bags: Sequence[str | Path], config: ValidationConfig, *, progress: Pr
                         if errors else "no messages of the configured topics in " + ", ".join(map(str, bags)))
     router.flush()
     validator.finish()
+    if ticks is not None:
+        ticks.end()
     channel_errors, channel_warnings = _channel_checks(config, router)
     errors += channel_errors
     warnings += channel_warnings

@@ -39,6 +39,10 @@ def register(sub) -> None:
                         "<config stem>.history.jsonl beside the config)")
     p.add_argument("--no-history", action="store_true", help="do not read or append the validation history")
     p.add_argument("--no-progress", action="store_true", help="no progress bar (default: on a terminal)")
+    p.add_argument("--annotate", metavar="OUT_MCAP",
+                   help="write one MCAP file with the flight's messages and, on the same timeline, what the node "
+                        "would have published: /diagnostics every second and the plottable topics "
+                        "(docs/NODE_TOPICS.md); one bag")
     p.add_argument("--full-decode", action="store_true",
                    help="deserialise every message fully (default: read only the needed fields where possible)")
     p.set_defaults(func=run)
@@ -92,7 +96,11 @@ def _report_writer():
 
 def _check_outputs(args) -> None:
     """Refuse output paths that cannot be written before the replay, not after it (ConfigError, one line)."""
-    for option, value in (("--json", args.json), ("--apply-diagnosis", args.apply_diagnosis)):
+    if getattr(args, "annotate", None) and len(args.bags) != 1:
+        raise ConfigError(f"--annotate {args.annotate}: takes one bag (got {len(args.bags)}): the annotation is on "
+                          "that bag's timeline")
+    for option, value in (("--json", args.json), ("--apply-diagnosis", args.apply_diagnosis),
+                          ("--annotate", getattr(args, "annotate", None))):
         if not value:
             continue
         path = Path(value)
@@ -111,11 +119,26 @@ def run(args) -> int:
     write_report = _report_writer() if args.report else None
     _check_outputs(args)
     bar = ProgressBar() if not args.no_progress and sys.stderr.isatty() else None
+    annotator = None
+    if getattr(args, "annotate", None):
+        from gap_validation.bag.annotate import Annotator
+
+        annotator = Annotator(config)
     try:
-        outcome = replay(args.bags, config, progress=bar, fast=not args.full_decode)
+        outcome = replay(args.bags, config, progress=bar, fast=not args.full_decode,
+                         on_tick=annotator.tick if annotator is not None else None)
     finally:
         if bar is not None:
             bar.close()
+    if annotator is not None:       # the flight and its verdict on one timeline; the results follow anyway
+        from gap_validation.bag.annotate import write_annotated
+
+        try:
+            n = write_annotated(args.bags[0], args.annotate, annotator)
+            print(f"annotated: {args.annotate} ({n} messages: the flight and {len(annotator.messages)} of the "
+                  "node's)", file=sys.stderr)
+        except DataError as err:
+            outcome.errors.append(str(err))
     for warning in outcome.warnings:
         print(f"gap-validate: warning: {warning}", file=sys.stderr)
     try:

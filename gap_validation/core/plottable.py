@@ -9,6 +9,7 @@ and ``model``: the measured phase unwrapped next to the model's), so the curves 
 """
 from __future__ import annotations
 
+import re
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -16,7 +17,7 @@ import numpy as np
 from gap_validation.core.config import ChannelConfig
 from gap_validation.core.results import ChannelResult
 
-__all__ = ["CURVES", "FLAG_CODES", "frequency_response_table", "read_table", "flags_from_codes"]
+__all__ = ["CURVES", "FLAG_CODES", "frequency_response_table", "read_table", "flags_from_codes", "topic_token"]
 
 #: The rows of the table, in order: the frequency (also as log10, for plot axes without a log scale), the
 #: measured and model Bode curves, coherence, epsilon(w) (eq. 14), kappa(w) (the chordal distance), the random
@@ -93,6 +94,30 @@ def read_table(data: Sequence[float], labels: Sequence[str]) -> dict[str, np.nda
 
 
 def flags_from_codes(codes: Sequence[float]) -> list[str | None]:
-    """The ``flag`` row back as the JSON's words (None where NaN)."""
+    """The ``flag`` row back as the JSON's words.
+
+    Parameters
+    ----------
+    codes : sequence of float
+        The ``flag`` row (:data:`FLAG_CODES`; NaN where the result has no estimate).
+
+    Returns
+    -------
+    list of str or None
+        ``frequency_flags``' words, None where NaN.
+    """
     words: Mapping[float, str] = {v: k for k, v in FLAG_CODES.items()}
     return [None if not np.isfinite(c) else words[float(c)] for c in codes]
+
+
+def topic_token(channel: str) -> str:
+    """A channel name as a topic name token: ``~/<token>/frequency_response``.
+
+    Parameters
+    ----------
+    channel : str
+        The channel's name in the config; characters other than letters, digits and ``_`` become ``_``, a
+        leading digit gets ``c_``.
+    """
+    token = re.sub(r"[^A-Za-z0-9_]", "_", channel)
+    return token if token and not token[0].isdigit() else f"c_{token}"

@@ -14,14 +14,13 @@ Both use a reliable, transient-local QoS of depth 1: a plotter that starts late 
 from __future__ import annotations
 
 import json
-import re
 from typing import Any
 
 import numpy as np
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension, String
 
-from gap_validation.core.plottable import CURVES, frequency_response_table
+from gap_validation.core.plottable import CURVES, frequency_response_table, topic_token
 from gap_validation.core.results import ValidationResult
 from gap_validation.ros.status import ChannelStatus, verdict_mapping
 
@@ -30,12 +29,6 @@ __all__ = ["PlotTopics", "LATCHED", "topic_token", "table_message"]
 #: Reliable, transient local, the latest only: a late subscriber gets the current curves at once.
 LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
-
-
-def topic_token(channel: str) -> str:
-    """A channel name as a topic name token (characters other than letters, digits and ``_`` become ``_``)."""
-    token = re.sub(r"[^A-Za-z0-9_]", "_", channel)
-    return token if token and not token[0].isdigit() else f"c_{token}"
 
 
 def table_message(table: np.ndarray) -> Float64MultiArray:

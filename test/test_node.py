@@ -656,6 +656,17 @@ def test_diagnostics_published_on_the_topic_before_any_data(ros):
     assert node.get_fully_qualified_name() == "/gap_validator"
 
 
+def test_the_shipped_aggregator_config_expects_the_statuses_the_node_publishes(ros):
+    """``config/diagnostic_aggregator.yaml`` groups the bundled config's channels: its ``expected`` names and its
+    ``startswith`` are those of the node's statuses (a name off by a character reads STALE for ever)."""
+    data = yaml.safe_load((ROOT / "config" / "diagnostic_aggregator.yaml").read_text())
+    analyzer = data["analyzers"]["ros__parameters"]["model_validation"]
+    node = ros.validator(CONFIG)
+    names = [s.name for s in node.publish_diagnostics().status]
+    assert sorted(analyzer["expected"]) == sorted(names)
+    assert all(name.startswith(tuple(analyzer["startswith"])) for name in names)
+
+
 def test_statuses_carry_the_node_name_and_are_ok_while_waiting_for_a_sweep(ros):
     """Remapped (``-r __node:=gv2 -r __ns:=/uav1``): statuses ``gv2: <channel>`` (diagnostic_updater's naming),
     hardware_id the node's fully qualified name (the config has no ``aircraft``); receiving data without a sweep

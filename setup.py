@@ -21,7 +21,7 @@ setup(
                       # the aircraft (c172x, J3Cub, pa28 ...). Imported only by gap_validation.jsbsim, lazily.
                       "jsbsim>=1.2",
                       # gap-validate replay --annotate: one MCAP file Foxglove opens (rosbags writes a rosbag2
-                      # directory); imported only by gap_validation.bag.annotate, lazily.
+                      # directory); imported only by gap_validation.cli.annotate, lazily.
                       "mcap>=1.1"],
     extras_require={"test": ["pytest", "hypothesis", "pytest-xdist", "mpmath"]},
     zip_safe=True,

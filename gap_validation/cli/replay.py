@@ -121,7 +121,7 @@ def run(args) -> int:
     bar = ProgressBar() if not args.no_progress and sys.stderr.isatty() else None
     annotator = None
     if getattr(args, "annotate", None):
-        from gap_validation.bag.annotate import Annotator
+        from gap_validation.cli.annotate import Annotator
 
         annotator = Annotator(config)
     try:
@@ -131,7 +131,7 @@ def run(args) -> int:
         if bar is not None:
             bar.close()
     if annotator is not None:       # the flight and its verdict on one timeline; the results follow anyway
-        from gap_validation.bag.annotate import write_annotated
+        from gap_validation.cli.annotate import write_annotated
 
         try:
             n = write_annotated(args.bags[0], args.annotate, annotator)

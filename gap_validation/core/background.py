@@ -131,6 +131,7 @@ class LeadTest:
         k = 2 * self.lags + 1
         self.gram = np.zeros((k, k))
         self.rows = 0
+        self._result: tuple | None = None           # (rows, result) of the last result()
 
     def add(self, x: np.ndarray, fresh: int = 0) -> None:
         """Regress the samples of ``x`` (streams x n) from index ``fresh`` on (each on the ``lags`` before it).
@@ -152,7 +153,15 @@ class LeadTest:
         self.rows += z.shape[0]
 
     def result(self) -> LeadResult | None:
-        """The test on everything regressed so far (None before :data:`LEAD_MIN_S` of trim)."""
+        """The test on everything regressed so far (None before :data:`LEAD_MIN_S` of trim); computed again only
+        after new rows."""
+        if self._result is not None and self._result[0] == self.rows:
+            return self._result[1]
+        out = self._compute()
+        self._result = (self.rows, out)
+        return out
+
+    def _compute(self) -> LeadResult | None:
         p = self.lags
         if self.rows < max(20 * p, LEAD_MIN_S / self.dt):
             return None
@@ -188,6 +197,7 @@ class LeadTest:
         st : dict
             From :meth:`state_dict`.
         """
+        self._result = None
         if "gram" in st and np.shape(st["gram"]) == self.gram.shape:
             self.gram[:] = st["gram"]
             self.rows = int(st["rows"])
@@ -237,6 +247,9 @@ class TrimSpectrum:
         self._pend_n = 0
         self._pend_k = 0                             # grid index of the first pending sample
         self._covered = 0                            # leading pending samples already transformed
+        self.version = 0                             # segments added (power, std, response are kept until then)
+        self._memo: dict = {}
+        self._memo_version = -1
 
     # ------------------------------------------------------------------ data in
     def feed(self, k_a: int, block: np.ndarray) -> None:
@@ -316,6 +329,7 @@ class TrimSpectrum:
     def _segment(self, x: np.ndarray, fresh: int = 0) -> None:
         """Add one segment ``x`` (streams x n); its samples from ``fresh`` on were in no segment before (the
         lead test counts each sample once)."""
+        self.version += 1
         n = x.shape[1]
         t = np.arange(n, dtype=float)
         t -= t.mean()
@@ -358,6 +372,17 @@ class TrimSpectrum:
         """Trim transformed so far [s]."""
         return self.samples * self.dt
 
+    def _kept(self, key: tuple, compute):
+        """``compute()`` once per :attr:`version` (the node asks every diagnostics tick; the trim changes a segment
+        at a time); copies of the arrays."""
+        if self._memo_version != self.version:
+            self._memo, self._memo_version = {}, self.version
+        if key not in self._memo:
+            self._memo[key] = compute()
+        value = self._memo[key]
+        return tuple(np.copy(v) for v in value) if isinstance(value, tuple) else np.copy(value) \
+            if isinstance(value, np.ndarray) else value
+
     def power(self, streams: Sequence[int]) -> np.ndarray:
         """The ``streams``' summed trim power per frequency, mean ``|X|^2`` per bin in
         :func:`~gap_validation.core.spectra.record_bands`' units: the median over the kept segments that resolve
@@ -369,6 +394,9 @@ class TrimSpectrum:
         streams : sequence of int
             Stream indices.
         """
+        return self._kept(("power", tuple(int(j) for j in streams)), lambda: self._power(streams))
+
+    def _power(self, streams: Sequence[int]) -> np.ndarray:
         per_segment = np.sum(self.seg_power[:, :, list(streams)], axis=2)          # NaN where unresolved
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)                         # all-NaN columns
@@ -387,9 +415,12 @@ class TrimSpectrum:
         stream : int
             Stream index.
         """
-        values = self.seg_std[:, stream]
-        values = values[np.isfinite(values)]
-        return float(np.median(values)) if values.size else float("nan")
+        def compute() -> float:
+            values = self.seg_std[:, stream]
+            values = values[np.isfinite(values)]
+            return float(np.median(values)) if values.size else float("nan")
+
+        return self._kept(("std", int(stream)), compute)
 
     def response(self, inp: int, out: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The response from stream ``inp`` to stream ``out`` between manoeuvres (``S_yu / S_uu``), its coherence
@@ -400,6 +431,9 @@ class TrimSpectrum:
         inp, out : int
             Stream indices.
         """
+        return self._kept(("response", int(inp), int(out)), lambda: self._response(inp, out))
+
+    def _response(self, inp: int, out: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         with np.errstate(invalid="ignore", divide="ignore"):
             suu = self.sums[:, inp, inp].real
             syy = self.sums[:, out, out].real
@@ -435,6 +469,7 @@ class TrimSpectrum:
         self._pend[:, :self._pend_n] = pend
         self._pend_k = int(st["pend_k"])
         self._covered = int(st.get("covered", 0))
+        self.version += 1
         if self.lead is not None:
             self.lead.load_state({k[5:]: v for k, v in st.items() if k.startswith("lead_")})
 

@@ -57,6 +57,8 @@ Performance (``benchmarks/bench_estimator.py``): see the README table.
 """
 from __future__ import annotations
 
+import copy
+
 import bisect
 import math
 from collections import Counter, deque
@@ -644,6 +646,8 @@ class FrequencyResponseEstimator:
         self._trim = TrimSpectrum(w, S, self._dt, opts["band_fraction"], opts["max_band_fraction"], LOOKBACK_S,
                                   lead=(0, self._m))
         self._tot = self._new_sums()
+        self._tot_changes = 0                      # additions to _tot (the key of the cached averaged())
+        self._averaged: tuple | None = None
         self._reasons = np.zeros((len(NOT_ESTIMABLE_REASONS), F), np.int64)
         self._raw: list[tuple[np.ndarray, int, int, str]] = []    # estimate rows, k0, k1, kind
         self._raw_amplitude: list[float] = []                       # input amplitude of each raw record
@@ -955,10 +959,15 @@ class FrequencyResponseEstimator:
         """Estimate pooled over every manoeuvre so far (None before the first)."""
         if self._n_sweeps == 0:
             return None
-        reasons = {name: self._reasons[i].copy() for i, name in enumerate(NOT_ESTIMABLE_REASONS)}
-        return SpectralEstimate.from_sums(self._w, self._tot, self._dt, self._opts["band_fraction"],
-                                          self._time(self._span[0]), self._time(self._span[1]),
-                                          self._n_sweeps, "", reasons)
+        # solved again only when a manoeuvre changed the sums (the node asks every diagnostics tick)
+        key = (id(self._tot), self._tot_changes, self._n_sweeps, tuple(self._span), self._reasons.tobytes(),
+               self._t0)
+        if self._averaged is None or self._averaged[0] != key:
+            reasons = {name: self._reasons[i].copy() for i, name in enumerate(NOT_ESTIMABLE_REASONS)}
+            self._averaged = (key, SpectralEstimate.from_sums(self._w, self._tot, self._dt,
+                                                              self._opts["band_fraction"], self._time(self._span[0]),
+                                                              self._time(self._span[1]), self._n_sweeps, "", reasons))
+        return copy.copy(self._averaged[1])
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -1417,6 +1426,7 @@ class FrequencyResponseEstimator:
         if not counted.any():
             return
         self._tot.add(sums, counted)
+        self._tot_changes += 1
         amplitude = record_amplitude(seg[0, max(active[0] - k_start, 0):max(active[1] - k_start, 0)])
         k_start, k_end = active
         if not self._own_record:
@@ -1586,6 +1596,7 @@ class FrequencyResponseEstimator:
             data = np.asarray(st[f"pending{i}.data"], float).reshape(self._S, -1)
             self._pending.append((k0, data.copy(), src, act0, act1))
         self._tot = BandSums.from_state(st, "tot.")
+        self._averaged = None
         meta = np.asarray(st["raw_meta"], np.int64).reshape(-1, 2)
         kinds = [str(k) for k in np.atleast_1d(st["raw_kind"])]
         rows = np.asarray(st["raw_rows"], float)

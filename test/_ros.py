@@ -1,6 +1,7 @@
 """What the ROS tests share: a DDS domain of their own, also when pytest-xdist runs files in parallel."""
 from __future__ import annotations
 
+import contextlib
 import os
 import random
 
@@ -12,3 +13,23 @@ def domain_id() -> str:
     index = int(worker[2:]) if worker[2:].isdigit() else 0
     span = 102 // count
     return str((index % count) * span + random.randrange(span))
+
+
+KEYS = ("ROS_PYTHON_CHECK_FIELDS", "ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")
+
+
+@contextlib.contextmanager
+def isolated_ros():
+    """Isolated DDS traffic for the block: a domain of its own, localhost only, strict field checks (restored
+    afterwards)."""
+    saved = {k: os.environ.get(k) for k in KEYS}
+    os.environ.update({"ROS_PYTHON_CHECK_FIELDS": "1", "ROS_DOMAIN_ID": domain_id(),
+                       "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"})
+    try:
+        yield
+    finally:
+        for key, value in saved.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value

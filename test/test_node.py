@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from _parity import json_differences
-from _ros import domain_id
+from _ros import isolated_ros
 import yaml
 
 rclpy = pytest.importorskip("rclpy")
@@ -62,16 +62,8 @@ LEVELS = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR, Di
 @pytest.fixture(scope="module", autouse=True)
 def ros_environment():
     """Isolated DDS traffic: random domain, localhost only, strict field checks (restored afterwards)."""
-    keys = ("ROS_PYTHON_CHECK_FIELDS", "ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")
-    saved = {k: os.environ.get(k) for k in keys}
-    os.environ.update({"ROS_PYTHON_CHECK_FIELDS": "1", "ROS_DOMAIN_ID": domain_id(),
-                       "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"})
-    yield
-    for key, value in saved.items():
-        if value is None:
-            os.environ.pop(key, None)
-        else:
-            os.environ[key] = value
+    with isolated_ros():
+        yield
 
 
 class Ros:

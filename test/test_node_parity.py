@@ -5,13 +5,12 @@ rates, a pitch damper): the node's data path (serialized messages as they come, 
 from __future__ import annotations
 
 import json
-import os
 import sys
 from pathlib import Path
 
 import pytest
 from _parity import json_differences
-from _ros import domain_id
+from _ros import isolated_ros
 
 rclpy = pytest.importorskip("rclpy")
 
@@ -37,16 +36,8 @@ CASES = ("lag_roll", "closed_loop_pitch")
 
 @pytest.fixture
 def ros_env():
-    keys = ("ROS_PYTHON_CHECK_FIELDS", "ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")
-    saved = {k: os.environ.get(k) for k in keys}
-    os.environ.update({"ROS_PYTHON_CHECK_FIELDS": "1", "ROS_DOMAIN_ID": domain_id(),
-                       "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"})
-    yield
-    for key, value in saved.items():
-        if value is None:
-            os.environ.pop(key, None)
-        else:
-            os.environ[key] = value
+    with isolated_ros():
+        yield
 
 
 @pytest.mark.slow

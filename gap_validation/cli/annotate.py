@@ -13,7 +13,6 @@ samples and STALE (the node's clock against the data's).
 from __future__ import annotations
 
 import heapq
-import json
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -22,11 +21,11 @@ import numpy as np
 from gap_validation.bag.reader import open_bag
 from gap_validation.core.config import ValidationConfig
 from gap_validation.core.errors import DataError
-from gap_validation.core.plottable import CURVES, frequency_response_table, topic_token
+from gap_validation.core.plottable import table_dims, topic_token
 from gap_validation.core.results import ValidationResult
 from gap_validation.core.validator import OnlineValidator
 from gap_validation.messages.router import MessageRouter
-from gap_validation.ros.status import channel_status, verdict_mapping
+from gap_validation.ros.status import PlotChanges, channel_status
 
 __all__ = ["Annotator", "write_annotated", "NODE_NAME", "TICK_S"]
 
@@ -71,7 +70,7 @@ class Annotator:
         self._sweeps: dict[str, int] = {}
         self._top: dict[str, Any] = {}
         self._nonlinearity: dict[str, str | None] = {}
-        self._last: dict[str, tuple[np.ndarray | None, str | None]] = {}
+        self._changes = PlotChanges()
 
     # ------------------------------------------------------------------ one tick
     def tick(self, t_ns: int, validator: OnlineValidator, router: MessageRouter) -> None:
@@ -98,16 +97,12 @@ class Annotator:
         self._add(t_ns, "/diagnostics", _DIAGNOSTICS, array)
         for status in statuses:
             name = status.channel
-            table = frequency_response_table(result.channels[name], self.config.channels[name])
-            verdict = json.dumps(verdict_mapping(status), sort_keys=True)
-            last_table, last_verdict = self._last.get(name, (None, None))
+            table, verdict = self._changes.changed(result.channels[name], self.config.channels[name], status)
             base = f"/{self.node_name}/{topic_token(name)}"
-            if table is not None and (last_table is None or not np.array_equal(table, last_table, equal_nan=True)):
+            if table is not None:
                 self._add(t_ns, f"{base}/frequency_response", _TABLE, self._table(table))
-                last_table = table
-            if verdict != last_verdict:
+            if verdict is not None:
                 self._add(t_ns, f"{base}/verdict", _STRING, types[_STRING](data=verdict))
-            self._last[name] = (last_table, verdict)
 
     def _diagnose(self, result: ValidationResult, validator: OnlineValidator) -> None:
         sweeps = {name: ch.sweeps for name, ch in result.channels.items()}
@@ -122,10 +117,9 @@ class Annotator:
 
     def _table(self, table: np.ndarray) -> Any:
         types = self.typestore.types
-        rows, n = table.shape
         dim = types["std_msgs/msg/MultiArrayDimension"]
         layout = types["std_msgs/msg/MultiArrayLayout"](
-            dim=[dim(label=",".join(CURVES), size=rows, stride=rows * n), dim(label="frequency", size=n, stride=n)],
+            dim=[dim(label=label, size=size, stride=stride) for label, size, stride in table_dims(table)],
             data_offset=0)
         return types[_TABLE](layout=layout, data=np.ascontiguousarray(table.ravel(), dtype=np.float64))
 

@@ -17,7 +17,8 @@ import numpy as np
 from gap_validation.core.config import ChannelConfig
 from gap_validation.core.results import ChannelResult
 
-__all__ = ["CURVES", "FLAG_CODES", "frequency_response_table", "read_table", "flags_from_codes", "topic_token"]
+__all__ = ["CURVES", "FLAG_CODES", "frequency_response_table", "read_table", "flags_from_codes", "topic_token",
+           "table_dims"]
 
 #: The rows of the table, in order: the frequency (also as log10, for plot axes without a log scale), the
 #: measured and model Bode curves, coherence, epsilon(w) (eq. 14), kappa(w) (the chordal distance), the random
@@ -121,3 +122,16 @@ def topic_token(channel: str) -> str:
     """
     token = re.sub(r"[^A-Za-z0-9_]", "_", channel)
     return token if token and not token[0].isdigit() else f"c_{token}"
+
+
+def table_dims(table: np.ndarray) -> list[tuple[str, int, int]]:
+    """The ``MultiArrayLayout`` dimensions of a table, ``(label, size, stride)``: the rows (label: the curve
+    names joined by commas), then the frequencies (label ``frequency``).
+
+    Parameters
+    ----------
+    table : ndarray
+        From :func:`frequency_response_table`.
+    """
+    rows, n = table.shape
+    return [(",".join(CURVES), rows, rows * n), ("frequency", n, n)]

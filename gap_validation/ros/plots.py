@@ -13,16 +13,15 @@ Both use a reliable, transient-local QoS of depth 1: a plotter that starts late 
 """
 from __future__ import annotations
 
-import json
 from typing import Any
 
 import numpy as np
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension, String
 
-from gap_validation.core.plottable import CURVES, frequency_response_table, topic_token
+from gap_validation.core.plottable import table_dims, topic_token
 from gap_validation.core.results import ValidationResult
-from gap_validation.ros.status import ChannelStatus, verdict_mapping
+from gap_validation.ros.status import ChannelStatus, PlotChanges
 
 __all__ = ["PlotTopics", "LATCHED", "topic_token", "table_message"]
 
@@ -32,11 +31,10 @@ LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=Relia
 
 
 def table_message(table: np.ndarray) -> Float64MultiArray:
-    """The ``Float64MultiArray`` of a curves table (rows :data:`CURVES`, columns the frequencies)."""
-    rows, n = table.shape
+    """The ``Float64MultiArray`` of a curves table (rows the curves, columns the frequencies)."""
     msg = Float64MultiArray()
-    msg.layout.dim = [MultiArrayDimension(label=",".join(CURVES), size=rows, stride=rows * n),
-                      MultiArrayDimension(label="frequency", size=n, stride=n)]
+    msg.layout.dim = [MultiArrayDimension(label=label, size=size, stride=stride)
+                      for label, size, stride in table_dims(table)]
     msg.layout.data_offset = 0
     msg.data = table.ravel().tolist()
     return msg
@@ -54,7 +52,7 @@ class PlotTopics:
     def __init__(self, node: Any):
         self.node = node
         self._pubs: dict[str, tuple[Any, Any]] = {}
-        self._last: dict[str, tuple[np.ndarray | None, str | None]] = {}
+        self._changes = PlotChanges()
         self.published = 0           # messages published (tests, benchmarks)
 
     def _publishers(self, channel: str) -> tuple[Any, Any]:
@@ -71,25 +69,20 @@ class PlotTopics:
         for name in [n for n in self._pubs if n not in channels]:
             for pub in self._pubs.pop(name):
                 self.node.destroy_publisher(pub)
-            self._last.pop(name, None)
+            self._changes.forget(name)
 
     def publish(self, result: ValidationResult, statuses: list[ChannelStatus]) -> None:
         """Publish each channel's table and verdict where they differ from the last published."""
         config = self.node.config.channels
         for status in statuses:
-            name = status.channel
-            channel, ch = config.get(name), result.channels.get(name)
+            channel, ch = config.get(status.channel), result.channels.get(status.channel)
             if channel is None or ch is None:
                 continue
-            table = frequency_response_table(ch, channel)
-            verdict = json.dumps(verdict_mapping(status), sort_keys=True)
-            last_table, last_verdict = self._last.get(name, (None, None))
-            table_pub, verdict_pub = self._publishers(name)
-            if table is not None and (last_table is None or not np.array_equal(table, last_table, equal_nan=True)):
+            table, verdict = self._changes.changed(ch, channel, status)
+            table_pub, verdict_pub = self._publishers(status.channel)
+            if table is not None:
                 table_pub.publish(table_message(table))
                 self.published += 1
-                last_table = table
-            if verdict != last_verdict:
+            if verdict is not None:
                 verdict_pub.publish(String(data=verdict))
                 self.published += 1
-            self._last[name] = (last_table, verdict)

@@ -37,13 +37,16 @@ import json
 from dataclasses import dataclass, field
 from typing import Any, Callable, Collection, Mapping, Sequence
 
+import numpy as np
+
 from gap_validation.core.config import ChannelConfig
 from gap_validation.core.margins import STANDARD_EPSILON, WARN_EPSILON
+from gap_validation.core.plottable import frequency_response_table
 from gap_validation.core.results import Candidate, ChannelResult
 from gap_validation.messages.router import MessageRouter
 
 __all__ = ["ChannelStatus", "ChannelTask", "channel_status", "candidate_sentence", "verdict_mapping", "STREAMS",
-           "VERDICT_KEYS"]
+           "VERDICT_KEYS", "PlotChanges"]
 
 _JSON_VALUES = ("nu_gap", "epsilon", "epsilon_raw", "epsilon_previous", "gain_margin_db", "phase_margin_deg",
                 "disk_margin", "worst_frequency_rad_s", "sweeps", "limited_by", "points_excluded")
@@ -257,6 +260,39 @@ def verdict_mapping(status: ChannelStatus) -> dict:
         except ValueError:
             out[key] = text
     return out
+
+
+class PlotChanges:
+    """What a channel's plottable topics must send (docs/NODE_TOPICS.md): its curves table and its verdict, each
+    only when it differs from the last sent (the node's ``~/<channel>/...`` and ``replay --annotate``)."""
+
+    def __init__(self) -> None:
+        self._last: dict[str, tuple[Any, str | None]] = {}
+
+    def changed(self, result: ChannelResult, channel: ChannelConfig, status: ChannelStatus) -> tuple[Any, str | None]:
+        """``(table or None, verdict JSON or None)``: what changed since the last call for this channel.
+
+        Parameters
+        ----------
+        result : ChannelResult
+            The channel's result.
+        channel : ChannelConfig
+            Its config (the grid).
+        status : ChannelStatus
+            Its status (the verdict).
+        """
+        table = frequency_response_table(result, channel)
+        verdict = json.dumps(verdict_mapping(status), sort_keys=True)
+        last_table, last_verdict = self._last.get(status.channel, (None, None))
+        new_table = table if table is not None and (
+            last_table is None or not np.array_equal(table, last_table, equal_nan=True)) else None
+        new_verdict = verdict if verdict != last_verdict else None
+        self._last[status.channel] = (last_table if new_table is None else new_table, verdict)
+        return new_table, new_verdict
+
+    def forget(self, channel: str) -> None:
+        """The channel left the config."""
+        self._last.pop(channel, None)
 
 
 class ChannelTask:

@@ -22,7 +22,10 @@ setup(
                       "jsbsim>=1.2",
                       # gap-validate replay --annotate: one MCAP file Foxglove opens (rosbags writes a rosbag2
                       # directory); imported only by gap_validation.cli.annotate, lazily.
-                      "mcap>=1.1"],
+                      "mcap>=1.1",
+                      # gap-validate replay FLIGHT.ulg / FLIGHT.bin: PX4's and ArduPilot's own log readers
+                      # (gap_validation.logs; also the references its readers and writers are checked against).
+                      "pyulog>=1.0", "pymavlink>=2.4"],
     extras_require={"test": ["pytest", "hypothesis", "pytest-xdist", "mpmath"]},
     zip_safe=True,
     maintainer="gap_validation developers",

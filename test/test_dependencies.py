@@ -22,6 +22,7 @@ FORBIDDEN_PACKAGES = {
     "ros": ("bag", "cli"),
     "report": ("messages", "bag", "ros", "cli"),
     "campaign": ("ros", "cli"),
+    "logs": ("messages", "bag", "ros", "report", "cli", "campaign"),
 }
 
 #: Modules -> third-party libraries that importing them must not import.
@@ -33,6 +34,8 @@ FORBIDDEN_LIBRARIES = [
     (["gap_validation.ros.status", "gap_validation.ros.stamp_gaps", "gap_validation.ros.parameters",
       "gap_validation.ros.diagnosis_worker"], ("rclpy", "rosbags", "matplotlib")),
     (["gap_validation.bag." + p.stem for p in sorted((PACKAGE / "bag").glob("*.py"))], ("rclpy", "matplotlib")),
+    (["gap_validation.logs." + p.stem for p in sorted((PACKAGE / "logs").glob("*.py"))],
+     ("rclpy", "rosbags", "matplotlib")),
     (["gap_validation.report", "gap_validation.report.terminal", "gap_validation.report.html"],
      ("rclpy", "rosbags", "matplotlib")),
     (["gap_validation.campaign." + p.stem for p in sorted((PACKAGE / "campaign").glob("*.py"))]

@@ -22,7 +22,7 @@ ROS_PACKAGES = {"rclpy", "rcl_interfaces", "launch", "launch_ros", "ament_index_
 #: No rosdep key (or none for the extra used): installed with pip, as the README says.
 PIP_ONLY = {"rosbags": "pip install rosbags", "distributed": "dask[distributed]",
             "cloudpickle": "dask[distributed]", "jsbsim": "pip install jsbsim",
-            "mcap": "pip install mcap"}
+            "mcap": "pip install mcap", "pyulog": "pip install pyulog", "pymavlink": "pip install pymavlink"}
 NO_LAUNCH = ("ROS 2's launch / launch_ros packages are not installed (no `ros2 launch` here); "
              "test_launch_file_parses_and_declares_every_argument_it_uses checks the file without them")
 #: Message packages the node imports by name (``message_types.message_class``) for the default topic types.

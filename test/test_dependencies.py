@@ -78,7 +78,7 @@ def _loaded_after_import(modules: list[str], libraries: tuple[str, ...]) -> str:
 
 
 @pytest.mark.parametrize("modules, libraries", FORBIDDEN_LIBRARIES,
-                         ids=["core", "messages", "ros-without-rclpy", "bag", "report-without-matplotlib",
+                         ids=["core", "messages", "ros-without-rclpy", "bag", "logs", "report-without-matplotlib",
                               "campaign-without-dask-or-matplotlib"])
 def test_layers_import_no_heavier_library(modules, libraries):
     assert _loaded_after_import(modules, libraries) == "[]"

@@ -17,7 +17,7 @@ from gap_validation import __version__
 from gap_validation.core.errors import GapValidationError
 
 #: Subcommand modules, in the order ``--help`` lists them.
-COMMANDS = ("replay", "compare_models", "simulate", "linearize", "report", "campaign")
+COMMANDS = ("replay", "compare_models", "simulate", "linearize", "report", "campaign", "layouts")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -522,6 +522,32 @@ class OnlineValidator:
                                             f"({result.nonlinearity_evidence})")
 
     # ------------------------------------------------------------------ checkpoint
+    def analysis_cache(self) -> dict:
+        """What the analyses computed, each keyed on what it read (a digest of the estimates, the kept manoeuvres,
+        the model): for a validator of the same config resumed from a later state (:meth:`adopt_analysis_cache`),
+        so a channel whose estimates did not change is not analysed again (the node's diagnosis worker).
+        Entries keyed on this validator's own update counters (MIMO channels) are left out."""
+        return {"diagnosis": {name: entry for name, entry in self._diagnosis_cache.items()
+                              if isinstance(entry[0][0], bytes)},
+                "time_domain": dict(self._time_domain_cache), "margin": dict(self._margin_cache)}
+
+    def adopt_analysis_cache(self, cache: dict) -> None:
+        """Reuse another validator's :meth:`analysis_cache` (same config): an entry is used only where its key
+        equals what this validator reads.
+
+        Parameters
+        ----------
+        cache : dict
+            From :meth:`analysis_cache`.
+        """
+        for name, entry in cache.get("diagnosis", {}).items():
+            if name in self._config.channels and not self._config.channels[name].is_mimo:
+                self._diagnosis_cache.setdefault(name, entry)
+        for name, entry in cache.get("time_domain", {}).items():
+            self._time_domain_cache.setdefault(name, entry)
+        for name, entry in cache.get("margin", {}).items():
+            self._margin_cache.setdefault(name, entry)
+
     def state_dict(self) -> dict:
         """Everything gathered so far, as plain numbers and numpy arrays (size independent of flight length)."""
         return {

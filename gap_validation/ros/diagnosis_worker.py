@@ -40,9 +40,13 @@ def copy_tree(value: Any) -> Any:
     return value
 
 
-def _diagnose_snapshot(config: ValidationConfig, state: dict, generation: int) -> tuple[int, ValidationResult]:
-    """Worker: full results (effect fitting) on a private copy of the validator."""
-    return generation, OnlineValidator.from_state(config, state).results(diagnose=True)
+def _diagnose_snapshot(config: ValidationConfig, state: dict, generation: int,
+                       cache: dict) -> tuple[int, ValidationResult, dict]:
+    """Worker: full results (effect fitting) on a private copy of the validator, reusing the previous run's
+    analyses where what they read did not change (a channel without a new manoeuvre is not fitted again)."""
+    validator = OnlineValidator.from_state(config, state)
+    validator.adopt_analysis_cache(cache)
+    return generation, validator.results(diagnose=True), validator.analysis_cache()
 
 
 def _results_key(result: ValidationResult, generation: int) -> tuple:
@@ -67,10 +71,12 @@ class DiagnosisWorker:
         self._key: Any = None
         self._started = -math.inf
         self._pool: concurrent.futures.ThreadPoolExecutor | None = None
+        self._cache: tuple[int, dict] = (-1, {})      # generation, the last diagnosis' analyses
 
     def forget(self) -> None:
         """The spectra were reset: the next results are new whatever they say."""
         self._key = None
+        self._cache = (-1, {})
 
     def schedule(self, result: ValidationResult, validator: OnlineValidator, config: ValidationConfig,
                  generation: int, period_s: float) -> None:
@@ -107,7 +113,8 @@ class DiagnosisWorker:
         state = copy_tree(validator.state_dict())
         if self._pool is None:
             self._pool = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="gap_diagnosis")
-        self.job = self._pool.submit(_diagnose_snapshot, config, state, generation)
+        cache = self._cache[1] if self._cache[0] == generation else {}
+        self.job = self._pool.submit(_diagnose_snapshot, config, state, generation, cache)
 
     def harvest(self, generation: int) -> ValidationResult | None:
         """The finished diagnosis's results if they belong to ``generation`` (None otherwise, or still running).
@@ -126,7 +133,8 @@ class DiagnosisWorker:
         if job is None or not job.done():
             return None
         self.job = None
-        done_generation, result = job.result()
+        done_generation, result, cache = job.result()
+        self._cache = (done_generation, cache)
         return result if done_generation == generation else None
 
     def wait(self, timeout_s: float) -> bool:

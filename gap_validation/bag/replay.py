@@ -1,4 +1,5 @@
-"""Replay recorded flights (rosbag2) into the online validator: the offline front end of the one data path.
+"""Replay recorded flights (rosbag2, and flight logs: PX4 ULog, ArduPilot DataFlash, CSV) into the online
+validator: the offline front end of the one data path.
 
 Every bag is streamed in batches of records (only the config's topics; :meth:`Bag.record_batches`: an mcap chunk
 at a time), each record goes through the one decoding step (:class:`~gap_validation.messages.decoding.TopicDecoder`,
@@ -17,6 +18,18 @@ increasing time.
 
 A bad input never discards what was computed: an unreadable bag, a topic of the wrong type or a damaged record
 is reported (one line naming the file and topic) and the other bags, topics and records are still validated.
+
+Flight logs (``.ulg``, ``.bin``, ``.csv``; :mod:`gap_validation.logs`) go the same way from the router on. A log is
+read with :meth:`~gap_validation.logs.base.LogFile.read` for the topics and fields the config names (a config topic
+``/vehicle_angular_velocity`` is the log's ``vehicle_angular_velocity``, ``/IMU[1]`` its ``IMU[1]``), the series of
+all its topics are merged in time order (each topic keeping its logged order) and pushed through
+``MessageRouter.on_values_batch`` as raw values: the router applies each stream's offset, scale and
+``time_offset_s``, as for bags. The CSV files of one directory are one flight (one file per topic, one clock). A log
+is ordered among the bags by its first sample and shifted by the same rule. Its logging is checked
+(:mod:`gap_validation.logs.checks`): a topic logged too slowly for the channel's band, irregular stamps, values
+that are not numbers, each a warning with the fix in words; a topic the log lacks is a warning listing what it
+has; a field a topic lacks an error naming both (that stream skipped, the rest validated); a damaged log its
+``damage`` line as an error, with what came before it validated.
 """
 from __future__ import annotations
 
@@ -31,18 +44,20 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from gap_validation.bag.batches import RecordBatch
-from gap_validation.bag.reader import Bag, open_bag
+from gap_validation.bag.reader import BAG_SUFFIXES, Bag, open_bag
 from gap_validation.core.config import ValidationConfig
-from gap_validation.core.errors import DataError
+from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.fields import FieldError
 from gap_validation.core.results import ValidationResult
 from gap_validation.core.validator import OnlineValidator
+from gap_validation.logs.base import LogFile, is_log, open_log
+from gap_validation.logs.checks import check_stamps, rate_warning
 from gap_validation.messages.decoding import TopicDecoder, Undecodable
 from gap_validation.messages.router import MessageRouter, note_saturation, stamp_seconds
 
 log = logging.getLogger(__name__)
 
-__all__ = ["replay", "ReplayOutcome", "BagReport", "BAG_GAP_S"]
+__all__ = ["replay", "ReplayOutcome", "BagReport", "BAG_GAP_S", "is_log_source"]
 
 #: Gap inserted between bags whose clocks overlap [s].
 BAG_GAP_S = 60.0
@@ -58,7 +73,7 @@ ProgressCallback = Callable[[int, int], None]
 
 @dataclass
 class BagReport:
-    """What happened to one bag: messages routed, time shift applied, problems found."""
+    """What happened to one bag or flight log: messages routed, time shift applied, problems found."""
 
     path: str
     messages: int = 0
@@ -69,6 +84,7 @@ class BagReport:
 
     @property
     def ok(self) -> bool:
+        """No error with this bag or log."""
         return not self.errors
 
 
@@ -89,6 +105,7 @@ class ReplayOutcome:
 
     @property
     def ok(self) -> bool:
+        """No error: the CLI exits with status 0."""
         return not self.errors
 
 
@@ -139,6 +156,17 @@ def _check_topics(bag: Bag, router: MessageRouter, report: BagReport) -> dict[st
         raise DataError(f"{bag.path}: none of the configured topics ({', '.join(wanted)}) is in the bag "
                         f"(it has: {have})")
     return present
+
+
+def _set_time_offset(router: MessageRouter, report: BagReport, t_s: float) -> None:
+    """Shift the times of a new bag or log whose first sample is at ``t_s`` to start :data:`BAG_GAP_S` after the
+    data already replayed when its clock overlaps them (else no shift)."""
+    latest = router.latest_time_s()
+    offset = 0.0
+    if math.isfinite(latest) and t_s < latest + BAG_GAP_S:
+        offset = latest + BAG_GAP_S - t_s
+    router.time_offset_s = offset
+    report.time_offset_s = offset
 
 
 def _after_path(text: str, bag: Bag) -> str:
@@ -267,12 +295,7 @@ class _BagReplay:
         self.router.on_values_batch(batch.topics, which, t, [v[rows[which == k]] for k, v in enumerate(values)])
 
     def _set_offset(self, t_s: float) -> None:
-        latest = self.router.latest_time_s()
-        offset = 0.0
-        if math.isfinite(latest) and t_s < latest + BAG_GAP_S:
-            offset = latest + BAG_GAP_S - t_s
-        self.router.time_offset_s = offset
-        self.report.time_offset_s = offset
+        _set_time_offset(self.router, self.report, t_s)
         self.offset_set = True
 
     def _route(self, topic: str, state: _TopicState, bag_time_s: float, raw: Any) -> None:
@@ -306,28 +329,281 @@ def _disagree(topic: str) -> None:
     log.debug("fast decoder of %s disagrees with rosbags; decoding fully", topic)
 
 
-def _open_all(paths: Sequence[str | Path], reports: list[BagReport]) -> list[tuple[Bag, BagReport]]:
-    opened = []
-    for path in paths:
-        report = BagReport(str(path))
+def is_log_source(path: str | Path) -> bool:
+    """Whether replay reads ``path`` as a flight log: a ``.ulg``, ``.bin`` or ``.csv`` file, or a directory of CSV
+    files (one per topic) without a rosbag2 ``metadata.yaml`` or storage file.
+
+    Parameters
+    ----------
+    path : str or Path
+        A path given to replay.
+    """
+    p = Path(path)
+    if p.is_dir():
+        return (not (p / "metadata.yaml").exists() and any(p.glob("*.csv"))
+                and not any(q.suffix in BAG_SUFFIXES for q in p.iterdir()))
+    return is_log(p)
+
+
+def _sources(paths: Sequence[str | Path]) -> list[tuple[str, Path | list[Path]]]:
+    """``(label, bag path or log files)`` per flight, in the order given: the CSV files of one directory (given
+    one by one or as the directory) are one flight."""
+    out: list[tuple[str, Path | list[Path]]] = []
+    csv_groups: dict[Path, list[Path]] = {}
+    for path in map(Path, paths):
+        if not is_log_source(path):
+            out.append((str(path), path))
+        elif path.is_dir() or path.suffix.lower() == ".csv":
+            key = (path if path.is_dir() else path.parent).resolve()
+            files = sorted(path.glob("*.csv")) if path.is_dir() else [path]
+            if key not in csv_groups:
+                csv_groups[key] = []
+                out.append((str(path if path.is_dir() else path), csv_groups[key]))
+            csv_groups[key].extend(f for f in files if f not in csv_groups[key])
+        else:
+            out.append((str(path), [path]))
+    return [(label if not isinstance(item, list) or len(item) < 2 or Path(label).is_dir() else
+             str(Path(label).parent), item) for label, item in out]
+
+
+class _BagSource:
+    """A bag to replay: its start time, message count and :class:`_BagReplay`."""
+
+    def __init__(self, bag: Bag, report: BagReport):
+        self.bag, self.report = bag, report
+        self.start_time_s = bag.start_time_s
+        self.sources = [str(bag.path)]
+
+    def count(self, topics: Sequence[str]) -> int:
+        return self.bag.message_count(topics)
+
+    def run(self, router: MessageRouter, fast: bool, progress: Callable[[int], None], ticks: "_Ticks | None") -> None:
+        _BagReplay(self.bag, router, self.report, fast, progress, ticks).run()
+
+    def close(self) -> None:
+        self.bag.close()
+
+
+#: Log samples pushed to the router per call (several topics interleaved).
+LOG_CHUNK = 65536
+
+
+class _LogFlight:
+    """One flight from log files (a ``.ulg``, a ``.bin``, or the CSV files of one directory): the config's topics
+    and fields read at :meth:`load` (checked, with the logging checks), then routed in time order by :meth:`run`.
+
+    ``skipped`` holds the ``(channel, stream)`` whose field a topic lacks: their column is NaN (the router counts
+    those samples as not finite), the error names file, topic, field and the fields it has.
+    """
+
+    def __init__(self, paths: list[Path], router: MessageRouter, config: ValidationConfig, report: BagReport):
+        self.paths, self.router, self.config, self.report = paths, router, config, report
+        self.series: dict[str, tuple[np.ndarray, np.ndarray]] = {}     # config topic -> (t [s], raw per route)
+        self.skipped: set[tuple[str, str]] = set()
+        self.sources: list[str] = []
+        self.start_time_s = math.inf
+
+    def count(self, topics: Sequence[str]) -> int:
+        return sum(t.size for topic, (t, _) in self.series.items() if topic in topics)
+
+    def close(self) -> None:
+        """Nothing stays open after :meth:`load`."""
+
+    def _open(self, path: Path) -> LogFile:
+        """The log file; a CSV file with the ``time_column`` its topic's streams name."""
+        if path.suffix.lower() != ".csv":
+            return open_log(path)
+        from gap_validation.logs.csvlog import CsvFile
+
+        routes = self.router.routes.get("/" + path.stem, ())
+        columns = {r.spec.time_column for r in routes if r.spec is not None and r.spec.time_column}
+        if len(columns) > 1:
+            raise ConfigError(f"{self.config.source}: the streams of topic /{path.stem} name different time_column "
+                              f"({', '.join(sorted(columns))}): a CSV file has one time column")
+        return CsvFile(path, time_column=columns.pop() if columns else None)
+
+    def load(self) -> "_LogFlight":
+        """Open every file, read the config's topics and fields, check them (warnings and errors in the report).
+
+        Raises
+        ------
+        DataError
+            None of the configured topics is in the log(s) (and nothing else went wrong first).
+        """
+        logs: list[LogFile] = []
+        for path in self.paths:
+            try:
+                logs.append(self._open(path))
+            except DataError as err:
+                self.report.errors.append(str(err))
+        asked = {}                                   # log topic -> every field the config reads from it
+        for topic, routes in self.router.routes.items():
+            asked[topic[1:] if topic.startswith("/") else topic] = list(dict.fromkeys(r.spec.field for r in routes))
+        try:
+            first = {id(log): self._first_read(log, asked) for log in logs}
+            have = {}
+            for log in logs:
+                for name, info in log.topics.items():
+                    have.setdefault(name, (log, info))
+            wanted: dict[int, dict[str, list[str]]] = {}
+            for topic, routes in self.router.routes.items():
+                name = topic[1:] if topic.startswith("/") else topic
+                feeds = ", ".join(f"{r.channel}.{r.stream}" for r in routes)
+                if name not in have and name.endswith(":0") and name[:-2] in have:
+                    have[name] = have[name[:-2]]          # ULog instance 0 is the plain name (pyulog's naming)
+                if name not in have:
+                    if logs:
+                        self.report.warnings.append(
+                            f"{self._label()}: topic {name} ({feeds}) is not in the log (it has: "
+                            f"{', '.join(sorted(have)) or 'none'})")
+                    continue
+                log, info = have[name]
+                fields = wanted.setdefault(id(log), {}).setdefault(name, [])
+                for r in routes:
+                    if r.spec.field in info.fields:
+                        if r.spec.field not in fields:
+                            fields.append(r.spec.field)
+                    else:
+                        self.skipped.add((r.channel, r.stream))
+                        self.report.errors.append(f"{log.missing_field(name, r.spec.field)}; {r.channel}.{r.stream} "
+                                                  f"skipped")
+            if logs and not wanted and not self.report.errors:
+                raise DataError(f"{self._label()}: none of the configured topics "
+                                f"({', '.join(t.lstrip('/') for t in self.router.topics)}) is in the log (it has: "
+                                f"{', '.join(sorted(have)) or 'none'})")
+            for log in logs:
+                if id(log) in wanted:
+                    self._read(log, wanted[id(log)], first[id(log)])
+        finally:
+            for log in logs:
+                log.close()
+        return self
+
+    @staticmethod
+    def _first_read(log: LogFile, asked: dict[str, list[str]]) -> dict | None:
+        """Every field the config asks of ``log`` in one read (one pass over a ULog gives its topics too), or None
+        when that fails (a field a topic lacks: then the fields are checked one by one and read again)."""
+        try:
+            return log.read(asked)
+        except DataError:
+            return None
+
+    def _label(self) -> str:
+        return self.report.path
+
+    def _read(self, log: LogFile, wanted: dict[str, list[str]], got: dict | None = None) -> None:
+        """Read ``wanted`` from one log into :attr:`series` (raw values, one column per route), with the checks;
+        ``got``: what a first read gave already."""
+        try:
+            if got is None:
+                got = log.read({name: fields for name, fields in wanted.items() if fields})
+        except DataError as err:
+            self.report.errors.append(str(err))
+            return
+        finally:
+            if log.damage:
+                self.report.errors.append(log.damage)
+        self.sources.append(str(log.path))
+        for name, series in got.items():
+            topic = "/" + name
+            routes = self.router.routes[topic]
+            values = np.full((series.t_s.size, len(routes)), np.nan)
+            for j, r in enumerate(routes):
+                if r.spec.field in series.fields:
+                    values[:, j] = series.values[:, series.fields.index(r.spec.field)]
+            t = np.asarray(series.t_s, dtype=float)
+            self.series[topic] = (t, values)
+            finite = t[np.isfinite(t)]
+            if finite.size:
+                self.start_time_s = min(self.start_time_s, float(finite.min()))
+            self.report.warnings.extend(self._checks(log, name, t, values, routes))
+
+    def _checks(self, log: LogFile, name: str, t: np.ndarray, values: np.ndarray, routes) -> list[str]:
+        """The logging checks of one topic: its rate against the band of the channels it feeds, its stamps, its
+        values that are not numbers."""
+        out = []
+        where = f"{log.path}: topic {name}"
+        stamps = check_stamps(t)
+        irregular = stamps.warning(where)
+        if irregular:
+            out.append(irregular)
+        banded = [r for r in routes if r.stream not in ("trigger", "airspeed") and (r.channel, r.stream)
+                  not in self.skipped]
+        if banded and t.size > 1:
+            top = max(self.config.channels[r.channel].frequencies.max_rad_s for r in banded)
+            feeds = ", ".join(f"{r.channel}.{r.stream}" for r in banded)
+            slow = rate_warning(log.format, name, stamps.rate_hz, top, feeds)
+            if slow:
+                out.append(f"{log.path}: {slow}")
+        for j, r in enumerate(routes):
+            bad = int(np.count_nonzero(~np.isfinite(values[:, j]))) if (r.channel, r.stream) not in self.skipped else 0
+            if bad:
+                out.append(f"{where}: {bad} of {t.size} values of {r.spec.field} are not numbers (counted as bad "
+                           f"samples of {r.channel}.{r.stream})")
+        return out
+
+    def run(self, router: MessageRouter, fast: bool, progress: Callable[[int], None], ticks: "_Ticks | None") -> None:
+        """Route every topic's samples in time order (each topic in its logged order) through
+        ``on_values_batch``, the time shift set by the first sample."""
+        names = list(self.series)
+        if not names:
+            return
+        keys = []
+        for name in names:
+            key = np.fmax.accumulate(self.series[name][0])        # non-decreasing: a topic keeps its order
+            keys.append(np.where(np.isnan(key), -np.inf, key))
+        order = np.argsort(np.concatenate(keys), kind="stable")
+        which = np.concatenate([np.full(self.series[n][0].size, k, np.int64) for k, n in enumerate(names)])[order]
+        t_all = np.concatenate([self.series[n][0] for n in names])[order]
+        values = [self.series[n][1] for n in names]
+        _set_time_offset(router, self.report, self.start_time_s if math.isfinite(self.start_time_s) else 0.0)
+        chunk = LOG_CHUNK if ticks is None else TICK_RECORDS
+        done = np.zeros(len(names), np.int64)
+        for start in range(0, t_all.size, chunk):
+            part = which[start:start + chunk]
+            counts = np.bincount(part, minlength=len(names))
+            router.on_values_batch(names, part, t_all[start:start + chunk],
+                                   [v[done[k]:done[k] + counts[k]] for k, v in enumerate(values)])
+            done += counts
+            self.report.messages += int(part.size)
+            progress(int(part.size))
+            if ticks is not None:
+                last = t_all[start:start + chunk]
+                last = last[np.isfinite(last)]
+                if last.size:
+                    ticks.reached(int(round(float(last.max()) * 1e9)))
+
+
+def _open_all(paths: Sequence[str | Path], reports: list[BagReport], router: MessageRouter,
+              config: ValidationConfig) -> list["_BagSource | _LogFlight"]:
+    """Every bag and log opened (logs read), ordered by start time; a file that cannot be opened is an error of its
+    report."""
+    opened: list[_BagSource | _LogFlight] = []
+    for label, item in _sources(paths):
+        report = BagReport(label)
         reports.append(report)
         try:
-            opened.append((open_bag(path), report))
+            if isinstance(item, list):
+                opened.append(_LogFlight(item, router, config, report).load())
+            else:
+                opened.append(_BagSource(open_bag(item), report))
         except DataError as err:
             report.errors.append(str(err))
-    opened.sort(key=lambda item: item[0].start_time_s)
+    opened.sort(key=lambda source: source.start_time_s)
     return opened
 
 
-def _channel_checks(config: ValidationConfig, router: MessageRouter) -> tuple[list[str], list[str]]:
+def _channel_checks(config: ValidationConfig, router: MessageRouter,
+                    reported: set[tuple[str, str]] = frozenset()) -> tuple[list[str], list[str]]:
     """Errors for streams without a usable sample: those that received messages none of which could be used,
     and those with no data at all (a requested channel whose topic is missing or silent: the others are still
-    validated and written, the exit status is 1)."""
+    validated and written, the exit status is 1). Streams in ``reported`` (a log topic lacks their field) have
+    their own error already."""
     errors, warnings = [], []
     for name, channel in config.channels.items():
         for stream in (*channel.input_streams, *channel.output_streams, *(extra for extra, _ in channel.extra_streams())):
             spec = channel.signal(stream)
-            if router.samples(name, stream):
+            if router.samples(name, stream) or (name, stream) in reported:
                 continue
             bad = router.bad.get((name, stream), {})
             where = f"channel {name}: {stream} {spec.topic} {spec.field!r}"
@@ -352,7 +628,8 @@ def replay(bags: Sequence[str | Path], config: ValidationConfig, *, progress: Pr
     Parameters
     ----------
     bags : sequence of path
-        rosbag2 directories, ``.mcap`` or ``.db3`` files; sweeps from all of them count.
+        rosbag2 directories, ``.mcap`` or ``.db3`` files, and flight logs: ``.ulg``, ``.bin``, ``.csv`` files or a
+        directory of CSV files (the CSV files of one directory are one flight); sweeps from all of them count.
     config : ValidationConfig
         Channels, models, topics and fields.
     progress : callable, optional
@@ -379,14 +656,14 @@ def replay(bags: Sequence[str | Path], config: ValidationConfig, *, progress: Pr
     Raises
     ------
     DataError
-        When no bag could be read at all (the message names the first problem).
+        When no bag or log could be read at all (the message names the first problem).
     """
     start = time.perf_counter()
     validator = validator or OnlineValidator(config, diagnose=diagnose)
     router = MessageRouter(config, validator, batch=REPLAY_BATCH, max_batch_s=REPLAY_BATCH_S)
     reports: list[BagReport] = []
-    opened = _open_all(bags, reports)
-    total = sum(bag.message_count(router.topics) for bag, _ in opened)
+    opened = _open_all(bags, reports, router, config)
+    total = sum(source.count(router.topics) for source in opened)
     done = [0]
 
     def advance(n: int) -> None:
@@ -395,15 +672,15 @@ def replay(bags: Sequence[str | Path], config: ValidationConfig, *, progress: Pr
             progress(min(done[0], total), total)
 
     ticks = _Ticks(on_tick, tick_s, validator, router) if on_tick is not None else None
-    for bag, report in opened:
+    for source in opened:
         try:
-            _BagReplay(bag, router, report, fast, advance, ticks).run()
-            if report.messages:
-                validator.sources.append(str(bag.path))
+            source.run(router, fast, advance, ticks)
+            if source.report.messages:
+                validator.sources.extend(source.sources)
         except DataError as err:
-            report.errors.append(str(err))
+            source.report.errors.append(str(err))
         finally:
-            bag.close()
+            source.close()
         router.flush()
     errors = [e for r in reports for e in r.errors]
     warnings = [w for r in reports for w in r.warnings]
@@ -415,7 +692,8 @@ def replay(bags: Sequence[str | Path], config: ValidationConfig, *, progress: Pr
     validator.finish()
     if ticks is not None:
         ticks.end()
-    channel_errors, channel_warnings = _channel_checks(config, router)
+    skipped = {key for source in opened if isinstance(source, _LogFlight) for key in source.skipped}
+    channel_errors, channel_warnings = _channel_checks(config, router, skipped)
     errors += channel_errors
     warnings += channel_warnings
     result = validator.results()

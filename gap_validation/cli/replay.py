@@ -1,8 +1,9 @@
-"""``gap-validate replay BAG [BAG...] --config CFG [--json OUT] [--report DIR]``: validate recorded flights.
+"""``gap-validate replay FLIGHT [FLIGHT...] --config CFG [--json OUT] [--report DIR]``: validate recorded flights.
 
-Streams rosbag2 directories, ``.mcap`` and ``.db3`` files (only the config's topics) through the online
-validator, prints the per-channel table and writes the JSON results. Several bags add up (sweeps from all
-count); an unreadable bag is reported and the others are still validated (exit status 1, results kept).
+Streams rosbag2 directories, ``.mcap`` and ``.db3`` files, and flight logs -- PX4 ULog (``.ulg``), ArduPilot
+DataFlash (``.bin``), CSV (``.csv``, or a directory of them) -- (only the config's topics) through the online
+validator, prints the per-channel table and writes the JSON results. Several flights add up (sweeps from all
+count); an unreadable or damaged one is reported and the rest is still validated (exit status 1, results kept).
 """
 from __future__ import annotations
 
@@ -18,13 +19,16 @@ from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.history import (append_history, default_history_path, epsilon_versions, format_trend,
                                     load_history, model_hash, previous_epsilon)
 from gap_validation.report.terminal import format_table, write_json
-from gap_validation.bag.replay import replay
+from gap_validation.bag.replay import is_log_source, replay
 
 
 def register(sub) -> None:
-    p = sub.add_parser("replay", help="validate recorded flights (rosbag2 directories, .mcap, .db3)",
+    p = sub.add_parser("replay", help="validate recorded flights (rosbag2 directories, .mcap, .db3; flight logs .ulg, "
+                                      ".bin, .csv)",
                        description=__doc__.split("\n\n")[0])
-    p.add_argument("bags", nargs="+", metavar="BAG", help="rosbag2 directory, .mcap or .db3 file")
+    p.add_argument("bags", nargs="+", metavar="FLIGHT",
+                   help="rosbag2 directory, .mcap or .db3 file, or a flight log: .ulg (PX4), .bin (ArduPilot), .csv "
+                        "(one file per topic; the CSV files of one directory are one flight)")
     p.add_argument("--config", required=True, metavar="CFG", help="validation config (YAML)")
     p.add_argument("--json", metavar="OUT", help="write the results as JSON")
     p.add_argument("--report", metavar="DIR", help="write the HTML report with figures into DIR")
@@ -99,6 +103,9 @@ def _check_outputs(args) -> None:
     if getattr(args, "annotate", None) and len(args.bags) != 1:
         raise ConfigError(f"--annotate {args.annotate}: takes one bag (got {len(args.bags)}): the annotation is on "
                           "that bag's timeline")
+    if getattr(args, "annotate", None) and is_log_source(args.bags[0]):
+        raise ConfigError(f"--annotate {args.annotate}: takes a bag, not the flight log {args.bags[0]} (the annotation "
+                          "copies the bag's messages); replay the log without --annotate")
     for option, value in (("--json", args.json), ("--apply-diagnosis", args.apply_diagnosis),
                           ("--annotate", getattr(args, "annotate", None))):
         if not value:

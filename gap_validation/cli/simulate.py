@@ -9,6 +9,11 @@ should call that band data-limited. ``--closed-loop-gain-margin-db``, ``--turbul
 ``--coupling`` and ``--cross-response`` fly closed-loop sweeps and coupled surfaces (README, "Closed loop and
 coupled surfaces").
 
+``--format ulog|dataflash|csv`` writes the same flight as a PX4 ULog, an ArduPilot DataFlash log or CSV files (each
+autopilot's topic names, units and logging rates: PX4's servos at 10 Hz, ArduPlane's at 25 Hz unless
+``--surface-rate-hz`` says otherwise) and the config that reads it beside it (``FLIGHT.ulg.yaml``;
+:mod:`gap_validation.logs.flight`).
+
 ``gap-validate simulate --jsbsim AIRCRAFT --speed-kt V --altitude-ft H --out BAG [--config CFG]`` flies the same
 card in JSBSim's nonlinear model trimmed at V knots true airspeed and H ft (:mod:`gap_validation.jsbsim.flight`):
 the truth is JSBSim, the hidden effects act between the logged surface and the airframe, ``--turbulence`` is
@@ -27,6 +32,8 @@ from gap_validation.bag.writer import STORAGES, write_flight
 from gap_validation.config import load_config
 from gap_validation.core.effects import describe_effect
 from gap_validation.core.errors import ConfigError
+from gap_validation.logs.flight import (FORMATS, SURFACE_RATE_HZ, log_layout, log_path, with_logged_excitation,
+                                        write_flight_log)
 from gap_validation.core.simulation import (EXCITATIONS, FlightOptions, hidden_effects, parse_band_noise,
                                             parse_coupling, parse_cross_response, simulate_flight, with_options)
 
@@ -91,7 +98,12 @@ def register(sub) -> None:
                    help="with --jsbsim: altitude of the trim above sea level [ft]")
     p.add_argument("--save-config", metavar="CFG.yaml",
                    help="with --jsbsim and no --config: also write the linearised config the flight used")
-    p.add_argument("--out", metavar="BAG", help="new rosbag2 directory (or a bare .mcap / .db3 file; required)")
+    p.add_argument("--out", metavar="BAG", help="new rosbag2 directory (or a bare .mcap / .db3 file; required); with "
+                                                "--format ulog or dataflash the .ulg or .bin file, csv a directory")
+    p.add_argument("--format", choices=("bag",) + FORMATS, default="bag",
+                   help="bag (default), or a flight log: ulog (PX4: vehicle_angular_velocity, actuator_servos), "
+                        "dataflash (ArduPilot: IMU, RCOU; with --log-excitation the SystemID layout RATE, SIDD), csv "
+                        "(one file per topic); the config that reads it is written beside it (OUT.yaml)")
     p.add_argument("--hidden", action="append", default=[], metavar="CHANNEL:EFFECT:key=value[,key=value]",
                    help="effect in series with the channel's model in the truth (repeatable), "
                         "e.g. pitch:time_delay:seconds=0.04; rate_limit:rad_s=R and backlash:width_rad=B act "
@@ -119,8 +131,10 @@ def register(sub) -> None:
                    help=f"length of one sweep [s] (default {d.sweep_duration_s:g})")
     p.add_argument("--imu-rate-hz", type=_positive(float), default=d.imu_rate_hz,
                    help=f"rate of the output (IMU) topics [Hz] (default {d.imu_rate_hz:g})")
-    p.add_argument("--surface-rate-hz", type=_positive(float), default=d.surface_rate_hz,
-                   help=f"rate of the input (surface) topics [Hz] (default {d.surface_rate_hz:g})")
+    p.add_argument("--surface-rate-hz", type=_positive(float), default=None,
+                   help=f"rate of the input (surface) topics [Hz] (default {d.surface_rate_hz:g}; --format ulog "
+                        f"{SURFACE_RATE_HZ['ulog']:g}: PX4 logs actuator_servos every 100 ms; dataflash "
+                        f"{SURFACE_RATE_HZ['dataflash']:g}: ArduPlane writes RCOU at 25 Hz)")
     p.add_argument("--amplitude-deg", type=_positive(float), default=None,
                    help="sweep amplitude [deg] (default 3.4; with --jsbsim 2, and 2 deg doublets)")
     p.add_argument("--amplitude-scales", type=_amplitude_scales, default=None, metavar="S[,S...]",
@@ -284,14 +298,19 @@ def run(args) -> int:
         raise ConfigError("simulate: missing --out BAG")
     config = load_config(args.config)
     hidden = hidden_effects(args.hidden, config)
+    _format_defaults(args)
     options = options_from_args(args, tuple(config.channels), config)
+    fmt = getattr(args, "format", "bag") or "bag"
+    if fmt != "bag":                # a stream the log has no place for: said before flying, not after
+        log_layout(with_logged_excitation(config, options.log_excitation_topic), fmt)
     out = _prepare_out(args)
     flight = simulate_flight(config, hidden, options, seed=args.seed)
-    write_flight(flight, out, args.storage, compress=not args.no_compression,
-                 custom_data={"gap_validation.config": str(config.source)})
-    print(f"wrote {out}: {flight.duration_s / 60:.1f} min, {flight.message_count} messages, seed {args.seed}")
-    for topic, series in flight.topics.items():
-        print(f"  {topic}: {series.msgtype}, {len(series)} messages")
+    if not _write_log(args, flight, config, out, str(config.source)):
+        write_flight(flight, out, args.storage, compress=not args.no_compression,
+                     custom_data={"gap_validation.config": str(config.source)})
+        print(f"wrote {out}: {flight.duration_s / 60:.1f} min, {flight.message_count} messages, seed {args.seed}")
+        for topic, series in flight.topics.items():
+            print(f"  {topic}: {series.msgtype}, {len(series)} messages")
     for name in config.channels:
         effects = hidden.get(name, [])
         truth = " + ".join(describe_effect(e) for e in effects) if effects else "nothing (model = truth)"
@@ -317,6 +336,9 @@ def run(args) -> int:
 def _prepare_out(args) -> Path:
     if not args.out:
         raise ConfigError("simulate: missing --out BAG")
+    fmt = getattr(args, "format", "bag") or "bag"
+    if fmt != "bag":
+        return _prepare_log_out(args, fmt)
     out = Path(args.out)
     _check_out(out)
     if out.exists():
@@ -324,6 +346,59 @@ def _prepare_out(args) -> Path:
             raise ConfigError(f"--out {out}: exists already (use --force to replace a bag)")
         _remove_existing(out)
     return out
+
+
+def _format_defaults(args) -> None:
+    """``--format``'s defaults: the autopilot's surface logging rate unless ``--surface-rate-hz`` is given; bag
+    options refused with a log format."""
+    fmt = getattr(args, "format", "bag") or "bag"
+    if fmt == "bag":
+        return
+    if args.storage is not None or args.no_compression:
+        raise ConfigError(f"simulate --format {fmt}: {'--storage' if args.storage else '--no-compression'} applies to "
+                          f"bags only")
+    if args.surface_rate_hz is None:
+        args.surface_rate_hz = SURFACE_RATE_HZ.get(fmt)
+
+
+def _prepare_log_out(args, fmt: str) -> Path:
+    """The log ``--out`` names (``.ulg``/``.bin`` added when missing; a CSV flight is a directory), checked; an
+    existing one replaced only with ``--force`` (a CSV directory only when it holds nothing but CSV files)."""
+    out = log_path(args.out, fmt)
+    existing = next((p for p in out.parents if p.exists()), None)
+    if existing is not None and not existing.is_dir():
+        raise ConfigError(f"--out {out}: {existing} is a file, not a directory")
+    if not out.parent.is_dir():
+        raise ConfigError(f"--out {out}: directory {out.parent} does not exist")
+    config_path = Path(str(out) + ".yaml")
+    for path in (out, config_path):
+        if not path.exists():
+            continue
+        if not args.force:
+            raise ConfigError(f"--out {out}: {path} exists already (use --force to replace it)")
+        if path.is_dir():
+            if fmt != "csv" or any(p.suffix.lower() != ".csv" or p.is_dir() for p in path.iterdir()):
+                raise ConfigError(f"--out {out}: {path} is a directory that is not a CSV flight; not replacing it")
+            shutil.rmtree(path)
+        elif path == out and fmt == "csv":
+            raise ConfigError(f"--out {out}: is a file; a CSV flight is a directory")
+        else:
+            path.unlink()
+    return out
+
+
+def _write_log(args, flight, config, out: Path, source: str) -> bool:
+    """With ``--format ulog|dataflash|csv``: write the flight as that log and its config, print what was written
+    and the replay command; False for a bag."""
+    fmt = getattr(args, "format", "bag") or "bag"
+    if fmt == "bag":
+        return False
+    log, config_path, layout = write_flight_log(flight, config, out, fmt, source)
+    print(f"wrote {log} ({layout}): {flight.duration_s / 60:.1f} min, surfaces at "
+          f"{flight.options.surface_rate_hz:g} Hz, rates at {flight.options.imu_rate_hz:g} Hz, seed {args.seed}")
+    print(f"wrote {config_path} (the config that reads it: the same models, the streams under {layout}'s names)")
+    print(f"  next: gap-validate replay {log} --config {config_path}")
+    return True
 
 
 def run_jsbsim(args) -> int:
@@ -337,6 +412,7 @@ def run_jsbsim(args) -> int:
     check_jsbsim_args(args, "simulate --jsbsim")
     if not args.out:
         raise ConfigError("simulate: missing --out BAG")
+    _format_defaults(args)
     for flag, name in (("--closed-loop-gain-margin-db", "closed_loop_gain_margin_db"),
                        ("--loop-delay-s", "loop_delay_s"), ("--log-excitation", "log_excitation"),
                        ("--coupling", "coupling"), ("--cross-response", "cross_response")):
@@ -380,13 +456,15 @@ def run_jsbsim(args) -> int:
                                                    "turbulence": dataclasses.asdict(jf.turbulence)
                                                    if jf.turbulence else None,
                                                    "surface_effects": jf.surface_effects}, sort_keys=True)}
-    write_flight(flight, out, args.storage, compress=not args.no_compression, custom_data=custom)
+    if not _write_log(args, flight, config, out, source):
+        write_flight(flight, out, args.storage, compress=not args.no_compression, custom_data=custom)
     if args.save_config and jf.linearization is not None:
         write_config(jf.linearization, args.save_config, DEFAULT_GRID)
     cpu_s = time.process_time() - started
     p = jf.point
-    print(f"wrote {out}: {flight.duration_s / 60:.1f} min in JSBSim {p.version}, {flight.message_count} messages, "
-          f"seed {args.seed}")
+    if (getattr(args, "format", "bag") or "bag") == "bag":
+        print(f"wrote {out}: {flight.duration_s / 60:.1f} min in JSBSim {p.version}, {flight.message_count} "
+              f"messages, seed {args.seed}")
     print(f"  trim: {p.describe()}")
     print(f"  flown: {jf.steps} steps of {p.dt_s * 1e3:.3g} ms in {jf.jsbsim_cpu_s:.1f} s CPU "
           f"({jf.steps / max(jf.jsbsim_s, 1e-9):.0f} steps/s); the whole command {cpu_s:.1f} s CPU")
@@ -396,8 +474,9 @@ def run_jsbsim(args) -> int:
         print("  config: " + (f"{args.save_config}" if args.save_config else
                               f"the linearisation (gap-validate linearize --jsbsim {p.aircraft} --speed-kt "
                               f"{p.speed_kt:g} --altitude-ft {p.altitude_ft:g} --out CFG.yaml writes it)"))
-    for topic, series in flight.topics.items():
-        print(f"  {topic}: {series.msgtype}, {len(series)} messages")
+    if (getattr(args, "format", "bag") or "bag") == "bag":
+        for topic, series in flight.topics.items():
+            print(f"  {topic}: {series.msgtype}, {len(series)} messages")
     for warning in jf.warnings:
         print(f"  warning: {warning}")
     for name, ch in config.channels.items():

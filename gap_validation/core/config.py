@@ -36,7 +36,7 @@ EXCITATION_STREAM = "excitation"
 AIRSPEED_STREAM = "airspeed"
 #: Stream name of the j-th of a channel's ``other_inputs`` (``other_input0``, ``other_input1`` ...).
 OTHER_INPUT_STREAM = "other_input{}"
-_SIGNAL_KEYS = {"topic", "field", "scale", "type", "offset", "time_offset_s", "frame"}
+_SIGNAL_KEYS = {"topic", "field", "scale", "type", "offset", "time_offset_s", "frame", "time_column"}
 #: Body frames an IMU rate output may be given in (ROS REP 103: x forward, y left, z up; aircraft: x forward,
 #: y right, z down); ``flu`` reverses the y and z components, to the models' FRD.
 FRAMES = ("flu", "frd")
@@ -51,7 +51,11 @@ class SignalSpec:
     Issue 23's corrections of the usual mistakes: the value is ``(raw + offset) * scale`` (``offset`` in the raw
     units, e.g. a servo's PWM centre), times -1 for the y and z components of a rate given in the ROS body frame
     (``frame: flu``; the models are FRD), and ``time_offset_s`` is added to the stream's stamps (a topic stamped by
-    another clock)."""
+    another clock).
+
+    ``time_column`` names a CSV log's time column (issue 24; default: the first of ``time``, ``t``, ``TimeUS``,
+    ``timestamp`` the file has; :mod:`gap_validation.logs.csvlog` gives its unit from its name); other sources
+    ignore it."""
 
     topic: str
     field: str
@@ -60,6 +64,7 @@ class SignalSpec:
     offset: float = 0.0
     time_offset_s: float = 0.0
     frame: str | None = None
+    time_column: str | None = None
 
     @property
     def gain(self) -> float:
@@ -315,8 +320,9 @@ def _signal(value: Any, source: str, path: str) -> SignalSpec:
         if msg_type.count("/") == 1:  # sensor_msgs/Imu -> sensor_msgs/msg/Imu
             pkg, name = msg_type.split("/")
             msg_type = f"{pkg}/msg/{name}"
+    time_column = _string(data["time_column"], source, f"{path}.time_column") if "time_column" in data else None
     return SignalSpec(topic=topic, field=spec_field, scale=scale, type=msg_type, offset=offset,
-                      time_offset_s=time_offset, frame=frame)
+                      time_offset_s=time_offset, frame=frame, time_column=time_column)
 
 
 #: Points per decade of the grid a channel without ``frequencies`` gets (:func:`flown_grid`).

@@ -4,7 +4,11 @@
   :class:`WriteTopic`) and :func:`open_log`, which picks the format from the suffix;
 * :mod:`~gap_validation.logs.ulog`: PX4 ULog, read and written;
 * :mod:`~gap_validation.logs.dataflash`: ArduPilot DataFlash, read and written;
-* :mod:`~gap_validation.logs.csvlog`: one CSV file per topic, read and written.
+* :mod:`~gap_validation.logs.csvlog`: one CSV file per topic, read and written;
+* :mod:`~gap_validation.logs.checks`: the logging checks (a topic logged too slowly for the band, irregular
+  stamps), each with the fix in the autopilot's words;
+* :mod:`~gap_validation.logs.flight`: a simulated flight written as an autopilot's log, with the config that
+  reads it (``gap-validate simulate --format``).
 
 Replay (:mod:`gap_validation.bag.replay`) reads them through the same router as bags. This package imports
 neither rclpy nor rosbags nor matplotlib.

@@ -9,7 +9,7 @@ other message types of ``benchmarks/bench_dataflash.py``), so the wanted topics 
 in the same process, best of ``--repeat``:
 
 - ``replay``: ``gap_validation.bag.replay.replay([log], config)``: reading, routing, estimating and the full
-  diagnosis, what ``gap-validate replay FLIGHT --config CFG`` does;
+  diagnosis, what ``gap-validate replay FLIGHT --config CFG`` does (one BLAS thread, as the command);
 - the reader alone: ``pyulog.ULog(path)`` (PX4's reader, every topic: what a user's script does first) and with
   ``message_name_filter_list`` (the two topics); pymavlink's ``DFReader_binary(path)`` then ``recv_match`` over the
   wanted types until None (ArduPilot's reader).
@@ -28,11 +28,13 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from gap_validation.blas import single_threaded_blas  # noqa: E402
+
+single_threaded_blas()      # as gap-validate does, before numpy loads
 
 from gap_validation.bag.replay import replay  # noqa: E402
 from gap_validation.config import load_config  # noqa: E402

@@ -15,7 +15,7 @@ import second_simulator as bench  # noqa: E402
 pytestmark = pytest.mark.skipif(not (bench.FLIGHTS / "flightgen.py").exists(),
                                 reason="../shared/flights is not beside the checkout")
 
-CASES = ("clean", "delay_pitch", "lag_roll", "closed_loop_calm_pitch")
+CASES = ("clean", "delay_pitch", "lag_roll", "closed_loop_calm_pitch", "ratelimit_pitch")
 
 
 @pytest.fixture(scope="module")

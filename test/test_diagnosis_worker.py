@@ -88,3 +88,28 @@ def test_the_worker_hands_the_analyses_on_within_a_generation_only(states, monke
             assert len(calls) == fitted, (generation, forget, len(calls))
     finally:
         worker.close()
+
+
+def test_a_paced_diagnosis_keeps_to_its_share_of_a_core_and_gives_the_same_result(states):
+    """``diagnosis_cpu_share``: the worker sleeps between candidate fits so that its thread's CPU stays within the
+    share of the wall time; the result is the same as unpaced. A closed worker's diagnosis stops at its next pause."""
+    import threading
+    import time
+
+    from gap_validation.ros.diagnosis_worker import CpuShare, DiagnosisAbandoned
+
+    config, (first, _) = states
+    start = time.perf_counter()
+    _, fast, _ = _diagnose_snapshot(config, first, 0, {})
+    cpu_fast = time.perf_counter() - start
+    pace = CpuShare(0.25)
+    start, cpu0 = time.perf_counter(), time.thread_time()
+    _, slow, _ = _diagnose_snapshot(config, first, 0, {}, pace)
+    wall, cpu = time.perf_counter() - start, time.thread_time() - cpu0
+    assert _json(slow) == _json(fast)
+    assert pace.slept_s > 0.5 * cpu_fast / 0.25 - cpu_fast        # it slept ...
+    assert cpu <= 0.25 * wall + 0.3                               # ... and kept to its share (one fit's overshoot)
+    stop = threading.Event()
+    stop.set()
+    with pytest.raises(DiagnosisAbandoned):
+        _diagnose_snapshot(config, first, 0, {}, CpuShare(0.25, stop))

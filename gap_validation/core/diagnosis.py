@@ -63,10 +63,12 @@ Each sentence says the epsilon the candidate leaves and whether it *explains* th
 """
 from __future__ import annotations
 
+import contextvars
 import itertools
 import math
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Callable, Sequence
+from typing import TYPE_CHECKING, Callable, Iterator, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -1141,14 +1143,47 @@ def fit_effects(model: LinearModel, estimate: SpectralEstimate, coherence_thresh
     return _fit_all(model, ev, pairs=pairs, parameter_error=parameter_error)
 
 
+#: Called between two candidate fits, when set (:func:`paced`; per thread: a context variable).
+_PACE: contextvars.ContextVar[Callable[[], None] | None] = contextvars.ContextVar("gap_validation_pace",
+                                                                                  default=None)
+
+
+@contextmanager
+def paced(callback: Callable[[], None]) -> Iterator[None]:
+    """Within this block (in this thread), the diagnosis calls ``callback`` between two candidate fits: the node's
+    diagnosis worker sleeps there to hold the fitting to a share of a core. The results are the same.
+
+    Parameters
+    ----------
+    callback : callable
+        Called with no argument; may sleep, or raise to abandon the diagnosis.
+    """
+    token = _PACE.set(callback)
+    try:
+        yield
+    finally:
+        _PACE.reset(token)
+
+
+def _pace() -> None:
+    callback = _PACE.get()
+    if callback is not None:
+        callback()
+
+
 def _fit_all(model, ev: _Evidence, *, pairs: bool, parameter_error: bool, singles: bool = True):
     data = _fit_data(model, ev)
     if data is None:
         return []
-    out = [_fit_combo_candidate(_Combo((EFFECTS[name],)), model, data) for name in FAMILIES] if singles else []
+    combos = [(EFFECTS[name],) for name in FAMILIES] if singles else []
     if pairs:
-        out += [_fit_combo_candidate(_Combo((EFFECTS[a], EFFECTS[b])), model, data) for a, b in PAIRS]
+        combos += [(EFFECTS[a], EFFECTS[b]) for a, b in PAIRS]
+    out = []
+    for combo in combos:
+        _pace()
+        out.append(_fit_combo_candidate(_Combo(combo), model, data))
     if parameter_error:
+        _pace()
         refit = _fit_parameter_error(model, data)
         if refit is not None:
             out.append(refit)
@@ -1415,6 +1450,7 @@ def _convention(model: LinearModel, ev: _Evidence, base: _Fit):
         tried.append(clock(lead))
     best, best_chi2 = None, math.inf
     for candidate in tried:
+        _pace()
         score = ev.fit(lambda w, c=candidate: c.response(w) * p(w))
         if score.k_max <= ev.sigma_factor and score.chi2 < best_chi2:
             best, best_chi2 = candidate, score.chi2

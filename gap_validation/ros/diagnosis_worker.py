@@ -9,16 +9,61 @@ from __future__ import annotations
 
 import concurrent.futures
 import math
+import threading
 import time
 from typing import Any
 
 import numpy as np
 
+from gap_validation.core import diagnosis
 from gap_validation.core.config import ValidationConfig
 from gap_validation.core.results import ValidationResult
 from gap_validation.core.validator import OnlineValidator
 
-__all__ = ["DiagnosisWorker", "copy_tree"]
+__all__ = ["DiagnosisWorker", "CpuShare", "DiagnosisAbandoned", "copy_tree"]
+
+
+class DiagnosisAbandoned(Exception):
+    """The worker was closed: the diagnosis running in it stops at its next pause."""
+
+
+class CpuShare:
+    """Holds the thread that calls it to ``share`` of one core: each call sleeps until the thread's CPU time since
+    the first call is at most ``share`` of the wall time since then (``diagnosis.paced`` calls it between two
+    candidate fits). A diagnosis costing 1.6 s of CPU takes 16 s at 0.1, and a 10 s window holds at most 1 s of it.
+
+    Parameters
+    ----------
+    share : float
+        Fraction of one core (0 or >= 1: no pacing).
+    stop : threading.Event, optional
+        When set, the next call raises, so a closed worker does not hold the process up.
+    """
+
+    def __init__(self, share: float, stop: threading.Event | None = None) -> None:
+        self.share = float(share)
+        self.stop = stop
+        self._cpu0: float | None = None
+        self._wall0 = 0.0
+        self.slept_s = 0.0
+
+    def __call__(self) -> None:
+        if self.stop is not None and self.stop.is_set():
+            raise DiagnosisAbandoned()
+        if not 0.0 < self.share < 1.0:
+            return
+        if self._cpu0 is None:
+            self._cpu0, self._wall0 = time.thread_time(), time.monotonic()
+            return
+        wait = (time.thread_time() - self._cpu0) / self.share - (time.monotonic() - self._wall0)
+        while wait > 0.0:
+            step = min(wait, 0.5)
+            if self.stop is not None and self.stop.wait(step):
+                raise DiagnosisAbandoned()
+            if self.stop is None:
+                time.sleep(step)
+            self.slept_s += step
+            wait -= step
 
 
 def copy_tree(value: Any) -> Any:
@@ -40,13 +85,16 @@ def copy_tree(value: Any) -> Any:
     return value
 
 
-def _diagnose_snapshot(config: ValidationConfig, state: dict, generation: int,
-                       cache: dict) -> tuple[int, ValidationResult, dict]:
+def _diagnose_snapshot(config: ValidationConfig, state: dict, generation: int, cache: dict,
+                       pace: CpuShare | None = None) -> tuple[int, ValidationResult, dict]:
     """Worker: full results (effect fitting) on a private copy of the validator, reusing the previous run's
-    analyses where what they read did not change (a channel without a new manoeuvre is not fitted again)."""
+    analyses where what they read did not change (a channel without a new manoeuvre is not fitted again), paced
+    by ``pace`` between candidate fits."""
     validator = OnlineValidator.from_state(config, state)
     validator.adopt_analysis_cache(cache)
-    return generation, validator.results(diagnose=True), validator.analysis_cache()
+    with diagnosis.paced(pace or (lambda: None)):
+        result = validator.results(diagnose=True)
+    return generation, result, validator.analysis_cache()
 
 
 def _results_key(result: ValidationResult, generation: int) -> tuple:
@@ -72,6 +120,7 @@ class DiagnosisWorker:
         self._started = -math.inf
         self._pool: concurrent.futures.ThreadPoolExecutor | None = None
         self._cache: tuple[int, dict] = (-1, {})      # generation, the last diagnosis' analyses
+        self._stop = threading.Event()
 
     def forget(self) -> None:
         """The spectra were reset: the next results are new whatever they say."""
@@ -79,7 +128,7 @@ class DiagnosisWorker:
         self._cache = (-1, {})
 
     def schedule(self, result: ValidationResult, validator: OnlineValidator, config: ValidationConfig,
-                 generation: int, period_s: float) -> None:
+                 generation: int, period_s: float, cpu_share: float = 0.0) -> None:
         """Start a diagnosis of ``validator``'s state when ``result`` (the cheap results) warrants one.
 
         Parameters
@@ -94,6 +143,8 @@ class DiagnosisWorker:
             Model generation (changes on reload and reset); a result of an older one is not taken.
         period_s : float
             Shortest interval between two diagnoses when nothing but the numbers changed [s]; <= 0: never.
+        cpu_share : float
+            Fraction of one core the diagnosis may use (:class:`CpuShare`; 0: as fast as it can).
         """
         if period_s <= 0 or (self.job is not None and not self.job.done()):
             return
@@ -114,7 +165,8 @@ class DiagnosisWorker:
         if self._pool is None:
             self._pool = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="gap_diagnosis")
         cache = self._cache[1] if self._cache[0] == generation else {}
-        self.job = self._pool.submit(_diagnose_snapshot, config, state, generation, cache)
+        self.job = self._pool.submit(_diagnose_snapshot, config, state, generation, cache,
+                                     CpuShare(cpu_share, self._stop))
 
     def harvest(self, generation: int) -> ValidationResult | None:
         """The finished diagnosis's results if they belong to ``generation`` (None otherwise, or still running).
@@ -133,7 +185,10 @@ class DiagnosisWorker:
         if job is None or not job.done():
             return None
         self.job = None
-        done_generation, result, cache = job.result()
+        try:
+            done_generation, result, cache = job.result()
+        except DiagnosisAbandoned:
+            return None
         self._cache = (done_generation, cache)
         return result if done_generation == generation else None
 
@@ -152,7 +207,8 @@ class DiagnosisWorker:
         return job.done()
 
     def close(self) -> None:
-        """Shut the thread down; a running diagnosis works on its own copy and finishes unawaited."""
+        """Shut the thread down; a running diagnosis works on its own copy and stops at its next pause."""
+        self._stop.set()
         if self._pool is not None:
             self._pool.shutdown(wait=False, cancel_futures=True)
             self._pool = None

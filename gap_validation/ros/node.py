@@ -386,7 +386,7 @@ class ValidatorNode(Node):
             self._note_saturation(result)
             self.last_result = result
             self._diagnosis.schedule(result, self.validator, self.config, self._generation,
-                                     self._param("diagnosis_period"))
+                                     self._param("diagnosis_period"), self._param("diagnosis_cpu_share"))
             statuses = self.statuses(result, now_s)
             array = self.diagnostic_array(statuses)
         except Exception as err:  # noqa: BLE001 - keep publishing next time

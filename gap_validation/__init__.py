@@ -6,7 +6,8 @@ The house, by what each part depends on (docs/ARCHITECTURE.md):
   validator, diagnosis, simulation;
 * :mod:`gap_validation.messages`: serialized messages to samples (fast CDR decoders, the one decoding step,
   the message router), no rclpy, no rosbags;
-* :mod:`gap_validation.bag`: rosbag2 files through rosbags (reader, salvage, writer, replay);
+* :mod:`gap_validation.bag`: rosbag2 files through rosbags (reader, salvage, writer, replay of bags and logs);
+* :mod:`gap_validation.logs`: PX4 ULog, ArduPilot DataFlash and CSV flight logs, read and written (no rosbags);
 * :mod:`gap_validation.ros`: the ROS 2 node ``gap_validator`` (rclpy);
 * :mod:`gap_validation.report`: figures (matplotlib), HTML report, terminal table;
 * :mod:`gap_validation.cli`: ``gap-validate``;

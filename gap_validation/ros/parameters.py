@@ -30,9 +30,11 @@ diagnostic_period : float, 1.0 s
     Period of ``/diagnostics`` (read-only).
 diagnosis_period : float, 10.0 s
     Shortest interval between two full diagnoses (effect fitting); 0 disables them.
-diagnosis_cpu_share : float, 0.1
-    Share of one core a full diagnosis may use: the worker sleeps between candidate fits to hold it (a diagnosis of
-    1.6 s of CPU then takes 16 s, and never more than 1 s of any 10 s); 0 or 1: as fast as it can.
+diagnosis_cpu_share : float, 0.06
+    Share of one core a full diagnosis may use: the worker sleeps between candidate fits to hold it (a channel's
+    diagnosis of 1.6 s of CPU then takes 27 s, and never more than 0.6 s of any 10 s: with the node's 3-5 % of
+    steady work, a 10 s window stays near 10 %, under the 15 % a companion computer's flight stack can spare);
+    0 or 1: as fast as it can.
 stale_timeout : float, 3.0 s
     A channel whose input or output has had no sample for this long is STALE.
 end_of_data_timeout : float, 10.0 s
@@ -121,7 +123,7 @@ PARAMETERS: dict[str, Param] = {
     "diagnostic_period": Param(1.0, True, "period of /diagnostics [s]", range=(0.01, 3600.0)),
     "diagnosis_period": Param(10.0, False, "shortest interval between full diagnoses [s]; 0 disables them",
                               range=(0.0, _DAY_S)),
-    "diagnosis_cpu_share": Param(0.1, False, "share of one core a full diagnosis may use (the worker sleeps "
+    "diagnosis_cpu_share": Param(0.06, False, "share of one core a full diagnosis may use (the worker sleeps "
                                              "between fits); 0 or 1: no limit", range=(0.0, 1.0)),
     "stale_timeout": Param(3.0, False, "STALE after this long without input or output samples [s]",
                            range=(0.01, _DAY_S)),

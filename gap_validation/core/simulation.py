@@ -38,7 +38,8 @@ from gap_validation.core.numbers import FINITE as FINITE_NUMBER, NON_NEGATIVE, P
 __all__ = [
     "FlightOptions", "Segment", "TopicSeries", "SimulatedFlight", "parse_hidden", "hidden_effects",
     "parse_band_noise", "band_noise", "truth_models", "plan_topics", "simulate_flight", "log_sweep", "doublet",
-    "with_options", "EXCITATIONS", "multisine", "multistep", "parse_coupling", "parse_cross_response",
+    "with_options", "with_logged_excitation", "EXCITATIONS", "multisine", "multistep", "parse_coupling",
+    "parse_cross_response",
     "damper_gain",
 ]
 
@@ -883,7 +884,7 @@ def simulate_flight(config: ValidationConfig, hidden: dict[str, list[dict]] | No
             measured[(name, "trigger")] = (active, 0.0, 0.0)
 
     if opt.log_excitation_topic:
-        plans = plan_topics(_with_logged_excitation(config, opt.log_excitation_topic))
+        plans = plan_topics(with_logged_excitation(config, opt.log_excitation_topic))
     _extra_measured(plans, config, references, measured)
     topics = _sample_topics(plans, measured, t_s, duration_s, opt, rng)
     return SimulatedFlight(topics=topics, segments=segments, truth=truth, hidden=hidden, t_s=t_s,
@@ -1376,10 +1377,18 @@ def _loop_flight(config: ValidationConfig, truth: dict, references: dict, gusts:
     return _Loop(surfaces, outputs, gains, noise)
 
 
-def _with_logged_excitation(config: ValidationConfig, topic: str | None) -> ValidationConfig:
+def with_logged_excitation(config: ValidationConfig, topic: str | None) -> ValidationConfig:
     """The config with every channel's injected signal logged on ``topic`` (``--log-excitation``): a channel
     without ``excitation`` gets one there, with its input's field (a JointState joint), else ``data`` on
-    ``TOPIC/<channel>``."""
+    ``TOPIC/<channel>``.
+
+    Parameters
+    ----------
+    config : ValidationConfig
+        The config flown.
+    topic : str, optional
+        The ``--log-excitation`` topic (None: ``config`` as it is).
+    """
     if not topic:
         return config
     topic = topic if topic.startswith("/") else "/" + topic

@@ -37,7 +37,7 @@ import numpy as np
 from gap_validation.core.config import EXCITATION_STREAM, SignalSpec, ValidationConfig
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.fields import FieldPath
-from gap_validation.core.simulation import SimulatedFlight
+from gap_validation.core.simulation import SimulatedFlight, with_logged_excitation
 from gap_validation.logs.base import WriteTopic
 
 __all__ = ["FORMATS", "SURFACE_RATE_HZ", "SERVO_RANGE_RAD", "BOOT_S", "LogSignal", "log_layout", "flight_topics",
@@ -98,30 +98,6 @@ class LogSignal:
         """
         return np.asarray(value, float) / self.scale - self.offset
 
-
-def with_logged_excitation(config: ValidationConfig, topic: str | None) -> ValidationConfig:
-    """The config whose every channel has the ``excitation`` stream ``simulate --log-excitation TOPIC`` logs (the
-    simulator's rule: the input's joint on ``TOPIC``, else ``data`` on ``TOPIC/<channel>``).
-
-    Parameters
-    ----------
-    config : ValidationConfig
-        The config flown.
-    topic : str, optional
-        The ``--log-excitation`` topic (None: ``config`` as it is).
-    """
-    if not topic:
-        return config
-    topic = topic if topic.startswith("/") else "/" + topic
-    channels = {}
-    for name, ch in config.channels.items():
-        if ch.excitation is None and ch.input is not None:
-            path = FieldPath.parse(ch.input.field)
-            spec = (SignalSpec(topic, ch.input.field, ch.input.scale) if path.key is not None or path.index is not None
-                    else SignalSpec(f"{topic}/{name}", "data", ch.input.scale))
-            ch = replace(ch, excitation=spec)
-        channels[name] = ch
-    return replace(config, channels=channels)
 
 
 def _streams(config: ValidationConfig):

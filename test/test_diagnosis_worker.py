@@ -99,16 +99,15 @@ def test_a_paced_diagnosis_keeps_to_its_share_of_a_core_and_gives_the_same_resul
     from gap_validation.ros.diagnosis_worker import CpuShare, DiagnosisAbandoned
 
     config, (first, _) = states
-    start = time.perf_counter()
     _, fast, _ = _diagnose_snapshot(config, first, 0, {})
-    cpu_fast = time.perf_counter() - start
     pace = CpuShare(0.25)
     start, cpu0 = time.perf_counter(), time.thread_time()
     _, slow, _ = _diagnose_snapshot(config, first, 0, {}, pace)
     wall, cpu = time.perf_counter() - start, time.thread_time() - cpu0
     assert _json(slow) == _json(fast)
-    assert pace.slept_s > 0.5 * cpu_fast / 0.25 - cpu_fast        # it slept ...
-    assert cpu <= 0.25 * wall + 0.3                               # ... and kept to its share (one fit's overshoot)
+    # kept to its share, up to one fit's overshoot (thread CPU: a loaded machine's waits count as rest, not work)
+    assert cpu <= 0.25 * wall + 0.3
+    assert wall >= 3.0 * cpu and pace.slept_s > 0.0
     stop = threading.Event()
     stop.set()
     with pytest.raises(DiagnosisAbandoned):

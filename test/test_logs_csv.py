@@ -3,7 +3,6 @@ module and hand-computed values; time columns and their units; bad cells, cut fi
 line each, never a traceback."""
 import csv
 import math
-import time
 
 import numpy as np
 import pytest
@@ -211,26 +210,17 @@ def test_semicolons_tabs_byte_order_mark_and_comments(tmp_path):
         assert series.t_s.tolist() == [0.0, 1.0] and series.values[:, 0].tolist() == [1.5, 2.5]
 
 
-def test_reading_is_faster_than_the_csv_module(tmp_path):
-    """200 000 rows, 4 columns: numpy's parser (with the csv module only for files it refuses) reads two of them
-    faster than the csv module reads the file (measured: 0.61 s against 1.0 s for 500 000 rows)."""
-    n = 200_000
-    t = WriteTopic("big", np.arange(n, dtype=np.int64) * 4000, {k: np.random.default_rng(1).standard_normal(n)
-                                                                   for k in "abc"})
+def test_a_large_file_reads_as_the_csv_module_reads_it(tmp_path):
+    """20 000 rows, 4 columns, two of them wanted: numpy's parser gives exactly the csv module's values (its speed
+    against the csv module is measured by ``benchmarks/bench_csv.py``, not here)."""
+    n = 20_000
+    rng = np.random.default_rng(1)
+    t = WriteTopic("big", np.arange(n, dtype=np.int64) * 4000, {k: rng.standard_normal(n) for k in "abc"})
     path = write_csv(tmp_path, [t])[0]
-    start = time.perf_counter()
     series = open_log(path).read({"big": ["a", "c"]})["big"]
-    ours = time.perf_counter() - start
-    start = time.perf_counter()
     with open(path, newline="") as f:
         rows = csv.reader(f)
         next(rows)
-        cols = [[], [], []]
-        for row in rows:
-            cols[0].append(row[0])
-            cols[1].append(row[1])
-            cols[2].append(row[3])
-    reference = np.array(cols, dtype=float)
-    theirs = time.perf_counter() - start
-    assert np.array_equal(series.values[:, 1], reference[2]) and np.array_equal(series.t_s, reference[0] * 1e-6)
-    assert ours < theirs, (ours, theirs)
+        reference = np.array([[row[0], row[1], row[3]] for row in rows], dtype=float).T
+    assert np.array_equal(series.values[:, 0], reference[1]) and np.array_equal(series.values[:, 1], reference[2])
+    assert np.array_equal(series.t_s, reference[0] * 1e-6)

@@ -86,7 +86,7 @@ def _hard_expectations(name: str, case: dict) -> dict[str, Expect]:
                                          forbid=("structural_mode",))},
         "gyro_lpf8": {c: Expect(named=[{"second_order_lag": {"natural_frequency_rad_s": 50.27}}]) for c in CHANNELS},
         "notch_roll": {"roll": Expect(named=[{"structural_mode": {"frequency_rad_s": 25.0}}], data_ok=True)},
-        "zoh20_yaw": {"yaw": Expect(named=[{"time_delay": {"seconds": 0.025}},
+        "zoh20_yaw": {"yaw": Expect(named=[{"zero_order_hold": {"rate_hz": 20.0}}, {"time_delay": {"seconds": 0.025}},
                                            {"time_delay": {"seconds": 0.025}, "first_order_lag": {}}])},
         "delay_mode_pitch": {"pitch": Expect(named=[{"time_delay": {"seconds": 0.03},
                                                      "structural_mode": {"frequency_rad_s": 45.0}}])},

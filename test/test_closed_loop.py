@@ -303,3 +303,11 @@ def test_a_loop_that_drowns_the_manoeuvres_is_found_by_which_signal_leads():
     assert any("the rate leads" in w and "feedback loop" in w for w in ch.warnings), ch.warnings
     open_loop = validate(config, simulate_flight(config, {}, with_options(**options), seed=212670877)).channels["yaw"]
     assert not any("feedback" in w for w in open_loop.warnings), open_loop.warnings
+
+
+@pytest.mark.parametrize("effect", [{"type": "zero_order_hold", "rate_hz": 20.0}, {"type": "rate_limit", "rad_s": 1.0}])
+def test_a_sampled_effect_in_a_simulated_closed_loop_is_refused_in_one_line(effect):
+    """The discretised loop has no surface samples to hold or rate-limit: refused, never silently dropped."""
+    with pytest.raises(ConfigError) as err:
+        simulate_flight(roll_config(), {"roll": [effect]}, with_options(**CLOSED_LOOP), seed=1)
+    assert f"closed loop: channel roll: {effect['type']}" in str(err.value) and "\n" not in str(err.value)

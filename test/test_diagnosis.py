@@ -33,6 +33,7 @@ HIDDEN = {
     "gain": {"type": "gain", "factor": 1.5},
     "structural_mode": {"type": "structural_mode", "frequency_rad_s": 22.0, "damping": 0.08,
                         "zero_frequency_rad_s": 17.0, "zero_damping": 0.05},
+    "zero_order_hold": {"type": "zero_order_hold", "rate_hz": 12.5},    # 40 ms, droop 0.75 at 40 rad/s
 }
 SERVO = [{"type": "first_order_lag", "bandwidth_rad_s": 37.7}, {"type": "time_delay", "seconds": 0.05}]
 
@@ -130,8 +131,8 @@ def test_fit_families_agree_with_the_effects_module():
             ratio = family.response(x[None, :], W)[0] / effect_response(spec, W)
             assert np.max(np.abs(ratio - 1.0)) < 0.03, spec
     assert set(diagnosis.FAMILIES) == {"time_delay", "first_order_lag", "second_order_lag", "gain",
-                                       "structural_mode"}
-    assert ("first_order_lag", "time_delay") in diagnosis.PAIRS and len(diagnosis.PAIRS) == 10
+                                       "structural_mode", "zero_order_hold"}
+    assert ("first_order_lag", "time_delay") in diagnosis.PAIRS and len(diagnosis.PAIRS) == 15
 
 
 # ------------------------------------------------------------------------------------------------ which effect
@@ -376,7 +377,7 @@ def _on_a_bound(candidate) -> bool:
         fit = EFFECTS[effect["type"]].fit
         if fit is None:   # rate_limit, backlash: their box follows the flown amplitude (diagnosis checks it)
             continue
-        x = np.array([math.log(v) if "frequency" in k or "bandwidth" in k else v
+        x = np.array([math.log(v) if "frequency" in k or "bandwidth" in k or k == "rate_hz" else v
                       for k, v in effect.items() if k != "type"])
         lo, hi = fit.bounds(x, ctx)
         if np.any(np.minimum(x - lo, hi - x) <= 1e-3 * (hi - lo)):

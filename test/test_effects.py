@@ -23,6 +23,7 @@ def test_vocabulary_is_the_design_contract():
         "structural_mode": ("frequency_rad_s", "damping", "zero_frequency_rad_s", "zero_damping"),
         "rate_limit": ("rad_s",),
         "backlash": ("width_rad",),
+        "zero_order_hold": ("rate_hz",),      # added after DESIGN.md's table ("more may be added")
     }
 
 
@@ -140,3 +141,38 @@ def test_an_amplitude_dependent_effect_is_one_more_entry():
     assert response[0] == 1.0 and abs(response[-1]) < 0.1        # slow inputs pass, fast ones are limited
     with pytest.raises(ConfigError, match="depends on the input amplitude"):
         rate_limit.response(params, W)
+
+
+def test_a_zero_order_hold_is_its_textbook_response_and_its_simulation_samples_and_holds():
+    """(1 - exp(-s T)) / (s T) at s = j w (Franklin, Powell & Workman, Digital Control, the ZOH's response); the
+    simulated model holds its input for T and the fundamental of its sine response is the frequency response."""
+    from gap_validation.core.models import LinearModel
+
+    w = np.array([0.5, 5.0, 44.3, 100.0, 2 * np.pi * 20.0])
+    spec = {"type": "zero_order_hold", "rate_hz": 20.0}
+    expected = (1.0 - np.exp(-1j * w * 0.05)) / (1j * w * 0.05)
+    assert np.allclose(effect_response(spec, w), expected, rtol=1e-12, atol=1e-15)
+    assert abs(effect_response(spec, np.array([2 * np.pi * 20.0]))[0]) < 1e-12      # a null at the hold rate
+    assert effect_factor(spec)[2] == pytest.approx(0.025)                              # its delay, T/2
+    plant = LinearModel([1.0], [1.0, 5.0])
+    model = plant.with_effects([spec])
+    assert np.allclose(model.freqresp(w[:3]), plant.freqresp(w[:3]) * expected[:3])
+    t = np.arange(0.0, 40.0, 1e-3)
+    u = np.sin(7.0 * t)
+    y_held = LinearModel([1.0], [1.0]).with_effects([spec]).simulate(t, u)
+    ticks = np.floor(t * 20.0 + 1e-9) / 20.0
+    assert np.allclose(y_held, np.sin(7.0 * ticks), atol=1e-9)                        # sampled and held
+    for wt in (5.0, 30.0):
+        y = model.simulate(t, np.sin(wt * t))
+        keep = t > 10.0
+        basis = np.c_[np.sin(wt * t[keep]), np.cos(wt * t[keep])]
+        re, im = np.linalg.lstsq(basis, y[keep], rcond=None)[0]
+        h = model.freqresp(np.array([wt]))[0]
+        assert abs(complex(re, im) - h) < 0.03 * abs(h)            # the images of the hold are not the response
+
+
+@pytest.mark.parametrize("value", [0.0, -20.0, "fast"])
+def test_a_bad_hold_rate_is_one_line(value):
+    with pytest.raises(ConfigError) as err:
+        validate_effect({"type": "zero_order_hold", "rate_hz": value}, "model.effects[0]")
+    assert "model.effects[0].rate_hz" in str(err.value) and "\n" not in str(err.value)

@@ -227,3 +227,19 @@ def test_compare_models_refuses_an_amplitude_dependent_model(tmp_path, capsys):
     assert main(["compare-models", str(limited), str(p1)]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "channels.pitch.model.effects: rate_limit depends on the input amplitude" in err
+
+
+def test_compare_models_refuses_a_hold_in_one_line(tmp_path, capsys):
+    import yaml
+
+    from _flights import ROOT
+    from gap_validation.cli.main import main
+
+    p1 = ROOT / "config" / "paper_example_p1.yaml"
+    data = yaml.safe_load(p1.read_text())
+    data["channels"]["pitch"]["model"]["effects"] = [{"type": "zero_order_hold", "rate_hz": 50.0}]
+    held = tmp_path / "held.yaml"
+    held.write_text(yaml.safe_dump(data))
+    assert main(["compare-models", str(held), str(p1)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "channels.pitch.model.effects: zero_order_hold is not a rational factor" in err

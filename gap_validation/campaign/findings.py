@@ -38,6 +38,7 @@ _LABELS = {
     "structural_mode.zero_damping": ("structural mode zero damping", "", 1.0),
     "rate_limit.rad_s": ("rate limit", "rad/s", 1.0),
     "backlash.width_rad": ("backlash width", "mrad", 1e3),
+    "zero_order_hold.rate_hz": ("hold rate", "Hz", 1.0),
 }
 
 

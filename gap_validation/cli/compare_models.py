@@ -86,15 +86,23 @@ def _compare_channel(name: str, config_a: ValidationConfig, config_b: Validation
 
 def _refuse_nonlinear(name: str, channels) -> None:
     """ConfigError when a model holds an amplitude-dependent effect (``rate_limit``, ``backlash``): its response
-    needs the amplitude of a flight, which two configs do not have."""
+    needs the amplitude of a flight, which two configs do not have; or a ``zero_order_hold``, which is not
+    rational (the exact nu-gap's winding number needs polynomials)."""
     for source, ch in channels:
         from gap_validation.core.effects import is_nonlinear
+
+        from gap_validation.core.effects import EFFECTS
 
         kinds = [e["type"] for e in getattr(ch.model, "effects", ()) if is_nonlinear(e)]
         if kinds:
             raise ConfigError(f"{source}: channels.{name}.model.effects: {kinds[0]} depends on the input amplitude "
                               f"of a flight; compare-models compares linear models only (remove it to compare "
                               f"the linear parts)")
+        holds = [e["type"] for e in getattr(ch.model, "effects", ()) if EFFECTS[e["type"]].shape is not None]
+        if holds:
+            raise ConfigError(f"{source}: channels.{name}.model.effects: {holds[0]} is not a rational factor and the "
+                              f"exact nu-gap needs one; compare-models compares rational models (replace it by a "
+                              f"time_delay of half its period to compare the rest)")
 
 
 def _aligned(name: str, ch_a: ChannelConfig, ch_b: ChannelConfig, source_a: str, source_b: str):

@@ -15,6 +15,8 @@ structural_mode     frequency_rad_s, damping, zero_frequency_rad_s, zero_damping
                                                                                      (s^2/wp^2 + 2 zp s/wp + 1)
 rate_limit          rad_s                                                            describing function N(A w / R)
 backlash            width_rad                                                        describing function N(b / A)
+zero_order_hold     rate_hz                                                          exp(-s T/2) sinc(w T/2),
+                                                                                     T = 1 / rate_hz
 ==================  ===============================================================  ==============================
 
 All factors except ``gain`` have unit gain at s = 0. The names and parameters are a user contract: they are
@@ -40,6 +42,16 @@ by the input's), evaluated at the amplitude flown at each frequency (:func:`rate
 :class:`~gap_validation.core.models.LinearModel` holding one needs it too (``at_amplitude``), and simulates it
 in the time domain (:func:`rate_limited`, :func:`backlash_output`). Their fits (:attr:`EffectType.describing_fit`)
 take the flown amplitude per frequency as a third argument of the response.
+
+A hold is not rational
+----------------------
+``zero_order_hold`` (a servo or an output stage that takes a new command ``rate_hz`` times a second and holds it:
+analog servos at their 50 Hz frame, a slow autopilot output loop) is linear, but its factor
+``(1 - exp(-s T)) / (s T) = exp(-s T/2) sinc(w T/2)`` is not rational: half a period of delay (its
+:attr:`EffectType.factor`, exact) times a real, zero-phase droop (:attr:`EffectType.shape`), which reaches 0.64 at
+half the hold rate. The frequency response is exact; in the time domain the element samples and holds
+(:func:`held`), so a model holding one is simulated exactly (not as its delay). The droop is what tells a hold
+from a delay: over a band reaching a quarter of the hold rate it is 10 %.
 """
 from __future__ import annotations
 
@@ -55,7 +67,8 @@ from gap_validation.core.numbers import NON_NEGATIVE, NONZERO, POSITIVE, Interva
 
 __all__ = ["Parameter", "FitRange", "EffectFit", "EffectType", "EFFECTS", "EFFECT_TYPES", "MAX_DELAY_S",
            "validate_effect", "check_plausible", "effect_factor", "effect_response", "describe_effect",
-           "is_nonlinear", "rate_limit_df", "backlash_df", "rate_limited", "backlash_output", "apply_nonlinear"]
+           "is_nonlinear", "rate_limit_df", "backlash_df", "rate_limited", "backlash_output", "apply_nonlinear",
+           "held", "apply_holds"]
 
 #: Largest delay the diagnosis fits [s].
 MAX_DELAY_S = 0.5
@@ -145,6 +158,10 @@ class EffectType:
         amplitude)`` takes the flown amplitude at each frequency.
     time_domain : callable or None
         ``time_domain(params, t_s, u) -> y``: the element on sampled signals (simulation).
+    shape : callable or None
+        ``shape(params, w_rad_s) -> real array``: the non-rational, zero-phase part of a linear effect's factor
+        (the droop of a hold), multiplying :attr:`factor`'s response; :attr:`time_domain` then simulates the whole
+        effect, its delay included.
     """
 
     name: str
@@ -155,6 +172,7 @@ class EffectType:
     describing_function: Callable[[Mapping[str, float], np.ndarray, Any], np.ndarray] | None = None
     describing_fit: EffectFit | None = None
     time_domain: Callable[[Mapping[str, float], np.ndarray, np.ndarray], np.ndarray] | None = None
+    shape: Callable[[Mapping[str, float], np.ndarray], np.ndarray] | None = None
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -201,7 +219,8 @@ class EffectType:
             return self.describing_function(params, w, np.broadcast_to(np.asarray(amplitude, float), w.shape))
         num, den, delay_s = self.factor(params)
         s = 1j * w
-        return np.polyval(num, s) / np.polyval(den, s) * np.exp(-s * delay_s)
+        out = np.polyval(num, s) / np.polyval(den, s) * np.exp(-s * delay_s)
+        return out if self.shape is None else out * self.shape(params, w)
 
 
 # ------------------------------------------------------------------------------------------------ factors, words
@@ -263,6 +282,71 @@ def _mode_words(p: Mapping[str, float]) -> str:
     )
 
 
+def _hold_factor(p: Mapping[str, float]) -> Factor:
+    return np.array([1.0]), np.array([1.0]), 0.5 / p["rate_hz"]
+
+
+def _hold_shape(p: Mapping[str, float], w: np.ndarray) -> np.ndarray:
+    return np.sinc(np.asarray(w, float) / (2.0 * math.pi * p["rate_hz"]))     # sin(w T/2) / (w T/2)
+
+
+def _hold_words(p: Mapping[str, float]) -> str:
+    rate = p["rate_hz"]
+    return (f"zero-order hold at {rate:.3g} Hz (the surface takes a new command every {1e3 / rate:.3g} ms: "
+            f"{500.0 / rate:.3g} ms of delay and the hold's droop)")
+
+
+def held(t_s: Any, u: Any, rate_hz: float) -> np.ndarray:
+    """A signal through a zero-order hold: at each time, the (linearly interpolated) signal at the last tick of a
+    ``rate_hz`` clock that starts at the first sample.
+
+    Parameters
+    ----------
+    t_s : array_like
+        Sample times [s], increasing.
+    u : array_like
+        Commanded signal.
+    rate_hz : float
+        Rate of the hold [Hz].
+    """
+    t = np.asarray(t_s, float).ravel()
+    u = np.asarray(u, float).ravel()
+    if u.size == 0:
+        return u.copy()
+    ticks = t[0] + np.floor((t - t[0]) * rate_hz + 1e-9) / rate_hz
+    return np.interp(ticks, t, u)
+
+
+def apply_holds(effects: Sequence[Mapping[str, Any]], t_s: Any, u: Any) -> tuple[np.ndarray, float]:
+    """The command ``u`` through the holds of ``effects`` (:attr:`EffectType.shape`), and the delay their factors
+    carry (which the held samples already have: a simulation applies the rest of the model's delay only).
+
+    Parameters
+    ----------
+    effects : sequence of mapping
+        Validated effects; the others are skipped.
+    t_s : array_like
+        Sample times [s].
+    u : array_like
+        Samples of the command.
+
+    Returns
+    -------
+    u : ndarray
+        The held command.
+    delay_s : float
+        The holds' factor delay [s].
+    """
+    out = np.asarray(u, float).ravel()
+    delay = 0.0
+    for e in effects:
+        entry = EFFECTS[e["type"]]
+        if entry.shape is not None and entry.time_domain is not None:
+            out = entry.time_domain(e, np.asarray(t_s, float).ravel(), out)
+            delay += entry.factor(e)[2]
+    return out, delay
+
+
 # ------------------------------------------------------------------------------------------------ fits
 @dataclass(frozen=True)
 class FitRange:
@@ -311,6 +395,27 @@ def _lag1_response(x: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 def _lag1_spec(x: np.ndarray) -> dict:
     return {"type": "first_order_lag", "bandwidth_rad_s": significant(math.exp(x[0]))}
+
+
+def _hold_bounds(x0: np.ndarray | None, ctx: FitRange) -> tuple[np.ndarray, np.ndarray]:
+    # from the rate whose first null (w = 2 pi rate) is the band's top (slower holds alias the band away) up to
+    # the rate whose half-period delay turns the top by 0.01 rad; and no slower than the largest delay fitted
+    lo = max(ctx.w_hi / (2.0 * math.pi), 0.5 / MAX_DELAY_S)
+    return np.log([lo]), np.log([max(50.0 * ctx.w_hi, 2.0 * lo)])
+
+
+def _hold_grid(ctx: FitRange, coarse: bool) -> np.ndarray:
+    lo, hi = _hold_bounds(None, ctx)
+    return np.linspace(lo[0], hi[0], 12 if coarse else 60)[:, None]
+
+
+def _hold_response(x: np.ndarray, w: np.ndarray) -> np.ndarray:
+    rate = np.exp(x[:, :1])
+    return np.exp(-0.5j * w[None, :] / rate) * np.sinc(w[None, :] / (2.0 * math.pi * rate))
+
+
+def _hold_spec(x: np.ndarray) -> dict:
+    return {"type": "zero_order_hold", "rate_hz": significant(math.exp(x[0]))}
 
 
 _ZETA_RANGE = (0.02, 2.5)
@@ -651,6 +756,9 @@ EFFECTS: dict[str, EffectType] = {e.name: e for e in (
                describing_function=_backlash_df,
                describing_fit=EffectFit(_backlash_grid, _backlash_bounds, _backlash_response, _backlash_spec),
                time_domain=lambda p, t, u: backlash_output(u, p["width_rad"])),
+    EffectType("zero_order_hold", (Parameter("rate_hz", POSITIVE, Interval(0.1, 1e5)),),
+               _hold_factor, _hold_words, EffectFit(_hold_grid, _hold_bounds, _hold_response, _hold_spec),
+               time_domain=lambda p, t, u: held(t, u, p["rate_hz"]), shape=_hold_shape),
 )}
 
 #: Effect type -> required parameter names, in the order of DESIGN.md's table (a view of :data:`EFFECTS`).

@@ -31,7 +31,8 @@ from typing import Any, Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-from gap_validation.core.effects import EFFECTS, apply_nonlinear, check_plausible, effect_factor, is_nonlinear, validate_effect
+from gap_validation.core.effects import (EFFECTS, apply_holds, apply_nonlinear, check_plausible, effect_factor, is_nonlinear,
+                                        validate_effect)
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.numbers import NON_NEGATIVE, check_number
 
@@ -262,6 +263,10 @@ class LinearModel:
     not in ``num``/``den`` (the linear part); :meth:`simulate` applies them in the time domain, and
     :meth:`freqresp` multiplies by their describing functions at the amplitude given to :meth:`at_amplitude`
     (a ConfigError without one). A model without them behaves as a plain linear model.
+
+    A ``zero_order_hold`` is linear but not rational: ``num``/``den``/``delay_s`` hold its half-period delay,
+    :meth:`freqresp` multiplies by its droop exactly, and :meth:`simulate` samples and holds the input (its delay
+    then comes from the hold, not from ``delay_s``).
     """
 
     __slots__ = ("_air_num", "_air_den", "_air_delay_s", "_air_ss", "_air_spec", "_effects", "_num", "_den",
@@ -507,6 +512,9 @@ class LinearModel:
         if self._delay_s:
             response = response * np.exp(-s * self._delay_s)
         for i, effect in enumerate(self._effects):
+            shape = EFFECTS[effect["type"]].shape
+            if shape is not None:                  # a hold's droop (its delay is in the factor)
+                response = response * shape(effect, w)
             if is_nonlinear(effect):
                 if self._amplitude is None:
                     raise ConfigError(f"model.effects[{i}] ({effect['type']}) depends on the input amplitude: "
@@ -541,7 +549,8 @@ class LinearModel:
         interpolating ``u`` at ``t_s - T`` (zero before the first sample), so a delayed ramp or sine is
         reproduced to interpolation accuracy, not a Pade approximation.
         Amplitude-dependent effects (``rate_limit``, ``backlash``) are applied first, in the time domain, to the
-        samples of ``u`` (:func:`~gap_validation.core.effects.apply_nonlinear`).
+        samples of ``u`` (:func:`~gap_validation.core.effects.apply_nonlinear`); then the holds
+        (:func:`~gap_validation.core.effects.apply_holds`), whose delay the held samples carry.
 
         Uniform grids (and uniform runs between dropouts) are simulated in blocks with matrix products
         (10^6 samples of a 5th-order model in about 0.2 s). Irregular (jittered) steps are solved exactly in
@@ -580,8 +589,10 @@ class LinearModel:
             raise ValueError("simulate: t_s must be strictly increasing")
         if self.nonlinear:        # on the surface command, before the linear part
             u = apply_nonlinear(self._effects, t, u)
-        if self._delay_s > 0.0:
-            u = delayed_input(t, u, self._delay_s, hold)
+        u, held_delay_s = apply_holds(self._effects, t, u)      # sampled and held: their delay is in the samples
+        delay_s = self._delay_s - held_delay_s
+        if delay_s > 1e-12:
+            u = delayed_input(t, u, delay_s, hold)
         a, b, c, d = self.state_space()
         n = a.shape[0]
         x = np.zeros(n) if x0 is None else np.asarray(x0, dtype=float).ravel()

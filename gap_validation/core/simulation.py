@@ -29,7 +29,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from gap_validation.core.config import AIRSPEED_STREAM, ChannelConfig, SignalSpec, ValidationConfig
-from gap_validation.core.effects import validate_effect
+from gap_validation.core.effects import EFFECTS, validate_effect
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.fields import FieldPath
 from gap_validation.core.layouts import JOINT_STATE, LAYOUTS, infer_type
@@ -1345,6 +1345,11 @@ def _loop_flight(config: ValidationConfig, truth: dict, references: dict, gusts:
         surfaces[target] = surfaces[target] + gain * references[source]
     gains, noise = {}, {}
     if opt.closed_loop_gain_margin_db is not None:
+        for name in config.channels:
+            sampled = [e["type"] for e in truth[name].effects if EFFECTS[e["type"]].time_domain is not None]
+            if sampled:
+                raise ConfigError(f"closed loop: channel {name}: {sampled[0]} is simulated on the surface samples, "
+                                  f"which the discretised loop does not have (fly it open loop)")
         noise_rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(_LOOP_NOISE_STREAM,)))
         delay_s = opt.loop_delay_s if opt.loop_delay_s is not None else 1.0 / opt.surface_rate_hz
         n_c = max(1, int(round(delay_s * fs_hz)))

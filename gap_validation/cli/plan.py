@@ -10,7 +10,6 @@ module reads, checks and writes: the card (YAML, docs/PLAN.md), a table on stdou
 """
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -21,6 +20,8 @@ from gap_validation.config import load_config
 from gap_validation.core.errors import ConfigError, DataError, GapValidationError, one_line
 from gap_validation.core.plan import (ARDUPILOT_THROW_RAD, PlanOptions, TestCard, ardupilot_parameters, card_signal,
                                       plan_card, px4_parameters)
+from gap_validation.cli.report import load_results_json
+from gap_validation.report.terminal import duration_text
 
 #: PX4's QGroundControl parameter file: MAV_PARAM_TYPE of each value (9 REAL32, 6 INT32).
 _PX4_TYPES = {"FW_AT_SYSID_F0": 9, "FW_AT_SYSID_F1": 9, "FW_AT_SYSID_TIME": 9, "FW_AT_SYSID_TYPE": 6,
@@ -50,32 +51,6 @@ def register(sub) -> None:
     p.add_argument("--signal", metavar="FILE.csv", help="the surface offsets to inject, every manoeuvre in turn")
     p.add_argument("--signal-rate-hz", type=float, metavar="R", help="sample rate of --signal [Hz]")
     p.set_defaults(func=run)
-
-
-def load_results_json(path: str) -> dict:
-    """The results JSON as a mapping, or a one-line :class:`DataError` naming the file.
-
-    Parameters
-    ----------
-    path : str
-        The results file.
-    """
-    try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise DataError(f"{path}: no such results file") from None
-    except IsADirectoryError:
-        raise DataError(f"{path}: is a directory, not a results file") from None
-    except (OSError, UnicodeDecodeError) as err:
-        raise DataError(f"{path}: cannot read ({getattr(err, 'strerror', None) or err})") from None
-    except json.JSONDecodeError as err:
-        raise DataError(f"{path}:{err.lineno}: not JSON ({err.msg})") from None
-    if not isinstance(data, dict) or not isinstance(data.get("channels"), dict):
-        raise DataError(f"{path}: not a results file (expected an object with 'channels')")
-    for name, ch in data["channels"].items():
-        if not isinstance(ch, dict):
-            raise DataError(f"{path}: channels.{name}: expected an object, got {type(ch).__name__}")
-    return data
 
 
 def _throws(texts: list[str], channels) -> dict[str, float]:
@@ -150,10 +125,6 @@ def run(args) -> int:
 
 
 # ------------------------------------------------------------------------------------------------ rendering
-def _time(seconds: float) -> str:
-    return f"{int(seconds // 60)} min {seconds % 60:02.0f} s" if seconds >= 60 else f"{seconds:.0f} s"
-
-
 def render_table(card: TestCard) -> str:
     """The card as a table for the terminal, with the unreachable bands and the notes under it.
 
@@ -169,7 +140,7 @@ def render_table(card: TestCard) -> str:
         now = [e for e in m.error_now if e is not None]
         rows.append((str(m.index), m.channel, f"{m.closes_rad_s[0]:.3g}-{m.closes_rad_s[1]:.3g}",
                      f"{m.f_start_hz:.3g}-{m.f_stop_hz:.3g}", f"{math.degrees(m.amplitude_rad):.2f}",
-                     f"{m.duration_s:.0f}", str(m.repeats), _time(m.flight_time_s),
+                     f"{m.duration_s:.0f}", str(m.repeats), duration_text(m.flight_time_s),
                      f"{max(now):.3f}" if now else "-", f"{m.worst_predicted_error:.3f}", f"{min(m.target_error):.3f}",
                      ", ".join(m.reasons)))
     widths = [max(len(h), *(len(r[i]) for r in rows)) if rows else len(h) for i, h in enumerate(head)]
@@ -177,8 +148,8 @@ def render_table(card: TestCard) -> str:
     lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows]
     if not rows:
         lines.append("(nothing to fly)")
-    lines.append(f"  flight time {_time(card.flight_time_s)} for {len(rows)} manoeuvre(s); error: the worst random "
-                 f"error over the frequencies closed, now and predicted for the card replayed on its own")
+    lines.append(f"  flight time {duration_text(card.flight_time_s)} for {len(rows)} manoeuvre(s); error: the worst "
+                 f"random error over the frequencies closed, now and predicted for the card replayed on its own")
     for name, plan in card.channels.items():
         for u in plan.unreachable:
             lines.append(f"  {name}: unreachable at {u.band_rad_s[0]:.3g}-{u.band_rad_s[1]:.3g} rad/s: {u.reason}")
@@ -204,7 +175,7 @@ def card_yaml(card: TestCard, results_path: str | None, config_path: str) -> str
     data = card.to_dict()
     data = {"card_version": data.pop("card_version"), "results": results_path, "config": config_path, **data}
     head = (f"# gap-validate plan: what to fly next ({len(card.manoeuvres)} manoeuvre(s), "
-            f"{_time(card.flight_time_s)}); schema: docs/PLAN.md\n")
+            f"{duration_text(card.flight_time_s)}); schema: docs/PLAN.md\n")
     return head + yaml.dump(data, Dumper=_CardDumper, sort_keys=False, width=120, allow_unicode=True)
 
 
@@ -241,17 +212,7 @@ def parm_text(card: TestCard, config, throws: dict[str, float]) -> str:
              "travel unless --surface-throw-deg); ranges from ArduPilot's",
              "# parameter docs (AP_SystemID / ModeSystemId var_info: F_START/F_STOP 0.01-100 Hz, T_FADE_IN 0-20 s,",
              "# T_REC 0-255 s, T_FADE_OUT 0-5 s); every value below is inside them."]
-    active = False
-    for block in blocks:
-        lines.append("")
-        lines.append(f"# {block.comment}")
-        lines += [f"# {note}" for note in block.notes]
-        if not block.values:
-            continue
-        prefix = "" if not active else "# "
-        lines += [f"{prefix}{name} {_number(value)}" for name, value in block.values.items()]
-        active = True
-    return "\n".join(lines) + "\n"
+    return _blocks_text(lines, blocks, "", lambda name, value: f"{name} {_number(value)}")
 
 
 def px4_text(card: TestCard, config) -> str:
@@ -270,16 +231,18 @@ def px4_text(card: TestCard, config) -> str:
              "# block is active, the others commented out. Ranges from fw_autotune_attitude_control_params.c",
              "# (F0/F1 0.1-30 Hz, TIME 5-120 s); FW_AT_APPLY 0 logs only (the gains are not changed).",
              "#", "# Vehicle-Id\tComponent-Id\tName\tValue\tType"]
-    active = False
+    return _blocks_text(lines, blocks, "#", lambda name, value: f"1\t1\t{name}\t{_number(value)}\t{_PX4_TYPES[name]}")
+
+
+def _blocks_text(head: list[str], blocks, separator: str, line) -> str:
+    """``head``, then per block ``separator``, its comment and notes as comments and its values (``line(name,
+    value)``): the first block with values active, the others commented out (one value per name in the file)."""
+    lines, active = list(head), False
     for block in blocks:
-        lines.append("#")
-        lines.append(f"# {block.comment}")
-        lines += [f"# {note}" for note in block.notes]
-        if not block.values:
-            continue
-        prefix = "" if not active else "# "
-        lines += [f"{prefix}1\t1\t{name}\t{_number(value)}\t{_PX4_TYPES[name]}" for name, value in block.values.items()]
-        active = True
+        lines += [separator, f"# {block.comment}"] + [f"# {note}" for note in block.notes]
+        if block.values:
+            lines += [("# " if active else "") + line(name, value) for name, value in block.values.items()]
+            active = True
     return "\n".join(lines) + "\n"
 
 

@@ -969,6 +969,24 @@ def _local_linear(x: np.ndarray, y: np.ndarray, weight: np.ndarray, width: float
     return out
 
 
+def no_verdict_reason(flag: str | None, reason: str | None) -> str | None:
+    """Why a frequency of the results has no verdict (a key of :data:`REASON_WORDS`), or None where it has one.
+
+    A frequency has a verdict where it is model-limited, or where its estimate is confident and not data-limited
+    (``frequency_reasons`` None); a data-limited one is ``data`` whatever its estimate.
+
+    Parameters
+    ----------
+    flag : str or None
+        Its ``frequency_flags`` entry (:func:`~gap_validation.core.diagnosis.frequency_flags`).
+    reason : str or None
+        Its ``frequency_reasons`` entry (None: a confident estimate).
+    """
+    if flag == "model":
+        return None
+    return "data" if flag == "data" else reason
+
+
 def _targets(c: _Channel, data: dict) -> None:
     """Which grid frequencies have no verdict (and why), which cannot get one."""
     flags = list(data.get("frequency_flags") or [])
@@ -980,10 +998,7 @@ def _targets(c: _Channel, data: dict) -> None:
     if above:
         c.resolved_rad_s = min(c.resolved_rad_s, float(c.w[above[0]]) / (1.0 + float(c.spectra["band_fraction"])))
     for i in range(n):
-        if flags[i] == "model":
-            c.verdicts += 1
-            continue
-        why = "data" if flags[i] == "data" else reasons[i]
+        why = no_verdict_reason(flags[i], reasons[i])
         if why is None:
             c.verdicts += 1
         elif why == "above_resolution" or c.w[i] * (1 + float(c.spectra["band_fraction"])) > c.resolved_rad_s:
@@ -1541,6 +1556,21 @@ def _in_range(name: str, value: float, ranges: dict) -> None:
     check_number(value, name, Interval(low, high), expected=f"a value in [{low:g}, {high:g}] (its documented range)")
 
 
+def _block(m: PlannedManoeuvre, how: str, values: dict, ranges: dict, notes: tuple[str, ...] = (),
+           problem: str | None = None) -> ParameterBlock:
+    """The manoeuvre's block (head: what it closes, then ``how`` to fly it): its values when every one is inside
+    its documented range in ``ranges`` and there is no ``problem``, else no values and the first reason."""
+    head = f"manoeuvre {m.index}: {m.channel}, closes {m.closes_rad_s[0]:.3g}-{m.closes_rad_s[1]:.3g} rad/s; {how}"
+    try:
+        if problem:
+            raise ConfigError(problem)
+        for name, value in values.items():
+            _in_range(name, value, ranges)
+    except ConfigError as err:
+        return ParameterBlock(m, {}, f"{head}: does not fit: {err}")
+    return ParameterBlock(m, values, head, notes)
+
+
 def ardupilot_parameters(card: TestCard, config: ValidationConfig,
                          throw_rad: dict[str, float] | None = None) -> list[ParameterBlock]:
     """ArduPilot's SystemID parameters per manoeuvre (injected at the mixer: the surface, as the model's input).
@@ -1564,26 +1594,19 @@ def ardupilot_parameters(card: TestCard, config: ValidationConfig,
     for m in card.manoeuvres:
         axis = _axis(config, m.channel)
         throw = (throw_rad or {}).get(m.channel, ARDUPILOT_THROW_RAD)
-        head = (f"manoeuvre {m.index}: {m.channel}, closes {m.closes_rad_s[0]:.3g}-{m.closes_rad_s[1]:.3g} rad/s; "
-                f"fly it {m.repeats} time(s), {m.trim_between_s:g} s of trim between")
+        how = f"fly it {m.repeats} time(s), {m.trim_between_s:g} s of trim between"
         if axis is None:
-            blocks.append(ParameterBlock(m, {}, f"{head}: does not fit: the channel's axis is unknown (no "
-                                                f"angular_velocity.x/y/z output, no roll/pitch/yaw in its name)"))
+            blocks.append(_block(m, how, {}, ARDUPILOT_RANGES, problem="the channel's axis is unknown (no "
+                                 "angular_velocity.x/y/z output, no roll/pitch/yaw in its name)"))
             continue
         f_start = math.floor(m.f_start_hz * 1e4) / 1e4
         values = {"SID_AXIS": ARDUPILOT_MIXER_AXIS[axis], "SID_MAGNITUDE": round(m.amplitude_rad / throw, 4),
                   "SID_F_START_HZ": f_start, "SID_F_STOP_HZ": math.ceil(m.f_stop_hz * 1e4) / 1e4,
                   "SID_T_FADE_IN": m.fade_in_s, "SID_T_REC": round(m.duration_s + DWELL_CYCLES / f_start, 2),
                   "SID_T_FADE_OUT": m.fade_out_s}
-        try:
-            for name, value in values.items():
-                _in_range(name, value, ARDUPILOT_RANGES)
-            if not values["SID_T_REC"] > DWELL_CYCLES / values["SID_F_START_HZ"]:
-                raise ConfigError(f"SID_T_REC {values['SID_T_REC']:g} s is not longer than 2 / SID_F_START_HZ")
-        except ConfigError as err:
-            blocks.append(ParameterBlock(m, {}, f"{head}: does not fit: {err}"))
-            continue
-        blocks.append(ParameterBlock(m, values, head, (
+        short = (f"SID_T_REC {values['SID_T_REC']:g} s is not longer than 2 / SID_F_START_HZ"
+                 if not values["SID_T_REC"] > DWELL_CYCLES / values["SID_F_START_HZ"] else None)
+        blocks.append(_block(m, how, values, ARDUPILOT_RANGES, problem=short, notes=(
             f"SID_MAGNITUDE {values['SID_MAGNITUDE']:g} = {m.amplitude_rad:.4g} rad over a full-mixer deflection of "
             f"{throw:.4g} rad ({math.degrees(throw):.3g} deg; --surface-throw-deg)",
             f"SID_T_REC = the card's {m.duration_s:.4g} s sweep + ArduPilot's two cycles at SID_F_START_HZ "
@@ -1612,20 +1635,11 @@ def px4_parameters(card: TestCard, config: ValidationConfig) -> list[ParameterBl
     blocks = []
     for m in card.manoeuvres:
         axis = _axis(config, m.channel)
-        head = (f"manoeuvre {m.index}: {m.channel}, closes {m.closes_rad_s[0]:.3g}-{m.closes_rad_s[1]:.3g} rad/s; "
-                f"start the autotune {m.repeats} time(s)")
         f0, f1 = math.floor(m.f_start_hz * 10) / 10, math.ceil(m.f_stop_hz * 10) / 10
         values = {"FW_AT_SYSID_F0": f0, "FW_AT_SYSID_F1": f1, "FW_AT_SYSID_TIME": float(round(m.duration_s)),
                   "FW_AT_SYSID_TYPE": 2, "FW_AT_AXES": PX4_AXIS_BIT.get(axis or "", 0), "FW_AT_APPLY": 0}
-        try:
-            if axis is None:
-                raise ConfigError("the channel's axis is unknown")
-            for name, value in values.items():
-                _in_range(name, value, PX4_RANGES)
-        except ConfigError as err:
-            blocks.append(ParameterBlock(m, {}, f"{head}: does not fit: {err}"))
-            continue
-        blocks.append(ParameterBlock(m, values, head, (
+        blocks.append(_block(m, f"start the autotune {m.repeats} time(s)", values, PX4_RANGES,
+                             problem="the channel's axis is unknown" if axis is None else None, notes=(
             f"FW_AT_SYSID_AMP not set: it scales the rate setpoint the autotune injects, not the surface; set it so the "
             f"surface moves about {m.amplitude_rad:.3g} rad, log the injected signal and give channels.{m.channel}."
             f"excitation (the sweep is flown in closed loop)",

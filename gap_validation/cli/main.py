@@ -21,7 +21,7 @@ from gap_validation import __version__
 from gap_validation.core.errors import GapValidationError
 
 #: Subcommand modules, in the order ``--help`` lists them.
-COMMANDS = ("replay", "compare_models", "simulate", "linearize", "report", "campaign", "layouts")
+COMMANDS = ("replay", "compare_models", "simulate", "linearize", "report", "campaign", "layouts", "plan")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -28,18 +28,35 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def load_results(path: str) -> ValidationResult:
-    """Results from a JSON file; DataError (one line naming the file) when it is not readable results."""
+def load_results_json(path: str) -> dict:
+    """The results JSON as a mapping, or a one-line :class:`DataError` naming the file.
+
+    Parameters
+    ----------
+    path : str
+        The results file.
+    """
     try:
         data = json.loads(Path(path).read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise DataError(f"{path}: no such results file") from None
+    except IsADirectoryError:
+        raise DataError(f"{path}: is a directory, not a results file") from None
     except (OSError, UnicodeDecodeError) as err:
         raise DataError(f"{path}: cannot read ({getattr(err, 'strerror', None) or err})") from None
     except json.JSONDecodeError as err:
         raise DataError(f"{path}:{err.lineno}: not JSON ({err.msg})") from None
-    if not isinstance(data, dict):
+    if not isinstance(data, dict) or not isinstance(data.get("channels"), dict):
         raise DataError(f"{path}: not a results file (expected an object with 'channels')")
+    for name, ch in data["channels"].items():
+        if not isinstance(ch, dict):
+            raise DataError(f"{path}: channels.{name}: expected an object, got {type(ch).__name__}")
+    return data
+
+
+def load_results(path: str) -> ValidationResult:
+    """Results from a JSON file; DataError (one line naming the file) when it is not readable results."""
+    data = load_results_json(path)
     try:
         return ValidationResult.from_json_dict(data)
     except (TypeError, ValueError, KeyError, AttributeError, IndexError) as err:

@@ -118,8 +118,19 @@ def _usable(eps) -> bool:
 
 
 # ------------------------------------------------------------------------------------------ Fig. 4
-def bode_figure(ch: ChannelResult, path: Path, model=None) -> None:
-    """Model vs measurement with coherence (paper Fig. 4); excluded (not confident) points marked."""
+def _span_edges(w: np.ndarray, low: float, high: float) -> tuple[float, float]:
+    """A band of grid frequencies widened to the geometric midpoints with its neighbours (a band of one frequency
+    stays visible), within the grid."""
+    w = np.asarray(w, float)
+    i, j = int(np.argmin(np.abs(w - low))), int(np.argmin(np.abs(w - high)))
+    left = math.sqrt(w[i - 1] * w[i]) if i > 0 else w[i]
+    right = math.sqrt(w[j] * w[j + 1]) if j + 1 < w.size else w[j]
+    return float(left), float(right)
+
+
+def bode_figure(ch: ChannelResult, path: Path, model=None, planned=()) -> None:
+    """Model vs measurement with coherence (paper Fig. 4); excluded (not confident) points marked; the bands the
+    test card's manoeuvres would close (``planned``: (low, high) grid frequencies [rad/s]) shaded."""
     plt = pyplot()
     w = ch.frequency_rad_s
     ok = _confident(ch)
@@ -150,6 +161,11 @@ def bode_figure(ch: ChannelResult, path: Path, model=None) -> None:
             ax_p.plot(w[mask], ph_meas[mask], **kw)
             ax_c.plot(w[mask], ch.coherence[mask], **kw)
     ax_c.axhline(ch.coherence_threshold, color="0.5", ls=":")
+    for k, (low, high) in enumerate(planned):
+        left, right = _span_edges(w, low, high)
+        for ax in (ax_m, ax_p, ax_c):
+            ax.axvspan(left, right, color="tab:olive", alpha=0.15, lw=0,
+                       label="planned manoeuvre (test card)" if k == 0 and ax is ax_m else None)
     ax_m.set_ylabel("magnitude [dB]")
     ax_p.set_ylabel("phase [deg]")
     ax_c.set_ylabel("coherence [-]")

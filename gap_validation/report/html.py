@@ -4,9 +4,10 @@
 beside it) with, at the top, the summary in the form of the paper's Table 1 (raw and averaged epsilon, gain,
 phase and disk margins per channel) and the verdict per channel in words; then per channel the figures of
 :mod:`gap_validation.report.figures` (Figs. 1, 2, 4, 5 and 6 of the paper, where the model fails, the diagnosis
-candidates before and after, and epsilon over model versions). Every name that comes from a bag or a config
-is HTML-escaped. A figure that cannot be drawn is replaced by a one-line note: the rest of the report is
-still written. Files are written atomically (temporary file, then rename).
+candidates before and after, and epsilon over model versions), and what to fly next: the bands without a verdict
+and the test card's manoeuvres that would close them (:mod:`gap_validation.report.card`). Every name that comes
+from a bag or a config is HTML-escaped. A figure that cannot be drawn is replaced by a one-line note: the rest of the
+report is still written. Files are written atomically (temporary file, then rename).
 """
 from __future__ import annotations
 
@@ -18,10 +19,11 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable
 
-from gap_validation.report import figures
+from gap_validation.report import card, figures
 from gap_validation.atomic import atomic_write_text
 from gap_validation.core.errors import DataError, one_line
 from gap_validation.core.margins import STANDARD_EPSILON, WARN_EPSILON, margins_from_epsilon
+from gap_validation.core.plan import TestCard
 from gap_validation.core.results import NUGAP_DATA_NOTE, ChannelResult, ValidationResult
 from gap_validation.report.terminal import fmt
 
@@ -175,9 +177,10 @@ def _slug(name: str, index: int) -> str:
 class _Channel:
     """Draws one channel's figures, collecting the HTML and the problems."""
 
-    def __init__(self, ch: ChannelResult, stem: str, directory: Path, versions: list[dict], runs: int, seed: int):
+    def __init__(self, ch: ChannelResult, stem: str, directory: Path, versions: list[dict], runs: int, seed: int,
+                 planned: list[tuple[float, float]] | None = None):
         self.ch, self.stem, self.directory, self.versions = ch, stem, directory, versions
-        self.runs, self.seed = runs, seed
+        self.runs, self.seed, self.planned = runs, seed, list(planned or [])
         self.parts: list[str] = []
         self.problems: list[str] = []
         self.model = self._model()
@@ -195,7 +198,7 @@ class _Channel:
             self.problems.append(f"{self.ch.name}: model not usable for figures ({one_line(err)})")
             return None
 
-    def figure(self, kind: str, draw: Callable[[Path], None]) -> None:
+    def figure(self, kind: str, draw: Callable[[Path], None], caption: str = "") -> None:
         path = self.directory / f"{self.stem}_{kind}.png"
         try:
             draw(path)
@@ -208,7 +211,7 @@ class _Channel:
         alt = html.escape(f"{self.ch.name} {kind}", quote=True)
         self.parts.append(f"<figure id='{html.escape(self.stem, quote=True)}-{kind}'>"
                           f"<img src='{html.escape(path.name, quote=True)}' alt='{alt}'>"
-                          f"<figcaption>{html.escape(FIGURES[kind])}</figcaption></figure>")
+                          f"<figcaption>{html.escape(FIGURES[kind] + caption)}</figcaption></figure>")
 
     def draw_all(self) -> None:
         ch, model = self.ch, self.model
@@ -217,7 +220,8 @@ class _Channel:
             return
         has_frequency = ch.frequency_rad_s is not None and len(ch.frequency_rad_s) > 0 and ch.measured is not None
         if has_frequency:
-            self.figure("bode", lambda p: figures.bode_figure(ch, p, model))
+            shaded = " Shaded: the bands the test card's manoeuvres would close." if self.planned else ""
+            self.figure("bode", lambda p: figures.bode_figure(ch, p, model, self.planned), shaded)
             self.figure("disk", lambda p: figures.disk_figure(ch, p))
             self.figure("failure", lambda p: figures.failure_figure(ch, p))
             self.figure("nichols", lambda p: figures.nichols_figure(ch, p))
@@ -250,7 +254,7 @@ class _Channel:
 
 
 def write_report(result: ValidationResult, directory: str | os.PathLike, *, runs: int = 500, seed: int = 0,
-                 warn: Callable[[str], None] | None = None) -> Path:
+                 warn: Callable[[str], None] | None = None, plan: TestCard | str | None = None) -> Path:
     """Write ``index.html`` and the figures of every channel into ``directory``; return the HTML path.
 
     Parameters
@@ -265,6 +269,10 @@ def write_report(result: ValidationResult, directory: str | os.PathLike, *, runs
         Seed of the Monte Carlo sampling (the report is reproducible).
     warn : callable, optional
         Called with a one-line message for each figure that could not be drawn.
+    plan : TestCard or str, optional
+        The test card of these results (:func:`gap_validation.report.card.plan_for`): per channel its manoeuvres
+        beside the bands without a verdict, shaded on the Bode figure; a str: one line saying why it is unavailable;
+        None: not planned (the report says how to plan it).
     """
     directory = Path(directory)
     try:
@@ -281,10 +289,11 @@ def write_report(result: ValidationResult, directory: str | os.PathLike, *, runs
     for name, ch in result.channels.items():
         text, cls = verdicts[name]
         parts.append(f"<li class='verdict {cls}'><b>{html.escape(ch.name)}</b>: {html.escape(text)}</li>")
-    parts += ["</ul>", details_html(result)]
+    parts += ["</ul>", details_html(result), card.summary_html(result, plan)]
     problems = []
     for index, (name, ch) in enumerate(result.channels.items()):
-        drawer = _Channel(ch, _slug(name, index), directory, list(result.history.get(name) or []), runs, seed)
+        drawer = _Channel(ch, _slug(name, index), directory, list(result.history.get(name) or []), runs, seed,
+                          card.planned_spans(plan, name))
         drawer.draw_all()
         text, cls = verdicts[name]
         parts.append(f"<h2 id='{html.escape(drawer.stem, quote=True)}'>{html.escape(name)}</h2>")
@@ -297,6 +306,7 @@ def write_report(result: ValidationResult, directory: str | os.PathLike, *, runs
         if ch.diagnosis:
             parts.append("<ol>" + "".join(f"<li>{html.escape(str(d.sentence or d.effect))}</li>"
                                           for d in ch.diagnosis[:3]) + "</ol>")
+        parts.append(card.channel_html(name, ch, plan))
         parts += drawer.parts
         problems += drawer.problems
     parts.append(f"<p class='note'>{html.escape(NUGAP_DATA_NOTE)}.</p></body></html>")

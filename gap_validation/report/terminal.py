@@ -30,6 +30,17 @@ def fmt(value, spec: str = ".3f", none: str = "-") -> str:
     return none if value is None else format(value, spec)
 
 
+def duration_text(seconds: float) -> str:
+    """A flight time for people: ``2 min 52 s``, or ``45 s`` under a minute.
+
+    Parameters
+    ----------
+    seconds : float
+        The time [s].
+    """
+    return f"{int(seconds // 60)} min {seconds % 60:02.0f} s" if seconds >= 60 else f"{seconds:.0f} s"
+
+
 def table(headers: list[str], rows: list[list[str]]) -> str:
     """A plain left/right aligned text table (first column left, the others right)."""
     widths = [max(len(str(r[i])) for r in [headers, *rows]) for i in range(len(headers))]

@@ -18,7 +18,7 @@ ROSDEP = {"numpy": "python3-numpy", "scipy": "python3-scipy", "yaml": "python3-y
           "matplotlib": "python3-matplotlib", "pytest": "python3-pytest", "hypothesis": "python3-hypothesis",
           "mpmath": "python3-mpmath", "xdist": "python3-pytest-xdist"}
 ROS_PACKAGES = {"rclpy", "rcl_interfaces", "launch", "launch_ros", "ament_index_python", "diagnostic_msgs",
-                "sensor_msgs", "std_msgs", "std_srvs", "geometry_msgs"}
+                "sensor_msgs", "std_msgs", "std_srvs", "geometry_msgs", "rosgraph_msgs"}
 #: No rosdep key (or none for the extra used): installed with pip, as the README says.
 PIP_ONLY = {"rosbags": "pip install rosbags", "distributed": "dask[distributed]",
             "cloudpickle": "dask[distributed]", "jsbsim": "pip install jsbsim",

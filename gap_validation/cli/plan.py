@@ -13,9 +13,8 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-import yaml
-
 from gap_validation.atomic import atomic_write_text
+from gap_validation.cards import card_yaml
 from gap_validation.config import load_config
 from gap_validation.core.errors import ConfigError, DataError, GapValidationError, one_line
 from gap_validation.core.plan import (ARDUPILOT_THROW_RAD, PlanOptions, TestCard, ardupilot_parameters, card_signal,
@@ -158,37 +157,6 @@ def render_table(card: TestCard) -> str:
                 lines.append(f"  {note}")
     lines.append(f"  target: {card.target_rule}")
     return "\n".join(lines)
-
-
-def card_yaml(card: TestCard, results_path: str | None, config_path: str) -> str:
-    """The card's YAML document (docs/PLAN.md), with a header saying what it came from.
-
-    Parameters
-    ----------
-    card : TestCard
-        The card.
-    results_path : str or None
-        The results file planned from (None: a first flight).
-    config_path : str
-        The config.
-    """
-    data = card.to_dict()
-    data = {"card_version": data.pop("card_version"), "results": results_path, "config": config_path, **data}
-    head = (f"# gap-validate plan: what to fly next ({len(card.manoeuvres)} manoeuvre(s), "
-            f"{duration_text(card.flight_time_s)}); schema: docs/PLAN.md\n")
-    return head + yaml.dump(data, Dumper=_CardDumper, sort_keys=False, width=120, allow_unicode=True)
-
-
-class _CardDumper(yaml.SafeDumper):
-    """YAML of the card: lists of numbers on one line, everything else in blocks."""
-
-
-def _represent_list(dumper: yaml.SafeDumper, values: list):
-    numbers = all(v is None or isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)
-    return dumper.represent_sequence("tag:yaml.org,2002:seq", values, flow_style=bool(values) and numbers)
-
-
-_CardDumper.add_representer(list, _represent_list)
 
 
 def parm_text(card: TestCard, config, throws: dict[str, float]) -> str:

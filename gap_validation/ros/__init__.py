@@ -3,6 +3,9 @@
 * :mod:`~gap_validation.ros.node`: the node (parameters, timers, services, diagnostics, model update; rclpy);
 * :mod:`~gap_validation.ros.topics`: the node's subscriptions (types and QoS following the graph) and the taking
   of their messages through the decoding step into the router (rclpy);
+* :mod:`~gap_validation.ros.excitation`: the test card (``~/plan``) and, with ``excitation_enabled``, its injection
+  (``~/excite``, ``~/abort``, the offsets' publishers and timer; rclpy);
+* :mod:`~gap_validation.ros.injection`: where each channel's offset goes, and the samples (no rclpy);
 * :mod:`~gap_validation.ros.jobs`: the node's files: resume from a checkpoint, checkpoints and ``~/save_results``
   written off the executor and answered when done (rclpy);
 * :mod:`~gap_validation.ros.intake`: queues drained in one wake-up, QoS matched to the publishers;
@@ -16,6 +19,6 @@
 * :mod:`~gap_validation.ros.message_types`: rclpy message classes of type names, fields checked on them;
 * :mod:`~gap_validation.ros.diagnosis_worker`: full diagnoses in a background thread.
 
-Only ``node``, ``topics``, ``jobs``, ``plots`` and ``main`` import rclpy; nothing here imports rosbags (the decoding step is
-:mod:`gap_validation.messages`).
+Only ``node``, ``topics``, ``jobs``, ``excitation``, ``plots`` and ``main`` import rclpy; nothing here imports rosbags
+(the decoding step is :mod:`gap_validation.messages`).
 """

@@ -1,4 +1,4 @@
-"""The node's slow writes off the executor, on snapshots: checkpoints and ``~/save_results`` (no rclpy).
+"""The node's slow work off the executor, on snapshots: checkpoints, ``~/save_results`` and ``~/plan`` (no rclpy).
 
 Writing a checkpoint (a zip of arrays, ``fsync``-ed) takes about 20 ms, ``~/save_results`` 5-20 s (full diagnosis,
 the report's figures). Run in the executor they stalled ``/diagnostics`` and, with data flowing, made channels
@@ -6,13 +6,14 @@ look STALE. The node therefore copies what a job needs in the executor (:func:`s
 a few milliseconds) and hands the copy to :class:`Background`:
 
 * checkpoints run in one worker thread, in submission order (a checkpoint is never overwritten by an older one);
-* ``~/save_results`` runs in a child process (spawned for the save, gone when it is done): the report's
+* ``~/save_results`` and ``~/plan`` from the live results (the full diagnosis, then the planner: seconds) run in a
+  child process (spawned for the job, gone when it is done): the report's
   matplotlib figures make the cyclic garbage collector run full collections of 0.15-0.3 s in a small process and
   seconds in a large one, and a collection holds the interpreter lock, which in a thread would stall the
   executor for as long (measured: ``/diagnostics`` 2.9 s late). In its own process nothing of it reaches the node.
 
-The node harvests finished jobs from its intake timer and answers ``~/save_results`` then (the request is taken
-by the node itself, so the executor never waits).
+The node harvests finished jobs from its intake timer and answers ``~/save_results`` and ``~/plan`` then (the
+requests are taken by the node itself, so the executor never waits).
 
 Files are written with the usual permissions (``0666 & ~umask``; the atomic writer's temporary files are
 created ``0600``), see :func:`fix_modes`.
@@ -20,6 +21,7 @@ created ``0600``), see :func:`fix_modes`.
 from __future__ import annotations
 
 import concurrent.futures
+import json
 import multiprocessing
 import os
 import time
@@ -27,17 +29,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
+from gap_validation.cards import card_yaml
 from gap_validation.core.checkpoint import save_state
 from gap_validation.core.config import ValidationConfig
 from gap_validation.core.errors import DataError
+from gap_validation.core.plan import TestCard, plan_card
 from gap_validation.core.results import ValidationResult
 from gap_validation.core.validator import OnlineValidator
 from gap_validation.messages.router import MessageRouter, note_saturation
 from gap_validation.report.terminal import write_json
 from gap_validation.ros.diagnosis_worker import copy_tree
 
-__all__ = ["Background", "Snapshot", "SaveOutcome", "snapshot", "save_results", "write_checkpoint", "fix_modes",
-           "umask", "file_stem"]
+__all__ = ["Background", "Snapshot", "SaveOutcome", "snapshot", "save_results", "full_result", "plan_from_results",
+           "write_checkpoint", "fix_modes", "umask", "file_stem"]
 
 
 def umask() -> int:
@@ -172,8 +176,7 @@ def save_results(snap: Snapshot, out_dir: Path, stem: str, mask: int) -> SaveOut
     DataError
         The directory or the JSON cannot be written (one line).
     """
-    result = OnlineValidator.from_state(snap.config, snap.state).results(diagnose=True)
-    note_saturation(snap.config, _Saturation(snap.saturation), result)
+    result = full_result(snap)
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as err:
@@ -192,6 +195,45 @@ def save_results(snap: Snapshot, out_dir: Path, stem: str, mask: int) -> SaveOut
         written.append(report)
     fix_modes(written, mask)
     return outcome
+
+
+def full_result(snap: Snapshot) -> ValidationResult:
+    """The full results of a snapshot (diagnosis included, saturation noted): what ``~/save_results`` writes.
+
+    Parameters
+    ----------
+    snap : Snapshot
+        From :func:`snapshot`.
+    """
+    result = OnlineValidator.from_state(snap.config, snap.state).results(diagnose=True)
+    note_saturation(snap.config, _Saturation(snap.saturation), result)
+    return result
+
+
+def plan_from_results(snap: Snapshot, results_name: str, config_name: str) -> tuple[str, TestCard]:
+    """Job (in a child process): the test card of the snapshot's results, as ``~/plan`` answers it.
+
+    The results are exactly the JSON ``~/save_results`` would write (:func:`full_result`, through ``json``), planned
+    by :func:`gap_validation.core.plan.plan_card` as ``gap-validate plan RESULTS.json`` plans that file, and written
+    as ``plan --out`` writes the card (:func:`gap_validation.cards.card_yaml`).
+
+    Parameters
+    ----------
+    snap : Snapshot
+        From :func:`snapshot`.
+    results_name : str
+        What the card says it was planned from (``results``).
+    config_name : str
+        The config file (``config``).
+
+    Returns
+    -------
+    (str, TestCard)
+        The card's YAML and the card.
+    """
+    data = json.loads(json.dumps(full_result(snap).to_json_dict(), allow_nan=False))
+    card = plan_card(snap.config, data, source=results_name)
+    return card_yaml(card, results_name, config_name), card
 
 
 def _write_report(result: ValidationResult, target: Path, warnings: list) -> Path | None:

@@ -167,6 +167,9 @@ class Jobs:
         except Exception as err:  # noqa: BLE001 - reported, never raised into the executor
             node._log_once(f"{kind}:{one_line(err)}", "error", f"{kind} failed: {one_line(err)}")
             outcome = err
+        if kind == "plan":
+            node.excitation.finish(outcome, tag)
+            return outcome
         if kind == "save_results":
             if not isinstance(outcome, BaseException):
                 for line in outcome.warnings:

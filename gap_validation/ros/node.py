@@ -52,6 +52,18 @@ HTML report) run in another, on a snapshot (:mod:`gap_validation.ros.jobs`, :mod
 ``~/save_results`` requests are taken by the intake timer and answered when the files are written, so
 ``/diagnostics`` keeps its period.
 
+Flying the card (issue 25)
+--------------------------
+``~/plan`` (std_srvs/Trigger, always) answers the test card as YAML: the ``plan_card`` file's, else the card planned
+from the node's current results (in a child process, answered by the intake timer like ``~/save_results``). With
+``excitation_enabled`` (off by default) the node publishes surface offsets on ``excitation_topic`` at
+``excitation_rate_hz`` (zeros between manoeuvres), ``~/excite`` flies the card's manoeuvre that ``excite_channel`` /
+``excite_index`` select, ``~/abort`` stops it at once, every sample is capped at ``excitation_max_amplitude_rad``,
+and each flyable channel's ``excitation`` is the node's own topic, so what it injected comes back through its
+subscription into the estimator (closed-loop estimation); the statuses gain ``excitation_enabled`` and
+``excitation_manoeuvre`` (``pitch #0 12.3/60.0 s``). :mod:`gap_validation.ros.excitation`,
+:mod:`gap_validation.ros.injection`, docs/PLAN.md.
+
 Live model update
 -----------------
 Setting ``config_file`` or calling ``~/reload`` (std_srvs/Trigger) re-reads the config and calls
@@ -75,6 +87,7 @@ from gap_validation.messages.decoding import TopicDecoder
 from gap_validation.messages.router import MessageRouter, note_saturation
 from gap_validation.ros.background import Background
 from gap_validation.ros.diagnosis_worker import DiagnosisWorker
+from gap_validation.ros.excitation import Excitation
 from gap_validation.ros.intake import Intake
 from gap_validation.ros.jobs import Jobs
 from gap_validation.ros.message_types import topic_types
@@ -161,7 +174,9 @@ class ValidatorNode(Node):
         if not config_file:
             raise ConfigError("parameter config_file is not set (ros2 run gap_validation validator_node "
                               "--ros-args -p config_file:=/path/cfg.yaml)")
-        self.config = load_config(config_file)
+        self.excitation = Excitation(self)
+        self.config, points = self.excitation.injection(load_config(config_file))
+        self.excitation.adopt(points)
         self.topics = Topics(self, topic_types(self.config))
         self._hardware_id = self._default_hardware_id()
         self.jobs = Jobs(self)
@@ -189,6 +204,7 @@ class ValidatorNode(Node):
         if self._param("state_file"):
             self._ckpt_timer = self.create_timer(self._param("checkpoint_period"),
                                               self.jobs.checkpoint_in_background)
+        self.excitation.start()
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.get_logger().info(
             f"validating {', '.join(self.config.channels)} from {config_file} on {', '.join(self.router.topics)} "
@@ -287,6 +303,7 @@ class ValidatorNode(Node):
         /diagnostics on time."""
         self.topics.take_all()
         self.jobs.serve_requests()
+        self.excitation.serve_requests()
         self.jobs.harvest()
         self._diagnostics_overdue(self._now_s())
 
@@ -338,12 +355,15 @@ class ValidatorNode(Node):
         """Per-channel :class:`ChannelStatus` for ``result`` at node time ``now_s``."""
         now_s = self._now_s() if now_s is None else now_s
         notes = self.topics.notes()
-        return [self._tasks[name].run(ch, now_s, self.router, self.samples_dropped,
-                                      stale_timeout_s=self._param("stale_timeout"),
-                                      warn_epsilon=self._param("warn_epsilon"),
-                                      error_epsilon=self._param("error_epsilon"), pending=self.pending,
-                                      diagnosis_off=self._param("diagnosis_period") <= 0, notes=notes)
-                for name, ch in result.channels.items()]
+        statuses = [self._tasks[name].run(ch, now_s, self.router, self.samples_dropped,
+                                          stale_timeout_s=self._param("stale_timeout"),
+                                          warn_epsilon=self._param("warn_epsilon"),
+                                          error_epsilon=self._param("error_epsilon"), pending=self.pending,
+                                          diagnosis_off=self._param("diagnosis_period") <= 0, notes=notes)
+                    for name, ch in result.channels.items()]
+        for status in statuses:           # excitation_enabled, excitation_manoeuvre (none when it is off)
+            status.values.extend(self.excitation.status_values(status.channel))
+        return statuses
 
     def status_name(self, channel: str) -> str:
         """``<node name>: <channel>``, with the node's actual (remapped) name, as diagnostic_updater names tasks."""
@@ -439,7 +459,7 @@ class ValidatorNode(Node):
         """
         path = path or self._param("config_file")
         try:
-            config = load_config(path)
+            config, points = self.excitation.injection(load_config(path))
             types = topic_types(config)
         except GapValidationError as err:
             text = f"reload failed (the model of {self.config.source} stays): {one_line(err)}"
@@ -454,6 +474,7 @@ class ValidatorNode(Node):
             return False, text
         self.topics.retype(types)   # keeps what the graph taught about types
         self.config = config
+        self.excitation.adopt(points)
         self._sync_tasks()
         self._plots.sync(self.config.channels)
         self._new_router()
@@ -533,6 +554,11 @@ class ValidatorNode(Node):
             check_parameters({**current, **values})
         except ConfigError as err:
             return SetParametersResult(successful=False, reason=str(err))
+        if values.get("plan_card"):
+            try:
+                self.excitation.load_card(values["plan_card"])
+            except ConfigError as err:
+                return SetParametersResult(successful=False, reason=str(err))
         if "config_file" in values:
             ok, text = self.reload(values["config_file"])
             if not ok:
@@ -548,6 +574,8 @@ class ValidatorNode(Node):
     def close(self) -> None:
         """Finish the background writes (answering pending ``~/save_results``), write the final checkpoint and
         stop the workers (call before ``destroy_node``)."""
+        if getattr(self, "excitation", None) is not None:
+            self.excitation.stop()
         self._close_workers()
         if getattr(self, "jobs", None) is not None:
             self.jobs.background.wait(120.0)

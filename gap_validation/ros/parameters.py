@@ -66,6 +66,36 @@ executor : {"events", "single_threaded"}, "events"
     console script drives either with ``spin_once`` in a loop (``EventsExecutor.spin()`` of rclpy 7.1 runs no
     timers and ignores SIGINT). Since messages are drained by a timer, both cost about the same.
 
+plan_card : str, "" (plan from the node's own results)
+    A card written by ``gap-validate plan --out`` (docs/PLAN.md): ``~/plan`` answers it and ``~/excite`` flies it.
+    Without it ``~/plan`` plans from the node's current results (the JSON ``~/save_results`` would write, planned as
+    ``gap-validate plan`` plans that file) and ``~/excite`` flies the card ``~/plan`` answered last. Setting it
+    re-reads the card (a bad file is refused, one line).
+excitation_enabled : bool, false
+    Inject the card's manoeuvres (read-only). Off: the node only listens, and ``~/excite`` and ``~/abort`` do not
+    exist. On: the node publishes surface offsets on ``excitation_topic`` at ``excitation_rate_hz`` (zeros
+    between manoeuvres) and each flyable channel estimates against what the node injected (its ``excitation``,
+    closed-loop estimation; :mod:`gap_validation.ros.injection`).
+excitation_topic : str, "~/excitation"
+    Where the offsets go (read-only): ``/gap_validator/excitation`` for the default node name. With
+    ``excitation_type`` Float64 one topic per channel, ``<excitation_topic>/<channel>``.
+excitation_type : {"sensor_msgs/msg/JointState", "std_msgs/msg/Float64"}, JointState
+    Message of the offsets (read-only): a stamped JointState with one joint per surface, named as in the channel's
+    input field (``position[elevator]`` -> ``elevator``), or an unstamped Float64 per channel (the node then stamps
+    the samples with their reception time).
+excitation_rate_hz : float, 50.0 Hz
+    Rate of the offsets (read-only); the card's samples are ``manoeuvre_signal(manoeuvre, excitation_rate_hz)``.
+excitation_max_amplitude_rad : float, 0.1 rad
+    Hard cap on every published sample (|offset| <= cap; 0.1 rad = 5.7 deg). ``~/excite`` refuses a manoeuvre whose
+    amplitude is above it (fly it clipped and it is no longer the card's); lowering it during a manoeuvre clips the
+    samples from the next one on.
+excite_channel : str, "" (any)
+    The channel ``~/excite`` flies a manoeuvre of.
+excite_index : int, -1 (the next)
+    The card's manoeuvre ``~/excite`` flies (its ``index``); -1: the first, in the card's flying order (of
+    ``excite_channel`` when set), not flown to its end yet. ``~/excite`` is a std_srvs/Trigger: the selection is in
+    these two parameters (docs/PLAN.md, "The node flies it", says why).
+
 CPU
 ---
 At 1 kHz IMU and 100 Hz surfaces on three channels the node's own work (decoding, diagnostics, checkpoints,
@@ -90,10 +120,15 @@ from typing import Any, Iterable, NamedTuple
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.margins import STANDARD_EPSILON, WARN_EPSILON
 
-__all__ = ["Param", "PARAMETERS", "RELIABILITIES", "check_parameters", "unknown_parameters"]
+__all__ = ["Param", "PARAMETERS", "RELIABILITIES", "EXCITATION_TYPES", "JOINT_STATE", "FLOAT64", "check_parameters",
+           "unknown_parameters"]
 
 #: Values of ``qos_reliability``.
 RELIABILITIES = ("auto", "reliable", "best_effort")
+JOINT_STATE = "sensor_msgs/msg/JointState"
+FLOAT64 = "std_msgs/msg/Float64"
+#: Values of ``excitation_type``.
+EXCITATION_TYPES = (JOINT_STATE, FLOAT64)
 
 
 class Param(NamedTuple):
@@ -144,6 +179,20 @@ PARAMETERS: dict[str, Param] = {
                                       "JointState, Float64/32, Bool) instead of deserialising it in Python"),
     "executor": Param("events", True, "events (rclpy's EventsExecutor) | single_threaded",
                       choices=("events", "single_threaded")),
+    "plan_card": Param("", False, "card file of gap-validate plan --out: ~/plan answers it, ~/excite flies it ('' = "
+                                  "~/plan plans from the node's results)"),
+    "excitation_enabled": Param(False, True, "inject the card's manoeuvres on excitation_topic (~/excite, ~/abort) "
+                                             "and estimate against them"),
+    "excitation_topic": Param("~/excitation", True, "topic of the surface offsets (Float64: <topic>/<channel>)"),
+    "excitation_type": Param(JOINT_STATE, True, "sensor_msgs/msg/JointState (one joint per surface, stamped) | "
+                                                "std_msgs/msg/Float64 (one topic per channel)",
+                             choices=EXCITATION_TYPES),
+    "excitation_rate_hz": Param(50.0, True, "rate of the surface offsets [Hz]", range=(1.0, 1000.0)),
+    "excitation_max_amplitude_rad": Param(0.1, False, "hard cap on every injected sample [rad]; ~/excite refuses a "
+                                                      "manoeuvre above it", range=(0.0, 1.0)),
+    "excite_channel": Param("", False, "channel ~/excite flies ('' = any)"),
+    "excite_index": Param(-1, False, "card index ~/excite flies (-1: the next not flown yet)",
+                          range=(-1, 1_000_000)),
 }
 
 #: Parameters every rclpy node has, and the prefix of QoS overrides: not unknown.
@@ -169,9 +218,11 @@ def check_parameters(values: dict[str, Any]) -> None:
         if param.range is not None and not param.range[0] <= value <= param.range[1]:
             raise ConfigError(f"parameter {name}: expected a number in [{param.range[0]:g}, {param.range[1]:g}], "
                               f"got {value!r}")
-    for name in ("warn_epsilon", "error_epsilon"):
+    for name in ("warn_epsilon", "error_epsilon", "excitation_max_amplitude_rad"):
         if name in values and not values[name] > 0.0:
             raise ConfigError(f"parameter {name}: expected a number in (0, 1], got {values[name]!r}")
+    if "excitation_topic" in values and not str(values["excitation_topic"]).strip():
+        raise ConfigError("parameter excitation_topic: expected a topic name, got ''")
     if "warn_epsilon" in values and "error_epsilon" in values \
             and values["warn_epsilon"] > values["error_epsilon"]:
         raise ConfigError(f"parameter warn_epsilon ({values['warn_epsilon']}) is above error_epsilon "

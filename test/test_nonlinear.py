@@ -213,7 +213,10 @@ def test_a_checkpoint_without_amplitudes_loads_with_them_unknown():
     np.testing.assert_array_equal(old.sweeps[0].response, est.sweeps[0].response)
 
 
-def test_compare_models_refuses_an_amplitude_dependent_model(tmp_path, capsys):
+@pytest.mark.parametrize("effect, words", [
+    ({"type": "rate_limit", "rad_s": 0.8}, "rate_limit depends on the input amplitude"),
+    ({"type": "zero_order_hold", "rate_hz": 50.0}, "zero_order_hold is not a rational factor")])
+def test_compare_models_refuses_an_amplitude_dependent_model_or_a_hold(tmp_path, capsys, effect, words):
     import yaml
 
     from _flights import ROOT
@@ -221,25 +224,9 @@ def test_compare_models_refuses_an_amplitude_dependent_model(tmp_path, capsys):
 
     p1 = ROOT / "config" / "paper_example_p1.yaml"
     data = yaml.safe_load(p1.read_text())
-    data["channels"]["pitch"]["model"]["effects"] = [{"type": "rate_limit", "rad_s": 0.8}]
-    limited = tmp_path / "limited.yaml"
-    limited.write_text(yaml.safe_dump(data))
-    assert main(["compare-models", str(limited), str(p1)]) == 2
+    data["channels"]["pitch"]["model"]["effects"] = [effect]
+    other = tmp_path / "other.yaml"
+    other.write_text(yaml.safe_dump(data))
+    assert main(["compare-models", str(other), str(p1)]) == 2
     err = capsys.readouterr().err.strip()
-    assert "\n" not in err and "channels.pitch.model.effects: rate_limit depends on the input amplitude" in err
-
-
-def test_compare_models_refuses_a_hold_in_one_line(tmp_path, capsys):
-    import yaml
-
-    from _flights import ROOT
-    from gap_validation.cli.main import main
-
-    p1 = ROOT / "config" / "paper_example_p1.yaml"
-    data = yaml.safe_load(p1.read_text())
-    data["channels"]["pitch"]["model"]["effects"] = [{"type": "zero_order_hold", "rate_hz": 50.0}]
-    held = tmp_path / "held.yaml"
-    held.write_text(yaml.safe_dump(data))
-    assert main(["compare-models", str(held), str(p1)]) == 2
-    err = capsys.readouterr().err.strip()
-    assert "\n" not in err and "channels.pitch.model.effects: zero_order_hold is not a rational factor" in err
+    assert "\n" not in err and f"channels.pitch.model.effects: {words}" in err

@@ -33,7 +33,11 @@ Data path (one pass, bounded delay)
    (leakage, initial and final conditions) removed; the fits of all records add up (pooled estimate) and the
    last ``max_raw_sweeps`` records are kept one by one (raw estimates). A record counts at a frequency only
    where its input is excited there -- 20 dB above the trim motion at that frequency, above its own noise and, for
-   a stepped manoeuvre, above what folds back from past the Nyquist frequency -- and its bins resolve it.
+   a stepped manoeuvre, above what folds back from past the Nyquist frequency -- and its bins resolve it: they
+   lie below a quarter of every stream's rate, or, for a slow stream (at most a fifth of the grid's rate) whose
+   sampling the streams of the other side see four times faster, below its Nyquist frequency, with those streams
+   showing that little folds back onto the band (:func:`~gap_validation.core.spectra.resolved_hz`; PX4's servos
+   at 10 Hz: bands up to 31.4 rad/s, frequencies up to 28.6 rad/s).
 
 Why whole records rather than averaged windows
 -----------------------------------------------
@@ -76,8 +80,9 @@ from gap_validation.core.manoeuvres import Manoeuvre, ManoeuvreRecorder
 from gap_validation.core.numbers import NON_NEGATIVE, POSITIVE, check_number
 from gap_validation.core.records import (KINDS, MIN_ACTIVE_S, RESPONSE_KINDS, SATURATED_SHARE, SWEEP_KINDS, Piece,
                                          classify, period, saturated_share, split_record, trim_noise)
-from gap_validation.core.spectra import (SPECTRA_DEFAULTS, BandSums, MatrixEstimate, expected_estimate,
-                                         interpolation_gain, record_bands, solve_bands, solve_matrix)
+from gap_validation.core.spectra import (RESOLVED_FRACTION, SPECTRA_DEFAULTS, BandSums, MatrixEstimate,  # noqa: F401
+                                         expected_estimate, interpolation_gain, record_bands, resolved_hz,
+                                         solve_bands, solve_matrix)
 from gap_validation.core.sweeps import DETECTOR_DEFAULTS, SweepDetector, TriggerTracker
 
 __all__ = ["FrequencyResponseEstimator", "SpectralEstimate", "ESTIMATOR_DEFAULTS", "RETIRED_OPTIONS",
@@ -115,10 +120,6 @@ TRIM_FOLLOW_S = 2.0
 _BUFFER_CAP = 256                # samples per stream buffered before processing (amortises per-call cost)
 _ENERGY, _TRIGGER = 0, 1         # source of a record
 _STATE_VERSION = 3               # 3: records and local polynomial sums (1, 2: windowed spectra, not resumable)
-#: A stream sampled at fs resolves frequencies up to this fraction of fs: half its Nyquist frequency. The
-#: interpolation onto the grid loses magnitude below it (cubic: 0.9 % at 0.15 fs, 6 % at 0.25 fs), which
-#: :func:`~gap_validation.core.spectra.interpolation_gain` restores; above it, images of the sampling do not.
-RESOLVED_FRACTION = 0.25
 #: Sample intervals of each stream whose median gives its rate (the first ones: 2.6 s at 50 Hz).
 RATE_STEPS = 128
 #: How far before the detector's start a record reaches back (to the end of the previous record at most) [s]:
@@ -760,8 +761,11 @@ class FrequencyResponseEstimator:
 
     @property
     def resolved_rad_s(self) -> float:
-        """Highest frequency the streams resolve [rad/s]: ``RESOLVED_FRACTION`` of the slowest stream's rate."""
-        return float(2.0 * math.pi * RESOLVED_FRACTION * np.min(self.stream_rates_hz))
+        """Highest frequency the streams resolve [rad/s]: no band reaches above it. A quarter of the slowest stream's
+        rate (``RESOLVED_FRACTION``), or up to its Nyquist frequency for a slow stream whose sampling the faster
+        streams of the other side show (:func:`~gap_validation.core.spectra.resolved_hz`)."""
+        limit_hz, _ = resolved_hz(self.stream_rates_hz, self._m, self._p, self._opts["sample_rate_hz"])
+        return float(2.0 * math.pi * limit_hz)
 
     @property
     def bad_sample_counts(self) -> dict:
@@ -1414,11 +1418,13 @@ class FrequencyResponseEstimator:
         self._longest_n = max(self._longest_n, seg.shape[1])
         m, p = self._m, self._p
         instruments = seg[m + p:] if seg.shape[0] > m + p else None
+        rates = self.stream_rates_hz
+        limit_hz, _ = resolved_hz(rates, m, p, self._opts["sample_rate_hz"])
         sums, status = record_bands(seg[:m], seg[m:m + p], self._dt, self._w, instruments=instruments,
                                     noise_floor=noise ** 2, background=self._background(instruments is not None),
                                     stepped=kind in _STEPPED_KINDS,
                                     options=self._spectra_opts,
-                                    max_rad_s=self.resolved_rad_s, rates_hz=self.stream_rates_hz,
+                                    max_rad_s=float(2.0 * math.pi * limit_hz), rates_hz=rates,
                                     cubic=self._opts["cubic_interpolation"])
         counted = status == 0
         for i in range(len(NOT_ESTIMABLE_REASONS)):

@@ -30,6 +30,13 @@ short record makes the band wide. :meth:`PooledBands.expected` therefore gives t
 produce through the very same estimator (the model expanded as a polynomial of degree ``order + 4`` over the
 bands the records used): comparing the data with that, rather than with the model at ``w``, removes the
 estimator's smoothing bias from the test whether data and model agree (the diagnosis does this).
+
+Slow streams. The streams reach the grid by interpolation, whose gain :func:`interpolation_gain` restores; below a
+stream's Nyquist frequency that is exact (the images of its sampling all lie above it), and the bands must lie below
+what every stream resolves (:func:`resolved_hz`): a quarter of its rate, or for a slow stream whose sampling faster
+streams witness, its Nyquist frequency (PX4's servos at 10 Hz: 31.4 rad/s, sweeps validated to 28.6 rad/s). What
+the sampling folds back from above the Nyquist frequency (aliasing) is in the logged samples and no filter removes
+it: a band counts only where the witnesses show it small (:data:`MIRROR_MARGIN`, :data:`FOLD_NEAR`).
 """
 from __future__ import annotations
 
@@ -39,9 +46,10 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-__all__ = ["SPECTRA_DEFAULTS", "BandSums", "record_bands", "interpolation_gain", "band_excited", "LocalEstimate", "solve_bands",
-           "expected_estimate", "EXTRA_ORDER", "MatrixEstimate", "solve_matrix", "expected_matrix",
-           "excitation_coherence", "partial_coherence"]
+__all__ = ["SPECTRA_DEFAULTS", "BandSums", "record_bands", "interpolation_gain", "resolved_hz", "stream_limit_hz",
+           "band_excited", "LocalEstimate", "solve_bands", "expected_estimate", "EXTRA_ORDER", "MatrixEstimate",
+           "solve_matrix", "expected_matrix", "excitation_coherence", "partial_coherence", "RESOLVED_FRACTION",
+           "SLOW_GRID_FRACTION", "MIRROR_MARGIN", "FOLD_NEAR"]
 
 #: Options of the local polynomial estimate (estimator options of the same names).
 SPECTRA_DEFAULTS = {
@@ -83,6 +91,37 @@ ALIAS_BAND = (0.6, 0.8)
 _BIN_FLOOR = 1e-2
 #: Highest usable bin relative to the Nyquist frequency of the grid (interpolation droop above).
 _NYQUIST_FRACTION = 0.8
+#: A stream sampled at fs resolves frequencies up to this fraction of fs (half its Nyquist frequency) when nothing
+#: faster shows what its sampling folds back: the interpolation onto the grid loses magnitude below it (cubic: 0.9 %
+#: at 0.15 fs, 6 % at 0.25 fs), which :func:`interpolation_gain` restores. A stream at half the grid's rate (50 Hz on
+#: the 100 Hz grid) keeps it: the images of its sampling fold back onto the band through the grid's own sampling,
+#: 0.6 % at 0.25 fs but 1.4 % at 0.45 fs.
+RESOLVED_FRACTION = 0.25
+#: A slow stream is read up to its Nyquist frequency (every bin of a band below it) when it is sampled at no more
+#: than this fraction of the grid's rate (the images of its sampling then fold back onto the grid by less than
+#: 0.1 %) and every stream of the other side (the outputs of an input, the excitation of an output) resolves its
+#: whole rate (sampled at least four times faster): those *witnesses* show what its sampling folds back
+#: (:data:`MIRROR_MARGIN`). A faster stream resolves at least as much as a slower one would (no step down):
+#: ``max(RESOLVED_FRACTION fs, min(fs, SLOW_GRID_FRACTION grid, RESOLVED_FRACTION witness) / 2)``
+#: (:func:`resolved_hz`); from twice this fraction of the grid's rate on (40 Hz on the 100 Hz grid, well below the
+#: usual 50 Hz surfaces, jitter and all) that is a quarter of its rate, as for every stream before.
+SLOW_GRID_FRACTION = 0.2
+#: Sampling at fs folds a frequency fs - f above the Nyquist frequency onto f. Where a slow stream is read up to its
+#: Nyquist frequency, a band counts only where its witnesses' power at the mirror frequencies ``fs - f`` stays this
+#: far (30 dB) below their power in the band: the part of the slow stream folded onto the band then stays below
+#: about 3 % of it in amplitude (the response's error: about a third of that, measured on chirps ending near
+#: the Nyquist frequency). This replaces :data:`ALIAS_BAND` for such a stream: a sweep may then run up to its
+#: Nyquist frequency; its tail past it, a manoeuvre flown past it, a doublet's steps are refused where they fold
+#: (with :data:`FOLD_NEAR` below 0.4 of the rate).
+MIRROR_MARGIN = 1e3
+#: The witnesses' power at the mirror frequency ``fs - f`` tells what folds onto f while the response there is about
+#: the response at f: for f above this fraction of fs (fs - f within 1.5 times f). Below it, what folds back comes
+#: from beyond ``(1 - FOLD_NEAR) fs``, where a manoeuvre's power only falls off (a sweep's tail, noise): at most what
+#: folds onto ``[FOLD_NEAR, 1/2] fs`` (:func:`_fold_bound`: all of the stream's power there where the witnesses
+#: cannot tell), which a frequency's own power must exceed by :data:`ALIAS_MARGIN` (20 dB: what folds that far comes
+#: from another part of a sweep, so it biases the response by about its power ratio, 1 %). A manoeuvre flown far
+#: past the Nyquist frequency therefore counts nowhere, as before; steps are held to :data:`ALIAS_BAND` too.
+FOLD_NEAR = 0.4
 
 
 @dataclass
@@ -359,6 +398,109 @@ def interpolation_gain(w_rad_s: np.ndarray, rate_hz: float, cubic: bool = True) 
     return np.interp(w / (2.0 * math.pi * rate_hz), nu, gain)
 
 
+def stream_limit_hz(rate_hz: float, grid_hz: float, witness_hz: float) -> float:
+    """Highest frequency a band may reach with a stream sampled at ``rate_hz`` [Hz]: ``max(RESOLVED_FRACTION rate,
+    min(rate, SLOW_GRID_FRACTION grid_hz, RESOLVED_FRACTION witness_hz) / 2)`` (:data:`SLOW_GRID_FRACTION`); above
+    ``RESOLVED_FRACTION rate`` the stream is *folded* (:data:`MIRROR_MARGIN`).
+
+    Parameters
+    ----------
+    rate_hz : float
+        The stream's rate [Hz].
+    grid_hz : float
+        The grid's rate [Hz].
+    witness_hz : float
+        Rate of the slowest stream of the other side [Hz] (0: none known; inf: fast enough).
+    """
+    return max(RESOLVED_FRACTION * rate_hz, 0.5 * min(rate_hz, SLOW_GRID_FRACTION * grid_hz,
+                                                     RESOLVED_FRACTION * witness_hz))
+
+
+def resolved_hz(rates_hz: Sequence[float], inputs: int, outputs: int,
+                grid_hz: float) -> tuple[float, tuple[tuple[int, float, tuple[int, ...]], ...]]:
+    """Highest frequency a band may reach with streams at these rates, and the slow streams read up to their
+    Nyquist frequency.
+
+    Each stream resolves up to :func:`stream_limit_hz` of its rate, its witness the slowest stream of the other side:
+    the outputs for an input or an excitation, the excitation (else the inputs) for an output. A stream whose limit is
+    above ``RESOLVED_FRACTION fs`` is *folded*: its bands are checked against what its sampling folds back
+    (:data:`MIRROR_MARGIN`). Streams of unknown rate (not finite) limit nothing, nor witness anything.
+
+    Parameters
+    ----------
+    rates_hz : sequence of float
+        Sample rate of each stream [Hz]: ``inputs`` inputs, ``outputs`` outputs, then the excitation signals.
+    inputs, outputs : int
+        How many of them are inputs and outputs.
+    grid_hz : float
+        The grid's rate [Hz].
+
+    Returns
+    -------
+    limit_hz : float
+        The lowest of the streams' limits [Hz] (inf when no rate is known).
+    folded : tuple of (int, float, tuple of int)
+        Per folded stream: its index, its rate [Hz] and its witnesses' indices.
+    """
+    rates = [float(r) for r in rates_hz]
+    excitation = tuple(range(inputs + outputs, len(rates))) or tuple(range(inputs))
+    outs = tuple(range(inputs, inputs + outputs))
+    limit, folded = math.inf, []
+    for j, rate in enumerate(rates):
+        if not (math.isfinite(rate) and rate > 0):
+            continue
+        witnesses = excitation if inputs <= j < inputs + outputs else outs
+        known = [rates[w] for w in witnesses if math.isfinite(rates[w]) and rates[w] > 0]
+        witness = min(known) if len(known) == len(witnesses) and known else 0.0
+        own = stream_limit_hz(rate, grid_hz, witness)
+        if own > RESOLVED_FRACTION * rate:
+            folded.append((j, rate, witnesses))
+        limit = min(limit, own)
+    return limit, tuple(folded)
+
+
+def _mirror_excess(power: np.ndarray, floor: float, sel: np.ndarray, w_bins: np.ndarray, rate_hz: float,
+                   sigmas: float = -3.0) -> float:
+    """What a stream sampled at ``rate_hz`` folds onto a band, seen by its witnesses: their power (``power`` per bin)
+    at the mirror frequencies ``rate - f`` of the band's bins beyond their noise (``floor`` per bin; plus ``sigmas``
+    standard deviations of its sum over the bins: -3 what is surely there, +3 what may be there), relative to their
+    power in the band; inf where a mirror bin lies beyond the spectrum or the band holds no power."""
+    spacing = w_bins[1] - w_bins[0]
+    mirror = np.rint((2.0 * math.pi * rate_hz - w_bins[sel]) / spacing).astype(np.int64)
+    if mirror.min() < 0 or mirror.max() >= w_bins.size:
+        return math.inf
+    inside = float(np.sum(power[sel]))
+    excess = float(np.sum(power[mirror])) - floor * (sel.size - sigmas * math.sqrt(sel.size))
+    return max(excess, 0.0) / inside if inside > 0 else math.inf
+
+
+def _fold_bound(own: np.ndarray, seen: np.ndarray, floor: float, w_bins: np.ndarray, rate_hz: float) -> float:
+    """Bound of the power per bin a stream sampled at ``rate_hz`` folds onto frequencies below :data:`FOLD_NEAR` of
+    its rate: what lies above ``(1 - FOLD_NEAR) rate`` falls off from there on (a sweep's tail, steps, noise), so it
+    is at most what folds onto each sub-band of ``[FOLD_NEAR, 1/2] rate``: the stream's ``own`` power there times
+    the share of it its witnesses may show folded (their mirror power beyond their noise, three standard deviations
+    included, over their power there: the response barely changes between f and rate - f; at most all of it,
+    where they see nothing). The least of those."""
+    spacing = w_bins[1] - w_bins[0]
+    edges = 2.0 * math.pi * rate_hz * np.linspace(FOLD_NEAR, 0.5, 6)
+    bound = math.inf
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        sel = np.flatnonzero((w_bins >= lo) & (w_bins < hi))
+        if sel.size == 0 or np.rint((2.0 * math.pi * rate_hz - w_bins[sel]) / spacing).max() >= w_bins.size:
+            continue
+        share = min(1.0, _mirror_excess(seen, floor, sel, w_bins, rate_hz, sigmas=3.0))
+        bound = min(bound, share * float(np.mean(own[sel])))
+    return bound
+
+
+def _noise_floor(power: np.ndarray, w_bins: np.ndarray, rate_hz: float, top_rad_s: float) -> float:
+    """Median power per bin of the witnesses between the slow stream's rate and twice it (at most ``top_rad_s``):
+    above both the manoeuvre and its mirror, their noise; 0 when that holds no bin."""
+    lo = 2.0 * math.pi * rate_hz
+    band = (w_bins >= lo) & (w_bins <= min(2.0 * lo, top_rad_s))
+    return float(np.median(power[band])) if band.any() else 0.0
+
+
 def _vander(r: np.ndarray, degree: int) -> np.ndarray:
     return np.vander(r, degree + 1, increasing=True)
 
@@ -391,11 +533,14 @@ def record_bands(inputs: np.ndarray, outputs: np.ndarray, dt: float, w_rad_s: np
     options : dict, optional
         :data:`SPECTRA_DEFAULTS` entries.
     max_rad_s : float
-        Highest frequency the measured streams resolve [rad/s] (their sample rates): bands reaching above it
-        do not count.
+        Highest frequency the measured streams resolve [rad/s] (their sample rates, :func:`resolved_hz`): bands
+        reaching above it do not count.
     rates_hz : sequence of float, optional
         Mean sample rate of each signal (inputs, outputs, instruments) [Hz]: each spectrum is divided by its
-        :func:`interpolation_gain`, so streams sampled at different rates do not bias the response.
+        :func:`interpolation_gain`, so streams sampled at different rates do not bias the response; and a slow
+        stream read up to its Nyquist frequency (:func:`resolved_hz`) counts only where its witnesses show that
+        little folds back onto the band (:data:`MIRROR_MARGIN`, :data:`FOLD_NEAR`; status 1 otherwise), instead of
+        :data:`ALIAS_BAND`.
     cubic : bool
         The interpolation onto the grid was cubic (else linear).
     stepped : bool
@@ -408,7 +553,8 @@ def record_bands(inputs: np.ndarray, outputs: np.ndarray, dt: float, w_rad_s: np
     sums : BandSums
         The record's sums (zero where it does not count).
     status : ndarray of int, (F,)
-        0 where the record counts, else why not: 1 the input is not excited there (:func:`band_excited`),
+        0 where the record counts, else why not: 1 the input is not excited there (:func:`band_excited`, or
+        what a slow stream folds back stands too close to it),
         2 the record is too short to resolve the frequency (band beyond ``max_band_fraction``), 3 the band
         reaches above what the streams resolve (``max_rad_s``, or 0.8 of the grid's Nyquist frequency), 4 too
         few bins with input left for a degree of freedom, 5 the input is excited but not 20 dB above its trim
@@ -448,8 +594,25 @@ def record_bands(inputs: np.ndarray, outputs: np.ndarray, dt: float, w_rad_s: np
     status[:] = [STATUS_TOO_SHORT if b.size == 0 else STATUS_ABOVE_GRID if not usable[b].all() else 0
                  for b in bands]
     bands = [b if status[i] == 0 else b[:0] for i, b in enumerate(bands)]
-    alias = _alias_level(power, w_bins, dt, [rates[j] for j in (range(m + p, m + p + q) if instruments is not None
-                                                                else range(m))] if rates_hz is not None else [])
+    folded: tuple = ()
+    if rates_hz is not None:
+        folded = resolved_hz(rates, m, p, 1.0 / dt)[1]
+    # slow streams read up to their Nyquist frequency: what they fold back is judged from their witnesses' mirror
+    # power per band (below), not from their own power near the top (ALIAS_BAND), unless the manoeuvre is made of
+    # steps (not band-limited: both)
+    excitation = [j for j in (range(m + p, m + p + q) if instruments is not None else range(m))
+                  if stepped or j not in {f[0] for f in folded}]
+    alias = _alias_level(power, w_bins, dt, [rates[j] for j in excitation] if rates_hz is not None else [])
+    mirrors = []
+
+    def spectrum(j: int) -> np.ndarray:
+        return fu[j] if j < m else fy[j - m] if j < m + p else fz[j - m - p]
+
+    for j, rate, witnesses in folded:
+        seen = sum(np.abs(spectrum(k)) ** 2 for k in witnesses)
+        own = np.abs(spectrum(j)) ** 2
+        floor = _noise_floor(seen, w_bins, rate, _NYQUIST_FRACTION * math.pi / dt)
+        mirrors.append((rate, seen, floor, own, _fold_bound(own, seen, floor, w_bins, rate)))
     centre = [float(np.mean(power[b])) for b in bands if b.size]
     reference = float(np.median([c for c in centre if c >= 1e-3 * max(centre)])) if centre else 0.0
     if rates_hz is None or not (stepped or alias >= _RELATIVE_EXCITATION * reference):
@@ -464,6 +627,11 @@ def record_bands(inputs: np.ndarray, outputs: np.ndarray, dt: float, w_rad_s: np
         if background is not None and math.isfinite(background[i]) and background[i] > 0 and \
                 not band_excited(power[sel], r, reference, float(background[i]), alias):
             status[i] = STATUS_BELOW_TRIM
+            continue
+        if any(_mirror_excess(seen, floor, sel, w_bins, rate) * MIRROR_MARGIN > 1.0 or
+               (wi < 2.0 * math.pi * FOLD_NEAR * rate and not float(np.mean(own[sel])) >= ALIAS_MARGIN * bound)
+               for rate, seen, floor, own, bound in mirrors):
+            status[i] = STATUS_NOT_EXCITED
             continue
         dof = sel.size - (t_order + 1)
         # bins carrying the input (the participation ratio of its power) must outnumber the response's

@@ -1,13 +1,17 @@
 """Logging checks of a flight log, each with its fix in words: a stream logged too slowly for the band the
 channel asks for, stamps that repeat, go back or leave gaps, values that are not numbers.
 
-The rate check states the limits the estimator applies (:data:`~gap_validation.core.estimator.RESOLVED_FRACTION`
-of the slowest stream's rate: a frequency counts only where every stream of the channel has at least four samples
-per period, half the Nyquist frequency; above it the interpolation onto the estimator's grid cannot be corrected
-and its images fold back), so the warning and the validated band agree: nothing above that limit is validated,
-and the per-frequency reason there is ``above_resolution``; and a manoeuvre whose power reaches
-:data:`~gap_validation.core.spectra.ALIAS_BAND` of the stream's Nyquist frequency may have folded back (aliased)
-below it, so nothing it excites counts unless it stands 20 dB above that power.
+The rate check states the limits the estimator applies (:func:`~gap_validation.core.spectra.stream_limit_hz`), so
+the warning and the validated band agree: each frequency is estimated from the spectrum within ``band_fraction``
+(10 %) of it, and all of that must lie below what the slowest stream resolves -- a quarter of its rate, or for a
+slow stream whose channel logs its other streams at least four times faster (they show what its sampling folds
+back), up to its Nyquist frequency but at most a tenth of the estimator's grid rate (PX4's servos at 10 Hz: their
+Nyquist frequency, 31.4 rad/s; ArduPlane's RCOU at 25 Hz: 62.8 rad/s on the 100 Hz grid). Nothing above that is
+validated, the per-frequency reason there is ``above_resolution``; and a frequency onto which a manoeuvre flown past
+the Nyquist frequency folds back does not count (a slow stream: where the faster streams show it,
+:data:`~gap_validation.core.spectra.MIRROR_MARGIN`; else a manoeuvre whose power reaches
+:data:`~gap_validation.core.spectra.ALIAS_BAND` of the stream's Nyquist frequency counts nowhere unless it stands
+20 dB above that power).
 """
 from __future__ import annotations
 
@@ -16,8 +20,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gap_validation.core.estimator import RESOLVED_FRACTION
-from gap_validation.core.spectra import ALIAS_BAND
+from gap_validation.core.estimator import ESTIMATOR_DEFAULTS
+from gap_validation.core.spectra import (ALIAS_BAND, MIRROR_MARGIN, RESOLVED_FRACTION, SLOW_GRID_FRACTION,
+                                         SPECTRA_DEFAULTS, stream_limit_hz)
 
 __all__ = ["StampCheck", "check_stamps", "rate_limit_rad_s", "rate_warning", "needed_rate_hz", "RATE_FIXES"]
 
@@ -38,30 +43,44 @@ RATE_FIXES = {
 }
 
 
-def rate_limit_rad_s(rate_hz: float) -> float:
-    """Highest frequency a stream sampled at ``rate_hz`` lets the estimator validate [rad/s]
-    (``2 pi RESOLVED_FRACTION rate``).
+_GRID_HZ = float(ESTIMATOR_DEFAULTS["sample_rate_hz"])
+_BAND = float(SPECTRA_DEFAULTS["band_fraction"])
+
+
+def rate_limit_rad_s(rate_hz: float, grid_hz: float = _GRID_HZ, witness_hz: float = math.inf) -> float:
+    """Highest frequency a stream sampled at ``rate_hz`` resolves for the estimator [rad/s]: no band of a validated
+    frequency reaches above it (:func:`~gap_validation.core.spectra.stream_limit_hz`: its Nyquist frequency for a slow
+    stream, else a quarter of its rate); a sweep is validated up to this over ``1 + band_fraction``.
 
     Parameters
     ----------
     rate_hz : float
         The stream's sample rate [Hz].
+    grid_hz : float
+        The estimator's grid rate (``sample_rate_hz``) [Hz].
+    witness_hz : float
+        The rate of the channel's streams of the other side (the outputs of an input) [Hz]; inf: fast enough.
     """
-    return 2.0 * math.pi * RESOLVED_FRACTION * rate_hz
+    return 2.0 * math.pi * stream_limit_hz(rate_hz, grid_hz, witness_hz)
 
 
-def needed_rate_hz(top_rad_s: float) -> float:
-    """Sample rate [Hz] a stream needs for the estimator to validate up to ``top_rad_s``.
+def needed_rate_hz(top_rad_s: float, grid_hz: float = _GRID_HZ) -> float:
+    """Sample rate [Hz] a stream needs for the estimator to validate a sweep up to ``top_rad_s`` (its band within
+    ``band_fraction`` of it included), with the channel's other streams logged at least four times faster.
 
     Parameters
     ----------
     top_rad_s : float
         The highest frequency wanted [rad/s].
+    grid_hz : float
+        The estimator's grid rate [Hz].
     """
-    return top_rad_s / (2.0 * math.pi * RESOLVED_FRACTION)
+    limit_hz = top_rad_s * (1.0 + _BAND) / (2.0 * math.pi)
+    return 2.0 * limit_hz if limit_hz <= 0.5 * SLOW_GRID_FRACTION * grid_hz else limit_hz / RESOLVED_FRACTION
 
 
-def rate_warning(fmt: str, topic: str, rate_hz: float, top_rad_s: float, feeds: str) -> str | None:
+def rate_warning(fmt: str, topic: str, rate_hz: float, top_rad_s: float, feeds: str, grid_hz: float = _GRID_HZ,
+                 witness_hz: float = math.inf) -> str | None:
     """The warning for ``topic`` logged at ``rate_hz`` when that cannot carry the band up to ``top_rad_s``, with the
     fix for the log format ``fmt``; None when it can.
 
@@ -77,16 +96,37 @@ def rate_warning(fmt: str, topic: str, rate_hz: float, top_rad_s: float, feeds: 
         The highest frequency the channels it feeds ask for [rad/s].
     feeds : str
         The streams it feeds, e.g. ``pitch.input``.
+    grid_hz : float
+        The estimator's grid rate [Hz].
+    witness_hz : float
+        The rate of the channel's streams of the other side [Hz]; inf (unknown here): assumed fast enough, and the
+        warning says what they need.
     """
-    limit = rate_limit_rad_s(rate_hz)
-    if not (math.isfinite(rate_hz) and rate_hz > 0) or limit >= top_rad_s:
+    if not (math.isfinite(rate_hz) and rate_hz > 0):
         return None
-    fix = RATE_FIXES.get(fmt, RATE_FIXES["csv"]).format(topic=topic, need_hz=needed_rate_hz(top_rad_s))
-    return (f"{topic} ({feeds}) is logged at {rate_hz:.3g} Hz: frequencies above {limit:.3g} rad/s cannot be "
-            f"validated (the estimate needs four samples per period, half the Nyquist frequency of "
-            f"{math.pi * rate_hz:.3g} rad/s; the channel asks up to {top_rad_s:.3g} rad/s), and a manoeuvre flown "
-            f"above {ALIAS_BAND[0] * math.pi * rate_hz:.3g} rad/s folds back into what lies below (then none of it "
-            f"counts); {fix}")
+    limit = rate_limit_rad_s(rate_hz, grid_hz, witness_hz)
+    top = limit / (1.0 + _BAND)
+    if top >= top_rad_s:
+        return None
+    fix = RATE_FIXES.get(fmt, RATE_FIXES["csv"]).format(topic=topic, need_hz=needed_rate_hz(top_rad_s, grid_hz))
+    nyquist = math.pi * rate_hz
+    quarter = 2.0 * math.pi * RESOLVED_FRACTION * rate_hz
+    head = (f"{topic} ({feeds}) is logged at {rate_hz:.3g} Hz: frequencies above {top:.3g} rad/s cannot be validated "
+            f"(each is estimated from the spectrum within {100 * _BAND:.0f} % of it, and that must lie below ")
+    if limit <= quarter * (1.0 + 1e-12):
+        return (f"{head}{limit:.3g} rad/s, a quarter of its rate: four samples per period, half its Nyquist frequency "
+                f"of {nyquist:.3g} rad/s; the channel asks up to {top_rad_s:.3g} rad/s), and a manoeuvre flown above "
+                f"{ALIAS_BAND[0] * nyquist:.3g} rad/s folds back into what lies below (then none of it counts); {fix}")
+    grid = 2.0 / SLOW_GRID_FRACTION
+    reach = (f"its Nyquist frequency, {limit:.3g} rad/s, above which its sampling folds everything back"
+             if limit >= nyquist * (1.0 - 1e-12) else
+             f"{limit:.3g} rad/s, 1/{grid:.0f} of the estimator's {grid_hz:.3g} Hz grid rate (above it the images of "
+             f"its sampling fold back through the grid's own sampling)")
+    return (f"{head}{reach}; the channel asks up to {top_rad_s:.3g} rad/s); that needs the channel's other streams "
+            f"logged at {limit / (math.pi * RESOLVED_FRACTION):.3g} Hz or faster: they show what folds back, and a "
+            f"frequency onto which more than {100 * MIRROR_MARGIN ** -0.5:.1f} % (in amplitude) folds back, from a "
+            f"manoeuvre flown past {nyquist:.3g} rad/s, does not count (with slower ones it is read up to a quarter of "
+            f"its rate: {quarter / (1.0 + _BAND):.3g} rad/s); {fix}")
 
 
 @dataclass(frozen=True)

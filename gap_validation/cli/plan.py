@@ -40,7 +40,7 @@ def register(sub) -> None:
                    help="largest sweep amplitude [rad] (with results also capped by the largest deflection flown; "
                         "from a config alone 0.06 rad by default)")
     p.add_argument("--log-rate-hz", type=float, metavar="R",
-                   help="rate of the slowest logged stream [Hz] (the estimator resolves up to a quarter of it)")
+                   help="rate of the slowest logged stream [Hz] (planned up to a quarter of it)")
     p.add_argument("--out", metavar="CARD.yaml", help="write the card here (YAML, docs/PLAN.md)")
     p.add_argument("--ardupilot", metavar="FILE.parm", help="ArduPilot SystemID parameters, one block per manoeuvre")
     p.add_argument("--surface-throw-deg", action="append", default=[], metavar="[CHANNEL=]DEG",

@@ -1009,8 +1009,8 @@ def _targets(c: _Channel, data: dict) -> None:
 
 def _resolution_reason(c: _Channel) -> str:
     limit = c.resolved_rad_s
-    return (f"above what the logs resolve: the estimator resolves up to a quarter of the slowest stream's rate "
-            f"({limit:.3g} rad/s here); log the surface and the rate at 4 x w / 2 pi Hz or faster "
+    return (f"above what the logs resolve ({limit:.3g} rad/s here: a quarter of the slowest stream's rate, or where "
+            f"the results say so); log the surface and the rate at 4 x w / 2 pi Hz or faster "
             f"(e.g. {4.0 * c.w.max() / (2 * math.pi):.0f} Hz for {c.w.max():.3g} rad/s)")
 
 

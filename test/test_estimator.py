@@ -537,3 +537,25 @@ def test_a_bad_trim_airspeed_is_a_config_error():
         FrequencyResponseEstimator(W_RAD_S, ("input", "output", "airspeed"), trim_airspeed=-3.0)
     with pytest.raises(ConfigError, match="the airspeed"):
         FrequencyResponseEstimator(W_RAD_S, ("input", "output"), trim_airspeed=30.0)
+
+
+def test_manoeuvres_flown_count_a_triggered_sweep_that_gives_nothing_and_not_detected_wander():
+    """``flown_kinds``: a manoeuvre the trigger marks is flown whatever it gives (here saturated: pinned at its
+    limits, no response); without a trigger only what gave a response counts (a detected stretch that gives
+    nothing cannot be told from trim wander)."""
+    t, u, y = flight()
+    trim = -0.02
+    clipped = np.clip(u, trim - 0.02, trim + 0.02)                       # the 0.05 rad sweeps pinned at 0.02
+    y = simulate(clipped) + 0.01
+    streams = measure(t, clipped, y, 100.0, 1000.0, seed=3, noise_in=0.0)     # pinned: exactly at its limits
+    est = FrequencyResponseEstimator(W_RAD_S)
+    est.add_trigger([0.0, 15.0, 95.0, 235.0, 325.0], [False, True, False, True, False])
+    est.add_time_histories(*streams)
+    est.flush()
+    assert est.counted_kinds.get("chirp", 0) == 0 and est.saturated == 2
+    assert est.flown_kinds == {"chirp": 2}
+    state = est.state_dict()                                             # kept across a restart
+    assert FrequencyResponseEstimator.from_state(state).flown_kinds == {"chirp": 2}
+    # the same flight unclipped and detected: flown is what gave a response
+    est = estimate(*measure(t, u, *flight()[2:], 100.0, 1000.0, seed=3))
+    assert est.flown_kinds == {k: n for k, n in est.counted_kinds.items()}

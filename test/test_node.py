@@ -908,7 +908,8 @@ def test_services_reload_reset(flight, typed, fed, ros, tmp_path):
 
 
 def test_full_diagnosis_runs_in_the_background_and_fills_the_message(typed, fed, ros, tmp_path):
-    node = resume(ros, fed, tmp_path, typed, diagnosis_period=0.0)
+    # unpaced (share 1): the pacing is test_diagnosis_worker's; at the default 6 % of a core this waits 80 s
+    node = resume(ros, fed, tmp_path, typed, diagnosis_period=0.0, diagnosis_cpu_share=1.0)
     values = statuses(node.publish_diagnostics())
     assert all(v["diagnosis"] == "off" for _, v in values.values())
     node.set_parameters([Parameter("diagnosis_period", value=10.0)])

@@ -656,10 +656,12 @@ class FrequencyResponseEstimator:
         self._span = [0, 0]
         self._kinds: Counter = Counter()
         self._counted: Counter = Counter()
+        self._flown: Counter = Counter()       # manoeuvres long enough to estimate, per kind, whatever they gave
         self._longest_n = 0
         self._saturated = 0
         self._other_records = 0
         self._own_record = True
+        self._declared = False                               # the record being estimated is a trigger's
         self._piece_stream: dict = {}                        # other_inputs: manoeuvre -> the input it belongs to
         self._spans: deque = deque(maxlen=SPANS_KEPT)     # grid spans of the latest manoeuvres (not checkpointed)
         self._pending: list[tuple[int, np.ndarray, int, int, int]] = []   # records waiting for the trim motion
@@ -700,6 +702,15 @@ class FrequencyResponseEstimator:
     def n_manoeuvres(self) -> int:
         """Manoeuvres of any kind that gave a frequency response so far."""
         return self._n_sweeps
+
+    @property
+    def flown_kinds(self) -> dict[str, int]:
+        """Manoeuvres flown, per kind: those that gave a frequency response (:attr:`counted_kinds`) and, with a
+        ``trigger``, every manoeuvre it marked that is long enough to estimate (``min_sweep_s``), whether it gave
+        one or not (saturated, or nowhere 20 dB above the trim motion, as a loop answering turbulence leaves a
+        sweep). A detected stretch that gives nothing is not counted: it cannot be told from trim wander. Another
+        input's manoeuvres (``other_inputs``) are not this channel's."""
+        return dict(self._flown)
 
     @property
     def counted_kinds(self) -> dict[str, int]:
@@ -1280,12 +1291,12 @@ class FrequencyResponseEstimator:
             going = [p for p in pieces if p.end >= n]
             if going and len(going) < len(pieces):
                 first = min(p.start for p in going)
-                self._estimate_pieces(k0, data, [p for p in pieces if p.end < n])
+                self._estimate_pieces(k0, data, [p for p in pieces if p.end < n], src == _TRIGGER)
                 return first
         if going and len(going) < len(pieces):
-            self._estimate_pieces(k0, data, pieces[:len(pieces) - len(going)])
+            self._estimate_pieces(k0, data, pieces[:len(pieces) - len(going)], src == _TRIGGER)
             return going[0].start
-        self._estimate_pieces(k0, data, pieces)
+        self._estimate_pieces(k0, data, pieces, src == _TRIGGER)
         return n
 
     def _close_record(self, k0: int, data: np.ndarray, src: int, act0: int, act1: int) -> None:
@@ -1313,7 +1324,7 @@ class FrequencyResponseEstimator:
         while self._pending and (force or self._trim.seconds >= TRIM_KNOWN_S or len(self._pending) > PENDING_RECORDS):
             k0, data, src, act0, act1 = self._pending.pop(0)
             if data.shape[1] >= 4:
-                self._estimate_pieces(k0, data, self._pieces(data, src, act0, act1))
+                self._estimate_pieces(k0, data, self._pieces(data, src, act0, act1), src == _TRIGGER)
 
     def _pieces_per_stream(self, data: np.ndarray) -> list[Piece]:
         """Several detection streams (a MIMO channel's inputs, flown one at a time): the record split by each
@@ -1363,7 +1374,10 @@ class FrequencyResponseEstimator:
         candidates = data[self._det_streams][:, piece.active_start:max(piece.active_end, piece.active_start + 1)]
         return self._det_streams[int(np.argmax(np.var(candidates, axis=1)))]
 
-    def _estimate_pieces(self, k0: int, data: np.ndarray, pieces: list[Piece]) -> None:
+    def _estimate_pieces(self, k0: int, data: np.ndarray, pieces: list[Piece], declared: bool = False) -> None:
+        """Classify and estimate a record's manoeuvres; ``declared``: the record is a trigger's (its manoeuvre
+        counts as flown even where it gives no response)."""
+        self._declared = declared
         single = len(self._det_streams) == 1
         det_index = self._det_index(data) if self._conditioned else self._det_streams[0]
         det = data[det_index]
@@ -1393,6 +1407,8 @@ class FrequencyResponseEstimator:
                                 k0 + piece.active_end, kind)
             if kind not in RESPONSE_KINDS or active_s < self._opts["min_sweep_s"]:
                 continue
+            if declared and self._own_record:      # a trigger's manoeuvre is flown, whatever it gives
+                self._flown[kind] += 1
             if self.record_observer is not None and self._own_record:
                 self.record_observer(data[:, piece.active_start:piece.active_end], kind,
                                      self._time(k0 + piece.active_start), self._dt)
@@ -1444,6 +1460,8 @@ class FrequencyResponseEstimator:
         self._span[1] = k_end
         self._n_sweeps += 1
         self._counted[kind] += 1
+        if not self._declared:     # detected manoeuvres are flown where they gave a response (else: trim wander)
+            self._flown[kind] += 1
         raw = SpectralEstimate.from_sums(self._w, sums, self._dt, self._opts["band_fraction"])
         self._raw.append((raw.rows(), k_start, k_end, kind))
         self._raw_amplitude.append(amplitude)
@@ -1504,6 +1522,7 @@ class FrequencyResponseEstimator:
             **self._raw_state(),
             "kind_counts": np.array([self._kinds[k] for k in KINDS], np.int64),
             "counted_counts": np.array([self._counted[k] for k in KINDS], np.int64),
+            "flown_counts": np.array([self._flown[k] for k in KINDS], np.int64),
             "longest_n": self._longest_n, "saturated": self._saturated,
         })
         if self._other_records:
@@ -1612,6 +1631,9 @@ class FrequencyResponseEstimator:
                                for i in range(int(st["n_raw"]))]
         self._kinds = Counter({k: int(v) for k, v in zip(KINDS, st["kind_counts"]) if int(v)})
         self._counted = Counter({k: int(v) for k, v in zip(KINDS, st["counted_counts"]) if int(v)})
+        # checkpoints before the count of manoeuvres flown: those that gave a response
+        self._flown = Counter({k: int(v) for k, v in zip(KINDS, st.get("flown_counts", st["counted_counts"]))
+                               if int(v)})
         parts = {"align": self._align, "trig": self._trig, "tbase": self._trig_base, "man": self._man,
                  "rec": self._rec}
         if any(k.startswith("trim.") for k in st):     # checkpoints before the trim spectrum start without it

@@ -342,6 +342,7 @@ class ChannelResult:
     excitation: str | None = None                                    # kind flown (chirp, multisine, ...)
     excited_band_rad_s: tuple[float, float] | None = None            # where the flight excited the input
     manoeuvres_by_kind: dict[str, int] = field(default_factory=dict)  # manoeuvres that gave a response
+    manoeuvres_flown: dict[str, int] = field(default_factory=dict)   # every manoeuvre seen, per kind, used or not
     # with an airspeed stream: (V / V_trim)^2 over the flight (mean, min, max, clipped), the inputs scaled by it
     dynamic_pressure_ratio: dict | None = None
     # the lead test between the manoeuvres (background.LeadTest): share, f, p_value, rows, lags_s; None before
@@ -443,6 +444,7 @@ class ChannelResult:
             "excited_band_rad_s": None if self.excited_band_rad_s is None else [_num(v) for v in
                                                                                  self.excited_band_rad_s],
             "manoeuvres_by_kind": dict(self.manoeuvres_by_kind),
+            "manoeuvres_flown": dict(self.manoeuvres_flown),
             "degrees_of_freedom": _list(self.degrees_of_freedom),
             "frequency_reasons": list(self.frequency_reasons),
             "warnings": list(self.warnings),
@@ -498,6 +500,7 @@ class ChannelResult:
                  model_description=data.get("model_description", ""), message=data.get("message", ""),
                  model_spec=dict(data.get("model_spec") or {}), excitation=data.get("excitation"),
                  manoeuvres_by_kind=dict(data.get("manoeuvres_by_kind") or {}),
+                 manoeuvres_flown=dict(data.get("manoeuvres_flown") or {}),
                  frequency_reasons=list(data.get("frequency_reasons") or []),
                  stability_margin_b=data.get("stability_margin_b"),
                  stability_margin_frequency_rad_s=data.get("stability_margin_frequency_rad_s"),

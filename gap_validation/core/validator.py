@@ -343,6 +343,7 @@ class OnlineValidator:
         result.dynamic_pressure_ratio = est.dynamic_pressure_ratio
         result.warnings.extend(_condition_warnings(result.dynamic_pressure_ratio))
         result.manoeuvres_by_kind = est.counted_kinds
+        result.manoeuvres_flown = dict(getattr(est, "flown_kinds", {}))
         lead = est.surface_led()
         result.rate_leads_surface = None if lead is None else {
             "share": lead.share, "f": lead.f, "p_value": lead.p_value, "rows": lead.rows, "lags_s": lead.lags_s}
@@ -410,6 +411,7 @@ class OnlineValidator:
         result.dynamic_pressure_ratio = est.dynamic_pressure_ratio
         result.warnings.extend(_condition_warnings(result.dynamic_pressure_ratio))
         result.manoeuvres_by_kind = est.counted_kinds
+        result.manoeuvres_flown = dict(getattr(est, "flown_kinds", {}))
         avg, matrix = est.averaged(), est.averaged_matrix()
         if avg is None or matrix is None:
             result.message = "no sweep found: " + _why_nothing(est, channel)

@@ -125,6 +125,10 @@ def test_coupled_surfaces_without_other_inputs_warn_naming_the_rudder(coupled):
     yaw = result.channels["yaw"]
     assert all("not validated" not in w for w in yaw.warnings), yaw.warnings
     assert "biased" not in yaw.frequency_reasons
+    # and those roll sweeps are the aileron's: left out of the rudder's estimate, which keeps its own 2 sweeps (4
+    # counted, the aileron's pooled in, before the rudder was seen to follow)
+    assert yaw.sweeps == 2
+    assert any("position[aileron]" in w and "left out of its estimate" in w for w in yaw.warnings), yaw.warnings
 
 
 @pytest.mark.parametrize("options", [
@@ -154,6 +158,36 @@ def test_coupling_monitor_sees_an_interconnect_not_an_independent_surface():
         assert coupled is expected and monitor.records == 1
         if expected:
             assert r2 > 0.99 and gain == pytest.approx(0.3, rel=0.02)
+
+
+def test_a_manoeuvre_is_the_other_surfaces_where_it_moves_more_against_its_own_trim_motion():
+    """``leads``: the other surface follows the input (an interconnect either way) and moves more, each against its
+    own trim motion: the manoeuvre is the other surface's. Where it moves less, or moves independently, or its
+    samples do not cover the manoeuvre yet, it is the channel's own."""
+    rng = np.random.default_rng(4)
+    t = np.arange(0.0, 30.0, 0.01)
+    u = 0.015 * np.sin(2.0 * t + 0.02 * t ** 2)            # the rudder, 0.3 x the aileron's sweep
+    aileron = u / 0.3 + 1e-4 * rng.standard_normal(t.size)
+    history = SurfaceHistory()
+    history.add(t, aileron)
+    for own_trim, other_trim, expected in ((0.0, 0.0, True),        # unknown trims: in their own units
+                                           (0.003, 0.003, True),    # the same trim motion: the aileron moves more
+                                           (0.001, 0.01, False)):   # an aileron ten times as restless: the rudder
+        monitor = CouplingMonitor()
+        assert monitor.leads(u, 0.0, 0.01, history, own_trim, other_trim) is expected
+        assert monitor.followed()[0] == int(expected) and not monitor.records
+    monitor = CouplingMonitor()
+    assert not monitor.leads(aileron, 0.0, 0.01, _history(t, u), 0.0, 0.0)                  # the smaller one
+    assert not monitor.leads(u, 0.0, 0.01, _history(t, 0.05 * np.sin(7.0 * t + 1.0)), 0.0, 0.0)   # independent
+    assert not monitor.leads(u, 0.0, 0.01, _history(t[:1000], aileron[:1000]), 0.0, 0.0)   # not arrived yet
+    count, r2, gain = CouplingMonitor().followed()
+    assert count == 0
+
+
+def _history(t, v):
+    history = SurfaceHistory()
+    history.add(t, v)
+    return history
 
 
 def test_near_minus_inverse_marks_a_response_that_is_minus_one_over_c():

@@ -153,6 +153,11 @@ class CouplingMonitor:
         self._gain = 0.0
         self.records = 0
         self.coupled_records = 0     # manoeuvres in which the surface follows the input
+        self.followed_records = 0    # ... in which the input follows the surface: the surface's manoeuvres
+        self._followed_r2 = 0.0      # energy-weighted sums over those
+        self._followed_gain = 0.0
+        self._followed_energy = 0.0
+        self.followed_s = 0.0        # their length [s]
         self.pending: deque = deque(maxlen=PENDING_RECORDS)
 
     def observe(self, u: np.ndarray, t0_s: float, dt_s: float, history: SurfaceHistory) -> None:
@@ -187,18 +192,79 @@ class CouplingMonitor:
         for u, t0_s, dt_s in waiting:
             self.observe(u, t0_s, dt_s, history)
 
-    def _add(self, u: np.ndarray, other: np.ndarray) -> None:
+    @staticmethod
+    def _fit(u: np.ndarray, other: np.ndarray) -> tuple[float, float, float] | None:
+        """``(R^2, gain, input energy)`` of the other surface regressed on the input and its rate (None: either
+        flat)."""
         u, other = u - np.mean(u), other - np.mean(other)
         x = np.stack([u, np.gradient(u)])
         uu, oo = float(u @ u), float(other @ other)
         if uu <= 0 or oo <= 0:
-            return
+            return None
         try:
             xy = x @ other
             r2 = min(max(float(xy @ np.linalg.solve(x @ x.T, xy)) / oo, 0.0), 1.0)
         except np.linalg.LinAlgError:
+            return None
+        return r2, float(u @ other) / uu, uu
+
+    def leads(self, u: np.ndarray, t0_s: float, dt_s: float, history: SurfaceHistory, own_trim: float,
+              other_trim: float) -> bool:
+        """Whether a manoeuvre of the channel is the other surface's: the other surface moves with the input
+        (``R^2`` >= :data:`COUPLING_COHERENCE`, gain >= :data:`COUPLING_GAIN`) and moves more, each in units of its
+        own trim motion between the manoeuvres (in its own units while either is unknown): the input follows the
+        other surface through an interconnect (an aileron-rudder interconnect moves the rudder in the aileron's
+        sweeps), as ``other_inputs`` keep a manoeuvre for the input most excited over its trim. Such a manoeuvre
+        is counted here (:meth:`followed`) and nowhere else. False where the surface's samples do not cover the
+        manoeuvre yet (it is then judged as any other, by :meth:`observe`).
+
+        Parameters
+        ----------
+        u : ndarray
+            The channel's input over the manoeuvre's excited span.
+        t0_s, dt_s : float
+            Time of the first sample and grid step [s].
+        history : SurfaceHistory
+            The other surface.
+        own_trim, other_trim : float
+            Standard deviations of the input's and the other surface's trim motion between manoeuvres (0:
+            unknown).
+        """
+        if u.size < 8:
+            return False
+        t = t0_s + dt_s * np.arange(u.size)
+        if not history.covers(t[0], t[-1]):
+            return False
+        other = history.at(t)
+        fit = self._fit(np.asarray(u, float), other)
+        if fit is None:
+            return False
+        r2, gain, uu = fit
+        if r2 < COUPLING_COHERENCE or abs(gain) < COUPLING_GAIN:
+            return False
+        scale_u, scale_o = (own_trim, other_trim) if own_trim > 0 and other_trim > 0 else (1.0, 1.0)
+        if float(np.std(other)) / scale_o <= float(np.std(u)) / scale_u:
+            return False
+        self.followed_records += 1
+        self.followed_s += u.size * dt_s
+        self._followed_energy += uu
+        self._followed_r2 += r2 * uu
+        self._followed_gain += gain * uu
+        return True
+
+    def followed(self) -> tuple[int, float, float]:
+        """The channel's manoeuvres that were the other surface's (:meth:`leads`): how many, and their
+        energy-weighted ``R^2`` and gain (other surface / input; 0 when none)."""
+        if not self._followed_energy:
+            return self.followed_records, 0.0, 0.0
+        return (self.followed_records, self._followed_r2 / self._followed_energy,
+                self._followed_gain / self._followed_energy)
+
+    def _add(self, u: np.ndarray, other: np.ndarray) -> None:
+        fit = self._fit(u, other)
+        if fit is None:
             return
-        gain = float(u @ other) / uu
+        r2, gain, uu = fit
         self.records += 1
         self.energy += uu
         if r2 >= COUPLING_COHERENCE and abs(gain) >= COUPLING_GAIN:

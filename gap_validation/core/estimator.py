@@ -668,7 +668,8 @@ class FrequencyResponseEstimator:
         #: Called as ``record_observer(samples, kind, t0_s, dt_s)`` with the grid samples (streams x n) of the
         #: excited span of every manoeuvre of this channel that gives a response, its kind, the time of its first
         #: sample and the grid step (the coupling monitors of :mod:`gap_validation.core.closed_loop`); None:
-        #: nobody. Not checkpointed; it changes nothing in the estimates.
+        #: nobody. Not checkpointed. It returns False for a manoeuvre that is another surface's (the input
+        #: following it through an interconnect): left out of the estimates and the counts.
         self.record_observer = None
 
     def _new_sums(self) -> BandSums:
@@ -702,6 +703,10 @@ class FrequencyResponseEstimator:
     def n_manoeuvres(self) -> int:
         """Manoeuvres of any kind that gave a frequency response so far."""
         return self._n_sweeps
+
+    def input_trim_motion(self) -> float:
+        """Standard deviation of the (first) input's trim motion between the manoeuvres (0 before any)."""
+        return self._motion(0)
 
     @property
     def flown_kinds(self) -> dict[str, int]:
@@ -1407,11 +1412,12 @@ class FrequencyResponseEstimator:
                                 k0 + piece.active_end, kind)
             if kind not in RESPONSE_KINDS or active_s < self._opts["min_sweep_s"]:
                 continue
+            if self.record_observer is not None and self._own_record and \
+                    self.record_observer(data[:, piece.active_start:piece.active_end], kind,
+                                         self._time(k0 + piece.active_start), self._dt) is False:
+                continue             # another surface's manoeuvre, the input following it (an interconnect)
             if declared and self._own_record:      # a trigger's manoeuvre is flown, whatever it gives
                 self._flown[kind] += 1
-            if self.record_observer is not None and self._own_record:
-                self.record_observer(data[:, piece.active_start:piece.active_end], kind,
-                                     self._time(k0 + piece.active_start), self._dt)
             if kind in ("chirp", "multisine", "broadband") and saturated_share(det, piece) >= SATURATED_SHARE:
                 self._saturated += 1
                 continue

@@ -202,10 +202,22 @@ class OnlineValidator:
 
     def _observer(self, channel: str):
         """The channel estimator's ``record_observer``: each manoeuvre to the channel's coupling monitors."""
-        def observe(samples: np.ndarray, kind: str, t0_s: float, dt_s: float) -> None:
-            for other, coupling in self._monitors[channel].coupling.items():
+        def observe(samples: np.ndarray, kind: str, t0_s: float, dt_s: float) -> bool:
+            monitors = self._monitors[channel].coupling
+            own = self._trim_motion(channel)
+            for other, coupling in monitors.items():     # another surface's manoeuvre: not this channel's
+                if coupling.leads(samples[0], t0_s, dt_s, self._monitors[other].history, own,
+                                  self._trim_motion(other)):
+                    return False
+            for other, coupling in monitors.items():
                 coupling.observe(samples[0], t0_s, dt_s, self._monitors[other].history)
+            return True
         return observe
+
+    def _trim_motion(self, channel: str) -> float:
+        """The channel's surface trim motion between manoeuvres (its estimator's; 0 before any)."""
+        est = self._estimators.get(channel)
+        return float(est.input_trim_motion()) if est is not None and hasattr(est, "input_trim_motion") else 0.0
 
     def _watch(self) -> None:
         """Hook the coupling monitors to the channels' estimators (after any estimator was made)."""
@@ -777,7 +789,15 @@ def _closed_loop_checks(channel: ChannelConfig, monitors: _Monitors, config: Val
                             f"its manoeuvres (coherence {coherence:.2f}, {gain:.2g} x the input): the measured "
                             f"response mixes both surfaces and is not validated; add it to {where}.other_inputs (and "
                             f"fly its own sweeps)")
-        elif monitor.coupled_records >= COUPLED_RECORDS:
+        followed, f_coherence, f_gain = monitor.followed()
+        if followed:
+            warnings.append(f"for {monitor.followed_s:.0f} s ({followed} stretch{'es' if followed > 1 else ''} the "
+                            f"detector found) the {other} surface ({spec.topic} {spec.field}) moved and this "
+                            f"channel's input followed it (coherence {f_coherence:.2f}, "
+                            f"the {other} surface {f_gain:.2g} x the input; each against its own trim motion the "
+                            f"{other} surface moved more): an interconnect's manoeuvres, not this channel's, left out "
+                            f"of its estimate and its sweeps; add it to {where}.other_inputs to use them")
+        if not coupled and monitor.coupled_records >= COUPLED_RECORDS:
             warnings.append(f"the {other} surface ({spec.topic} {spec.field}) moved with this channel's input in "
                             f"{monitor.coupled_records} of its {monitor.records} manoeuvres (an interconnect, or this "
                             f"surface flown through another axis' manoeuvres): those mix both surfaces, though too "

@@ -15,8 +15,10 @@ model called model-limited, given a named effect, or warned of a feedback loop i
   and pa28 at their trim conditions, calm and in JSBSim's light turbulence, against JSBSim's own linearisation at
   the flown condition (5-10 % off the nonlinear model at some frequencies: a real model's error).
 
-The truth is the config's own model (no hidden effect): every "model-limited" verdict and every named effect is a
-false alarm; a feedback warning is false on every channel flown open loop. Goals (issue 22): model-limited and a
+The truth is the config's own model (no hidden effect): every "model-limited" verdict, every named effect and every
+constant factor said within the tolerance (``within_tolerance``) is a false alarm; a feedback warning is false on
+every channel flown open loop (JSBSim's pilot flies the wings and the pitch attitude back between the manoeuvres, a
+true loop: a warning there is counted apart, neither false nor required). Goals (issue 22): model-limited and a
 named effect at most 1 % of the channels, a feedback warning at most 1 % of the open-loop channels, and at least
 95 % of the closed-loop channels (no excitation logged) warned, on every simulator.
 
@@ -128,6 +130,12 @@ def draw_jsbsim(rng: np.random.Generator, index: int) -> dict:
 _JSBSIM_CONFIGS: dict = {}
 
 
+#: The channels JSBSim's pilot flies back to trim between the manoeuvres (``gap_validation.jsbsim.flight.Pilot``:
+#: wings level on the ailerons, the pitch attitude on the elevator; the rudder is left alone): a true loop there, so
+#: a feedback warning on them is neither false nor required (counted apart).
+JSBSIM_HELD = ("roll", "pitch")
+
+
 def _jsbsim_config(aircraft: str, speed_kt: float, altitude_ft: float, airspeed: bool = False):
     """JSBSim's linearisation at the flown condition, its SISO channels (cached per worker); with ``airspeed``
     each channel's airspeed stream (the inputs' deviations scaled by the dynamic pressure ratio)."""
@@ -162,7 +170,7 @@ def _topic_histories(config, topics) -> dict:
 def fly(flight: dict) -> list[dict]:
     """Simulate and validate one flight; one row per channel."""
     simulator = flight.get("simulator", "ours")
-    closed = set()
+    closed, held = set(), set()
     if simulator == "second":
         import _other_simulators as other
 
@@ -178,6 +186,7 @@ def fly(flight: dict) -> list[dict]:
                                        options=jsbsim_options(**flight["options"]), seed=flight["seed"],
                                        turbulence=parse_turbulence("light" if flight["turbulent"] else None))
         histories = _topic_histories(config, flown.flight.topics)
+        held = set(JSBSIM_HELD)
     else:
         config = _config(flight["airframe"])
         if flight["kind"] == "nasa-run":            # one channel per run, as the real records
@@ -192,12 +201,14 @@ def fly(flight: dict) -> list[dict]:
     for name, ch in validator.results().channels.items():
         rows.append({"simulator": simulator, "kind": flight["kind"], "channel": name,
                      "airframe": flight.get("airframe", flight.get("aircraft", "")), "closed": name in closed,
+                     "held": name in held,
                      "limited_by": ch.limited_by, "diagnosed": bool(ch.diagnosis), "epsilon": ch.epsilon,
                      "points": ch.points_used, "message": ch.message, "seed": flight["seed"],
                      "nonlinear": ch.nonlinearity is not None, "compared": ch.nonlinearity_evidence is not None,
                      "warnings": list(ch.warnings),
                      "feedback": any("feedback loop" in w for w in ch.warnings),
                      "convention": bool(ch.conventions),
+                     "within": ch.within_tolerance is not None,
                      "lead_share": (ch.rate_leads_surface or {}).get("share", float("nan")),
                      "lead_p": (ch.rate_leads_surface or {}).get("p_value", float("nan")),
                      "coupling": any("other_inputs" in w for w in ch.warnings)})
@@ -230,18 +241,25 @@ def _verdict(rows: list[dict]) -> tuple[bool, str]:
     n = max(len(open_loop), 1)
     model = sum(r["limited_by"] == "model" for r in open_loop) / n
     named = sum(r["diagnosed"] for r in open_loop) / n
-    feedback = sum(r["feedback"] for r in open_loop) / n
+    free = [r for r in open_loop if not r.get("held")]      # no loop at all: a feedback warning is false there
+    feedback = sum(r["feedback"] for r in free) / max(len(free), 1)
+    held = [r for r in open_loop if r.get("held")]
     conventions = sum(r["convention"] for r in rows) / max(len(rows), 1)
+    within = sum(r["within"] for r in open_loop) / n
     warned = sum(r["feedback"] for r in closed) / len(closed) if closed else float("nan")
     wrong = sum(r["diagnosed"] for r in closed)
     compared = sum(r["compared"] for r in rows)
     nonlinear = sum(r["nonlinear"] for r in rows)
     ok = model <= 0.01 and named <= 0.01 and feedback <= 0.01 and (not closed or warned >= 0.95) and \
-        nonlinear <= 0.01 * max(compared, 1) and conventions <= 0.01
+        nonlinear <= 0.01 * max(compared, 1) and conventions <= 0.01 and within <= 0.01
     text = (f"open loop ({len(open_loop)} channels): model-limited {100 * model:.2f} %, a named effect "
-            f"{100 * named:.2f} %, a feedback warning {100 * feedback:.2f} % (goals <= 1 %); a convention error "
+            f"{100 * named:.2f} %, a feedback warning {100 * feedback:.2f} % of the {len(free)} without a loop "
+            f"(goals <= 1 %)" + (f" (the pilot's attitude hold between the manoeuvres, a true loop, warned on "
+                                 f"{sum(r['feedback'] for r in held)} of {len(held)})" if held else "") +
+            f"; a convention error "
             f"(sign, units, frame, clock) named on {100 * conventions:.2f} % of all channels (goal <= 1 %); called "
-            f"nonlinear {nonlinear} of {compared} channels with sweeps at two amplitudes")
+            f"nonlinear {nonlinear} of {compared} channels with sweeps at two amplitudes; a constant factor resolved "
+            f"within the tolerance on {100 * within:.2f} % (goal <= 1 %)")
     if closed:
         text += (f"; closed loop without the excitation ({len(closed)} channels): warned {100 * warned:.1f} % "
                  f"(goal >= 95 %), an effect named on {wrong}")
@@ -319,8 +337,8 @@ def main(argv=None) -> int:
     all_ok &= ok
     if args.show:
         for r in rows:
-            wrong = (r["feedback"] != r["closed"]) or r["convention"] or \
-                (not r["closed"] and (r["limited_by"] == "model" or r["diagnosed"] or r["nonlinear"]))
+            wrong = (r["feedback"] != r["closed"] and not r["held"]) or r["convention"] or \
+                (not r["closed"] and (r["limited_by"] == "model" or r["diagnosed"] or r["nonlinear"] or r["within"]))
             if wrong or r["coupling"]:
                 print(f"  {r['simulator']} {r['kind']} {r['channel']} {r['airframe']} seed {r['seed']}: "
                       f"{r['message'][:300]} {r['warnings']}")

@@ -4,6 +4,7 @@ Measured responses are ``truth x (1 + d)`` with ``d`` complex, each component of
 Bendat & Piersol random error of the coherence and averages given to the estimate), averaged over sweeps the way
 the estimator pools them. The truth is the model with a hidden effect in series.
 """
+import dataclasses
 import json
 import math
 
@@ -13,9 +14,10 @@ from scipy import stats
 
 from gap_validation.core import diagnosis, metrics
 from gap_validation.core.diagnosis import analyse_channel
-from gap_validation.core.effects import FitRange, describe_effect, effect_response
+from gap_validation.core.effects import FitRange, backlash_df, describe_effect, effect_response
 from gap_validation.core.estimator import SpectralEstimate
 from gap_validation.core.models import LinearModel
+from gap_validation.core.results import ConstantFactor
 
 W = np.geomspace(1.0, 40.0, 40)
 PITCH = LinearModel.from_spec({"numerator": [-133.7, -990.76], "denominator": [1.0, 23.37, 235.93]})
@@ -232,6 +234,7 @@ def test_clean_data_give_no_candidate(seed):
     assert found.candidates == []
     assert found.limited_by in ("none", "data")
     assert "model" not in found.frequency_flags
+    assert found.within_tolerance is None
 
 
 def test_small_effect_within_the_random_error_gives_no_candidate():
@@ -573,3 +576,64 @@ def test_a_refit_that_moves_a_mode_beyond_a_condition_change_is_not_offered():
     assert all(c["effect"] != "parameter_error" for c in found.candidates), found.message
     assert any(b.startswith("parameter_error (zero 7.41 -> 34") and "beyond what a parameter error moves" in b
                for b in found.beyond_range), found.beyond_range
+
+
+# ------------------------------------------------------------------------------------------------ within the tolerance
+
+
+def _at_amplitude(sweeps, amplitude):
+    return [dataclasses.replace(s, amplitude=amplitude) for s in sweeps]
+
+
+def test_free_play_within_the_tolerance_is_a_constant_factor_read_as_free_play():
+    # 0.015 rad of free play under 0.05 rad sweeps: Gelb & Vander Velde's N(0.3) = 0.920 at -10.2 deg at every
+    # frequency, epsilon about 0.1 < 0.15 but 15 noise scales: the model passes, the difference is said, not named
+    n = backlash_df(0.3)
+    est, sweeps = flight(PITCH.freqresp(W) * n, np.random.default_rng(31), coherence=0.97, n_per_sweep=30)
+    found = analyse_channel(PITCH, est, _at_amplitude(sweeps, 0.05), THRESHOLD, channel="pitch")
+    assert found.limited_by == "none" and found.candidates == []
+    factor = found.within_tolerance
+    assert factor.gain == pytest.approx(abs(n), abs=0.01)
+    assert factor.phase_deg == pytest.approx(math.degrees(np.angle(n)), abs=1.0)
+    assert factor.free_play_rad == pytest.approx(0.015, rel=0.1) and factor.amplitude == pytest.approx(0.05)
+    assert factor.min_rad_s == pytest.approx(1.0) and factor.max_rad_s == pytest.approx(40.0)
+    assert "within the tolerance, the data still resolve a constant factor" in found.message
+    assert "free play of 0.015 rad does at the flown amplitude 0.05" in found.message and "not named" in found.message
+    assert "10 deg behind" in found.message and "Bode" in found.message
+
+
+def test_a_gain_within_the_tolerance_is_not_said():
+    # a real 0.93, resolved (7 noise scales) and constant: the few per cent every real model is off, not said
+    est, sweeps = measure(PITCH, [{"type": "gain", "factor": 0.93}], 32, coherence=0.97, n_per_sweep=30)
+    found = analyse_channel(PITCH, est, _at_amplitude(sweeps, 0.05), THRESHOLD)
+    assert found.limited_by == "none" and found.within_tolerance is None and "constant factor" not in found.message
+    # the same with a constant 5 deg lag added (not a free play's: its gain would be 0.97 at 5 deg): said, unread
+    est, sweeps = flight(PITCH.freqresp(W) * 0.93 * np.exp(-0.087j), np.random.default_rng(32), coherence=0.97,
+                         n_per_sweep=30)
+    found = analyse_channel(PITCH, est, _at_amplitude(sweeps, 0.05), THRESHOLD)
+    assert found.within_tolerance.gain == pytest.approx(0.93, abs=0.01)
+    assert found.within_tolerance.phase_deg == pytest.approx(-5.0, abs=1.0)
+    assert found.within_tolerance.free_play_rad is None and "free play" not in found.message
+
+
+def test_what_no_constant_factor_explains_is_not_said():
+    # a 5 ms delay: 11 deg at 40 rad/s (epsilon 0.1), resolved, but its phase grows with frequency
+    est, sweeps = measure(PITCH, [{"type": "time_delay", "seconds": 0.005}], 33, coherence=0.97, n_per_sweep=30)
+    found = analyse_channel(PITCH, est, sweeps, THRESHOLD)
+    assert found.limited_by == "none" and found.within_tolerance is None
+
+
+def test_a_constant_factor_needs_a_decade_of_confident_frequencies():
+    # the free play again, confident only at 5-40 rad/s: over less than a decade a delay is as constant
+    est, sweeps = flight(PITCH.freqresp(W) * backlash_df(0.3), np.random.default_rng(34),
+                         coherence=np.where(W >= 5.0, 0.97, 0.3), n_per_sweep=30)
+    found = analyse_channel(PITCH, est, _at_amplitude(sweeps, 0.05), THRESHOLD)
+    assert found.within_tolerance is None
+    assert diagnosis.FACTOR_SPAN == 10.0
+
+
+def test_within_tolerance_goes_through_the_json():
+    factor = ConstantFactor(gain=0.92, phase_deg=-10.1, error=0.011, noise_scales=17.0, min_rad_s=1.4,
+                            max_rad_s=44.0, free_play_rad=0.0148, amplitude=0.05)
+    assert ConstantFactor.from_json_dict(json.loads(json.dumps(factor.to_json_dict()))) == factor
+

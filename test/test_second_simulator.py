@@ -17,7 +17,7 @@ pytestmark = pytest.mark.skipif(not (bench.FLIGHTS / "flightgen.py").exists(),
 
 #: The harder cases (a closed loop, a rate limit, a hold) are in test_second_simulator_hard.py: two files, so that
 #: the suite's two workers make them side by side.
-CASES = ("clean", "delay_pitch", "lag_roll")
+CASES = ("clean", "delay_pitch", "lag_roll", "backlash_roll")
 
 
 @pytest.fixture(scope="module")
@@ -46,6 +46,20 @@ def test_the_delay_is_named_with_its_value_and_its_band_ends_at_the_chirps_top(s
     for channel in bench.CHANNELS:
         top = result["channels"][channel]["band"][1]
         assert top <= 50.3 < top * step * 1.1, (channel, top)
+
+
+def test_free_play_within_the_tolerance_is_said_as_a_factor_and_not_named(scored):
+    """backlash_roll: 0.015 rad of free play under 0.05 rad sweeps keeps epsilon within 0.15 (its describing function
+    is 0.92 at -10 deg); the tool names nothing, says the constant factor the data resolve, and reads it as that free
+    play at the flown amplitude. The clean channels of the same flight say nothing of the kind."""
+    result, _ = scored["backlash_roll"]
+    roll = result["channels"]["roll"]
+    assert roll["top"] is None and roll["limited_by"] != "model"
+    assert roll["within"]["gain"] == pytest.approx(0.92, abs=0.02)
+    assert roll["within"]["phase_deg"] == pytest.approx(-10.2, abs=2.0)
+    assert roll["within"]["free_play_rad"] == pytest.approx(0.015, rel=0.1)
+    assert "not named from one amplitude" in roll["message"]
+    assert result["channels"]["pitch"]["within"] is None and result["channels"]["yaw"]["within"] is None
 
 
 def test_the_benchmark_counts_the_kinds_the_estimator_calls_sweeps():

@@ -90,6 +90,20 @@ def test_the_last_diagnosis_nonlinearity_verdict_is_a_value():
     task.forget_diagnosis()
     assert status()["nonlinearity"] == ""
 
+    # the full diagnosis' constant factor within the tolerance rides along the same way (value ``within_tolerance``)
+    from gap_validation.core.results import ConstantFactor
+    from gap_validation.ros.status import verdict_mapping
+
+    factor = ConstantFactor(gain=0.92, phase_deg=-10.1, error=0.011, noise_scales=17.0, min_rad_s=1.4,
+                            max_rad_s=44.0, free_play_rad=0.0148, amplitude=0.05)
+    assert status()["within_tolerance"] == "null"
+    task.take_diagnosis(None, None, within_tolerance=factor)
+    assert json.loads(status()["within_tolerance"])["free_play_rad"] == pytest.approx(0.0148)
+    mapping = verdict_mapping(task.run(ch, 0.0, router, lambda topic: 0, stale_timeout_s=1e9))
+    assert mapping["within_tolerance"]["gain"] == pytest.approx(0.92)
+    task.forget_diagnosis()
+    assert status()["within_tolerance"] == "null"
+
 
 def test_the_run_ends_on_silence_the_node_heard_not_on_old_reception_stamps():
     """A node stalled (start-up under load, a long computation) takes messages whose transport reception times

@@ -80,7 +80,7 @@ from gap_validation.core.effects import (EFFECTS, AmplitudeFitRange, EffectFit, 
                                          validate_effect)
 from gap_validation.core.models import LinearModel
 from gap_validation.core.numbers import significant
-from gap_validation.core.results import Band, Candidate
+from gap_validation.core.results import Band, Candidate, ConstantFactor
 
 if TYPE_CHECKING:  # pragma: no cover
     from gap_validation.core.estimator import SpectralEstimate
@@ -89,7 +89,7 @@ __all__ = [
     "ChannelDiagnosis", "analyse_channel", "fit_effects", "FittedCandidate", "cifer_weight", "cifer_cost",
     "bendat_piersol_random_error", "effective_random_error", "epsilon_noise_scale", "minimum_averages",
     "normalised_mismatch", "frequency_flags", "find_bands", "FAMILIES", "PAIRS", "SIGMA_FACTOR", "BIAS_ERROR",
-    "band_edge_warning", "information_criteria", "INDISTINGUISHABLE",
+    "band_edge_warning", "information_criteria", "INDISTINGUISHABLE", "constant_factor", "FACTOR_SPAN",
 ]
 
 #: Noise-only epsilon is Rayleigh with scale ``sigma = e/2``; ``P(eps > k sigma) = exp(-k^2/2)``: k = 4 gives
@@ -126,6 +126,10 @@ BOUND_TOLERANCE = 1e-3
 #: when the fit sits on a bound; still on it, the refit is beyond the search range.
 COEFFICIENT_RANGES = (10.0, 100.0)
 _MIN_POINTS = 4        # fewer confident points: no fitting
+#: A constant factor within the tolerance (:func:`constant_factor`) is said only over confident frequencies that span
+#: at least this ratio: a decade, the span over which Bode's gain-phase relation ties a linear element's phase to
+#: its gain slope (a delay of 10 ms is a constant 4 +- 2 deg over 5-12 rad/s).
+FACTOR_SPAN = 10.0
 _MAX_CANDIDATES = 6    # reported at most
 
 
@@ -173,6 +177,9 @@ class ChannelDiagnosis:
     convention : ConventionFit or None
         The sign, units or clock factor the data are the model times (:mod:`gap_validation.core.conventions`),
         leaving them within their errors: no physical diagnosis then.
+    within_tolerance : ConstantFactor or None
+        A channel within the tolerance whose data still resolve a difference that one constant complex factor
+        explains (:func:`constant_factor`; JSON ``within_tolerance``); None otherwise.
     """
 
     limited_by: str = "none"
@@ -187,6 +194,7 @@ class ChannelDiagnosis:
     nonlinearity_evidence: str | None = None
     amplitude: np.ndarray | None = None
     convention: object = None
+    within_tolerance: ConstantFactor | None = None
 
 
 # ------------------------------------------------------------------------------------------------ statistics
@@ -1420,6 +1428,8 @@ def analyse_channel(model: LinearModel, estimate: SpectralEstimate, sweeps: Sequ
             result.beyond_range = [f"{c.name} ({c.at_bound})" for c in _select(ev, base, fitted) if c.at_bound]
         if chosen:
             _winding_warning(model, chosen[0], result)
+    if fit and result.limited_by != "model" and result.convention is None:
+        result.within_tolerance = constant_factor(model, ev, base, amplitude, bias_error)
     edge = None if result.convention is not None else band_edge_warning(
         ev.w, base.eps_w, metrics.chordal_distance(p_model, ev.p_meas), base.k, ev.confident, sigma_factor)
     if edge:
@@ -1581,6 +1591,8 @@ def _message(ev: _Evidence, base: _Fit, result: ChannelDiagnosis, coherence_thre
             result.candidates[0].sentence
     if result.beyond_range:
         text += ("; beyond the search range (not offered as a fix): " + "; ".join(result.beyond_range))
+    if result.within_tolerance is not None:
+        text += "; " + _factor_sentence(result.within_tolerance)
     excluded = int(np.count_nonzero(~ev.confident))
     if excluded:
         missing = int(np.count_nonzero(~estimated))
@@ -1591,6 +1603,94 @@ def _message(ev: _Evidence, base: _Fit, result: ChannelDiagnosis, coherence_thre
         parts += [f"{rest} with fewer than {ev.min_dof} degrees of freedom"] if rest else []
         text += f" ({excluded} of {ev.w.size} frequencies excluded: {', '.join(parts)})"
     return text
+
+
+# ------------------------------------------------------------------------------------------------ within the tolerance
+
+
+def _factor_sentence(found: ConstantFactor) -> str:
+    """A :class:`ConstantFactor` in words, for the channel's message."""
+    text = (f"within the tolerance, the data still resolve a constant factor ({found.noise_scales:.0f} noise "
+            f"scales): the response is {found.gain:.3g} x the model's, {abs(found.phase_deg):.0f} deg "
+            f"{'behind' if found.phase_deg < 0 else 'ahead'} at every confident frequency "
+            f"({_range(found.min_rad_s, found.max_rad_s)}, +-{found.error:.2g}), which no linear element gives "
+            f"(Bode's gain-phase relation)")
+    if found.free_play_rad is not None:
+        text += (f": free play of {found.free_play_rad:.2g} rad does at the flown amplitude {found.amplitude:.2g} "
+                 f"(not named from one amplitude: sweeps at two amplitudes would tell)")
+    return text
+
+
+def constant_factor(model: LinearModel, ev: _Evidence, base: _Fit,
+                    amplitude: Callable[[np.ndarray], np.ndarray] | None = None,
+                    bias_error: float = BIAS_ERROR) -> ConstantFactor | None:
+    """A resolved difference inside the tolerance, when one constant complex factor explains it.
+
+    A channel whose epsilon stays within the threshold may still differ from the model by more than the data's
+    errors (a free play's 0.92 x gain and 10 deg lag at every frequency: epsilon 0.1 against a random error of
+    0.01). Naming an effect there would name the few per cent every real model is off, so only the simplest
+    statement is made, and only when it is resolved, sufficient and more than a gain:
+
+    * some confident frequency is beyond ``SIGMA_FACTOR`` noise scales (the model alone is not within the errors);
+    * ``c``, the inverse-variance mean of ``P_meas / P_model`` over the confident frequencies, differs from 1 by
+      more than ``SIGMA_FACTOR`` standard errors, the error of ``c`` never below ``bias_error``: a systematic
+      error (interpolation, a timestamp offset) is common to all frequencies and does not average down;
+    * ``c`` times the model leaves every confident frequency within ``SIGMA_FACTOR`` noise scales;
+    * the confident frequencies span at least :data:`FACTOR_SPAN` (a decade): over less, a delay or a lag is a
+      constant factor within the errors too, and "the same at every frequency" would say nothing;
+    * its phase differs from 0 by more than ``SIGMA_FACTOR`` errors. A real gain a few per cent off is what every
+      real model is (a mass, an inertia, the dynamic pressure: JSBSim's linearisations are 4-9 % off in gain on
+      14 % of their channels), inside the tolerance by design; a constant phase over a decade with a flat gain is
+      no linear element's (Bode's gain-phase relation ties a linear element's phase to its gain slope).
+
+    Parameters
+    ----------
+    model : LinearModel
+        The channel's model (bound to the flown amplitude).
+    ev : _Evidence
+        The averaged estimate and its statistics.
+    base : _Fit
+        The model's fit to it.
+    amplitude : callable or None
+        Input amplitude flown per frequency (:func:`flown_model`), for the free-play reading.
+    bias_error : float
+        Systematic error floor, relative.
+
+    Returns
+    -------
+    ConstantFactor or None
+    """
+    u = ev.confident & np.isfinite(ev.p_meas)
+    if base.worst < 0 or np.count_nonzero(u) < _MIN_POINTS or base.k_max <= ev.sigma_factor or \
+            ev.w[u].max() < FACTOR_SPAN * ev.w[u].min():
+        return None
+    through, _ = ev.expected(model.freqresp)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = ev.p_meas[u] / through[u]
+    weight = 1.0 / np.maximum((2.0 * ev.sigma[u]) ** 2, 1e-12)
+    if not np.all(np.isfinite(ratio)):
+        return None
+    c = complex(np.sum(weight * ratio) / np.sum(weight))
+    error = math.hypot(1.0 / math.sqrt(float(np.sum(weight))), bias_error)
+    scales = abs(c - 1.0) / error
+    phase = math.atan2(c.imag, c.real)
+    if scales <= ev.sigma_factor or abs(phase) <= ev.sigma_factor * error or \
+            ev.fit(lambda w: c * model.freqresp(w)).k_max > ev.sigma_factor:
+        return None
+    w = ev.w[u]
+    found = ConstantFactor(gain=abs(c), phase_deg=math.degrees(phase), error=error,
+                           noise_scales=scales, min_rad_s=float(w.min()), max_rad_s=float(w.max()))
+    flown = None if amplitude is None else np.asarray(amplitude(w), float)
+    if flown is not None and np.all(np.isfinite(flown) & (flown > 0)) and 0.0 < abs(c) < 1.0:
+        from scipy.optimize import brentq
+
+        from gap_validation.core.effects import backlash_df
+
+        a = float(np.mean(flown))
+        ratio_b = brentq(lambda r: abs(complex(backlash_df(r))) - abs(c), 1e-9, 2.0 - 1e-9)
+        if abs(complex(backlash_df(ratio_b)) - c) <= ev.sigma_factor * error:
+            found.free_play_rad, found.amplitude = ratio_b * a, a
+    return found
 
 
 # ------------------------------------------------------------------------------------------------ nonlinear effects

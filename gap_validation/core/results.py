@@ -369,6 +369,9 @@ class ChannelResult:
     # fits that sat on a search bound (never offered as a fix), said when no offered fix explains the mismatch:
     # "gain (factor at -10 (lower bound))"
     beyond_range: list[str] = field(default_factory=list)
+    # within the tolerance, a difference the data resolve and one constant factor explains
+    # (core.diagnosis.ConstantFactor), None otherwise
+    within_tolerance: Any = None
     # a sign, units, the body frame or a clock (issue 23): core.conventions.Convention, none when the config is right
     conventions: list = field(default_factory=list)
     # closed loop and coupled surfaces (issue 13): per frequency, only with the config keys
@@ -452,6 +455,8 @@ class ChannelResult:
             "nonlinearity_evidence": self.nonlinearity_evidence,
             "input_amplitudes": [_num(a) for a in self.input_amplitudes],
             "beyond_range": list(self.beyond_range),
+            "within_tolerance": None if self.within_tolerance is None else {
+                k: _num(v) for k, v in self.within_tolerance.to_json_dict().items()},
             "conventions": [c.to_json_dict() for c in self.conventions],
             "dynamic_pressure_ratio": None if self.dynamic_pressure_ratio is None else {
                 k: _num(v) if k != "clipped" else int(v) for k, v in self.dynamic_pressure_ratio.items()},
@@ -511,6 +516,7 @@ class ChannelResult:
                  input_amplitudes=[float(a) if a is not None else float("nan")
                                    for a in data.get("input_amplitudes") or []],
                  beyond_range=[str(b) for b in data.get("beyond_range") or []],
+                 within_tolerance=_within_tolerance(data.get("within_tolerance")),
                  conventions=[Convention.from_json_dict(c) for c in data.get("conventions") or []],
                  dynamic_pressure_ratio=data.get("dynamic_pressure_ratio"),
                  rate_leads_surface=data.get("rate_leads_surface"))
@@ -551,6 +557,74 @@ def _caveat(data: dict) -> str:
     if data.get("margins_guaranteed") is False and data.get("gain_margin_db") is not None:
         return note[len(prefix):] if note.startswith(prefix) else note or "not guaranteed"
     return ""
+
+
+@dataclass
+class ConstantFactor:
+    """A difference inside the tolerance that the data resolve and one constant complex factor explains.
+
+    Attributes
+    ----------
+    gain : float
+        ``|c|``: the measured response over the model's, the same at every confident frequency.
+    phase_deg : float
+        ``angle(c)`` [deg]; negative: the measured response lags the model's.
+    error : float
+        Standard error of ``c`` (relative; in rad for the phase), the systematic floor included.
+    noise_scales : float
+        ``|c - 1| / error``.
+    min_rad_s, max_rad_s : float
+        The confident frequencies it was fitted over [rad/s].
+    free_play_rad : float or None
+        The total free play whose describing function at the flown amplitude has this gain *and* this phase
+        (within the decision's noise scales), else None. Said, never named: one amplitude cannot show amplitude
+        dependence (:mod:`gap_validation.core.nonlinearity`). Found by
+        :func:`gap_validation.core.diagnosis.constant_factor`.
+    amplitude : float or None
+        Mean input amplitude flown over those frequencies [input units].
+    """
+
+    gain: float
+    phase_deg: float
+    error: float
+    noise_scales: float
+    min_rad_s: float
+    max_rad_s: float
+    free_play_rad: float | None = None
+    amplitude: float | None = None
+
+    def to_json_dict(self) -> dict:
+        """JSON ``within_tolerance``.
+
+        Returns
+        -------
+        dict
+        """
+        return {"gain": self.gain, "phase_deg": self.phase_deg, "error": self.error,
+                "noise_scales": self.noise_scales, "min_rad_s": self.min_rad_s, "max_rad_s": self.max_rad_s,
+                "free_play_rad": self.free_play_rad, "amplitude": self.amplitude}
+
+    @classmethod
+    def from_json_dict(cls, data: dict) -> "ConstantFactor":
+        """The inverse of :meth:`to_json_dict`.
+
+        Parameters
+        ----------
+        data : dict
+            JSON ``within_tolerance``.
+
+        Returns
+        -------
+        ConstantFactor
+        """
+        return cls(**{k: (None if data.get(k) is None else float(data[k])) for k in
+                      ("gain", "phase_deg", "error", "noise_scales", "min_rad_s", "max_rad_s", "free_play_rad",
+                       "amplitude")})
+
+
+def _within_tolerance(data: Any) -> ConstantFactor | None:
+    """JSON ``within_tolerance`` read back (None when absent)."""
+    return ConstantFactor.from_json_dict(data) if isinstance(data, dict) else None
 
 
 @dataclass

@@ -541,6 +541,7 @@ class OnlineValidator:
         result.bands = list(found.bands)
         result.diagnosis = list(found.candidates)
         result.beyond_range = list(found.beyond_range)
+        result.within_tolerance = found.within_tolerance
         result.warnings.extend(w for w in found.warnings if w not in result.warnings)
         result.margins_caveat = found.margins_caveat if result.margins.guaranteed else ""
         _nonlinearity_result(found, sweeps, result)

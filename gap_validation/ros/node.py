@@ -440,7 +440,7 @@ class ValidatorNode(Node):
         for name, ch in result.channels.items():
             if (ch.epsilon is not None or (ch.mimo is not None and ch.nu_gap is not None)) and name in self._tasks:
                 self._tasks[name].take_diagnosis(ch.diagnosis[0] if ch.diagnosis else None, ch.nonlinearity,
-                                                 ch.warnings, ch.margins_caveat)
+                                                 ch.warnings, ch.margins_caveat, ch.within_tolerance)
 
     def wait_for_diagnosis(self, timeout_s: float = 60.0) -> bool:
         """Block until the running full diagnosis (if any) is done and take its result (tests, tools)."""

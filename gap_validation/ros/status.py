@@ -197,6 +197,7 @@ def channel_status(result: ChannelResult, *, warn_epsilon: float = WARN_EPSILON,
     values.append(("margins_note", result.margins_text() or ""))
     values.append(("nonlinearity", nonlinearity or result.nonlinearity or ""))
     values.append(("conventions", json.dumps([c.to_json_dict() for c in result.conventions])))
+    values.append(("within_tolerance", json.dumps(data.get("within_tolerance"))))
     values.append(("dynamic_pressure_ratio", json.dumps(data.get("dynamic_pressure_ratio"))))
     values.append(("rate_leads_surface", json.dumps(data.get("rate_leads_surface"))))
     for key, value in (extra_values or {}).items():
@@ -242,7 +243,8 @@ def channel_status(result: ChannelResult, *, warn_epsilon: float = WARN_EPSILON,
 #: The status values a channel's ``~/<channel>/verdict`` carries (numbers as numbers, lists as lists): what the
 #: model is worth, not the ages and counts that change with every message.
 VERDICT_KEYS = _JSON_VALUES + ("nu_gap_frequency_rad_s", "diagnosis", "diagnosis_effects", "diagnosis_epsilon",
-                               "margins_guaranteed", "margins_note", "warnings", "nonlinearity", "conventions")
+                               "margins_guaranteed", "margins_note", "warnings", "nonlinearity", "conventions",
+                               "within_tolerance")
 
 
 def verdict_mapping(status: ChannelStatus) -> dict:
@@ -324,6 +326,8 @@ class ChannelTask:
         That diagnosis' result's warnings (those the cheap result lacks join the status's ``warnings``).
     diagnosis_caveat : str
         That diagnosis' margins caveat (the status's ``margins_guaranteed``, ``margins_note``).
+    within_tolerance : ConstantFactor or None
+        That diagnosis' constant factor resolved within the tolerance (value ``within_tolerance``).
     """
 
     def __init__(self, name: str, channel: ChannelConfig):
@@ -337,6 +341,7 @@ class ChannelTask:
         self.nonlinearity: str | None = None
         self.diagnosis_warnings: list[str] = []
         self.diagnosis_caveat = ""
+        self.within_tolerance = None
         self._run_open = False
 
     def run_ended(self, now_s: float, timeout_s: float) -> bool:
@@ -377,7 +382,7 @@ class ChannelTask:
         self._seen_count = {}
 
     def take_diagnosis(self, candidate: Candidate | None, nonlinearity: str | None = None,
-                       warnings: Sequence[str] = (), margins_caveat: str = "") -> None:
+                       warnings: Sequence[str] = (), margins_caveat: str = "", within_tolerance=None) -> None:
         """A full diagnosis finished for the current model; ``candidate`` is its top (None: no effect helps).
 
         Parameters
@@ -391,14 +396,17 @@ class ChannelTask:
             winding-number condition) join the cheap result's in :meth:`run`, as in replay's result.
         margins_caveat : str
             The full result's margins caveat (the same).
+        within_tolerance : ConstantFactor, optional
+            The full result's constant factor resolved within the tolerance (JSON ``within_tolerance``).
         """
         self.top, self.diagnosed, self.nonlinearity = candidate, True, nonlinearity
         self.diagnosis_warnings, self.diagnosis_caveat = list(warnings), margins_caveat
+        self.within_tolerance = within_tolerance
 
     def forget_diagnosis(self) -> None:
         """The model or the spectra changed: the last diagnosis no longer holds."""
         self.top, self.diagnosed, self.nonlinearity = None, False, None
-        self.diagnosis_warnings, self.diagnosis_caveat = [], ""
+        self.diagnosis_warnings, self.diagnosis_caveat, self.within_tolerance = [], "", None
 
     def update_seen(self, router: MessageRouter, arrivals: Mapping[str, float], now_s: float,
                     taken: Mapping[str, float] | None = None) -> None:
@@ -493,6 +501,8 @@ class ChannelTask:
             result = dataclasses.replace(result, warnings=list(result.warnings) + added,
                                          margins_caveat=result.margins_caveat or (
                                              self.diagnosis_caveat if result.margins.guaranteed else ""))
+        if self.within_tolerance is not None and result.within_tolerance is None:
+            result = dataclasses.replace(result, within_tolerance=self.within_tolerance)
         mimo = getattr(self.channel, "is_mimo", False)
         extra = {**ages, "samples_input": sum(router.samples(self.name, s) for s in self.channel.input_streams)
                  if mimo else router.samples(self.name, "input"),

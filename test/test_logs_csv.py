@@ -174,7 +174,7 @@ def test_a_cell_that_is_not_a_number_is_nan_and_the_rest_exact(tmp_path, topics)
 def test_the_fast_and_the_cell_by_cell_parser_agree(tmp_path, topics, monkeypatch):
     path = write_csv(tmp_path, topics[:1])[0]
     fast = open_log(path).read({"imu": ["r", "p"]})["imu"]
-    monkeypatch.setattr(CsvFile, "_load_fast", lambda self, columns: None)
+    monkeypatch.setattr(CsvFile, "_load_fast", lambda self, columns, lines: None)
     slow = open_log(path).read({"imu": ["r", "p"]})["imu"]
     assert fast.fields == slow.fields == ("r", "p")
     assert np.array_equal(fast.values, slow.values) and np.array_equal(fast.t_s, slow.t_s)

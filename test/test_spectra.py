@@ -63,6 +63,19 @@ def test_noise_free_record_gives_the_model_through_the_estimator():
     assert np.max(np.abs(est.response[ok] / response(W[ok]) - 1.0)) < 5e-3
 
 
+def test_a_singular_band_leaves_only_itself_unknown():
+    """The bands are solved together; one whose regressors are singular is NaN and the others are as before."""
+    u, y = noisy_record(np.random.default_rng(0), noise=0.0)
+    sums, _ = estimate([(u, y)])
+    before, _ = expected_estimate(sums, W, 0.1, response)
+    k = int(np.flatnonzero(np.isfinite(before))[3])
+    sums.zf[k] = 0.0
+    after, error = expected_estimate(sums, W, 0.1, response)
+    assert np.isnan(after[k]) and error[k] == 0.0
+    others = np.isfinite(before) & (np.arange(W.size) != k)
+    np.testing.assert_array_equal(after[others], before[others])
+
+
 def test_error_statistic_follows_the_f_distribution():
     # |H_est - H|^2 / variance ~ F(2, 2 dof): its 95 % quantile is exceeded 5 % of the time; the neighbour floor
     # on the noise (solve_bands) only ever raises the variance, so a little less (3.4 % here; 5.0 % without it)

@@ -19,17 +19,22 @@ increasing time.
 A bad input never discards what was computed: an unreadable bag, a topic of the wrong type or a damaged record
 is reported (one line naming the file and topic) and the other bags, topics and records are still validated.
 
-Flight logs (``.ulg``, ``.bin``, ``.csv``; :mod:`gap_validation.logs`) go the same way from the router on. A log is
-read with :meth:`~gap_validation.logs.base.LogFile.read` for the topics and fields the config names (a config topic
-``/vehicle_angular_velocity`` is the log's ``vehicle_angular_velocity``, ``/IMU[1]`` its ``IMU[1]``), the series of
-all its topics are merged in time order (each topic keeping its logged order) and pushed through
-``MessageRouter.on_values_batch`` as raw values: the router applies each stream's offset, scale and
-``time_offset_s``, as for bags. The CSV files of one directory are one flight (one file per topic, one clock). A log
-is ordered among the bags by its first sample and shifted by the same rule. Its logging is checked
-(:mod:`gap_validation.logs.checks`): a topic logged too slowly for the channel's band, irregular stamps, values
-that are not numbers, each a warning with the fix in words; a topic the log lacks is a warning listing what it
-has; a field a topic lacks an error naming both (that stream skipped, the rest validated); a damaged log its
-``damage`` line as an error, with what came before it validated.
+Flight logs (``.ulg``, ``.bin``, ``.csv``; :mod:`gap_validation.logs`) go the same way from the router on, streamed
+as bags are. A log gives the topics and fields the config names (a config topic ``/vehicle_angular_velocity`` is the
+log's ``vehicle_angular_velocity``, ``/IMU[1]`` its ``IMU[1]``) in blocks
+(:meth:`~gap_validation.logs.base.LogFile.blocks`: a ULog per 1 MiB block of the file, a DataFlash log per 1 MiB
+window of its memory map, a CSV file per 1 MiB of rows); the blocks of all its topics are merged in time order as
+they come (:func:`~gap_validation.logs.merge.merge_in_time_order`: the order of a stable sort of all the samples,
+each topic keeping its logged order) and pushed through ``MessageRouter.on_values_batch`` as raw values, a run at a
+time: the router applies each stream's offset, scale and ``time_offset_s``, as for bags. Memory holds a block or
+two of samples, not the flight (``benchmarks/bench_replay_memory.py --format ulog|dataflash|csv``). The CSV files of
+one directory are one flight (one file per topic, one clock), read side by side. A log is ordered among the bags by
+its first sample (a ULog: its earliest stamp; a DataFlash log, a CSV flight: the earliest of its first block) and
+shifted by the same rule. Its logging is checked (:mod:`gap_validation.logs.checks`, gathered block by block and
+reported when the log was replayed): a topic logged too slowly for the channel's band, irregular stamps, values that
+are not numbers, each a warning with the fix in words; a topic the log lacks is a warning listing what it has; a
+field a topic lacks an error naming both (that stream skipped, the rest validated); a damaged log its ``damage``
+line as an error, with what came before it validated.
 """
 from __future__ import annotations
 
@@ -39,7 +44,7 @@ import time
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
@@ -50,8 +55,9 @@ from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.fields import FieldError
 from gap_validation.core.results import ValidationResult
 from gap_validation.core.validator import OnlineValidator
-from gap_validation.logs.base import LogFile, is_log, open_log
-from gap_validation.logs.checks import check_stamps, rate_warning
+from gap_validation.logs.base import LogBlocks, LogFile, LogSeries, is_log, open_log
+from gap_validation.logs.checks import StampStats, rate_warning
+from gap_validation.logs.merge import merge_in_time_order
 from gap_validation.messages.decoding import TopicDecoder, Undecodable
 from gap_validation.messages.router import MessageRouter, note_saturation, stamp_seconds
 
@@ -388,9 +394,38 @@ class _BagSource:
 LOG_CHUNK = 65536
 
 
+class _LogTopic:
+    """A config topic read from a log: its routes, the column of its series each route reads (-1: the topic lacks
+    the field, NaN), its logging checks gathered block by block; ``samples`` as the reader knows them (None: known
+    once read; the merge takes only these), ``count`` for the progress (the topic table's where the reader does not
+    know: a CSV file's lines)."""
+
+    __slots__ = ("name", "log", "routes", "columns", "stamps", "not_finite", "samples", "count")
+
+    def __init__(self, name: str, log: LogFile, routes, fields: tuple[str, ...], samples: int | None):
+        self.name, self.log, self.routes, self.samples = name, log, routes, samples
+        self.count = samples if samples is not None else log.topics[name].count if name in log.topics else 0
+        self.columns = [fields.index(r.spec.field) if r.spec.field in fields else -1 for r in routes]
+        self.stamps = StampStats()
+        self.not_finite = np.zeros(len(routes), np.int64)
+
+    def take(self, series: LogSeries) -> tuple[np.ndarray, np.ndarray]:
+        """A block's samples as ``(t [s], raw values, one column per route)``, counted for the checks."""
+        values = np.full((series.t_s.size, len(self.routes)), np.nan)
+        for j, col in enumerate(self.columns):
+            if col >= 0:
+                values[:, j] = series.values[:, col]
+        t = np.asarray(series.t_s, dtype=float)
+        self.stamps.add(t)
+        self.not_finite += np.count_nonzero(~np.isfinite(values), axis=0)
+        return t, values
+
+
 class _LogFlight:
     """One flight from log files (a ``.ulg``, a ``.bin``, or the CSV files of one directory): the config's topics
-    and fields read at :meth:`load` (checked, with the logging checks), then routed in time order by :meth:`run`.
+    and fields checked at :meth:`load` (each log opened for its blocks, :meth:`LogFile.blocks`), then streamed by
+    :meth:`run`: block by block, merged in time order (:func:`~gap_validation.logs.merge.merge_in_time_order`) into
+    the router, the logging checks gathered on the way and reported at the end.
 
     ``skipped`` holds the ``(channel, stream)`` whose field a topic lacks: their column is NaN (the router counts
     those samples as not finite), the error names file, topic, field and the fields it has.
@@ -398,16 +433,22 @@ class _LogFlight:
 
     def __init__(self, paths: list[Path], router: MessageRouter, config: ValidationConfig, report: BagReport):
         self.paths, self.router, self.config, self.report = paths, router, config, report
-        self.series: dict[str, tuple[np.ndarray, np.ndarray]] = {}     # config topic -> (t [s], raw per route)
+        self.logs: list[LogFile] = []
+        self.topics: list[_LogTopic] = []                               # in the merge's order
+        self.streams: list[tuple[LogBlocks, list[int]]] = []             # blocks and their topics' indices
         self.skipped: set[tuple[str, str]] = set()
         self.sources: list[str] = []
         self.start_time_s = math.inf
+        self._damaged: set[int] = set()                                 # logs whose damage was reported
 
     def count(self, topics: Sequence[str]) -> int:
-        return sum(t.size for topic, (t, _) in self.series.items() if topic in topics)
+        return sum(t.count or 0 for t in self.topics if "/" + t.name in topics)
 
     def close(self) -> None:
-        """Nothing stays open after :meth:`load`."""
+        """Close the log files."""
+        self.streams = []
+        for log in self.logs:
+            log.close()
 
     def _open(self, path: Path) -> LogFile:
         """The log file; a CSV file with the ``time_column`` its topic's streams name."""
@@ -423,155 +464,169 @@ class _LogFlight:
         return CsvFile(path, time_column=columns.pop() if columns else None)
 
     def load(self) -> "_LogFlight":
-        """Open every file, read the config's topics and fields, check them (warnings and errors in the report).
+        """Open every file and its blocks of the config's topics and fields, check them (warnings and errors in the
+        report; the logging checks come with :meth:`run`).
 
         Raises
         ------
         DataError
             None of the configured topics is in the log(s) (and nothing else went wrong first).
         """
-        logs: list[LogFile] = []
+        try:
+            return self._load()
+        except BaseException:
+            self.close()
+            raise
+
+    def _load(self) -> "_LogFlight":
         for path in self.paths:
             try:
-                logs.append(self._open(path))
+                self.logs.append(self._open(path))
             except DataError as err:
                 self.report.errors.append(str(err))
+        logs = self.logs
         asked = {}                                   # log topic -> every field the config reads from it
         for topic, routes in self.router.routes.items():
             asked[topic[1:] if topic.startswith("/") else topic] = list(dict.fromkeys(r.spec.field for r in routes))
-        try:
-            first = {id(log): self._first_read(log, asked) for log in logs}
-            have = {}
-            for log in logs:
-                for name, info in log.topics.items():
-                    have.setdefault(name, (log, info))
-            wanted: dict[int, dict[str, list[str]]] = {}
-            for topic, routes in self.router.routes.items():
-                name = topic[1:] if topic.startswith("/") else topic
-                feeds = ", ".join(f"{r.channel}.{r.stream}" for r in routes)
-                if name not in have and name.endswith(":0") and name[:-2] in have:
-                    have[name] = have[name[:-2]]          # ULog instance 0 is the plain name (pyulog's naming)
-                if name not in have:
-                    if logs:
-                        self.report.warnings.append(
-                            f"{self._label()}: topic {name} ({feeds}) is not in the log (it has: "
+        first = {id(log): self._first_blocks(log, asked) for log in logs}
+        have = {}
+        for log in logs:
+            for name, info in log.topics.items():
+                have.setdefault(name, (log, info))
+        wanted: dict[int, dict[str, list[str]]] = {}
+        for topic, routes in self.router.routes.items():
+            name = topic[1:] if topic.startswith("/") else topic
+            feeds = ", ".join(f"{r.channel}.{r.stream}" for r in routes)
+            if name not in have and name.endswith(":0") and name[:-2] in have:
+                have[name] = have[name[:-2]]          # ULog instance 0 is the plain name (pyulog's naming)
+            if name not in have:
+                if logs:
+                    self.report.warnings.append(
+                        f"{self._label()}: topic {name} ({feeds}) is not in the log (it has: "
+                        f"{', '.join(sorted(have)) or 'none'})")
+                continue
+            log, info = have[name]
+            fields = wanted.setdefault(id(log), {}).setdefault(name, [])
+            for r in routes:
+                if r.spec.field in info.fields:
+                    if r.spec.field not in fields:
+                        fields.append(r.spec.field)
+                else:
+                    self.skipped.add((r.channel, r.stream))
+                    self.report.errors.append(f"{log.missing_field(name, r.spec.field)}; {r.channel}.{r.stream} "
+                                              f"skipped")
+        if logs and not wanted and not self.report.errors:
+            raise DataError(f"{self._label()}: none of the configured topics "
+                            f"({', '.join(t.lstrip('/') for t in self.router.topics)}) is in the log (it has: "
                             f"{', '.join(sorted(have)) or 'none'})")
-                    continue
-                log, info = have[name]
-                fields = wanted.setdefault(id(log), {}).setdefault(name, [])
-                for r in routes:
-                    if r.spec.field in info.fields:
-                        if r.spec.field not in fields:
-                            fields.append(r.spec.field)
-                    else:
-                        self.skipped.add((r.channel, r.stream))
-                        self.report.errors.append(f"{log.missing_field(name, r.spec.field)}; {r.channel}.{r.stream} "
-                                                  f"skipped")
-            if logs and not wanted and not self.report.errors:
-                raise DataError(f"{self._label()}: none of the configured topics "
-                                f"({', '.join(t.lstrip('/') for t in self.router.topics)}) is in the log (it has: "
-                                f"{', '.join(sorted(have)) or 'none'})")
-            for log in logs:
-                if id(log) in wanted:
-                    self._read(log, wanted[id(log)], first[id(log)])
-        finally:
-            for log in logs:
-                log.close()
+        for log in logs:
+            if id(log) in wanted:
+                self._open_blocks(log, wanted[id(log)], first[id(log)])
         return self
 
     @staticmethod
-    def _first_read(log: LogFile, asked: dict[str, list[str]]) -> dict | None:
-        """Every field the config asks of ``log`` in one read (one pass over a ULog gives its topics too), or None
-        when that fails (a field a topic lacks: then the fields are checked one by one and read again)."""
+    def _first_blocks(log: LogFile, asked: dict[str, list[str]]) -> LogBlocks | None:
+        """The blocks of every field the config asks of ``log`` (one pass over a ULog gives its topics too), or None
+        when that fails (a field a topic lacks: then the fields are checked one by one and asked again)."""
         try:
-            return log.read(asked)
+            return log.blocks(asked)
         except DataError:
             return None
 
     def _label(self) -> str:
         return self.report.path
 
-    def _read(self, log: LogFile, wanted: dict[str, list[str]], got: dict | None = None) -> None:
-        """Read ``wanted`` from one log into :attr:`series` (raw values, one column per route), with the checks;
-        ``got``: what a first read gave already."""
+    def _open_blocks(self, log: LogFile, wanted: dict[str, list[str]], blocks: LogBlocks | None = None) -> None:
+        """The blocks of ``wanted`` from one log (``blocks``: what the first ask gave already), its topics added to
+        the merge; its damage, when known already, an error."""
         try:
-            if got is None:
-                got = log.read({name: fields for name, fields in wanted.items() if fields})
+            if blocks is None:
+                blocks = log.blocks({name: fields for name, fields in wanted.items() if fields})
         except DataError as err:
             self.report.errors.append(str(err))
             return
         finally:
-            if log.damage:
-                self.report.errors.append(log.damage)
+            self._note_damage(log)
         self.sources.append(str(log.path))
-        for name, series in got.items():
-            topic = "/" + name
-            routes = self.router.routes[topic]
-            values = np.full((series.t_s.size, len(routes)), np.nan)
-            for j, r in enumerate(routes):
-                if r.spec.field in series.fields:
-                    values[:, j] = series.values[:, series.fields.index(r.spec.field)]
-            t = np.asarray(series.t_s, dtype=float)
-            self.series[topic] = (t, values)
-            finite = t[np.isfinite(t)]
-            if finite.size:
-                self.start_time_s = min(self.start_time_s, float(finite.min()))
-            self.report.warnings.extend(self._checks(log, name, t, values, routes))
+        indices = []
+        for name in blocks.topics:
+            if name not in wanted:
+                continue
+            indices.append(len(self.topics))
+            self.topics.append(_LogTopic(name, log, self.router.routes["/" + name], blocks.fields[name],
+                                         blocks.counts.get(name)))
+        if indices:
+            self.streams.append((blocks, indices))
+            self.start_time_s = min(self.start_time_s, blocks.start_time_s)
 
-    def _checks(self, log: LogFile, name: str, t: np.ndarray, values: np.ndarray, routes) -> list[str]:
+    def _note_damage(self, log: LogFile) -> None:
+        if log.damage and id(log) not in self._damaged:
+            self._damaged.add(id(log))
+            self.report.errors.append(log.damage)
+
+    def _checks(self, topic: _LogTopic) -> list[str]:
         """The logging checks of one topic: its rate against the band of the channels it feeds, its stamps, its
         values that are not numbers."""
         out = []
+        log, name, routes = topic.log, topic.name, topic.routes
         where = f"{log.path}: topic {name}"
-        stamps = check_stamps(t)
+        stamps = topic.stamps.result()
         irregular = stamps.warning(where)
         if irregular:
             out.append(irregular)
         banded = [r for r in routes if r.stream not in ("trigger", "airspeed") and (r.channel, r.stream)
                   not in self.skipped]
-        if banded and t.size > 1:
+        if banded and stamps.samples > 1:
             top = max(self.config.channels[r.channel].frequencies.max_rad_s for r in banded)
             feeds = ", ".join(f"{r.channel}.{r.stream}" for r in banded)
             slow = rate_warning(log.format, name, stamps.rate_hz, top, feeds)
             if slow:
                 out.append(f"{log.path}: {slow}")
         for j, r in enumerate(routes):
-            bad = int(np.count_nonzero(~np.isfinite(values[:, j]))) if (r.channel, r.stream) not in self.skipped else 0
+            bad = int(topic.not_finite[j]) if (r.channel, r.stream) not in self.skipped else 0
             if bad:
-                out.append(f"{where}: {bad} of {t.size} values of {r.spec.field} are not numbers (counted as bad "
-                           f"samples of {r.channel}.{r.stream})")
+                out.append(f"{where}: {bad} of {stamps.samples} values of {r.spec.field} are not numbers (counted as "
+                           f"bad samples of {r.channel}.{r.stream})")
         return out
 
+    def _stream(self, blocks: LogBlocks, indices: list[int]) -> Iterator[dict[int, tuple[np.ndarray, np.ndarray]]]:
+        """A log's blocks as the merge takes them: topic index -> (t, raw values per route)."""
+        mine = [(k, self.topics[k]) for k in indices]
+        for block in blocks:
+            yield {k: topic.take(block[topic.name]) for k, topic in mine if topic.name in block}
+
     def run(self, router: MessageRouter, fast: bool, progress: Callable[[int], None], ticks: "_Ticks | None") -> None:
-        """Route every topic's samples in time order (each topic in its logged order) through
-        ``on_values_batch``, the time shift set by the first sample."""
-        names = list(self.series)
-        if not names:
+        """Route every topic's samples in time order (each topic in its logged order) through ``on_values_batch``,
+        block by block, the time shift set by the first sample; then the logging checks and a damage found on the
+        way."""
+        if not self.topics:
             return
-        keys = []
-        for name in names:
-            key = np.fmax.accumulate(self.series[name][0])        # non-decreasing: a topic keeps its order
-            keys.append(np.where(np.isnan(key), -np.inf, key))
-        order = np.argsort(np.concatenate(keys), kind="stable")
-        which = np.concatenate([np.full(self.series[n][0].size, k, np.int64) for k, n in enumerate(names)])[order]
-        t_all = np.concatenate([self.series[n][0] for n in names])[order]
-        values = [self.series[n][1] for n in names]
+        names = ["/" + t.name for t in self.topics]
         _set_time_offset(router, self.report, self.start_time_s if math.isfinite(self.start_time_s) else 0.0)
         chunk = LOG_CHUNK if ticks is None else TICK_RECORDS
-        done = np.zeros(len(names), np.int64)
-        for start in range(0, t_all.size, chunk):
-            part = which[start:start + chunk]
-            counts = np.bincount(part, minlength=len(names))
-            router.on_values_batch(names, part, t_all[start:start + chunk],
-                                   [v[done[k]:done[k] + counts[k]] for k, v in enumerate(values)])
-            done += counts
-            self.report.messages += int(part.size)
-            progress(int(part.size))
-            if ticks is not None:
-                last = t_all[start:start + chunk]
-                last = last[np.isfinite(last)]
-                if last.size:
-                    ticks.reached(int(round(float(last.max()) * 1e9)))
+        streams = [(indices, self._stream(blocks, indices)) for blocks, indices in self.streams]
+        try:
+            for which, t_all, values in merge_in_time_order(streams, [len(t.routes) for t in self.topics],
+                                                            [t.samples for t in self.topics]):
+                done = np.zeros(len(names), np.int64)
+                for start in range(0, t_all.size, chunk):
+                    part = which[start:start + chunk]
+                    counts = np.bincount(part, minlength=len(names))
+                    router.on_values_batch(names, part, t_all[start:start + chunk],
+                                           [v[done[k]:done[k] + counts[k]] for k, v in enumerate(values)])
+                    done += counts
+                    self.report.messages += int(part.size)
+                    progress(int(part.size))
+                    if ticks is not None:
+                        last = t_all[start:start + chunk]
+                        last = last[np.isfinite(last)]
+                        if last.size:
+                            ticks.reached(int(round(float(last.max()) * 1e9)))
+        finally:
+            for topic in self.topics:
+                self.report.warnings.extend(self._checks(topic))
+            for log in self.logs:
+                self._note_damage(log)
 
 
 def _open_all(paths: Sequence[str | Path], reports: list[BagReport], router: MessageRouter,

@@ -135,6 +135,15 @@ class SurfaceHistory:
         return np.interp(t_s, self.t, self.v)
 
 
+def _covered(u: np.ndarray, t0_s: float, dt_s: float, history: SurfaceHistory) -> np.ndarray | None:
+    """The other surface at the times of ``u``'s samples (from ``t0_s``, step ``dt_s``); None for a manoeuvre too
+    short to regress (under 8 samples) or one the surface's samples do not cover."""
+    if u.size < 8:
+        return None
+    t = t0_s + dt_s * np.arange(u.size)
+    return history.at(t) if history.covers(t[0], t[-1]) else None
+
+
 class CouplingMonitor:
     """How much another configured surface moves with a channel's input, over the channel's own manoeuvres.
 
@@ -172,12 +181,12 @@ class CouplingMonitor:
         history : SurfaceHistory
             The other surface.
         """
-        t = t0_s + dt_s * np.arange(u.size)
         if u.size < 8:
             return
-        if history.covers(t[0], t[-1]):
-            self._add(np.asarray(u, float), history.at(t))
-        elif not history.t.size or history.t[-1] < t[-1]:       # not arrived yet
+        other = _covered(u, t0_s, dt_s, history)
+        if other is not None:
+            self._add(np.asarray(u, float), other)
+        elif not history.t.size or history.t[-1] < t0_s + dt_s * (u.size - 1):       # not arrived yet
             self.pending.append((np.asarray(u, float).copy(), t0_s, dt_s))
 
     def catch_up(self, history: SurfaceHistory) -> None:
@@ -230,12 +239,9 @@ class CouplingMonitor:
             Standard deviations of the input's and the other surface's trim motion between manoeuvres (0:
             unknown).
         """
-        if u.size < 8:
+        other = _covered(u, t0_s, dt_s, history)
+        if other is None:
             return False
-        t = t0_s + dt_s * np.arange(u.size)
-        if not history.covers(t[0], t[-1]):
-            return False
-        other = history.at(t)
         fit = self._fit(np.asarray(u, float), other)
         if fit is None:
             return False

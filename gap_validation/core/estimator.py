@@ -652,6 +652,8 @@ class FrequencyResponseEstimator:
         self._reasons = np.zeros((len(NOT_ESTIMABLE_REASONS), F), np.int64)
         self._raw: list[tuple[np.ndarray, int, int, str]] = []    # estimate rows, k0, k1, kind
         self._raw_amplitude: list[float] = []                       # input amplitude of each raw record
+        self._raw_changes = 0                                       # records added to or dropped from _raw
+        self._sweeps_built: tuple | None = None                     # (key, sweeps) of the last :attr:`sweeps`
         self._n_sweeps = 0
         self._span = [0, 0]
         self._kinds: Counter = Counter()
@@ -952,12 +954,17 @@ class FrequencyResponseEstimator:
         multisine, multistep, broadband): an identification experiment. Doublets and pulses add to the pooled
         estimate but are not sweeps, unless the flight has no sweep at all (then every manoeuvre is one).
         """
-        amplitudes = self._raw_amplitude + [float("nan")] * (len(self._raw) - len(self._raw_amplitude))
-        raw = [(r, a) for r, a in zip(self._raw, amplitudes) if r[3] in SWEEP_KINDS] \
-            or list(zip(self._raw, amplitudes))
-        return [SpectralEstimate.from_rows(self._w, rows, self._time(k0), self._time(k1), kind,
-                                           self._opts["band_fraction"], self._opts["order"] + 1, amplitude)
-                for (rows, k0, k1, kind), amplitude in raw]
+        # built again only when a record came or went (the node asks every diagnostics tick)
+        key = (self._raw_changes, len(self._raw), self._t0)
+        if self._sweeps_built is None or self._sweeps_built[0] != key:
+            amplitudes = self._raw_amplitude + [float("nan")] * (len(self._raw) - len(self._raw_amplitude))
+            raw = [(r, a) for r, a in zip(self._raw, amplitudes) if r[3] in SWEEP_KINDS] \
+                or list(zip(self._raw, amplitudes))
+            self._sweeps_built = (key, [SpectralEstimate.from_rows(self._w, rows, self._time(k0), self._time(k1), kind,
+                                                                   self._opts["band_fraction"], self._opts["order"] + 1,
+                                                                   amplitude)
+                                        for (rows, k0, k1, kind), amplitude in raw])
+        return list(self._sweeps_built[1])
 
     @property
     def record_spans_s(self) -> list[tuple[float, float]]:
@@ -1470,6 +1477,7 @@ class FrequencyResponseEstimator:
             self._flown[kind] += 1
         raw = SpectralEstimate.from_sums(self._w, sums, self._dt, self._opts["band_fraction"])
         self._raw.append((raw.rows(), k_start, k_end, kind))
+        self._raw_changes += 1
         self._raw_amplitude.append(amplitude)
         if len(self._raw) > self._opts["max_raw_sweeps"]:
             self._raw.pop(0)
@@ -1632,6 +1640,7 @@ class FrequencyResponseEstimator:
         kinds = [str(k) for k in np.atleast_1d(st["raw_kind"])]
         rows = np.asarray(st["raw_rows"], float)
         self._raw = [(rows[i].copy(), int(meta[i, 0]), int(meta[i, 1]), kinds[i]) for i in range(int(st["n_raw"]))]
+        self._raw_changes += 1
         amplitude = np.asarray(st.get("raw_amplitude", np.full(int(st["n_raw"]), np.nan)), float).ravel()
         self._raw_amplitude = [float(amplitude[i]) if i < amplitude.size else float("nan")
                                for i in range(int(st["n_raw"]))]

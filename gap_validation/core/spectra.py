@@ -816,31 +816,47 @@ def expected_estimate(sums: BandSums, w_rad_s: np.ndarray, band_fraction: float,
     n_freq = w.size
     expected = np.full(n_freq, np.nan + 0j)
     error = np.zeros(n_freq)
+    idx = np.flatnonzero(np.asarray(sums.records)[:n_freq] != 0)
+    if not idx.size:
+        return expected, error
     cols = sums.h_columns()
     degree = sums.order + EXTRA_ORDER
     n_nodes = 3 * (degree + 1)
     cheb = np.cos(np.pi * (np.arange(n_nodes) + 0.5) / n_nodes)
     fine = np.linspace(-1.0, 1.0, 101)
-    for i in range(n_freq):
-        if sums.records[i] == 0:
-            continue
-        lo, hi = float(sums.r_lo[i]), float(sums.r_hi[i])
-        mid, half = 0.5 * (lo + hi), max(0.5 * (hi - lo), 1e-12)
-        scale = band_fraction * w[i]
-        nodes = mid + half * cheb
-        values = np.asarray(model_response(w[i] + scale * nodes), complex)
-        coef, *_ = np.linalg.lstsq(_vander(nodes, degree), values, rcond=None)
-        if sums.inputs > 1:      # the first input's column; the others contribute nothing to the model's share
-            coef = np.concatenate([coef, np.zeros((sums.inputs - 1) * (degree + 1), complex)])
-        points = mid + half * fine
-        fit_err = np.max(np.abs(_vander(points, degree) @ coef[:degree + 1] - model_response(w[i] + scale * points)))
-        try:
-            theta = np.linalg.solve(sums.zf[i][:, cols], sums.zf[i] @ coef)
-        except np.linalg.LinAlgError:
-            continue
-        expected[i] = theta[0]
-        centre = abs(complex(model_response(np.array([w[i]]))[0]))
-        error[i] = fit_err / centre if centre > 0 else np.inf
+    # every frequency's nodes, check points and centre in one call of the model (its cost is per call)
+    lo, hi = np.asarray(sums.r_lo, float)[idx], np.asarray(sums.r_hi, float)[idx]
+    mid, half = 0.5 * (lo + hi), np.maximum(0.5 * (hi - lo), 1e-12)
+    nodes = mid[:, None] + half[:, None] * cheb[None, :]
+    points = mid[:, None] + half[:, None] * fine[None, :]
+    centre_w, scale = w[idx, None], (band_fraction * w[idx])[:, None]
+    at = np.concatenate([centre_w + scale * nodes, centre_w + scale * points, centre_w], axis=1)
+    values = np.asarray(model_response(at.ravel()), complex).reshape(at.shape)
+    on_nodes, on_points, centre = values[:, :n_nodes], values[:, n_nodes:-1], np.abs(values[:, -1])
+    powers = np.arange(degree + 1)
+    vander = nodes[:, :, None] ** powers                                  # (k, nodes, degree + 1)
+    coef = np.einsum("kij,kj->ki", np.linalg.pinv(vander), on_nodes)     # least squares per frequency
+    fit_err = np.max(np.abs(np.einsum("kij,kj->ki", points[:, :, None] ** powers, coef) - on_points), axis=1)
+    if sums.inputs > 1:      # the first input's column; the others contribute nothing to the model's share
+        coef = np.concatenate([coef, np.zeros((idx.size, (sums.inputs - 1) * (degree + 1)), complex)], axis=1)
+    zf = np.asarray(sums.zf)[idx]
+    rhs = np.einsum("kij,kj->ki", zf, coef)
+    square = zf[:, :, cols]
+    try:
+        theta = np.linalg.solve(square, rhs[:, :, None])[:, :, 0]
+        solved = np.ones(idx.size, bool)
+    except np.linalg.LinAlgError:            # a singular band: solve the others one by one
+        theta = np.full((idx.size, len(cols)), np.nan + 0j)
+        solved = np.zeros(idx.size, bool)
+        for k in range(idx.size):
+            try:
+                theta[k] = np.linalg.solve(square[k], rhs[k])
+                solved[k] = True
+            except np.linalg.LinAlgError:
+                continue
+    expected[idx[solved]] = theta[solved, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        error[idx[solved]] = np.where(centre[solved] > 0, fit_err[solved] / centre[solved], np.inf)
     return expected, error
 
 

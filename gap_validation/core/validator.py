@@ -87,6 +87,7 @@ class OnlineValidator:
         self._previous: dict[str, float | None] = {}
         self._versions: dict[str, int] = {name: 0 for name in config.channels}
         self._diagnosis_cache: dict[str, tuple[Any, dict]] = {}
+        self._key_memo: dict[str, tuple] = {}      # channel -> (identity of its estimates, them, _estimate_key)
         self._time_domain_cache: dict[str, tuple] = {}
         self._margin_cache: dict[str, tuple] = {}   # channel -> (model and controller specs, b(P1, C))
         self.sources: list[str] = []
@@ -347,6 +348,7 @@ class OnlineValidator:
             return self._mimo_result(name, channel, diagnose)
         est = self._estimators[name]
         sweeps = list(est.sweeps)
+        pooled_sweeps = sweeps
         result = ChannelResult(name=name, sweeps=int(getattr(est, "n_sweeps", len(sweeps))),
                                coherence_threshold=channel.coherence_threshold,
                                bad_samples=dict(self._bad[name]), epsilon_previous=self._previous.get(name),
@@ -404,7 +406,8 @@ class OnlineValidator:
         if suspect.any():
             result.frequency_reasons = [BIASED if s else r for s, r in zip(suspect, result.frequency_reasons)]
             avg = with_bias_allowance(avg, suspect)
-        self._apply_diagnosis(name, channel, avg, sweeps, result, diagnose)
+        self._apply_diagnosis(name, channel, avg, sweeps, result, diagnose,
+                              self._memo_estimate_key(name, full, pooled_sweeps, avg, sweeps))
         return result
 
     def _mimo_result(self, name: str, channel: ChannelConfig, diagnose: bool) -> ChannelResult:
@@ -502,14 +505,29 @@ class OnlineValidator:
                            end_s=float(getattr(sweep, "end_s", np.nan)), epsilon=eps,
                            worst_frequency_rad_s=w_eps, points_used=int(np.count_nonzero(ok)))
 
+    def _memo_estimate_key(self, name: str, full: SpectralEstimate, full_sweeps: list[SpectralEstimate],
+                           avg: SpectralEstimate, sweeps: list[SpectralEstimate]) -> bytes:
+        """:func:`_estimate_key` of ``avg`` and ``sweeps`` (``full`` and ``full_sweeps`` as the estimator gave them,
+        before the flown band was selected), digested again only when the estimator gave new estimates: it keeps
+        its pooled arrays and its sweeps until a manoeuvre changes them, and they are never written in place (the
+        memo holds them, so their ids are not reused)."""
+        ident = (id(full.response), tuple(id(s) for s in full_sweeps), np.asarray(avg.w_rad_s).tobytes())
+        memo = self._key_memo.get(name)
+        if memo is not None and memo[0] == ident:
+            return memo[2]
+        key = _estimate_key(avg, sweeps)
+        self._key_memo[name] = (ident, (full.response, list(full_sweeps)), key)
+        return key
+
     def _apply_diagnosis(self, name: str, channel: ChannelConfig, avg: SpectralEstimate,
-                         sweeps: list[SpectralEstimate], result: ChannelResult, fit: bool) -> None:
+                         sweeps: list[SpectralEstimate], result: ChannelResult, fit: bool,
+                         estimate_key: bytes | None = None) -> None:
         from gap_validation.core import diagnosis
 
         # keyed on what the analysis reads, not on the samples fed: between two manoeuvres the samples change the
         # version every batch but not the estimate, and the analysis (the convention fits of a model-limited channel
         # among them) would run again at each of the node's diagnostics ticks (0.5-1.3 s each, measured)
-        key = (_estimate_key(avg, sweeps), repr(channel.model_spec), fit)
+        key = (estimate_key if estimate_key is not None else _estimate_key(avg, sweeps), repr(channel.model_spec), fit)
         cached = self._diagnosis_cache.get(name)
         if cached is not None and cached[0] == key:
             found = cached[1]

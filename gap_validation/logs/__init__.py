@@ -7,9 +7,12 @@
 * :mod:`~gap_validation.logs.csvlog`: one CSV file per topic, read and written;
 * :mod:`~gap_validation.logs.checks`: the logging checks (a topic logged too slowly for the band, irregular
   stamps), each with the fix in the autopilot's words;
+* :mod:`~gap_validation.logs.merge`: the blocks of a log's topics merged in time order as they come (replay holds a
+  block or two, not the flight);
 * :mod:`~gap_validation.logs.flight`: a simulated flight written as an autopilot's log, with the config that
   reads it (``gap-validate simulate --format``).
 
-Replay (:mod:`gap_validation.bag.replay`) reads them through the same router as bags. This package imports
+Replay (:mod:`gap_validation.bag.replay`) streams them block by block (:meth:`LogFile.blocks
+<gap_validation.logs.base.LogFile.blocks>`) through the same router as bags. This package imports
 neither rclpy nor rosbags nor matplotlib.
 """

@@ -6,20 +6,27 @@ one as ``sensor_gyro:1``), a DataFlash message name (``RATE``; an instance as ``
 clock: ULog ``timestamp_sample`` where the message has one, else ``timestamp``; DataFlash ``TimeUS``; CSV the time
 column.
 
+Two ways to read: :meth:`LogFile.read` returns each wanted series whole; :meth:`LogFile.blocks` gives them in
+blocks in the log's order (:class:`LogBlocks`: a dict of series chunks per block -- ULog per block of the file,
+DataFlash per window of the memory-mapped file, CSV per chunk of rows), so that replay keeps a block in memory, not
+the flight.
+
 A damaged file is read up to the damage: :meth:`LogFile.read` returns what came before it and
 :attr:`LogFile.damage` says where the file stopped (one line naming the file), never a traceback.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import Iterator, Sequence
 
 import numpy as np
 
 from gap_validation.core.errors import DataError
 
-__all__ = ["LogTopic", "LogSeries", "LogFile", "WriteTopic", "LOG_SUFFIXES", "open_log", "is_log"]
+__all__ = ["LogTopic", "LogSeries", "LogFile", "LogBlocks", "WriteTopic", "LOG_SUFFIXES", "open_log", "is_log",
+           "join_blocks"]
 
 #: Suffix -> format name of the logs :func:`open_log` reads.
 LOG_SUFFIXES = {".ulg": "ulog", ".bin": "dataflash", ".csv": "csv"}
@@ -53,9 +60,104 @@ class LogSeries:
     fields: tuple[str, ...]
 
 
+class LogBlocks:
+    """The wanted series of a log in blocks, in the log's order: iterating gives, per block, a dict topic ->
+    :class:`LogSeries` holding the block's samples of that topic (only the topics that have samples in it); each
+    topic's chunks, one after the other, are its series as :meth:`LogFile.read` gives it. It can be iterated more
+    than once (each time reading the file again); the log must stay open meanwhile.
+
+    Parameters
+    ----------
+    path : Path
+        The log file (for the messages).
+    fields : dict
+        Topic (as asked) -> its fields, in the columns' order, for every topic the log has.
+    counts : dict, optional
+        Topic -> how many samples it has, where the reader knows (else None: known once read).
+
+    Attributes
+    ----------
+    fields, counts : dict
+        As given.
+    """
+
+    def __init__(self, path: Path, fields: dict[str, tuple[str, ...]], counts: dict[str, int | None] | None = None):
+        self.path = Path(path)
+        self.fields = dict(fields)
+        self.counts = {topic: (counts or {}).get(topic) for topic in self.fields}
+        self._start_s: float | None = None
+        self._primed: tuple[dict[str, LogSeries] | None, Iterator[dict[str, LogSeries]]] | None = None
+
+    @property
+    def topics(self) -> tuple[str, ...]:
+        """The topics it gives, in the order asked."""
+        return tuple(self.fields)
+
+    @property
+    def start_time_s(self) -> float:
+        """The earliest finite sample time [s] (inf when there is none). Here: that of the first block with
+        samples (read once, kept for the next iteration; a log in time order starts there); the ULog reader knows it
+        of the whole log (from the pass that lists its topics)."""
+        if self._start_s is None:
+            blocks = self._blocks()
+            first = next(blocks, None)
+            self._primed = (first, blocks)
+            self._start_s = _earliest(first or {})
+        return self._start_s
+
+    def __iter__(self) -> Iterator[dict[str, LogSeries]]:
+        if self._primed is not None:
+            first, rest = self._primed
+            self._primed = None
+            if first is not None:
+                yield first
+            yield from rest
+        else:
+            yield from self._blocks()
+
+    def _blocks(self) -> Iterator[dict[str, LogSeries]]:   # pragma: no cover - abstract
+        raise NotImplementedError
+
+
+def _earliest(block: dict[str, LogSeries]) -> float:
+    """The earliest finite time of a block's series (inf when none)."""
+    out = math.inf
+    for series in block.values():
+        t = series.t_s[np.isfinite(series.t_s)]
+        if t.size:
+            out = min(out, float(t.min()))
+    return out
+
+
+def join_blocks(blocks: LogBlocks) -> dict[str, LogSeries]:
+    """Every topic of ``blocks`` as one series (its chunks joined): what :meth:`LogFile.read` returns.
+
+    Parameters
+    ----------
+    blocks : LogBlocks
+        The blocks of the wanted series.
+    """
+    parts: dict[str, list[LogSeries]] = {topic: [] for topic in blocks.topics}
+    for block in blocks:
+        for topic, series in block.items():
+            parts[topic].append(series)
+    out = {}
+    for topic, chunks in parts.items():
+        fields = tuple(blocks.fields[topic])
+        if not chunks:
+            out[topic] = LogSeries(np.zeros(0), np.zeros((0, len(fields))), fields)
+        elif len(chunks) == 1:
+            out[topic] = chunks[0]
+        else:
+            out[topic] = LogSeries(np.concatenate([c.t_s for c in chunks]),
+                                   np.concatenate([c.values for c in chunks]), fields)
+        chunks.clear()
+    return out
+
+
 class LogFile:
     """An open log (context manager). Subclasses set :attr:`format` and implement :meth:`_topics` and
-    :meth:`_read`.
+    :meth:`_blocks` (and :meth:`_read`, when a whole read has a faster way than joining the blocks).
 
     Parameters
     ----------
@@ -93,11 +195,31 @@ class LogFile:
         """
         return self._read({topic: tuple(fields) for topic, fields in wanted.items() if topic in self.topics})
 
+    def blocks(self, wanted: dict[str, Sequence[str]], *, block_bytes: int | None = None) -> LogBlocks:
+        """The samples of the ``wanted`` fields of each wanted topic (topic -> fields) in blocks, in the log's order
+        (:class:`LogBlocks`); joined, they are what :meth:`read` returns.
+
+        Topics the log does not have are left out; a field a topic does not have raises :class:`DataError` (as
+        :meth:`read`), here, before any block is read.
+
+        Parameters
+        ----------
+        wanted : dict
+            Topic -> field names.
+        block_bytes : int, optional
+            Bytes of the file per block (default: the reader's; ULog 1 MiB, DataFlash 1 MiB, CSV 1 MiB of text).
+        """
+        return self._blocks({topic: tuple(fields) for topic, fields in wanted.items() if topic in self.topics},
+                            block_bytes)
+
     def _topics(self) -> dict[str, LogTopic]:   # pragma: no cover - abstract
         raise NotImplementedError
 
-    def _read(self, wanted: dict[str, tuple[str, ...]]) -> dict[str, LogSeries]:   # pragma: no cover
+    def _blocks(self, wanted: dict[str, tuple[str, ...]], block_bytes: int | None) -> LogBlocks:   # pragma: no cover
         raise NotImplementedError
+
+    def _read(self, wanted: dict[str, tuple[str, ...]]) -> dict[str, LogSeries]:
+        return join_blocks(self._blocks(wanted, None))
 
     def missing_field(self, topic: str, name: str) -> DataError:
         """The one-line error for a field ``topic`` does not have."""

@@ -13,8 +13,10 @@ power, a copy broken off): that row is left out and is the damage (:attr:`LogFil
 are read (a number cut short would otherwise be read as a wrong number).
 
 Speed (500 000 rows, 4 columns, two read; ``np.loadtxt`` 0.61 s, the ``csv`` module with column lists 1.0 s,
-``np.genfromtxt`` 2.3 s): the numbers are parsed by ``np.loadtxt`` (its C parser), and a file it refuses (a cell
-that is not a number, a short row) is read again with the ``csv`` module, cell by cell.
+``np.genfromtxt`` 2.3 s): the numbers are parsed by ``np.loadtxt`` (its C parser), a chunk of rows at a time (1 MiB
+of text, :meth:`CsvFile.blocks`: replay holds a chunk, not the file), and a chunk it refuses (a cell that is not a
+number, a short row) is read again with the ``csv`` module, cell by cell. A file that does not end with a line break
+is read cell by cell throughout (its last row is the damage).
 """
 from __future__ import annotations
 
@@ -23,19 +25,21 @@ import io
 import math
 import warnings
 from pathlib import Path
-from typing import Sequence
+from typing import Iterable, Iterator, Sequence
 
 import numpy as np
 
 from gap_validation.core.errors import DataError
-from gap_validation.logs.base import LogFile, LogSeries, LogTopic, WriteTopic
+from gap_validation.logs.base import LogBlocks, LogFile, LogSeries, LogTopic, WriteTopic
 
 __all__ = ["CsvFile", "write_csv", "TIME_COLUMNS", "time_scale"]
 
 #: Time columns looked for, in this order, when the config names none.
 TIME_COLUMNS = ("time", "t", "TimeUS", "timestamp")
-#: Bytes read at once when counting rows.
+#: Bytes read at once when counting rows; characters of text per block of rows.
 _CHUNK = 1 << 20
+#: Rows per block when the file is read cell by cell.
+_CELL_ROWS = 1 << 15
 
 
 def time_scale(column: str) -> float:
@@ -137,57 +141,97 @@ class CsvFile(LogFile):
                 tail = chunk[-1:]
         return rows + (tail != b"\n")
 
-    def _read(self, wanted: dict[str, tuple[str, ...]]) -> dict[str, LogSeries]:
+    def _blocks(self, wanted: dict[str, tuple[str, ...]], block_bytes: int | None) -> LogBlocks:
         if self.topic not in wanted:
-            return {}
+            return _CsvBlocks(self, (), (), block_bytes)
         fields = wanted[self.topic]
         for name in fields:
             if name not in self._columns or name == self.time_column:
                 raise self.missing_field(self.topic, name)
         columns = [self._columns.index(self.time_column)] + [self._columns.index(name) for name in fields]
-        data = self._load_fast(columns) if self._ends_with_newline() else None   # else the last row may be cut
-        if data is None:
-            data = self._load_cells(columns)
-        t_s = data[:, 0] * self.time_scale_s if self.time_scale_s != 1.0 else data[:, 0].copy()
-        return {self.topic: LogSeries(t_s, np.ascontiguousarray(data[:, 1:]), tuple(fields))}
+        return _CsvBlocks(self, tuple(fields), columns, block_bytes)
 
-    def _load_fast(self, columns: list[int]) -> np.ndarray | None:
-        """The columns with numpy's C parser, or None when a row has a cell that is not a number or too few
-        cells (then :meth:`_load_cells` reads the file)."""
+    def _series(self, data: np.ndarray, fields: tuple[str, ...]) -> LogSeries:
+        """Parsed rows (time column first) as a series: time in seconds, values as parsed."""
+        t_s = data[:, 0] * self.time_scale_s if self.time_scale_s != 1.0 else data[:, 0].copy()
+        return LogSeries(t_s, np.ascontiguousarray(data[:, 1:]), fields)
+
+    def _chunks(self, columns: list[int], chars: int) -> Iterator[np.ndarray]:
+        """The columns, a chunk of rows (about ``chars`` characters of text) at a time: numpy's C parser, a chunk it
+        refuses cell by cell; a file that does not end with a line break cell by cell throughout."""
+        if not self._ends_with_newline():          # the last row may be cut inside a number
+            yield from self._load_cells(columns)
+            return
+        with open(self.path, encoding="utf-8-sig") as f:
+            for _ in range(self._lines):
+                f.readline()
+            while text := f.read(chars):
+                if not text.endswith("\n"):
+                    text += f.readline()
+                lines = text.split("\n")
+                lines.pop()                         # after the last line break
+                data = self._load_fast(columns, lines)
+                if data is None:
+                    yield from self._cells(lines, columns, len(self._columns), None)
+                else:
+                    yield data
+
+    def _load_fast(self, columns: list[int], lines: list[str]) -> np.ndarray | None:
+        """The columns of ``lines`` with numpy's C parser, or None when a row has a cell that is not a number or too
+        few cells (then :meth:`_cells` reads them)."""
         try:
-            with open(self.path, encoding="utf-8-sig") as f, warnings.catch_warnings():
+            with warnings.catch_warnings():
                 warnings.simplefilter("ignore", UserWarning)          # "input contained no data": a header only
-                return np.loadtxt(f, delimiter=self._delimiter, skiprows=self._lines, usecols=columns, ndmin=2,
-                                  comments="#", dtype=np.float64, quotechar='"')
+                return np.loadtxt(lines, delimiter=self._delimiter, usecols=columns, ndmin=2, comments="#",
+                                  dtype=np.float64, quotechar='"')
         except (ValueError, IndexError):
             return None
 
-    def _load_cells(self, columns: list[int]) -> np.ndarray:
-        """The columns cell by cell (``csv`` module): a cell that is not a number is NaN; a last row cut short
-        is the damage."""
-        out: list[list[float]] = []
-        width = len(self._columns)
-        short_last = False      # the last row has fewer cells than the header
+    def _load_cells(self, columns: list[int]) -> Iterator[np.ndarray]:
+        """The columns of the whole file cell by cell (``csv`` module), in blocks of rows: a cell that is not a
+        number is NaN; a last row cut short is the damage."""
         with open(self.path, encoding="utf-8-sig", newline="") as f:
             for _ in range(self._lines):
                 f.readline()
-            rows = csv.reader(f, delimiter=self._delimiter)
-            pending = None
-            for row in rows:
-                if not row or (row[0].lstrip().startswith("#")) or not any(cell.strip() for cell in row):
-                    continue
-                if pending is not None:
-                    out.append(pending)
-                pending = [_number(row[c]) if c < len(row) else math.nan for c in columns]
-                short_last = len(row) < width
+            yield from self._cells(f, columns, len(self._columns), self)
+
+    def _cells(self, lines: Iterable[str], columns: list[int], width: int, cut: "CsvFile | None"
+               ) -> Iterator[np.ndarray]:
+        """Rows of ``lines`` cell by cell, :data:`_CELL_ROWS` at a time; with ``cut``, the last row is held back and
+        left out as the damage when the file does not end with a line break."""
+        out: list[list[float]] = []
+        rows_before = 0             # rows given out before ``out``
+        lo, hi = math.inf, -math.inf        # the finite times given out
+        short_last = False      # the last row has fewer cells than the header
+        pending = None
+        for row in csv.reader(lines, delimiter=self._delimiter):
+            if not row or (row[0].lstrip().startswith("#")) or not any(cell.strip() for cell in row):
+                continue
             if pending is not None:
-                if not self._ends_with_newline():        # the last row may be cut inside a number: left out
-                    what = "inside row" if short_last else "without a line break after row"
-                    self.damage = (f"{self.path}: the file ends {what} {len(out) + 1} (cut short?); that row is left "
-                                   f"out, {_span_s(out, self.time_scale_s)} s read before it")
-                else:
-                    out.append(pending)
-        return np.array(out, dtype=np.float64).reshape(len(out), len(columns))
+                out.append(pending)
+            pending = [_number(row[c]) if c < len(row) else math.nan for c in columns]
+            short_last = len(row) < width
+            if cut is None:
+                out.append(pending)
+                pending = None
+            if len(out) >= _CELL_ROWS:
+                block = _rows(out, len(columns))
+                lo, hi = _span(block, lo, hi)
+                rows_before += len(out)
+                out = []
+                yield block
+        if pending is not None:
+            if not self._ends_with_newline():        # the last row may be cut inside a number: left out
+                block = _rows(out, len(columns))
+                lo, hi = _span(block, lo, hi)
+                what = "inside row" if short_last else "without a line break after row"
+                span = f"{(hi - lo) * self.time_scale_s:.1f}" if hi >= lo else "0.0"
+                self.damage = (f"{self.path}: the file ends {what} {rows_before + len(out) + 1} (cut short?); that row "
+                               f"is left out, {span} s read before it")
+            else:
+                out.append(pending)
+        if out:
+            yield _rows(out, len(columns))
 
     def _ends_with_newline(self) -> bool:
         with open(self.path, "rb") as f:
@@ -206,10 +250,31 @@ def _number(cell: str) -> float:
         return math.nan
 
 
-def _span_s(rows: list[list[float]], scale: float) -> str:
-    """Seconds spanned by the time column (column 0) of ``rows``, as text."""
-    times = [r[0] for r in rows if math.isfinite(r[0])]
-    return f"{(max(times) - min(times)) * scale:.1f}" if times else "0.0"
+def _rows(rows: list[list[float]], width: int) -> np.ndarray:
+    return np.array(rows, dtype=np.float64).reshape(len(rows), width)
+
+
+def _span(block: np.ndarray, lo: float, hi: float) -> tuple[float, float]:
+    """``(lo, hi)`` widened by the finite times (column 0) of ``block``."""
+    times = block[:, 0][np.isfinite(block[:, 0])] if block.size else block
+    return (min(lo, float(times.min())), max(hi, float(times.max()))) if times.size else (lo, hi)
+
+
+class _CsvBlocks(LogBlocks):
+    """A CSV file's topic in blocks of rows (:meth:`CsvFile.blocks`); the damage is known once the last block was
+    read."""
+
+    def __init__(self, log: CsvFile, fields: tuple[str, ...], columns: list[int], block_bytes: int | None):
+        super().__init__(log.path, {log.topic: fields} if columns else {})
+        self.log, self.columns, self.chars = log, columns, int(block_bytes or _CHUNK)
+
+    def _blocks(self) -> Iterator[dict[str, LogSeries]]:
+        if not self.columns:
+            return
+        fields = self.fields[self.log.topic]
+        for data in self.log._chunks(self.columns, self.chars):
+            if len(data):
+                yield {self.log.topic: self.log._series(data, fields)}
 
 
 def write_csv(directory_or_path: str | Path, topics: Sequence[WriteTopic]) -> list[Path]:

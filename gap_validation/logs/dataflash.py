@@ -42,14 +42,18 @@ some 10 us each):
    ``FMT`` messages the walk itself went through; where they differ (an ``FMT`` pattern inside a payload
    before a type's real ``FMT``) the walk is redone with the checked table, and where a type is redefined with
    another length by a plain sequential walk (the reference, checked against the fast one by the tests).
-2. **The decoding** gathers the wanted types' messages at once from the memory-mapped file: a numpy structured
-   dtype per ``FMT`` over the file with a stride of one byte, indexed by the messages' offsets, in chunks of
-   65536 messages; only the wanted columns become float64.
+2. **The decoding** gathers the wanted types' messages from the memory-mapped file a window of the file (1 MiB)
+   at a time (:meth:`DataFlashFile.blocks`; :meth:`DataFlashFile.read` joins the windows): a numpy structured
+   dtype per ``FMT`` over the file with a stride of one byte, indexed by the messages' offsets; only the wanted
+   columns become float64.
 
-Memory: the file is memory-mapped. :attr:`DataFlashFile.topics` walks once and keeps the counts, instances and
+Memory: the file is memory-mapped, and the pages of each block of the walk and each window of the decoding are
+given back to the kernel once done with (``madvise(MADV_DONTNEED)``: a mapped page counts in the process's
+resident memory until then). :attr:`DataFlashFile.topics` walks once and keeps the counts, instances and
 definitions, and the offsets of the messages (4 bytes each, 8 for a file over 4 GiB) until the first
-:meth:`DataFlashFile.read`, which decodes from them and drops them (a later read walks again, keeping the offsets
-of the wanted types only). What stays is the wanted fields.
+:meth:`DataFlashFile.blocks` or :meth:`DataFlashFile.read`, which keeps those of the wanted types only and decodes
+from them (a later one walks again, keeping the offsets of the wanted types only). What stays is those offsets:
+4 bytes per wanted message.
 
 Damage: a message broken off by the end of the file ends the read there: :meth:`DataFlashFile.read` returns the
 messages before it and :attr:`DataFlashFile.damage` is one line (``FLIGHT.bin: cut short at byte 123456 of
@@ -70,7 +74,7 @@ import numpy as np
 
 from gap_validation.core.atomic import atomic_open
 from gap_validation.core.errors import ConfigError, DataError
-from gap_validation.logs.base import LogFile, LogSeries, LogTopic, WriteTopic
+from gap_validation.logs.base import LogBlocks, LogFile, LogSeries, LogTopic, WriteTopic
 
 __all__ = ["DataFlashFile", "write_dataflash", "FORMATS"]
 
@@ -93,8 +97,24 @@ FMT_LENGTH = 89
 _FMT_PAYLOAD = np.dtype([("type", "u1"), ("length", "u1"), ("name", "S4"), ("format", "S16"),
                          ("columns", "S64")])
 _BLOCK = 1 << 22            # bytes per block of the walk
-_CHUNK = 1 << 16            # messages per chunk of the decoding and the writing
+_WINDOW = 1 << 20           # bytes per window of the decoding
+_CHUNK = 1 << 16            # messages per chunk of the writing
 _HEADER_WINDOW = 1 << 16    # an FMT message must be found within this many bytes at the start
+_DONTNEED = getattr(mmap, "MADV_DONTNEED", None)
+
+
+def _release(mm, lo: int, hi: int) -> None:
+    """Give the mapped pages wholly inside file bytes ``[lo, hi)`` back to the kernel (read again from the page cache
+    when touched later): without it every page of the file the walk or the decoding touched stays in the process's
+    resident memory until the file is closed."""
+    lo = max(lo, 0) // mmap.PAGESIZE * mmap.PAGESIZE
+    hi = hi // mmap.PAGESIZE * mmap.PAGESIZE
+    if _DONTNEED is None or hi <= lo:
+        return
+    try:
+        mm.madvise(_DONTNEED, lo, hi - lo)
+    except (OSError, ValueError):      # not supported here: the pages stay until the file is closed
+        pass
 
 
 def _null_term(raw: bytes) -> str:
@@ -276,7 +296,11 @@ def _walk_sequential(mm, size: int, keep: set[int] | None) -> tuple[_Walk, list[
     fmts: list[int] = []
     walk = _Walk(np.zeros(256, np.int64), {})
     i, last = 0, None
+    released = 0
     while i + 3 < size:
+        if i - released >= 2 * _BLOCK:                   # walked: its pages back to the kernel
+            _release(mm, released, i - _BLOCK)
+            released = i - _BLOCK
         if mm[i] == _H1 and mm[i + 1] == _H2:
             tid = mm[i + 2]
             ok = True
@@ -326,8 +350,10 @@ def _walk_blocks(mm, data: np.ndarray, size: int, table: _Table, keep: set[int] 
     lengths, known = table.lengths, table.known_from
     walk = _Walk(np.zeros(256, np.int64), {})
     parts: dict[int, list[np.ndarray]] = {}
+    small = _offset_type(size)
     pos, last = 0, None
     for b0 in range(0, size, _BLOCK):
+        _release(mm, b0 - _BLOCK, b0)                    # the block before: walked
         b1 = min(b0 + _BLOCK, size)
         if pos >= b1 and not grow:
             continue
@@ -381,14 +407,37 @@ def _walk_blocks(mm, data: np.ndarray, size: int, table: _Table, keep: set[int] 
             bounds = np.concatenate([[0], np.cumsum(np.bincount(tids, minlength=256))])
             sorted_offs = offs[order]
             for tid in np.flatnonzero(bounds[1:] > bounds[:-1]):
-                parts.setdefault(int(tid), []).append(sorted_offs[bounds[tid]:bounds[tid + 1]])
+                parts.setdefault(int(tid), []).append(sorted_offs[bounds[tid]:bounds[tid + 1]].astype(small))
         else:
             for tid in keep:
                 sel = offs[tids == tid]
                 if len(sel):
-                    parts.setdefault(tid, []).append(sel)
-    walk.offsets = {t: np.concatenate(p) for t, p in parts.items()}
+                    parts.setdefault(tid, []).append(sel.astype(small))
+    _release(mm, size - size % _BLOCK - _BLOCK, size)
+    walk.offsets = {t: np.concatenate(parts.pop(t)) for t in sorted(parts)}
     return _finish(walk, mm, size, pos, last)
+
+
+def _offset_type(size: int) -> np.dtype:
+    """The smallest type holding every offset of a file of ``size`` bytes (4 bytes up to 4 GiB)."""
+    return np.dtype(np.uint32) if size < 2**32 else np.dtype(np.int64)
+
+
+def _gather_windows(mm, size: int, offsets: np.ndarray, dtype: np.dtype, shift: int = 3) -> np.ndarray:
+    """:func:`_gather` of ``offsets`` (ascending) a window of :data:`_WINDOW` bytes at a time, each window's pages
+    given back once gathered."""
+    out = np.empty(len(offsets), dtype)
+    if not len(offsets):
+        return out
+    ends = np.arange(_WINDOW, int(offsets[-1]) + 1 + _WINDOW, _WINDOW, dtype=np.int64)
+    cuts = np.searchsorted(offsets, np.minimum(ends, np.iinfo(offsets.dtype).max).astype(offsets.dtype))
+    i = 0
+    for w1, j in zip(ends.tolist(), cuts.tolist()):
+        if j > i:
+            out[i:j] = _gather(mm, size, offsets[i:j], dtype, shift)
+            _release(mm, w1 - _WINDOW, w1)
+            i = j
+    return out
 
 
 def _fmt_records(mm, size: int, offsets: Sequence[int]) -> np.ndarray:
@@ -550,8 +599,8 @@ class DataFlashFile(LogFile):
             self._names[name] = _Topic(tid)
             if fmt.instance is None or fmt.problem is not None or tid not in walk.offsets:
                 continue
-            raw = _gather(self._mm, self._size, walk.offsets[tid], FORMATS[fmt.format[fmt.instance]][0],
-                          3 + fmt.offsets[fmt.instance])
+            raw = _gather_windows(self._mm, self._size, walk.offsets[tid], FORMATS[fmt.format[fmt.instance]][0],
+                                  3 + fmt.offsets[fmt.instance])
             values, counts = np.unique(raw, return_counts=True)
             groups: dict[str, tuple[list, int]] = {}
             for value, count in zip(values, counts):
@@ -562,8 +611,8 @@ class DataFlashFile(LogFile):
                 out[label] = LogTopic(label, fmt.columns, total)
                 self._names[label] = _Topic(tid, tuple(raws))
         self.damage = self._damage_line(walk) if walk.cut is not None else None
-        small = np.uint32 if self._size < 2**32 else np.int64
-        self._index = {tid: offs.astype(small) for tid, offs in walk.offsets.items()}
+        small = _offset_type(self._size)
+        self._index = {tid: offs.astype(small, copy=False) for tid, offs in walk.offsets.items()}
         return out
 
     def _units(self, walk: _Walk, names: dict[str, int]) -> None:
@@ -622,19 +671,18 @@ class DataFlashFile(LogFile):
 
     # -- reading ---------------------------------------------------------------------------------------------------
 
-    def _read(self, wanted: dict[str, tuple[str, ...]]) -> dict[str, LogSeries]:
+    def _blocks(self, wanted: dict[str, tuple[str, ...]], block_bytes: int | None) -> LogBlocks:
         plans = {topic: self._plan(topic, fields) for topic, fields in wanted.items()}
         index, self._index = self._index, None
+        tids = {self._names[t].type_id for t in wanted}
         if index is None:
-            walk = self._walk({self._names[t].type_id for t in wanted})
+            walk = self._walk(tids)
             self._note(walk)
             index = walk.offsets
-        out = {}
-        for topic, (fmt, cols, time_col) in plans.items():
-            info = self._names[topic]
-            offs = index.get(info.type_id, np.zeros(0, np.int64)).astype(np.int64)
-            out[topic] = self._decode(fmt, offs, cols, time_col, info.raws, wanted[topic])
-        return out
+        small = _offset_type(self._size)
+        offsets = {tid: index.get(tid, np.zeros(0, small)).astype(small, copy=False) for tid in tids}
+        del index                               # the other types' offsets
+        return _DataFlashBlocks(self, plans, offsets, wanted, int(block_bytes or _WINDOW))
 
     def _plan(self, topic: str, fields: tuple[str, ...]) -> tuple[_Format, list[int], int]:
         """The format, the wanted columns' indices and the time column of ``topic`` (one-line errors)."""
@@ -660,21 +708,15 @@ class DataFlashFile(LogFile):
 
     def _decode(self, fmt: _Format, offs: np.ndarray, cols: list[int], time_col: int, raws: tuple,
                 fields: tuple[str, ...]) -> LogSeries:
+        """The messages at ``offs`` (those of instances ``raws`` only, when given) as a series of ``cols``."""
         need = sorted(set(cols) | {time_col} | ({fmt.instance} if raws else set()))
-        dtype = fmt.dtype(need)
-        t_parts, v_parts = [], []
-        for start in range(0, len(offs), _CHUNK):
-            rec = _gather(self._mm, self._size, offs[start:start + _CHUNK], dtype)
-            if raws:
-                rec = rec[np.isin(rec[f"c{fmt.instance}"], np.array(raws, dtype=rec[f"c{fmt.instance}"].dtype))]
-            t_parts.append(fmt.values(rec, time_col) / 1e6)
-            block = np.empty((len(rec), len(cols)), np.float64)
-            for k, col in enumerate(cols):
-                block[:, k] = fmt.values(rec, col)
-            v_parts.append(block)
-        if not t_parts:
-            return LogSeries(np.zeros(0), np.zeros((0, len(cols))), tuple(fields))
-        return LogSeries(np.concatenate(t_parts), np.concatenate(v_parts), tuple(fields))
+        rec = _gather(self._mm, self._size, offs, fmt.dtype(need))
+        if raws:
+            rec = rec[np.isin(rec[f"c{fmt.instance}"], np.array(raws, dtype=rec[f"c{fmt.instance}"].dtype))]
+        values = np.empty((len(rec), len(cols)), np.float64)
+        for k, col in enumerate(cols):
+            values[:, k] = fmt.values(rec, col)
+        return LogSeries(fmt.values(rec, time_col) / 1e6, values, tuple(fields))
 
     def close(self) -> None:
         """Release the memory map and the file."""
@@ -688,6 +730,41 @@ class DataFlashFile(LogFile):
         handle, self._file = getattr(self, "_file", None), None
         if handle is not None:
             handle.close()
+
+
+class _DataFlashBlocks(LogBlocks):
+    """The wanted series of a DataFlash log per window of the file (:meth:`DataFlashFile.blocks`): each window's
+    messages of the wanted types decoded from the memory map, its pages given back after."""
+
+    def __init__(self, log: DataFlashFile, plans: dict, offsets: dict[int, np.ndarray],
+                 wanted: dict[str, tuple[str, ...]], window: int):
+        counts = {topic: log.topics[topic].count for topic in wanted}
+        super().__init__(log.path, {topic: tuple(fields) for topic, fields in wanted.items()}, counts)
+        self.log, self.plans, self.offsets, self.window = log, plans, offsets, max(1, int(window))
+
+    def _blocks(self):
+        log = self.log
+        ends = [int(o[-1]) for o in self.offsets.values() if len(o)]
+        if not ends:
+            return
+        starts = np.arange(0, max(ends) + 1 + self.window, self.window, dtype=np.int64)
+        # each window's first message, per type (the starts in the offsets' own type: no copy of the offsets)
+        bounds = {tid: np.searchsorted(o, np.minimum(starts, np.iinfo(o.dtype).max).astype(o.dtype))
+                  for tid, o in self.offsets.items()}
+        for i, w0 in enumerate(starts[:-1].tolist()):
+            w1 = w0 + self.window
+            out = {}
+            for topic, (fmt, cols, time_col) in self.plans.items():
+                tid = log._names[topic].type_id
+                lo, hi = int(bounds[tid][i]), int(bounds[tid][i + 1])
+                if hi > lo:
+                    series = log._decode(fmt, self.offsets[tid][lo:hi], cols, time_col, log._names[topic].raws,
+                                         self.fields[topic])
+                    if series.t_s.size:
+                        out[topic] = series
+            _release(log._mm, w0, w1)
+            if out:
+                yield out
 
 
 # ---------------------------------------------------------------------------------------------------------------

@@ -1,4 +1,5 @@
-"""Predictions that hold: seeded campaigns of "fly, replay, plan, fly the plan, replay" on our simulator (issue 25).
+"""Predictions that hold: seeded campaigns of "fly, replay, plan, fly the plan, replay" on our simulator and the second
+one (issue 25).
 
 Each campaign draws an airframe (the Ultra Stick 25e, the same airframe twice as fast, and a sluggish one: 0.7 times as
 fast with 0.6 of the control power), the air (noise and gusts x0.5-2, a narrow-band disturbance on one channel in
@@ -47,7 +48,12 @@ card's flight time against repeating the default card until the same random erro
 from __future__ import annotations
 
 import argparse
+import concurrent.futures
+import contextlib
 import copy
+import hashlib
+import io
+import json
 import math
 import sys
 import time
@@ -64,8 +70,9 @@ from gap_validation.blas import single_threaded_blas  # noqa: E402
 single_threaded_blas()
 
 from gap_validation.core.config import parse_config  # noqa: E402
-from gap_validation.core.plan import PlanOptions, manoeuvre_signal, plan_card, predicted_random_error  # noqa: E402
-from gap_validation.core.spectra import expected_estimate, record_bands  # noqa: E402
+from gap_validation.core.plan import (PREDICTION_FACTOR, PlanOptions, _channel_base, _response,  # noqa: E402
+                                      _unit_record, manoeuvre_signal, plan_card, predicted_random_error)
+from gap_validation.core.spectra import RESOLVED_FRACTION, expected_estimate, record_bands  # noqa: E402
 from gap_validation.core.simulation import FlightOptions, simulate_flight  # noqa: E402
 from gap_validation.core.validator import OnlineValidator  # noqa: E402
 
@@ -75,6 +82,13 @@ AIRFRAMES = ("ultrastick", "fast", "sluggish")
 AMPLITUDES = (0.03, 0.05)
 #: Start times of the flights of a campaign (each flight's own clock; the validator sees a break between them).
 FLIGHT_SPACING_S = 100_000.0
+
+
+def _within(ratio: np.ndarray) -> np.ndarray:
+    """Where measured over predicted is within the goal's factor (:data:`~gap_validation.core.plan.PREDICTION_FACTOR`)
+    either way."""
+    ratio = np.asarray(ratio, float)
+    return (ratio <= PREDICTION_FACTOR) & (ratio >= 1.0 / PREDICTION_FACTOR)
 
 
 def airframe(name: str) -> dict:
@@ -333,7 +347,7 @@ def summarise(runs: list[dict], show: bool, repeats: int, airframes: tuple[str, 
         bs = [b for r in rs for b in r["bands"] if b["predicted"] > 0]
         rr = np.array([b["measured"] / b["predicted"] for b in bs])
         fin = rr[np.isfinite(rr)]
-        ok = int(np.count_nonzero((rr <= 1.5) & (rr >= 1 / 1.5)))
+        ok = int(np.count_nonzero(_within(rr)))
         closed = sum(r["bands_closed"] for r in rs)
         pts, pts_closed = sum(r["planned_points"] for r in rs), sum(r["points_closed"] for r in rs)
         plan_all = sum(r["flown_plan_s"] for r in rs)
@@ -365,7 +379,7 @@ def summarise(runs: list[dict], show: bool, repeats: int, airframes: tuple[str, 
                  f"{sum(r['planned_points'] for r in runs)} planned ones; the rest is unreachable, with the reason")
     oracle = np.array([b["measured"] / b["oracle"] for r in runs for b in r["bands"] if b["oracle"] > 0])
     if oracle.size:
-        ok = int(np.count_nonzero((oracle <= 1.5) & (oracle >= 1 / 1.5)))
+        ok = int(np.count_nonzero(_within(oracle)))
         fin = oracle[np.isfinite(oracle)]
         gone = f" ({oracle.size - fin.size} not estimated by the flight alone)" if fin.size < oracle.size else ""
         lines.append(f"the same prediction with the simulator's true noise spectrum in place of the one estimated from the "
@@ -375,7 +389,7 @@ def summarise(runs: list[dict], show: bool, repeats: int, airframes: tuple[str, 
     pts = np.array([m / p for r in runs for b in r["bands"] for p, m in b["per_point"] if math.isfinite(m) and p > 0])
     if pts.size:
         lines.append(f"per frequency: measured/predicted median {np.median(pts):.2f}, 10-90 % {np.percentile(pts, 10):.2f}-"
-                     f"{np.percentile(pts, 90):.2f}, within x1.5: {100 * np.mean((pts <= 1.5) & (pts >= 1 / 1.5)):.0f} %")
+                     f"{np.percentile(pts, 90):.2f}, within x1.5: {100 * np.mean(_within(pts)):.0f} %")
     lines.append(f"time per campaign: {np.mean([r['seconds'] for r in runs]):.1f} s")
     if show:
         for r in runs:
@@ -391,10 +405,9 @@ def summarise(runs: list[dict], show: bool, repeats: int, airframes: tuple[str, 
 
 
 # ------------------------------------------------------------------------------------------------ the second simulator
-#: The second simulator (``../shared/flights``, written apart from ours: benchmarks/second_simulator.py).
-FLIGHTS = ROOT.parent / "shared" / "flights"
-#: Its airframes: flightgen's Ultra Stick 25e at its own rates (IMU 100 Hz, surfaces 50 Hz, first sweeps 0.2-8 Hz),
-#: on the project config's grid; hardgen's twice-as-fast airframe (``airframe_scale`` 2) set up as its own
+#: The second simulator's airframes (``../shared/flights``, written apart from ours: benchmarks/second_simulator.py):
+#: flightgen's Ultra Stick 25e at its own rates (IMU 100 Hz, surfaces 50 Hz, first sweeps 0.2-8 Hz), on the project
+#: config's grid; hardgen's twice-as-fast airframe (``airframe_scale`` 2) set up as its own
 #: ``clean_fast`` case (IMU 200 Hz, surfaces 100 Hz, sweeps 0.3-16 Hz, grid 2-120 rad/s).
 SECOND_AIRFRAMES = {
     "ultrastick": {"label": "Ultra Stick 25e (flightgen)", "generator": "flightgen.py", "case": {},
@@ -417,7 +430,6 @@ SECOND_AMPLITUDES = (0.02, 0.04)
 #: each sweep [s] (hardgen's ``pause_s``, flightgen's always).
 SECOND_GUST_RAD, SECOND_GUST_CORNER_RAD_S, SECOND_GYRO_NOISE, SECOND_SURFACE_NOISE = 0.004, 2.0, 0.005, 0.0005
 SECOND_TRIM_BEFORE_S, SECOND_TRIM_BETWEEN_S = 2.0, 3.0
-_GENERATORS: dict = {}
 
 
 class _Still:
@@ -429,27 +441,17 @@ class _Still:
 
 
 def _generator(name: str):
-    """``flightgen.py`` or ``hard/hardgen.py`` loaded as a module (never changed: its ``generate`` is called with
-    ``HERE`` pointing at a directory holding the flight's own ``cases.yaml``)."""
-    if name not in _GENERATORS:
-        import importlib.util
+    """``flightgen.py`` or ``hard/hardgen.py`` as a module (``benchmarks/_other_simulators.py`` imports them; never
+    changed: its ``generate`` is called with ``HERE`` pointing at a directory holding the flight's own
+    ``cases.yaml``)."""
+    import _other_simulators
 
-        path = FLIGHTS / name
-        spec = importlib.util.spec_from_file_location("second_" + path.stem, path)
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-        _GENERATORS[name] = module
-    return _GENERATORS[name]
+    return dict(zip(("flightgen.py", "hard/hardgen.py"), _other_simulators._generators()))[name]
 
 
 def make_second_flight(out: Path, generator: str, case: dict) -> Path:
     """Make one flight of the second simulator once (cached under ``out`` by the case's hash): ``bag`` and
     ``nominal.yaml`` in the returned directory."""
-    import contextlib
-    import hashlib
-    import io
-    import json
-
     key = json.dumps({"generator": generator, "case": case}, sort_keys=True)
     where = out / hashlib.sha1(key.encode()).hexdigest()[:16]
     if (where / "made.json").exists():
@@ -516,43 +518,30 @@ def _replay_bags(config, dirs: list[Path], diagnose: bool = True) -> dict:
     return replay([d / "bag" for d in dirs], config, diagnose=diagnose).result.to_json_dict()
 
 
-def _estimator(config, channel: str) -> tuple[float, dict, dict]:
-    """The channel's estimator grid step, options and spectra options (as the planner reads them)."""
-    from gap_validation.core.estimator import ESTIMATOR_DEFAULTS
-    from gap_validation.core.spectra import SPECTRA_DEFAULTS
-
-    est = {**ESTIMATOR_DEFAULTS, **(config.channels[channel].estimator or {})}
-    return 1.0 / float(est["sample_rate_hz"]), est, {k: est[k] for k in SPECTRA_DEFAULTS}
-
-
 def flown_sums(config, generator: str, m):
     """One sweep of the manoeuvre at amplitude 1 as the generator flies it (its log chirp, 0.5 s linear tapers),
     cut as the planner cuts its own (half the trim the estimator may keep: of the 2 s before the first sweep and
     the trim after each), through :func:`~gap_validation.core.spectra.record_bands`: ``(sums, status)``."""
-    dt, est, spectra = _estimator(config, m.channel)
+    c = _channel_base(m.channel, config.channels[m.channel])
     plan = {**_second_plan(m), "sweeps": 1, "amplitude_rad": 1.0}
     u, rate = _flown(generator, plan)
     x = u[m.channel]
     start = int(np.flatnonzero(x)[0]) - 1             # the sweep starts at zero (sin, tapered)
     length = int(m.duration_s * rate)
-    pre = 0.5 * min(float(est["pre_s"]), SECOND_TRIM_BEFORE_S)
-    post = 0.5 * min(float(est["post_s"]), _pause(generator, plan))
-    step = int(round(rate * dt))
+    pre = 0.5 * min(c.pre_s, SECOND_TRIM_BEFORE_S)
+    post = 0.5 * min(c.post_s, _pause(generator, plan))
+    step = int(round(rate * c.dt))
     record = x[start - int(round(pre * rate)): start + length + int(round(post * rate)): step]
-    w = np.asarray(m.frequencies_rad_s)
-    return record_bands(record[None], record[None], dt, w, options=spectra)
+    return record_bands(record[None], record[None], c.dt, np.asarray(m.frequencies_rad_s), options=c.spectra)
 
 
 def card_sums(config, m):
-    """One sweep of the card's manoeuvre at amplitude 1 cut as the planner cuts it: ``(sums, status)``."""
-    from gap_validation.core.plan import chirp
-
-    dt, est, spectra = _estimator(config, m.channel)
-    pre = 0.5 * min(float(est["pre_s"]), m.trim_before_s)
-    post = 0.5 * min(float(est["post_s"]), m.trim_between_s)
-    t = np.arange(-pre, m.duration_s + post, dt)
-    u = chirp(t, m.duration_s, m.f_start_hz, m.f_stop_hz, m.fade_in_s, m.fade_out_s)
-    return record_bands(u[None], u[None], dt, np.asarray(m.frequencies_rad_s), options=spectra)
+    """One sweep of the card's manoeuvre at amplitude 1 cut as the planner cuts it (its own ``_unit_record``):
+    ``(sums, status)``."""
+    c = _channel_base(m.channel, config.channels[m.channel])
+    opts = PlanOptions(fade_s=m.fade_in_s, trim_before_s=m.trim_before_s, trim_between_s=m.trim_between_s)
+    u, _ = _unit_record(c, opts, m.duration_s, m.f_start_hz, m.f_stop_hz)
+    return record_bands(u[None], u[None], c.dt, np.asarray(m.frequencies_rad_s), options=c.spectra)
 
 
 def flown_prediction(config, generator: str, m) -> np.ndarray:
@@ -588,13 +577,12 @@ def second_oracle(config, campaign: dict, m) -> np.ndarray:
     """Per frequency, the planner's formula on the flown sweep with the generator's true noise in place of the one
     estimated from the first flight: ``q = (gust |P|^2 + gyro) / |P_seen|^2 + surface``."""
     spec = SECOND_AIRFRAMES[campaign["airframe"]]
-    dt, _, spectra = _estimator(config, m.channel)
+    c = _channel_base(m.channel, config.channels[m.channel])
     sums, status = flown_sums(config, PLANNED_GENERATOR, m)
     w = np.asarray(m.frequencies_rad_s)
-    model = config.channels[m.channel].model
-    response = (lambda x: np.asarray(model.freqresp(x), complex).ravel())
-    seen = np.abs(expected_estimate(sums, w, float(spectra["band_fraction"]), response)[0])
-    gust, gyro, surface = second_true_noise(w, campaign["gust_rad"], spec, dt)
+    response = _response(c.model)
+    seen = np.abs(expected_estimate(sums, w, float(c.spectra["band_fraction"]), response)[0])
+    gust, gyro, surface = second_true_noise(w, campaign["gust_rad"], spec, c.dt)
     q = (gust * np.abs(response(w)) ** 2 + gyro) / seen ** 2 + surface
     e = predicted_random_error(q, sums.ff * m.repeats) / m.amplitude_rad
     return np.where(status == 0, e, np.inf)
@@ -613,7 +601,7 @@ def _scatter_ceiling(bands: list[dict], draws: int = 2000, seed: int = 0) -> flo
             continue
         worst = np.max(exact * np.sqrt(rng.chisquare(2.0 * dof, size=(draws, dof.size)) / (2.0 * dof)), axis=1) / \
             np.max(exact)
-        hits.append(np.mean((worst <= 1.5) & (worst >= 1 / 1.5)))
+        hits.append(np.mean(_within(worst)))
     return float(np.mean(hits)) if hits else math.nan
 
 
@@ -658,7 +646,7 @@ def run_second_campaign(job: tuple[dict, int, str, bool]) -> dict:
                              "target": min(m.target_error), "points": len(m.frequencies_rad_s),
                              "oracle": float(np.max(oracle)), "flown_predicted": float(np.max(flown)),
                              "amplitude": m.amplitude_rad, "set_by": m.amplitude_set_by, "repeats_flown": m.repeats,
-                             "above_logs": m.band_rad_s[1] > 2 * math.pi * slowest_hz / 4 * (1 + 1e-4),
+                             "above_logs": m.band_rad_s[1] > 2 * math.pi * RESOLVED_FRACTION * slowest_hz * (1 + 1e-4),
                              "per_point": [(p, _worst(alone, m.channel, [f])) for f, p in
                                            zip(m.frequencies_rad_s, m.predicted_error)],
                              "flown_per_point": [(float(p), _worst(alone, m.channel, [f]), float(o)) for f, p, o in
@@ -689,7 +677,7 @@ def second_notes(runs: list[dict], show: bool) -> str:
     rr = np.array([b["measured"] / b["flown_predicted"] for b in bs])
     fin = rr[np.isfinite(rr)]
     if fin.size:
-        ok = int(np.count_nonzero((rr <= 1.5) & (rr >= 1 / 1.5)))
+        ok = int(np.count_nonzero(_within(rr)))
         lines.append(f"predicted for the sweep the generator flies (its 0.5 s linear tapers and 2 s first trim; the "
                      f"planner's noise estimate): {ok} of {rr.size} bands within x1.5 ({100 * ok / rr.size:.0f} %), "
                      f"measured/predicted median {np.median(fin):.2f}, 10-90 % {np.percentile(fin, 10):.2f}-"
@@ -699,10 +687,10 @@ def second_notes(runs: list[dict], show: bool) -> str:
         lines.append(f"the planner's predicted error over the one with the generator's true noise (its noise "
                      f"estimate's error, as a random error): median {np.median(noise):.2f}, 10-90 % "
                      f"{np.percentile(noise, 10):.2f}-{np.percentile(noise, 90):.2f}; within x1.5 on "
-                     f"{int(np.count_nonzero((noise <= 1.5) & (noise >= 1 / 1.5)))} of {noise.size} bands")
+                     f"{int(np.count_nonzero(_within(noise)))} of {noise.size} bands")
     truth = np.array([b["measured"] / b["oracle"] for b in bs if math.isfinite(b["measured"]) and b["oracle"] > 0])
     if truth.size:
-        ok = int(np.count_nonzero((truth <= 1.5) & (truth >= 1 / 1.5)))
+        ok = int(np.count_nonzero(_within(truth)))
         lines.append(f"with the true noise, on the {truth.size} bands the flight alone estimated: {ok} within x1.5 "
                      f"({100 * ok / truth.size:.0f} %), measured/predicted median {np.median(truth):.2f}, 10-90 % "
                      f"{np.percentile(truth, 10):.2f}-{np.percentile(truth, 90):.2f}")
@@ -710,7 +698,7 @@ def second_notes(runs: list[dict], show: bool) -> str:
         lines.append(f"  of which the measured error's own scatter allows (its noise estimate on the predicted degrees "
                      f"of freedom, chi-square, each frequency alone, the band's worst against the exact one): "
                      f"{100 * ideal:.0f} % within x1.5")
-    misses = [b for b in bs if not 1 / 1.5 <= b["measured"] / b["predicted"] <= 1.5]
+    misses = [b for b in bs if not _within(b["measured"] / b["predicted"])]
     if misses:
         low = sum(1 for b in misses if b["measured"] < b["predicted"])
         gone = sum(1 for b in misses if math.isinf(b["measured"]))
@@ -718,8 +706,8 @@ def second_notes(runs: list[dict], show: bool) -> str:
                      f"worse, {gone} with a frequency the flight alone did not estimate")
     above = [b for b in bs if b["above_logs"]]
     if above:
-        lines.append(f"{len(above)} bands swept above a quarter of the slowest stream's rate (what the logs resolve), "
-                     f"{sum(1 for b in above if b.get('closed'))} of them closed")
+        lines.append(f"{len(above)} bands swept above {RESOLVED_FRACTION:g} of the slowest stream's rate (what the "
+                     f"logs resolve), {sum(1 for b in above if b.get('closed'))} of them closed")
     fate = {"reached within the repeats": 0, "extrapolated": 0, "never estimated": 0, "not estimated by the plan": 0}
     for b in bs:
         n = b.get("repeats", math.nan)
@@ -750,7 +738,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--amplitudes", type=float, nargs=2, default=AMPLITUDES, metavar=("LOW", "HIGH"),
                         help=f"the first card's sweep amplitudes [rad] ({AMPLITUDES[0]:g} {AMPLITUDES[1]:g})")
     parser.add_argument("--simulator", choices=("ours", "second", "both"), default="ours",
-                        help="ours (gap_validation.core.simulation), second (../shared/flights) or both (ours)")
+                        help="ours (gap_validation.core.simulation, the default), second (../shared/flights) or "
+                             "both (ours, then the second)")
     parser.add_argument("--second-amplitudes", type=float, nargs=2, default=SECOND_AMPLITUDES,
                         metavar=("LOW", "HIGH"), help="the second simulator's first card's sweep amplitudes [rad] "
                         f"({SECOND_AMPLITUDES[0]:g} {SECOND_AMPLITUDES[1]:g})")
@@ -781,8 +770,6 @@ def main(argv: list[str] | None = None) -> int:
 
 def second_main(args: argparse.Namespace) -> str:
     """The campaigns on the second simulator (``args.workers`` processes), their table and sentences."""
-    import concurrent.futures
-
     rng = np.random.default_rng([args.seed, 2])
     campaigns = [draw_second(rng, i, tuple(args.second_amplitudes)) for i in range(args.campaigns)]
     jobs = [(c, args.repeats, str(Path(args.out).resolve()), not args.hide_log_rate) for c in campaigns]
@@ -796,8 +783,6 @@ def second_main(args: argparse.Namespace) -> str:
     head = (f"\nthe second simulator (../shared/flights): {len(runs)} campaigns, seed {args.seed}, "
             f"{time.perf_counter() - start:.0f} s on {args.workers} workers\n")
     if args.json:
-        import json
-
         Path(args.json).write_text(json.dumps(runs, indent=1, default=str))
     labels = {name: spec["label"] for name, spec in SECOND_AIRFRAMES.items()}
     return "\n".join([head, summarise(runs, args.show, args.repeats, tuple(SECOND_AIRFRAMES), labels),

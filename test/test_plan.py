@@ -226,6 +226,27 @@ def test_pooling_counts_the_bins_two_estimates_share_once():
     assert value.tolist() == pytest.approx(y.tolist()) and variance.tolist() == pytest.approx((e ** 2).tolist())
 
 
+def test_a_point_without_bins_leaves_the_others_shared_bins_counted():
+    """A point whose band has no bins in the rebuilt flight (S_ii = 0) counts as independent; the two that share
+    their bins still count once: (e^2 + e^2 + 2 e^2 + e^2) / 9 = 5 e^2 / 9 as above, not e^2 / 3."""
+    x = np.log10([1.0, 1.1, 3.0])
+    e = np.full(3, 0.3)
+    same = np.array([[7.0, 7.0, 0.0], [7.0, 7.0, 0.0], [0.0, 0.0, 0.0]])
+    _, variance = plan_module._pool_response(x, np.zeros(3), e, same, 1e-3)
+    assert variance[0] == pytest.approx(5.0 * 0.09 / 9.0)
+
+
+def test_no_point_with_an_error_pools_nothing():
+    value, variance = plan_module._pool_response(np.log10([1.0, 2.0]), np.ones(2), np.full(2, np.inf), None, 0.1)
+    assert value.tolist() == [0.0, 0.0] and np.all(np.isinf(variance))
+
+
+@pytest.mark.parametrize("value, up", [(0.0123441, 0.01235), (0.01235, 0.01235), (0.0123456, 0.01235),
+                                       (0.099991, 0.1), (9.99961, 10.0), (0.0, 0.0)])
+def test_the_amplitude_is_rounded_up_to_four_digits(value, up):
+    assert plan_module._r_up(value) == up and plan_module._r_up(value) >= value
+
+
 def test_the_response_error_budget_gives_the_prediction_factor_on_its_share_of_bands():
     """RESPONSE_ERROR is derived, not tuned: a measured error whose noise variance goes as chi2(40) / 40 (the
     DESIGN_DOF) against a prediction with two log-normal errors of RESPONSE_ERROR (noise level and |H|) holds within

@@ -141,8 +141,10 @@ EDGE_CORE = 1.25
 PREDICTION_FACTOR = 1.5
 #: ... on this share of the bands (issue 25).
 PREDICTION_SHARE = 0.9
-#: Degrees of freedom a planned manoeuvre's estimate is designed for: those the target is quoted on (a verdict needs
-#: about 0.067 on 20; :func:`verdict_error`).
+#: Degrees of freedom the error budget of :data:`RESPONSE_ERROR` assumes for a planned manoeuvre's estimate: those
+#: the target is quoted on (a verdict needs about 0.067 on 20; :func:`verdict_error`). A nominal value, not each
+#: manoeuvre's own (its ``predicted_dof``, known only once the manoeuvre is designed from the response this budget
+#: sets): on 10 the budget would be 0.131, on 40 0.165.
 DESIGN_DOF = 20.0
 #: Largest random error of ``ln |H|`` the measured response may carry into a prediction (:func:`_pool_response`), from
 #: the budget of :data:`PREDICTION_FACTOR`: log-normal scatter of at most ``ln 1.5 / z(0.95) = 0.246`` between the
@@ -1034,9 +1036,12 @@ def _pool_response(x: np.ndarray, y: np.ndarray, error: np.ndarray, shared: np.n
     ``random_error`` is ``|H|``'s relative one) are taken nearest first in ``x`` (log frequency) and averaged with
     weights ``1 / error^2`` until the mean's variance ``a^T C a`` is at most ``target^2`` (or every point is in). Two
     estimates that share DFT bins are not independent: ``C_ij = rho_ij e_i e_j`` with ``rho_ij = S_ij / sqrt(S_ii
-    S_jj)``, the bins the two bands have in common (``shared``, :func:`_shared_bins`; independent without it). At the
-    low end of a short record neighbouring grid points share six of their seven bins: there the pool reaches much
-    further than a count of grid points would say. Beyond the points, the nearest are pooled (the ratio continued flat).
+    S_jj)``, the share of the bins the two bands have in common (``shared``, :func:`_shared_bins`; an approximation:
+    the local polynomial weighs a band's bins unevenly). Points without bins in ``shared``, or all of them without
+    ``shared``, count as independent. At the low end of a short record neighbouring grid points share six of their
+    seven bins: there the pool reaches much further than a count of grid points would say. Beyond the points, the
+    nearest are pooled (the ratio continued flat). The pool is a local mean: where the measured ``|H|`` departs from
+    the model's in shape (not by a constant factor) over the pool's reach, the mean is biased by that slope.
 
     Parameters
     ----------
@@ -1050,26 +1055,35 @@ def _pool_response(x: np.ndarray, y: np.ndarray, error: np.ndarray, shared: np.n
         Shared DFT bins between the grid points' bands (F, F).
     target : float
         Largest standard error of the pooled value.
+
+    Returns
+    -------
+    value, variance : ndarray
+        The pooled ``ln`` ratio and its variance at every ``x`` (0 and inf when no point has an error).
     """
     have = np.flatnonzero(np.isfinite(error))
-    e = error[have]
-    diag = np.diag(shared)[have] if shared is not None else np.zeros(have.size)
-    if shared is None or not np.all(diag > 0):
-        rho = np.eye(have.size)
-    else:
-        rho = np.clip(shared[np.ix_(have, have)] / np.sqrt(np.outer(diag, diag)), 0.0, 1.0)
+    if not have.size:
+        return np.zeros(x.shape), np.full(x.shape, np.inf)
+    e, yh = error[have], y[have]
+    rho = np.eye(have.size)
+    if shared is not None:
+        diag = np.diag(shared)[have]
+        both = (diag[:, None] > 0) & (diag[None, :] > 0)
+        known = np.where(diag > 0, diag, 1.0)
+        scale = np.sqrt(np.outer(known, known))
+        rho = np.where(both, np.clip(shared[np.ix_(have, have)] / scale, 0.0, 1.0), rho)
     cov = rho * np.outer(e, e)
+    weight = 1.0 / e ** 2
     value, variance = np.empty(x.shape), np.empty(x.shape)
     for k, xk in enumerate(x):
         order = np.argsort(np.abs(x[have] - xk), kind="stable")
-        for m in range(1, order.size + 1):
-            pool = order[:m]
-            weight = 1.0 / e[pool] ** 2
-            weight /= float(np.sum(weight))
-            var = float(weight @ cov[np.ix_(pool, pool)] @ weight)
-            if var <= target ** 2:
-                break
-        value[k], variance[k] = float(weight @ y[have][pool]), var
+        wo = weight[order]
+        total = np.cumsum(wo)
+        # a^T C a of the first m points, a = w / sum(w): the leading m x m block's sum over total(m)^2
+        block = np.cumsum(np.cumsum(wo[:, None] * wo[None, :] * cov[np.ix_(order, order)], axis=0), axis=1)
+        var = np.diagonal(block) / total ** 2
+        m = int(np.argmax(var <= target ** 2)) if np.any(var <= target ** 2) else order.size - 1
+        value[k], variance[k] = float(np.cumsum(wo * yh[order])[m] / total[m]), float(var[m])
     return value, variance
 
 
@@ -1506,7 +1520,8 @@ def plan_card(config: ValidationConfig, results: dict | None = None, options: Pl
     rule = (f"random error {opts.target_error:g} at every planned frequency (--target-error)" if opts.target_error
             else f"what a verdict at epsilon {EPSILON_THRESHOLD:g} needs: a mismatch at the threshold {SIGMA_FACTOR:g} "
                  f"noise scales out (with the {100 * BIAS_ERROR:g} % systematic floor), about "
-                 f"{verdict_error(EPSILON_THRESHOLD, 20):.3f} on 20 degrees of freedom; planned {opts.margin:g} x below it")
+                 f"{verdict_error(EPSILON_THRESHOLD, DESIGN_DOF):.3f} on {DESIGN_DOF:g} degrees of freedom; planned "
+                 f"{opts.margin:g} x below it")
     return TestCard(channels, "config" if results is None else "results", rule,
                     _assumptions(results is None, opts, first_flights > 0))
 

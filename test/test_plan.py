@@ -20,7 +20,8 @@ from gap_validation.core.estimator import SpectralEstimate
 from gap_validation.core.plan import (ARDUPILOT_RANGES, EPSILON_THRESHOLD, PX4_RANGES, PlanOptions, TestCard, chirp,
                                       manoeuvre_signal, noise_ratio, plan_card, predicted_random_error, verdict_error)
 from gap_validation.core.simulation import FlightOptions, log_sweep, simulate_flight
-from gap_validation.core.spectra import record_bands, solve_bands
+from gap_validation.core import plan as plan_module
+from gap_validation.core.spectra import SPECTRA_DEFAULTS, band_bins, record_bands, solve_bands
 from gap_validation.core.validator import OnlineValidator
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -188,6 +189,106 @@ def test_the_amplitude_is_capped_by_what_was_flown_and_lowered_where_the_respons
     assert "smallest sweep amplitude flown" in plan.amplitude_cap_reason and "amplitude-dependent" in \
         plan.amplitude_cap_reason
     assert all(m.amplitude_rad <= 0.012 * (1 + 1e-9) for m in plan.manoeuvres)
+
+
+# ------------------------------------------------------------------------------------------------ the first flight's |H|
+def test_the_bins_two_bands_share_are_those_the_estimator_picks():
+    """_shared_bins (from a record's sums: r_lo, r_hi, the bin spacing) is the intersection of the bands' bins as the
+    estimator's band_bins picks them; at the low end of a 40 s record neighbouring grid points share most of them."""
+    dt = 0.01
+    t = np.arange(-1.0, 41.0, dt)
+    u = chirp(t, 40.0, 0.05, 8.0, 1.0, 1.0)
+    w = np.geomspace(1.0, 10.0, 25)
+    sums, status = record_bands(u[None], u[None], dt, w)
+    assert np.all(status == 0)
+    shared = plan_module._shared_bins(sums, status, w, u.size, dt, SPECTRA_DEFAULTS["band_fraction"])
+    w_bins = 2.0 * math.pi * np.fft.rfftfreq(u.size, dt)
+    bands = [set(band_bins(w_bins, wi, SPECTRA_DEFAULTS["band_fraction"], SPECTRA_DEFAULTS["min_bins"],
+                           SPECTRA_DEFAULTS["max_band_fraction"]).tolist()) for wi in w]
+    assert shared.tolist() == [[float(len(a & b)) for b in bands] for a in bands]
+    assert np.diag(shared).tolist() == sums.bins.tolist()
+    assert shared[0, 1] >= 5 and shared[0, 1] / shared[0, 0] > 0.7
+
+
+def test_pooling_counts_the_bins_two_estimates_share_once():
+    """Two estimates on the same bins carry the information of one (hand-computed variances, equal weights): pooled
+    with a third on bins of their own the mean's variance is (e^2 + e^2 + 2 e^2 + e^2) / 9 = 5 e^2 / 9, not e^2 / 3."""
+    x = np.log10([1.0, 1.1, 3.0])
+    y = np.array([0.3, 0.1, -0.1])
+    e = np.full(3, 0.3)
+    same = np.array([[7.0, 7.0, 0.0], [7.0, 7.0, 0.0], [0.0, 0.0, 7.0]])
+    value, variance = plan_module._pool_response(x, y, e, same, 1e-3)          # every point pooled
+    assert value[0] == pytest.approx(0.1)
+    assert variance[0] == pytest.approx(5.0 * 0.09 / 9.0)
+    _, independent = plan_module._pool_response(x, y, e, None, 1e-3)
+    assert independent[0] == pytest.approx(0.09 / 3.0)
+    value, variance = plan_module._pool_response(x, y, e, same, 0.31)           # one point is enough
+    assert value.tolist() == pytest.approx(y.tolist()) and variance.tolist() == pytest.approx((e ** 2).tolist())
+
+
+def test_a_point_without_bins_leaves_the_others_shared_bins_counted():
+    """A point whose band has no bins in the rebuilt flight (S_ii = 0) counts as independent; the two that share
+    their bins still count once: (e^2 + e^2 + 2 e^2 + e^2) / 9 = 5 e^2 / 9 as above, not e^2 / 3."""
+    x = np.log10([1.0, 1.1, 3.0])
+    e = np.full(3, 0.3)
+    same = np.array([[7.0, 7.0, 0.0], [7.0, 7.0, 0.0], [0.0, 0.0, 0.0]])
+    _, variance = plan_module._pool_response(x, np.zeros(3), e, same, 1e-3)
+    assert variance[0] == pytest.approx(5.0 * 0.09 / 9.0)
+
+
+def test_no_point_with_an_error_pools_nothing():
+    value, variance = plan_module._pool_response(np.log10([1.0, 2.0]), np.ones(2), np.full(2, np.inf), None, 0.1)
+    assert value.tolist() == [0.0, 0.0] and np.all(np.isinf(variance))
+
+
+@pytest.mark.parametrize("value, up", [(0.0123441, 0.01235), (0.01235, 0.01235), (0.0123456, 0.01235),
+                                       (0.099991, 0.1), (9.99961, 10.0), (0.0, 0.0)])
+def test_the_amplitude_is_rounded_up_to_four_digits(value, up):
+    assert plan_module._r_up(value) == up and plan_module._r_up(value) >= value
+
+
+def test_the_response_error_budget_gives_the_prediction_factor_on_its_share_of_bands():
+    """RESPONSE_ERROR is derived, not tuned: a measured error whose noise variance goes as chi2(40) / 40 (the
+    DESIGN_DOF) against a prediction with two log-normal errors of RESPONSE_ERROR (noise level and |H|) holds within
+    PREDICTION_FACTOR on PREDICTION_SHARE of the draws (seeded Monte Carlo, not the closed form)."""
+    assert plan_module.RESPONSE_ERROR == pytest.approx(0.1548, abs=5e-4)
+    rng = np.random.default_rng(25)
+    n = 400_000
+    measured = 0.5 * np.log(rng.chisquare(2 * plan_module.DESIGN_DOF, n) / (2 * plan_module.DESIGN_DOF))
+    predicted = rng.normal(0.0, plan_module.RESPONSE_ERROR, (2, n)).sum(axis=0)
+    share = np.mean(np.abs(measured - np.mean(measured) - predicted) <= math.log(plan_module.PREDICTION_FACTOR))
+    assert share == pytest.approx(plan_module.PREDICTION_SHARE, abs=0.005)
+
+
+def _response_ratio(config, results):
+    """The planner's pooled |H| over the model's and its standard error, and the measured one unpooled, on the grid."""
+    data = results["channels"]["pitch"]
+    c = plan_module._channel_base("pitch", config.channels["pitch"])
+    assert plan_module._from_results(c, data, PlanOptions())
+    measured = 10.0 ** (np.array([np.nan if v is None else v for v in data["measured"]["magnitude_db"]]) / 20.0)
+    model = np.abs(np.asarray(config.channels["pitch"].model.freqresp(c.w), dtype=complex)).ravel()
+    return c.w, np.log(c.mag_ratio), c.mag_ratio_error, np.log(measured / model)
+
+
+@pytest.mark.parametrize("gain", [1.0, 1.4])
+def test_the_measured_response_is_pooled_to_its_stated_error_at_the_low_edge(first, card, gain):
+    """The short first flight (3 degrees of freedom per frequency at its low end, random error 0.15-0.6) with the true
+    |H| the model's (gain 1) or 1.4 times it: at the planned frequencies the pooled ln |H| / |H_model| carries at most
+    RESPONSE_ERROR and lies within its 90 % bound (1.645 RESPONSE_ERROR) of the truth, where the unpooled measurement
+    is off by more at some frequency (seeded flights)."""
+    config, results, plan_ = first["config"], first["results"], card
+    if gain != 1.0:
+        flight = simulate_flight(config, {"pitch": [{"type": "gain", "factor": gain}]}, first["opts"], seed=7)
+        results = _replay(config, flight)
+        plan_ = plan_card(config, results, PlanOptions())
+    w, pooled, error, raw = _response_ratio(config, results)
+    at = [int(np.argmin(np.abs(w - f))) for m in plan_.channels["pitch"].manoeuvres for f in m.frequencies_rad_s
+          if f < 3.0]
+    assert len(at) >= 4
+    bound = 1.645 * plan_module.RESPONSE_ERROR
+    assert np.all(error[at] <= plan_module.RESPONSE_ERROR * (1 + 1e-9))
+    assert np.max(np.abs(pooled[at] - math.log(gain))) <= bound
+    assert np.max(np.abs(raw[at] - math.log(gain))) > bound
 
 
 # ------------------------------------------------------------------------------------------------ the signal

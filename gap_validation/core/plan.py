@@ -33,12 +33,14 @@ of the degrees of freedom and grows as the coherence falls. Hence:
 2. For a candidate manoeuvre (a log chirp, :func:`chirp`) its own ``Phi2^H Phi2`` and degrees of freedom come from
    the estimator's code on its samples (:func:`~gap_validation.core.spectra.record_bands`): which target frequencies
    it counts at (excited, long enough, enough bins) and with what information; its ``|H|`` is the model seen
-   through the same bands (:func:`~gap_validation.core.spectra.expected_estimate`) times the measured ratio to it.
-   The predicted error is ``e2 = sqrt(q2 [(n A^2 Phi2^H Phi2)^-1]_00 / 2)`` (:func:`predicted_random_error`) for
-   ``n`` repeats at amplitude ``A``, ``q2`` the output's noise over ``|H|^2`` plus the input's trim motion; the
-   predicted coherence ``1 - d q / (n A^2 |Phi2|^2_00 + D q)`` (``D`` the bins less the transients, ``d = D - 3``)
-   must pass the channel's threshold with the validator's Beta law
-   (:func:`~gap_validation.core.diagnosis.confident_points`).
+   through the same bands (:func:`~gap_validation.core.spectra.expected_estimate`) times the measured ratio to it,
+   pooled over neighbouring frequencies until its random error is :data:`RESPONSE_ERROR` (:func:`_pool_response`:
+   the first flight's ``|H|`` at its data-limited low end is off by the random error that made it data-limited, and
+   enters the prediction one for one; neighbouring frequencies that share DFT bins count once). The predicted error
+   is ``e2 = sqrt(q2 [(n A^2 Phi2^H Phi2)^-1]_00 / 2)`` (:func:`predicted_random_error`) for ``n`` repeats at
+   amplitude ``A``, ``q2`` the output's noise over ``|H|^2`` plus the input's trim motion; the predicted coherence
+   ``1 - d q / (n A^2 |Phi2|^2_00 + D q)`` (``D`` the bins less the transients, ``d = D - 3``) must pass the
+   channel's threshold with the validator's Beta law (:func:`~gap_validation.core.diagnosis.confident_points`).
 3. The target (:func:`verdict_error`): the largest random error at which a mismatch at the channel's epsilon threshold
    (0.15) would be model-limited, i.e. ``normalised_mismatch(0.15, sigma, d) = 4`` with ``sigma = hypot(e, 0.01) / 2``
    (:func:`~gap_validation.core.diagnosis.normalised_mismatch`, :data:`~gap_validation.core.diagnosis.SIGMA_FACTOR`,
@@ -67,7 +69,8 @@ from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
-from scipy.special import digamma
+from scipy.special import digamma, polygamma
+from scipy.stats import norm
 
 from gap_validation.core.config import ChannelConfig, ValidationConfig
 from gap_validation.core.diagnosis import (BIAS_ERROR, SIGMA_FACTOR, analyse_channel, confident_points,
@@ -120,8 +123,13 @@ SWEEP_LENGTH_STEP = 1.2
 DETECTION_MARGIN = 1.25
 #: ... and its input power near every target this many times over 20 dB above the input's noise (power ratio).
 EXCITATION_MARGIN = 4.0
-#: Half-width of the kernel a noise spectrum is smoothed over [decades] (:func:`_fill_noise`): the grid's points
-#: within a factor 1.45, about four on each side of a 25-per-decade grid.
+#: Half-width of the kernel the output's noise spectrum is smoothed over [decades] (:func:`_fill_noise`): the grid's
+#: points within a factor 1.45, about four on each side of a 25-per-decade grid. Not widened to reach the degrees of
+#: freedom the error budget asks of the noise (11, :data:`RESPONSE_ERROR`): at the low end of a short first card the
+#: grid's neighbours share most of their DFT bins (a 7-bin band moves by about one bin per grid step), so those lie
+#: half a decade and more away, over which the noise falls ten- to a hundredfold; pooled that far (nearest first, to
+#: 6, 11 or 21 degrees of freedom) the planned error came out worse, not better (docs/PLAN.md, "The first flight's
+#: |H|").
 NOISE_WIDTH = 0.25
 #: Slopes (log-log) a noise spectrum is continued with beyond the frequencies it was measured at: turbulence falls
 #: as w^-4 at most above its corner (a second-order low-pass, as Dryden's); rising faster than w^2 is no noise.
@@ -129,6 +137,24 @@ SLOPE_RANGE = (-4.0, 2.0)
 #: A first-flight frequency within this factor of its excited band's edges is not used for the noise: the band's edge
 #: is where the flight's input is least known (a sweep whose slow start the detector lost counted a band below it).
 EDGE_CORE = 1.25
+#: The predicted random error is to hold within this factor of the one measured after flying the manoeuvre ...
+PREDICTION_FACTOR = 1.5
+#: ... on this share of the bands (issue 25).
+PREDICTION_SHARE = 0.9
+#: Degrees of freedom the error budget of :data:`RESPONSE_ERROR` assumes for a planned manoeuvre's estimate: those
+#: the target is quoted on (a verdict needs about 0.067 on 20; :func:`verdict_error`). A nominal value, not each
+#: manoeuvre's own (its ``predicted_dof``, known only once the manoeuvre is designed from the response this budget
+#: sets): on 10 the budget would be 0.131, on 40 0.165.
+DESIGN_DOF = 20.0
+#: Largest random error of ``ln |H|`` the measured response may carry into a prediction (:func:`_pool_response`), from
+#: the budget of :data:`PREDICTION_FACTOR`: log-normal scatter of at most ``ln 1.5 / z(0.95) = 0.246`` between the
+#: predicted and the measured error. The measured error scatters by ``sqrt(psi'(20)) / 2 = 0.113`` on its own (its noise
+#: variance on :data:`DESIGN_DOF` degrees of freedom goes as ``chi2(40) / 40``, the error as its square root); what
+#: is left, ``sqrt(0.246^2 - 0.113^2) = 0.219``, is shared evenly by the two numbers the prediction takes from the
+#: first flight, the noise level and the response's magnitude (the error goes as ``sigma / |H|``): 0.155 each. (For a
+#: noise variance that is ``sqrt(psi'(N)) / 2 = 0.155``: N = 11 degrees of freedom.)
+RESPONSE_ERROR = float(math.sqrt(((math.log(PREDICTION_FACTOR) / norm.ppf(0.5 + PREDICTION_SHARE / 2.0)) ** 2
+                                  - float(polygamma(1, DESIGN_DOF)) / 4.0) / 2.0))
 #: 20 dB: what :func:`~gap_validation.core.spectra.band_excited` asks of a manoeuvre over the input's noise.
 _EXCITATION_SNR = 1e2
 #: Why a frequency has no verdict, from the results' ``frequency_reasons`` and ``frequency_flags``, in words.
@@ -487,6 +513,14 @@ def _r(value: float, digits: int = 4) -> float:
     return float(f"{value:.{digits}g}")
 
 
+def _r_up(value: float, digits: int = 4) -> float:
+    """:func:`_r` rounded up: an amplitude that still meets every need it was computed from."""
+    rounded = _r(value, digits)
+    if not math.isfinite(rounded) or rounded >= value or value <= 0.0:
+        return rounded
+    return float(f"{rounded + 10.0 ** (math.floor(math.log10(value)) - digits + 1):.{digits}g}")
+
+
 # ------------------------------------------------------------------------------------------------ the signal
 def chirp(t_s: np.ndarray, duration_s: float, f_start_hz: float, f_stop_hz: float, fade_in_s: float,
           fade_out_s: float, amplitude: float = 1.0, dwell_cycles: float = 0.0) -> np.ndarray:
@@ -758,7 +792,8 @@ class _Channel:
     model_mag: np.ndarray              # |H| of the model on w
     model: Any = None                  # the model (LinearModel)
     sigma2: np.ndarray = None          # output noise per DFT bin (filled over the grid)
-    mag_ratio: np.ndarray = None       # measured |H| over the model's seen through the estimator (smoothed)
+    mag_ratio: np.ndarray = None       # measured |H| over the model's seen through the estimator (pooled)
+    mag_ratio_error: np.ndarray = None  # ... its standard error (of the log)
     error_now: np.ndarray = None       # measured random error (NaN: none)
     targets: list = field(default_factory=list)      # (index, reason key)
     unreachable: list = field(default_factory=list)  # (index, reason sentence)
@@ -784,9 +819,24 @@ def _channel_base(name: str, ch: ChannelConfig) -> _Channel:
                     coherence_threshold=float(ch.coherence_threshold), detect_on_input=ch.excitation is None)
 
 
-def _rebuild_flight(c: _Channel, data: dict, opts: PlanOptions) -> tuple[BandSums, list[str]]:
+def _shared_bins(sums: BandSums, status: np.ndarray, w: np.ndarray, n: int, dt: float,
+                 band_fraction: float) -> np.ndarray:
+    """``S[i, j]``: the DFT bins one record's bands at the grid frequencies ``i`` and ``j`` have in common (``S[i, i]``
+    its bins at ``i``; 0 where the record does not count). A band is the bins from ``w (1 + r_lo f)`` to
+    ``w (1 + r_hi f)`` (:func:`~gap_validation.core.spectra.band_bins`: contiguous for a sweep), ``f`` the band
+    fraction, on the record's bin spacing ``2 pi / (n dt)``."""
+    ok = (status == 0) & (sums.bins > 0)
+    spacing = 2.0 * math.pi / (n * dt)
+    lo = np.where(ok, np.round(w * (1.0 + np.where(ok, sums.r_lo, 0.0) * band_fraction) / spacing), 0.0)
+    hi = np.where(ok, np.round(w * (1.0 + np.where(ok, sums.r_hi, 0.0) * band_fraction) / spacing), -1.0)
+    shared = np.minimum(hi[:, None], hi[None, :]) - np.maximum(lo[:, None], lo[None, :]) + 1.0
+    return np.where(ok[:, None] & ok[None, :], np.clip(shared, 0.0, None), 0.0)
+
+
+def _rebuild_flight(c: _Channel, data: dict, opts: PlanOptions) -> tuple[BandSums, list[str], np.ndarray]:
     """The local polynomial sums of the first flight's manoeuvres (``Phi1^H Phi1``, degrees of freedom, bands),
-    rebuilt from its results.
+    rebuilt from its results, and the DFT bins the grid frequencies' bands share (:func:`_shared_bins`, summed over
+    the records).
 
     Chirps (the raw sweeps): amplitude ``input_amplitudes``, length from ``raw_sweeps``' spans, input power density
     ``A^2 T / ln(w1 / w0)`` of a log sweep over the excited band widened by the planner's first margins (a sweep
@@ -794,6 +844,8 @@ def _rebuild_flight(c: _Channel, data: dict, opts: PlanOptions) -> tuple[BandSum
     grid point. Manoeuvres kept for the time domain (doublets, 3-2-1-1s): their own samples."""
     w, notes = c.w, []
     total = BandSums.zeros(w.size, order=int(c.spectra["order"]))
+    shared = np.zeros((w.size, w.size))
+    fraction = float(c.spectra["band_fraction"])
     scale = 1.0
     raw = list(data.get("raw_sweeps") or [])
     amps = _array(data.get("input_amplitudes"))
@@ -819,6 +871,7 @@ def _rebuild_flight(c: _Channel, data: dict, opts: PlanOptions) -> tuple[BandSum
             u = chirp(t, length, wide_lo / (2 * math.pi), wide_hi / (2 * math.pi), fade, fade, amp * density)
             sums, status = record_bands(u[None], u[None], c.dt, w, options=c.spectra)
             total.add(sums, where=status == 0)
+            shared += _shared_bins(sums, status, w, u.size, c.dt, fraction)
             rebuilt += 1
         # only the last max_raw_sweeps are in the results: the others count as the same again
         scale = max(float(data.get("sweeps") or len(raw)) / max(len(raw), 1), 1.0)
@@ -827,6 +880,7 @@ def _rebuild_flight(c: _Channel, data: dict, opts: PlanOptions) -> tuple[BandSum
                 setattr(total, name, getattr(total, name) * scale)
             total.dof = np.round(total.dof * scale).astype(total.dof.dtype)
             total.bins = np.round(total.bins * scale).astype(total.bins.dtype)
+            shared *= scale
         if rebuilt:
             notes.append(f"the flight's {rebuilt} {kind or 'sweep'} record(s) rebuilt as log sweeps over "
                          f"{lo:.3g}-{hi:.3g} rad/s (the excited band {float(band[0]):.3g}-{float(band[1]):.3g} "
@@ -840,7 +894,8 @@ def _rebuild_flight(c: _Channel, data: dict, opts: PlanOptions) -> tuple[BandSum
         u = u - (float(np.mean(u[:n0])) if n0 > 0 else float(u[0]))
         sums, status = record_bands(u[None], u[None], dt, w, options=c.spectra)
         total.add(sums, where=status == 0)
-    return total, notes
+        shared += _shared_bins(sums, status, w, u.size, dt, fraction)
+    return total, notes, shared
 
 
 def _trim_levels(c: _Channel, data: dict | None, opts: PlanOptions) -> str:
@@ -906,7 +961,7 @@ def _output_trim_noise(c: _Channel, data: dict) -> np.ndarray:
 
 
 def _fill_noise(c: _Channel, q: np.ndarray, dof: np.ndarray, measured_mag: np.ndarray, seen_mag: np.ndarray,
-                trusted: np.ndarray, trim_noise: np.ndarray | None = None) -> None:
+                trusted: np.ndarray, trim_noise: np.ndarray | None = None, shared: np.ndarray | None = None) -> None:
     """``c.sigma2`` (the output's own noise per DFT bin) and ``c.mag_ratio`` on the whole grid.
 
     Where the first flight measured it, the estimator's noise is ``q |H_meas|^2`` (its own ``rss / d``): the
@@ -920,7 +975,9 @@ def _fill_noise(c: _Channel, q: np.ndarray, dof: np.ndarray, measured_mag: np.nd
     (between ``-4``, turbulence's fall, and ``+2``), or takes the output's noise measured in the trim before the kept
     manoeuvres (:func:`_output_trim_noise`) where that resolves the frequency. The measured ``|H|`` over the model's
     as the first flight's records see it (``seen_mag``: a lightly damped zero is smoothed more by a short record),
-    averaged alike: a planned manoeuvre's ``|H|`` is its own view of the model times that ratio."""
+    pooled over neighbouring frequencies until its random error is :data:`RESPONSE_ERROR` (:func:`_pool_response`,
+    the bins they share from ``shared``): a planned manoeuvre's ``|H|`` is its own view of the model times that
+    ratio."""
     measured = np.isfinite(measured_mag) & (measured_mag > 0)
     total = q * np.where(measured, measured_mag, np.nan) ** 2
     use = trusted & measured & np.isfinite(total) & (total > 0) & (dof >= 1)
@@ -936,10 +993,12 @@ def _fill_noise(c: _Channel, q: np.ndarray, dof: np.ndarray, measured_mag: np.nd
         beyond = (lw < lw[use].min()) | (lw > lw[use].max())
         known = beyond & np.isfinite(trim_noise) & (trim_noise > 0)
         c.sigma2[known] = trim_noise[known]
-    ok = use & np.isfinite(seen_mag) & (seen_mag > 0)
+    error = np.asarray(c.error_now, dtype=float) if c.error_now is not None else np.full(c.w.shape, np.nan)
+    ok = use & np.isfinite(seen_mag) & (seen_mag > 0) & np.isfinite(error) & (error > 0)
     if ok.any():
         ratio = np.log(np.where(ok, measured_mag, 1.0) / np.where(ok, seen_mag, 1.0))
-        c.mag_ratio = np.exp(_local_linear(lw, ratio, np.where(ok, 1.0, 0.0), NOISE_WIDTH, (0.0, 0.0)))
+        pooled, variance = _pool_response(lw, ratio, np.where(ok, error, np.inf), shared, RESPONSE_ERROR)
+        c.mag_ratio, c.mag_ratio_error = np.exp(pooled), np.sqrt(variance)
 
 
 def _response(model: Any):
@@ -967,6 +1026,65 @@ def _local_linear(x: np.ndarray, y: np.ndarray, weight: np.ndarray, width: float
         value = my + slope * (at - mx)
         out[i] = value + float(np.clip(slope, *slopes)) * (xi - at)
     return out
+
+
+def _pool_response(x: np.ndarray, y: np.ndarray, error: np.ndarray, shared: np.ndarray | None,
+                   target: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per grid point, the pooled ``ln |H_meas| / |H_model|`` and its variance.
+
+    The points with a finite random error ``error`` (each ``ln |H|``'s standard error: the validator's
+    ``random_error`` is ``|H|``'s relative one) are taken nearest first in ``x`` (log frequency) and averaged with
+    weights ``1 / error^2`` until the mean's variance ``a^T C a`` is at most ``target^2`` (or every point is in). Two
+    estimates that share DFT bins are not independent: ``C_ij = rho_ij e_i e_j`` with ``rho_ij = S_ij / sqrt(S_ii
+    S_jj)``, the share of the bins the two bands have in common (``shared``, :func:`_shared_bins`; an approximation:
+    the local polynomial weighs a band's bins unevenly). Points without bins in ``shared``, or all of them without
+    ``shared``, count as independent. At the low end of a short record neighbouring grid points share six of their
+    seven bins: there the pool reaches much further than a count of grid points would say. Beyond the points, the
+    nearest are pooled (the ratio continued flat). The pool is a local mean: where the measured ``|H|`` departs from
+    the model's in shape (not by a constant factor) over the pool's reach, the mean is biased by that slope.
+
+    Parameters
+    ----------
+    x : ndarray
+        log10 of the grid frequencies.
+    y : ndarray
+        ``ln`` of the measured over the model's magnitude (any value where ``error`` is not finite).
+    error : ndarray
+        Standard error of each ``y`` (inf where none).
+    shared : ndarray or None
+        Shared DFT bins between the grid points' bands (F, F).
+    target : float
+        Largest standard error of the pooled value.
+
+    Returns
+    -------
+    value, variance : ndarray
+        The pooled ``ln`` ratio and its variance at every ``x`` (0 and inf when no point has an error).
+    """
+    have = np.flatnonzero(np.isfinite(error))
+    if not have.size:
+        return np.zeros(x.shape), np.full(x.shape, np.inf)
+    e, yh = error[have], y[have]
+    rho = np.eye(have.size)
+    if shared is not None:
+        diag = np.diag(shared)[have]
+        both = (diag[:, None] > 0) & (diag[None, :] > 0)
+        known = np.where(diag > 0, diag, 1.0)
+        scale = np.sqrt(np.outer(known, known))
+        rho = np.where(both, np.clip(shared[np.ix_(have, have)] / scale, 0.0, 1.0), rho)
+    cov = rho * np.outer(e, e)
+    weight = 1.0 / e ** 2
+    value, variance = np.empty(x.shape), np.empty(x.shape)
+    for k, xk in enumerate(x):
+        order = np.argsort(np.abs(x[have] - xk), kind="stable")
+        wo = weight[order]
+        total = np.cumsum(wo)
+        # a^T C a of the first m points, a = w / sum(w): the leading m x m block's sum over total(m)^2
+        block = np.cumsum(np.cumsum(wo[:, None] * wo[None, :] * cov[np.ix_(order, order)], axis=0), axis=1)
+        var = np.diagonal(block) / total ** 2
+        m = int(np.argmax(var <= target ** 2)) if np.any(var <= target ** 2) else order.size - 1
+        value[k], variance[k] = float(np.cumsum(wo * yh[order])[m] / total[m]), float(var[m])
+    return value, variance
 
 
 def no_verdict_reason(flag: str | None, reason: str | None) -> str | None:
@@ -1194,7 +1312,7 @@ def _best_repeats(c: _Channel, idx: list[int], cand: _Candidate, opts: PlanOptio
             if amplitude < needed:
                 needed, limit = amplitude, by
             continue
-        amplitude = _r(amplitude, 4)
+        amplitude = min(_r_up(amplitude, 4), c.cap)      # up: the rounded amplitude still meets every need
         pred = np.sqrt(cand.q * cand.inv00 / (2.0 * n)) / amplitude
         coh = _coherence(cand.q, n * amplitude ** 2 * cand.ff00, n * cand.dof, nh)
         w = c.w[idx]
@@ -1402,7 +1520,8 @@ def plan_card(config: ValidationConfig, results: dict | None = None, options: Pl
     rule = (f"random error {opts.target_error:g} at every planned frequency (--target-error)" if opts.target_error
             else f"what a verdict at epsilon {EPSILON_THRESHOLD:g} needs: a mismatch at the threshold {SIGMA_FACTOR:g} "
                  f"noise scales out (with the {100 * BIAS_ERROR:g} % systematic floor), about "
-                 f"{verdict_error(EPSILON_THRESHOLD, 20):.3f} on 20 degrees of freedom; planned {opts.margin:g} x below it")
+                 f"{verdict_error(EPSILON_THRESHOLD, DESIGN_DOF):.3f} on {DESIGN_DOF:g} degrees of freedom; planned "
+                 f"{opts.margin:g} x below it")
     return TestCard(channels, "config" if results is None else "results", rule,
                     _assumptions(results is None, opts, first_flights > 0))
 
@@ -1433,7 +1552,7 @@ def _from_results(c: _Channel, data: dict, opts: PlanOptions) -> bool:
         mag = np.full(c.w.shape, np.nan)
     c.coherence_threshold = float(data.get("coherence_threshold") or c.coherence_threshold)
     c.notes.append(_trim_levels(c, data, opts))
-    sums1, notes = _rebuild_flight(c, data, opts)
+    sums1, notes, shared = _rebuild_flight(c, data, opts)
     c.notes.extend(notes)
     nh = int(c.spectra["order"]) + 1
     dof_pred = np.maximum(sums1.dof - nh, 0.0)
@@ -1448,7 +1567,7 @@ def _from_results(c: _Channel, data: dict, opts: PlanOptions) -> bool:
     band = data.get("excited_band_rad_s") or [c.w.min(), c.w.max()]
     core = (c.w >= float(band[0]) * EDGE_CORE) & (c.w <= float(band[1]) / EDGE_CORE)
     agrees = np.abs(dof_pred - dof) <= 0.25 * np.maximum(dof, 4.0)
-    _fill_noise(c, q, dof, mag, seen_mag, core & agrees, _output_trim_noise(c, data))
+    _fill_noise(c, q, dof, mag, seen_mag, core & agrees, _output_trim_noise(c, data), shared)
     _targets(c, data)
     _cap(c, data, opts)
     return bool(np.isfinite(c.sigma2).any())

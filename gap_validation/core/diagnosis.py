@@ -72,12 +72,13 @@ from typing import TYPE_CHECKING, Callable, Iterator, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.optimize import brentq
 from scipy.special import betainc
 
 from gap_validation.core import metrics
 from gap_validation.core.errors import GapValidationError
-from gap_validation.core.effects import (EFFECTS, AmplitudeFitRange, EffectFit, EffectType, FitRange, describe_effect,
-                                         validate_effect)
+from gap_validation.core.effects import (EFFECTS, AmplitudeFitRange, EffectFit, EffectType, FitRange, backlash_df,
+                                         describe_effect, validate_effect)
 from gap_validation.core.models import LinearModel
 from gap_validation.core.numbers import significant
 from gap_validation.core.results import Band, Candidate, ConstantFactor
@@ -1664,7 +1665,7 @@ def constant_factor(model: LinearModel, ev: _Evidence, base: _Fit,
     if base.worst < 0 or np.count_nonzero(u) < _MIN_POINTS or base.k_max <= ev.sigma_factor or \
             ev.w[u].max() < FACTOR_SPAN * ev.w[u].min():
         return None
-    through, _ = ev.expected(model.freqresp)
+    through, expansion = ev.expected(model.freqresp)
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = ev.p_meas[u] / through[u]
     weight = 1.0 / np.maximum((2.0 * ev.sigma[u]) ** 2, 1e-12)
@@ -1674,18 +1675,17 @@ def constant_factor(model: LinearModel, ev: _Evidence, base: _Fit,
     error = math.hypot(1.0 / math.sqrt(float(np.sum(weight))), bias_error)
     scales = abs(c - 1.0) / error
     phase = math.atan2(c.imag, c.real)
-    if scales <= ev.sigma_factor or abs(phase) <= ev.sigma_factor * error or \
-            ev.fit(lambda w: c * model.freqresp(w)).k_max > ev.sigma_factor:
+    if scales <= ev.sigma_factor or abs(phase) <= ev.sigma_factor * error:
+        return None
+    # c times the model, seen through the estimator: c times its view (the expansion error is relative)
+    left = ev.mismatch(metrics.epsilon_per_frequency(c * through, ev.p_meas), expansion)
+    if np.max(left[u]) > ev.sigma_factor:
         return None
     w = ev.w[u]
     found = ConstantFactor(gain=abs(c), phase_deg=math.degrees(phase), error=error,
                            noise_scales=scales, min_rad_s=float(w.min()), max_rad_s=float(w.max()))
     flown = None if amplitude is None else np.asarray(amplitude(w), float)
     if flown is not None and np.all(np.isfinite(flown) & (flown > 0)) and 0.0 < abs(c) < 1.0:
-        from scipy.optimize import brentq
-
-        from gap_validation.core.effects import backlash_df
-
         a = float(np.mean(flown))
         ratio_b = brentq(lambda r: abs(complex(backlash_df(r))) - abs(c), 1e-9, 2.0 - 1e-9)
         if abs(complex(backlash_df(ratio_b)) - c) <= ev.sigma_factor * error:

@@ -369,9 +369,9 @@ class ChannelResult:
     # fits that sat on a search bound (never offered as a fix), said when no offered fix explains the mismatch:
     # "gain (factor at -10 (lower bound))"
     beyond_range: list[str] = field(default_factory=list)
-    # within the tolerance, a difference the data resolve and one constant factor explains
-    # (core.diagnosis.ConstantFactor), None otherwise
-    within_tolerance: Any = None
+    # within the tolerance, a difference the data resolve and one constant factor explains (ConstantFactor, found
+    # by core.diagnosis.constant_factor), None otherwise
+    within_tolerance: ConstantFactor | None = None
     # a sign, units, the body frame or a clock (issue 23): core.conventions.Convention, none when the config is right
     conventions: list = field(default_factory=list)
     # closed loop and coupled surfaces (issue 13): per frequency, only with the config keys

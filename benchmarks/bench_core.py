@@ -28,7 +28,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from gap_validation.config import load_config  # noqa: E402
+from gap_validation.core.config import load_config  # noqa: E402
 from gap_validation.core.models import LinearModel  # noqa: E402
 
 LATERAL = {"A": [[-0.8726, 0.8968, -16.82, 9.791], [-2.757, -16.09, 3.368, 0.0], [1.708, 0.514, -2.775, 0.0],

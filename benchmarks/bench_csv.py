@@ -30,7 +30,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from gap_validation.logs.base import WriteTopic, open_log  # noqa: E402
+from gap_validation.logs.base import WriteTopic
+from gap_validation.logs.formats import open_log  # noqa: E402
 from gap_validation.logs.csvlog import write_csv  # noqa: E402
 
 

@@ -65,7 +65,7 @@ def main() -> int:
     parser.add_argument("--repeat", type=int, default=5)
     args = parser.parse_args()
     from gap_validation.bag.replay import replay
-    from gap_validation.config import load_config
+    from gap_validation.core.config import load_config
     from gap_validation.core.spectra import expected_estimate
 
     config = load_config(ROOT / "config" / "ultrastick25e.yaml")

@@ -37,8 +37,9 @@ from gap_validation.blas import single_threaded_blas  # noqa: E402
 single_threaded_blas()      # as gap-validate does, before numpy loads
 
 from gap_validation.bag.replay import replay  # noqa: E402
-from gap_validation.config import load_config  # noqa: E402
-from gap_validation.core.simulation import FlightOptions, hidden_effects, simulate_flight  # noqa: E402
+from gap_validation.core.config import load_config  # noqa: E402
+from gap_validation.core.simulation import FlightOptions, simulate_flight  # noqa: E402
+from gap_validation.cli.arguments import hidden_effects  # noqa: E402
 from gap_validation.logs.base import WriteTopic  # noqa: E402
 from gap_validation.logs.flight import BOOT_S, as_autopilot_logs, flight_topics, log_config, log_layout  # noqa: E402
 from gap_validation.logs.dataflash import write_dataflash  # noqa: E402

@@ -50,8 +50,9 @@ from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.serialization import deserialize_message, serialize_message  # noqa: E402
 from sensor_msgs.msg import Imu, JointState  # noqa: E402
 
-from gap_validation.config import load_config  # noqa: E402
-from gap_validation.core.simulation import FlightOptions, hidden_effects, simulate_flight  # noqa: E402
+from gap_validation.core.config import load_config  # noqa: E402
+from gap_validation.core.simulation import FlightOptions, simulate_flight  # noqa: E402
+from gap_validation.cli.arguments import hidden_effects  # noqa: E402
 from gap_validation.ros.message_types import message_class  # noqa: E402
 from gap_validation.ros.node import ValidatorNode  # noqa: E402
 

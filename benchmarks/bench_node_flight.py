@@ -87,7 +87,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
 
     from gap_validation.bag.reader import open_bag
-    from gap_validation.config import load_config
+    from gap_validation.core.config import load_config
 
     config = load_config(args.config)
     with open_bag(args.bag) as bag:

@@ -39,7 +39,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from gap_validation.bag.writer import write_flight  # noqa: E402
-from gap_validation.config import load_config  # noqa: E402
+from gap_validation.core.config import load_config  # noqa: E402
 from gap_validation.core.simulation import FlightOptions, simulate_flight  # noqa: E402
 
 #: The children: each prints ``{"messages": n, "work_s": seconds of the work after the imports, ...}``.
@@ -63,7 +63,7 @@ REPLAY = """
 import json, sys, time, warnings
 warnings.filterwarnings("ignore")
 sys.path.insert(0, {root!r})
-from gap_validation.config import load_config
+from gap_validation.core.config import load_config
 from gap_validation.bag.replay import replay
 start = time.perf_counter()
 outcome = replay([{bag!r}], load_config({config!r}), fast={fast!r}, diagnose=False)

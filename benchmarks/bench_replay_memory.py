@@ -34,7 +34,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from gap_validation.bag.writer import write_flight  # noqa: E402
-from gap_validation.config import load_config  # noqa: E402
+from gap_validation.core.config import load_config  # noqa: E402
 from gap_validation.core.simulation import FlightOptions, simulate_flight  # noqa: E402
 from gap_validation.logs.flight import FORMATS, write_flight_log  # noqa: E402
 
@@ -42,7 +42,7 @@ CHILD = """
 import json, sys, time, warnings
 warnings.filterwarnings("ignore")
 sys.path.insert(0, {root!r})
-from gap_validation.config import load_config
+from gap_validation.core.config import load_config
 from gap_validation.bag.replay import replay
 config = load_config({config!r})
 messages, elapsed = 0, 0.0

@@ -22,7 +22,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from gap_validation.config import load_config  # noqa: E402
+from gap_validation.core.config import load_config  # noqa: E402
 from gap_validation.core.config import parse_config  # noqa: E402
 from gap_validation.core.simulation import simulate_flight, with_options  # noqa: E402
 from gap_validation.core.validator import OnlineValidator  # noqa: E402

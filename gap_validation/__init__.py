@@ -11,8 +11,8 @@ The house, by what each part depends on (docs/ARCHITECTURE.md):
 * :mod:`gap_validation.ros`: the ROS 2 node ``gap_validator`` (rclpy);
 * :mod:`gap_validation.report`: figures (matplotlib), HTML report, terminal table;
 * :mod:`gap_validation.cli`: ``gap-validate``;
-* :mod:`gap_validation.config`, :mod:`gap_validation.history`, :mod:`gap_validation.atomic`: YAML configs,
-  validation history, atomic writes.
+* :mod:`gap_validation.history`, :mod:`gap_validation.cards`: validation history, test cards as YAML (configs
+  are read and written by :mod:`gap_validation.core.config`, atomic writes are :mod:`gap_validation.core.atomic`).
 
 Replay, node and library feed the same :class:`gap_validation.core.validator.OnlineValidator`.
 """

@@ -2,7 +2,7 @@
 
 The planning is :mod:`gap_validation.core.plan` (ROS-free, no YAML); the card's mapping is
 :meth:`TestCard.to_dict <gap_validation.core.plan.TestCard.to_dict>` (schema: docs/PLAN.md). This module turns it
-into text and back, next to :mod:`gap_validation.config` (the house's other YAML), so the CLI (``plan --out``) and
+into text and back, next to :func:`gap_validation.core.config.load_config` (the house's other YAML), so the CLI (``plan --out``) and
 the node (``~/plan``, the ``plan_card`` parameter) write the same document and read it the same way.
 """
 from __future__ import annotations
@@ -12,7 +12,7 @@ from pathlib import Path
 
 import yaml
 
-from gap_validation.config import read_yaml
+from gap_validation.core.config import read_yaml
 from gap_validation.core.errors import ConfigError, one_line
 from gap_validation.core.plan import TestCard
 from gap_validation.report.terminal import duration_text

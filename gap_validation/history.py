@@ -26,7 +26,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Sequence
 
-from gap_validation.atomic import atomic_write_bytes
+from gap_validation.core.atomic import atomic_write_bytes
 from gap_validation.core.errors import DataError
 
 log = logging.getLogger(__name__)
@@ -162,7 +162,7 @@ def _complete_lines(data: bytes) -> bytes:
 def load_history(path: str | os.PathLike) -> list[dict]:
     """Read a history file; a missing file is an empty history.
 
-    The history is rewritten atomically (:mod:`gap_validation.atomic`), so no write of this tool leaves a
+    The history is rewritten atomically (:mod:`gap_validation.core.atomic`), so no write of this tool leaves a
     half line; a torn *last* line without its newline (a file written by an older version or another tool,
     killed mid-append) is skipped with a logged warning naming the file and line, since every record before
     it is complete.

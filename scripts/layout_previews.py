@@ -19,7 +19,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from gap_validation.config import load_config  # noqa: E402
+from gap_validation.core.config import load_config  # noqa: E402
 from gap_validation.core.plottable import frequency_response_table, topic_token  # noqa: E402
 from gap_validation.core.results import ValidationResult  # noqa: E402
 from gap_validation.report.layouts import BODE_PLOTS, foxglove_plots, plotjuggler_series  # noqa: E402

@@ -1,4 +1,4 @@
-"""Atomic writes (gap_validation.atomic): every result file is either the old one or the new one, never half.
+"""Atomic writes (gap_validation.core.atomic): every result file is either the old one or the new one, never half.
 
 Covers the helper itself and the four writers built on it (JSON results, ``dump_config``, the history, the
 node's checkpoint): an exception mid-write, a failing ``fsync``/rename, and a real ``kill -9`` of a child
@@ -23,8 +23,8 @@ import numpy as np
 import pytest
 import yaml
 
-from gap_validation import atomic
-from gap_validation.config import dump_config
+from gap_validation.core.config import dump_config
+from gap_validation.core import atomic
 from gap_validation.core import atomic as core_atomic
 from gap_validation.core.checkpoint import load_state
 from gap_validation.core.errors import DataError
@@ -38,7 +38,7 @@ CHILD_WRITERS = r'''
 import json, os, sys, time
 import numpy as np
 from pathlib import Path
-from gap_validation.config import dump_config
+from gap_validation.core.config import dump_config
 from gap_validation.core.checkpoint import save_state
 from gap_validation.core.config import parse_config
 from gap_validation.core.results import ChannelResult, ValidationResult

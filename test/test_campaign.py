@@ -23,7 +23,7 @@ from gap_validation.campaign.manifest import load_manifest
 from gap_validation.campaign.results import REUSED, VALIDATED
 from gap_validation.campaign.runner import run_campaign
 from gap_validation.cli.main import main
-from gap_validation.config import load_config
+from gap_validation.core.config import load_config
 from gap_validation.bag.replay import replay
 
 distributed = pytest.importorskip("distributed")

@@ -4,7 +4,7 @@ import copy
 import numpy as np
 import pytest
 
-from gap_validation.config import dump_config, load_config
+from gap_validation.core.config import dump_config, load_config
 from gap_validation.core.config import parse_config
 from gap_validation.core.errors import ConfigError
 
@@ -132,7 +132,6 @@ def test_flight_data_path_accepts_mimo_channels(tmp_path):
     from gap_validation.core.validator import OnlineValidator
 
     cfg = parse_config(mimo_config(), "cfg.yaml")
-    cfg.check_flight_data_path()
     streams = [(c, s) for entries in cfg.topics().values() for c, s, _ in entries if c == "lateral"]
     assert sorted(streams) == [("lateral", "inputs[0]"), ("lateral", "inputs[1]"), ("lateral", "outputs[0]"),
                                ("lateral", "outputs[1]")]

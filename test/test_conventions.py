@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from gap_validation.cli.main import main
-from gap_validation.config import load_config
+from gap_validation.core.config import load_config
 from gap_validation.core.config import parse_config
 from gap_validation.core.conventions import DEGREES, Convention, candidates, fit_clock
 from gap_validation.core.errors import ConfigError

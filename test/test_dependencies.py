@@ -16,7 +16,7 @@ PACKAGE = ROOT / "gap_validation"
 
 #: Package -> the gap_validation packages it must not import (its layer is below them).
 FORBIDDEN_PACKAGES = {
-    "core": ("messages", "bag", "ros", "report", "cli", "config", "history", "atomic"),
+    "core": ("messages", "bag", "ros", "report", "cli", "history", "cards", "campaign", "logs", "jsbsim"),
     "messages": ("bag", "ros", "report", "cli"),
     "bag": ("ros", "report", "cli"),
     "ros": ("bag", "cli"),

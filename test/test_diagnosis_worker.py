@@ -11,7 +11,8 @@ from _flights import TINY, ultrastick
 from gap_validation.bag.replay import replay
 from gap_validation.bag.writer import write_flight
 from gap_validation.core import diagnosis
-from gap_validation.core.simulation import hidden_effects, simulate_flight
+from gap_validation.core.simulation import simulate_flight
+from gap_validation.cli.arguments import hidden_effects
 from gap_validation.ros.diagnosis_worker import DiagnosisWorker, _diagnose_snapshot
 
 

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from _flights import config_from, single_channel, ultrastick
-from gap_validation.core.simulation import FlightOptions, hidden_effects, simulate_flight
+from gap_validation.core.simulation import FlightOptions, simulate_flight
+from gap_validation.cli.arguments import hidden_effects
 from gap_validation.core.validator import OnlineValidator
 
 #: 3-2-1-1 runs: three per channel, 1 s of trim before the first, 3 s between, 50 Hz streams.

@@ -13,7 +13,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from _flights import raw_config, single_channel
-from gap_validation.config import load_config
+from gap_validation.core.config import load_config
 from gap_validation.core.config import parse_config
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.fields import FieldPath

@@ -22,7 +22,7 @@ pytest.importorskip("jsbsim")
 from gap_validation.bag.replay import replay  # noqa: E402
 from gap_validation.bag.writer import write_flight  # noqa: E402
 from gap_validation.cli.main import main  # noqa: E402
-from gap_validation.config import load_config  # noqa: E402
+from gap_validation.core.config import load_config  # noqa: E402
 from gap_validation.core.config import parse_config  # noqa: E402
 from gap_validation.core.errors import ConfigError  # noqa: E402
 from gap_validation.core.models import LinearModel  # noqa: E402
@@ -66,7 +66,7 @@ def test_the_core_and_the_cli_do_not_import_jsbsim():
                 [node.module or ""] if isinstance(node, ast.ImportFrom) else []
             assert not any(n == "jsbsim" or n.startswith(("jsbsim.", "gap_validation.jsbsim")) for n in names), path
     code = ("import sys, gap_validation.cli.main as m; m.build_parser(); import gap_validation.jsbsim.flight; "
-            "import gap_validation.core.flight_card; print('jsbsim' in sys.modules)")
+            "import gap_validation.core.simulation; print('jsbsim' in sys.modules)")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120,
                           env=os.environ.copy())
     assert done.returncode == 0, done.stderr

@@ -9,7 +9,8 @@ import pytest
 
 from gap_validation.core.config import parse_config
 from gap_validation.core.errors import ConfigError, DataError
-from gap_validation.logs.base import WriteTopic, open_log
+from gap_validation.logs.base import WriteTopic
+from gap_validation.logs.formats import open_log
 from gap_validation.logs.csvlog import TIME_COLUMNS, CsvFile, time_scale, write_csv
 
 

@@ -18,7 +18,8 @@ from pymavlink import DFReader  # noqa: E402
 
 from gap_validation.core.errors import ConfigError, DataError  # noqa: E402
 from gap_validation.logs import dataflash as df  # noqa: E402
-from gap_validation.logs.base import WriteTopic, open_log  # noqa: E402
+from gap_validation.logs.base import WriteTopic  # noqa: E402
+from gap_validation.logs.formats import open_log  # noqa: E402
 from gap_validation.logs.dataflash import DataFlashFile, write_dataflash  # noqa: E402
 
 RATE = "RDes,R,ROut,PDes,P,POut,YDes,Y,YOut,ADes,A,AOut,AOutSlew".split(",")   # AP_AHRS/LogStructure.h

@@ -15,10 +15,12 @@ from _flights import CONFIG_PATH, SHORT, config_from, single_channel, write_conf
 from gap_validation.bag.replay import BAG_GAP_S, replay
 from gap_validation.bag.writer import write_flight
 from gap_validation.cli.main import main
-from gap_validation.config import load_config
+from gap_validation.core.config import load_config
 from gap_validation.core.errors import ConfigError
-from gap_validation.core.simulation import hidden_effects, simulate_flight, with_options
-from gap_validation.logs.base import WriteTopic, open_log
+from gap_validation.core.simulation import simulate_flight, with_options
+from gap_validation.cli.arguments import hidden_effects
+from gap_validation.logs.base import WriteTopic
+from gap_validation.logs.formats import open_log
 from gap_validation.logs.checks import rate_limit_rad_s
 from gap_validation.logs.csvlog import write_csv
 from gap_validation.logs.flight import BOOT_S, SERVO_RANGE_RAD, write_flight_log

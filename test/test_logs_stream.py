@@ -10,10 +10,12 @@ import pytest
 
 from _flights import SHORT, config_from, single_channel
 from gap_validation.bag.replay import replay
-from gap_validation.config import load_config
-from gap_validation.core.simulation import hidden_effects, simulate_flight, with_options
+from gap_validation.core.config import load_config
+from gap_validation.core.simulation import simulate_flight, with_options
+from gap_validation.cli.arguments import hidden_effects
 from gap_validation.logs import checks, csvlog, dataflash, ulog
-from gap_validation.logs.base import WriteTopic, join_blocks, open_log
+from gap_validation.logs.base import WriteTopic, join_blocks
+from gap_validation.logs.formats import open_log
 from gap_validation.logs.checks import StampStats, check_stamps
 from gap_validation.logs.flight import BOOT_S, write_flight_log
 from gap_validation.logs.merge import merge_in_time_order

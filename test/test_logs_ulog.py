@@ -11,7 +11,8 @@ import pytest
 import pyulog
 
 from gap_validation.core.errors import DataError
-from gap_validation.logs.base import WriteTopic, open_log
+from gap_validation.logs.base import WriteTopic
+from gap_validation.logs.formats import open_log
 from gap_validation.logs import ulog as ulog_module
 from gap_validation.logs.ulog import ULogFile, write_ulog
 

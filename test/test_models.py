@@ -388,7 +388,7 @@ def test_loading_a_state_space_config_does_not_import_scipy_signal():
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[1]
-    code = ("import sys; from gap_validation.config import load_config; "
+    code = ("import sys; from gap_validation.core.config import load_config; "
             f"load_config({str(root / 'config' / 'ultrastick25e.yaml')!r}); print('scipy.signal' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=root, env=os.environ.copy(),
                          check=True)

@@ -40,7 +40,7 @@ from std_msgs.msg import Float64  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
 from gap_validation.bag.reader import open_bag  # noqa: E402
-from gap_validation.config import load_config  # noqa: E402
+from gap_validation.core.config import load_config  # noqa: E402
 from gap_validation.core.checkpoint import load_state  # noqa: E402
 from gap_validation.messages.router import stamp_seconds  # noqa: E402
 from gap_validation.ros.message_types import message_class  # noqa: E402

@@ -33,7 +33,7 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from rclpy.serialization import deserialize_message  # noqa: E402
 
 from gap_validation.bag.reader import open_bag  # noqa: E402
-from gap_validation.config import load_config  # noqa: E402
+from gap_validation.core.config import load_config  # noqa: E402
 from gap_validation.core.checkpoint import load_state  # noqa: E402
 from gap_validation.core.validator import OnlineValidator  # noqa: E402
 from gap_validation.messages.router import MessageRouter, stamp_seconds  # noqa: E402

@@ -17,7 +17,8 @@ from gap_validation.core.errors import ConfigError
 from gap_validation.core.estimator import record_amplitude
 from gap_validation.core.models import LinearModel
 from gap_validation.core.nonlinearity import NONLINEARITY, flown_amplitude
-from gap_validation.core.simulation import FlightOptions, log_sweep, parse_hidden
+from gap_validation.core.simulation import FlightOptions, log_sweep
+from gap_validation.cli.arguments import parse_hidden
 
 
 def first_harmonic(element, amplitude: float, w: float, periods: int = 30, per_period: int = 8000) -> complex:

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from gap_validation.cli.main import main
-from gap_validation.config import load_config
+from gap_validation.core.config import load_config
 from gap_validation.core.plottable import frequency_response_table, topic_token
 from gap_validation.core.results import ChannelResult
 from gap_validation.report.layouts import (BODE_PLOTS, foxglove_json, foxglove_layout, foxglove_plots,

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gap_validation.config import load_config
+from gap_validation.core.config import load_config
 from gap_validation.core.config import FrequencyGrid
 from gap_validation.core.plottable import CURVES, FLAG_CODES, flags_from_codes, frequency_response_table, read_table
 from gap_validation.core.results import ChannelResult

@@ -12,9 +12,9 @@ from scipy import signal
 
 from _flights import SHORT, config_from, raw_config, single_channel, ultrastick
 from gap_validation.core.errors import ConfigError
-from gap_validation.core.simulation import (
-    FlightOptions, band_noise, doublet, hidden_effects, log_sweep, parse_band_noise, parse_hidden, plan_topics,
-    simulate_flight, truth_models, with_options)
+from gap_validation.core.simulation import (FlightOptions, band_noise, doublet, log_sweep, plan_topics, simulate_flight,
+                                            truth_models, with_options)
+from gap_validation.cli.arguments import hidden_effects, parse_band_noise, parse_hidden
 
 CHANNELS = ("roll", "pitch", "yaw")
 

@@ -24,9 +24,10 @@ from scipy import signal
 from _flights import SHORT, config_from, single_channel
 from _pitch_flights import FINE_HZ, W_RAD_S, estimate, fraction_within, log_sweep, measure, simulate, true_response
 from gap_validation.bag.replay import replay
-from gap_validation.config import load_config
+from gap_validation.core.config import load_config
 from gap_validation.core.estimator import FrequencyResponseEstimator
-from gap_validation.core.simulation import hidden_effects, simulate_flight, with_options
+from gap_validation.core.simulation import simulate_flight, with_options
+from gap_validation.cli.arguments import hidden_effects
 from gap_validation.core.spectra import RESOLVED_FRACTION, resolved_hz
 from gap_validation.logs.checks import needed_rate_hz, rate_limit_rad_s, rate_warning
 from gap_validation.logs.flight import write_flight_log

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy import signal, stats
 
-from gap_validation.core.alignment import _StreamResampler
+from gap_validation.core.alignment import StreamResampler
 from gap_validation.core.spectra import (STATUS_ABOVE_GRID, STATUS_NOT_EXCITED, STATUS_TOO_SHORT, BandSums,
                                          band_bins, expected_estimate, interpolation_gain, neighbour_noise_floor,
                                          record_bands, solve_bands)
@@ -183,7 +183,7 @@ def test_interpolation_gain_is_what_the_resampler_loses(fraction):
     rate = 50.0
     t = np.arange(0.0, 20.0, 1.0 / rate)
     w = 2 * np.pi * fraction * rate
-    resampler = _StreamResampler(0.01 * 0.9993, 0.5, True)          # a grid drifting through every phase
+    resampler = StreamResampler(0.01 * 0.9993, 0.5, True)          # a grid drifting through every phase
     k, v = resampler.add(t, np.sin(w * t))
     tg = k * 0.01 * 0.9993
     fit = np.linalg.lstsq(np.column_stack([np.sin(w * tg), np.cos(w * tg)]), v, rcond=None)[0]

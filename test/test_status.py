@@ -64,7 +64,7 @@ def test_a_publisher_that_cannot_be_matched_is_named_first_and_raises_the_level(
 def test_the_last_diagnosis_nonlinearity_verdict_is_a_value():
     """issue 15's left item: the node shows the full diagnosis' amplitude-dependence verdict (value
     ``nonlinearity``, the JSON key's name), empty before a diagnosis and after the model or spectra change."""
-    from gap_validation.config import load_config
+    from gap_validation.core.config import load_config
     from gap_validation.core.margins import margins_from_epsilon
     from gap_validation.core.results import ChannelResult
     from gap_validation.messages.router import MessageRouter
@@ -112,7 +112,7 @@ def test_the_run_ends_on_silence_the_node_heard_not_on_old_reception_stamps():
     500 messages of a flight)."""
     import numpy as np
 
-    from gap_validation.config import load_config
+    from gap_validation.core.config import load_config
     from gap_validation.core.validator import OnlineValidator
     from gap_validation.messages.router import MessageRouter
     from gap_validation.ros.status import ChannelTask

@@ -6,7 +6,8 @@ import pytest
 
 from gap_validation.core.config import parse_config
 from gap_validation.core.errors import ConfigError, DataError
-from gap_validation.core.simulation import FlightOptions, hidden_effects, simulate_flight
+from gap_validation.core.simulation import FlightOptions, simulate_flight
+from gap_validation.cli.arguments import hidden_effects
 from gap_validation.core.validator import OnlineValidator
 
 from _flights import raw_config, ultrastick

@@ -55,7 +55,8 @@ from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.fields import FieldError
 from gap_validation.core.results import ValidationResult
 from gap_validation.core.validator import OnlineValidator
-from gap_validation.logs.base import LogBlocks, LogFile, LogSeries, is_log, open_log
+from gap_validation.logs.base import LogBlocks, LogFile, LogSeries, is_log
+from gap_validation.logs.formats import open_log
 from gap_validation.logs.checks import StampStats, rate_warning
 from gap_validation.logs.merge import merge_in_time_order
 from gap_validation.messages.decoding import TopicDecoder, Undecodable

@@ -18,7 +18,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable
 
-from gap_validation.atomic import atomic_write_text
+from gap_validation.core.atomic import atomic_write_text
 from gap_validation.campaign import trend_figures
 from gap_validation.campaign.findings import EPSILON, Finding, format_value
 from gap_validation.campaign.results import CampaignOutcome, FlightOutcome

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from gap_validation.config import read_yaml
+from gap_validation.core.config import read_yaml
 from gap_validation.core.errors import ConfigError
 
 __all__ = ["Flight", "Manifest", "load_manifest", "parse_manifest", "FLIGHT_KEYS", "REQUIRED_KEYS"]

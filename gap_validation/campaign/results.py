@@ -29,7 +29,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Iterable
 
-from gap_validation.atomic import atomic_open
+from gap_validation.core.atomic import atomic_open
 from gap_validation.campaign.manifest import Flight, Manifest
 from gap_validation.core.errors import ConfigError, DataError
 

@@ -32,7 +32,7 @@ from gap_validation.campaign.results import (FAILED, REUSED, VALIDATED, Campaign
                                              channel_summary, ensure_directory, flight_file, load_flight_file,
                                              write_campaign_csv, write_campaign_json)
 from gap_validation.campaign.task import TASK_OPTIONS, validate_flight
-from gap_validation.config import load_config
+from gap_validation.core.config import load_config
 from gap_validation.core.errors import ConfigError, DataError, one_line
 from gap_validation.report.terminal import write_json
 

@@ -1,6 +1,6 @@
 """One flight of a campaign: the function a Dask worker runs (plain Python, no Dask import).
 
-It is exactly ``gap-validate replay BAG... --config CFG --json``: :func:`gap_validation.config.load_config` and
+It is exactly ``gap-validate replay BAG... --config CFG --json``: :func:`gap_validation.core.config.load_config` and
 :func:`gap_validation.bag.replay.replay` (the diagnosis included), and the result is the replay JSON
 (:meth:`ValidationResult.to_json_dict`), so a campaign's epsilons are a single replay's.
 """
@@ -11,7 +11,7 @@ import socket
 import time
 from typing import Sequence
 
-from gap_validation.config import load_config
+from gap_validation.core.config import load_config
 from gap_validation.core.errors import GapValidationError, one_line
 from gap_validation.bag.replay import replay
 

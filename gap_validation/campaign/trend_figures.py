@@ -13,7 +13,7 @@ from typing import Sequence
 
 import numpy as np
 
-from gap_validation.atomic import atomic_open
+from gap_validation.core.atomic import atomic_open
 from gap_validation.campaign.findings import Finding, format_value
 from gap_validation.report.figures import pyplot
 

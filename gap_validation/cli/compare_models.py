@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from gap_validation.config import load_config
+from gap_validation.core.config import load_config
 from gap_validation.core import metrics, robust
 from gap_validation.core.config import ChannelConfig, ValidationConfig
 from gap_validation.core.errors import ConfigError

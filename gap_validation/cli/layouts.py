@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from gap_validation.config import load_config
+from gap_validation.core.config import load_config
 from gap_validation.core.atomic import atomic_write_text
 from gap_validation.core.errors import ConfigError
 from gap_validation.report.layouts import DEFAULT_NODE, foxglove_json, plotjuggler_layout, plotted_channels

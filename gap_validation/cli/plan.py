@@ -13,9 +13,9 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from gap_validation.atomic import atomic_write_text
+from gap_validation.core.atomic import atomic_write_text
 from gap_validation.cards import card_yaml
-from gap_validation.config import load_config
+from gap_validation.core.config import load_config
 from gap_validation.core.errors import ConfigError, DataError, GapValidationError, one_line
 from gap_validation.core.plan import (ARDUPILOT_THROW_RAD, PlanOptions, TestCard, ardupilot_parameters, card_signal,
                                       plan_card, px4_parameters)

@@ -15,7 +15,7 @@ import time
 
 from pathlib import Path
 
-from gap_validation.config import dump_config, load_config
+from gap_validation.core.config import dump_config, load_config
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.history import (append_history, default_history_path, epsilon_versions, format_trend,
                                     load_history, model_hash, previous_epsilon)

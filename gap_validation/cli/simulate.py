@@ -29,13 +29,13 @@ from pathlib import Path
 
 from gap_validation.bag.reader import BAG_SUFFIXES
 from gap_validation.bag.writer import STORAGES, write_flight
-from gap_validation.config import load_config
+from gap_validation.core.config import load_config
 from gap_validation.core.effects import describe_effect
 from gap_validation.core.errors import ConfigError
 from gap_validation.logs.flight import (FORMATS, SURFACE_RATE_HZ, log_layout, log_path, with_logged_excitation,
                                         write_flight_log)
-from gap_validation.core.simulation import (EXCITATIONS, FlightOptions, hidden_effects, parse_band_noise,
-                                            parse_coupling, parse_cross_response, simulate_flight, with_options)
+from gap_validation.core.simulation import EXCITATIONS, FlightOptions, simulate_flight, with_options
+from gap_validation.cli.arguments import hidden_effects, parse_band_noise, parse_coupling, parse_cross_response
 
 
 def _positive(kind):
@@ -439,7 +439,7 @@ def run_jsbsim(args) -> int:
     if config is not None:
         hidden = hidden_effects(args.hidden, config)
     elif args.hidden:                               # the channels of the config to come, checked before the trim
-        from gap_validation.core.simulation import parse_hidden
+        from gap_validation.cli.arguments import parse_hidden
         from gap_validation.jsbsim.linearize import CHANNELS, MIMO_CHANNEL
 
         hidden = {}

@@ -2,13 +2,13 @@
 
 Moved out of :mod:`gap_validation.core.estimator` (which describes the data path, step 1 "Alignment"):
 
-* :class:`_TimeBase` takes in one stream's timestamps: drops non-finite and absurd samples, drops steps back in
+* :class:`TimeBase` takes in one stream's timestamps: drops non-finite and absurd samples, drops steps back in
   time (reorders, duplicates) and stray stamps, and starts a new time base when time jumps back by more than
   ``max(JUMP_BACK_S, max_gap_s)`` and :data:`JUMP_CONFIRM` increasing samples confirm it (a looped bag).
-* :class:`_StreamResampler` interpolates one stream onto the grid ``k * dt`` (cubic Hermite, Catmull-Rom on
+* :class:`StreamResampler` interpolates one stream onto the grid ``k * dt`` (cubic Hermite, Catmull-Rom on
   uniform samples), keeping only three trailing samples; no interpolation across a gap of more than
   ``max_gap_s``.
-* :class:`_GridAligner` pairs the grid values of several streams (inputs, outputs, excitation) by grid index in
+* :class:`GridAligner` pairs the grid values of several streams (inputs, outputs, excitation) by grid index in
   bounded queues.
 
 The time-order check itself (:func:`ordered_run`, :func:`increasing`, :func:`jump_back_s`) is shared with
@@ -22,10 +22,10 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["JUMP_BACK_S", "JUMP_CONFIRM", "jump_back_s", "ordered_run", "increasing", "_NONE", "_TimeBase",
-           "_StreamResampler", "_GridAligner"]
+__all__ = ["JUMP_BACK_S", "JUMP_CONFIRM", "jump_back_s", "ordered_run", "increasing", "NO_INDEX", "TimeBase",
+           "StreamResampler", "GridAligner"]
 
-_NONE = -(2 ** 62)               # "no grid index yet"
+NO_INDEX = -(2 ** 62)               # "no grid index yet"
 #: A timestamp more than this [s] (or ``max_gap_s``, if larger) before the stream's latest starts a new time
 #: base instead of being dropped (a looped bag); smaller steps back are reorders or duplicates.
 JUMP_BACK_S = 1.0
@@ -112,7 +112,7 @@ def increasing(t: np.ndarray, last_t: float, back_s: float) -> tuple[np.ndarray,
     return keep, jumps
 
 
-class _TimeBase:
+class TimeBase:
     """Intake of one stream's timestamps: drops bad samples, detects time jumping back, applies the shift.
 
     Times are kept raw (``last_t``: the latest accepted raw time of the current base); accepted samples are
@@ -135,7 +135,7 @@ class _TimeBase:
         """Latest accepted time on the shifted (continuous) time axis [s], -inf before any."""
         return self.last_t + self.offset
 
-    def intake(self, t: np.ndarray, v: np.ndarray, tol_s: float, new_base: Callable[[_TimeBase, float], None],
+    def intake(self, t: np.ndarray, v: np.ndarray, tol_s: float, new_base: Callable[[TimeBase, float], None],
                forward_s: float = math.inf) -> tuple[np.ndarray, np.ndarray]:
         """Accepted samples of a batch on the shifted axis.
 
@@ -143,6 +143,17 @@ class _TimeBase:
         time base (``new_base(self, t_raw)`` sets ``epoch``/``offset``); a step forward of more than
         ``forward_s`` [s] (a gap) needs the same confirmation, so one stray stamp far in the future does not
         hide the samples after it. Unconfirmed jumps are dropped as ``non_monotonic``.
+
+        Parameters
+        ----------
+        t, v : ndarray
+            Raw times [s] and values of the batch.
+        tol_s : float
+            A step back of at most this [s] is a reorder or duplicate, not a new time base.
+        new_base : callable
+            ``new_base(self, t_raw)``: called on a confirmed jump back; sets ``epoch`` and ``offset``.
+        forward_s : float
+            A step forward of more than this [s] needs confirmation.
         """
         finite = (np.abs(t) < _MAX_ABS_TIME_S) & (np.abs(v) < _MAX_ABS_VALUE)    # False for NaN too
         n_bad = int(t.size - np.count_nonzero(finite))
@@ -209,11 +220,19 @@ class _TimeBase:
         self.pend_n = 0
 
     def state_dict(self) -> dict:
+        """The counters, the base and the pending samples (checkpoints)."""
         return {"last_t": self.last_t, "accepted": self.accepted, "nonfinite": self.nonfinite,
                 "non_monotonic": self.non_monotonic, "epoch": self.epoch, "offset": self.offset,
                 "pend": self.pend.copy(), "pend_n": self.pend_n, "jumps": self.jumps}
 
     def load_state(self, st: dict) -> None:
+        """Inverse of :meth:`state_dict`.
+
+        Parameters
+        ----------
+        st : dict
+            A :meth:`state_dict` (checkpoints of older versions lack some keys).
+        """
         self.last_t, self.offset = float(st["last_t"]), float(st.get("offset", 0.0))
         self.accepted, self.nonfinite = int(st["accepted"]), int(st["nonfinite"])
         self.non_monotonic, self.jumps = int(st["non_monotonic"]), int(st.get("jumps", 0))
@@ -221,11 +240,20 @@ class _TimeBase:
         self.pend[:] = st.get("pend", 0.0)
 
 
-class _StreamResampler:
+class StreamResampler:
     """One stream onto the grid ``k * dt`` (times relative to ``t0``), keeping only three trailing samples.
 
     Every grid instant is either emitted (interpolated) or skipped (it lies in a gap); all instants below
     ``k_next`` are decided.
+
+    Parameters
+    ----------
+    dt : float
+        Grid step [s].
+    max_gap_s : float
+        Samples further apart than this [s] leave the grid instants between them undecided (skipped).
+    cubic : bool
+        Cubic Hermite interpolation (slopes from the neighbouring samples); else linear.
     """
 
     def __init__(self, dt: float, max_gap_s: float, cubic: bool) -> None:
@@ -233,10 +261,19 @@ class _StreamResampler:
         self.ht = np.zeros(3)
         self.hv = np.zeros(3)
         self.hn = 0
-        self.k_next = _NONE
-        self.base = _TimeBase()
+        self.k_next = NO_INDEX
+        self.base = TimeBase()
 
     def add(self, t_rel: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The grid indices and values decided by a batch of samples.
+
+        Parameters
+        ----------
+        t_rel : ndarray
+            Times [s] relative to the grid's origin, increasing.
+        v : ndarray
+            Values.
+        """
         T = np.concatenate((self.ht[: self.hn], t_rel))
         V = np.concatenate((self.hv[: self.hn], v))
         out = self._emit(T, V)
@@ -312,28 +349,54 @@ class _StreamResampler:
         return np.where(left & right, (hr * dl + hl * dr) / (hl + hr), np.where(right, dr, dl))
 
     def state_dict(self) -> dict:
+        """The trailing samples, the next grid index and the time base (checkpoints)."""
         return {"ht": self.ht.copy(), "hv": self.hv.copy(), "hn": self.hn, "k_next": self.k_next,
                 **self.base.state_dict()}
 
     def load_state(self, st: dict) -> None:
+        """Inverse of :meth:`state_dict`.
+
+        Parameters
+        ----------
+        st : dict
+            A :meth:`state_dict`.
+        """
         self.ht[:] = st["ht"]
         self.hv[:] = st["hv"]
         self.hn, self.k_next = int(st["hn"]), int(st["k_next"])
         self.base.load_state(st)
 
 
-class _GridAligner:
-    """Pairs the grid values of several streams by grid index; bounded queues of ``cap`` values each."""
+class GridAligner:
+    """Pairs the grid values of several streams by grid index; bounded queues of ``cap`` values each.
+
+    Parameters
+    ----------
+    n_streams : int
+        Number of streams.
+    cap : int
+        Most values queued per stream; older ones are dropped (counted in ``dropped``).
+    """
 
     def __init__(self, n_streams: int, cap: int) -> None:
         self.n, self.cap = n_streams, cap
         self.k = [np.empty(0, np.int64) for _ in range(n_streams)]
         self.v = [np.empty(0) for _ in range(n_streams)]
-        self.cursor = _NONE               # every grid index below this has been combined or given up
+        self.cursor = NO_INDEX               # every grid index below this has been combined or given up
         self.dropped = [0] * n_streams
 
     def push(self, s: int, k: np.ndarray, v: np.ndarray) -> None:
-        """Queue stream ``s``'s grid values (indices ``k``)."""
+        """Queue stream ``s``'s grid values (indices ``k``).
+
+        Parameters
+        ----------
+        s : int
+            The stream.
+        k : ndarray of int
+            Grid indices, increasing.
+        v : ndarray
+            Values there.
+        """
         if k.size == 0:
             return
         late = k < self.cursor
@@ -344,7 +407,13 @@ class _GridAligner:
         self.v[s] = np.concatenate((self.v[s], v))
 
     def combine(self, finals: list[int]) -> tuple[np.ndarray, np.ndarray]:
-        """Grid indices below ``min(finals)`` that every stream has, and the values there (streams x n)."""
+        """Grid indices below ``min(finals)`` that every stream has, and the values there (streams x n).
+
+        Parameters
+        ----------
+        finals : list of int
+            Per stream, the grid index below which it has decided every instant.
+        """
         m = min(finals)
         idx, vals = np.empty(0, np.int64), np.empty((self.n, 0))
         if m > self.cursor:
@@ -391,7 +460,13 @@ class _GridAligner:
         return st
 
     def load_state(self, st: dict) -> None:
-        """Inverse of :meth:`state_dict`."""
+        """Inverse of :meth:`state_dict`.
+
+        Parameters
+        ----------
+        st : dict
+            A :meth:`state_dict`.
+        """
         self.cursor = int(st["cursor"])
         self.dropped = [int(d) for d in st["dropped"]]
         sizes = np.asarray(st["sizes"], np.int64)

@@ -9,8 +9,7 @@ When anything fails before the rename, the temporary file is removed and the old
 process killed between creating and renaming the temporary file can leave one behind (never the target
 half-written).
 
-Plain Python (``os``, ``tempfile``): the core may use it, and so may every front end
-(:mod:`gap_validation.atomic` re-exports it).
+Plain Python (``os``, ``tempfile``): the core uses it, and so does every front end.
 """
 from __future__ import annotations
 

@@ -1,7 +1,8 @@
 """Validation config: the schema of DESIGN.md as frozen dataclasses, with one-line errors.
 
-The CLI, the node and the library read the same file (YAML, loaded by :func:`gap_validation.config.load_config`);
-this module validates the already-loaded mapping, so it needs neither yaml nor ROS. Every error names the file,
+The CLI, the node and the library read the same file (YAML, loaded by :func:`load_config`, which imports yaml
+only when it reads a file; :func:`parse_config` validates an already-loaded mapping and needs neither yaml nor
+ROS). Every error names the file,
 the key path and the offending value, e.g. ``cfg.yaml: channels.pitch.input.field: expected a string, got 3``.
 Unknown keys are errors (a typo must not silently fall back to a default).
 
@@ -15,12 +16,15 @@ compared model against model (``compare-models``) and validated from flight data
 from __future__ import annotations
 
 import copy
+import os
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from gap_validation.core.errors import ConfigError
+from gap_validation.core.atomic import atomic_write_text
+from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.models import LinearModel, MimoModel
 from gap_validation.core.numbers import FINITE, NONZERO, POSITIVE, Interval, check_number
 
@@ -208,28 +212,11 @@ class ValidationConfig:
     source: str | None = None
     raw: dict = field(default_factory=dict)
 
-    def check_flight_data_path(self) -> None:
-        """Raise a one-line ConfigError when a channel cannot be validated from flight data.
-
-        Replay, the node, the simulator and :class:`~gap_validation.core.validator.OnlineValidator` call it
-        (through :meth:`topics` or directly) before touching any data; ``compare-models`` does not. Every
-        channel the schema accepts can be validated from flight data (MIMO channels too, since issue 14: the
-        estimator pools single-axis manoeuvres into the whole response matrix), so this checks nothing today;
-        it stays the one place a future restriction goes.
-
-        Raises
-        ------
-        ConfigError
-            Never today.
-        """
-        return None
-
     def topics(self) -> dict[str, list[tuple[str, str, SignalSpec]]]:
         """Topic -> every ``(channel, stream, spec)`` it feeds, in config order.
 
         A MIMO channel's streams are ``inputs[j]`` and ``outputs[i]`` (:func:`mimo_stream`).
         """
-        self.check_flight_data_path()
         out: dict[str, list[tuple[str, str, SignalSpec]]] = {}
         for name, channel in self.channels.items():
             streams = channel.input_streams + channel.output_streams + ("trigger",) if channel.is_mimo else STREAMS
@@ -516,3 +503,85 @@ def parse_config(data: Any, source: str = "<config>") -> ValidationConfig:
             raise _fail(source, f"channels.{name}", "channel names are letters, digits, '_' or '-'")
         channels[name] = _channel(name, value, source)
     return ValidationConfig(channels=channels, source=source, raw=copy.deepcopy(dict(top)))
+
+
+def load_config(path: str | os.PathLike) -> ValidationConfig:
+    """Read a validation config file.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The YAML file.
+
+    Raises
+    ------
+    ConfigError
+        One line naming the file and the problem (missing file, YAML syntax with line number, bad key).
+    """
+    path = Path(path)
+    return parse_config(read_yaml(path, "config file", "config"), str(path))
+
+
+def read_yaml(path: str | os.PathLike, what: str, short: str | None = None) -> Any:
+    """The YAML document of a file (configs, campaign manifests), or a one-line :class:`ConfigError`.
+
+    ``what`` names the kind of file in the messages (``"config file"``: "config file not found", "is a directory,
+    not a config file"); ``short`` in "cannot read <short>" (default ``what``).
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The YAML file.
+    what : str
+        The kind of file, for the messages.
+    short : str, optional
+        The kind of file in "cannot read <short>" (default ``what``).
+    """
+    import yaml   # only when a file is read: importing the schema needs no yaml
+
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: {what} not found") from None
+    except UnicodeDecodeError as err:
+        raise ConfigError(f"{path}: not a text (UTF-8) file (byte {err.start}: {err.reason})") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: is a directory, not a {what}") from None
+    except OSError as err:
+        raise ConfigError(f"{path}: cannot read {short or what} ({err.strerror or err})") from None
+    try:
+        return yaml.safe_load(text)
+    except RecursionError:
+        raise ConfigError(f"{path}: YAML error: nested too deeply") from None
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        problem = getattr(err, "problem", None) or "invalid YAML"
+        raise ConfigError(f"{path}: YAML error{where}: {problem}") from None
+
+
+def dump_config(config: ValidationConfig | dict, path: str | os.PathLike) -> None:
+    """Write a config (its raw mapping) as YAML, atomically (:mod:`gap_validation.core.atomic`: temporary file, then
+    rename; a crash never leaves a half-written config).
+
+    Parameters
+    ----------
+    config : ValidationConfig or dict
+        The config (its ``raw`` mapping is written) or a mapping.
+    path : str or PathLike
+        The file written.
+
+    Raises
+    ------
+    DataError
+        One line naming the file when it cannot be written (the old file, if any, is kept).
+    """
+    import yaml
+
+    data = config.raw if isinstance(config, ValidationConfig) else config
+    text = yaml.safe_dump(data, sort_keys=False, default_flow_style=None)
+    try:
+        atomic_write_text(path, text)
+    except OSError as err:
+        raise DataError(f"{path}: cannot write config ({err.strerror or err})") from None

@@ -82,6 +82,7 @@ from gap_validation.core.effects import (EFFECTS, AmplitudeFitRange, EffectFit, 
 from gap_validation.core.models import LinearModel
 from gap_validation.core.numbers import significant
 from gap_validation.core.results import Band, Candidate, ConstantFactor
+from gap_validation.core.spectra import sweep_points
 
 if TYPE_CHECKING:  # pragma: no cover
     from gap_validation.core.estimator import SpectralEstimate
@@ -90,7 +91,7 @@ __all__ = [
     "ChannelDiagnosis", "analyse_channel", "fit_effects", "FittedCandidate", "cifer_weight", "cifer_cost",
     "bendat_piersol_random_error", "effective_random_error", "epsilon_noise_scale", "minimum_averages",
     "normalised_mismatch", "frequency_flags", "find_bands", "FAMILIES", "PAIRS", "SIGMA_FACTOR", "BIAS_ERROR",
-    "band_edge_warning", "information_criteria", "INDISTINGUISHABLE", "constant_factor", "FACTOR_SPAN",
+    "band_edge_warning", "information_criteria", "confident_mask", "INDISTINGUISHABLE", "constant_factor", "FACTOR_SPAN",
 ]
 
 #: Noise-only epsilon is Rayleigh with scale ``sigma = e/2``; ``P(eps > k sigma) = exp(-k^2/2)``: k = 4 gives
@@ -395,10 +396,31 @@ def confident_points(estimate: SpectralEstimate, coherence_threshold: float) -> 
     coherence_threshold : float
         The channel's coherence threshold.
     """
-    p_meas = np.asarray(estimate.response, complex)
-    coherence = np.asarray(estimate.coherence, float)
-    dof = _n_averages(estimate)
-    nh = _coefficients(estimate)
+    return confident_mask(estimate.response, estimate.coherence, _n_averages(estimate), _coefficients(estimate),
+                          coherence_threshold)
+
+
+def confident_mask(response: ArrayLike, coherence: ArrayLike, dof: ArrayLike, coefficients: int,
+                   coherence_threshold: float) -> np.ndarray:
+    """:func:`confident_points` on arrays (a MIMO matrix's worst output, for instance).
+
+    Parameters
+    ----------
+    response : array_like, complex
+        The response per frequency (a point needs it finite and nonzero).
+    coherence : array_like
+        Coherence per frequency.
+    dof : array_like
+        Degrees of freedom per frequency (inf: not limited).
+    coefficients : int
+        Complex coefficients of the response polynomial per frequency (the Beta law's ``nh``).
+    coherence_threshold : float
+        The channel's coherence threshold.
+    """
+    p_meas = np.asarray(response, complex)
+    coherence = np.asarray(coherence, float)
+    dof = np.broadcast_to(np.asarray(dof, float), coherence.shape)
+    nh = int(coefficients)
     with np.errstate(invalid="ignore"):
         chance = np.where(np.isfinite(dof) & (dof >= 1), 1.0 - betainc(nh, np.maximum(dof, 1.0),
                                                                          np.clip(coherence, 0.0, 1.0)), 0.0)
@@ -409,26 +431,6 @@ def confident_points(estimate: SpectralEstimate, coherence_threshold: float) -> 
 def _coefficients(estimate) -> int:
     """Complex coefficients of the estimate's response polynomial (2 when it does not say)."""
     return int(getattr(estimate, "coefficients", 2))
-
-
-def sweep_points(sweep: SpectralEstimate, average_confident: np.ndarray, coherence_threshold: float) -> np.ndarray:
-    """Frequencies of one sweep's (raw) estimate that count for the raw epsilon: those confident in the average
-    (the validation's frequency set) where the sweep itself is coherent. A single sweep has fewer degrees of
-    freedom than the pool, so the minimum rule applies to the average only; raw epsilon is then the sup over
-    the same frequencies as the averaged one, and not smaller for want of points (paper, Table 1).
-
-    Parameters
-    ----------
-    sweep : SpectralEstimate
-        One sweep's (raw) estimate.
-    average_confident : ndarray of bool
-        Confident points of the averaged estimate (:func:`confident_points`).
-    coherence_threshold : float
-        The channel's coherence threshold.
-    """
-    p = np.asarray(sweep.response, complex)
-    return (np.asarray(average_confident, bool) & (np.asarray(sweep.coherence, float) >= coherence_threshold)
-            & np.isfinite(p) & (np.abs(p) > 0))
 
 
 def normalised_mismatch(eps_w: ArrayLike, sigma: ArrayLike, dof: ArrayLike = np.inf) -> np.ndarray:
@@ -1354,7 +1356,7 @@ _NAMES = {"parameter_error": "a refit of the model's coefficients"}
 
 def _raw_epsilon(model: LinearModel, sweeps: Sequence, coherence_threshold: float,
                  average_confident: np.ndarray) -> float | None:
-    """Sup of epsilon over every sweep's points (:func:`sweep_points`) for ``model`` (raw epsilon, Table 1)."""
+    """Sup of epsilon over every sweep's points (:func:`~gap_validation.core.spectra.sweep_points`) for ``model`` (raw epsilon, Table 1)."""
     best = None
     for s in sweeps:
         ok = sweep_points(s, average_confident, coherence_threshold)

@@ -8,7 +8,7 @@ variance of the response per frequency. Nothing grows with flight length.
 
 Data path (one pass, bounded delay)
 -----------------------------------
-1. **Alignment** (:class:`_StreamResampler`, :class:`_GridAligner`). Each stream is interpolated on its own onto
+1. **Alignment** (:class:`StreamResampler`, :class:`GridAligner`). Each stream is interpolated on its own onto
    one uniform grid ``t_k = t0 + k / sample_rate_hz`` (default 100 Hz; must be >= 5x the highest frequency):
    cubic Hermite with three-point slopes (Catmull-Rom on uniform samples; a 50 Hz stream read on a 100 Hz grid
    loses < 0.4 % of magnitude at 5 Hz). Grid values wait in bounded queues until every stream has reached the
@@ -72,7 +72,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-from gap_validation.core.alignment import (_NONE, JUMP_BACK_S, _GridAligner, _StreamResampler, _TimeBase,
+from gap_validation.core.alignment import (NO_INDEX, JUMP_BACK_S, GridAligner, StreamResampler, TimeBase,
                                            jump_back_s)
 from gap_validation.core.background import HANN_BINS_PER_AVERAGE, LeadResult, TrimResponse, TrimSpectrum
 from gap_validation.core.errors import ConfigError, DataError
@@ -420,7 +420,7 @@ class _RecordBuffer:
                  on_full: Callable[[int, np.ndarray, int, int], int], lookback_n: int = 0) -> None:
         self.n, self.pre_n, self.post_n, self.cap = n_streams, pre_n, post_n, cap
         self.lookback_n = max(lookback_n, pre_n)
-        self.last_end_k = _NONE
+        self.last_end_k = NO_INDEX
         self.closed_span: tuple[int, np.ndarray] | None = None    # (k0, samples) of the last record closed
         self.on_full = on_full
         self.ring = np.zeros((n_streams, 0))
@@ -430,8 +430,8 @@ class _RecordBuffer:
         self.k0 = 0
         self.open = False
         self.src = _ENERGY
-        self.on_k = _NONE
-        self.off_k = _NONE
+        self.on_k = NO_INDEX
+        self.off_k = NO_INDEX
 
     @property
     def next_k(self) -> int:
@@ -441,11 +441,11 @@ class _RecordBuffer:
     def start(self, k: int, src: int) -> list:
         """An excitation starts at ``k`` (edges are applied in time order, before the sample at ``k``)."""
         closed = []
-        if self.open and self.off_k != _NONE and (src == _TRIGGER or self.src == _TRIGGER):
+        if self.open and self.off_k != NO_INDEX and (src == _TRIGGER or self.src == _TRIGGER):
             end = max(self.off_k, min(self.off_k + self.post_n, (self.off_k + k) // 2))
             closed.append(self._close(end))
         if self.open:
-            self.off_k = _NONE
+            self.off_k = NO_INDEX
             return closed
         ring_end = self.ring_k + self.ring.shape[1] if self.ring.shape[1] else k
         back = self.pre_n if src == _TRIGGER else self.lookback_n     # a trigger dates its start exactly
@@ -453,7 +453,7 @@ class _RecordBuffer:
         seg = self.ring[:, max(0, lo - self.ring_k):]
         self.buf[:, : seg.shape[1]] = seg
         self.buf_n, self.k0 = seg.shape[1], ring_end - seg.shape[1]
-        self.open, self.src, self.on_k, self.off_k = True, src, k, _NONE
+        self.open, self.src, self.on_k, self.off_k = True, src, k, NO_INDEX
         return closed
 
     def stop(self, k: int) -> None:
@@ -472,14 +472,14 @@ class _RecordBuffer:
                 break
             k = k_a + pos
             limit = n - pos
-            if self.off_k != _NONE:
+            if self.off_k != NO_INDEX:
                 limit = min(limit, self.off_k + self.post_n + self.pre_n - k)
             limit = min(limit, self.cap - self.buf_n)
             if limit > 0:
                 self.buf[:, self.buf_n:self.buf_n + limit] = block[:, pos:pos + limit]
                 self.buf_n += limit
                 pos += limit
-            if self.off_k != _NONE and self.next_k >= self.off_k + self.post_n + self.pre_n:
+            if self.off_k != NO_INDEX and self.next_k >= self.off_k + self.post_n + self.pre_n:
                 closed.append(self._close(self.off_k + self.post_n))
             elif self.buf_n >= self.cap:                  # full (max_record_s): the owner takes what it can
                 self._drop(self.on_full(self.k0, self.buf[:, : self.buf_n], self.src, max(0, self.on_k - self.k0)))
@@ -507,7 +507,7 @@ class _RecordBuffer:
     def end_run(self) -> list:
         """The data break: the open record closes with what it has (``post_n`` after the excitation's end at
         most); the ring is forgotten."""
-        end = self.next_k if self.off_k == _NONE else min(self.next_k, self.off_k + self.post_n)
+        end = self.next_k if self.off_k == NO_INDEX else min(self.next_k, self.off_k + self.post_n)
         closed = [self._close(end)] if self.open and self.buf_n else []
         self.open = False
         self.buf_n = 0
@@ -517,7 +517,7 @@ class _RecordBuffer:
     def _close(self, end_k: int) -> tuple:
         n = max(0, min(self.buf_n, end_k - self.k0))
         act0 = max(0, self.on_k - self.k0)
-        act1 = n if self.off_k == _NONE else max(act0, min(n, self.off_k - self.k0))
+        act1 = n if self.off_k == NO_INDEX else max(act0, min(n, self.off_k - self.k0))
         out = (self.k0, self.buf[:, :n].copy(), self.src, act0, act1)
         # every sample fed so far, the ones after the record's end included (the pre_n of quiet that closed it,
         # fed in earlier blocks): the trim after the record begins at its end whatever the blocks were
@@ -614,9 +614,9 @@ class FrequencyResponseEstimator:
         self._det_on = [False] * len(self._dets)
         self._man = ManoeuvreRecorder(fs)
         self._trig = TriggerTracker()
-        self._streams = [_StreamResampler(self._dt, opts["max_gap_s"], opts["cubic_interpolation"])
+        self._streams = [StreamResampler(self._dt, opts["max_gap_s"], opts["cubic_interpolation"])
                          for _ in range(S_all)]
-        self._align = _GridAligner(S_all, max(16, int(math.ceil(opts["max_lag_s"] * fs))))
+        self._align = GridAligner(S_all, max(16, int(math.ceil(opts["max_lag_s"] * fs))))
         self._delay_n = max(d.lookahead_samples for d in self._dets)
         self._dl = np.zeros((S_all, self._delay_n))       # the airspeed too: the scaling follows the edges
         self._dl_n = 0
@@ -631,7 +631,7 @@ class FrequencyResponseEstimator:
         self._t0 = float("nan")
         self._last_k: int | None = None
         self._trigger_mode = not opts["detect_sweeps"]
-        self._trig_base = _TimeBase()
+        self._trig_base = TimeBase()
         self._jump_tol_s = jump_back_s(opts["max_gap_s"])
         self._jump_gap_s = 2.0 * opts["max_gap_s"] + 1.0     # between the old and the new time base [s]
         self._epoch = 0
@@ -1068,7 +1068,7 @@ class FrequencyResponseEstimator:
         idx, combined = self._align.combine([q.k_next for q in self._streams])
         self._process_combined(idx, combined)
 
-    def _new_base(self, base: _TimeBase, t_raw: float) -> None:
+    def _new_base(self, base: TimeBase, t_raw: float) -> None:
         """``base``'s time jumped back to ``t_raw`` [s] (confirmed): adopt the new time base another stream
         already opened, or open one just after the latest sample of every stream (a gap: the run ends)."""
         if self._epoch > base.epoch and t_raw + self._epoch_offset > base.latest_s + self._opts["max_gap_s"]:
@@ -1196,7 +1196,7 @@ class FrequencyResponseEstimator:
         self._trigger_mode = True
         self._events = [e for e in self._events if e[0] < k_switch]
         self._det_on = [False] * len(self._dets)
-        on = self._events[-1][1] if self._events else self._rec.open and self._rec.off_k == _NONE
+        on = self._events[-1][1] if self._events else self._rec.open and self._rec.off_k == NO_INDEX
         if on:
             self._push_event(k_switch, False, _ENERGY)
 
@@ -1524,7 +1524,7 @@ class FrequencyResponseEstimator:
         for i, e in enumerate(self._events):
             ev[i] = e
         st.update({
-            "t0": self._t0, "last_k": _NONE if self._last_k is None else self._last_k,
+            "t0": self._t0, "last_k": NO_INDEX if self._last_k is None else self._last_k,
             "trigger_mode": int(self._trigger_mode), "epoch": self._epoch, "epoch_offset": self._epoch_offset,
             "events": ev, "n_events": len(self._events), "events_dropped": self._events_dropped,
             "det_on": np.array(self._det_on, np.int64),
@@ -1608,7 +1608,7 @@ class FrequencyResponseEstimator:
             self._u_trim[:] = np.asarray(st["u_trim"], float)
         self._t0 = float(st["t0"])
         last_k = int(st["last_k"])
-        self._last_k = None if last_k == _NONE else last_k
+        self._last_k = None if last_k == NO_INDEX else last_k
         self._trigger_mode = bool(st["trigger_mode"])
         self._epoch, self._epoch_offset = int(st["epoch"]), float(st["epoch_offset"])
         ev = np.asarray(st["events"], np.int64)

@@ -34,15 +34,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from types import SimpleNamespace
 from typing import Callable, Sequence
 
 import numpy as np
 
 from gap_validation.core import metrics
-from gap_validation.core.diagnosis import BIAS_ERROR, SIGMA_FACTOR, confident_points
+from gap_validation.core.diagnosis import BIAS_ERROR, SIGMA_FACTOR, confident_mask
 from gap_validation.core.models import MimoModel
-from gap_validation.core.results import Band, Candidate
+from gap_validation.core.results import Band, Candidate, MimoDetail
 from gap_validation.core.spectra import MatrixEstimate
 
 __all__ = ["MimoDetail", "MimoAnalysis", "analyse_mimo", "element_kappa", "kappa_noise_scale",
@@ -53,126 +52,6 @@ KAPPA_THRESHOLD = 0.15
 #: A column effect must remove at least this fraction of the nu-gap (and leave the data within their errors
 #: where it was model-limited) to be reported.
 MIN_RELATIVE_IMPROVEMENT = 0.25
-
-
-@dataclass
-class MimoDetail:
-    """Per-element results of a MIMO channel (the ``mimo`` object of the JSON).
-
-    Attributes
-    ----------
-    inputs, outputs : list of str
-        Names of the inputs (columns) and outputs (rows): ``"topic field"``.
-    measured, model : ndarray, (F, p, m) complex
-        Measured and model response matrices.
-    variance : ndarray, (F, p, m)
-        Variance of each measured element.
-    partial_coherence : ndarray, (F, p, m)
-        Partial coherence of output i with input j given the other inputs.
-    multiple_coherence : ndarray, (F, p)
-        Multiple coherence of each output with all inputs.
-    kappa_noise : ndarray, (F,)
-        Noise scale of kappa(w) (:func:`kappa_noise_scale`).
-    worst_elements : list of dict
-        Where it fails (the peak of the worst model-limited band; else where the nu-gap is attained), per
-        element: ``output``, ``input``, their indices, ``kappa_alone`` (the kappa of that element's mismatch
-        alone), ranked largest first.
-    worst_elements_frequency_rad_s : float or None
-        The frequency of ``worst_elements`` [rad/s].
-    """
-
-    inputs: list[str] = field(default_factory=list)
-    outputs: list[str] = field(default_factory=list)
-    measured: np.ndarray | None = None
-    model: np.ndarray | None = None
-    variance: np.ndarray | None = None
-    partial_coherence: np.ndarray | None = None
-    multiple_coherence: np.ndarray | None = None
-    kappa_noise: np.ndarray | None = None
-    worst_elements: list[dict] = field(default_factory=list)
-    worst_elements_frequency_rad_s: float | None = None
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        """(outputs, inputs)."""
-        return len(self.outputs), len(self.inputs)
-
-    def singular_values(self, which: str = "measured") -> np.ndarray:
-        """Singular values per frequency, largest first, (F, min(p, m)); NaN where not estimated.
-
-        Parameters
-        ----------
-        which : {"measured", "model"}
-            The matrices.
-        """
-        h = self.measured if which == "measured" else self.model
-        out = np.full((h.shape[0], min(h.shape[1:])), np.nan)
-        ok = np.all(np.isfinite(h), axis=(1, 2))
-        if ok.any():
-            out[ok] = np.linalg.svd(h[ok], compute_uv=False)
-        return out
-
-    def to_json_dict(self) -> dict:
-        """The ``mimo`` object of a MIMO channel's JSON: per element (``elements``, row-major: output, then
-        input) its measured and model magnitude and phase, partial coherence and random error; the multiple
-        coherence per output; the singular values of model and data; the noise scale of kappa; the elements
-        that dominate kappa at the worst frequency."""
-        from gap_validation.core.results import _list, _mag_phase
-
-        elements = []
-        p, m = self.shape
-        for i in range(p):
-            for j in range(m):
-                meas, model = self.measured[:, i, j], self.model[:, i, j]
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    rel = np.sqrt(self.variance[:, i, j] / 2.0) / np.abs(meas)
-                elements.append({"output": self.outputs[i], "input": self.inputs[j], "output_index": i,
-                                 "input_index": j, "measured": _mag_phase(meas, model), "model": _mag_phase(model),
-                                 "partial_coherence": _list(self.partial_coherence[:, i, j]),
-                                 "random_error": _list(rel)})
-        return {"shape": [p, m], "inputs": list(self.inputs), "outputs": list(self.outputs), "elements": elements,
-                "multiple_coherence": [_list(self.multiple_coherence[:, i]) for i in range(p)],
-                "singular_values": {"measured": [_list(row) for row in self.singular_values("measured").T],
-                                    "model": [_list(row) for row in self.singular_values("model").T]},
-                "kappa_noise": _list(self.kappa_noise),
-                "worst_elements": [dict(e) for e in self.worst_elements],
-                "worst_elements_frequency_rad_s": self.worst_elements_frequency_rad_s}
-
-    @classmethod
-    def from_json_dict(cls, data: dict) -> "MimoDetail":
-        """Rebuild from :meth:`to_json_dict` (a report drawn from saved results).
-
-        Parameters
-        ----------
-        data : dict
-            The ``mimo`` object.
-        """
-        from gap_validation.core.results import _array, _complex
-
-        p, m = (int(v) for v in data.get("shape", [0, 0]))
-        elements = data.get("elements") or []
-        n = len(_array(data.get("kappa_noise")) if data.get("kappa_noise") else [])
-
-        def stack(get: Callable[[dict], np.ndarray | None]) -> np.ndarray:
-            out = np.full((n, p, m), np.nan, dtype=complex)
-            for e in elements:
-                value = get(e)
-                if value is not None:
-                    out[:, int(e["output_index"]), int(e["input_index"])] = value
-            return out
-
-        detail = cls(inputs=list(data.get("inputs") or []), outputs=list(data.get("outputs") or []),
-                     measured=stack(lambda e: _complex(e.get("measured"))),
-                     model=stack(lambda e: _complex(e.get("model"))),
-                     partial_coherence=stack(lambda e: _array(e.get("partial_coherence"))).real,
-                     kappa_noise=_array(data.get("kappa_noise")),
-                     worst_elements=[dict(e) for e in data.get("worst_elements") or []],
-                     worst_elements_frequency_rad_s=data.get("worst_elements_frequency_rad_s"))
-        rel = stack(lambda e: _array(e.get("random_error"))).real
-        detail.variance = 2.0 * (rel * np.abs(detail.measured)) ** 2
-        rows = [_array(r) for r in data.get("multiple_coherence") or []]
-        detail.multiple_coherence = np.column_stack(rows) if rows else np.zeros((n, p))
-        return detail
 
 
 @dataclass
@@ -259,9 +138,7 @@ def _confident(matrix: MatrixEstimate, coherence_threshold: float, coefficients:
     coherence = np.min(matrix.multiple_coherence, axis=1)
     size = np.where(finite, np.linalg.norm(np.where(np.isfinite(matrix.response), matrix.response, 0.0),
                                            axis=(1, 2)), np.nan)
-    view = SimpleNamespace(response=size.astype(complex), coherence=coherence, n_averages=matrix.dof,
-                           coefficients=coefficients)
-    return confident_points(view, coherence_threshold) & finite, coherence
+    return confident_mask(size, coherence, matrix.dof, coefficients, coherence_threshold) & finite, coherence
 
 
 def _bands(w: np.ndarray, kappa: np.ndarray, flags: list[str], k: np.ndarray, coherence: np.ndarray,

@@ -35,6 +35,7 @@ from gap_validation.core.effects import (EFFECTS, apply_holds, apply_nonlinear, 
                                         validate_effect)
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.numbers import NON_NEGATIVE, check_number
+from gap_validation.core.statespace import StateSpace, series
 
 _MODEL_KEYS = ("numerator", "denominator", "zeros", "poles", "gain", "state_space", "delay_s", "effects")
 _SS_KEYS = ("A", "B", "C", "D", "input", "output")
@@ -43,7 +44,6 @@ _UNIFORM_RTOL = 1e-8  # steps equal to this relative tolerance are treated as on
 _BLOCK = 256  # block length of the uniform-grid simulation
 
 #: A real realization (A, B, C, D) as 2-D arrays.
-StateSpace = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 #: A parsed airframe: numerator, denominator, its config mapping and its own state space (or None).
 Airframe = tuple[np.ndarray, np.ndarray, dict, StateSpace | None]
 
@@ -95,7 +95,7 @@ def _complex_value(value: Any, where: str) -> complex:
     return complex(check_number(value, where, strings=True, expected=expected), 0.0)
 
 
-def _roots(value: Any, where: str) -> np.ndarray:
+def _root_list(value: Any, where: str) -> np.ndarray:
     if not isinstance(value, (list, tuple)):
         raise ConfigError(f"{where}: expected a list of roots, got {value!r}")
     roots = np.array([_complex_value(v, f"{where}[{i}]") for i, v in enumerate(value)], dtype=complex)
@@ -186,20 +186,6 @@ def _trim_leading(num: np.ndarray, den: np.ndarray) -> np.ndarray:
         return np.array([0.0])
     first = int(np.flatnonzero(weighted > _TRIM_RTOL * top)[0])
     return num[first:]
-
-
-def _series(first: StateSpace, second: StateSpace) -> StateSpace:
-    """State-space series connection: ``second`` driven by the output of ``first``."""
-    a1, b1, c1, d1 = first
-    a2, b2, c2, d2 = second
-    n1, n2 = a1.shape[0], a2.shape[0]
-    a = np.zeros((n1 + n2, n1 + n2))
-    a[:n1, :n1] = a1
-    a[n1:, n1:] = a2
-    a[n1:, :n1] = b2 @ c1
-    b = np.vstack([b1, b2 @ d1])
-    c = np.hstack([d2 @ c1, c2])
-    return a, b, c, d2 @ d1
 
 
 def _ss2tf(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -536,7 +522,7 @@ class LinearModel:
             for effect in (e for e in self._effects if not is_nonlinear(e)):
                 e_num, e_den, _ = effect_factor(effect)
                 if len(e_den) > 1 or e_num[0] != 1.0:
-                    system = _series(system, _tf2ss(e_num, e_den))
+                    system = series(system, _tf2ss(e_num, e_den))
             self._realization = tuple(np.array(m, dtype=float) for m in system)
         return self._realization
 
@@ -646,8 +632,8 @@ def _parse_tf(spec: dict, where: str) -> Airframe:
 def _parse_zpk(spec: dict, where: str) -> Airframe:
     if "poles" not in spec:
         raise ConfigError(f"{where}: missing key 'poles' (zeros-poles-gain form; use [] for none)")
-    zeros = _roots(spec.get("zeros", []), f"{where}.zeros")
-    poles = _roots(spec["poles"], f"{where}.poles")
+    zeros = _root_list(spec.get("zeros", []), f"{where}.zeros")
+    poles = _root_list(spec["poles"], f"{where}.poles")
     gain = check_number(spec.get("gain", 1.0), f"{where}.gain", strings=True)
     num = gain * _real_poly(zeros)
     den = _real_poly(poles)
@@ -669,13 +655,8 @@ def _parse_ss(spec: Any, where: str) -> Airframe:
     for key in ("A", "B", "C"):
         if key not in spec:
             raise ConfigError(f"{where}: missing key {key!r}")
-    a = _matrix(spec["A"], f"{where}.A")
-    n = a.shape[0]
-    if a.shape != (n, n):
-        raise ConfigError(f"{where}.A: expected a square matrix, got shape {a.shape[0]}x{a.shape[1]}")
-    b = _matrix(spec["B"], f"{where}.B", rows=n)
-    c = _matrix(spec["C"], f"{where}.C", cols=n)
-    m, p = b.shape[1], c.shape[0]
+    a, b, c = _abc(spec, where)
+    n, m, p = a.shape[0], b.shape[1], c.shape[0]
     d = np.zeros((p, m)) if spec.get("D") is None else _matrix(spec["D"], f"{where}.D", rows=p, cols=m)
     w_in = _selector(spec.get("input"), m, f"{where}.input", "input")
     w_out = _selector(spec.get("output"), p, f"{where}.output", "output")
@@ -693,6 +674,16 @@ def _parse_ss(spec: Any, where: str) -> Airframe:
     num = _trim_leading(num[0], den)
     air_spec = {"state_space": {key: _plain(spec[key]) for key in _SS_KEYS if spec.get(key) is not None}}
     return num, den, air_spec, (a, b1, c1, d1)
+
+
+def _abc(spec: dict, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The A (square), B (a row per state) and C (a column per state) matrices of a state-space mapping (SISO or
+    MIMO), or a one-line ConfigError naming the key."""
+    a = _matrix(spec["A"], f"{where}.A")
+    n = a.shape[0]
+    if a.shape != (n, n):
+        raise ConfigError(f"{where}.A: expected a square matrix, got shape {a.shape[0]}x{a.shape[1]}")
+    return a, _matrix(spec["B"], f"{where}.B", rows=n), _matrix(spec["C"], f"{where}.C", cols=n)
 
 
 def _plain(value: Any) -> Any:
@@ -949,13 +940,8 @@ def _parse_mimo_ss(spec: Any, where: str, outputs: int | None, inputs: int | Non
     for key in ("A", "B", "C"):
         if key not in spec:
             raise ConfigError(f"{where}: missing key {key!r} (A, B, C, or only D for a static gain)")
-    a = _matrix(spec["A"], f"{where}.A")
-    n = a.shape[0]
-    if a.shape != (n, n):
-        raise ConfigError(f"{where}.A: expected a square matrix, got shape {a.shape[0]}x{a.shape[1]}")
-    b = _matrix(spec["B"], f"{where}.B", rows=n)
+    a, b, c = _abc(spec, where)
     _check_shape(b, f"{where}.B", None, inputs, outputs_are, inputs_are)
-    c = _matrix(spec["C"], f"{where}.C", cols=n)
     _check_shape(c, f"{where}.C", outputs, None, outputs_are, inputs_are)
     p, m = c.shape[0], b.shape[1]
     d = np.zeros((p, m)) if spec.get("D") is None else _matrix(spec["D"], f"{where}.D")

@@ -35,6 +35,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from gap_validation.core.spectra import sweep_points
+
 __all__ = ["NONLINEARITY", "AMPLITUDE_RATIO", "FALSE_ALARM", "MIN_FREQUENCIES", "MIN_RELATIVE_DIFFERENCE",
            "AmplitudeDependence", "flown_amplitude", "amplitude_function", "amplitude_dependence"]
 
@@ -193,8 +195,6 @@ def amplitude_dependence(sweeps: Sequence, average_confident: np.ndarray, cohere
         None when the sweeps do not span :data:`AMPLITUDE_RATIO` in amplitude or nothing can be compared.
     """
     from scipy.special import fdtrc, gammaincc
-
-    from gap_validation.core.diagnosis import sweep_points
 
     usable = [s for s in sweeps if math.isfinite(float(getattr(s, "amplitude", math.nan)))
               and float(s.amplitude) > 0 and getattr(s, "variance", None) is not None]

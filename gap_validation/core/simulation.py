@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -36,11 +36,10 @@ from gap_validation.core.layouts import JOINT_STATE, LAYOUTS, infer_type
 from gap_validation.core.numbers import FINITE as FINITE_NUMBER, NON_NEGATIVE, POSITIVE, Interval, check_number
 
 __all__ = [
-    "FlightOptions", "Segment", "TopicSeries", "SimulatedFlight", "parse_hidden", "hidden_effects",
-    "parse_band_noise", "band_noise", "truth_models", "plan_topics", "simulate_flight", "log_sweep", "doublet",
-    "with_options", "with_logged_excitation", "EXCITATIONS", "multisine", "multistep", "parse_coupling",
-    "parse_cross_response",
-    "damper_gain",
+    "FlightOptions", "Segment", "TopicSeries", "SimulatedFlight", "band_noise", "truth_models", "plan_topics",
+    "simulate_flight", "log_sweep", "doublet", "with_options", "with_logged_excitation", "EXCITATIONS",
+    "multisine", "multistep", "card_segments", "card_units", "channel_deviation", "pilot_trim", "band_noises",
+    "sample_topics", "damper_gain"
 ]
 
 #: Manoeuvres ``FlightOptions.excitation`` can fly.
@@ -392,80 +391,6 @@ class SimulatedFlight:
         return [s for s in self.segments if s.channel == channel and s.kind in kinds]
 
 
-# --------------------------------------------------------------------------------------------- hidden effects
-def _finite(value: str, error: str) -> float:
-    """``float(value)``, or a ConfigError with ``error`` when it is not a finite number."""
-    try:
-        number = float(value)
-    except ValueError:
-        number = float("nan")
-    if not math.isfinite(number):
-        raise ConfigError(error)
-    return number
-
-
-def _hidden_value(text: str, part: str, value: str) -> float:
-    return _finite(value, f"--hidden {text!r}: bad part {part!r} (value must be a finite number)")
-
-
-def parse_hidden(text: str, channels: list[str] | tuple[str, ...] | None = None) -> tuple[str, dict]:
-    """Parse ``CHANNEL:EFFECT:key=value[,key=value]`` (e.g. ``pitch:time_delay:seconds=0.04``).
-
-    Parameters
-    ----------
-    text : str
-        The ``--hidden`` argument.
-    channels : sequence of str, optional
-        Channel names of the config; the channel must be one of them.
-
-    Returns
-    -------
-    channel : str
-    effect : dict
-        A validated effect mapping (DESIGN.md effects vocabulary).
-
-    Raises
-    ------
-    ConfigError
-        One line naming the bad part.
-    """
-    parts = text.split(":", 2)
-    if len(parts) < 2 or not parts[0].strip() or not parts[1].strip():
-        raise ConfigError(f"--hidden {text!r}: expected CHANNEL:EFFECT:key=value[,key=value], "
-                          "e.g. pitch:time_delay:seconds=0.04")
-    channel, kind = parts[0].strip(), parts[1].strip()
-    if channels is not None and channel not in channels:
-        raise ConfigError(f"--hidden {text!r}: bad part {channel!r}: no such channel in the config "
-                          f"(channels: {', '.join(channels)})")
-    effect: dict = {"type": kind}
-    params = parts[2] if len(parts) == 3 else ""
-    for part in (p.strip() for p in params.split(",")):
-        if not part:
-            continue
-        key, sep, value = part.partition("=")
-        if not sep or not key.strip():
-            raise ConfigError(f"--hidden {text!r}: bad part {part!r} (expected key=value)")
-        effect[key.strip()] = _hidden_value(text, part, value.strip())
-    return channel, validate_effect(effect, where=f"--hidden {text!r}")
-
-
-def hidden_effects(texts: Sequence[str] | None, config: ValidationConfig) -> dict[str, list[dict]]:
-    """Parse every ``--hidden`` text; channel -> effects in the order given.
-
-    Parameters
-    ----------
-    texts : sequence of str or None
-        ``--hidden`` texts (``CHANNEL:EFFECT:key=value[,key=value]``).
-    config : ValidationConfig
-        The config whose channels they name.
-    """
-    out: dict[str, list[dict]] = {}
-    for text in texts or ():
-        channel, effect = parse_hidden(text, tuple(config.channels))
-        out.setdefault(channel, []).append(effect)
-    return out
-
-
 def truth_models(config: ValidationConfig, hidden: dict[str, list[dict]] | None = None) -> dict:
     """Channel -> the true model: the config's model (with its effects) and the hidden effects in series.
 
@@ -483,50 +408,6 @@ def truth_models(config: ValidationConfig, hidden: dict[str, list[dict]] | None 
                           f"(channels: {', '.join(config.channels)})")
     return {name: ch.model.with_effects(list(hidden.get(name, []))) if hidden.get(name) else ch.model
             for name, ch in config.channels.items()}
-
-
-def parse_band_noise(text: str, channels: list[str] | tuple[str, ...] | None = None
-                     ) -> tuple[tuple[float, float], float, tuple[str, ...] | None]:
-    """Parse ``LOW:HIGH:RMS[:CHANNEL[,CHANNEL]]`` (e.g. ``8:14:0.05`` or ``8:14:0.05:pitch``).
-
-    Parameters
-    ----------
-    text : str
-        The ``--band-noise`` argument: band edges [rad/s], RMS [rad/s], optionally the channels (default all).
-    channels : sequence of str, optional
-        Channel names of the config; named channels must be among them.
-
-    Returns
-    -------
-    band_rad_s : (float, float)
-    rms_rad_s : float
-    channels : tuple of str or None
-        For :class:`FlightOptions` ``band_noise_rad_s``, ``band_noise_rms_rad_s``, ``band_noise_channels``.
-
-    Raises
-    ------
-    ConfigError
-        One line naming the bad part.
-    """
-    usage = "expected LOW:HIGH:RMS[:CHANNEL[,CHANNEL]] in rad/s and rad/s rms, e.g. 8:14:0.05"
-    parts = [p.strip() for p in text.split(":")]
-    if len(parts) not in (3, 4):
-        raise ConfigError(f"--band-noise {text!r}: {usage}")
-    low, high, rms = (_finite(part, f"--band-noise {text!r}: bad part {part!r} ({usage})") for part in parts[:3])
-    if not 0 < low < high:
-        raise ConfigError(f"--band-noise {text!r}: bad band {parts[0]}:{parts[1]} (expected 0 < LOW < HIGH)")
-    if rms < 0:
-        raise ConfigError(f"--band-noise {text!r}: bad part {parts[2]!r} (RMS must be >= 0)")
-    chosen = None
-    if len(parts) == 4:
-        chosen = tuple(c.strip() for c in parts[3].split(",") if c.strip())
-        if not chosen:
-            raise ConfigError(f"--band-noise {text!r}: no channel after the last ':' ({usage})")
-        unknown = [c for c in chosen if channels is not None and c not in channels]
-        if unknown:
-            raise ConfigError(f"--band-noise {text!r}: bad part {unknown[0]!r}: no such channel in the config "
-                              f"(channels: {', '.join(channels)})")
-    return (low, high), rms, chosen
 
 
 # --------------------------------------------------------------------------------------------- topic layout
@@ -669,16 +550,30 @@ def doublet(t_s: np.ndarray, half_period_s: float) -> np.ndarray:
         (t >= half_period_s) & (t < 2 * half_period_s), 1.0, 0.0)
 
 
-def _card_units(config: ValidationConfig) -> list[tuple[str, int | None]]:
-    """What the test card excites in turn, in config order: each SISO channel ``(name, None)``, and each input
-    of a MIMO channel ``(name, j)`` (single-axis manoeuvres flown one after the other)."""
+def card_units(config: ValidationConfig) -> list[tuple[str, int | None]]:
+    """What the card excites in turn: ``(channel, None)`` per SISO channel, ``(channel, j)`` per MIMO input.
+
+    Parameters
+    ----------
+    config : ValidationConfig
+        The config.
+    """
     return [(name, j) for name, ch in config.channels.items()
             for j in (range(len(ch.inputs)) if ch.is_mimo else (None,))]
 
 
-def _test_card(config: ValidationConfig, opt: FlightOptions) -> tuple[list[Segment], float]:
+def card_segments(config: ValidationConfig, opt: FlightOptions) -> tuple[list[Segment], float]:
+    """The manoeuvres of the flight in time order and the flight's length [s].
+
+    Parameters
+    ----------
+    config : ValidationConfig
+        The channels flown (config order; a MIMO channel's inputs one after the other) and their grids (sweep bands).
+    opt : FlightOptions
+        The card: excitation, rounds, sweep lengths, gaps, ``duration_s``.
+    """
     segments: list[Segment] = []
-    units = _card_units(config)
+    units = card_units(config)
     t = opt.quiet_s if opt.trim_s is None else opt.trim_s
     doublet_s = 2 * opt.doublet_half_period_s
     for _ in range(opt.sweeps_per_channel):
@@ -708,14 +603,27 @@ def _test_card(config: ValidationConfig, opt: FlightOptions) -> tuple[list[Segme
     return segments, t + opt.quiet_s
 
 
-def _pilot_trim(t_s: np.ndarray, segments: list[Segment], duration_s: float, opt: FlightOptions,
+def pilot_trim(t_s: np.ndarray, segments: list[Segment], duration_s: float, opt: FlightOptions,
                 rng: np.random.Generator) -> np.ndarray:
-    """Trim deflection of one surface [rad]: a constant trim plus the pilot's re-trims between manoeuvres.
+    """One surface's trim [rad]: a random constant (``trim_offset_rad``) plus the pilot's slow re-trims in the gaps.
 
     In about half of the quiet gaps between manoeuvres the pilot ramps the trim (over 1-3 s) by
     ``trim_step_rad`` up or down (a bounded random walk). A re-trim moves the equilibrium the linear model is
     taken about, so it appears in the surface measurement but not in the model's input (an airframe-only
     model with a spiral mode would otherwise drift for minutes after every trim change).
+
+    Parameters
+    ----------
+    t_s : ndarray
+        Times from the flight start [s].
+    segments : list of Segment
+        The manoeuvres (re-trims happen between them).
+    duration_s : float
+        Flight length [s].
+    opt : FlightOptions
+        ``trim_offset_rad`` and ``trim_step_rad``.
+    rng : numpy.random.Generator
+        The flight's random stream.
     """
     out = np.full_like(t_s, float(rng.uniform(-1.0, 1.0)) * opt.trim_offset_rad)
     edges = [0.0] + [x for seg in segments for x in (seg.start_s, seg.end_s)] + [duration_s]
@@ -777,9 +685,22 @@ def band_noise(n: int, fs_hz: float, band_rad_s: tuple[float, float], rms: float
     return filtered * (rms / max(float(np.std(filtered)), 1e-300))
 
 
-def _band_noises(config: ValidationConfig, n: int, fs_hz: float, opt: FlightOptions, seed: int) -> dict:
-    """Channel -> band noise on the simulation grid, for the chosen channels only (empty when off), from the
-    band-noise stream of ``seed``."""
+def band_noises(config: ValidationConfig, n: int, fs_hz: float, opt: FlightOptions, seed: int) -> dict:
+    """Channel -> narrow-band output disturbance on a uniform grid (empty unless ``band_noise_rad_s`` is set).
+
+    Parameters
+    ----------
+    config : ValidationConfig
+        The channels.
+    n : int
+        Samples.
+    fs_hz : float
+        Rate of the grid [Hz].
+    opt : FlightOptions
+        ``band_noise_*`` options.
+    seed : int
+        The flight's seed (the band noise has its own stream of it).
+    """
     out: dict[str, np.ndarray] = {}
     if opt.band_noise_rad_s is None:
         return out
@@ -821,7 +742,8 @@ def simulate_flight(config: ValidationConfig, hidden: dict[str, list[dict]] | No
     config : ValidationConfig
         Channels (models, frequency grids) and the topics and fields to publish.
     hidden : dict, optional
-        Channel -> effects added in series to the config's model to make the truth (see :func:`parse_hidden`).
+        Channel -> effects added in series to the config's model to make the truth (see
+        :func:`gap_validation.cli.arguments.parse_hidden`).
     options : FlightOptions, optional
         Test card, rates and noise levels.
     seed : int
@@ -836,23 +758,23 @@ def simulate_flight(config: ValidationConfig, hidden: dict[str, list[dict]] | No
     truth = truth_models(config, hidden)
     plans = plan_topics(config)
     rng = np.random.default_rng(seed)
-    segments, duration_s = _test_card(config, opt)
+    segments, duration_s = card_segments(config, opt)
     rates = [opt.imu_rate_hz if p.role == "imu" else opt.surface_rate_hz for p in plans.values()]
     fs_hz = max(opt.sim_rate_hz, 4.0 * max(rates))
     t_s = np.arange(0.0, duration_s + 2.0 / fs_hz, 1.0 / fs_hz)
 
     inputs, trim = {}, {}
-    units = _card_units(config)
+    units = card_units(config)
     for name, ch in config.channels.items():
         if ch.is_mimo:
             inputs[name], trim[name] = _mimo_inputs(name, ch, t_s, segments, duration_s, opt, units, rng)
             continue
-        inputs[name] = _channel_input(name, t_s, segments, opt, tuple(config.channels),
+        inputs[name] = channel_deviation(name, t_s, segments, opt, tuple(config.channels),
                                       share=(units.index((name, None)), len(units)))
-        trim[name] = _pilot_trim(t_s, segments, duration_s, opt, rng)
+        trim[name] = pilot_trim(t_s, segments, duration_s, opt, rng)
     gusts = {name: (np.stack([_gust(t_s.size, fs_hz, opt, rng) for _ in ch.outputs]) if ch.is_mimo else
                     _gust(t_s.size, fs_hz, opt, rng)) for name, ch in config.channels.items()}
-    bands = _band_noises(config, t_s.size, fs_hz, opt, seed)
+    bands = band_noises(config, t_s.size, fs_hz, opt, seed)
     loop = _loop_flight(config, truth, inputs, gusts, bands, t_s, fs_hz, opt, seed)
     references = dict(inputs)
     if loop is not None:
@@ -886,17 +808,33 @@ def simulate_flight(config: ValidationConfig, hidden: dict[str, list[dict]] | No
     if opt.log_excitation_topic:
         plans = plan_topics(with_logged_excitation(config, opt.log_excitation_topic))
     _extra_measured(plans, config, references, measured)
-    topics = _sample_topics(plans, measured, t_s, duration_s, opt, rng)
+    topics = sample_topics(plans, measured, t_s, duration_s, opt, rng)
     return SimulatedFlight(topics=topics, segments=segments, truth=truth, hidden=hidden, t_s=t_s,
                            inputs=inputs, outputs=outputs, duration_s=duration_s,
                            start_time_s=opt.start_time_s, seed=seed, options=opt,
                            loop_gains={} if loop is None else dict(loop.gains))
 
 
-def _sample_topics(plans: dict, measured: dict, t_s: np.ndarray, duration_s: float, opt: FlightOptions,
+def sample_topics(plans: dict, measured: dict, t_s: np.ndarray, duration_s: float, opt: FlightOptions,
                    rng: np.random.Generator) -> dict[str, TopicSeries]:
-    """Topic -> :class:`TopicSeries`: every planned topic sampled at its rate (jitter, drops, latency) from the
-    series ``measured[(channel, stream)] = (series on t_s, noise std, lsb)``, with white noise and quantisation."""
+    """Topic -> :class:`TopicSeries`: each topic of ``plans`` sampled at its rate with jitter, drops and latency.
+
+    Parameters
+    ----------
+    plans : dict
+        From :func:`gap_validation.core.simulation.plan_topics`.
+    measured : dict
+        ``(channel, stream) -> (series on t_s, noise std, lsb)``: the physical quantity (SI units), the white
+        sensor noise added at each sample and the quantisation step (0: none).
+    t_s : ndarray
+        The series' time grid from the flight start [s].
+    duration_s : float
+        Flight length [s].
+    opt : FlightOptions
+        Rates, jitter, drops, latency, start time.
+    rng : numpy.random.Generator
+        The flight's random stream.
+    """
     topics = {}
     late = dict(opt.stamp_offsets)
     for topic, plan in plans.items():
@@ -943,11 +881,28 @@ def _topic_time_offset(topic: str, entries) -> float:
     return offsets.pop() if offsets else 0.0
 
 
-def _channel_input(name: str, t_s: np.ndarray, segments: list[Segment], opt: FlightOptions,
+def channel_deviation(name: str, t_s: np.ndarray, segments: list[Segment], opt: FlightOptions,
                    channels: tuple[str, ...] = (), input_index: int | None = None,
                    share: tuple[int, int] | None = None) -> np.ndarray:
-    """Surface deflection deviation of one channel (of a MIMO channel's input ``input_index``) from trim [rad]:
-    its manoeuvres. ``share`` overrides the orthogonal multisine's (index, count)."""
+    """The surface deflection deviation from trim the card commands on one channel (or one MIMO input) [rad].
+
+    Parameters
+    ----------
+    name : str
+        The channel.
+    t_s : ndarray
+        Times from the flight start [s].
+    segments : list of Segment
+        From :func:`card_segments`.
+    opt : FlightOptions
+        Amplitudes and manoeuvre shapes.
+    channels : tuple of str
+        The config's channels (the orthogonal multisine's share).
+    input_index : int, optional
+        A MIMO channel's input (None: SISO).
+    share : (int, int), optional
+        ``(index, count)`` of the orthogonal multisine (default: the channel's place in ``channels``).
+    """
     u = np.zeros_like(t_s)
     card, rounds = opt, 0
     for seg in segments:
@@ -1082,9 +1037,9 @@ def _mimo_inputs(name: str, channel, t_s: np.ndarray, segments: list[Segment], d
     """A MIMO channel's surface deviations (m, n) [rad], each input flown in its own manoeuvres, and the
     pilot's trim of each surface (m, n) [rad]."""
     m = len(channel.inputs)
-    u = np.stack([_channel_input(name, t_s, segments, opt, (), j, (units.index((name, j)), len(units)))
+    u = np.stack([channel_deviation(name, t_s, segments, opt, (), j, (units.index((name, j)), len(units)))
                   for j in range(m)])
-    trim = np.stack([_pilot_trim(t_s, segments, duration_s, opt, rng) for _ in range(m)])
+    trim = np.stack([pilot_trim(t_s, segments, duration_s, opt, rng) for _ in range(m)])
     return u, trim
 
 
@@ -1140,79 +1095,6 @@ def _check_loop_options(opt: FlightOptions) -> None:
     if opt.coupling and opt.closed_loop_gain_margin_db is not None:
         raise ConfigError("simulation options coupling and closed_loop_gain_margin_db: not available together "
                           "yet (fly them as separate flights)")
-
-
-def _resolve_surface(config: ValidationConfig, name: str, text: str) -> str:
-    """The channel whose input is the surface ``name``: a channel name, or the joint of its input field."""
-    if name in config.channels:
-        return name
-    for channel, ch in config.channels.items():
-        if ch.input is not None and FieldPath.parse(ch.input.field).key == name:
-            return channel
-    joints = [FieldPath.parse(ch.input.field).key for ch in config.channels.values() if ch.input is not None]
-    raise ConfigError(f"{text}: bad part {name!r}: no channel or input joint of that name in the config "
-                      f"(channels: {', '.join(config.channels)}; joints: {', '.join(str(j) for j in joints if j)})")
-
-
-def parse_coupling(text: str, config: ValidationConfig) -> tuple[str, str, float]:
-    """Parse ``--coupling FROM:TO:GAIN`` (e.g. ``aileron:rudder:0.3``): the surface TO also moves by GAIN times
-    the surface FROM's deflection (an aileron-rudder interconnect). Surfaces are channel names or input joints.
-
-    Parameters
-    ----------
-    text : str
-        The argument.
-    config : ValidationConfig
-        The config whose channels carry the surfaces.
-
-    Returns
-    -------
-    (from_channel, to_channel, gain)
-
-    Raises
-    ------
-    ConfigError
-        One line naming the bad part.
-    """
-    where = f"--coupling {text!r}"
-    parts = [p.strip() for p in text.split(":")]
-    if len(parts) != 3:
-        raise ConfigError(f"{where}: expected FROM:TO:GAIN, e.g. aileron:rudder:0.3")
-    source, target = _resolve_surface(config, parts[0], where), _resolve_surface(config, parts[1], where)
-    if source == target:
-        raise ConfigError(f"{where}: a surface coupled to itself")
-    gain = _finite(parts[2], f"{where}: bad part {parts[2]!r} (GAIN must be a finite number)")
-    return source, target, gain
-
-
-def parse_cross_response(text: str, config: ValidationConfig) -> tuple[str, str, float, float, float]:
-    """Parse ``--cross-response OUTPUT:SURFACE:GAIN[:WN[:DAMPING]]`` (e.g. ``roll:rudder:-0.8:3:0.2``): the rate
-    of channel OUTPUT also responds to SURFACE through ``GAIN wn^2 / (s^2 + 2 zeta wn s + wn^2)`` (default
-    ``wn`` 3 rad/s, damping 0.2: a Dutch-roll-like cross response).
-
-    Parameters
-    ----------
-    text : str
-        The argument.
-    config : ValidationConfig
-        The config.
-
-    Returns
-    -------
-    (output_channel, surface_channel, gain, wn_rad_s, damping)
-    """
-    where = f"--cross-response {text!r}"
-    parts = [p.strip() for p in text.split(":")]
-    if not 3 <= len(parts) <= 5:
-        raise ConfigError(f"{where}: expected OUTPUT:SURFACE:GAIN[:WN[:DAMPING]], e.g. roll:rudder:-0.8:3:0.2")
-    if parts[0] not in config.channels:
-        raise ConfigError(f"{where}: bad part {parts[0]!r}: no such channel (channels: {', '.join(config.channels)})")
-    surface = _resolve_surface(config, parts[1], where)
-    numbers = [_finite(p, f"{where}: bad part {p!r} (expected a finite number)") for p in parts[2:]]
-    gain, wn, damping = (numbers + [3.0, 0.2][len(numbers) - 1:])[:3]
-    if wn <= 0 or damping <= 0:
-        raise ConfigError(f"{where}: WN and DAMPING must be > 0")
-    return parts[0], surface, gain, wn, damping
 
 
 #: Washout of the simulated rate damper [rad/s]: ``C(s) = K s / (s + a)`` (no feedback in steady state, so the

@@ -42,14 +42,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
 __all__ = ["SPECTRA_DEFAULTS", "BandSums", "record_bands", "interpolation_gain", "resolved_hz", "stream_limit_hz",
            "band_excited", "LocalEstimate", "solve_bands", "expected_estimate", "EXTRA_ORDER", "MatrixEstimate",
            "solve_matrix", "expected_matrix", "excitation_coherence", "partial_coherence", "RESOLVED_FRACTION",
-           "SLOW_GRID_FRACTION", "MIRROR_MARGIN", "FOLD_NEAR"]
+           "SLOW_GRID_FRACTION", "MIRROR_MARGIN", "FOLD_NEAR", "sweep_points"]
 
 #: Options of the local polynomial estimate (estimator options of the same names).
 SPECTRA_DEFAULTS = {
@@ -1092,3 +1092,23 @@ def partial_coherence(sums: BandSums) -> np.ndarray:
         if rss_others > 0:
             out[i] = min(max((rss_others - max(rss_all, 0.0)) / rss_others, 0.0), 1.0)
     return out
+
+
+def sweep_points(sweep: Any, average_confident: np.ndarray, coherence_threshold: float) -> np.ndarray:
+    """Frequencies of one sweep's (raw) estimate that count for the raw epsilon: those confident in the average
+    (the validation's frequency set) where the sweep itself is coherent. A single sweep has fewer degrees of
+    freedom than the pool, so the minimum rule applies to the average only; raw epsilon is then the sup over
+    the same frequencies as the averaged one, and not smaller for want of points (paper, Table 1).
+
+    Parameters
+    ----------
+    sweep : SpectralEstimate or LocalEstimate
+        One sweep's (raw) estimate (its ``response`` and ``coherence`` are read).
+    average_confident : ndarray of bool
+        Confident points of the averaged estimate (:func:`~gap_validation.core.diagnosis.confident_points`).
+    coherence_threshold : float
+        The channel's coherence threshold.
+    """
+    p = np.asarray(sweep.response, complex)
+    return (np.asarray(average_confident, bool) & (np.asarray(sweep.coherence, float) >= coherence_threshold)
+            & np.isfinite(p) & (np.abs(p) > 0))

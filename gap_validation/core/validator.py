@@ -22,12 +22,13 @@ from gap_validation.core.closed_loop import (CouplingMonitor, SurfaceHistory, fe
 from gap_validation.core.config import (AIRSPEED_STREAM, EXCITATION_STREAM, OTHER_INPUT_STREAM, STREAMS, ChannelConfig,
                                         SignalSpec, ValidationConfig)
 from gap_validation.core.errors import ConfigError, DataError
-from gap_validation.core.diagnosis import confident_points, sweep_points
+from gap_validation.core.diagnosis import confident_points
 from gap_validation.core.estimator import (ESTIMATOR_DEFAULTS, FrequencyResponseEstimator,
                                           SpectralEstimate)
 from gap_validation.core.margins import margins_from_epsilon
 from gap_validation.core.records import SATURATED_SHARE
 from gap_validation.core.results import ChannelResult, SweepResult, ValidationResult
+from gap_validation.core.spectra import sweep_points
 from gap_validation.core.uncertainty import time_domain_check
 
 log = logging.getLogger(__name__)
@@ -77,7 +78,6 @@ class OnlineValidator:
     """
 
     def __init__(self, config: ValidationConfig, *, diagnose: bool = True) -> None:
-        config.check_flight_data_path()  # MIMO channels: one line, before any data
         self._config = config
         self._diagnose = diagnose
         self._estimators = {name: _estimator_for(ch) for name, ch in config.channels.items()}
@@ -278,7 +278,6 @@ class OnlineValidator:
         config : ValidationConfig
             The new config (models, and possibly topics, fields or analysis settings).
         """
-        config.check_flight_data_path()
         old = self.results(diagnose=False)
         restarted = []
         estimators, bad = {}, {}

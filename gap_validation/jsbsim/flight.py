@@ -3,7 +3,7 @@
 
 The aircraft is trimmed as :mod:`gap_validation.jsbsim.linearize` does (true airspeed, straight and level) and
 flown at JSBSim's own rate (``fdm.get_delta_t()``, 120 Hz by default) through the same card as the synthetic
-flight (:mod:`gap_validation.core.flight_card`: sweeps per axis then a doublet, rounds, gaps, pilot re-trims,
+flight (:mod:`gap_validation.core.simulation`'s card: sweeps per axis then a doublet, rounds, gaps, pilot re-trims,
 topic rates, jitter, drops, surface and gyro noise and quantisation). What differs:
 
 - **Surfaces**: each channel's input field names a surface, the joint (``position[aileron]``) or a Float64
@@ -26,7 +26,7 @@ topic rates, jitter, drops, surface and gyro noise and quantisation). What diffe
 - **Rates** logged: the body rates p, q, r of JSBSim (``velocities/p-rad_sec`` ...) with the gyro noise and
   quantisation of :class:`FlightOptions`. No synthetic gusts (``gust_rms_rad_s``): the only disturbances are
   JSBSim's own turbulence (``--turbulence``, seeded through ``atmosphere/randomseed``) and the band noise.
-- **Pilot re-trims** (:func:`~gap_validation.core.flight_card.pilot_trim`, without its random constant: the trim
+- **Pilot re-trims** (:func:`~gap_validation.core.simulation.pilot_trim`, without its random constant: the trim
   is JSBSim's) appear in the logged surface only, as in the synthetic flight: they stand for the trim changes that
   keep the aircraft at its condition, so the airframe does not see them. A **pilot** (:class:`Pilot`) holds the
   flight condition the model was linearised at: he flies wings level and the trimmed pitch attitude (the altitude
@@ -52,8 +52,8 @@ from gap_validation.core.config import AIRSPEED_STREAM, FrequencyGrid, Validatio
 from gap_validation.core.effects import is_nonlinear, validate_effect
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.fields import FieldPath
-from gap_validation.core.flight_card import (band_noises, card_segments, card_units, channel_deviation, pilot_trim,
-                                             sample_topics)
+from gap_validation.core.simulation import (band_noises, card_segments, card_units, channel_deviation, pilot_trim,
+                                            sample_topics)
 from gap_validation.core.models import LinearModel
 from gap_validation.core.simulation import (SWEEP_SEGMENTS, FlightOptions, SimulatedFlight, plan_topics,
                                             truth_models, with_options)
@@ -488,7 +488,7 @@ def fly(trimmed: Trimmed, deviations: np.ndarray, split: np.ndarray, *, effects:
     """
     fdm = trimmed.fdm
     trimmed.hold_surfaces()
-    nodes, write = trimmed._nodes, trimmed._write
+    nodes, write = trimmed.position_nodes()
     manager = fdm.get_property_manager()
     p_node, q_node, r_node = trimmed.rate_nodes()
     phi_node, theta_node, height_node, vt_node, h_node = (

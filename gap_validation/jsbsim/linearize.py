@@ -394,6 +394,12 @@ class Trimmed:
             node.set_double_value(float(value))
             node.set_attribute(write, False)
 
+    def position_nodes(self) -> tuple[list, object]:
+        """The :data:`POSITIONS` property nodes and the WRITE attribute to lift around a write (after
+        :meth:`hold_surfaces`), for a loop that writes only the surfaces that move (:meth:`set_positions` writes
+        all four)."""
+        return self._nodes, self._write
+
     def drift(self, seconds: float = 2.0) -> float:
         """Largest body rate [rad/s] the aircraft reaches when flown ``seconds`` with its surfaces held at trim.
 

@@ -25,10 +25,10 @@ import numpy as np
 
 from gap_validation.core.errors import DataError
 
-__all__ = ["LogTopic", "LogSeries", "LogFile", "LogBlocks", "WriteTopic", "LOG_SUFFIXES", "open_log", "is_log",
+__all__ = ["LogTopic", "LogSeries", "LogFile", "LogBlocks", "WriteTopic", "LOG_SUFFIXES", "is_log",
            "join_blocks"]
 
-#: Suffix -> format name of the logs :func:`open_log` reads.
+#: Suffix -> format name of the logs :func:`~gap_validation.logs.formats.open_log` reads.
 LOG_SUFFIXES = {".ulg": "ulog", ".bin": "dataflash", ".csv": "csv"}
 
 
@@ -260,38 +260,6 @@ class WriteTopic:
 
 
 def is_log(path: str | Path) -> bool:
-    """Whether ``path`` is a file of a log format :func:`open_log` reads (by its suffix)."""
+    """Whether ``path`` is a file of a log format :func:`~gap_validation.logs.formats.open_log` reads (by its suffix)."""
     p = Path(path)
     return p.suffix.lower() in LOG_SUFFIXES and not p.is_dir()
-
-
-def open_log(path: str | Path) -> LogFile:
-    """Open a ``.ulg``, ``.bin`` or ``.csv`` log with the reader of its format.
-
-    Parameters
-    ----------
-    path : str or Path
-        The log file.
-
-    Returns
-    -------
-    LogFile
-        The open log.
-
-    Raises
-    ------
-    DataError
-        Unknown suffix, missing file, or not a log of the format its suffix says (one line naming the file).
-    """
-    p = Path(path)
-    kind = LOG_SUFFIXES.get(p.suffix.lower())
-    if kind == "ulog":
-        from gap_validation.logs.ulog import ULogFile
-        return ULogFile(p)
-    if kind == "dataflash":
-        from gap_validation.logs.dataflash import DataFlashFile
-        return DataFlashFile(p)
-    if kind == "csv":
-        from gap_validation.logs.csvlog import CsvFile
-        return CsvFile(p)
-    raise DataError(f"{p}: not a log (expected .ulg, .bin or .csv)")

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gap_validation.atomic import atomic_open
+from gap_validation.core.atomic import atomic_open
 from gap_validation.core.margins import STANDARD_EPSILON, STANDARD_MARGINS, WARN_EPSILON, margins_from_epsilon
 from gap_validation.core.results import Candidate, ChannelResult, phase_deg
 from gap_validation.core.uncertainty import monte_carlo_tube, time_domain_check

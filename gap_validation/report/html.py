@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Callable
 
 from gap_validation.report import card, figures
-from gap_validation.atomic import atomic_write_text
+from gap_validation.core.atomic import atomic_write_text
 from gap_validation.core.errors import DataError, one_line
 from gap_validation.core.margins import STANDARD_EPSILON, WARN_EPSILON, margins_from_epsilon
 from gap_validation.core.plan import TestCard

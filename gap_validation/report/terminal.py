@@ -4,13 +4,13 @@ from __future__ import annotations
 import json
 import os
 
-from gap_validation.atomic import atomic_open
+from gap_validation.core.atomic import atomic_open
 from gap_validation.core.errors import DataError
 from gap_validation.core.results import ChannelResult, ValidationResult
 
 
 def write_json(data: dict, path: str | os.PathLike) -> None:
-    """Write ``data`` as JSON atomically (:mod:`gap_validation.atomic`: temporary file, then rename).
+    """Write ``data`` as JSON atomically (:mod:`gap_validation.core.atomic`: temporary file, then rename).
 
     Raises
     ------

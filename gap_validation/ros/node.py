@@ -80,7 +80,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from gap_validation.config import load_config
+from gap_validation.core.config import load_config
 from gap_validation.core.errors import ConfigError, GapValidationError, one_line
 from gap_validation.core.results import ValidationResult
 from gap_validation.messages.decoding import TopicDecoder

@@ -17,4 +17,19 @@ The house, by what each part depends on (docs/ARCHITECTURE.md):
 Replay, node and library feed the same :class:`gap_validation.core.validator.OnlineValidator`.
 """
 
+from gap_validation.core.exports import lazy_exports
+
 __version__ = "0.1.0"
+
+#: The library's front door: the core's main names (``import gap_validation as gv; gv.nugap(p1, p2)``), imported
+#: when first used; everything else of the core is in :mod:`gap_validation.core`.
+_PUBLIC = {
+    "load_config": "gap_validation.core.config", "OnlineValidator": "gap_validation.core.validator",
+    "nugap": "gap_validation.core.metrics", "epsilon": "gap_validation.core.metrics",
+    "LinearModel": "gap_validation.core.models", "MimoModel": "gap_validation.core.models",
+    "ValidationResult": "gap_validation.core.results", "simulate_flight": "gap_validation.core.simulation",
+    "GapValidationError": "gap_validation.core.errors", "ConfigError": "gap_validation.core.errors",
+    "DataError": "gap_validation.core.errors",
+}
+__all__ = ["__version__", *sorted(_PUBLIC)]
+__getattr__, __dir__ = lazy_exports(__name__, _PUBLIC)

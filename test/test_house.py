@@ -154,3 +154,30 @@ def test_the_cycle_check_finds_a_planted_cycle_inside_a_function():
     files = {"p": "", "p.__init__": "", "p.a": "from p.b import f\n",
              "p.b": "def f():\n    from p import c\n", "p.c": "from .a import g\n", "p.d": "import p.a\n"}
     assert cycles(import_graph(files)) == [["p.a", "p.b", "p.c"]]
+
+
+PACKAGES = ["gap_validation"] + sorted(f"gap_validation.{p.parent.name}" for p in PACKAGE.glob("*/__init__.py"))
+
+
+def test_every_package_names_its_public_face_and_imports_it_only_when_used():
+    """``__all__`` in each ``__init__``: every name resolves to what its module defines, and importing the package
+    alone imports none of its modules (so ``gap_validation.ros`` stays free of rclpy until the node is used)."""
+    import importlib
+    import subprocess
+    import sys
+
+    for name in PACKAGES:
+        package = importlib.import_module(name)
+        assert package.__all__, name
+        for public in package.__all__:
+            assert getattr(package, public) is not None, f"{name}.{public}"
+        assert set(package.__all__) <= set(dir(package)), name
+    code = ("import sys, importlib\n"
+            f"for name in {PACKAGES!r}:\n"
+            "    before = set(sys.modules)\n"
+            "    importlib.import_module(name)\n"
+            "    new = {m for m in set(sys.modules) - before if m.startswith('gap_validation.')}\n"
+            "    print(name, sorted(new - {name, 'gap_validation', 'gap_validation.core', 'gap_validation.core.exports'}))\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert all(line.endswith(" []") for line in done.stdout.splitlines()), done.stdout

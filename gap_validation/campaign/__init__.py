@@ -11,3 +11,13 @@
 
 Nothing here is imported by the core, messages, bag, ros or report; Dask is imported only when a campaign runs.
 """
+
+from gap_validation.core.exports import lazy_exports
+
+#: The package's public face: name -> the module defining it (imported when the name is first used).
+_PUBLIC = {
+    "run_campaign": "runner", "load_manifest": "manifest", "Manifest": "manifest", "validate_flight": "task",
+    "find_trends": "findings"
+}
+__all__ = sorted(_PUBLIC)
+__getattr__, __dir__ = lazy_exports(__name__, _PUBLIC)

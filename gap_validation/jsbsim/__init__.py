@@ -10,3 +10,14 @@
 ``jsbsim`` is imported inside the functions that need it, never when this package is imported: the CLI and the
 core stay free of it until a JSBSim command runs.
 """
+
+from gap_validation.core.exports import lazy_exports
+
+#: The package's public face: name -> the module defining it (imported when the name is first used).
+_PUBLIC = {
+    "trim": "linearize", "Linearization": "linearize", "available_aircraft": "linearize",
+    "write_config": "linearize", "simulate_jsbsim_flight": "flight", "JSBSimFlight": "flight",
+    "Turbulence": "flight"
+}
+__all__ = sorted(_PUBLIC)
+__getattr__, __dir__ = lazy_exports(__name__, _PUBLIC)

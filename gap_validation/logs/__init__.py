@@ -18,3 +18,14 @@ Replay (:mod:`gap_validation.bag.replay`) streams them block by block (:meth:`Lo
 <gap_validation.logs.base.LogFile.blocks>`) through the same router as bags. This package imports
 neither rclpy nor rosbags nor matplotlib.
 """
+
+from gap_validation.core.exports import lazy_exports
+
+#: The package's public face: name -> the module defining it (imported when the name is first used).
+_PUBLIC = {
+    "open_log": "formats", "LogFile": "base", "LogTopic": "base", "LogSeries": "base", "WriteTopic": "base",
+    "is_log": "base", "write_ulog": "ulog", "write_dataflash": "dataflash", "write_csv": "csvlog",
+    "check_stamps": "checks", "write_flight_log": "flight"
+}
+__all__ = sorted(_PUBLIC)
+__getattr__, __dir__ = lazy_exports(__name__, _PUBLIC)

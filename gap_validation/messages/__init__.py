@@ -9,3 +9,13 @@
 
 Depends on :mod:`gap_validation.core` only; :mod:`gap_validation.bag` and :mod:`gap_validation.ros` build on it.
 """
+
+from gap_validation.core.exports import lazy_exports
+
+#: The package's public face: name -> the module defining it (imported when the name is first used).
+_PUBLIC = {
+    "MessageRouter": "router", "Route": "router", "TopicDecoder": "decoding", "fast_decoder": "cdr",
+    "batch_decoder": "cdr"
+}
+__all__ = sorted(_PUBLIC)
+__getattr__, __dir__ = lazy_exports(__name__, _PUBLIC)

@@ -8,3 +8,13 @@
 
 Reads :mod:`gap_validation.core` results only; importing this package (or ``terminal``) imports no matplotlib.
 """
+
+from gap_validation.core.exports import lazy_exports
+
+#: The package's public face: name -> the module defining it (imported when the name is first used).
+_PUBLIC = {
+    "write_report": "html", "bode_figure": "figures", "disk_figure": "figures", "write_json": "terminal",
+    "table": "terminal", "foxglove_layout": "layouts", "plotjuggler_layout": "layouts"
+}
+__all__ = sorted(_PUBLIC)
+__getattr__, __dir__ = lazy_exports(__name__, _PUBLIC)

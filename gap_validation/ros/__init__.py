@@ -22,3 +22,13 @@
 Only ``node``, ``topics``, ``jobs``, ``excitation``, ``plots`` and ``main`` import rclpy; nothing here imports rosbags
 (the decoding step is :mod:`gap_validation.messages`).
 """
+
+from gap_validation.core.exports import lazy_exports
+
+#: The package's public face: name -> the module defining it (imported when the name is first used).
+_PUBLIC = {
+    "ValidatorNode": "node", "NODE_NAME": "node", "PARAMETERS": "parameters", "check_parameters": "parameters",
+    "ChannelStatus": "status", "channel_status": "status"
+}
+__all__ = sorted(_PUBLIC)
+__getattr__, __dir__ = lazy_exports(__name__, _PUBLIC)

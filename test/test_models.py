@@ -380,6 +380,46 @@ def test_transfer_function_of_a_state_space_is_scipys(seed):
     assert abs(np.polyval(num[0], s) / np.polyval(den, s) - expected) < 1e-9 * max(1.0, abs(expected))
 
 
+@pytest.mark.parametrize("seed", range(6))
+def test_realization_of_a_transfer_function_is_scipys(seed):
+    """models._tf2ss (no scipy.signal import on the replay's path) gives scipy.signal.tf2ss's matrices to the bit,
+    leading zeros and near-zero numerator coefficients included."""
+    import warnings
+
+    from gap_validation.core.models import _tf2ss
+
+    rng = np.random.default_rng(seed)
+    for _ in range(200):
+        k = int(rng.integers(2, 10))
+        den = rng.normal(size=k) * 10 ** rng.uniform(-3, 3, size=k)
+        num = rng.normal(size=int(rng.integers(1, k + 1))) * 10 ** rng.uniform(-3, 3)
+        if rng.random() < 0.3:
+            num[0] = 0.0 if rng.random() < 0.5 else 1e-15
+        if rng.random() < 0.2:
+            den = np.concatenate(([0.0], den))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            ref = scipy.signal.tf2ss(num, den)
+        got = _tf2ss(num, den)
+        for r, g in zip(ref[:3] + (np.atleast_2d(ref[3]),), got):
+            np.testing.assert_array_equal(g, r)
+
+
+def test_a_replay_with_the_time_domain_check_does_not_import_scipy_signal():
+    """A state-space model built from a transfer function (the time-domain check of every doublet) needs no
+    scipy.signal either."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import sys, numpy as np; from gap_validation.core.models import LinearModel; "
+            "m = LinearModel.from_tf([5.0, 100.0], [1.0, 3.0, 100.0], delay_s=0.02); "
+            "t = np.arange(1000) * 0.01; m.simulate(t, np.sin(t)); print('scipy.signal' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=os.environ.copy(),
+                         check=True)
+    assert out.stdout.strip().splitlines()[-1] == "False"
+
+
 def test_loading_a_state_space_config_does_not_import_scipy_signal():
     """scipy.signal costs a replay's start-up about 0.7 s (benchmarks/bench_replay.py): the config path avoids it."""
     import os

@@ -197,13 +197,35 @@ def _ss2tf(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray) -> tuple[
 
 
 def _tf2ss(num: np.ndarray, den: np.ndarray) -> StateSpace:
-    """Real realization (A, B, C, D) of a proper num/den with 2-D arrays (also for static gains)."""
+    """Real realization (A, B, C, D) of a proper num/den with 2-D arrays (also for static gains).
+
+    The controller canonical form ``scipy.signal.tf2ss`` gives, to the bit (both normalised by the leading
+    denominator coefficient, numerator coefficients within 1e-14 of zero dropped from the front, A's first row
+    ``-den[1:]`` over an identity shifted down, ``B = e1``, ``C = num[1:] - num[0] den[1:]``, ``D = num[0]``),
+    without importing scipy.signal: its import costs a replay's start-up about 0.7 s.
+    """
+    den = np.atleast_1d(np.asarray(den, dtype=float))
+    num = np.atleast_1d(np.asarray(num, dtype=float))
     if len(den) == 1:
         return np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), np.array([[num[-1] / den[0]]])
-    import scipy.signal   # here, not at import: scipy.signal costs the replay's start-up ~1 s
-
-    a, b, c, d = scipy.signal.tf2ss(num, den)
-    return a, b, c, np.atleast_2d(d)
+    nonzero = np.flatnonzero(den)
+    if nonzero.size == 0:
+        raise ValueError("_tf2ss: the denominator is zero")
+    den = den[nonzero[0]:]
+    num, den = num / den[0], den / den[0]
+    big = np.flatnonzero(np.abs(num) > 1e-14)
+    num = num[min(int(big[0]) if big.size else num.size - 1, num.size - 1):]
+    k = len(den)
+    if len(num) > k:
+        raise ValueError("_tf2ss: improper transfer function (numerator longer than denominator)")
+    num = np.concatenate((np.zeros(k - len(num)), num))
+    if k == 1:
+        return np.zeros((1, 1)), np.zeros((1, 1)), np.zeros((1, 1)), np.array([[num[0]]])
+    a = np.zeros((k - 1, k - 1))
+    a[0] = -den[1:]
+    a[1:, :-1] = np.eye(k - 2)
+    c = (num[1:] - num[0] * den[1:])[None, :]
+    return a, np.eye(k - 1, 1), c, np.array([[num[0]]])
 
 
 # ----------------------------------------------------------------------------------------------------------

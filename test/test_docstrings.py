@@ -168,3 +168,24 @@ def test_the_checker_sees_parameters_and_their_absence():
     assert _problems("documented", documented) == []
     assert _problems("undocumented", undocumented) == ["undocumented: parameter c not documented"]
     assert _problems("bare", lambda x: x) == ["bare: no docstring"]
+
+
+#: Every package's public face (``__all__`` of its ``__init__``): the numpydoc check beyond the core.
+FACES = ["gap_validation"] + sorted(f"gap_validation.{m.name}" for m in pkgutil.iter_modules(
+    importlib.import_module("gap_validation").__path__) if m.ispkg)
+
+
+@pytest.mark.parametrize("package", FACES)
+def test_every_public_name_of_every_package_has_numpydoc_docstrings(package):
+    if package in ("gap_validation.ros", "gap_validation.jsbsim"):
+        pytest.importorskip("rclpy" if package.endswith("ros") else "jsbsim")
+    face = importlib.import_module(package)
+    problems = []
+    for name in face.__all__:
+        obj = getattr(face, name)
+        where = f"{package}.{name}"
+        if inspect.isclass(obj):
+            problems += _class_problems(package, name, obj)
+        elif inspect.isfunction(obj):
+            problems += _problems(where, obj)
+    assert not problems, "\n".join(problems)

@@ -132,7 +132,13 @@ class Bag:
         return self._reader.start_time * 1e-9
 
     def message_count(self, topics: Sequence[str] | None = None) -> int:
-        """Messages in ``topics`` (all topics when None)."""
+        """Messages in ``topics`` (all topics when None).
+
+        Parameters
+        ----------
+        topics : sequence of str, optional
+            Topics to count (None: all).
+        """
         info = self.topics
         names = info.keys() if topics is None else [t for t in topics if t in info]
         return sum(info[t].count for t in names)
@@ -143,6 +149,11 @@ class Bag:
 
     def ensure_type(self, msgtype: str) -> None:
         """Make ``msgtype`` decodable: register it from the bag's definition if the typestore lacks it.
+
+        Parameters
+        ----------
+        msgtype : str
+            The message type, e.g. ``sensor_msgs/msg/Imu``.
 
         Raises
         ------
@@ -169,6 +180,11 @@ class Bag:
     def records(self, topics: Sequence[str] | None = None) -> Iterator[tuple[str, str, int, Any]]:
         """Stream ``(topic, msgtype, bag_time_ns, raw_cdr)`` of ``topics`` in bag-time order.
 
+        Parameters
+        ----------
+        topics : sequence of str, optional
+            Topics to stream (None: all).
+
         Raises
         ------
         DataError
@@ -194,6 +210,13 @@ class Bag:
         """The records of :meth:`records`, in the same order, as :class:`~gap_validation.bag.batches.RecordBatch`
         of at most ``size`` records (an indexed mcap file: straight from its chunks; sqlite3: rows fetched many at
         a time; see :mod:`gap_validation.bag.batches`).
+
+        Parameters
+        ----------
+        topics : sequence of str, optional
+            Topics to stream (None: all).
+        size : int
+            Most records per batch.
 
         Raises
         ------
@@ -252,6 +275,15 @@ class Bag:
     def deserialize(self, raw: Any, msgtype: str, topic: str = "") -> Any:
         """Fully decode one CDR record into a rosbags message object.
 
+        Parameters
+        ----------
+        raw : bytes-like
+            The CDR record.
+        msgtype : str
+            Its message type.
+        topic : str
+            Its topic, for the message of an error.
+
         Raises
         ------
         DataError
@@ -268,7 +300,13 @@ class Bag:
                             f"({one_line(err)})") from None
 
     def messages(self, topics: Sequence[str] | None = None) -> Iterator[tuple[str, Any, float]]:
-        """Stream ``(topic, message object, bag_time_s)`` (full deserialisation)."""
+        """Stream ``(topic, message object, bag_time_s)`` (full deserialisation).
+
+        Parameters
+        ----------
+        topics : sequence of str, optional
+            Topics to stream (None: all).
+        """
         for topic, msgtype, t_ns, raw in self.records(topics):
             yield topic, self.deserialize(raw, msgtype, topic), t_ns * 1e-9
 
@@ -289,7 +327,13 @@ def _types_from_msgdef(text: str, msgtype: str) -> dict:
 
 
 def open_bag(path: str | Path) -> Bag:
-    """Open a rosbag2 directory, ``.mcap`` or ``.db3`` file for streaming (see :class:`Bag`)."""
+    """Open a rosbag2 directory, ``.mcap`` or ``.db3`` file for streaming (see :class:`Bag`).
+
+    Parameters
+    ----------
+    path : str or Path
+        The bag directory, or one ``.mcap`` / ``.db3`` file.
+    """
     return Bag(path)
 
 

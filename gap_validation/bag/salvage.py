@@ -41,7 +41,17 @@ class _SalvagedConnection:
 
 
 class Damage(Exception):
-    """Where a linear scan of a damaged file stopped: byte offset and why (``text``: the one-line message)."""
+    """Where a linear scan of a damaged file stopped: byte offset and why (``text``: the one-line message).
+
+    Parameters
+    ----------
+    offset : int
+        Byte offset where the scan stopped.
+    reason : str
+        Why.
+    where : str
+        Where, in words (default: the byte offset).
+    """
 
     def __init__(self, offset: int, reason: str, where: str = ""):
         super().__init__(reason)

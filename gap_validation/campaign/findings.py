@@ -195,6 +195,13 @@ def find_trends(series: Sequence[Series], alpha: float = FAMILY_ALPHA) -> list[F
     """A :class:`Finding` per series: its trend, and whether it is real (Holm over all trends, ``alpha``).
 
     Order: aircraft and channel as in ``series``, epsilon first within each, then the parameters by name.
+
+    Parameters
+    ----------
+    series : sequence of Series
+        The quantities over date.
+    alpha : float
+        Family-wise false-alarm rate (Holm).
     """
     if not series:
         return []

@@ -184,6 +184,11 @@ def parse_manifest(data: Any, source: str = "<manifest>", base: str | os.PathLik
 def load_manifest(path: str | os.PathLike) -> Manifest:
     """Read a campaign manifest (YAML); relative paths in it are relative to its directory.
 
+    Parameters
+    ----------
+    path : str or PathLike
+        The manifest file.
+
     Raises
     ------
     ConfigError

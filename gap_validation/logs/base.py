@@ -192,6 +192,11 @@ class LogFile:
 
         Topics the log does not have are left out (the caller names them with :attr:`topics`); a field a topic
         does not have raises :class:`DataError` naming the file, topic, field and the fields it has.
+
+        Parameters
+        ----------
+        wanted : dict
+            Topic -> the fields to read.
         """
         return self._read({topic: tuple(fields) for topic, fields in wanted.items() if topic in self.topics})
 
@@ -222,7 +227,15 @@ class LogFile:
         return join_blocks(self._blocks(wanted, None))
 
     def missing_field(self, topic: str, name: str) -> DataError:
-        """The one-line error for a field ``topic`` does not have."""
+        """The one-line error for a field ``topic`` does not have.
+
+        Parameters
+        ----------
+        topic : str
+            The topic.
+        name : str
+            The field it lacks.
+        """
         have = ", ".join(self.topics[topic].fields)
         return DataError(f"{self.path}: topic {topic} has no field {name} (it has: {have})")
 
@@ -260,6 +273,12 @@ class WriteTopic:
 
 
 def is_log(path: str | Path) -> bool:
-    """Whether ``path`` is a file of a log format :func:`~gap_validation.logs.formats.open_log` reads (by its suffix)."""
+    """Whether ``path`` is a file of a log format :func:`~gap_validation.logs.formats.open_log` reads (by its suffix).
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+    """
     p = Path(path)
     return p.suffix.lower() in LOG_SUFFIXES and not p.is_dir()

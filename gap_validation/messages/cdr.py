@@ -198,7 +198,15 @@ def _scalar_decoder(paths: Sequence[FieldPath], kind: str) -> Decoder | None:
 def fast_decoder(msgtype: str, paths: Sequence[FieldPath]) -> Decoder | None:
     """A function ``raw_cdr -> (stamp_s or None, [value per path])`` reading only the given fields, or None
     when ``msgtype`` / the paths are not covered (then decode fully). The function raises
-    :class:`FastDecodeError` for records it cannot read (decode those fully)."""
+    :class:`FastDecodeError` for records it cannot read (decode those fully).
+
+    Parameters
+    ----------
+    msgtype : str
+        The message type.
+    paths : sequence of FieldPath
+        The fields to read.
+    """
     try:
         if msgtype == IMU:
             return _imu_decoder(paths)
@@ -342,7 +350,15 @@ def batch_decoder(msgtype: str, paths: Sequence[FieldPath]) -> BatchDecoder | No
     record of a :class:`Records`, the header stamp [s] (NaN where unset or not a stamped type), one row of raw
     values (one per path, equal to the per-record decoder's to the bit) and whether it was read; or None when
     ``msgtype`` / the paths are not covered. Records not read (unlike every layout the decoder found, or not
-    fast-decodable) are for the per-record path."""
+    fast-decodable) are for the per-record path.
+
+    Parameters
+    ----------
+    msgtype : str
+        The message type.
+    paths : sequence of FieldPath
+        The fields to read.
+    """
     decode = fast_decoder(msgtype, paths)
     if decode is None:
         return None

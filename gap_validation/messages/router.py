@@ -280,6 +280,15 @@ class MessageRouter:
 
         The fast decoders of :mod:`gap_validation.messages.cdr` use this entry; ``t_s`` is the message time (stamp
         or receive time) before :attr:`time_offset_s`, values are before ``scale``.
+
+        Parameters
+        ----------
+        topic : str
+            The topic.
+        t_s : float
+            Message time [s] before the time offset.
+        values : sequence
+            One raw value per route of the topic.
         """
         if topic in self.routes:
             self._queue(topic, t_s, values)
@@ -355,7 +364,15 @@ class MessageRouter:
 
     def count_bad_message(self, topic: str, reason: str) -> None:
         """Count one message of ``topic`` that could not be read at all (e.g. a damaged record) as a bad sample
-        of every signal the topic feeds."""
+        of every signal the topic feeds.
+
+        Parameters
+        ----------
+        topic : str
+            The topic.
+        reason : str
+            Why it could not be read.
+        """
         for route in self.routes.get(topic, ()):
             self._count_bad(route, reason)
 
@@ -405,12 +422,26 @@ class MessageRouter:
                 self._send_topic(topic, buf)
 
     def saturation(self, channel: str) -> list[tuple[str, float, int]]:
-        """Where ``channel``'s input sits pinned at an extreme: ``(side, value in SI units, samples)``."""
+        """Where ``channel``'s input sits pinned at an extreme: ``(side, value in SI units, samples)``.
+
+        Parameters
+        ----------
+        channel : str
+            The channel.
+        """
         sat = self._saturation.get(channel)
         return sat.pinned() if sat is not None else []
 
     def samples(self, channel: str, stream: str) -> int:
-        """Samples of ``(channel, stream)`` pushed so far plus the messages still pending for it."""
+        """Samples of ``(channel, stream)`` pushed so far plus the messages still pending for it.
+
+        Parameters
+        ----------
+        channel : str
+            The channel.
+        stream : str
+            The stream (``input``, ``output``, ...).
+        """
         state = self._streams.get((channel, stream))
         if state is None:
             return 0

@@ -130,7 +130,19 @@ def _span_edges(w: np.ndarray, low: float, high: float) -> tuple[float, float]:
 
 def bode_figure(ch: ChannelResult, path: Path, model=None, planned=()) -> None:
     """Model vs measurement with coherence (paper Fig. 4); excluded (not confident) points marked; the bands the
-    test card's manoeuvres would close (``planned``: (low, high) grid frequencies [rad/s]) shaded."""
+    test card's manoeuvres would close (``planned``: (low, high) grid frequencies [rad/s]) shaded.
+
+    Parameters
+    ----------
+    ch : ChannelResult
+        The channel.
+    path : Path
+        The image written.
+    model : LinearModel, optional
+        The model, drawn on a dense grid (default: the channel's model at the measured frequencies).
+    planned : sequence of (float, float)
+        Bands the test card's manoeuvres would close [rad/s].
+    """
     plt = pyplot()
     w = ch.frequency_rad_s
     ok = _confident(ch)
@@ -187,7 +199,15 @@ def _fill_disk(ax, eps, **kwargs) -> None:
 
 
 def disk_figure(ch: ChannelResult, path: Path) -> None:
-    """Perturbations P2/P1 and the epsilon disks, gain-margin markers and phase-margin tangents (Figs. 1, 5)."""
+    """Perturbations P2/P1 and the epsilon disks, gain-margin markers and phase-margin tangents (Figs. 1, 5).
+
+    Parameters
+    ----------
+    ch : ChannelResult
+        The channel.
+    path : Path
+        The image written.
+    """
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(8.4, 5.2))
     _fill_disk(ax, ch.epsilon_raw, color="tab:blue", alpha=0.12, label=f"raw epsilon disk ({_fmt(ch.epsilon_raw)})")

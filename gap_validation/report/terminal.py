@@ -12,6 +12,13 @@ from gap_validation.core.results import ChannelResult, ValidationResult
 def write_json(data: dict, path: str | os.PathLike) -> None:
     """Write ``data`` as JSON atomically (:mod:`gap_validation.core.atomic`: temporary file, then rename).
 
+    Parameters
+    ----------
+    data : dict
+        JSON-able data (no NaN).
+    path : str or PathLike
+        The file written.
+
     Raises
     ------
     DataError
@@ -42,7 +49,15 @@ def duration_text(seconds: float) -> str:
 
 
 def table(headers: list[str], rows: list[list[str]]) -> str:
-    """A plain left/right aligned text table (first column left, the others right)."""
+    """A plain left/right aligned text table (first column left, the others right).
+
+    Parameters
+    ----------
+    headers : list of str
+        Column titles.
+    rows : list of list of str
+        The cells.
+    """
     widths = [max(len(str(r[i])) for r in [headers, *rows]) for i in range(len(headers))]
     lines = []
     for r in [headers, *rows]:

@@ -103,6 +103,16 @@ def margins_from_epsilon(eps: float | None) -> Margins:
     Margins
         All fields None when ``eps`` is >= 1, negative, NaN or infinite (no guarantee). ``eps = 0.1404``
         (paper example) gives 2.45 dB, 16.1 deg, disk margin 0.286, markers 0.754 and 1.33.
+
+    Examples
+    --------
+    The paper's pitch channel (epsilon 0.1404):
+
+    >>> m = margins_from_epsilon(0.1404)
+    >>> print(f"{m.gain_margin_db:.3f} dB, {m.phase_margin_deg:.1f} deg, disk {m.disk_margin:.3f}")
+    2.455 dB, 16.1 deg, disk 0.286
+    >>> margins_from_epsilon(1.2).gain_margin_db is None     # no guarantee beyond epsilon 1
+    True
     """
     if eps is None:
         return Margins(None, None, None)

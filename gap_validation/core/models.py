@@ -274,6 +274,17 @@ class LinearModel:
     A ``zero_order_hold`` is linear but not rational: ``num``/``den``/``delay_s`` hold its half-period delay,
     :meth:`freqresp` multiplies by its droop exactly, and :meth:`simulate` samples and holds the input (its delay
     then comes from the hold, not from ``delay_s``).
+
+    Examples
+    --------
+    A short-period-like mode, then the same with a 20 ms actuator delay added in series:
+
+    >>> model = LinearModel.from_tf([40.0], [1.0, 12.0, 40.0])
+    >>> model.order, round(model.dc_gain(), 6)
+    (2, 1.0)
+    >>> delayed = model.with_effects([{"type": "time_delay", "seconds": 0.02}])
+    >>> bool(abs(delayed.freqresp([10.0])[0]) == abs(model.freqresp([10.0])[0])), delayed.delay_s
+    (True, 0.02)
     """
 
     __slots__ = ("_air_num", "_air_den", "_air_delay_s", "_air_ss", "_air_spec", "_effects", "_num", "_den",

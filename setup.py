@@ -32,7 +32,6 @@ setup(
     maintainer_email="dev@gap-validation.invalid",
     description="Validate linear aircraft models against flight data in the nu-gap metric",
     license="MIT",
-    tests_require=["pytest"],
     entry_points={
         "console_scripts": [
             "gap-validate = gap_validation.cli.main:main",

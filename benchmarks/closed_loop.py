@@ -1,5 +1,5 @@
 """Issue 13's done-when, measured over seeds: closed-loop flights in turbulence with and without ``excitation``,
-coupled surfaces with and without ``other_inputs`` (the README's "Closed loop and coupled surfaces" table).
+coupled surfaces with and without ``other_inputs`` (docs/closed_loop.md, the "Measured" table).
 
     python benchmarks/closed_loop.py [--seeds 1 2 3 4 5]
 

@@ -25,7 +25,7 @@ named effect at most 1 % of the channels, a feedback warning at most 1 % of the 
 Flights are simulated and fed to the validator in memory (the library path of the one data path; no bag is
 written). Seeded: the same ``--seed`` gives the same flights.
 
-    python benchmarks/false_alarms.py                                   # 240 + 60 + 30 flights, the README tables
+    python benchmarks/false_alarms.py                                   # 240 + 60 + 30 flights: docs/method.md
     python benchmarks/false_alarms.py --flights 40 --second 20 --jsbsim 9     # quicker
     python benchmarks/false_alarms.py --simulators ours                 # one simulator
     python benchmarks/false_alarms.py --simulators jsbsim --airspeed    # JSBSim with the airspeed logged

@@ -17,7 +17,7 @@ Usage::
         [--channels roll,pitch,yaw] [--delay-ms 20] [--growth-ms-per-week 6] [--sweeps 2] [--sweep-duration 30]
         [--seed 0] [--start 2025-03-03] [--force]
 
-Used by ``test/test_campaign.py``, the README's "Campaigns and fleets" and ``benchmarks/bench_campaign.py``.
+Used by ``test/test_campaign.py``, docs/campaigns.md and ``benchmarks/bench_campaign.py``.
 """
 from __future__ import annotations
 

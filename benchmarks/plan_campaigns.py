@@ -24,7 +24,7 @@ through the library's replay (``gap_validation.bag.replay.replay``, the one data
 Two airframes: flightgen's Ultra Stick 25e, and hardgen's twice-as-fast one (``airframe_scale`` 2, set up as its
 ``clean_fast`` case). The air: the generator's gust level x0.5-2. The first card: one 30-60 s sweep per channel at
 0.02-0.04 rad (the generator's card: its sweeps, 3 s of trim, a doublet at 1.6 times the amplitude, channel after
-channel). The planner is told the slowest logged stream's rate (``--log-rate-hz``, as the README asks;
+channel). The planner is told the slowest logged stream's rate (``--log-rate-hz``, as docs/flying.md asks;
 ``--hide-log-rate``: not): the fast airframe's grid reaches 120 rad/s, above its first card's sweeps, and without the
 rate its results do not say what the logs resolve (the planner then swept to 386 rad/s, above the surfaces' Nyquist
 frequency). Each planned manoeuvre is flown as the generator's card of its band, sweep length, repeats, amplitude and
@@ -749,8 +749,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", help="second simulator: write every campaign's record here")
     parser.add_argument("--hide-log-rate", action="store_true",
                         help="second simulator: plan without --log-rate-hz (the slowest logged stream's rate, given "
-                             "by default as the README asks: the first card's results do not say it where it swept "
-                             "below it)")
+                             "by default as docs/flying.md asks: the first card's results do not say it where it "
+                             "swept below it)")
     args = parser.parse_args(argv)
     if not 1 <= args.workers <= 2:
         parser.error(f"--workers {args.workers}: expected 1 or 2")

@@ -19,7 +19,7 @@ library's replay (``gap_validation.bag.replay``: the one data path) with the cas
 The expectations are written below from ``cases.yaml`` (``expect``) and ``hard/cases.yaml`` (``truth``, ``ok``), one
 entry per case, and never changed to fit what the tool does.
 
-    python benchmarks/second_simulator.py                   # all 29 cases, the README table
+    python benchmarks/second_simulator.py                   # all 29 cases, the table in docs/method.md
     python benchmarks/second_simulator.py --cases delay_pitch,clean --show
 """
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Previews of the shipped plot layouts, drawn from the bundled flight (the README's pictures).
+"""Previews of the shipped plot layouts, drawn from the bundled flight (the pictures in docs/node.md).
 
 There is no Foxglove or PlotJuggler on the machines this project is built on, so these are not screenshots of
 the apps: each picture draws exactly the curves its layout selects (``gap_validation.report.layouts``:

@@ -1,4 +1,4 @@
-"""``gap-validate campaign MANIFEST.yaml --out DIR [--scheduler ADDRESS] [--workers N]``: many flights on Dask.
+"""gap-validate campaign MANIFEST.yaml --out DIR [--scheduler ADDRESS] [--workers N]: many flights on Dask.
 
 Validates every flight of the manifest as one Dask task (a local cluster of ``--workers`` processes by default,
 an existing scheduler with ``--scheduler tcp://host:8786``), reuses the results of flights whose bags and config

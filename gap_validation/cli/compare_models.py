@@ -1,4 +1,4 @@
-"""``gap-validate compare-models CFG_A CFG_B [--json OUT]``: model against model, per common channel.
+"""gap-validate compare-models CFG_A CFG_B [--json OUT]: model against model, per common channel.
 
 Exact nu-gap (winding-number condition checked), epsilon of the overbounding disk (eq. 14) and its worst
 frequency, and the margins a controller needs (eqs. 15-17). MIMO channels (``inputs``/``outputs`` lists) get

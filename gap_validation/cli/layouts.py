@@ -1,4 +1,4 @@
-"""``gap-validate layouts --config CFG``: the Foxglove and PlotJuggler layouts that draw the node's plot topics.
+"""gap-validate layouts --config CFG: the Foxglove and PlotJuggler layouts that draw the node's plot topics.
 
 Per SISO channel of the config: the Bode magnitude and phase (measured against the model), the coherence and
 epsilon(w) from ``<node>/<channel>/frequency_response``, the verdict, and ``/diagnostics``

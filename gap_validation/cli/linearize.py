@@ -1,7 +1,7 @@
 """``gap-validate linearize --jsbsim AIRCRAFT --speed-kt V --altitude-ft H --out CFG.yaml``
 
-Trims a JSBSim aircraft (shipped with the ``jsbsim`` wheel) straight and level at V knots TRUE airspeed and H ft
-above sea level, linearises it with JSBSim's own ``FGLinearization`` and writes a validation config: SISO channels
+Trims a JSBSim aircraft (shipped with the jsbsim wheel) straight and level at V knots TRUE airspeed and H ft
+above sea level, linearises it with JSBSim's own FGLinearization and writes a validation config: SISO channels
 roll (aileron -> p), pitch (elevator -> q), yaw (rudder -> r) and the MIMO channel lateral (aileron, rudder -> p,
 r); surfaces in rad (the FCS's normalised commands converted with its gains at trim), body rates in rad/s.
 """

@@ -1,4 +1,4 @@
-"""``gap-validate plan [RESULTS.json] --config CFG``: what to fly next, as a test card (issue 25).
+"""gap-validate plan [RESULTS.json] --config CFG: what to fly next, as a test card (issue 25).
 
 From a replay's results (``replay --json``, the node's ``~/save_results``) and the config they were made with: per
 channel and per run of frequencies without a verdict (data-limited, not excited, too few degrees of freedom, low

@@ -1,4 +1,4 @@
-"""``gap-validate replay FLIGHT [FLIGHT...] --config CFG [--json OUT] [--report DIR]``: validate recorded flights.
+"""gap-validate replay FLIGHT [FLIGHT...] --config CFG [--json OUT] [--report DIR]: validate recorded flights.
 
 Streams rosbag2 directories, ``.mcap`` and ``.db3`` files, and flight logs -- PX4 ULog (``.ulg``), ArduPilot
 DataFlash (``.bin``), CSV (``.csv``, or a directory of them) -- (only the config's topics) through the online

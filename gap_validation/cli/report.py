@@ -1,4 +1,4 @@
-"""``gap-validate report RESULTS.json --out DIR``: the HTML report of saved results (replay ``--json``, node).
+"""gap-validate report RESULTS.json --out DIR: the HTML report of saved results (replay --json, node).
 
 Draws the same report as ``replay --report`` from a results file: Table 1 and the verdict, and per channel
 the paper's figures (Bode with coherence, epsilon disks, where it fails, Nichols, robust Nyquist, doublets

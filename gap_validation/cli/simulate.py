@@ -1,4 +1,4 @@
-"""``gap-validate simulate --config CFG --out BAG [--hidden CHANNEL:EFFECT:key=value[,key=value]]...``
+"""gap-validate simulate --config CFG --out BAG [--hidden CHANNEL:EFFECT:key=value[,key=value]]...
 
 Writes a synthetic sweep flight as a rosbag2: the true aircraft of each channel is the config's model with
 the hidden effects in series; sweeps per axis (roll, pitch, yaw in turn), doublets, pilot trim inputs, gusts,
@@ -6,8 +6,7 @@ sensor noise, message rates with jitter and drops. The same seed gives the same 
 ``--band-noise LOW:HIGH:RMS[:CHANNEL[,CHANNEL]]`` adds a narrow-band output disturbance (band-pass filtered noise
 between LOW and HIGH rad/s, RMS rad/s) to the measured rates: the coherence drops there and the diagnosis
 should call that band data-limited. ``--closed-loop-gain-margin-db``, ``--turbulence``, ``--log-excitation``,
-``--coupling`` and ``--cross-response`` fly closed-loop sweeps and coupled surfaces (README, "Closed loop and
-coupled surfaces").
+``--coupling`` and ``--cross-response`` fly closed-loop sweeps and coupled surfaces (docs/closed_loop.md).
 
 ``--format ulog|dataflash|csv`` writes the same flight as a PX4 ULog, an ArduPilot DataFlash log or CSV files (each
 autopilot's topic names, units and logging rates: PX4's servos at 10 Hz, ArduPlane's at 25 Hz unless

@@ -57,7 +57,7 @@ Small calls are buffered and processed every ``batch_s`` of data. Results cover 
 manoeuvre is committed ``post_s`` plus ``pre_s`` (and the detector's look-ahead) after it ends, or at
 :meth:`FrequencyResponseEstimator.flush`.
 
-Performance (``benchmarks/bench_estimator.py``): see the README table.
+Performance (``benchmarks/bench_estimator.py``): see docs/benchmarks.md.
 """
 from __future__ import annotations
 

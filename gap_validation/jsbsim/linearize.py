@@ -59,8 +59,9 @@ RATE_PROPERTIES = ("velocities/p-rad_sec", "velocities/q-rad_sec", "velocities/r
 _RATE_DOTS = ("accelerations/pdot-rad_sec2", "accelerations/qdot-rad_sec2", "accelerations/rdot-rad_sec2")
 #: FGLinearization states left out of the config's model (heading and position).
 DROPPED_STATES = ("Psi", "Latitude", "Longitude", "Alt")
-#: Aircraft whose trim and linearisation were checked against the nonlinear model (README), with the true airspeeds
-#: [kt] at 3000 ft where they trim (the DHC6 trims at 100-140 kt but does not hold its trim: :meth:`Trimmed.drift`).
+#: Aircraft whose trim and linearisation were checked against the nonlinear model (docs/cli.md), with the true
+#: airspeeds [kt] at 3000 ft where they trim (the DHC6 trims at 100-140 kt but does not hold its trim:
+#: :meth:`Trimmed.drift`).
 CHECKED = {"c172x": (60, 120), "J3Cub": (40, 90), "pa28": (80, 100)}
 #: Frequency grid of the written config: a light aircraft's dutch roll, roll and short-period modes (1-10 rad/s)
 #: with an octave below and a decade above. Not lower: the card's sweeps start at half the lowest frequency, and

@@ -258,7 +258,7 @@ def foxglove_json(config, node: str = DEFAULT_NODE) -> str:
     return json.dumps(foxglove_layout(config, node), indent=2) + "\n"
 
 
-# -- what a layout draws, evaluated on published messages (tests and the README's previews) ---------------------
+# -- what a layout draws, evaluated on published messages (tests and the previews in docs/node.md) --------------
 
 _SLICE = re.compile(r"^(?P<topic>/[^.]+)\.data\[(?P<a>\d+):(?P<b>\d+)\]$")
 

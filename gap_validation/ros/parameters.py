@@ -103,7 +103,7 @@ diagnosis) is about 2-4 % of one core (``benchmarks/bench_node.py``). The whole 
 every message in its own threads (about 4 % here whatever the node does), and rclpy's executors cost per
 callback (one callback per message gave 15 % with the EventsExecutor, 59 % with the SingleThreadedExecutor).
 Hence the queues are drained by one timer (``intake_period``), which brings the whole process under 8 %
-(README, "Benchmarks"), and ``raw_decoding`` reads the fields straight from the serialized messages.
+(docs/benchmarks.md), and ``raw_decoding`` reads the fields straight from the serialized messages.
 
 QoS choice
 ----------

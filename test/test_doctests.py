@@ -12,6 +12,7 @@ import pytest
 MODULES = {
     "gap_validation.core.models": 1,
     "gap_validation.core.margins": 1,
+    "gap_validation.core.metrics": 1,
 }
 
 

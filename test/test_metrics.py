@@ -646,3 +646,50 @@ def test_tic_input_augmented_eq3():
     assert tic_input_augmented(y1, y2, u) == pytest.approx(math.sqrt(2) / (2 * math.sqrt(3)))
     assert tic_input_augmented(y1, y2, np.zeros(2)) == pytest.approx(tic(y1, y2))
     assert tic_input_augmented(y1, y2, u) < tic(y1, y2)
+
+
+# --------------------------------------------------------------------------------------------- model or data
+def test_nugap_and_epsilon_take_a_model_or_measured_data():
+    """One function for both (as python-control's stability_margins): a model against data is compared at the
+    data's frequencies, exactly what the frequency-data functions give; every accepted form gives the same."""
+    from types import SimpleNamespace
+
+    from gap_validation.core.frd import FrequencyData
+    from gap_validation.core.metrics import epsilon_frequency_data, nugap_frequency_data
+
+    p1 = LinearModel.from_tf([40.0], [1.0, 12.0, 40.0])
+    p2 = LinearModel.from_tf([48.0], [1.0, 12.0, 40.0], delay_s=0.02)
+    w = np.logspace(-1, 2, 300)
+    h = p2.freqresp(w)
+    expected_gap = nugap_frequency_data(w, p1.freqresp(w), h)
+    expected_eps = epsilon_frequency_data(w, p1.freqresp(w), h)
+    forms = [(w, h), FrequencyData(w, h), SimpleNamespace(w_rad_s=w, response=h),
+             SimpleNamespace(frequency_rad_s=w, measured=h),
+             SimpleNamespace(omega=w, fresp=h[None, None, :])]          # python-control's FRD layout
+    for data in forms:
+        assert nugap(p1, data) == expected_gap
+        assert epsilon(p1, data) == expected_eps
+        assert nugap(data, p1) == nugap_frequency_data(w, h, p1.freqresp(w))
+    # over dense points the data's nu-gap approaches the exact one from below
+    exact = nugap(p1, p2)[0]
+    assert expected_gap[0] <= exact + 1e-12 and expected_gap[0] > exact - 1e-3
+    # data against data on the same frequencies; different frequencies are an error, not a silent interpolation
+    assert nugap((w, p1.freqresp(w)), (w, h)) == expected_gap
+    with pytest.raises(ValueError, match="frequencies differ"):
+        nugap((w, h), (w[:-1], h[:-1]))
+    with pytest.raises(ValueError, match="300 frequencies but 299"):
+        nugap(p1, (w, h[:-1]))
+
+
+def test_nugap_of_mimo_data_and_epsilon_refuses_it():
+    from gap_validation.core.models import MimoModel
+
+    a = np.array([[-1.0, 0.5], [0.0, -3.0]])
+    b, c, d = np.eye(2), np.array([[1.0, 0.0], [0.3, 1.0]]), np.zeros((2, 2))
+    m1, m2 = MimoModel(a, b, c, d), MimoModel(a, b * [0.7, 1.0], c, d)
+    w = np.logspace(-2, 2, 400)
+    data = (w, m2.freqresp(w))
+    value = nugap(m1, data)[0]
+    assert value == pytest.approx(nugap(m1, m2)[0], rel=2e-3)
+    with pytest.raises(ValueError, match="SISO"):
+        epsilon(m1, data)

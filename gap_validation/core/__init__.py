@@ -17,7 +17,7 @@ _PUBLIC = {
     "parse_config": "config", "load_config": "config", "dump_config": "config",
     "FrequencyResponseEstimator": "estimator", "SpectralEstimate": "estimator", "analyse_channel": "diagnosis",
     "simulate_flight": "simulation", "FlightOptions": "simulation", "truth_models": "simulation",
-    "GapValidationError": "errors", "ConfigError": "errors", "DataError": "errors"
+    "FrequencyData": "frd", "GapValidationError": "errors", "ConfigError": "errors", "DataError": "errors"
 }
 __all__ = sorted(_PUBLIC)
 __getattr__, __dir__ = lazy_exports(__name__, _PUBLIC)

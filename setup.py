@@ -26,7 +26,7 @@ setup(
                       # gap-validate replay FLIGHT.ulg / FLIGHT.bin: PX4's and ArduPilot's own log readers
                       # (gap_validation.logs; also the references its readers and writers are checked against).
                       "pyulog>=1.0", "pymavlink>=2.4"],
-    extras_require={"test": ["pytest", "hypothesis", "pytest-xdist", "mpmath"]},
+    extras_require={"test": ["pytest", "hypothesis", "pytest-xdist", "mpmath", "ruff==0.17.6"]},
     zip_safe=True,
     maintainer="gap_validation developers",
     maintainer_email="dev@gap-validation.invalid",

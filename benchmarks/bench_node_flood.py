@@ -181,7 +181,6 @@ def flood(seconds: float = 60.0, imu_rate_hz: float = 10_000.0, surface_rate_hz:
                 break
             time.sleep(0.02)
         rss.append((1.0, rss_mb()))
-        wall = time.monotonic() - started
         stop.set()
         thread.join(timeout=10.0)
         node.publish_diagnostics()          # with the node stopped: the value read is its final count

@@ -632,7 +632,9 @@ def card_signal(card: TestCard, rate_hz: float) -> tuple[np.ndarray, np.ndarray,
         for name in offsets:
             offsets[name].append(u if name == m.channel else np.zeros(t.size))
         t0 += t.size / rate_hz
-    cat = (lambda parts, dtype=float: np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype))
+    def cat(parts: list, dtype: type = float) -> np.ndarray:
+        return np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype)
+
     return cat(ts), cat(idx, int), {name: cat(parts) for name, parts in offsets.items()}
 
 

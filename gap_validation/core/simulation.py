@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -34,6 +34,9 @@ from gap_validation.core.errors import ConfigError
 from gap_validation.core.fields import FieldPath
 from gap_validation.core.layouts import JOINT_STATE, LAYOUTS, infer_type
 from gap_validation.core.numbers import FINITE as FINITE_NUMBER, NON_NEGATIVE, POSITIVE, Interval, check_number
+
+if TYPE_CHECKING:  # pragma: no cover
+    from gap_validation.core.models import LinearModel
 
 __all__ = [
     "FlightOptions", "Segment", "TopicSeries", "SimulatedFlight", "band_noise", "truth_models", "plan_topics",
@@ -1102,7 +1105,7 @@ def _check_loop_options(opt: FlightOptions) -> None:
 WASHOUT_RAD_S = 0.3
 
 
-def damper_gain(model: "LinearModel", gain_margin_db: float, loop_delay_s: float,
+def damper_gain(model: LinearModel, gain_margin_db: float, loop_delay_s: float,
                 w_rad_s: np.ndarray | None = None) -> float:
     """Gain K of a rate damper ``u = r - C(s) y``, ``C = K s / (s + a)`` (washout ``a`` =
     :data:`WASHOUT_RAD_S`), with the given gain margin around ``model`` and a loop delay.

@@ -17,14 +17,16 @@ setup(
     ],
     python_requires=">=3.10",
     install_requires=["numpy", "scipy", "PyYAML", "rosbags>=0.10", "matplotlib", "dask[distributed]",
-                      # gap-validate linearize / simulate --jsbsim: JSBSim's nonlinear 6-DOF model; the wheel ships
-                      # the aircraft (c172x, J3Cub, pa28 ...). Imported only by gap_validation.jsbsim, lazily.
+                      # gap-validate linearize / simulate --jsbsim: JSBSim's nonlinear 6-DOF model; the wheel
+                      # ships the aircraft (c172x, J3Cub, pa28 ...). Imported only by gap_validation.jsbsim,
+                      # lazily.
                       "jsbsim>=1.2",
                       # gap-validate replay --annotate: one MCAP file Foxglove opens (rosbags writes a rosbag2
                       # directory); imported only by gap_validation.cli.annotate, lazily.
                       "mcap>=1.1",
                       # gap-validate replay FLIGHT.ulg / FLIGHT.bin: PX4's and ArduPilot's own log readers
-                      # (gap_validation.logs; also the references its readers and writers are checked against).
+                      # (gap_validation.logs; also the references its readers and writers are checked
+                      # against).
                       "pyulog>=1.0", "pymavlink>=2.4"],
     extras_require={"test": ["pytest", "hypothesis", "pytest-xdist", "mpmath", "ruff==0.17.6"]},
     zip_safe=True,

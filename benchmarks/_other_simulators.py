@@ -1,13 +1,15 @@
-"""Random flights of the simulators written apart from ours, for ``benchmarks/false_alarms.py`` (benchmark helper).
+"""Random flights of the simulators written apart from ours, for ``benchmarks/false_alarms.py`` (benchmark
+helper).
 
-The second simulator (``../shared/flights/flightgen.py`` and ``hard/hardgen.py``): its own excitation (log chirps
-then a doublet per axis), pilot (trim corrections moving every surface all the time), gusts (a surface-equivalent
-disturbance), sensor noise and timing (stamps jittered by +-0.5 ms, 0.5 % of messages dropped). A flight here draws
-its settings at random and takes the generator's own functions for the signals; the topics are sampled as its
-``write_bag`` samples them and fed to the validator in memory (no bag is written: the library path of the one data
-path). The truth is the nominal airframe, so a model-limited verdict or a named effect is a false alarm; a quarter of
-the flights fly pitch inside the generator's rate damper (``hardgen.closed_loop_pitch``), without the excitation
-logged: there a feedback warning is required, anywhere else it is false.
+The second simulator (``../shared/flights/flightgen.py`` and ``hard/hardgen.py``): its own excitation (log
+chirps then a doublet per axis), pilot (trim corrections moving every surface all the time), gusts (a
+surface-equivalent disturbance), sensor noise and timing (stamps jittered by +-0.5 ms, 0.5 % of messages
+dropped). A flight here draws its settings at random and takes the generator's own functions for the signals;
+the topics are sampled as its ``write_bag`` samples them and fed to the validator in memory (no bag is
+written: the library path of the one data path). The truth is the nominal airframe, so a model-limited verdict
+or a named effect is a false alarm; a quarter of the flights fly pitch inside the generator's rate damper
+(``hardgen.closed_loop_pitch``), without the excitation logged: there a feedback warning is required, anywhere
+else it is false.
 """
 from __future__ import annotations
 
@@ -20,8 +22,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 FLIGHTS = ROOT.parent / "shared" / "flights"
 CHANNELS = ("roll", "pitch", "yaw")
-FIELDS = {"roll": ("position[aileron]", "angular_velocity.x"), "pitch": ("position[elevator]", "angular_velocity.y"),
-          "yaw": ("position[rudder]", "angular_velocity.z")}
+FIELDS = {
+    "roll": ("position[aileron]", "angular_velocity.x"),
+    "pitch": ("position[elevator]", "angular_velocity.y"),
+    "yaw": ("position[rudder]", "angular_velocity.z"),
+}
 
 
 def _generators():
@@ -54,7 +59,8 @@ def draw_second(rng: np.random.Generator, index: int) -> dict:
         case["closed_loop"] = {"gm_db": float(rng.uniform(4.0, 10.0)), "delay_s": 0.02, "filter_rad_s": 60.0}
         case["gust_rad"] = float(math.exp(rng.uniform(math.log(0.004), math.log(0.015))))
         case["gust_corner_rad_s"] = float(rng.uniform(2.0, 5.0))
-    case["surfaces_hz"] = max(case["surfaces_hz"], 2.5 * 2 * case["plan"]["sweep_hz"][1])   # no sweep past its Nyquist
+    # no sweep past its Nyquist
+    case["surfaces_hz"] = max(case["surfaces_hz"], 2.5 * 2 * case["plan"]["sweep_hz"][1])
     return {"simulator": "second", "kind": "closed loop" if closed else "open loop", "case": case,
             "seed": case["seed"]}
 
@@ -70,7 +76,8 @@ def _sample(t: np.ndarray, x: np.ndarray, rate_hz: float, noise: float, rng: np.
 
 
 def fly_second(flight: dict, config) -> dict:
-    """Simulate one second-simulator flight; the histories per channel for ``OnlineValidator.add_histories``."""
+    """Simulate one second-simulator flight; the histories per channel for
+    ``OnlineValidator.add_histories``."""
     fg, hg = _generators()
     case = flight["case"]
     rng = np.random.default_rng(case["seed"])
@@ -81,8 +88,9 @@ def fly_second(flight: dict, config) -> dict:
     noise = {c: rng.normal(0.0, 0.005, n) for c in CHANNELS}
     rates = {}
     if "closed_loop" in case:
-        u["pitch"], rates["pitch"], *_ = hg.closed_loop_pitch(case, u["pitch"], gust["pitch"], noise["pitch"], None,
-                                                             [], 1.0)
+        u["pitch"], rates["pitch"], *_ = hg.closed_loop_pitch(
+            case, u["pitch"], gust["pitch"], noise["pitch"], None, [], 1.0
+        )
     for c in CHANNELS:
         if c not in rates:
             num, den, _ = hg.linear_chain(c, [])

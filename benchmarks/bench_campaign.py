@@ -2,11 +2,11 @@
 """Campaign scale benchmark: 100 flights on a local Dask cluster with 1 and with 2 workers, in the same run.
 
 A fleet is simulated first (``benchmarks/make_fleet.py``: ``--aircraft`` x ``--weeks`` short flights, UAV-3's
-pitch delay drifting), then ``gap_validation.campaign.runner.run_campaign`` runs it into a fresh directory with
-1 worker and again with 2 (cluster start, every replay with its diagnosis, campaign.json/csv and index.html
-included: the whole wall time a user waits). Printed: both wall times and their ratio (the speed-up), the
-flights' summed task time, the time to fingerprint every flight, and a re-run that reuses every result.
-The epsilons of the two runs must be identical.
+pitch delay drifting), then ``gap_validation.campaign.runner.run_campaign`` runs it into a fresh directory
+with 1 worker and again with 2 (cluster start, every replay with its diagnosis, campaign.json/csv and
+index.html included: the whole wall time a user waits). Printed: both wall times and their ratio (the
+speed-up), the flights' summed task time, the time to fingerprint every flight, and a re-run that reuses every
+result. The epsilons of the two runs must be identical.
 
 Usage::
 
@@ -50,7 +50,9 @@ def task_line(outcome) -> str:
     """Summed task wall and CPU time: a task gets less than a core when the machine is shared."""
     wall = sum(o.elapsed_s or 0.0 for o in outcome.flights)
     cpu = sum(o.cpu_s or 0.0 for o in outcome.flights)
-    return f"tasks {wall:.1f} s wall, {cpu:.1f} s CPU ({cpu / wall:.0%} of a core each)" if wall else "no task"
+    return (
+        f"tasks {wall:.1f} s wall, {cpu:.1f} s CPU ({cpu / wall:.0%} of a core each)" if wall else "no task"
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -58,7 +60,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--aircraft", type=int, default=10)
     p.add_argument("--weeks", type=int, default=10)
     p.add_argument("--channels", default="roll,pitch,yaw")
-    p.add_argument("--keep", type=Path, help="write the fleet and results here (default: a temporary directory)")
+    p.add_argument(
+        "--keep", type=Path, help="write the fleet and results here (default: a temporary directory)"
+    )
     args = p.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="bench_campaign_") as tmp:
         base = args.keep or Path(tmp)
@@ -69,8 +73,10 @@ def main(argv: list[str] | None = None) -> int:
         manifest = load_manifest(manifest_path)
         n = len(manifest.flights)
         size = sum(f.stat().st_size for f in (base / "fleet" / "bags").rglob("*") if f.is_file())
-        print(f"fleet: {n} flights ({args.aircraft} aircraft x {args.weeks} weeks, channels {args.channels}), "
-              f"{size / 1e6:.1f} MB of mcap, simulated in {made:.1f} s")
+        print(
+            f"fleet: {n} flights ({args.aircraft} aircraft x {args.weeks} weeks, channels {args.channels}), "
+            f"{size / 1e6:.1f} MB of mcap, simulated in {made:.1f} s"
+        )
         began = time.perf_counter()
         for f in manifest.flights:
             flight_fingerprint(f.bags, f.config, TASK_OPTIONS)
@@ -78,13 +84,23 @@ def main(argv: list[str] | None = None) -> int:
         one, t1, load1 = timed_campaign(manifest, base / "out1", 1)
         two, t2, load2 = timed_campaign(manifest, base / "out2", 2)
         again, t_again, _ = timed_campaign(manifest, base / "out2", 2)
-        eps = [[o.channels[c]["epsilon"] for o in run.flights for c in sorted(o.channels)] for run in (one, two)]
-        print(f"1 worker:  {t1:6.1f} s wall ({t1 / n:.2f} s per flight; {task_line(one)}; load average {load1:.1f})")
-        print(f"2 workers: {t2:6.1f} s wall ({t2 / n:.2f} s per flight; {task_line(two)}; load average {load2:.1f})")
+        eps = [
+            [o.channels[c]["epsilon"] for o in run.flights for c in sorted(o.channels)] for run in (one, two)
+        ]
+        print(
+            f"1 worker:  {t1:6.1f} s wall ({t1 / n:.2f} s per flight; {task_line(one)}; load average "
+            f"{load1:.1f})"
+        )
+        print(
+            f"2 workers: {t2:6.1f} s wall ({t2 / n:.2f} s per flight; {task_line(two)}; load average "
+            f"{load2:.1f})"
+        )
         print(f"ratio 1 worker / 2 workers: {t1 / t2:.2f}   (2 would be perfect scaling on 2 idle cores; "
               f"{os.cpu_count()} cores here)")
-        print(f"fingerprints of all {n} flights: {hashed:.2f} s; re-run reusing every result: {t_again:.1f} s "
-              f"({again.count('reused')} reused)")
+        print(
+            f"fingerprints of all {n} flights: {hashed:.2f} s; re-run reusing every result: {t_again:.1f} s "
+            f"({again.count('reused')} reused)"
+        )
         print(f"epsilons identical with 1 and 2 workers: {eps[0] == eps[1]}; failed flights: "
               f"{one.count('failed') + two.count('failed')}")
         for finding in (f for f in two.findings if f.significant):

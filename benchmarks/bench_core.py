@@ -5,11 +5,11 @@ Run: ``python benchmarks/bench_core.py [--repeat 3]``
 - ``LinearModel.simulate`` on 200,000 samples (the lateral model with a servo lag and a 50 ms delay, 4 ms
   steps) against ``scipy.signal.lsim`` on the same transfer function and input: ratio of times (goal <= 1:
   the simulator, the time-domain checks and the tests lean on it), and a million samples alone.
-- A full diagnosis of one channel (every effect and pair fitted, ``analyse_channel``) against one evaluation of
-  the nu-gap metrics it is judged by, repeated as many times as the fit evaluates candidates is not knowable
-  from outside: the absolute time is printed with its goal (3 s: the node runs it in the background every
-  ``diagnosis_period``), and the ratio to the time of one ``scipy.optimize.least_squares`` call on a first-order
-  lag of the same data as a scale.
+- A full diagnosis of one channel (every effect and pair fitted, ``analyse_channel``) against one evaluation
+  of the nu-gap metrics it is judged by, repeated as many times as the fit evaluates candidates is not
+  knowable from outside: the absolute time is printed with its goal (3 s: the node runs it in the background
+  every ``diagnosis_period``), and the ratio to the time of one ``scipy.optimize.least_squares`` call on a
+  first-order lag of the same data as a scale.
 - ``simulate_flight`` of a 15-minute three-channel flight: seconds of flight per second of work (the test
   fleets and the Monte Carlo campaigns are built from it; goal >= 60).
 
@@ -31,15 +31,23 @@ sys.path.insert(0, str(ROOT))
 from gap_validation.core.config import load_config  # noqa: E402
 from gap_validation.core.models import LinearModel  # noqa: E402
 
-LATERAL = {"A": [[-0.8726, 0.8968, -16.82, 9.791], [-2.757, -16.09, 3.368, 0.0], [1.708, 0.514, -2.775, 0.0],
-                 [0.0, 1.0, 0.05511, -1.507e-08]],
-           "B": [[-4.198e-10, 7.984e-10, 5.302], [78.23, -78.23, -4.972], [-5.752, 5.752, -82.04], [0.0, 0.0, 0.0]],
-           "C": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], "input": [1, -1, 0], "output": 1}
+LATERAL = {
+    "A": [
+        [-0.8726, 0.8968, -16.82, 9.791],
+        [-2.757, -16.09, 3.368, 0.0],
+        [1.708, 0.514, -2.775, 0.0],
+        [0.0, 1.0, 0.05511, -1.507e-08],
+    ],
+    "B": [[-4.198e-10, 7.984e-10, 5.302], [78.23, -78.23, -4.972], [-5.752, 5.752, -82.04], [0.0, 0.0, 0.0]],
+    "C": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]],
+    "input": [1, -1, 0],
+    "output": 1,
+}
 
 
 def best(fn, repeat: int) -> tuple[float, object]:
-    """Best CPU time of ``repeat`` runs (the process's own: other jobs on the shared cores do not count) and the
-    result."""
+    """Best CPU time of ``repeat`` runs (the process's own: other jobs on the shared cores do not count) and
+    the result."""
     times, out = [], None
     for _ in range(repeat):
         start = time.process_time()
@@ -92,8 +100,18 @@ def bench_diagnosis(repeat: int) -> None:
                                        variance=2.0 * (error * np.abs(r)) ** 2))
     mean = np.mean([s.response for s in sweeps], axis=0)
     e_avg = error / np.sqrt(3)
-    avg = SpectralEstimate(w.copy(), np.ones(w.size), np.abs(mean) ** 2 / coherence, mean, np.full(w.size, 3 * n),
-                           mean, coherence, e_avg, n_sweeps=3, variance=2.0 * (e_avg * np.abs(mean)) ** 2)
+    avg = SpectralEstimate(
+        w.copy(),
+        np.ones(w.size),
+        np.abs(mean) ** 2 / coherence,
+        mean,
+        np.full(w.size, 3 * n),
+        mean,
+        coherence,
+        e_avg,
+        n_sweeps=3,
+        variance=2.0 * (e_avg * np.abs(mean)) ** 2,
+    )
     ours, found = best(lambda: diagnosis.analyse_channel(roll, avg, sweeps, 0.6), repeat)
     base = roll.freqresp(w)
 
@@ -105,8 +123,11 @@ def bench_diagnosis(repeat: int) -> None:
 
     ref, _ = best(lag_fit, repeat)
     top = found.candidates[0]["effect"] if found.candidates else "none"
-    print(f"diagnosis of one channel (40 frequencies, 3 sweeps): {ours:.2f} s CPU (goal <= 3 s), top candidate {top}; "
-          f"one least_squares lag+delay fit {ref * 1e3:.1f} ms: ratio {ours / ref:.0f}")
+    print(
+        f"diagnosis of one channel (40 frequencies, 3 sweeps): {ours:.2f} s CPU (goal <= 3 s), top candidate "
+        f"{top}; "
+        f"one least_squares lag+delay fit {ref * 1e3:.1f} ms: ratio {ours / ref:.0f}"
+    )
 
 
 def bench_flight(repeat: int) -> None:

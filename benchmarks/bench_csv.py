@@ -2,13 +2,13 @@
 """CSV log reading speed: our reader against the ``csv`` module on the same file, measured in the same run.
 
 One topic file of ``--rows`` rows (default 500 000) with a microsecond time column and three value columns is
-written with :func:`gap_validation.logs.csvlog.write_csv`; then, interleaved ``--repeat`` times (the fastest run
-counts; the machine may be shared):
+written with :func:`gap_validation.logs.csvlog.write_csv`; then, interleaved ``--repeat`` times (the fastest
+run counts; the machine may be shared):
 
-* *ours*: ``open_log(path).read({topic: ["a", "c"]})`` (numpy's parser, the ``csv`` module only for files numpy
-  refuses);
-* *csv module*: ``csv.reader`` over the file, the time column and the two wanted columns gathered as strings and
-  converted with ``np.array(..., dtype=float)``.
+* *ours*: ``open_log(path).read({topic: ["a", "c"]})`` (numpy's parser, the ``csv`` module only for files
+  numpy refuses);
+* *csv module*: ``csv.reader`` over the file, the time column and the two wanted columns gathered as strings
+  and converted with ``np.array(..., dtype=float)``.
 
 The ratio is ``ours / csv module`` (below 1: ours is faster). Each run's values are checked equal.
 
@@ -31,8 +31,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from gap_validation.logs.base import WriteTopic
-from gap_validation.logs.formats import open_log  # noqa: E402
 from gap_validation.logs.csvlog import write_csv  # noqa: E402
+from gap_validation.logs.formats import open_log  # noqa: E402
 
 
 def _ours(path: Path) -> tuple[float, np.ndarray, np.ndarray]:

@@ -1,12 +1,12 @@
 #!/usr/bin/env python3
-"""DataFlash reading speed: :class:`~gap_validation.logs.dataflash.DataFlashFile` against pymavlink's ``DFReader``
-on the same file, in the same run.
+"""DataFlash reading speed: :class:`~gap_validation.logs.dataflash.DataFlashFile` against pymavlink's
+``DFReader`` on the same file, in the same run.
 
 A copter system-identification flight of ``--minutes`` (10 by default) is written with
 :func:`~gap_validation.logs.dataflash.write_dataflash`, at ArduPilot's rates with fast logging: ``RATE`` and
 ``SIDD`` at 400 Hz and ``RCOU`` at 50 Hz (the wanted ones), and as many other messages as a real log has
-(``IMU[0]``, ``IMU[1]``, ``PIDR``, ``PIDP``, ``PIDY``, ``ATT`` at 400 Hz; ``CTUN``, ``BARO``, ``GPS``, ``BAT``,
-``MAG``, ``VIBE`` at 10 Hz), so that the wanted messages are about a quarter of the file. Then timed:
+(``IMU[0]``, ``IMU[1]``, ``PIDR``, ``PIDP``, ``PIDY``, ``ATT`` at 400 Hz; ``CTUN``, ``BARO``, ``GPS``,
+``BAT``, ``MAG``, ``VIBE`` at 10 Hz), so that the wanted messages are about a quarter of the file. Then timed:
 
 * *DFReader recv_match*: ``DFReader_binary(path)`` (its index) and ``recv_match(type=[RATE, SIDD, RCOU])``
   until None, the usual way; also with the wanted fields taken from each message (``getattr``);
@@ -142,13 +142,19 @@ def main(argv=None) -> int:
         peak = tracemalloc.get_traced_memory()[1]
         tracemalloc.stop()
         kept = sum(s.values.nbytes + s.t_s.nbytes for s in series.values())
-        print(f"ours: {best:.3f} s (runs {', '.join(f'{r[0]:.3f}' for r in runs)}; topics walk "
-              f"{min(r[1] for r in runs):.3f} s); peak allocations {peak / 1e6:.1f} MB, kept {kept / 1e6:.1f} MB")
+        print(
+            f"ours: {best:.3f} s (runs {', '.join(f'{r[0]:.3f}' for r in runs)}; topics walk "
+            f"{min(r[1] for r in runs):.3f} s); peak allocations {peak / 1e6:.1f} MB, kept {kept / 1e6:.1f} "
+            "MB"
+        )
 
         index_s, match_s, counts, _ = dfreader_match(path, fields=False)
         print(f"DFReader recv_match: {match_s:.2f} s (index {index_s:.2f} s); ours / DFReader = "
               f"{best / match_s:.4f} ({match_s / best:.0f}x faster)")
-        assert counts == {t: len(series[t].t_s) for t in WANTED}, (counts, {t: len(s.t_s) for t, s in series.items()})
+        assert counts == {t: len(series[t].t_s) for t in WANTED}, (
+            counts,
+            {t: len(s.t_s) for t, s in series.items()},
+        )
         _, fields_s, _, values = dfreader_match(path, fields=True)
         for topic, rows in values.items():
             assert np.array_equal(np.array(rows, float), series[topic].values), topic

@@ -39,7 +39,9 @@ def log_sweep(t, f0_hz, f1_hz, length_s, amplitude):
     rate = np.log(f1_hz / f0_hz) / length_s
     phase = 2 * np.pi * f0_hz * np.expm1(rate * t) / rate
     taper = np.clip(np.minimum(t, length_s - t), 0.0, 1.0)
-    return np.where((t >= 0) & (t <= length_s), amplitude * np.sin(phase) * np.sin(0.5 * np.pi * taper) ** 2, 0.0)
+    return np.where(
+        (t >= 0) & (t <= length_s), amplitude * np.sin(phase) * np.sin(0.5 * np.pi * taper) ** 2, 0.0
+    )
 
 
 def make_flight(minutes: float, rate_hz: float, seed: int = 0):
@@ -87,7 +89,9 @@ def batch_estimate(x, y, spans_k, w_rad_s, band_fraction=0.1):
 
 
 def state_bytes(est) -> int:
-    return sum(np.asarray(v).nbytes for v in est.state_dict().values() if isinstance(v, (np.ndarray, int, float)))
+    return sum(
+        np.asarray(v).nbytes for v in est.state_dict().values() if isinstance(v, (np.ndarray, int, float))
+    )
 
 
 def batch_single_window(x, y, spans_k, w_rad_s, n_win=256):

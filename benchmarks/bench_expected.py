@@ -1,12 +1,12 @@
 #!/usr/bin/env python3
 """The estimate a model would give through the estimator (``spectra.expected_estimate``), against the same
-computation written frequency by frequency (the reference, here), on the bundled flight's pooled estimate of every
-channel (the estimates that keep their band sums).
+computation written frequency by frequency (the reference, here), on the bundled flight's pooled estimate of
+every channel (the estimates that keep their band sums).
 
 The diagnosis calls it once per candidate model and parameter step (every fit evaluation), the node's cheap
 results once per channel when the trim changed; ``expected_estimate`` evaluates the model once for every
-frequency's nodes and check points together and solves the bands as one stack. Printed: CPU time of each (best of
-``--repeat``), their ratio (goal < 1), and the largest relative difference of the two results.
+frequency's nodes and check points together and solves the bands as one stack. Printed: CPU time of each (best
+of ``--repeat``), their ratio (goal < 1), and the largest relative difference of the two results.
 
     python benchmarks/bench_expected.py [--repeat 5]
 """
@@ -25,8 +25,8 @@ sys.path.insert(0, str(ROOT))
 
 
 def reference(sums, w_rad_s, band_fraction, model_response):
-    """One frequency at a time: the model at its Chebyshev nodes, a least-squares polynomial, its error on a fine
-    grid, the band's solve (the textbook form of ``expected_estimate``)."""
+    """One frequency at a time: the model at its Chebyshev nodes, a least-squares polynomial, its error on a
+    fine grid, the band's solve (the textbook form of ``expected_estimate``)."""
     from gap_validation.core.spectra import EXTRA_ORDER
 
     w = np.asarray(w_rad_s, float)
@@ -93,10 +93,15 @@ def main() -> int:
         assert np.array_equal(ok, np.isfinite(a))
         worst = max(worst, float(np.max(np.abs(a[ok] - b[ok]) / np.abs(b[ok]), initial=0.0)),
                     float(np.max(np.abs(ea - eb), initial=0.0)))
-    print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores; {len(cases)} pooled estimates (the "
-          f"bundled flight's channels), the model with a 30 ms delay")
-    print(f"expected_estimate {ours * 1e3:.1f} ms CPU; frequency by frequency {ref * 1e3:.1f} ms: ratio "
-          f"{ours / ref:.3f} (goal < 1); largest difference {worst:.1e} (relative, and of the expansion error)")
+    print(
+        f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores; {len(cases)} pooled estimates "
+        "(the "
+        f"bundled flight's channels), the model with a 30 ms delay"
+    )
+    print(
+        f"expected_estimate {ours * 1e3:.1f} ms CPU; frequency by frequency {ref * 1e3:.1f} ms: ratio "
+        f"{ours / ref:.3f} (goal < 1); largest difference {worst:.1e} (relative, and of the expansion error)"
+    )
     return 0
 
 

@@ -4,17 +4,18 @@ fast as the reader alone).
 
 A simulated flight of the bundled config (the default card, gyro 250 Hz, servos 50 Hz, a 40 ms delay hidden on
 pitch) is written as a PX4 ULog and as an ArduPlane DataFlash log, each with the bulk of a real log beside the
-streams the config reads (ULog: ten other PX4 topics at their rates, ``benchmarks/bench_ulog.py``; DataFlash: the
-other message types of ``benchmarks/bench_dataflash.py``), so the wanted topics are a minority of the bytes. Timed
-in the same process, best of ``--repeat``:
+streams the config reads (ULog: ten other PX4 topics at their rates, ``benchmarks/bench_ulog.py``; DataFlash:
+the other message types of ``benchmarks/bench_dataflash.py``), so the wanted topics are a minority of the
+bytes. Timed in the same process, best of ``--repeat``:
 
 - ``replay``: ``gap_validation.bag.replay.replay([log], config)``: reading, routing, estimating and the full
   diagnosis, what ``gap-validate replay FLIGHT --config CFG`` does (one BLAS thread, as the command);
-- the reader alone: ``pyulog.ULog(path)`` (PX4's reader, every topic: what a user's script does first) and with
-  ``message_name_filter_list`` (the two topics); pymavlink's ``DFReader_binary(path)`` then ``recv_match`` over the
-  wanted types until None (ArduPilot's reader).
+- the reader alone: ``pyulog.ULog(path)`` (PX4's reader, every topic: what a user's script does first) and
+  with ``message_name_filter_list`` (the two topics); pymavlink's ``DFReader_binary(path)`` then
+  ``recv_match`` over the wanted types until None (ArduPilot's reader).
 
-Printed: seconds and ratios (replay / reader; below 1: replay is faster than reading the file with the reader).
+Printed: seconds and ratios (replay / reader; below 1: replay is faster than reading the file with the
+reader).
 
 Usage::
 
@@ -37,12 +38,12 @@ from gap_validation.blas import single_threaded_blas  # noqa: E402
 single_threaded_blas()      # as gap-validate does, before numpy loads
 
 from gap_validation.bag.replay import replay  # noqa: E402
+from gap_validation.cli.arguments import hidden_effects  # noqa: E402
 from gap_validation.core.config import load_config  # noqa: E402
 from gap_validation.core.simulation import FlightOptions, simulate_flight  # noqa: E402
-from gap_validation.cli.arguments import hidden_effects  # noqa: E402
 from gap_validation.logs.base import WriteTopic  # noqa: E402
-from gap_validation.logs.flight import BOOT_S, as_autopilot_logs, flight_topics, log_config, log_layout  # noqa: E402
 from gap_validation.logs.dataflash import write_dataflash  # noqa: E402
+from gap_validation.logs.flight import BOOT_S, as_autopilot_logs, flight_topics, log_config, log_layout  # noqa: E402
 from gap_validation.logs.ulog import write_ulog  # noqa: E402
 
 CONFIG = ROOT / "config" / "ultrastick25e.yaml"
@@ -108,15 +109,21 @@ def main(argv=None) -> int:
         t_replay, outcome = _best(lambda: replay([path], log_cfg), args.repeat)
         pitch = outcome.result.channels["pitch"]
         named = pitch.diagnosis[0]["sentence"] if pitch.diagnosis else "nothing named"
-        print(f"\n{kind}: {path.stat().st_size / 1e6:.1f} MB, {len(every)} topics/types, the {len(wanted)} read "
-              f"({', '.join(wanted)}) {100 * share:.0f} % of the messages; pitch epsilon {pitch.epsilon:.2f}: "
-              f"{named[:80]}")
+        print(
+            f"\n{kind}: {path.stat().st_size / 1e6:.1f} MB, {len(every)} topics/types, the {len(wanted)} "
+            "read "
+            f"({', '.join(wanted)}) {100 * share:.0f} % of the messages; pitch epsilon {pitch.epsilon:.2f}: "
+            f"{named[:80]}"
+        )
         print(f"  replay (read, route, estimate, diagnose): {t_replay:.2f} s")
         if kind == "ulog":
             t_all, _ = _best(lambda: pyulog.ULog(str(path)), args.repeat)
             t_some, _ = _best(lambda: pyulog.ULog(str(path), message_name_filter_list=wanted), args.repeat)
             print(f"  pyulog.ULog, every topic: {t_all:.2f} s -> replay / reader {t_replay / t_all:.2f}")
-            print(f"  pyulog.ULog, the {len(wanted)} topics: {t_some:.2f} s -> replay / reader {t_replay / t_some:.2f}")
+            print(
+                f"  pyulog.ULog, the {len(wanted)} topics: {t_some:.2f} s -> replay / reader "
+                f"{t_replay / t_some:.2f}"
+            )
         else:
             types = sorted({w.split("[")[0] for w in wanted})
 
@@ -128,8 +135,11 @@ def main(argv=None) -> int:
                 return n
 
             t_df, n = _best(dfreader, args.repeat)
-            print(f"  DFReader recv_match over {', '.join(types)} ({n} messages): {t_df:.2f} s -> replay / reader "
-                  f"{t_replay / t_df:.2f}")
+            print(
+                f"  DFReader recv_match over {', '.join(types)} ({n} messages): {t_df:.2f} s -> replay / "
+                "reader "
+                f"{t_replay / t_df:.2f}"
+            )
     return 0
 
 

@@ -1,6 +1,7 @@
 """Exact MIMO nu-gap of 2x2, 10-state models: time per pair, and against a dense-grid reference.
 
-Run: ``python benchmarks/bench_mimo_nugap.py [--pairs 50] [--states 10] [--points 20000] [--repeat 3] [--seed 0]``
+Run: ``python benchmarks/bench_mimo_nugap.py [--pairs 50] [--states 10] [--points 20000] [--repeat 3] [--seed
+0]``
 
 Random lateral-directional-like models (lightly damped and real modes from 0.1 to 50 rad/s, some unstable,
 an integrator now and then) P1, and P2 with every matrix perturbed by a few percent. For each pair the exact
@@ -61,7 +62,8 @@ def perturbed(rng: np.random.Generator, model: MimoModel, size: float) -> MimoMo
 
 def dense_nugap(m1: MimoModel, m2: MimoModel, points: int) -> tuple[float, float]:
     """Largest chordal distance over a dense grid (the winding condition assumed, as on data)."""
-    w = np.geomspace(1e-6, 1e4, points)  # not w = 0: next to an integrator P(j0) is huge and the formula loses it
+    # not w = 0: next to an integrator P(j0) is huge and the formula loses it
+    w = np.geomspace(1e-6, 1e4, points)
     with np.errstate(all="ignore"):
         kappa = chordal_distance(m1.freqresp(w), m2.freqresp(w))
     k = int(np.nanargmax(kappa))
@@ -89,7 +91,8 @@ def main() -> None:
     for m1, m2 in pairs:
         best, best_cpu = np.inf, np.inf
         for _ in range(args.repeat):
-            m1, m2 = MimoModel(*m1.state_space()), MimoModel(*m2.state_space())  # no cached minimal realization
+            # no cached minimal realization
+            m1, m2 = MimoModel(*m1.state_space()), MimoModel(*m2.state_space())
             start, start_cpu = time.perf_counter(), time.process_time()
             value, w_peak = nugap(m1, m2)
             best = min(best, time.perf_counter() - start)
@@ -109,9 +112,12 @@ def main() -> None:
     below = values[held, 0] - values[held, 2]
     print(f"exact MIMO nu-gap, 2x2, {args.states} states per model, {args.pairs} random pairs "
           f"(perturbation {args.perturbation:g}, seed {args.seed}):")
-    print(f"  exact:       median {1e3 * np.median(exact_times):6.2f} ms, worst {1e3 * exact_times.max():6.2f} ms "
-          f"(goal: under 10 ms); CPU time median {1e3 * np.median(cpu_times):.2f} ms, worst "
-          f"{1e3 * max(cpu_times):.2f} ms; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+    print(
+        f"  exact:       median {1e3 * np.median(exact_times):6.2f} ms, worst {1e3 * exact_times.max():6.2f} "
+        "ms "
+        f"(goal: under 10 ms); CPU time median {1e3 * np.median(cpu_times):.2f} ms, worst "
+        f"{1e3 * max(cpu_times):.2f} ms; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores"
+    )
     print(f"  dense grid:  median {1e3 * np.median(dense_times):6.2f} ms ({args.points} frequencies, "
           f"kappa from singular value decompositions)")
     print(f"  time ratio exact / dense grid: median {np.median(exact_times / dense_times):.3f}")

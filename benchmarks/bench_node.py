@@ -1,23 +1,24 @@
 #!/usr/bin/env python3
-"""CPU the ``gap_validator`` node spends per second of flight: its own work (goal: at most 5 % of one core) and,
-with ``--live``, its whole process over DDS (goal: at most 8 % of one core).
+"""CPU the ``gap_validator`` node spends per second of flight: its own work (goal: at most 5 % of one core)
+and, with ``--live``, its whole process over DDS (goal: at most 8 % of one core).
 
 A simulated sweep flight (the Ultra Stick config, servo lag and delay hidden in the truth) with the IMU at
 1 kHz and the surfaces (JointState, three joints) at 100 Hz feeds the three channels. Its messages are built
 and serialized ahead of each simulated second (not timed); then, in flight-time order, what the node's intake
 timer does with each ``intake_period`` (50 ms) of messages (``ValidatorNode.take_messages``: the decoding step
-with fast field decoding, stamp-gap accounting, the router) runs on every slice, and the node's timers run when
-due: ``publish_diagnostics`` every ``diagnostic_period`` (1 s), the checkpoint every ``checkpoint_period`` (5 s,
-to a temporary state file: the snapshot in the executor, the write in the background thread, both counted), and
-the full diagnosis whenever the node starts one (it runs in the node's worker thread; the benchmark waits for it
-inside the timed region, so its CPU counts in full). ``time.process_time`` (all threads of the process) around
-these calls, divided by the flight duration, is the figure; the ratio to the 5 % goal is printed (below 1 meets
-it). Not counted: DDS transport and rclpy's executor (see ``--live``). An extra line gives the cost of
-``raw_decoding:=false`` (rclpy deserialisation, then the router) on the same messages, deserialisation included.
+with fast field decoding, stamp-gap accounting, the router) runs on every slice, and the node's timers run
+when due: ``publish_diagnostics`` every ``diagnostic_period`` (1 s), the checkpoint every
+``checkpoint_period`` (5 s, to a temporary state file: the snapshot in the executor, the write in the
+background thread, both counted), and the full diagnosis whenever the node starts one (it runs in the node's
+worker thread; the benchmark waits for it inside the timed region, so its CPU counts in full).
+``time.process_time`` (all threads of the process) around these calls, divided by the flight duration, is the
+figure; the ratio to the 5 % goal is printed (below 1 meets it). Not counted: DDS transport and rclpy's
+executor (see ``--live``). An extra line gives the cost of ``raw_decoding:=false`` (rclpy deserialisation,
+then the router) on the same messages, deserialisation included.
 
 ``--live S`` additionally runs the real console script (``python -m gap_validation.ros.main``, default
-parameters) for S seconds of wall time while a child process publishes Imu at 1 kHz and JointState at 100 Hz (a
-chirp) over DDS, and reports the CPU of the node's whole process (``/proc/<pid>/stat``, its child processes
+parameters) for S seconds of wall time while a child process publishes Imu at 1 kHz and JointState at 100 Hz
+(a chirp) over DDS, and reports the CPU of the node's whole process (``/proc/<pid>/stat``, its child processes
 included): DDS's threads, rclpy's executor and the node -- once per executor, with the ratio to the 8 % goal.
 ``--live-only`` skips the in-process part.
 
@@ -50,9 +51,9 @@ from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.serialization import deserialize_message, serialize_message  # noqa: E402
 from sensor_msgs.msg import Imu, JointState  # noqa: E402
 
+from gap_validation.cli.arguments import hidden_effects  # noqa: E402
 from gap_validation.core.config import load_config  # noqa: E402
 from gap_validation.core.simulation import FlightOptions, simulate_flight  # noqa: E402
-from gap_validation.cli.arguments import hidden_effects  # noqa: E402
 from gap_validation.ros.message_types import message_class  # noqa: E402
 from gap_validation.ros.node import ValidatorNode  # noqa: E402
 
@@ -180,7 +181,8 @@ def run(minutes: float, imu_rate_hz: float, surface_rate_hz: float) -> dict:
                 next_diag += diag_period
             while next_ckpt <= now:
                 start = time.process_time()
-                node._checkpoint_in_background()     # the checkpoint timer: snapshot here, write in the thread
+                # the checkpoint timer: snapshot here, write in the thread
+                node._checkpoint_in_background()
                 node._background.wait(60.0)
                 node._harvest_background()
                 cpu["checkpoints"] += time.process_time() - start
@@ -327,8 +329,10 @@ def _in_process(args) -> None:
         print(f"  {key:<12} {seconds:8.3f} s CPU  ({n} calls, {each})")
     print(f"node CPU per second of flight: {fraction * 100:.2f} % of one core "
           f"(goal <= {GOAL_FRACTION * 100:.0f} %: ratio {fraction / GOAL_FRACTION:.2f})")
-    print(f"  raw_decoding:=false instead: {out['message_path_us']:.1f} us per message (rclpy deserialisation "
-          f"included) = {out['message_path_us'] * out['rate_msgs_s'] / 1e4:.2f} % of one core for the messages")
+    print(
+        f"  raw_decoding:=false instead: {out['message_path_us']:.1f} us per message (rclpy deserialisation "
+        f"included) = {out['message_path_us'] * out['rate_msgs_s'] / 1e4:.2f} % of one core for the messages"
+    )
     eps = ", ".join(f"{name} {ch.epsilon:.2f} ({ch.sweeps} sweeps)" if ch.epsilon is not None else f"{name} -"
                     for name, ch in out["result"].channels.items())
     print(f"  sanity: epsilon {eps}", flush=True)

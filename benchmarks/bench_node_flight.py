@@ -1,22 +1,23 @@
 #!/usr/bin/env python3
 """The node's whole process over a whole recorded flight, republished in real time: CPU on average and in its
-worst 10 s window, and its memory (issue 26: at most 4 % of one core on average and 15 % in the worst window at
-50 Hz; at most 8 % at 1 kHz IMU + 100 Hz surfaces; RSS flat within 10 % after the first estimates).
+worst 10 s window, and its memory (issue 26: at most 4 % of one core on average and 15 % in the worst window
+at 50 Hz; at most 8 % at 1 kHz IMU + 100 Hz surfaces; RSS flat within 10 % after the first estimates).
 
 A child process republishes every record of the config's topics from the bag, at the pace of the bag's clock
-(the serialized messages as recorded, ``Publisher.publish`` of the raw bytes, RELIABLE, depth 1000), to the real
-console script (``python -m gap_validation.ros.main``, default parameters but the config and a state file in a
-temporary directory). Every 10 s of wall time the node's CPU (``/proc/<pid>/stat``: every thread of the process
-and of its children: DDS, the executor, the node, the diagnosis) and its resident memory (``VmRSS``) are read.
-Printed: the average over the flight, the worst 10 s window, the RSS after the first estimate (the first
-window after 30 % of the flight: the first sweeps closed and diagnosed) and at the end, and the ratios to the goals
-(below 1 meets a goal). The windows go to ``--csv`` if given.
+(the serialized messages as recorded, ``Publisher.publish`` of the raw bytes, RELIABLE, depth 1000), to the
+real console script (``python -m gap_validation.ros.main``, default parameters but the config and a state file
+in a temporary directory). Every 10 s of wall time the node's CPU (``/proc/<pid>/stat``: every thread of the
+process and of its children: DDS, the executor, the node, the diagnosis) and its resident memory (``VmRSS``)
+are read. Printed: the average over the flight, the worst 10 s window, the RSS after the first estimate (the
+first window after 30 % of the flight: the first sweeps closed and diagnosed) and at the end, and the ratios
+to the goals (below 1 meets a goal). The windows go to ``--csv`` if given.
 
 Usage::
 
     python benchmarks/bench_node_flight.py                         # the bundled flight (17 min, 50 Hz)
     python benchmarks/bench_node_flight.py BAG --config CFG [--goal-average 0.08] [--csv windows.csv]
-    python benchmarks/bench_node_flight.py --speed 4               # 4x real time (a quicker look; not the goal)
+    python benchmarks/bench_node_flight.py --speed 4               # 4x real time (a quicker look; not the
+    goal)
 """
 from __future__ import annotations
 
@@ -36,9 +37,9 @@ sys.path.insert(0, str(ROOT))
 from bench_node import _cpu_s  # noqa: E402
 
 WINDOW_S = 10.0
-#: The RSS "after the first estimates" is read at this fraction of the flight: the bundled flight's first sweeps
-#: close at 15-20 % and their first diagnosis (scipy.optimize imported, the fits' arrays: a one-time step of about
-#: 30 MB) follows; what matters is that nothing grows after it.
+#: The RSS "after the first estimates" is read at this fraction of the flight: the bundled flight's first
+#: sweeps close at 15-20 % and their first diagnosis (scipy.optimize imported, the fits' arrays: a one-time
+#: step of about 30 MB) follows; what matters is that nothing grows after it.
 SETTLED = 0.3
 
 _PUBLISHER = r"""
@@ -82,7 +83,9 @@ def main(argv=None) -> int:
     parser.add_argument("--config", default=str(ROOT / "config" / "ultrastick25e.yaml"))
     parser.add_argument("--speed", type=float, default=1.0, help="times real time (1: the goal's condition)")
     parser.add_argument("--goal-average", type=float, default=0.04, help="goal, fraction of one core (0.04)")
-    parser.add_argument("--goal-window", type=float, default=0.15, help="goal for the worst 10 s window (0.15)")
+    parser.add_argument(
+        "--goal-window", type=float, default=0.15, help="goal for the worst 10 s window (0.15)"
+    )
     parser.add_argument("--csv", help="write the windows (t_s, cpu_fraction, rss_mb) here")
     args = parser.parse_args(argv)
 
@@ -97,14 +100,32 @@ def main(argv=None) -> int:
     tmp = Path(tempfile.mkdtemp(prefix="bench_node_flight_"))
     env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(0, 101)),
                ROS_AUTOMATIC_DISCOVERY_RANGE=os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST"))
-    node = subprocess.Popen([sys.executable, "-m", "gap_validation.ros.main", "--ros-args", "-p",
-                             f"config_file:={Path(args.config).resolve()}", "-p", f"state_file:={tmp / 'state.npz'}"],
-                            cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    node = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "gap_validation.ros.main",
+            "--ros-args",
+            "-p",
+            f"config_file:={Path(args.config).resolve()}",
+            "-p",
+            f"state_file:={tmp / 'state.npz'}",
+        ],
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     windows: list[tuple[float, float, float]] = []
     try:
-        time.sleep(3.0)      # imports and start-up are not the steady state
-        publisher = subprocess.Popen([sys.executable, "-c", _PUBLISHER, args.bag, str(args.speed), ",".join(topics)],
-                                     cwd=ROOT, env=env, stdout=subprocess.PIPE, text=True)
+        time.sleep(3.0)  # imports and start-up are not the steady state
+        publisher = subprocess.Popen(
+            [sys.executable, "-c", _PUBLISHER, args.bag, str(args.speed), ",".join(topics)],
+            cwd=ROOT,
+            env=env,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
         if publisher.stdout.readline().strip() != "ready":
             raise SystemExit("the publisher did not start")
         cpu0 = last_cpu = _cpu_s(node.pid)
@@ -131,9 +152,12 @@ def main(argv=None) -> int:
     rss_first, rss_end = settled[0][2], windows[-1][2]
     print(f"{args.bag}: {count} messages of {', '.join(topics)} over {wall1 - wall0:.0f} s of wall time "
           f"({args.speed:g}x real time{'' if span_s is None else f', {span_s:.0f} s of flight'})")
-    print(f"node whole process: {average * 100:.2f} % of one core on average (goal <= {args.goal_average * 100:g} %: "
-          f"ratio {average / args.goal_average:.2f}); worst {WINDOW_S:g} s window {worst[1] * 100:.1f} % at "
-          f"{worst[0]:.0f} s (goal <= {args.goal_window * 100:g} %: ratio {worst[1] / args.goal_window:.2f})")
+    print(
+        f"node whole process: {average * 100:.2f} % of one core on average (goal <= "
+        f"{args.goal_average * 100:g} %: "
+        f"ratio {average / args.goal_average:.2f}); worst {WINDOW_S:g} s window {worst[1] * 100:.1f} % at "
+        f"{worst[0]:.0f} s (goal <= {args.goal_window * 100:g} %: ratio {worst[1] / args.goal_window:.2f})"
+    )
     print(f"RSS: {rss_first:.0f} MB after the first estimates and their diagnosis ({settled[0][0]:.0f} s), "
           f"{rss_end:.0f} MB at the end (ratio {rss_end / rss_first:.3f}; goal within 10 %), peak "
           f"{max(w[2] for w in windows):.0f} MB")

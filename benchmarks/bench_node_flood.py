@@ -1,12 +1,12 @@
 #!/usr/bin/env python3
 """The ``gap_validator`` node under a flood: a 10 kHz IMU for 60 s of message time, in-process over DDS.
 
-One process, one explicit rclpy ``Context``: the node (the Ultra Stick config, typed topics, raw subscriptions,
-default parameters: KEEP_LAST 1000, queues drained every ``intake_period``) spins in an executor thread while
-the main thread publishes (RELIABLE, from its own context: another DDS participant) ``sensor_msgs/Imu`` at
-``--imu-rate-hz`` of message time (header stamps ``k / rate``) and ``sensor_msgs/JointState`` at
-``--surface-rate-hz``, with a chirp on the surfaces and rates, as fast as it can (or in real time with
-``--realtime``). Printed:
+One process, one explicit rclpy ``Context``: the node (the Ultra Stick config, typed topics, raw
+subscriptions, default parameters: KEEP_LAST 1000, queues drained every ``intake_period``) spins in an
+executor thread while the main thread publishes (RELIABLE, from its own context: another DDS participant)
+``sensor_msgs/Imu`` at ``--imu-rate-hz`` of message time (header stamps ``k / rate``) and
+``sensor_msgs/JointState`` at ``--surface-rate-hz``, with a chirp on the surfaces and rates, as fast as it can
+(or in real time with ``--realtime``). Printed:
 
 * messages published, received by the node, and missing; the node's ``samples_dropped`` diagnostics value
   (inferred from header-stamp gaps) against the truth ``published - received``, counted between the first and
@@ -202,9 +202,19 @@ def flood(seconds: float = 60.0, imu_rate_hz: float = 10_000.0, surface_rate_hz:
         # on time from the flood's start to its end (a stall at either end counts)
         during = [a for a in published_at if started <= a <= flood_end]
         gaps = list(np.diff([started, *during, flood_end]))
-        result = FloodResult(published=n_imu, received=received, tail=tail, head=head, samples_dropped=dropped[0],
-                             truth_dropped=truth, diagnostics_period_s=diagnostic_period_s,
-                             diagnostics_gaps_s=gaps, rss_mb=rss, wall_s=flood_end - started, per_topic=per_topic)
+        result = FloodResult(
+            published=n_imu,
+            received=received,
+            tail=tail,
+            head=head,
+            samples_dropped=dropped[0],
+            truth_dropped=truth,
+            diagnostics_period_s=diagnostic_period_s,
+            diagnostics_gaps_s=gaps,
+            rss_mb=rss,
+            wall_s=flood_end - started,
+            per_topic=per_topic,
+        )
         node.close()
         return result
     finally:
@@ -224,22 +234,44 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=60.0, help="message time of the flood [s]")
     parser.add_argument("--imu-rate-hz", type=float, default=10_000.0)
     parser.add_argument("--surface-rate-hz", type=float, default=100.0)
-    parser.add_argument("--realtime", action="store_true", help="publish in real time (default: as fast as possible)")
+    parser.add_argument(
+        "--realtime", action="store_true", help="publish in real time (default: as fast as possible)"
+    )
     parser.add_argument("--executor", choices=("events", "single_threaded"), default="events")
-    parser.add_argument("--qos-depth", type=int, default=None, help="the node's qos_depth (default: its default)")
+    parser.add_argument(
+        "--qos-depth", type=int, default=None, help="the node's qos_depth (default: its default)"
+    )
     args = parser.parse_args()
-    r = flood(args.seconds, args.imu_rate_hz, args.surface_rate_hz, realtime=args.realtime, executor=args.executor,
-              qos_depth=args.qos_depth)
-    print(f"flood: {r.published} IMU messages ({args.seconds:g} s at {args.imu_rate_hz:g} Hz) in {r.wall_s:.1f} s "
-          f"wall ({r.published / r.wall_s:,.0f} msgs/s published), executor {args.executor}")
-    print(f"received by the node {r.received}, missing {r.missing} (head before the first received: {r.head}, tail "
-          f"after the last: {r.tail})")
+    r = flood(
+        args.seconds,
+        args.imu_rate_hz,
+        args.surface_rate_hz,
+        realtime=args.realtime,
+        executor=args.executor,
+        qos_depth=args.qos_depth,
+    )
+    print(
+        f"flood: {r.published} IMU messages ({args.seconds:g} s at {args.imu_rate_hz:g} Hz) in "
+        f"{r.wall_s:.1f} s "
+        f"wall ({r.published / r.wall_s:,.0f} msgs/s published), executor {args.executor}"
+    )
+    print(
+        f"received by the node {r.received}, missing {r.missing} (head before the first received: {r.head}, "
+        "tail "
+        f"after the last: {r.tail})"
+    )
     truth = r.truth_dropped
     ratio = r.samples_dropped / truth if truth else (1.0 if r.samples_dropped == 0 else math.inf)
-    print(f"samples_dropped reported {r.samples_dropped} vs IMU + surface messages missing between the first and "
-          f"last received {truth}: ratio {ratio:.3f} (1: every drop reported)")
+    print(
+        f"samples_dropped reported {r.samples_dropped} vs IMU + surface messages missing between the first "
+        "and "
+        f"last received {truth}: ratio {ratio:.3f} (1: every drop reported)"
+    )
     for topic, (missing, counted) in r.per_topic.items():
-        print(f"  {topic}: missing between its first and last received messages {missing}, the node's count {counted}")
+        print(
+            f"  {topic}: missing between its first and last received messages {missing}, the node's count "
+            f"{counted}"
+        )
     print(f"/diagnostics during the flood: {len(r.diagnostics_gaps_s) - 1} messages, worst interval "
           f"{max(r.diagnostics_gaps_s):.2f} s = {r.worst_gap_ratio:.2f} x the period (on time: <= 2)")
     third, end = r.rss_at(1 / 3), r.rss_mb[-1][1]

@@ -4,25 +4,25 @@
 Each variant runs as its own Python process on the same bag (start-up and imports included), timed from the
 parent (wall clock, and the child's user + system CPU time from ``os.wait4``):
 
-* *plain*: ``rosbags.rosbag2.Reader`` over the config's topics and ``Typestore.deserialize_cdr`` of every message
-  (what any rosbags-based tool must at least do);
+* *plain*: ``rosbags.rosbag2.Reader`` over the config's topics and ``Typestore.deserialize_cdr`` of every
+  message (what any rosbags-based tool must at least do);
 * *raw read*: the same reader, the raw bytes only (no deserialisation);
-* *replay*: ``gap_validation.bag.replay.replay`` without the diagnosis (reading, decoding, batching, the online
-  estimator, the results), with the fast field decoders (default: records in batches, fields read from many
-  records at once) and with full deserialisation (``fast=False``).
+* *replay*: ``gap_validation.bag.replay.replay`` without the diagnosis (reading, decoding, batching, the
+  online estimator, the results), with the fast field decoders (default: records in batches, fields read from
+  many records at once) and with full deserialisation (``fast=False``).
 
-The figure of merit is ``plain seconds / replay seconds`` of the whole processes (goal >= 3). Every variant runs
-``--repeat`` times, interleaved; the fastest run counts (the machine may be shared: the load average before and
-after is printed, and the CPU-time ratio beside the wall-clock one). The replay's result is checked to be the
-same in every run.
+The figure of merit is ``plain seconds / replay seconds`` of the whole processes (goal >= 3). Every variant
+runs ``--repeat`` times, interleaved; the fastest run counts (the machine may be shared: the load average
+before and after is printed, and the CPU-time ratio beside the wall-clock one). The replay's result is checked
+to be the same in every run.
 
 Usage::
 
     python benchmarks/bench_replay.py [--bag BAG] [--config CFG] [--repeat N] [--minutes M]
                                       [--imu-rate-hz 1000] [--surface-rate-hz 100] [--storage mcap|sqlite3]
 
-Without ``--bag`` a flight of about ``--minutes`` (at least one sweep per channel) is simulated from the config
-into a temporary directory first: by default a 1 kHz IMU and 100 Hz surfaces.
+Without ``--bag`` a flight of about ``--minutes`` (at least one sweep per channel) is simulated from the
+config into a temporary directory first: by default a 1 kHz IMU and 100 Hz surfaces.
 """
 from __future__ import annotations
 
@@ -68,7 +68,8 @@ from gap_validation.bag.replay import replay
 start = time.perf_counter()
 outcome = replay([{bag!r}], load_config({config!r}), fast={fast!r}, diagnose={diagnose!r})
 channels = {{n: [c.epsilon, c.nu_gap, c.sweeps] for n, c in outcome.result.channels.items()}}
-print(json.dumps({{"messages": outcome.messages, "work_s": time.perf_counter() - start, "channels": channels}}))
+print(json.dumps({{"messages": outcome.messages, "work_s": time.perf_counter() - start,
+                  "channels": channels}}))
 """
 
 
@@ -97,11 +98,17 @@ def simulated_bag(config, out: Path, minutes: float, imu_rate_hz: float, surface
     """About ``minutes`` of the test card (at least one sweep per channel), written as a rosbag2."""
     d = FlightOptions()
     card_s = len(config.channels) * (d.sweep_duration_s + 2 * d.quiet_s + 2 * d.doublet_half_period_s)
-    options = FlightOptions(sweeps_per_channel=max(1, round(minutes * 60.0 / card_s)), imu_rate_hz=imu_rate_hz,
-                            surface_rate_hz=surface_rate_hz)
+    options = FlightOptions(
+        sweeps_per_channel=max(1, round(minutes * 60.0 / card_s)),
+        imu_rate_hz=imu_rate_hz,
+        surface_rate_hz=surface_rate_hz,
+    )
     flight = simulate_flight(config, options=options, seed=1)
-    print(f"simulated {flight.duration_s / 60:.1f} min at {imu_rate_hz:g} Hz IMU / {surface_rate_hz:g} Hz surfaces, "
-          f"{flight.message_count} messages ({storage})")
+    print(
+        f"simulated {flight.duration_s / 60:.1f} min at {imu_rate_hz:g} Hz IMU / {surface_rate_hz:g} Hz "
+        "surfaces, "
+        f"{flight.message_count} messages ({storage})"
+    )
     return write_flight(flight, out, storage)
 
 
@@ -123,10 +130,15 @@ def main(argv=None) -> int:
         children = {
             "plain": PLAIN.format(bag=str(bag), topics=topics, decode=True),
             "raw": PLAIN.format(bag=str(bag), topics=topics, decode=False),
-            "fast": REPLAY.format(root=str(ROOT), bag=str(bag), config=str(args.config), fast=True, diagnose=False),
-            "full": REPLAY.format(root=str(ROOT), bag=str(bag), config=str(args.config), fast=False, diagnose=False),
-            "diagnose": REPLAY.format(root=str(ROOT), bag=str(bag), config=str(args.config), fast=True,
-                                      diagnose=True),
+            "fast": REPLAY.format(
+                root=str(ROOT), bag=str(bag), config=str(args.config), fast=True, diagnose=False
+            ),
+            "full": REPLAY.format(
+                root=str(ROOT), bag=str(bag), config=str(args.config), fast=False, diagnose=False
+            ),
+            "diagnose": REPLAY.format(
+                root=str(ROOT), bag=str(bag), config=str(args.config), fast=True, diagnose=True
+            ),
         }
         load_before = os.getloadavg()
         runs: dict[str, list[dict]] = {name: [] for name in children}
@@ -138,13 +150,20 @@ def main(argv=None) -> int:
     best = {name: min(rs, key=lambda r: r["wall_s"]) for name, rs in runs.items()}
     cpu = {name: min(r["cpu_s"] for r in rs) for name, rs in runs.items()}
     plain = best["plain"]
-    print(f"load average before {load_before[0]:.2f}, after {load_after[0]:.2f} (1 min; {os.cpu_count()} cores); "
-          f"best of {args.repeat} interleaved runs")
+    print(
+        f"load average before {load_before[0]:.2f}, after {load_after[0]:.2f} (1 min; {os.cpu_count()} "
+        "cores); "
+        f"best of {args.repeat} interleaved runs"
+    )
     print(f"{'whole process':<38}{'messages':>10}{'wall s':>9}{'CPU s':>8}{'work s':>8}{'msgs/s':>12}"
           f"{'ratio':>7}{'CPU ratio':>10}")
-    for label, key in (("plain rosbags read + deserialise", "plain"), ("rosbags raw read (no deserialise)", "raw"),
-                       ("replay (fast: batches)", "fast"), ("replay (full deserialisation)", "full"),
-                       ("replay with the diagnosis (fast)", "diagnose")):
+    for label, key in (
+        ("plain rosbags read + deserialise", "plain"),
+        ("rosbags raw read (no deserialise)", "raw"),
+        ("replay (fast: batches)", "fast"),
+        ("replay (full deserialisation)", "full"),
+        ("replay with the diagnosis (fast)", "diagnose"),
+    ):
         r = best[key]
         print(f"{label:<38}{r['messages']:>10}{r['wall_s']:>9.2f}{cpu[key]:>8.2f}{r['work_s']:>8.2f}"
               f"{r['messages'] / r['wall_s']:>12,.0f}{plain['wall_s'] / r['wall_s']:>7.2f}"
@@ -153,8 +172,11 @@ def main(argv=None) -> int:
     print(f"whole-process ratio replay / plain rosbags read + deserialise = {ratio:.2f} (goal >= 3; CPU time "
           f"{cpu['plain'] / cpu['fast']:.2f}); replay results identical across runs and decodings: {same}")
     with_diagnosis = plain["wall_s"] / best["diagnose"]["wall_s"]
-    print(f"whole-process ratio replay with the diagnosis / plain rosbags = {with_diagnosis:.2f} (goal >= 2; CPU time "
-          f"{cpu['plain'] / cpu['diagnose']:.2f})")
+    print(
+        f"whole-process ratio replay with the diagnosis / plain rosbags = {with_diagnosis:.2f} (goal >= 2; "
+        "CPU time "
+        f"{cpu['plain'] / cpu['diagnose']:.2f})"
+    )
     return 0 if ratio >= 3.0 and with_diagnosis >= 2.0 and same else 1
 
 

@@ -3,22 +3,23 @@
 
 Peak RSS is the child's ``VmHWM`` (``ru_maxrss`` survives exec on Linux and would report the parent's peak).
 Two flights of the same test card are simulated from the config (``--short`` and ``--long`` minutes, IMU
-``--imu-rate-hz``, surfaces ``--surface-rate-hz``), written in the temporary directory (``/tmp``) as mcap bags or,
-with ``--format ulog|dataflash|csv``, as the flight log ``gap-validate simulate --format`` writes (each with the
-config that reads it, :func:`gap_validation.logs.flight.write_flight_log`), and each is replayed
-(``gap_validation.bag.replay.replay``, no diagnosis) in a fresh child process that reports its own peak resident set
-size. Streaming replay keeps memory flat: the figure of
-merit is ``(peak RSS long - baseline) / (peak RSS short - baseline)`` against the bag size ratio, where the baseline
-is a child that imports the same modules and replays nothing. Constant memory means a ratio near 1 however large the
-bag ratio. Throughput (messages per second of the replay call, in the child) is compared the same way: streaming
-means a ratio long/short near 1.
+``--imu-rate-hz``, surfaces ``--surface-rate-hz``), written in the temporary directory (``/tmp``) as mcap bags
+or, with ``--format ulog|dataflash|csv``, as the flight log ``gap-validate simulate --format`` writes (each
+with the config that reads it, :func:`gap_validation.logs.flight.write_flight_log`), and each is replayed
+(``gap_validation.bag.replay.replay``, no diagnosis) in a fresh child process that reports its own peak
+resident set size. Streaming replay keeps memory flat: the figure of
+merit is ``(peak RSS long - baseline) / (peak RSS short - baseline)`` against the bag size ratio, where the
+baseline is a child that imports the same modules and replays nothing. Constant memory means a ratio near 1
+however large the bag ratio. Throughput (messages per second of the replay call, in the child) is compared the
+same way: streaming means a ratio long/short near 1.
 
 Usage::
 
     python benchmarks/bench_replay_memory.py [--format bag|ulog|dataflash|csv] [--short 10] [--long 60]
         [--imu-rate-hz 100] [--surface-rate-hz 50]
     python benchmarks/bench_replay_memory.py --format ulog --imu-rate-hz 250 --surface-rate-hz 50   # PX4 log
-    python benchmarks/bench_replay_memory.py --long 120 --imu-rate-hz 1000 --surface-rate-hz 100   # 2-hour 1 kHz
+    python benchmarks/bench_replay_memory.py --long 120 --imu-rate-hz 1000 --surface-rate-hz 100   # 2-hour 1
+    kHz
 """
 from __future__ import annotations
 
@@ -65,8 +66,8 @@ def child_peak(config: Path, bag: Path | None) -> dict:
 
 def flight_bag(config, minutes: float, out: Path, imu_rate_hz: float, surface_rate_hz: float,
                fmt: str = "bag", config_path: Path | None = None) -> tuple[Path, Path | None]:
-    """Simulate about ``minutes`` of sweeps (three channels in turn) and write an mcap bag (``fmt`` ``bag``) or a
-    flight log of format ``fmt`` with its config; returns the bag or log and the config that reads it."""
+    """Simulate about ``minutes`` of sweeps (three channels in turn) and write an mcap bag (``fmt`` ``bag``)
+    or a flight log of format ``fmt`` with its config; returns the bag or log and the config that reads it."""
     sweeps = max(1, round(minutes * 60 / (3 * 120)))
     options = FlightOptions(sweeps_per_channel=sweeps, sweep_duration_s=100.0, quiet_s=10.0,
                             imu_rate_hz=imu_rate_hz, surface_rate_hz=surface_rate_hz)
@@ -96,8 +97,12 @@ def main() -> None:
     config = load_config(args.config)
     rates = args.imu_rate_hz, args.surface_rate_hz
     with tempfile.TemporaryDirectory() as tmp:
-        short, short_config = flight_bag(config, args.short, Path(tmp) / "short", *rates, args.format, args.config)
-        long, long_config = flight_bag(config, args.long, Path(tmp) / "long", *rates, args.format, args.config)
+        short, short_config = flight_bag(
+            config, args.short, Path(tmp) / "short", *rates, args.format, args.config
+        )
+        long, long_config = flight_bag(
+            config, args.long, Path(tmp) / "long", *rates, args.format, args.config
+        )
         sizes = size_mb(short), size_mb(long)
         base = child_peak(args.config, None)
         a, b = child_peak(short_config, short), child_peak(long_config, long)
@@ -108,11 +113,17 @@ def main() -> None:
     print(f"format {args.format}; rates: IMU {rates[0]:g} Hz, surfaces {rates[1]:g} Hz")
     for label, minutes, c, size, grow, rate in (("short", args.short, a, sizes[0], grow_a, rate_a),
                                                   ("long", args.long, b, sizes[1], grow_b, rate_b)):
-        print(f"{label + ' flight':<13} {minutes:g} min: {c['messages']:>8} messages, {args.format} {size:7.1f} MB, peak RSS "
-              f"{c['max_rss_kb'] / 1024:.1f} MB (+{grow:.1f} MB), {rate:,.0f} msgs/s")
-    print(f"messages ratio long/short {b['messages'] / max(a['messages'], 1):.1f}; replay memory growth ratio "
-          f"{grow_b / max(grow_a, 1e-9):.2f}, peak RSS ratio {b['max_rss_kb'] / a['max_rss_kb']:.2f}, throughput "
-          f"ratio {rate_b / rate_a:.2f} (constant memory, unchanged throughput: about 1)")
+        print(
+            f"{label + ' flight':<13} {minutes:g} min: {c['messages']:>8} messages, {args.format} "
+            f"{size:7.1f} MB, peak RSS "
+            f"{c['max_rss_kb'] / 1024:.1f} MB (+{grow:.1f} MB), {rate:,.0f} msgs/s"
+        )
+    print(
+        f"messages ratio long/short {b['messages'] / max(a['messages'], 1):.1f}; replay memory growth ratio "
+        f"{grow_b / max(grow_a, 1e-9):.2f}, peak RSS ratio {b['max_rss_kb'] / a['max_rss_kb']:.2f}, "
+        "throughput "
+        f"ratio {rate_b / rate_a:.2f} (constant memory, unchanged throughput: about 1)"
+    )
 
 
 if __name__ == "__main__":

@@ -1,21 +1,22 @@
 #!/usr/bin/env python3
 """ULog reading speed: our reader against pyulog on the same flight-sized log, measured in the same run.
 
-A log of ``--minutes`` (default 10) is written with :func:`gap_validation.logs.ulog.write_ulog` in PX4's layouts
-and at PX4-like rates: the wanted topics ``vehicle_angular_velocity`` (250 Hz) and ``actuator_servos`` (50 Hz),
-and, as a real log has them, more bytes of topics nobody asked for (``sensor_combined``, ``sensor_accel``,
-two ``sensor_gyro`` instances and ``vehicle_rates_setpoint`` at 250 Hz, ``vehicle_attitude`` at 100 Hz,
-``vehicle_local_position``, ``estimator_states`` and ``actuator_motors`` at 50 Hz, ``battery_status`` at
-10 Hz). Then, interleaved ``--repeat`` times (the fastest run counts; the machine may be shared):
+A log of ``--minutes`` (default 10) is written with :func:`gap_validation.logs.ulog.write_ulog` in PX4's
+layouts and at PX4-like rates: the wanted topics ``vehicle_angular_velocity`` (250 Hz) and ``actuator_servos``
+(50 Hz), and, as a real log has them, more bytes of topics nobody asked for (``sensor_combined``,
+``sensor_accel``, two ``sensor_gyro`` instances and ``vehicle_rates_setpoint`` at 250 Hz, ``vehicle_attitude``
+at 100 Hz, ``vehicle_local_position``, ``estimator_states`` and ``actuator_motors`` at 50 Hz,
+``battery_status`` at 10 Hz). Then, interleaved ``--repeat`` times (the fastest run counts; the machine may be
+shared):
 
 * *pyulog all*: ``pyulog.ULog(path)``, every topic (what the issue's goal compares with);
 * *pyulog filtered*: ``pyulog.ULog(path, message_name_filter_list=[the wanted topics])``;
 * *ours, read*: ``ULogFile(path).read(wanted)`` (one pass: topics and samples);
 * *ours, topics + read*: ``ULogFile(path).topics`` then ``.read(wanted)`` (two passes, as a caller that checks
   the topics first does);
-* *ours, blocks*: ``ULogFile(path).blocks(wanted)`` and every block of it (what replay does: a pass noting where
-  the wanted messages are, the topics known after it, then each 1 MiB block read again and gathered; replay holds a
-  block, not the series).
+* *ours, blocks*: ``ULogFile(path).blocks(wanted)`` and every block of it (what replay does: a pass noting
+  where the wanted messages are, the topics known after it, then each 1 MiB block read again and gathered;
+  replay holds a block, not the series).
 
 Ratios are ``ours / pyulog`` (below 1: ours is faster). Every run's result is checked equal to pyulog's.
 
@@ -87,17 +88,51 @@ def flight_topics(minutes: float, seed: int = 0) -> list[WriteTopic]:
     return [
         topic("vehicle_angular_velocity", 250, 0, ["xyz*3", "xyz_derivative*3"]),
         topic("actuator_servos", 50, 300, ["control*8"]),
-        topic("sensor_combined", 250, 50, ["gyro_rad*3", "gyro_integral_dt", "accelerometer_m_s2*3",
-                                            "accelerometer_integral_dt"], sample=False),
+        topic(
+            "sensor_combined",
+            250,
+            50,
+            ["gyro_rad*3", "gyro_integral_dt", "accelerometer_m_s2*3", "accelerometer_integral_dt"],
+            sample=False,
+        ),
         topic("sensor_accel", 250, 70, ["x", "y", "z", "temperature"], extra=gyro_extra),
         topic("sensor_gyro", 250, 90, ["x", "y", "z", "temperature"], extra=gyro_extra),
         topic("sensor_gyro:1", 250, 110, ["x", "y", "z", "temperature"], extra=gyro_extra),
         topic("vehicle_rates_setpoint", 250, 130, ["roll", "pitch", "yaw", "thrust_body*3"], sample=False),
         topic("vehicle_attitude", 100, 170, ["q*4", "delta_q_reset*4"]),
-        topic("vehicle_local_position", 50, 210, ["x", "y", "z", "vx", "vy", "vz", "ax", "ay", "az", "heading",
-                                                  "delta_xy*2", "delta_vxy*2", "eph", "epv", "evh", "evv",
-                                                  "vxy_max", "vz_max", "hagl_min", "hagl_max", "ref_lat",
-                                                  "ref_lon", "ref_alt", "dist_bottom", "z_deriv", "yaw"]),
+        topic(
+            "vehicle_local_position",
+            50,
+            210,
+            [
+                "x",
+                "y",
+                "z",
+                "vx",
+                "vy",
+                "vz",
+                "ax",
+                "ay",
+                "az",
+                "heading",
+                "delta_xy*2",
+                "delta_vxy*2",
+                "eph",
+                "epv",
+                "evh",
+                "evv",
+                "vxy_max",
+                "vz_max",
+                "hagl_min",
+                "hagl_max",
+                "ref_lat",
+                "ref_lon",
+                "ref_alt",
+                "dist_bottom",
+                "z_deriv",
+                "yaw",
+            ],
+        ),
         topic("estimator_states", 50, 250, ["states*24", "covariances*24"]),
         topic("actuator_motors", 50, 290, ["control*12"]),
         topic("battery_status", 10, 330, ["voltage_v", "current_a", "remaining", "temperature"]),
@@ -151,9 +186,11 @@ def main(argv: list[str] | None = None) -> int:
         ref = pyulog.ULog(str(path), message_name_filter_list=list(WANTED))
         wanted_bytes = sum(len(d.data["timestamp"]) * (5 + sum(a.itemsize for a in d.data.values()))
                            for d in ref.data_list)
-        print(f"log: {args.minutes:g} min, {size / 1e6:.1f} MB, {n_msgs} data messages of {len(table)} topics, "
-              f"written in {seconds:.2f} s; wanted: {100 * wanted_msgs / n_msgs:.0f} % of the messages, "
-              f"{100 * wanted_bytes / size:.0f} % of the bytes")
+        print(
+            f"log: {args.minutes:g} min, {size / 1e6:.1f} MB, {n_msgs} data messages of {len(table)} topics, "
+            f"written in {seconds:.2f} s; wanted: {100 * wanted_msgs / n_msgs:.0f} % of the messages, "
+            f"{100 * wanted_bytes / size:.0f} % of the bytes"
+        )
         print(f"load average before: {os.getloadavg()[0]:.2f}")
         variants = {
             "pyulog all": lambda: pyulog.ULog(str(path)),
@@ -177,8 +214,11 @@ def main(argv: list[str] | None = None) -> int:
             peak[name] = tracemalloc.get_traced_memory()[1]
             tracemalloc.stop()
             del out
-        print(f"\n{'variant':22s} {'best s':>8s} {'/ pyulog all':>13s} {'/ pyulog filtered':>18s} {'us/msg':>7s} "
-              f"{'peak MB':>8s}")
+        print(
+            f"\n{'variant':22s} {'best s':>8s} {'/ pyulog all':>13s} {'/ pyulog filtered':>18s} "
+            f"{'us/msg':>7s} "
+            f"{'peak MB':>8s}"
+        )
         for name, seconds in best.items():
             print(f"{name:22s} {seconds:8.3f} {seconds / best['pyulog all']:13.3f} "
                   f"{seconds / best['pyulog filtered']:18.3f} {1e6 * seconds / n_msgs:7.2f} "

@@ -1,11 +1,12 @@
 #!/usr/bin/env python3
 """Diagnosis on flights the tests never saw: random hidden effects, parameters, rates, noise and seeds.
 
-Each case simulates a flight (``gap-validate simulate``) from ``config/ultrastick25e.yaml`` with one random effect
-(or a lag + delay pair) hidden in one random channel, at random IMU/surface rates and noise levels, replays it
-(``gap-validate replay``) and checks that the top candidate of that channel names the hidden effect with its
-parameters within 20 % (dampings within 50 %: window smearing biases them), that adding it halves epsilon, and that
-the clean channels get no candidate (no false alarm). Prints one line per case and the totals.
+Each case simulates a flight (``gap-validate simulate``) from ``config/ultrastick25e.yaml`` with one random
+effect (or a lag + delay pair) hidden in one random channel, at random IMU/surface rates and noise levels,
+replays it (``gap-validate replay``) and checks that the top candidate of that channel names the hidden effect
+with its parameters within 20 % (dampings within 50 %: window smearing biases them), that adding it halves
+epsilon, and that the clean channels get no candidate (no false alarm). Prints one line per case and the
+totals.
 
 Usage::
 
@@ -30,19 +31,30 @@ CLI = [sys.executable, "-c", "import sys; from gap_validation.cli.main import ma
 def random_case(rng: random.Random) -> tuple[str, list[dict]]:
     """(channel, hidden effects) drawn from physically sensible ranges."""
     channel = rng.choice(["roll", "pitch", "yaw"])
-    kind = rng.choice(["time_delay", "first_order_lag", "second_order_lag", "gain", "structural_mode", "pair"])
+    kind = rng.choice(
+        ["time_delay", "first_order_lag", "second_order_lag", "gain", "structural_mode", "pair"]
+    )
     if kind == "time_delay":
         effects = [{"type": kind, "seconds": rng.uniform(0.015, 0.08)}]
     elif kind == "first_order_lag":
         effects = [{"type": kind, "bandwidth_rad_s": rng.uniform(10, 40)}]
     elif kind == "second_order_lag":
-        effects = [{"type": kind, "natural_frequency_rad_s": rng.uniform(12, 40), "damping": rng.uniform(0.4, 0.9)}]
+        effects = [
+            {"type": kind, "natural_frequency_rad_s": rng.uniform(12, 40), "damping": rng.uniform(0.4, 0.9)}
+        ]
     elif kind == "gain":
         effects = [{"type": kind, "factor": rng.choice([rng.uniform(0.6, 0.8), rng.uniform(1.25, 1.6)])}]
     elif kind == "structural_mode":
         wp = rng.uniform(8, 30)
-        effects = [{"type": kind, "frequency_rad_s": wp, "damping": rng.uniform(0.05, 0.15),
-                    "zero_frequency_rad_s": wp * rng.uniform(0.8, 0.9), "zero_damping": rng.uniform(0.05, 0.15)}]
+        effects = [
+            {
+                "type": kind,
+                "frequency_rad_s": wp,
+                "damping": rng.uniform(0.05, 0.15),
+                "zero_frequency_rad_s": wp * rng.uniform(0.8, 0.9),
+                "zero_damping": rng.uniform(0.05, 0.15),
+            }
+        ]
     else:
         effects = [{"type": "first_order_lag", "bandwidth_rad_s": rng.uniform(15, 40)},
                    {"type": "time_delay", "seconds": rng.uniform(0.02, 0.06)}]
@@ -73,8 +85,22 @@ def run_case(index: int, rng: random.Random, tmp: Path) -> tuple[bool, bool]:
     imu, surf = rng.choice([50, 100, 200]), rng.choice([25, 50, 100])
     noise, seed = rng.choice([0.5, 1.0, 2.0]), rng.randrange(1000)
     bag, out = tmp / f"flight{index}", tmp / f"flight{index}.json"
-    args = ["simulate", "--config", str(CONFIG), "--out", str(bag), "--seed", str(seed), "--imu-rate-hz", str(imu),
-            "--surface-rate-hz", str(surf), "--noise", str(noise), "--force"]
+    args = [
+        "simulate",
+        "--config",
+        str(CONFIG),
+        "--out",
+        str(bag),
+        "--seed",
+        str(seed),
+        "--imu-rate-hz",
+        str(imu),
+        "--surface-rate-hz",
+        str(surf),
+        "--noise",
+        str(noise),
+        "--force",
+    ]
     for effect in effects:
         args += ["--hidden", hidden_arg(channel, effect)]
     env = os.environ.copy()
@@ -83,11 +109,22 @@ def run_case(index: int, rng: random.Random, tmp: Path) -> tuple[bool, bool]:
                           "--no-progress"], capture_output=True, env=env, cwd=ROOT)
     result = json.loads(out.read_text())["channels"]
     top = (result[channel]["diagnosis"] or [None])[0]
-    found = bool(top) and parameters_match(effects, top["effects"]) and top["epsilon"] <= result[channel]["epsilon"] / 2
+    found = (
+        bool(top)
+        and parameters_match(effects, top["effects"])
+        and top["epsilon"] <= result[channel]["epsilon"] / 2
+    )
     false_alarm = any(result[c]["diagnosis"] for c in result if c != channel)
-    told = "-" if not top else f"{top['effect']} {top['parameters']} eps {result[channel]['epsilon']:.2f}->{top['epsilon']:.2f}"
-    print(f"{index:3d} {'ok ' if found else 'MISS'} {'FALSE ALARM' if false_alarm else ''} hidden "
-          f"{[hidden_arg(channel, e) for e in effects]} imu {imu} Hz surf {surf} Hz noise x{noise} seed {seed}: {told}")
+    told = (
+        "-"
+        if not top
+        else f"{top['effect']} {top['parameters']} eps {result[channel]['epsilon']:.2f}->{top['epsilon']:.2f}"
+    )
+    print(
+        f"{index:3d} {'ok ' if found else 'MISS'} {'FALSE ALARM' if false_alarm else ''} hidden "
+        f"{[hidden_arg(channel, e) for e in effects]} imu {imu} Hz surf {surf} Hz noise x{noise} seed "
+        f"{seed}: {told}"
+    )
     sys.stdout.flush()
     return found, false_alarm
 
@@ -102,8 +139,12 @@ def main() -> None:
         outcomes = [run_case(i, rng, Path(tmp)) for i in range(args.cases)]
     found = sum(f for f, _ in outcomes)
     alarms = sum(a for _, a in outcomes)
-    print(f"hidden effect named (params within 20 %, dampings 50 %) and epsilon at least halved: {found}/{args.cases}; "
-          f"cases with a false alarm on a clean channel: {alarms}/{args.cases} ({2 * args.cases} clean channels)")
+    print(
+        "hidden effect named (params within 20 %, dampings 50 %) and epsilon at least halved: "
+        f"{found}/{args.cases}; "
+        f"cases with a false alarm on a clean channel: {alarms}/{args.cases} ({2 * args.cases} clean "
+        "channels)"
+    )
 
 
 if __name__ == "__main__":

@@ -2,31 +2,34 @@
 model called model-limited, given a named effect, or warned of a feedback loop it does not have?
 
 * **ours** (``gap-validate simulate``, issue 12): every excitation kind it flies (log chirps, multisines,
-  orthogonal multisines on all axes at once, 3-2-1-1 multisteps, doublets) and NASA-style short runs (1 s of trim, a
-  3-2-1-1, 8 s at 50 Hz), manoeuvre lengths 6-300 s, 1-4 manoeuvres per channel, gaps of 1-10 s, noise and gusts
-  x0.25-2, IMU 50-200 Hz, surfaces 25-100 Hz, the Ultra Stick 25e and the same airframe twice as fast. Half of the
-  flights (drawn from a stream of their own, so the other draws are as before) fly their rounds at two amplitudes:
-  there every ``nonlinearity`` verdict is a false alarm too. One flight in eight is flown inside rate dampers on
-  every axis (6 dB gain margin, turbulence), without the excitation logged: there the feedback warning is required.
-* **second** (``../shared/flights``, written apart: a pilot whose trim corrections move every surface all the time,
-  surface-equivalent gusts, jittered and dropped stamps; ``benchmarks/_other_simulators.py``): random sweeps, gusts
-  and rates; one flight in four flies pitch inside the generator's rate damper, without the excitation logged.
-* **jsbsim** (the nonlinear 6-DOF of FlightGear and ArduPilot SITL; ``gap_validation.jsbsim``): the c172x, c182
-  and pa28 at their trim conditions, calm and in JSBSim's light turbulence, against JSBSim's own linearisation at
-  the flown condition (5-10 % off the nonlinear model at some frequencies: a real model's error).
+  orthogonal multisines on all axes at once, 3-2-1-1 multisteps, doublets) and NASA-style short runs (1 s of
+  trim, a 3-2-1-1, 8 s at 50 Hz), manoeuvre lengths 6-300 s, 1-4 manoeuvres per channel, gaps of 1-10 s, noise
+  and gusts x0.25-2, IMU 50-200 Hz, surfaces 25-100 Hz, the Ultra Stick 25e and the same airframe twice as
+  fast. Half of the flights (drawn from a stream of their own, so the other draws are as before) fly their
+  rounds at two amplitudes: there every ``nonlinearity`` verdict is a false alarm too. One flight in eight is
+  flown inside rate dampers on every axis (6 dB gain margin, turbulence), without the excitation logged: there
+  the feedback warning is required.
+* **second** (``../shared/flights``, written apart: a pilot whose trim corrections move every surface all the
+  time, surface-equivalent gusts, jittered and dropped stamps; ``benchmarks/_other_simulators.py``): random
+  sweeps, gusts and rates; one flight in four flies pitch inside the generator's rate damper, without the
+  excitation logged.
+* **jsbsim** (the nonlinear 6-DOF of FlightGear and ArduPilot SITL; ``gap_validation.jsbsim``): the c172x,
+  c182 and pa28 at their trim conditions, calm and in JSBSim's light turbulence, against JSBSim's own
+  linearisation at the flown condition (5-10 % off the nonlinear model at some frequencies: a real model's
+  error).
 
-The truth is the config's own model (no hidden effect): every "model-limited" verdict, every named effect and every
-constant factor said within the tolerance (``within_tolerance``) is a false alarm; a feedback warning is false on
-every channel flown open loop (JSBSim's pilot flies the wings and the pitch attitude back between the manoeuvres, a
-true loop: a warning there is counted apart, neither false nor required). Goals (issue 22): model-limited and a
-named effect at most 1 % of the channels, a feedback warning at most 1 % of the open-loop channels, and at least
-95 % of the closed-loop channels (no excitation logged) warned, on every simulator.
+The truth is the config's own model (no hidden effect): every "model-limited" verdict, every named effect and
+every constant factor said within the tolerance (``within_tolerance``) is a false alarm; a feedback warning is
+false on every channel flown open loop (JSBSim's pilot flies the wings and the pitch attitude back between the
+manoeuvres, a true loop: a warning there is counted apart, neither false nor required). Goals (issue 22):
+model-limited and a named effect at most 1 % of the channels, a feedback warning at most 1 % of the open-loop
+channels, and at least 95 % of the closed-loop channels (no excitation logged) warned, on every simulator.
 
 Flights are simulated and fed to the validator in memory (the library path of the one data path; no bag is
 written). Seeded: the same ``--seed`` gives the same flights.
 
-    python benchmarks/false_alarms.py                                   # 240 + 60 + 30 flights: docs/method.md
-    python benchmarks/false_alarms.py --flights 40 --second 20 --jsbsim 9     # quicker
+    python benchmarks/false_alarms.py                                   # 240 + 60 + 30 flights:
+    docs/method.md python benchmarks/false_alarms.py --flights 40 --second 20 --jsbsim 9     # quicker
     python benchmarks/false_alarms.py --simulators ours                 # one simulator
     python benchmarks/false_alarms.py --simulators jsbsim --airspeed    # JSBSim with the airspeed logged
 """
@@ -34,12 +37,10 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures
-import copy
 import math
 import os
 import sys
 import time
-from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
@@ -48,8 +49,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from gap_validation.core.config import load_config  # noqa: E402
-from gap_validation.core.config import parse_config  # noqa: E402
+from gap_validation.core.config import (
+    load_config,  # noqa: E402
+    parse_config,  # noqa: E402
+)
 from gap_validation.core.simulation import FlightOptions, simulate_flight  # noqa: E402
 from gap_validation.core.validator import OnlineValidator  # noqa: E402
 
@@ -66,7 +69,10 @@ def faster(config_path: Path, factor: float = 2.0):
         ss["A"] = (np.array(ss["A"]) * factor).tolist()
         ss["B"] = (np.array(ss["B"]) * factor).tolist()
         grid = ch.setdefault("frequencies", {"min_rad_s": 1.0, "max_rad_s": 40.0, "count": 40})
-        grid["min_rad_s"], grid["max_rad_s"] = grid["min_rad_s"] * factor, min(grid["max_rad_s"] * factor, 90.0)
+        grid["min_rad_s"], grid["max_rad_s"] = (
+            grid["min_rad_s"] * factor,
+            min(grid["max_rad_s"] * factor, 90.0),
+        )
     return parse_config(data, f"{config_path.name} x{factor:g} faster")
 
 
@@ -82,7 +88,9 @@ def draw_flight(rng: np.random.Generator, index: int) -> dict:
         opts = dict(base, excitation="chirp", sweep_duration_s=length)
     elif kind in ("multisine", "multisine-orthogonal"):
         periods = int(rng.integers(2, 5))
-        opts = dict(base, excitation=kind, multisine_periods=periods, multisine_period_s=max(length / periods, 3.0))
+        opts = dict(
+            base, excitation=kind, multisine_periods=periods, multisine_period_s=max(length / periods, 3.0)
+        )
     elif kind == "3211":
         opts = dict(base, excitation="3211", multistep_unit_s=float(rng.uniform(0.3, 1.0)))
     elif kind == "doublet":
@@ -104,11 +112,17 @@ def _config(airframe: str):
 
 
 def draw_closed(rng: np.random.Generator) -> dict:
-    """One closed-loop flight of ours: chirps inside a rate damper on every axis, turbulence, no excitation logged."""
-    opts = dict(excitation="chirp", closed_loop_gain_margin_db=float(rng.uniform(4.0, 10.0)),
-                turbulence_rms_rad_s=float(rng.uniform(0.02, 0.08)), sweeps_per_channel=int(rng.integers(1, 4)),
-                sweep_duration_s=float(rng.uniform(40.0, 120.0)), quiet_s=float(rng.uniform(5.0, 15.0)),
-                noise=float(math.exp(rng.uniform(math.log(0.25), math.log(2.0)))))
+    """One closed-loop flight of ours: chirps inside a rate damper on every axis, turbulence, no excitation
+    logged."""
+    opts = dict(
+        excitation="chirp",
+        closed_loop_gain_margin_db=float(rng.uniform(4.0, 10.0)),
+        turbulence_rms_rad_s=float(rng.uniform(0.02, 0.08)),
+        sweeps_per_channel=int(rng.integers(1, 4)),
+        sweep_duration_s=float(rng.uniform(40.0, 120.0)),
+        quiet_s=float(rng.uniform(5.0, 15.0)),
+        noise=float(math.exp(rng.uniform(math.log(0.25), math.log(2.0)))),
+    )
     return {"simulator": "ours", "kind": "closed loop", "options": opts, "airframe": "x1",
             "seed": int(rng.integers(0, 2 ** 31))}
 
@@ -122,17 +136,25 @@ def draw_jsbsim(rng: np.random.Generator, index: int) -> dict:
     turbulent = (index // len(JSBSIM_CONDITIONS)) % 2 == 1
     opts = dict(sweeps_per_channel=int(rng.integers(1, 3)), sweep_duration_s=float(rng.uniform(40.0, 90.0)),
                 quiet_s=float(rng.uniform(3.0, 10.0)))
-    return {"simulator": "jsbsim", "kind": f"{aircraft}{' turbulent' if turbulent else ''}", "aircraft": aircraft,
-            "speed_kt": speed, "altitude_ft": altitude, "turbulent": turbulent, "options": opts,
-            "seed": int(rng.integers(0, 2 ** 31))}
+    return {
+        "simulator": "jsbsim",
+        "kind": f"{aircraft}{' turbulent' if turbulent else ''}",
+        "aircraft": aircraft,
+        "speed_kt": speed,
+        "altitude_ft": altitude,
+        "turbulent": turbulent,
+        "options": opts,
+        "seed": int(rng.integers(0, 2**31)),
+    }
 
 
 _JSBSIM_CONFIGS: dict = {}
 
 
-#: The channels JSBSim's pilot flies back to trim between the manoeuvres (``gap_validation.jsbsim.flight.Pilot``:
-#: wings level on the ailerons, the pitch attitude on the elevator; the rudder is left alone): a true loop there, so
-#: a feedback warning on them is neither false nor required (counted apart).
+#: The channels JSBSim's pilot flies back to trim between the manoeuvres
+#: (``gap_validation.jsbsim.flight.Pilot``: wings level on the ailerons, the pitch attitude on the elevator;
+#: the rudder is left alone): a true loop there, so a feedback warning on them is neither false nor required
+#: (counted apart).
 JSBSIM_HELD = ("roll", "pitch")
 
 
@@ -191,7 +213,9 @@ def fly(flight: dict) -> list[dict]:
         config = _config(flight["airframe"])
         if flight["kind"] == "nasa-run":            # one channel per run, as the real records
             name = list(config.channels)[flight["seed"] % len(config.channels)]
-            config = type(config)(channels={name: config.channels[name]}, source=config.source, raw=config.raw)
+            config = type(config)(
+                channels={name: config.channels[name]}, source=config.source, raw=config.raw
+            )
         sim = simulate_flight(config, {}, FlightOptions(**flight["options"]), seed=flight["seed"])
         histories = _topic_histories(config, sim.topics)
         if flight["kind"] == "closed loop":
@@ -199,19 +223,31 @@ def fly(flight: dict) -> list[dict]:
     validator = _validate(config, histories)
     rows = []
     for name, ch in validator.results().channels.items():
-        rows.append({"simulator": simulator, "kind": flight["kind"], "channel": name,
-                     "airframe": flight.get("airframe", flight.get("aircraft", "")), "closed": name in closed,
-                     "held": name in held,
-                     "limited_by": ch.limited_by, "diagnosed": bool(ch.diagnosis), "epsilon": ch.epsilon,
-                     "points": ch.points_used, "message": ch.message, "seed": flight["seed"],
-                     "nonlinear": ch.nonlinearity is not None, "compared": ch.nonlinearity_evidence is not None,
-                     "warnings": list(ch.warnings),
-                     "feedback": any("feedback loop" in w for w in ch.warnings),
-                     "convention": bool(ch.conventions),
-                     "within": ch.within_tolerance is not None,
-                     "lead_share": (ch.rate_leads_surface or {}).get("share", float("nan")),
-                     "lead_p": (ch.rate_leads_surface or {}).get("p_value", float("nan")),
-                     "coupling": any("other_inputs" in w for w in ch.warnings)})
+        rows.append(
+            {
+                "simulator": simulator,
+                "kind": flight["kind"],
+                "channel": name,
+                "airframe": flight.get("airframe", flight.get("aircraft", "")),
+                "closed": name in closed,
+                "held": name in held,
+                "limited_by": ch.limited_by,
+                "diagnosed": bool(ch.diagnosis),
+                "epsilon": ch.epsilon,
+                "points": ch.points_used,
+                "message": ch.message,
+                "seed": flight["seed"],
+                "nonlinear": ch.nonlinearity is not None,
+                "compared": ch.nonlinearity_evidence is not None,
+                "warnings": list(ch.warnings),
+                "feedback": any("feedback loop" in w for w in ch.warnings),
+                "convention": bool(ch.conventions),
+                "within": ch.within_tolerance is not None,
+                "lead_share": (ch.rate_leads_surface or {}).get("share", float("nan")),
+                "lead_p": (ch.rate_leads_surface or {}).get("p_value", float("nan")),
+                "coupling": any("other_inputs" in w for w in ch.warnings),
+            }
+        )
     return rows
 
 
@@ -230,9 +266,11 @@ def _table(rows: list[dict], kinds: list[str]) -> None:
         data = sum(r["limited_by"] == "data" for r in group)
         warned = sum(r["feedback"] for r in group)
         eps = [r["epsilon"] for r in group if r["epsilon"] is not None]
-        print(f"{kind:22s} {n:8d} {model:7d} ({100 * model / n:4.1f}%) {named:5d} ({100 * named / n:4.1f}%) "
-              f"{data:6d} ({100 * data / n:4.0f}%) {warned:8d} ({100 * warned / n:4.1f}%) "
-              f"{np.median(eps) if eps else float('nan'):11.3f} {np.median([r['points'] for r in group]):14.0f}")
+        print(
+            f"{kind:22s} {n:8d} {model:7d} ({100 * model / n:4.1f}%) {named:5d} ({100 * named / n:4.1f}%) "
+            f"{data:6d} ({100 * data / n:4.0f}%) {warned:8d} ({100 * warned / n:4.1f}%) "
+            f"{np.median(eps) if eps else float('nan'):11.3f} {np.median([r['points'] for r in group]):14.0f}"
+        )
 
 
 def _verdict(rows: list[dict]) -> tuple[bool, str]:
@@ -241,7 +279,8 @@ def _verdict(rows: list[dict]) -> tuple[bool, str]:
     n = max(len(open_loop), 1)
     model = sum(r["limited_by"] == "model" for r in open_loop) / n
     named = sum(r["diagnosed"] for r in open_loop) / n
-    free = [r for r in open_loop if not r.get("held")]      # no loop at all: a feedback warning is false there
+    # no loop at all: a feedback warning is false there
+    free = [r for r in open_loop if not r.get("held")]
     feedback = sum(r["feedback"] for r in free) / max(len(free), 1)
     held = [r for r in open_loop if r.get("held")]
     conventions = sum(r["convention"] for r in rows) / max(len(rows), 1)
@@ -252,22 +291,34 @@ def _verdict(rows: list[dict]) -> tuple[bool, str]:
     nonlinear = sum(r["nonlinear"] for r in rows)
     ok = model <= 0.01 and named <= 0.01 and feedback <= 0.01 and (not closed or warned >= 0.95) and \
         nonlinear <= 0.01 * max(compared, 1) and conventions <= 0.01 and within <= 0.01
-    text = (f"open loop ({len(open_loop)} channels): model-limited {100 * model:.2f} %, a named effect "
-            f"{100 * named:.2f} %, a feedback warning {100 * feedback:.2f} % of the {len(free)} without a loop "
-            f"(goals <= 1 %)" + (f" (the pilot's attitude hold between the manoeuvres, a true loop, warned on "
-                                 f"{sum(r['feedback'] for r in held)} of {len(held)})" if held else "") +
-            f"; a convention error "
-            f"(sign, units, frame, clock) named on {100 * conventions:.2f} % of all channels (goal <= 1 %); called "
-            f"nonlinear {nonlinear} of {compared} channels with sweeps at two amplitudes; a constant factor resolved "
-            f"within the tolerance on {100 * within:.2f} % (goal <= 1 %)")
+    text = (
+        f"open loop ({len(open_loop)} channels): model-limited {100 * model:.2f} %, a named effect "
+        f"{100 * named:.2f} %, a feedback warning {100 * feedback:.2f} % of the {len(free)} without a loop "
+        f"(goals <= 1 %)"
+        + (
+            f" (the pilot's attitude hold between the manoeuvres, a true loop, warned on "
+            f"{sum(r['feedback'] for r in held)} of {len(held)})"
+            if held
+            else ""
+        )
+        + f"; a convention error "
+        f"(sign, units, frame, clock) named on {100 * conventions:.2f} % of all channels (goal <= 1 %); "
+        "called "
+        f"nonlinear {nonlinear} of {compared} channels with sweeps at two amplitudes; a constant factor "
+        "resolved "
+        f"within the tolerance on {100 * within:.2f} % (goal <= 1 %)"
+    )
     if closed:
-        text += (f"; closed loop without the excitation ({len(closed)} channels): warned {100 * warned:.1f} % "
-                 f"(goal >= 95 %), an effect named on {wrong}")
+        text += (
+            f"; closed loop without the excitation ({len(closed)} channels): warned {100 * warned:.1f} % "
+            f"(goal >= 95 %), an effect named on {wrong}"
+        )
     return ok, text + (": PASS" if ok else ": FAIL") + _lead_shares(open_loop, closed)
 
 
 def _lead_shares(open_loop: list[dict], closed: list[dict]) -> str:
-    """The lead test's share (background.LeadTest) on open- and closed-loop channels: its false-positive margin."""
+    """The lead test's share (background.LeadTest) on open- and closed-loop channels: its false-positive
+    margin."""
     def spread(rows, significant=False):
         shares = np.array([r["lead_share"] for r in rows if not significant or r["lead_p"] < 1e-3], float)
         shares = shares[np.isfinite(shares)]
@@ -276,8 +327,11 @@ def _lead_shares(open_loop: list[dict], closed: list[dict]) -> str:
     text = ""
     if open_loop:
         q = np.percentile(spread(open_loop), [50, 99, 100])
-        text += (f"\n  lead share, open loop: median {100 * q[0]:.1f} %, 99th percentile {100 * q[1]:.1f} %, largest "
-                 f"{100 * q[2]:.1f} % (largest with F beyond chance {100 * np.max(spread(open_loop, True)):.1f} %)")
+        text += (
+            f"\n  lead share, open loop: median {100 * q[0]:.1f} %, 99th percentile {100 * q[1]:.1f} %, "
+            "largest "
+            f"{100 * q[2]:.1f} % (largest with F beyond chance {100 * np.max(spread(open_loop, True)):.1f} %)"
+        )
     if closed:
         text += f"; closed loop: smallest {100 * np.min(spread(closed)):.1f} %"
     return text
@@ -290,8 +344,11 @@ def main(argv=None) -> int:
     parser.add_argument("--second", type=int, default=60, help="flights of the second simulator")
     parser.add_argument("--jsbsim", type=int, default=30, help="JSBSim flights")
     parser.add_argument("--simulators", default="ours,second,jsbsim")
-    parser.add_argument("--airspeed", action="store_true",
-                        help="JSBSim configs with the airspeed stream (the surfaces scaled by the dynamic pressure)")
+    parser.add_argument(
+        "--airspeed",
+        action="store_true",
+        help="JSBSim configs with the airspeed stream (the surfaces scaled by the dynamic pressure)",
+    )
     parser.add_argument("--seed", type=int, default=12)
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--show", action="store_true", help="print every false alarm")
@@ -337,8 +394,14 @@ def main(argv=None) -> int:
     all_ok &= ok
     if args.show:
         for r in rows:
-            wrong = (r["feedback"] != r["closed"] and not r["held"]) or r["convention"] or \
-                (not r["closed"] and (r["limited_by"] == "model" or r["diagnosed"] or r["nonlinear"] or r["within"]))
+            wrong = (
+                (r["feedback"] != r["closed"] and not r["held"])
+                or r["convention"]
+                or (
+                    not r["closed"]
+                    and (r["limited_by"] == "model" or r["diagnosed"] or r["nonlinear"] or r["within"])
+                )
+            )
             if wrong or r["coupling"]:
                 print(f"  {r['simulator']} {r['kind']} {r['channel']} {r['airframe']} seed {r['seed']}: "
                       f"{r['message'][:300]} {r['warnings']}")

@@ -1,21 +1,22 @@
 #!/usr/bin/env python3
 """Simulate a fleet: N aircraft x M weekly flights, one airframe with a hidden effect drifting week by week.
 
-Every aircraft is the config's airframe (``config/ultrastick25e.yaml`` by default) with a servo delay the model
-lacks (``--delay-ms``, 20 ms, on every channel: the diagnosis finds it on every flight); on one aircraft and
-channel (``--drifting UAV-3 --channel pitch``) the delay grows by ``--growth-ms-per-week`` (6 ms) each week,
-e.g. a worn linkage. Flights are short sweep cards (``--sweeps`` x ``--sweep-duration`` s per channel), each
-with its own seed (noise, gusts, jitter): the flight-to-flight random error is real. Writes::
+Every aircraft is the config's airframe (``config/ultrastick25e.yaml`` by default) with a servo delay the
+model lacks (``--delay-ms``, 20 ms, on every channel: the diagnosis finds it on every flight); on one aircraft
+and channel (``--drifting UAV-3 --channel pitch``) the delay grows by ``--growth-ms-per-week`` (6 ms) each
+week, e.g. a worn linkage. Flights are short sweep cards (``--sweeps`` x ``--sweep-duration`` s per channel),
+each with its own seed (noise, gusts, jitter): the flight-to-flight random error is real. Writes::
 
     OUT/config.yaml                  the validation config (the channels asked for)
     OUT/bags/<aircraft>_w<week>/     one rosbag2 (mcap) per flight
-    OUT/manifest.yaml                flights: name, bag, config, aircraft, date, tags (for gap-validate campaign)
+    OUT/manifest.yaml                flights: name, bag, config, aircraft, date, tags (for gap-validate
+    campaign)
 
 Usage::
 
     python benchmarks/make_fleet.py OUT [--aircraft 4] [--weeks 6] [--drifting UAV-3] [--channel pitch]
-        [--channels roll,pitch,yaw] [--delay-ms 20] [--growth-ms-per-week 6] [--sweeps 2] [--sweep-duration 30]
-        [--seed 0] [--start 2025-03-03] [--force]
+        [--channels roll,pitch,yaw] [--delay-ms 20] [--growth-ms-per-week 6] [--sweeps 2] [--sweep-duration
+        30] [--seed 0] [--start 2025-03-03] [--force]
 
 Used by ``test/test_campaign.py``, docs/campaigns.md and ``benchmarks/bench_campaign.py``.
 """
@@ -52,10 +53,22 @@ def fleet_delay_s(week: int, drifting: bool, delay_s: float, growth_s_per_week: 
     return delay_s + (growth_s_per_week * week if drifting else 0.0)
 
 
-def make_fleet(out: str | Path, *, aircraft: int = 4, weeks: int = 6, drifting: str = "UAV-3",
-               channel: str = "pitch", channels: list[str] | None = None, delay_s: float = 0.020,
-               growth_s_per_week: float = 0.006, options: FlightOptions = FLEET_OPTIONS, seed: int = 0,
-               start: dt.date = dt.date(2025, 3, 3), config: str | Path = CONFIG, force: bool = False) -> Path:
+def make_fleet(
+    out: str | Path,
+    *,
+    aircraft: int = 4,
+    weeks: int = 6,
+    drifting: str = "UAV-3",
+    channel: str = "pitch",
+    channels: list[str] | None = None,
+    delay_s: float = 0.020,
+    growth_s_per_week: float = 0.006,
+    options: FlightOptions = FLEET_OPTIONS,
+    seed: int = 0,
+    start: dt.date = dt.date(2025, 3, 3),
+    config: str | Path = CONFIG,
+    force: bool = False,
+) -> Path:
     """Write the fleet's bags, config and manifest into ``out``; return the manifest path.
 
     Aircraft ``k`` flies on day ``k - 1`` of each week (a weekly card, each airframe on its own day).
@@ -83,8 +96,16 @@ def make_fleet(out: str | Path, *, aircraft: int = 4, weeks: int = 6, drifting: 
             bag = Path("bags") / f"{name.lower()}_w{week:02d}"
             flight = simulate_flight(cfg, hidden, options, seed=seed * 100_000 + k * 1000 + week)
             write_flight(flight, out / bag)
-            flights.append({"name": f"{name} {date.isoformat()}", "bag": bag.as_posix(), "config": "config.yaml",
-                            "aircraft": name, "date": date, "tags": ["weekly", f"week-{week}"]})
+            flights.append(
+                {
+                    "name": f"{name} {date.isoformat()}",
+                    "bag": bag.as_posix(),
+                    "config": "config.yaml",
+                    "aircraft": name,
+                    "date": date,
+                    "tags": ["weekly", f"week-{week}"],
+                }
+            )
     manifest = out / "manifest.yaml"
     manifest.write_text(yaml.safe_dump({"flights": flights}, sort_keys=False))
     return manifest
@@ -99,7 +120,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--channel", default="pitch", help="channel of the drifting delay")
     p.add_argument("--channels", help="channels of the config, comma-separated (default: all)")
     p.add_argument("--delay-ms", type=float, default=20.0, help="servo delay of every aircraft [ms]")
-    p.add_argument("--growth-ms-per-week", type=float, default=6.0, help="drift of the drifting airframe [ms/week]")
+    p.add_argument(
+        "--growth-ms-per-week", type=float, default=6.0, help="drift of the drifting airframe [ms/week]"
+    )
     p.add_argument("--sweeps", type=int, default=FLEET_OPTIONS.sweeps_per_channel)
     p.add_argument("--sweep-duration", type=float, default=FLEET_OPTIONS.sweep_duration_s)
     p.add_argument("--seed", type=int, default=0)

@@ -4,8 +4,8 @@ same model with 0.6 x aileron effectiveness (its B column scaled).
 Each flight: aileron sweeps then rudder sweeps in turn (``gap-validate simulate``'s test card), the truth the
 full lateral-directional state space of ``config/ultrastick25e_lateral.yaml``, gusts and sensor noise.
 Prints per seed the MIMO nu-gap and verdict of both models, the dominant element and the diagnosed aileron
-gain, then the counts: the model that flew must never be model-limited (a nu-gap above 0.15 only where the data are
-data-limited: short flights leave the lowest frequencies to the gusts), the weakened one always.
+gain, then the counts: the model that flew must never be model-limited (a nu-gap above 0.15 only where the
+data are data-limited: short flights leave the lowest frequencies to the gusts), the weakened one always.
 
     python benchmarks/mimo_flights.py [--seeds 10] [--sweeps 2] [--sweep-duration 40] [--sweep-gap-s 3]
 """
@@ -22,8 +22,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from gap_validation.core.config import load_config  # noqa: E402
-from gap_validation.core.config import parse_config  # noqa: E402
+from gap_validation.core.config import (
+    load_config,  # noqa: E402
+    parse_config,  # noqa: E402
+)
 from gap_validation.core.simulation import simulate_flight, with_options  # noqa: E402
 from gap_validation.core.validator import OnlineValidator  # noqa: E402
 
@@ -55,8 +57,15 @@ def main() -> int:
     args = parser.parse_args()
     truth = load_config(CONFIG)
     weak = weakened(truth, 0.6)
-    options = with_options(sweeps_per_channel=args.sweeps, sweep_duration_s=args.sweep_duration, quiet_s=args.sweep_gap_s)
-    counts = {"truth model-limited": 0, "weak model-limited": 0, "aileron named": 0, "aileron -> p dominates": 0}
+    options = with_options(
+        sweeps_per_channel=args.sweeps, sweep_duration_s=args.sweep_duration, quiet_s=args.sweep_gap_s
+    )
+    counts = {
+        "truth model-limited": 0,
+        "weak model-limited": 0,
+        "aileron named": 0,
+        "aileron -> p dominates": 0,
+    }
     nus, gains, above = [], [], []
     started = time.perf_counter()
     for seed in range(args.seeds):
@@ -82,12 +91,19 @@ def main() -> int:
     print(f"truth: nu-gap median {np.median(nus):.3f}, max {np.max(nus):.3f}; model-limited "
           f"{counts['truth model-limited']}/{n}; nu-gap >= 0.15 on {len(above)}/{n}"
           + (f" (limited by: {', '.join(above)})" if above else ""))
-    print(f"aileron x0.6: model-limited {counts['weak model-limited']}/{n}; element aileron -> roll rate dominates "
-          f"{counts['aileron -> p dominates']}/{n}; aileron gain named "
-          f"{counts['aileron named']}/{n}" + (f", factor median {np.median(gains):.3f} (truth 1/0.6 = 1.667)"
-                                              if gains else ""))
+    print(
+        f"aileron x0.6: model-limited {counts['weak model-limited']}/{n}; element aileron -> roll rate "
+        "dominates "
+        f"{counts['aileron -> p dominates']}/{n}; aileron gain named "
+        f"{counts['aileron named']}/{n}"
+        + (f", factor median {np.median(gains):.3f} (truth 1/0.6 = 1.667)" if gains else "")
+    )
     # the model that flew: never model-limited; a nu-gap above 0.15 only where the data say they cannot tell
-    ok = counts["truth model-limited"] == 0 and counts["weak model-limited"] == n and all(v == "data" for v in above)
+    ok = (
+        counts["truth model-limited"] == 0
+        and counts["weak model-limited"] == n
+        and all(v == "data" for v in above)
+    )
     print("PASS" if ok else "FAIL")
     return 0 if ok else 1
 

@@ -1,9 +1,11 @@
-"""Test cards as YAML (issue 25): the one writer and reader of ``gap-validate plan --out`` and the node's ``~/plan``.
+"""Test cards as YAML (issue 25): the one writer and reader of ``gap-validate plan --out`` and the node's
+``~/plan``.
 
 The planning is :mod:`gap_validation.core.plan` (ROS-free, no YAML); the card's mapping is
-:meth:`TestCard.to_dict <gap_validation.core.plan.TestCard.to_dict>` (schema: docs/PLAN.md). This module turns it
-into text and back, next to :func:`gap_validation.core.config.load_config` (the house's other YAML), so the CLI (``plan --out``) and
-the node (``~/plan``, the ``plan_card`` parameter) write the same document and read it the same way.
+:meth:`TestCard.to_dict <gap_validation.core.plan.TestCard.to_dict>` (schema: docs/PLAN.md). This module turns
+it into text and back, next to :func:`gap_validation.core.config.load_config` (the house's other YAML), so the
+CLI (``plan --out``) and the node (``~/plan``, the ``plan_card`` parameter) write the same document and read
+it the same way.
 """
 from __future__ import annotations
 
@@ -65,8 +67,10 @@ def card_from_document(data, source: str = "card") -> TestCard:
         The file's name (messages).
     """
     if not isinstance(data, dict) or not isinstance(data.get("channels"), dict):
-        raise ConfigError(f"{source}: not a test card (expected a mapping with 'channels'; gap-validate plan --out "
-                          f"writes one)")
+        raise ConfigError(
+            f"{source}: not a test card (expected a mapping with 'channels'; gap-validate plan --out "
+            f"writes one)"
+        )
     if data.get("card_version") != CARD_VERSION:
         raise ConfigError(f"{source}: card_version {data.get('card_version')!r}: expected {CARD_VERSION}")
     for name, channel in data["channels"].items():
@@ -79,8 +83,17 @@ def card_from_document(data, source: str = "card") -> TestCard:
             where = f"{source}: channels.{name}.manoeuvres[{k}]"
             if not isinstance(m, dict):
                 raise ConfigError(f"{where}: expected a mapping")
-            for key in ("index", "band_rad_s", "amplitude_rad", "duration_s", "repeats", "fade_in_s", "fade_out_s",
-                        "trim_before_s", "trim_between_s"):
+            for key in (
+                "index",
+                "band_rad_s",
+                "amplitude_rad",
+                "duration_s",
+                "repeats",
+                "fade_in_s",
+                "fade_out_s",
+                "trim_before_s",
+                "trim_between_s",
+            ):
                 if key not in m:
                     raise ConfigError(f"{where}: missing key {key!r}")
     try:
@@ -91,14 +104,19 @@ def card_from_document(data, source: str = "card") -> TestCard:
     for m in card.manoeuvres:
         where = f"{source}: channels.{m.channel}.manoeuvres index {m.index}"
         if m.index in seen:
-            raise ConfigError(f"{where}: the index is also one of {seen[m.index]}'s (each manoeuvre needs its own)")
+            raise ConfigError(
+                f"{where}: the index is also one of {seen[m.index]}'s (each manoeuvre needs its own)"
+            )
         seen[m.index] = m.channel
         if len(m.band_rad_s) != 2 or not 0 < m.band_rad_s[0] < m.band_rad_s[1]:
-            raise ConfigError(f"{where}: band_rad_s {list(m.band_rad_s)}: expected [low, high] with 0 < low < high")
+            raise ConfigError(
+                f"{where}: band_rad_s {list(m.band_rad_s)}: expected [low, high] with 0 < low < high"
+            )
         if not (m.amplitude_rad > 0 and m.duration_s > 0 and m.repeats >= 1 and min(
                 m.fade_in_s, m.fade_out_s, m.trim_before_s, m.trim_between_s) >= 0):
-            raise ConfigError(f"{where}: expected amplitude_rad > 0, duration_s > 0, repeats >= 1 and fades and "
-                              f"trims >= 0")
+            raise ConfigError(
+                f"{where}: expected amplitude_rad > 0, duration_s > 0, repeats >= 1 and fades and trims >= 0"
+            )
     return card
 
 

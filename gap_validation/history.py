@@ -6,7 +6,8 @@ appended; each append rewrites the file atomically (temporary file, then rename)
 never leaves a half record::
 
     {"timestamp": "2024-05-01T12:00:00+00:00", "config": "cfg.yaml", "sources": ["flight1.mcap"],
-     "channels": {"pitch": {"nu_gap": 0.08, "epsilon": 0.62, "epsilon_raw": 0.7, "worst_frequency_rad_s": 31.4,
+     "channels": {"pitch": {"nu_gap": 0.08, "epsilon": 0.62, "epsilon_raw": 0.7, "worst_frequency_rad_s":
+     31.4,
                             "sweeps": 3, "limited_by": "model", "diagnosis": {...top candidate...},
                             "model": {...model spec incl. effects...}, "model_hash": "3f2a9c01d4",
                             "airframe_hash": "77b0e1c2aa", "model_description": "airframe only"}}}
@@ -76,7 +77,8 @@ def _airframe_spec(spec: dict) -> dict:
 
 
 def describe_model(spec: dict) -> str:
-    """``"airframe only"`` or ``"+ time delay of 45 ms + first-order lag at ..."`` (the effects of the spec)."""
+    """``"airframe only"`` or ``"+ time delay of 45 ms + first-order lag at ..."`` (the effects of the
+    spec)."""
     effects = spec.get("effects") or []
     if not effects:
         return "airframe only"
@@ -133,8 +135,12 @@ def append_history(path: str | os.PathLike, result, config, sources: Sequence[st
     """
     when = (timestamp or datetime.now(timezone.utc)).isoformat(timespec="seconds")
     channels = {name: _channel_record(ch, config.channels.get(name)) for name, ch in result.channels.items()}
-    record = {"timestamp": when, "config": getattr(config, "source", None), "sources": [str(s) for s in sources],
-              "channels": channels}
+    record = {
+        "timestamp": when,
+        "config": getattr(config, "source", None),
+        "sources": [str(s) for s in sources],
+        "channels": channels,
+    }
     line = json.dumps(record, sort_keys=False, allow_nan=False)
     path = Path(path)
     try:
@@ -154,7 +160,9 @@ def _complete_lines(data: bytes) -> bytes:
     try:
         json.loads(last)
     except (json.JSONDecodeError, UnicodeDecodeError):
-        log.warning("validation history: dropping a torn last line (%d bytes, an interrupted write)", len(last))
+        log.warning(
+            "validation history: dropping a torn last line (%d bytes, an interrupted write)", len(last)
+        )
         return head + b"\n" if head else b""
     return data + b"\n"
 
@@ -179,8 +187,9 @@ def load_history(path: str | os.PathLike) -> list[dict]:
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as err:
-        raise DataError(f"{path}: cannot read the validation history ({getattr(err, 'strerror', None) or err})") \
-            from None
+        raise DataError(
+            f"{path}: cannot read the validation history ({getattr(err, 'strerror', None) or err})"
+        ) from None
     lines = text.splitlines()
     records = []
     for number, line in enumerate(lines, start=1):
@@ -193,8 +202,9 @@ def load_history(path: str | os.PathLike) -> list[dict]:
                 log.warning("%s:%d: torn last line of the validation history skipped (an interrupted write)",
                             path, number)
                 break
-            raise DataError(f"{path}:{number}: corrupt validation history line ({err.msg}, column {err.colno})") \
-                from None
+            raise DataError(
+                f"{path}:{number}: corrupt validation history line ({err.msg}, column {err.colno})"
+            ) from None
         if not isinstance(record, dict) or not isinstance(record.get("channels"), dict):
             raise DataError(f"{path}:{number}: corrupt validation history line (expected an object with "
                             f"'channels')")
@@ -209,7 +219,9 @@ def _entries(history: Sequence[dict], channel: str):
             yield record, entry
 
 
-def previous_epsilon(history: Sequence[dict], channel: str, exclude_model_hash: str | None = None) -> float | None:
+def previous_epsilon(
+    history: Sequence[dict], channel: str, exclude_model_hash: str | None = None
+) -> float | None:
     """The most recent recorded epsilon of ``channel`` (None when there is none).
 
     Parameters

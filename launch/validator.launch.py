@@ -13,28 +13,43 @@ With ``use_sim_time:=true`` and ``ros2 bag play --clock BAG`` the node gives the
 import os
 
 from ament_index_python.packages import get_package_share_directory
-from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 
+from launch import LaunchDescription
+
 
 def generate_launch_description():
     share = get_package_share_directory("gap_validation")
     arguments = [
-        DeclareLaunchArgument("config_file", default_value=os.path.join(share, "config", "ultrastick25e.yaml"),
-                              description="validation config (YAML): channels, topics and models"),
-        DeclareLaunchArgument("params_file", default_value=os.path.join(share, "config", "validator.params.yaml"),
-                              description="node parameters (QoS, periods, thresholds)"),
-        DeclareLaunchArgument("use_sim_time", default_value="false",
-                              description="follow /clock (ros2 bag play --clock)"),
-        DeclareLaunchArgument("state_file", default_value="",
-                              description="checkpoint of the gathered spectra ('' = off)"),
-        DeclareLaunchArgument("results_dir", default_value="",
-                              description="where ~/save_results writes ('' = current directory)"),
-        DeclareLaunchArgument("node_name", default_value="gap_validator",
-                              description="node name; the statuses are named '<node_name>: <channel>'"),
+        DeclareLaunchArgument(
+            "config_file",
+            default_value=os.path.join(share, "config", "ultrastick25e.yaml"),
+            description="validation config (YAML): channels, topics and models",
+        ),
+        DeclareLaunchArgument(
+            "params_file",
+            default_value=os.path.join(share, "config", "validator.params.yaml"),
+            description="node parameters (QoS, periods, thresholds)",
+        ),
+        DeclareLaunchArgument(
+            "use_sim_time", default_value="false", description="follow /clock (ros2 bag play --clock)"
+        ),
+        DeclareLaunchArgument(
+            "state_file", default_value="", description="checkpoint of the gathered spectra ('' = off)"
+        ),
+        DeclareLaunchArgument(
+            "results_dir",
+            default_value="",
+            description="where ~/save_results writes ('' = current directory)",
+        ),
+        DeclareLaunchArgument(
+            "node_name",
+            default_value="gap_validator",
+            description="node name; the statuses are named '<node_name>: <channel>'",
+        ),
         DeclareLaunchArgument("namespace", default_value="", description="node namespace (e.g. /uav1)"),
         DeclareLaunchArgument("log_level", default_value="info", description="ROS log level"),
     ]

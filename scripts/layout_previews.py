@@ -62,9 +62,12 @@ def main() -> int:
             ax.legend(fontsize=7, loc="best")
         axes[-1].set_xlabel("log10 frequency [rad/s]")
         app = "Foxglove" if kind == "foxglove" else "PlotJuggler"
-        fig.suptitle(f"config/{kind}_layout.{'json' if kind == 'foxglove' else 'xml'}: what the {app} layout draws "
-                     f"(preview, not an app screenshot)\nbundled flight, epsilon {verdict.epsilon:.2f}, "
-                     f"limited by {verdict.limited_by}", fontsize=9)
+        fig.suptitle(
+            f"config/{kind}_layout.{'json' if kind == 'foxglove' else 'xml'}: what the {app} layout draws "
+            f"(preview, not an app screenshot)\nbundled flight, epsilon {verdict.epsilon:.2f}, "
+            f"limited by {verdict.limited_by}",
+            fontsize=9,
+        )
         fig.tight_layout()
         path = out / f"layout_{kind}_{args.channel}.png"
         fig.savefig(path, dpi=80)

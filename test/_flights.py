@@ -7,10 +7,9 @@ from pathlib import Path
 import yaml
 
 from gap_validation.bag.writer import write_flight
-from gap_validation.core.config import load_config
-from gap_validation.core.config import parse_config
-from gap_validation.core.simulation import FlightOptions, simulate_flight, with_options
 from gap_validation.cli.arguments import hidden_effects
+from gap_validation.core.config import load_config, parse_config
+from gap_validation.core.simulation import FlightOptions, simulate_flight, with_options
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG_PATH = ROOT / "config" / "ultrastick25e.yaml"

@@ -1,4 +1,5 @@
-"""Message objects (rosbags) and a recording validator for the message-path tests (test helper, not a test module)."""
+"""Message objects (rosbags) and a recording validator for the message-path tests (test helper, not a test
+module)."""
 import numpy as np
 from rosbags.typesys import Stores, get_typestore
 

@@ -93,7 +93,8 @@ def estimate(ti, ui, to, yo, **options):
 
 def fraction_within(est_h, ref_h, sigma, k=3.0, dof=np.inf):
     """Fraction of frequencies where |H - H_ref| / |H_ref| is within k noise scales ``sigma``; with ``dof``
-    degrees of freedom of the noise estimate, k of the F law (a Rayleigh-equivalent k, as the diagnosis uses)."""
+    degrees of freedom of the noise estimate, k of the F law (a Rayleigh-equivalent k, as the diagnosis
+    uses)."""
     r = np.abs(est_h - ref_h) / np.abs(ref_h) / np.asarray(sigma, float)
     d = np.maximum(np.asarray(dof, float), 0.5)
     k_f = np.where(np.isfinite(d), np.sqrt(2.0 * d * np.log1p(r ** 2 / (2.0 * d))), r)

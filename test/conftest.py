@@ -1,10 +1,11 @@
-"""Fixtures shared by test modules: the measured pitch-rate flights of ``_pitch_flights`` (estimator, alignment)
-and a tiny simulated flight with its bag (reader, writer; a module's own ``flight`` fixture takes precedence)."""
+"""Fixtures shared by test modules: the measured pitch-rate flights of ``_pitch_flights`` (estimator,
+alignment) and a tiny simulated flight with its bag (reader, writer; a module's own ``flight`` fixture takes
+precedence)."""
 import pytest
-
 from _flights import TINY, ultrastick
 from _pitch_flights import _chunks, estimate, measure
 from _pitch_flights import flight as pitch_flight
+
 from gap_validation.core.simulation import simulate_flight
 
 

@@ -4,14 +4,16 @@ import copy
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
-
 from _pitch_flights import W_RAD_S, _feed, _nbytes, estimate
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
 from gap_validation.core.alignment import JUMP_BACK_S, increasing, jump_back_s, ordered_run
 from gap_validation.core.estimator import FrequencyResponseEstimator
 
 
-# ---------------------------------------------------------------------------------------------- the shared check
+# ---------------------------------------------------------------------------------------------- the shared
+# check
 def test_jump_threshold_is_the_larger_of_one_second_and_max_gap():
     assert jump_back_s(0.5) == JUMP_BACK_S == 1.0
     assert jump_back_s(2.5) == 2.5
@@ -24,7 +26,8 @@ def test_ordered_run_stops_at_the_first_jump_and_marks_reorders():
     assert ok.tolist() == [True, True, False, False, True]
     assert prev[5] == 3.0
     j, ok, _ = ordered_run(t[:5], 0.0, back_s=1.0, forward_s=0.8)
-    assert j == 0 and ok.size == 0                        # 1.0 s after 0.0 is beyond forward_s: a jump forward
+    # 1.0 s after 0.0 is beyond forward_s: a jump forward
+    assert j == 0 and ok.size == 0
 
 
 def test_increasing_keeps_the_first_sample_after_each_jump_and_counts_jumps():
@@ -41,11 +44,13 @@ def test_kept_samples_increase_within_each_segment(times, back_s):
     keep, jumps = increasing(t, -np.inf, back_s)
     kept = t[keep]
     steps = np.diff(kept)
-    assert np.count_nonzero(steps <= 0.0) <= jumps          # every step back among the kept ones is a new segment
+    # every step back among the kept ones is a new segment
+    assert np.count_nonzero(steps <= 0.0) <= jumps
     assert np.all(steps[steps <= 0.0] < -back_s)
 
 
-# ---------------------------------------------------------------------------------------------- time jumping back
+# ---------------------------------------------------------------------------------------------- time jumping
+# back
 def test_time_jumping_back_starts_a_new_segment_and_both_laps_count(lap):
     once = FrequencyResponseEstimator(W_RAD_S)
     _feed(once, lap)
@@ -103,7 +108,8 @@ def test_checkpoint_across_a_time_jump_continues_identically(lap, split):
     _feed(first, chunks[:split])
     empty = FrequencyResponseEstimator(W_RAD_S)
     record = 2 * int(empty.options["max_record_s"] * empty.options["sample_rate_hz"]) * 8
-    assert _nbytes(first.state_dict()) <= _nbytes(empty.state_dict()) + record     # bounded: the record in progress
+    # bounded: the record in progress
+    assert _nbytes(first.state_dict()) <= _nbytes(empty.state_dict()) + record
     resumed = FrequencyResponseEstimator.from_state(copy.deepcopy(first.state_dict()))
     _feed(resumed, chunks[split:])
     resumed.flush()

@@ -1,4 +1,5 @@
-"""Atomic writes (gap_validation.core.atomic): every result file is either the old one or the new one, never half.
+"""Atomic writes (gap_validation.core.atomic): every result file is either the old one or the new one, never
+half.
 
 Covers the helper itself and the four writers built on it (JSON results, ``dump_config``, the history, the
 node's checkpoint): an exception mid-write, a failing ``fsync``/rename, and a real ``kill -9`` of a child
@@ -23,10 +24,10 @@ import numpy as np
 import pytest
 import yaml
 
-from gap_validation.core.config import dump_config
 from gap_validation.core import atomic
 from gap_validation.core import atomic as core_atomic
 from gap_validation.core.checkpoint import load_state
+from gap_validation.core.config import dump_config
 from gap_validation.core.errors import DataError
 from gap_validation.history import load_history
 from gap_validation.report.terminal import write_json
@@ -61,7 +62,8 @@ def write(kind, d, i):
         dump_config({"i": i, "n": n, "pad": ["x" * 40] * (n // 40)}, d / "config.yaml")
     elif kind == "history":
         ch = ChannelResult(name="pitch", sweeps=1, epsilon=0.1, nu_gap=0.05, epsilon_raw=0.1)
-        append_history(d / "h.jsonl", ValidationResult(channels={"pitch": ch}), CONFIG, [f"bag{i}"] * (n // 100))
+        append_history(d / "h.jsonl", ValidationResult(channels={"pitch": ch}), CONFIG,
+                       [f"bag{i}"] * (n // 100))
     elif kind == "checkpoint":
         save_state({"i": i, "a": np.arange(float(n))}, d / "state.npz")
     elif kind == "naive":   # the control: a plain, non-atomic write
@@ -76,7 +78,8 @@ write(kind, d, 0)
 real_fdopen = os.fdopen
 
 class Stalling:
-    """File wrapper: from the first 1 kB on, the next write puts half its bytes on disk, says so, and hangs."""
+    """File wrapper: from the first 1 kB on, the next write puts half its bytes on disk, says so, and
+    hangs."""
     def __init__(self, handle):
         self._h = handle
         self._written = 0
@@ -143,7 +146,12 @@ def check_checkpoint(d: Path) -> int:
     return state["i"]
 
 
-CHECKS = {"json": check_json, "config": check_config, "history": check_history, "checkpoint": check_checkpoint}
+CHECKS = {
+    "json": check_json,
+    "config": check_config,
+    "history": check_history,
+    "checkpoint": check_checkpoint,
+}
 TARGETS = {"json": "results.json", "config": "config.yaml", "history": "h.jsonl", "checkpoint": "state.npz"}
 
 
@@ -293,7 +301,8 @@ def test_kill_9_at_random_moments_of_a_write_loop_leaves_only_complete_files(tmp
     assert all(n.startswith(".") and n.endswith(core_atomic.TEMP_SUFFIX) for n in names)  # orphans are hidden
 
 
-# ------------------------------------------------------------------------------------------------ torn history
+# ------------------------------------------------------------------------------------------------ torn
+# history
 def _history_with_records(d: Path, count: int) -> Path:
     for i in range(count):
         _write_in_process("history", d, i)

@@ -1,5 +1,5 @@
-"""gap-validate and the node ask for one BLAS thread before numpy loads (gap_validation/blas.py), unless the user
-set the variable; the library leaves the environment alone."""
+"""gap-validate and the node ask for one BLAS thread before numpy loads (gap_validation/blas.py), unless the
+user set the variable; the library leaves the environment alone."""
 from __future__ import annotations
 
 import os

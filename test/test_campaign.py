@@ -1,7 +1,7 @@
-"""``gap-validate campaign`` end to end on a simulated fleet (benchmarks/make_fleet.py, pitch only, short flights):
-a campaign on one Dask worker equals single replays; the drifting airframe is found and named in words; a
-worker killed mid-task loses nothing; a re-run redoes only what changed; a failing flight costs only itself;
-bad manifests are one line, exit 2; the index renders in headless Chromium."""
+"""``gap-validate campaign`` end to end on a simulated fleet (benchmarks/make_fleet.py, pitch only, short
+flights): a campaign on one Dask worker equals single replays; the drifting airframe is found and named in
+words; a worker killed mid-task loses nothing; a re-run redoes only what changed; a failing flight costs only
+itself; bad manifests are one line, exit 2; the index renders in headless Chromium."""
 import csv
 import importlib.util
 import json
@@ -19,12 +19,12 @@ import numpy as np
 import pytest
 import yaml
 
+from gap_validation.bag.replay import replay
 from gap_validation.campaign.manifest import load_manifest
 from gap_validation.campaign.results import REUSED, VALIDATED
 from gap_validation.campaign.runner import run_campaign
 from gap_validation.cli.main import main
 from gap_validation.core.config import load_config
-from gap_validation.bag.replay import replay
 
 distributed = pytest.importorskip("distributed")
 
@@ -68,7 +68,8 @@ def test_one_worker_gives_the_epsilons_of_single_replays(campaign):
     assert campaign.ok and campaign.count(VALIDATED) == AIRCRAFT * WEEKS
     data = json.loads((campaign.out_dir / "campaign.json").read_text())
     assert [f["name"] for f in data["flights"]] == [f.name for f in campaign.manifest.flights]
-    for flight, saved in list(zip(campaign.manifest.flights, data["flights"]))[::4]:   # 4 of the 15, each aircraft
+    # 4 of the 15, each aircraft
+    for flight, saved in list(zip(campaign.manifest.flights, data["flights"]))[::4]:
         single = replay(flight.bags, load_config(flight.config)).result.to_json_dict()["channels"]
         assert set(saved["channels"]) == set(single) == {"pitch"}
         ours, theirs = saved["channels"]["pitch"], single["pitch"]
@@ -87,7 +88,9 @@ def test_the_drifting_airframe_is_found_and_said_in_words(campaign):
     assert {(f.series.aircraft, f.series.channel) for f in real} == {(DRIFTING, "pitch")}
     delay = next(f for f in real if f.series.quantity == "time_delay.seconds")
     text = delay.sentence()
-    match = re.match(r"UAV-3 pitch: delay grows ([\d.]+) ms per week, from (\d+) to (\d+) ms \(5 flights", text)
+    match = re.match(
+        r"UAV-3 pitch: delay grows ([\d.]+) ms per week, from (\d+) to (\d+) ms \(5 flights", text
+    )
     assert match, text
     assert float(match.group(1)) == pytest.approx(GROWTH_MS_PER_WEEK, rel=0.15)
     assert 17 <= int(match.group(2)) <= 23 and 40 <= int(match.group(3)) <= 48
@@ -106,14 +109,21 @@ def test_csv_has_one_row_per_flight_and_channel(campaign):
         rows = list(csv.DictReader(handle))
     assert len(rows) == AIRCRAFT * WEEKS
     first = rows[0]
-    assert first["flight"] == "UAV-1 2025-03-03" and first["channel"] == "pitch" and first["tags"] == "weekly;week-0"
+    assert (
+        first["flight"] == "UAV-1 2025-03-03"
+        and first["channel"] == "pitch"
+        and first["tags"] == "weekly;week-0"
+    )
     assert float(first["epsilon"]) == campaign.flights[0].channels["pitch"]["epsilon"]
-    assert first["diagnosis"] == "time_delay" and re.fullmatch(r"seconds=0\.0\d+", first["diagnosis_parameters"])
+    assert first["diagnosis"] == "time_delay" and re.fullmatch(
+        r"seconds=0\.0\d+", first["diagnosis_parameters"]
+    )
     assert first["sweeps"] == "2" and first["limited_by"] == "model" and first["excitation"] == "chirp"
 
 
 class _Killer(distributed.WorkerPlugin):
-    """Kills its worker process (SIGKILL) while the first task of a flight runs, once (a marker file remembers)."""
+    """Kills its worker process (SIGKILL) while the first task of a flight runs, once (a marker file
+    remembers)."""
 
     def __init__(self, marker: str, flight: str):
         self.marker, self.flight = marker, flight
@@ -154,8 +164,10 @@ def test_a_worker_killed_mid_task_loses_nothing(fleet, cluster, campaign, tmp_pa
     assert outcome.workers_lost == 1                             # ... and the campaign noticed
     assert outcome.ok and outcome.count(VALIDATED) == len(names)
     rerun = next(o for o in outcome.flights if o.flight.name == names[1])
-    assert int(rerun.worker.rsplit(":", 1)[1]) != killed          # its result came from the new worker
-    before = {o.flight.name: o.channels["pitch"]["epsilon"] for o in campaign.flights if o.flight.name in names}
+    assert int(rerun.worker.rsplit(":", 1)[1]) != killed  # its result came from the new worker
+    before = {
+        o.flight.name: o.channels["pitch"]["epsilon"] for o in campaign.flights if o.flight.name in names
+    }
     assert {o.flight.name: o.channels["pitch"]["epsilon"] for o in outcome.flights} == before
 
 
@@ -188,10 +200,15 @@ def test_a_failing_flight_is_one_line_and_the_others_complete(fleet, tmp_path, c
     flights = yaml.safe_load(_subset(fleet, ["UAV-1 2025-03-03", "UAV-1 2025-03-10"], tmp_path / "m.yaml")
                              .read_text())["flights"]
     (tmp_path / "corrupt.mcap").write_bytes(b"\x89MCAP0\r\n" + os.urandom(4000))
-    bad = [dict(flights[0], name="corrupt", bag="corrupt.mcap"), dict(flights[0], name="missing", bag="nowhere")]
+    bad = [
+        dict(flights[0], name="corrupt", bag="corrupt.mcap"),
+        dict(flights[0], name="missing", bag="nowhere"),
+    ]
     manifest = tmp_path / "manifest.yaml"
     manifest.write_text(yaml.safe_dump({"flights": [flights[0], *bad, flights[1]]}))
-    code = main(["campaign", str(manifest), "--out", str(tmp_path / "out"), "--workers", "1", "--no-progress"])
+    code = main(
+        ["campaign", str(manifest), "--out", str(tmp_path / "out"), "--workers", "1", "--no-progress"]
+    )
     captured = capsys.readouterr()
     assert code == 1
     errors = [line for line in captured.err.splitlines() if "error:" in line]
@@ -235,7 +252,9 @@ def test_bad_manifest_is_one_line_exit_2(tmp_path, monkeypatch, capsys, text, ne
 
 def test_bad_config_is_one_line_exit_2_before_any_work(fleet, tmp_path, capsys):
     config = tmp_path / "cfg.yaml"
-    config.write_text((fleet.parent / "config.yaml").read_text().replace("channels:", "colour: red\nchannels:"))
+    config.write_text(
+        (fleet.parent / "config.yaml").read_text().replace("channels:", "colour: red\nchannels:")
+    )
     data = yaml.safe_load(fleet.read_text())
     data["flights"] = [dict(data["flights"][0], bag=str(fleet.parent / data["flights"][0]["bag"]),
                             config=str(config))]
@@ -277,4 +296,6 @@ def test_progress_bar_counts_flights():
         bar(FlightOutcome(flight, status=status), done, 3)
     bar.close()
     last = stream.getvalue().split("\r")[-1]
-    assert re.fullmatch(r"campaign \[#{30}\] 100% 3/3 flights \(1 reused, 1 failed\) [\d.]+ flights/s\n", last), last
+    assert re.fullmatch(
+        r"campaign \[#{30}\] 100% 3/3 flights \(1 reused, 1 failed\) [\d.]+ flights/s\n", last
+    ), last

@@ -13,22 +13,34 @@ from gap_validation.campaign.fingerprint import flight_fingerprint
 from gap_validation.campaign.manifest import load_manifest, parse_manifest
 from gap_validation.core.errors import ConfigError, DataError
 
-ENTRY = {"name": "UAV-1 week 0", "bag": "bags/a", "config": "cfg.yaml", "aircraft": "UAV-1", "date": "2025-03-03"}
+ENTRY = {
+    "name": "UAV-1 week 0",
+    "bag": "bags/a",
+    "config": "cfg.yaml",
+    "aircraft": "UAV-1",
+    "date": "2025-03-03",
+}
 
 
 def test_paths_are_relative_to_the_manifest(tmp_path, monkeypatch):
     (tmp_path / "sub").mkdir()
     manifest = tmp_path / "sub" / "m.yaml"
-    manifest.write_text("flights:\n  - {name: f1, bag: [a.mcap, /abs/b.mcap], config: ../cfg.yaml, aircraft: UAV-1,"
-                        " date: 2025-03-03, tags: [weekly, card-A]}\n"
-                        "  - {name: f2, bag: c, config: ../cfg.yaml, aircraft: 7, date: '2025-03-10T14:30:00',"
-                        " tags: solo}\n")
+    manifest.write_text(
+        "flights:\n  - {name: f1, bag: [a.mcap, /abs/b.mcap], config: ../cfg.yaml, aircraft: UAV-1,"
+        " date: 2025-03-03, tags: [weekly, card-A]}\n"
+        "  - {name: f2, bag: c, config: ../cfg.yaml, aircraft: 7, date: '2025-03-10T14:30:00',"
+        " tags: solo}\n"
+    )
     monkeypatch.chdir("/")
     m = load_manifest(manifest)
     f1, f2 = m.flights
     assert f1.bags == (tmp_path / "sub" / "a.mcap", Path("/abs/b.mcap"))
     assert f1.config == tmp_path / "sub" / ".." / "cfg.yaml" and m.configs == (f1.config,)
-    assert f1.date == dt.datetime(2025, 3, 3) and f1.date_text == "2025-03-03" and f1.tags == ("weekly", "card-A")
+    assert (
+        f1.date == dt.datetime(2025, 3, 3)
+        and f1.date_text == "2025-03-03"
+        and f1.tags == ("weekly", "card-A")
+    )
     assert f2.aircraft == "7" and f2.date_text == "2025-03-10T14:30:00" and f2.tags == ("solo",)
     assert m.aircraft == ["UAV-1", "7"]
     assert f1.metadata()["date"] == "2025-03-03" and f1.metadata()["tags"] == ["weekly", "card-A"]
@@ -44,7 +56,8 @@ def test_paths_are_relative_to_the_manifest(tmp_path, monkeypatch):
     ({"name": "x\ny"}, None),
 ])
 def test_wrong_types_name_the_key_and_value(change, needle):
-    if needle is None:                       # a line break in a value is fine for a name, errors stay one line
+    # a line break in a value is fine for a name, errors stay one line
+    if needle is None:
         assert parse_manifest({"flights": [dict(ENTRY, **change)]}, "m.yaml").flights[0].name == "x\ny"
         return
     with pytest.raises(ConfigError) as err:
@@ -52,23 +65,41 @@ def test_wrong_types_name_the_key_and_value(change, needle):
     assert str(err.value).startswith("m.yaml: ") and needle in str(err.value)
 
 
-@pytest.mark.parametrize("data, needle", [
-    (None, "m.yaml: expected a mapping with a 'flights' list, got None"),
-    ({"flight": []}, "m.yaml: flight: unknown key (allowed: flights)"),
-    ({"flights": ["x"]}, "m.yaml: flights[0]: expected a mapping with keys name, bag, config, aircraft, date"),
-    ({"flights": [{k: v for k, v in ENTRY.items() if k != "bag"}]}, "m.yaml: flights[0].bag: missing"),
-])
+@pytest.mark.parametrize(
+    "data, needle",
+    [
+        (None, "m.yaml: expected a mapping with a 'flights' list, got None"),
+        ({"flight": []}, "m.yaml: flight: unknown key (allowed: flights)"),
+        (
+            {"flights": ["x"]},
+            "m.yaml: flights[0]: expected a mapping with keys name, bag, config, aircraft, date",
+        ),
+        ({"flights": [{k: v for k, v in ENTRY.items() if k != "bag"}]}, "m.yaml: flights[0].bag: missing"),
+    ],
+)
 def test_structure_errors(data, needle):
-    with pytest.raises(ConfigError, match="^" + needle.replace("[", r"\[").replace("]", r"\]").replace("(", r"\(")
-                       .replace(")", r"\)")):
+    with pytest.raises(
+        ConfigError,
+        match="^" + needle.replace("[", r"\[").replace("]", r"\]").replace("(", r"\(").replace(")", r"\)"),
+    ):
         parse_manifest(data, "m.yaml")
 
 
 @settings(max_examples=150, deadline=None)
-@given(st.recursive(st.none() | st.booleans() | st.integers() | st.text(max_size=8) | st.dates(),
-                    lambda inner: st.lists(inner, max_size=3) | st.dictionaries(
-                        st.sampled_from(["flights", "name", "bag", "config", "aircraft", "date", "tags", "x"]),
-                        inner, max_size=6), max_leaves=20))
+@given(
+    st.recursive(
+        st.none() | st.booleans() | st.integers() | st.text(max_size=8) | st.dates(),
+        lambda inner: (
+            st.lists(inner, max_size=3)
+            | st.dictionaries(
+                st.sampled_from(["flights", "name", "bag", "config", "aircraft", "date", "tags", "x"]),
+                inner,
+                max_size=6,
+            )
+        ),
+        max_leaves=20,
+    )
+)
 def test_any_yaml_value_gives_a_manifest_or_a_one_line_config_error(data):
     try:
         parse_manifest(data, "m.yaml", base="/base")

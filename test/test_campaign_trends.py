@@ -1,5 +1,5 @@
-"""Trend statistics (campaign.trends) and the fleet findings in words (campaign.findings): least squares pinned
-against scipy's linregress, false alarms at the family-wise rate, drifts found, sentences."""
+"""Trend statistics (campaign.trends) and the fleet findings in words (campaign.findings): least squares
+pinned against scipy's linregress, false alarms at the family-wise rate, drifts found, sentences."""
 import re
 from datetime import datetime, timedelta
 
@@ -7,9 +7,16 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from gap_validation.campaign.findings import Finding, Series, find_trends, fleet_series, format_value, quantity_label
+from gap_validation.campaign.findings import (
+    Finding,
+    Series,
+    find_trends,
+    fleet_series,
+    format_value,
+    quantity_label,
+)
 from gap_validation.campaign.manifest import Flight
-from gap_validation.campaign.results import FlightOutcome, VALIDATED
+from gap_validation.campaign.results import VALIDATED, FlightOutcome
 from gap_validation.core.trends import MIN_FLIGHTS, holm_significant, linear_trend
 
 
@@ -30,7 +37,9 @@ def test_equal_weights_are_ordinary_least_squares_and_weights_follow_sigma():
     days, values = [0, 7, 14, 21, 28], [1.0, 1.3, 1.1, 1.6, 1.5]
     plain = linear_trend(days, values)
     same = linear_trend(days, values, sigma=[0.2] * 5)
-    assert same.slope_per_day == pytest.approx(plain.slope_per_day) and same.p_value == pytest.approx(plain.p_value)
+    assert same.slope_per_day == pytest.approx(plain.slope_per_day) and same.p_value == pytest.approx(
+        plain.p_value
+    )
     # a flight known to be noisy barely pulls the line
     pulled = linear_trend(days + [35], values + [5.0], sigma=[0.1] * 5 + [100.0])
     assert pulled.slope_per_day == pytest.approx(plain.slope_per_day, rel=1e-3)
@@ -68,7 +77,8 @@ def test_stable_fleets_raise_a_false_alarm_at_most_at_the_family_rate():
 def test_a_drift_of_four_sigma_per_week_is_found_and_the_slope_interval_covers_it():
     """500 seeded airframes, 6 weekly flights, drift 4 flight-to-flight sigma per week, 12 trends tested: the
     drift is called real in >= 97 % (t about 17 against Holm's 8.6 at 4 dof; the miss is a scatter estimate
-    twice too large, chi2(4) > 15: 0.5 %), and the 99 % interval of the slope covers the truth in about 99 %."""
+    twice too large, chi2(4) > 15: 0.5 %), and the 99 % interval of the slope covers the truth in about 99
+    %."""
     rng = np.random.default_rng(11)
     days = np.arange(6) * 7.0
     found = covered = 0
@@ -85,7 +95,9 @@ def _outcome(aircraft: str, day: int, epsilon: float, delay_s: float | None) -> 
     flight = Flight(f"{aircraft} {date:%Y-%m-%d}", (), None, aircraft, date)
     diagnosis = None if delay_s is None else {"effect": "time_delay", "parameters": {"seconds": delay_s},
                                               "effects": [{"type": "time_delay", "seconds": delay_s}]}
-    return FlightOutcome(flight, status=VALIDATED, channels={"pitch": {"epsilon": epsilon, "diagnosis": diagnosis}})
+    return FlightOutcome(
+        flight, status=VALIDATED, channels={"pitch": {"epsilon": epsilon, "diagnosis": diagnosis}}
+    )
 
 
 def test_fleet_findings_name_the_drifting_airframe_in_words():
@@ -105,21 +117,30 @@ def test_fleet_findings_name_the_drifting_airframe_in_words():
     text = real[1].sentence()
     assert text.startswith("UAV-3 pitch: delay grows 5.")
     assert "ms per week, from 21 to 48 ms (6 flights, 2025-03-05 to 2025-04-09, p = " in text
-    assert re.fullmatch(r"UAV-3 pitch: epsilon grows 1\d % per week, from 0\.4\d? to 0\.[67]\d? \(6 flights, .*\)",
-                        real[0].sentence()), real[0].sentence()
-    assert re.fullmatch(r"UAV-1 pitch: epsilon: no real trend \(-?[\d.e-]+ \+- [\d.e-]+ % per week, 7 flights, .*\)",
-                        findings[0].sentence()), findings[0].sentence()
+    assert re.fullmatch(
+        r"UAV-3 pitch: epsilon grows 1\d % per week, from 0\.4\d? to 0\.[67]\d? \(6 flights, .*\)",
+        real[0].sentence(),
+    ), real[0].sentence()
+    assert re.fullmatch(
+        r"UAV-1 pitch: epsilon: no real trend \(-?[\d.e-]+ \+- [\d.e-]+ % per week, 7 flights, .*\)",
+        findings[0].sentence(),
+    ), findings[0].sentence()
     assert len(findings[1].series.values) == 6 and len(findings[0].series.values) == 7
 
 
 def test_epsilon_trends_are_relative():
-    """Epsilon is fitted on a log scale: growing by a fifth each week is "20 % per week", whatever its size."""
-    flights = [_outcome("UAV-7", 7 * week, 0.3 * 1.2 ** week * (1 + 0.01 * (-1) ** week), None) for week in range(6)]
+    """Epsilon is fitted on a log scale: growing by a fifth each week is "20 % per week", whatever its
+    size."""
+    flights = [
+        _outcome("UAV-7", 7 * week, 0.3 * 1.2**week * (1 + 0.01 * (-1) ** week), None) for week in range(6)
+    ]
     finding = find_trends(fleet_series(flights))[0]
     assert finding.significant and finding.log
     rate, error, unit = finding.rate_per_week()
     assert unit == "%" and rate == pytest.approx(20, abs=0.5) and error < 1
-    assert re.match(r"UAV-7 pitch: epsilon grows 20 % per week, from 0\.3 to 0\.7[45] \(6 flights", finding.sentence())
+    assert re.match(
+        r"UAV-7 pitch: epsilon grows 20 % per week, from 0\.3 to 0\.7[45] \(6 flights", finding.sentence()
+    )
     data = finding.to_json_dict()
     assert data["fitted_to"] == "log" and data["start"] == pytest.approx(0.3, rel=0.02)
 
@@ -129,6 +150,14 @@ def test_words_and_units():
     assert quantity_label("first_order_lag.bandwidth_rad_s") == ("lag bandwidth", "rad/s", 1.0)
     assert quantity_label("new_effect.corner_rad_s") == ("new effect corner", "rad/s", 1.0)
     assert quantity_label("new_effect.ratio") == ("new effect ratio", "", 1.0)
-    assert [format_value(v) for v in (9.04, 21.4, 0.4512, 6.06, -0.003)] == ["9.0", "21", "0.45", "6.1", "-0.003"]
-    few = Finding(Series("UAV-9", "roll", "epsilon", [datetime(2025, 1, 1)] * 2, [0.1, 0.2], ["a", "b"]), None)
+    assert [format_value(v) for v in (9.04, 21.4, 0.4512, 6.06, -0.003)] == [
+        "9.0",
+        "21",
+        "0.45",
+        "6.1",
+        "-0.003",
+    ]
+    few = Finding(
+        Series("UAV-9", "roll", "epsilon", [datetime(2025, 1, 1)] * 2, [0.1, 0.2], ["a", "b"]), None
+    )
     assert few.sentence() == "UAV-9 roll: epsilon: 2 flights, too few for a trend (at least 4)"

@@ -27,8 +27,14 @@ def _imu(frame_id, values, sec, nanosec):
         linear_acceleration_covariance=np.arange(9.0) + 20)
 
 
-IMU_FIELDS = ["orientation.x", "orientation.w", "angular_velocity.x", "angular_velocity.y", "angular_velocity.z",
-              "linear_acceleration.z"]
+IMU_FIELDS = [
+    "orientation.x",
+    "orientation.w",
+    "angular_velocity.x",
+    "angular_velocity.y",
+    "angular_velocity.z",
+    "linear_acceleration.z",
+]
 finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
 
 
@@ -58,7 +64,10 @@ def test_fast_joint_state_decoder_matches_rosbags(names, frame_id, data):
                                         frame_id=frame_id), name=names, **arrays)
     raw = TS.serialize_cdr(msg, "sensor_msgs/msg/JointState")
     full = TS.deserialize_cdr(raw, "sensor_msgs/msg/JointState")
-    fields = [f"position[{data.draw(st.sampled_from(names))}]", f"position[{data.draw(st.integers(0, n - 1))}]"]
+    fields = [
+        f"position[{data.draw(st.sampled_from(names))}]",
+        f"position[{data.draw(st.integers(0, n - 1))}]",
+    ]
     for array in ("velocity", "effort"):
         if len(arrays[array]):
             fields.append(f"{array}[{names[len(arrays[array]) - 1]}]")
@@ -113,10 +122,20 @@ def _batch_agrees(msgtype, paths, raws):
 
 
 @settings(max_examples=60, deadline=None)
-@given(st.lists(st.tuples(st.sampled_from(["", "imu", "imu_link", "a" * 9]), st.lists(finite, min_size=10, max_size=10),
-                          st.integers(0, 2**31 - 1), st.integers(0, 999_999_999),
-                          st.sampled_from(["le", "le", "le", "be", "short"])), min_size=1, max_size=25),
-       st.lists(st.sampled_from(IMU_FIELDS), min_size=1, max_size=4))
+@given(
+    st.lists(
+        st.tuples(
+            st.sampled_from(["", "imu", "imu_link", "a" * 9]),
+            st.lists(finite, min_size=10, max_size=10),
+            st.integers(0, 2**31 - 1),
+            st.integers(0, 999_999_999),
+            st.sampled_from(["le", "le", "le", "be", "short"]),
+        ),
+        min_size=1,
+        max_size=25,
+    ),
+    st.lists(st.sampled_from(IMU_FIELDS), min_size=1, max_size=4),
+)
 def test_batch_imu_decoder_reads_what_the_record_decoder_reads(records, fields):
     raws = []
     for frame_id, values, sec, nanosec, kind in records:
@@ -131,8 +150,14 @@ def test_batch_imu_decoder_reads_what_the_record_decoder_reads(records, fields):
 
 
 @settings(max_examples=60, deadline=None)
-@given(st.lists(st.sampled_from([("elevator", "aileron"), ("aileron", "elevator"), ("elevator",), ("rudder",)]),
-                min_size=1, max_size=20), st.data())
+@given(
+    st.lists(
+        st.sampled_from([("elevator", "aileron"), ("aileron", "elevator"), ("elevator",), ("rudder",)]),
+        min_size=1,
+        max_size=20,
+    ),
+    st.data(),
+)
 def test_batch_joint_state_decoder_reads_what_the_record_decoder_reads(name_sets, data):
     raws, shapes = [], []
     for names in name_sets:
@@ -156,7 +181,8 @@ def test_batch_joint_state_decoder_reads_what_the_record_decoder_reads(name_sets
         except FastDecodeError:
             readable.append(False)
     assert not any(o and not r for o, r in zip(ok, readable))
-    if readable[0]:            # the first record is the template: every record with its names and lengths is read
+    # the first record is the template: every record with its names and lengths is read
+    if readable[0]:
         assert all(read for read, shape in zip(ok, shapes) if shape == shapes[0])
 
 

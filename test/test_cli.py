@@ -78,7 +78,8 @@ def test_ctrl_c_while_starting_up_is_one_line_exit_130(capsys, monkeypatch):
     assert capsys.readouterr().err.strip() == "gap-validate: interrupted"
 
 
-# -- MIMO channels and the controller check (issue 14) ---------------------------------------------------------
+# -- MIMO channels and the controller check (issue 14)
+# ---------------------------------------------------------
 
 SURFACES = [{"topic": "/control_surfaces", "field": "position[aileron]"},
             {"topic": "/control_surfaces", "field": "position[rudder]"}]
@@ -114,8 +115,12 @@ def write_mimo(path, state_space, controller=None, swap=False):
 
         flip = np.array([[0.0, 1.0], [1.0, 0.0]])
         ss = {k: np.array(v) for k, v in state_space.items()}
-        channel["model"]["state_space"] = {"A": ss["A"].tolist(), "B": (ss["B"] @ flip).tolist(),
-                                           "C": (flip @ ss["C"]).tolist(), "D": (flip @ ss["D"] @ flip).tolist()}
+        channel["model"]["state_space"] = {
+            "A": ss["A"].tolist(),
+            "B": (ss["B"] @ flip).tolist(),
+            "C": (flip @ ss["C"]).tolist(),
+            "D": (flip @ ss["D"] @ flip).tolist(),
+        }
     if controller is not None:
         channel["controller"] = controller
     path.write_text(yaml.safe_dump({"channels": {"lateral": channel}}))
@@ -140,7 +145,9 @@ def test_compare_models_mimo_rotated_block_diagonal_is_0_0852(tmp_path, capsys):
     assert data["shape"] == [2, 2] and data["epsilon"] is None and data["gain_margin_db"] is None
     assert data["nu_gap_note"] is None
     # B lists the same signals in the other order: matched by topic and field, the same nu-gap
-    swapped = write_mimo(tmp_path / "swapped.yaml", rotated_block_diagonal(EQ19, ([100.0], [2.0, -1.0])), swap=True)
+    swapped = write_mimo(
+        tmp_path / "swapped.yaml", rotated_block_diagonal(EQ19, ([100.0], [2.0, -1.0])), swap=True
+    )
     assert main(["compare-models", a, swapped, "--json", str(out_json)]) == 0
     assert json.loads(out_json.read_text())["channels"]["lateral"]["nu_gap"] == pytest.approx(data["nu_gap"],
                                                                                                 rel=1e-9)
@@ -177,7 +184,9 @@ def siso_yaml(path, num, den, controller=None):
 @pytest.mark.parametrize("num, den, guaranteed", [([1.0], [1.0, 0.01], True), ([-1.0], [1.0, 0.0], False)])
 def test_compare_models_controller_check_b_of_the_integrator_with_unit_feedback(tmp_path, capsys, num, den,
                                                                                 guaranteed):
-    a = siso_yaml(tmp_path / "a.yaml", [1.0], [1.0, 0.0], controller={"numerator": [1.0], "denominator": [1.0]})
+    a = siso_yaml(
+        tmp_path / "a.yaml", [1.0], [1.0, 0.0], controller={"numerator": [1.0], "denominator": [1.0]}
+    )
     b = siso_yaml(tmp_path / "b.yaml", num, den)
     out_json = tmp_path / "out.json"
     assert main(["compare-models", a, b, "--json", str(out_json)]) == 0
@@ -205,18 +214,37 @@ def test_simulate_and_replay_of_a_mimo_lateral_channel(tmp_path, capsys):
     model-limited (nu-gap < 0.15), the same model with 0.6 x aileron effectiveness is, with the aileron column
     named."""
     import yaml
-
     from test_mimo import LATERAL
 
     truth = tmp_path / "lateral.yaml"
     truth.write_text(yaml.safe_dump({"channels": {"lateral": LATERAL}}))
     weak = copy.deepcopy(LATERAL)
-    weak["model"]["state_space"]["B"] = [[0.6 * row[0], row[1]] for row in LATERAL["model"]["state_space"]["B"]]
+    weak["model"]["state_space"]["B"] = [
+        [0.6 * row[0], row[1]] for row in LATERAL["model"]["state_space"]["B"]
+    ]
     weaker = tmp_path / "weak.yaml"
     weaker.write_text(yaml.safe_dump({"channels": {"lateral": weak}}))
     bag = tmp_path / "flight"
-    assert main(["simulate", "--config", str(truth), "--out", str(bag), "--sweeps", "2", "--sweep-duration", "40",
-                 "--sweep-gap-s", "3", "--seed", "3"]) == 0
+    assert (
+        main(
+            [
+                "simulate",
+                "--config",
+                str(truth),
+                "--out",
+                str(bag),
+                "--sweeps",
+                "2",
+                "--sweep-duration",
+                "40",
+                "--sweep-gap-s",
+                "3",
+                "--seed",
+                "3",
+            ]
+        )
+        == 0
+    )
     assert "lateral: 4 chirp manoeuvres (each input in turn)" in capsys.readouterr().out
     results = {}
     for name, config in (("truth", truth), ("weak", weaker)):

@@ -1,6 +1,6 @@
 """Issue 13: closed-loop sweeps and surfaces that move together (core/closed_loop.py, the ``excitation`` and
-``other_inputs`` keys, the simulator's closed loop and coupling). Seeded simulated flights, in memory (simulator ->
-validator, the library path of the one data path) and once through a bag and the CLI."""
+``other_inputs`` keys, the simulator's closed loop and coupling). Seeded simulated flights, in memory
+(simulator -> validator, the library path of the one data path) and once through a bag and the CLI."""
 from __future__ import annotations
 
 import copy
@@ -8,9 +8,9 @@ import json
 
 import numpy as np
 import pytest
+from _flights import config_from, raw_config, write_config
 from scipy import signal
 
-from _flights import config_from, raw_config, write_config
 from gap_validation.cli.main import main
 from gap_validation.core.closed_loop import CouplingMonitor, SurfaceHistory, near_minus_inverse
 from gap_validation.core.errors import ConfigError
@@ -21,11 +21,18 @@ from gap_validation.core.validator import OnlineValidator
 
 EXCITATION = {"topic": "/sysid/excitation", "field": "position[aileron]"}
 RUDDER = {"topic": "/control_surfaces", "field": "position[rudder]"}
-#: A closed-loop card: three 90 s roll sweeps inside a rate damper with a 6 dB gain margin, 12 s of trim between
-#: manoeuvres, turbulence, the injected signal logged.
-CLOSED_LOOP = dict(closed_loop_gain_margin_db=6.0, turbulence_rms_rad_s=0.05, log_excitation_topic="/sysid/excitation",
-                   sweeps_per_channel=3, sweep_duration_s=90.0, quiet_s=12.0)
-#: Rudder = own + 0.3 x aileron (an interconnect); the roll rate also answers the rudder (a Dutch-roll-like term).
+#: A closed-loop card: three 90 s roll sweeps inside a rate damper with a 6 dB gain margin, 12 s of trim
+#: between manoeuvres, turbulence, the injected signal logged.
+CLOSED_LOOP = dict(
+    closed_loop_gain_margin_db=6.0,
+    turbulence_rms_rad_s=0.05,
+    log_excitation_topic="/sysid/excitation",
+    sweeps_per_channel=3,
+    sweep_duration_s=90.0,
+    quiet_s=12.0,
+)
+#: Rudder = own + 0.3 x aileron (an interconnect); the roll rate also answers the rudder (a Dutch-roll-like
+#: term).
 COUPLED = dict(coupling=(("roll", "yaw", 0.3),), cross_responses=(("roll", "yaw", -3.0, 3.0, 0.15),),
                sweeps_per_channel=2, sweep_duration_s=60.0)
 
@@ -88,9 +95,9 @@ def test_closed_loop_hidden_delay_is_found_with_excitation(delayed_loop):
 
 @pytest.mark.parametrize("flight", ["clean_loop", "delayed_loop"])
 def test_closed_loop_without_excitation_warns_and_names_nothing_wrong(flight, request):
-    """Without the excitation logged the loop is warned of; only the frequencies where the manoeuvres stand 20 dB
-    above the surface's motion between them (the loop answering turbulence) count, and those are not biased: the
-    clean airframe gets nothing named, the delayed one at most its delay (issue 22)."""
+    """Without the excitation logged the loop is warned of; only the frequencies where the manoeuvres stand 20
+    dB above the surface's motion between them (the loop answering turbulence) count, and those are not
+    biased: the clean airframe gets nothing named, the delayed one at most its delay (issue 22)."""
     ch = validate(roll_config(), request.getfixturevalue(flight)).channels["roll"]
     assert any("feedback" in w and "channels.roll.excitation" in w for w in ch.warnings), ch.warnings
     if flight == "clean_loop":
@@ -118,23 +125,36 @@ def test_coupled_surfaces_without_other_inputs_warn_naming_the_rudder(coupled):
     result = validate(roll_config(channels=("roll", "yaw")), coupled)
     roll = result.channels["roll"]
     assert roll.limited_by != "model" and not roll.diagnosis, roll.message
-    assert any("position[rudder]" in w and "channels.roll.other_inputs" in w for w in roll.warnings), roll.warnings
+    assert any("position[rudder]" in w and "channels.roll.other_inputs" in w for w in roll.warnings), (
+        roll.warnings
+    )
     assert "biased" in roll.frequency_reasons
-    # the rudder's own sweeps move no aileron; the roll sweeps move the rudder (the interconnect), too little of the
-    # rudder's energy to bias its response: said, not called biased
+    # the rudder's own sweeps move no aileron; the roll sweeps move the rudder (the interconnect), too little
+    # of the rudder's energy to bias its response: said, not called biased
     yaw = result.channels["yaw"]
     assert all("not validated" not in w for w in yaw.warnings), yaw.warnings
     assert "biased" not in yaw.frequency_reasons
-    # and those roll sweeps are the aileron's: left out of the rudder's estimate, which keeps its own 2 sweeps (4
-    # counted, the aileron's pooled in, before the rudder was seen to follow)
+    # and those roll sweeps are the aileron's: left out of the rudder's estimate, which keeps its own 2 sweeps
+    # (4 counted, the aileron's pooled in, before the rudder was seen to follow)
     assert yaw.sweeps == 2
-    assert any("position[aileron]" in w and "left out of its estimate" in w for w in yaw.warnings), yaw.warnings
+    assert any("position[aileron]" in w and "left out of its estimate" in w for w in yaw.warnings), (
+        yaw.warnings
+    )
 
 
-@pytest.mark.parametrize("options", [
-    dict(excitation="chirp", sweeps_per_channel=1, sweep_duration_s=30.0, quiet_s=12.0),
-    dict(excitation="multisine-orthogonal", sweeps_per_channel=1, multisine_period_s=15.0, multisine_periods=3),
-], ids=["chirps", "orthogonal multisines"])
+@pytest.mark.parametrize(
+    "options",
+    [
+        dict(excitation="chirp", sweeps_per_channel=1, sweep_duration_s=30.0, quiet_s=12.0),
+        dict(
+            excitation="multisine-orthogonal",
+            sweeps_per_channel=1,
+            multisine_period_s=15.0,
+            multisine_periods=3,
+        ),
+    ],
+    ids=["chirps", "orthogonal multisines"],
+)
 def test_open_loop_flights_of_uncoupled_surfaces_warn_of_nothing(options):
     config = config_from(raw_config())
     result = validate(config, simulate_flight(config, {}, with_options(**options), seed=2))
@@ -147,8 +167,11 @@ def test_coupling_monitor_sees_an_interconnect_not_an_independent_surface():
     rng = np.random.default_rng(1)
     t = np.arange(0.0, 60.0, 0.01)
     u = 0.05 * np.sin(2.0 * t + 0.02 * t ** 2)
-    for other, expected in ((0.3 * u + 1e-3 * rng.standard_normal(t.size), True),
-                            (0.05 * np.sin(7.0 * t + 1.0), False), (1e-3 * rng.standard_normal(t.size), False)):
+    for other, expected in (
+        (0.3 * u + 1e-3 * rng.standard_normal(t.size), True),
+        (0.05 * np.sin(7.0 * t + 1.0), False),
+        (1e-3 * rng.standard_normal(t.size), False),
+    ):
         history, monitor = SurfaceHistory(), CouplingMonitor()
         monitor.observe(u, 0.0, 0.01, history)            # the surface's samples come later: it waits
         assert monitor.pending and not monitor.records
@@ -161,9 +184,9 @@ def test_coupling_monitor_sees_an_interconnect_not_an_independent_surface():
 
 
 def test_a_manoeuvre_is_the_other_surfaces_where_it_moves_more_against_its_own_trim_motion():
-    """``leads``: the other surface follows the input (an interconnect either way) and moves more, each against its
-    own trim motion: the manoeuvre is the other surface's. Where it moves less, or moves independently, or its
-    samples do not cover the manoeuvre yet, it is the channel's own."""
+    """``leads``: the other surface follows the input (an interconnect either way) and moves more, each
+    against its own trim motion: the manoeuvre is the other surface's. Where it moves less, or moves
+    independently, or its samples do not cover the manoeuvre yet, it is the channel's own."""
     rng = np.random.default_rng(4)
     t = np.arange(0.0, 30.0, 0.01)
     u = 0.015 * np.sin(2.0 * t + 0.02 * t ** 2)            # the rudder, 0.3 x the aileron's sweep
@@ -171,14 +194,17 @@ def test_a_manoeuvre_is_the_other_surfaces_where_it_moves_more_against_its_own_t
     history = SurfaceHistory()
     history.add(t, aileron)
     for own_trim, other_trim, expected in ((0.0, 0.0, True),        # unknown trims: in their own units
-                                           (0.003, 0.003, True),    # the same trim motion: the aileron moves more
-                                           (0.001, 0.01, False)):   # an aileron ten times as restless: the rudder
+                                           # the same trim motion: the aileron moves more
+                                           (0.003, 0.003, True),
+                                           # an aileron ten times as restless: the rudder
+                                           (0.001, 0.01, False)):
         monitor = CouplingMonitor()
         assert monitor.leads(u, 0.0, 0.01, history, own_trim, other_trim) is expected
         assert monitor.followed()[0] == int(expected) and not monitor.records
     monitor = CouplingMonitor()
     assert not monitor.leads(aileron, 0.0, 0.01, _history(t, u), 0.0, 0.0)                  # the smaller one
-    assert not monitor.leads(u, 0.0, 0.01, _history(t, 0.05 * np.sin(7.0 * t + 1.0)), 0.0, 0.0)   # independent
+    # independent
+    assert not monitor.leads(u, 0.0, 0.01, _history(t, 0.05 * np.sin(7.0 * t + 1.0)), 0.0, 0.0)
     assert not monitor.leads(u, 0.0, 0.01, _history(t[:1000], aileron[:1000]), 0.0, 0.0)   # not arrived yet
     count, r2, gain = CouplingMonitor().followed()
     assert count == 0
@@ -215,8 +241,8 @@ def test_partial_coherence_separates_the_inputs():
 
 # ------------------------------------------------------------------------------------------ simulator
 def test_damper_gain_leaves_the_asked_gain_margin():
-    """The discretised loop of the simulator is stable at the damper's gain and 3 % below the critical gain, and
-    unstable 3 % above it (6 dB: the critical gain is twice the damper's)."""
+    """The discretised loop of the simulator is stable at the damper's gain and 3 % below the critical gain,
+    and unstable 3 % above it (6 dB: the critical gain is twice the damper's)."""
     model = config_from(raw_config()).channels["roll"].model
     fs, n_c = 400.0, 8
     k = damper_gain(model, 6.0, (n_c + 0.5) / fs)
@@ -297,8 +323,8 @@ def test_bad_simulate_loop_options_are_one_line_exit_2(tmp_path, capsys, args, n
 
 
 def test_the_node_path_message_by_message_gives_the_replay_result(clean_loop, tmp_path):
-    """Replay (batched decoding) and the node's path (the router, message by message, as ``on_message`` feeds it)
-    agree on a closed-loop flight with the excitation and on its warnings without it."""
+    """Replay (batched decoding) and the node's path (the router, message by message, as ``on_message`` feeds
+    it) agree on a closed-loop flight with the excitation and on its warnings without it."""
     from gap_validation.bag.reader import open_bag
     from gap_validation.bag.replay import replay
     from gap_validation.bag.writer import write_flight
@@ -316,30 +342,43 @@ def test_the_node_path_message_by_message_gives_the_replay_result(clean_loop, tm
         router.flush()
         validator.finish()
         live = validator.results().channels["roll"]
-        assert (live.epsilon is replayed.epsilon is None or live.epsilon == pytest.approx(replayed.epsilon, rel=1e-9))
+        assert live.epsilon is replayed.epsilon is None or live.epsilon == pytest.approx(
+            replayed.epsilon, rel=1e-9
+        )
         assert live.warnings == replayed.warnings and live.message == replayed.message
         assert (live.excitation_coherence is None) == (config.channels["roll"].excitation is None)
 
 
 def test_a_loop_that_drowns_the_manoeuvres_is_found_by_which_signal_leads():
-    """A yaw damper answering turbulence moves the rudder more than the sweep flown inside it: no manoeuvre stands
-    20 dB above that motion, and the response between manoeuvres is not on the opposite side of the airframe's (the
-    loop's phase is past 90 deg where it is coherent). The rate leading the rudder between the manoeuvres says it is
-    a loop (background.LeadTest); the same flight open loop says nothing of the kind (issue 22)."""
+    """A yaw damper answering turbulence moves the rudder more than the sweep flown inside it: no manoeuvre
+    stands 20 dB above that motion, and the response between manoeuvres is not on the opposite side of the
+    airframe's (the loop's phase is past 90 deg where it is coherent). The rate leading the rudder between the
+    manoeuvres says it is a loop (background.LeadTest); the same flight open loop says nothing of the kind
+    (issue 22)."""
     data = raw_config()
     data["channels"] = {"yaw": data["channels"]["yaw"]}
     config = config_from(data, "yaw_loop.yaml")
-    options = dict(excitation="chirp", turbulence_rms_rad_s=0.06, sweeps_per_channel=1, sweep_duration_s=100.0,
-                   quiet_s=11.0, noise=0.8)
+    options = dict(
+        excitation="chirp",
+        turbulence_rms_rad_s=0.06,
+        sweeps_per_channel=1,
+        sweep_duration_s=100.0,
+        quiet_s=11.0,
+        noise=0.8,
+    )
     ch = validate(config, simulate_flight(config, {}, with_options(closed_loop_gain_margin_db=9.6, **options),
                                           seed=212670877)).channels["yaw"]
     assert ch.message.startswith("no sweep found") and "stands 20 dB" in ch.message, ch.message
     assert any("the rate leads" in w and "feedback loop" in w for w in ch.warnings), ch.warnings
-    open_loop = validate(config, simulate_flight(config, {}, with_options(**options), seed=212670877)).channels["yaw"]
+    open_loop = validate(
+        config, simulate_flight(config, {}, with_options(**options), seed=212670877)
+    ).channels["yaw"]
     assert not any("feedback" in w for w in open_loop.warnings), open_loop.warnings
 
 
-@pytest.mark.parametrize("effect", [{"type": "zero_order_hold", "rate_hz": 20.0}, {"type": "rate_limit", "rad_s": 1.0}])
+@pytest.mark.parametrize(
+    "effect", [{"type": "zero_order_hold", "rate_hz": 20.0}, {"type": "rate_limit", "rad_s": 1.0}]
+)
 def test_a_sampled_effect_in_a_simulated_closed_loop_is_refused_in_one_line(effect):
     """The discretised loop has no surface samples to hold or rate-limit: refused, never silently dropped."""
     with pytest.raises(ConfigError) as err:

@@ -1,4 +1,5 @@
-"""The package builds with colcon (ament_python) and installs both console scripts where ``ros2 run`` looks."""
+"""The package builds with colcon (ament_python) and installs both console scripts where ``ros2 run``
+looks."""
 from __future__ import annotations
 
 import os
@@ -62,8 +63,9 @@ def test_colcon_build_installs_console_scripts_launch_and_params(built):
     assert (share / "launch" / "validator.launch.py").is_file()
     assert (share / "config" / "validator.params.yaml").is_file()
     assert (share / "package.xml").is_file()
-    assert (ws / "install" / "share" / "ament_index" / "resource_index" / "packages" / "gap_validation").exists() \
-        or (share.parent / "ament_index" / "resource_index" / "packages" / "gap_validation").exists()
+    assert (
+        ws / "install" / "share" / "ament_index" / "resource_index" / "packages" / "gap_validation"
+    ).exists() or (share.parent / "ament_index" / "resource_index" / "packages" / "gap_validation").exists()
 
 
 def test_installed_validator_node_runs_and_rejects_a_missing_config(built, tmp_path):

@@ -1,11 +1,11 @@
-"""Config schema: the DESIGN.md format parses; every mistake is one ConfigError line naming file, key, value."""
+"""Config schema: the DESIGN.md format parses; every mistake is one ConfigError line naming file, key,
+value."""
 import copy
 
 import numpy as np
 import pytest
 
-from gap_validation.core.config import dump_config, load_config
-from gap_validation.core.config import parse_config
+from gap_validation.core.config import dump_config, load_config, parse_config
 from gap_validation.core.errors import ConfigError
 
 BASE = {
@@ -38,7 +38,8 @@ def test_design_example_parses_with_defaults():
     assert ch.input.topic == "/control_surfaces" and ch.input.field == "position[elevator]"
     assert ch.output.scale == 1.0 and ch.coherence_threshold == 0.6
     w = ch.frequencies.values()
-    # no grid configured: 0.3-100 rad/s at 20 per decade, trimmed later to the band the flight excites (issue 12)
+    # no grid configured: 0.3-100 rad/s at 20 per decade, trimmed later to the band the flight excites (issue
+    # 12)
     assert not ch.frequencies.configured and np.isclose(w[0], 0.3) and np.isclose(w[-1], 100.0)
     assert w.size == 51 and np.all(np.diff(np.log(w)) > 0)
     assert ch.model.delay_s == pytest.approx(0.05)
@@ -74,7 +75,9 @@ def test_load_and_dump_round_trip(tmp_path):
     cfg = load_config(path)
     assert cfg.source == str(path)
     out = tmp_path / "cfg2.yaml"
-    dump_config(cfg.with_channel_effects("pitch", [{"type": "first_order_lag", "bandwidth_rad_s": 37.7}]), out)
+    dump_config(
+        cfg.with_channel_effects("pitch", [{"type": "first_order_lag", "bandwidth_rad_s": 37.7}]), out
+    )
     effects = load_config(out).channels["pitch"].model.effects
     assert [e["type"] for e in effects] == ["time_delay", "first_order_lag"]
 
@@ -96,17 +99,31 @@ def test_bundled_configs_parse():
         assert "pitch" in load_config(f"config/{name}.yaml").channels
 
 
-# -- MIMO channels and controllers (issue 14) ------------------------------------------------------------------
+# -- MIMO channels and controllers (issue 14)
+# ------------------------------------------------------------------
 
 LATERAL = {
-    "inputs": [{"topic": "/control_surfaces", "field": "position[aileron]"},
-               {"topic": "/control_surfaces", "field": "position[rudder]"}],
-    "outputs": [{"topic": "/imu", "field": "angular_velocity.x"}, {"topic": "/imu", "field": "angular_velocity.z"}],
-    "model": {"state_space": {"A": [[-0.87, 0.90, -16.8], [-2.76, -16.1, 3.37], [1.71, 0.51, -2.78]],
-                              "B": [[0.0, 5.3], [156.5, -5.0], [-11.5, -82.0]],
-                              "C": [[0, 1, 0], [0, 0, 1]]}},
-    "controller": {"transfer_matrix": [[{"numerator": [0.05], "denominator": [1.0]}, 0.0],
-                                       [0.0, {"numerator": [0.1, 0.0], "denominator": [1.0, 1.0]}]]},
+    "inputs": [
+        {"topic": "/control_surfaces", "field": "position[aileron]"},
+        {"topic": "/control_surfaces", "field": "position[rudder]"},
+    ],
+    "outputs": [
+        {"topic": "/imu", "field": "angular_velocity.x"},
+        {"topic": "/imu", "field": "angular_velocity.z"},
+    ],
+    "model": {
+        "state_space": {
+            "A": [[-0.87, 0.90, -16.8], [-2.76, -16.1, 3.37], [1.71, 0.51, -2.78]],
+            "B": [[0.0, 5.3], [156.5, -5.0], [-11.5, -82.0]],
+            "C": [[0, 1, 0], [0, 0, 1]],
+        }
+    },
+    "controller": {
+        "transfer_matrix": [
+            [{"numerator": [0.05], "denominator": [1.0]}, 0.0],
+            [0.0, {"numerator": [0.1, 0.0], "denominator": [1.0, 1.0]}],
+        ]
+    },
 }
 
 
@@ -122,7 +139,10 @@ def test_mimo_channel_and_controllers_parse():
     cfg = parse_config(mimo_config(), "cfg.yaml")
     lateral, pitch = cfg.channels["lateral"], cfg.channels["pitch"]
     assert lateral.is_mimo and not pitch.is_mimo
-    assert lateral.input is None and [s.field for s in lateral.inputs] == ["position[aileron]", "position[rudder]"]
+    assert lateral.input is None and [s.field for s in lateral.inputs] == [
+        "position[aileron]",
+        "position[rudder]",
+    ]
     assert lateral.model.shape == (2, 2) and lateral.controller.shape == (2, 2)
     assert pitch.controller.freqresp([1.0])[0] == pytest.approx(0.2)
     assert lateral.controller_spec == LATERAL["controller"] and lateral.model_spec == LATERAL["model"]
@@ -150,26 +170,48 @@ def test_flight_data_path_accepts_mimo_channels(tmp_path):
     assert again.channels["lateral"].model.shape == (2, 2)
 
 
-@pytest.mark.parametrize("changes, needle", [
-    ({"input": {"topic": "/a", "field": "x"}}, "channels.lateral.input: give input/output (SISO) or inputs/outputs"),
-    ({"outputs": KeyError}, "channels.lateral.outputs: missing"),
-    ({"inputs": []}, "channels.lateral.inputs: expected a non-empty list of signals"),
-    ({"inputs": {"topic": "/a", "field": "x"}}, "channels.lateral.inputs: expected a non-empty list"),
-    ({"inputs": [{"topic": "/a", "field": "x"}, {"topic": "/a", "field": "x"}]},
-     "channels.lateral.inputs[1]: the same signal as channels.lateral.inputs[0] (/a x)"),
-    ({"outputs": [{"topic": "/imu", "field": 3}, {"topic": "/imu", "field": "y"}]}, "channels.lateral.outputs[0].field"),
-    ({"model": {"state_space": dict(LATERAL["model"]["state_space"], B=[[0.0], [156.5], [-11.5]])}},
-     "cfg.yaml: channels.lateral.model.state_space.B: expected 2 columns (one per entry of channels.lateral.inputs),"
-     " got shape 3x1"),
-    ({"model": {"state_space": dict(LATERAL["model"]["state_space"], C=[[0, 1, 0]])}},
-     "channels.lateral.model.state_space.C: expected 2 rows (one per entry of channels.lateral.outputs), got shape 1x3"),
-    ({"model": {"numerator": [1.0], "denominator": [1.0, 1.0]}},
-     "channels.lateral.model.numerator: unknown key for a MIMO model"),
-    ({"controller": {"state_space": {"D": [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]}}},
-     "channels.lateral.controller.state_space.D: expected 2 columns (one per entry of channels.lateral.outputs "
-     "(the controller reads them)), got shape 2x3"),
-    ({"controller": {"numerator": [1.0], "denominator": [1.0]}}, "channels.lateral.controller.numerator"),
-])
+@pytest.mark.parametrize(
+    "changes, needle",
+    [
+        (
+            {"input": {"topic": "/a", "field": "x"}},
+            "channels.lateral.input: give input/output (SISO) or inputs/outputs",
+        ),
+        ({"outputs": KeyError}, "channels.lateral.outputs: missing"),
+        ({"inputs": []}, "channels.lateral.inputs: expected a non-empty list of signals"),
+        ({"inputs": {"topic": "/a", "field": "x"}}, "channels.lateral.inputs: expected a non-empty list"),
+        (
+            {"inputs": [{"topic": "/a", "field": "x"}, {"topic": "/a", "field": "x"}]},
+            "channels.lateral.inputs[1]: the same signal as channels.lateral.inputs[0] (/a x)",
+        ),
+        (
+            {"outputs": [{"topic": "/imu", "field": 3}, {"topic": "/imu", "field": "y"}]},
+            "channels.lateral.outputs[0].field",
+        ),
+        (
+            {"model": {"state_space": dict(LATERAL["model"]["state_space"], B=[[0.0], [156.5], [-11.5]])}},
+            "cfg.yaml: channels.lateral.model.state_space.B: expected 2 columns (one per entry of "
+            "channels.lateral.inputs),"
+            " got shape 3x1",
+        ),
+        (
+            {"model": {"state_space": dict(LATERAL["model"]["state_space"], C=[[0, 1, 0]])}},
+            "channels.lateral.model.state_space.C: expected 2 rows (one per entry of "
+            "channels.lateral.outputs), got shape 1x3",
+        ),
+        (
+            {"model": {"numerator": [1.0], "denominator": [1.0, 1.0]}},
+            "channels.lateral.model.numerator: unknown key for a MIMO model",
+        ),
+        (
+            {"controller": {"state_space": {"D": [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]}}},
+            "channels.lateral.controller.state_space.D: expected 2 columns (one per entry of "
+            "channels.lateral.outputs "
+            "(the controller reads them)), got shape 2x3",
+        ),
+        ({"controller": {"numerator": [1.0], "denominator": [1.0]}}, "channels.lateral.controller.numerator"),
+    ],
+)
 def test_mimo_errors_name_file_key_and_value(changes, needle):
     data = mimo_config()
     for key, value in changes.items():
@@ -199,15 +241,24 @@ def test_an_airspeed_stream_with_the_trim_it_scales_to():
     assert [s for s, _ in ch.extra_streams()] == ["airspeed"] and ch.signal("airspeed") is ch.airspeed
 
 
-@pytest.mark.parametrize("value,needle", [
-    ({"topic": "/airspeed", "field": "data"}, "channels.pitch.airspeed.trim_m_s: missing"),
-    ({"topic": "/airspeed", "field": "data", "trim_m_s": 0}, "channels.pitch.airspeed.trim_m_s"),
-    ({"topic": "/airspeed", "field": "data", "trim_m_s": "fast"}, "channels.pitch.airspeed.trim_m_s"),
-    ({"topic": "/airspeed", "field": "data", "trim_m_s": 50, "frame": "flu"}, "channels.pitch.airspeed.frame"),
-    ({"topic": "/airspeed", "field": "data", "trim_m_s": 50, "units": "kt"}, "channels.pitch.airspeed.units: unknown"),
-    ({"field": "data", "trim_m_s": 50}, "channels.pitch.airspeed.topic: missing"),
-    (51.4, "channels.pitch.airspeed: expected a mapping"),
-])
+@pytest.mark.parametrize(
+    "value,needle",
+    [
+        ({"topic": "/airspeed", "field": "data"}, "channels.pitch.airspeed.trim_m_s: missing"),
+        ({"topic": "/airspeed", "field": "data", "trim_m_s": 0}, "channels.pitch.airspeed.trim_m_s"),
+        ({"topic": "/airspeed", "field": "data", "trim_m_s": "fast"}, "channels.pitch.airspeed.trim_m_s"),
+        (
+            {"topic": "/airspeed", "field": "data", "trim_m_s": 50, "frame": "flu"},
+            "channels.pitch.airspeed.frame",
+        ),
+        (
+            {"topic": "/airspeed", "field": "data", "trim_m_s": 50, "units": "kt"},
+            "channels.pitch.airspeed.units: unknown",
+        ),
+        ({"field": "data", "trim_m_s": 50}, "channels.pitch.airspeed.topic: missing"),
+        (51.4, "channels.pitch.airspeed: expected a mapping"),
+    ],
+)
 def test_airspeed_errors_name_the_key(value, needle):
     with pytest.raises(ConfigError) as err:
         parse_config(with_change(("channels", "pitch", "airspeed"), value), "cfg.yaml")

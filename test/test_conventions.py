@@ -1,7 +1,7 @@
-"""Issue 23: the mistakes every user makes -- a sign, units, the body frame, a clock -- named as such (never as
-physics), with the fix in the config; on flights of our simulator (which flies each mistake: ``--flip``,
-``--degrees``, ``--imu-frame flu``, ``--stamp-offset``), of the second simulator (its nominal config rewritten) and
-a NASA-style short run; a clean flight names none."""
+"""Issue 23: the mistakes every user makes -- a sign, units, the body frame, a clock -- named as such (never
+as physics), with the fix in the config; on flights of our simulator (which flies each mistake: ``--flip``,
+``--degrees``, ``--imu-frame flu``, ``--stamp-offset``), of the second simulator (its nominal config
+rewritten) and a NASA-style short run; a clean flight names none."""
 import copy
 import json
 import sys
@@ -11,8 +11,7 @@ import numpy as np
 import pytest
 
 from gap_validation.cli.main import main
-from gap_validation.core.config import load_config
-from gap_validation.core.config import parse_config
+from gap_validation.core.config import load_config, parse_config
 from gap_validation.core.conventions import DEGREES, Convention, candidates, fit_clock
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.simulation import FlightOptions, simulate_flight
@@ -43,8 +42,9 @@ def config():
     (dict(stamp_offsets=(("/control_surfaces", 0.04),)), {"roll": "clock_offset", "pitch": "clock_offset",
                                                           "yaw": "clock_offset"}, "input"),
 ])
-def test_each_mistake_is_named_with_its_kind_and_stream_and_the_fix_brings_epsilon_back(config, mistake, kinds,
-                                                                                          stream):
+def test_each_mistake_is_named_with_its_kind_and_stream_and_the_fix_brings_epsilon_back(
+    config, mistake, kinds, stream
+):
     clean = _validate(config, simulate_flight(config, {}, FlightOptions(**CARD), seed=5))
     flown = simulate_flight(config, {}, FlightOptions(**CARD, **mistake), seed=5)
     result = _validate(config, flown)
@@ -71,17 +71,29 @@ def test_each_mistake_is_named_with_its_kind_and_stream_and_the_fix_brings_epsil
 def test_a_clean_flight_names_no_convention(config):
     result = _validate(config, simulate_flight(config, {}, FlightOptions(**CARD), seed=6))
     assert all(not ch.conventions for ch in result.channels.values())
-    assert all(json.loads(json.dumps(ch.to_json_dict()))["conventions"] == [] for ch in result.channels.values())
+    assert all(
+        json.loads(json.dumps(ch.to_json_dict()))["conventions"] == [] for ch in result.channels.values()
+    )
 
 
 def test_a_nasa_style_short_run_with_its_elevator_reversed_is_a_sign(config):
     """1 s of trim, one 3-2-1-1, 8 s at 50 Hz, the elevator logged with the opposite sign."""
     pitch = type(config)(channels={"pitch": config.channels["pitch"]}, source=config.source, raw=config.raw)
-    options = FlightOptions(excitation="3211", imu_rate_hz=50.0, surface_rate_hz=50.0, trim_s=1.0,
-                            sweeps_per_channel=1, multistep_unit_s=0.5, duration_s=8.0, flips=(("pitch", "input"),))
+    options = FlightOptions(
+        excitation="3211",
+        imu_rate_hz=50.0,
+        surface_rate_hz=50.0,
+        trim_s=1.0,
+        sweeps_per_channel=1,
+        multistep_unit_s=0.5,
+        duration_s=8.0,
+        flips=(("pitch", "input"),),
+    )
     ch = _validate(pitch, simulate_flight(pitch, {}, options, seed=2)).channels["pitch"]
     assert [c.kind for c in ch.conventions] == ["sign"], ch.message
-    assert ch.conventions[0].changes == [{"channel": "pitch", "stream": "input", "key": "scale", "value": -1.0}]
+    assert ch.conventions[0].changes == [
+        {"channel": "pitch", "stream": "input", "key": "scale", "value": -1.0}
+    ]
 
 
 def test_convention_factors_and_the_clock_fit():
@@ -90,9 +102,16 @@ def test_convention_factors_and_the_clock_fit():
     assert {round(10.0 ** k, 9) for k in (-3, -2, -1, 1, 2, 3)} <= factors
     w = np.geomspace(1.0, 40.0, 30)
     assert fit_clock(w, np.exp(1j * w * 0.037), np.ones(w.size)) == pytest.approx(0.037, abs=5e-4)
-    back = Convention.from_json_dict(Convention("units", factor=0.0174533, stream="input", fix="f", sentence="s",
-                                                changes=[{"channel": "a", "stream": "input", "key": "scale",
-                                                          "value": 0.0174533}]).to_json_dict())
+    back = Convention.from_json_dict(
+        Convention(
+            "units",
+            factor=0.0174533,
+            stream="input",
+            fix="f",
+            sentence="s",
+            changes=[{"channel": "a", "stream": "input", "key": "scale", "value": 0.0174533}],
+        ).to_json_dict()
+    )
     assert back.factor == pytest.approx(0.0174533) and back.changes[0]["key"] == "scale"
 
 
@@ -103,8 +122,11 @@ def test_stream_keys_offset_time_offset_and_frame_are_applied_and_checked(config
     spec = parse_config(raw, "x").channels["pitch"]
     assert spec.input.value(np.array([2000.0])) == pytest.approx([0.35])
     assert spec.output.gain == -1.0 and spec.input.time_offset_s == -0.02
-    for key, value, needle in (("frame", "ned", "frame"), ("offset", "x", "offset"), ("time_offset_s", float("nan"),
-                                                                                        "time_offset_s")):
+    for key, value, needle in (
+        ("frame", "ned", "frame"),
+        ("offset", "x", "offset"),
+        ("time_offset_s", float("nan"), "time_offset_s"),
+    ):
         bad = copy.deepcopy(config.raw)
         bad["channels"]["roll"]["output" if key == "frame" else "input"][key] = value
         with pytest.raises(ConfigError, match=needle):
@@ -117,8 +139,26 @@ def test_stream_keys_offset_time_offset_and_frame_are_applied_and_checked(config
 
 def test_simulate_flies_the_mistakes_and_refuses_bad_ones_in_one_line(tmp_path, capsys):
     out = tmp_path / "flight"
-    assert main(["simulate", "--config", str(CONFIG), "--out", str(out), "--sweeps", "1", "--sweep-duration", "30",
-                 "--imu-frame", "flu", "--seed", "1"]) == 0
+    assert (
+        main(
+            [
+                "simulate",
+                "--config",
+                str(CONFIG),
+                "--out",
+                str(out),
+                "--sweeps",
+                "1",
+                "--sweep-duration",
+                "30",
+                "--imu-frame",
+                "flu",
+                "--seed",
+                "1",
+            ]
+        )
+        == 0
+    )
     assert main(["replay", str(out), "--config", str(CONFIG), "--no-history", "--no-progress",
                  "--json", str(tmp_path / "r.json")]) == 0
     data = json.loads((tmp_path / "r.json").read_text())
@@ -135,12 +175,15 @@ def test_simulate_flies_the_mistakes_and_refuses_bad_ones_in_one_line(tmp_path, 
 SHARED = ROOT.parent / "shared" / "flights"
 
 
-@pytest.mark.skipif(not (SHARED / "flightgen.py").exists(), reason="../shared/flights is not beside the checkout")
+@pytest.mark.skipif(
+    not (SHARED / "flightgen.py").exists(), reason="../shared/flights is not beside the checkout"
+)
 def test_the_second_simulators_clean_flight_against_configs_with_each_mistake(tmp_path):
     """The second simulator's clean case, its nominal config rewritten with each mistake (the config now wrong
     where the flight is right): named with the right kind and stream, nothing physical named."""
     sys.path.insert(0, str(ROOT / "benchmarks"))
     import second_simulator as bench
+
     from gap_validation.bag.replay import replay
 
     cases = bench.load_cases()
@@ -189,4 +232,7 @@ def test_the_second_simulators_clean_flight_against_configs_with_each_mistake(tm
         fixed = run(change, [fix for ch in channels.values() for c in ch.conventions for fix in c.changes])
         for name, ch in fixed.items():
             assert not ch.conventions and ch.limited_by != "model", (change.__name__, name, ch.message)
-            assert ch.epsilon == pytest.approx(clean[name].epsilon, rel=0.05, abs=0.01), (change.__name__, name)
+            assert ch.epsilon == pytest.approx(clean[name].epsilon, rel=0.05, abs=0.01), (
+                change.__name__,
+                name,
+            )

@@ -1,8 +1,8 @@
 """The one decoding step (gap_validation.messages.decoding) that replay and the node share."""
 import numpy as np
 import pytest
-
 from _messages import TS, FakeValidator, imu, joints, make_config
+
 from gap_validation.core.errors import DataError
 from gap_validation.messages.cdr import Records
 from gap_validation.messages.decoding import VERIFY_MESSAGES, TopicDecoder, Undecodable, fast_values_agree
@@ -99,7 +99,8 @@ def test_batches_are_read_once_the_record_decoder_is_trusted_and_checked_too():
     calls = []
     _, step = _decoder(lambda raw: calls.append(1) or TS.deserialize_cdr(raw, IMU))
     stamps, values, fast = step.decode_batch(_records(5))
-    assert not fast.any() and calls == []                 # not trusted yet: every record goes through decode()
+    # not trusted yet: every record goes through decode()
+    assert not fast.any() and calls == []
     for k in range(VERIFY_MESSAGES):
         step.decode(_raw(imu(y=0.01 * k, sec=k + 1)))
     stamps, values, fast = step.decode_batch(_records(20, start=VERIFY_MESSAGES))
@@ -116,7 +117,8 @@ def test_a_disagreeing_batch_decoder_is_dropped_and_records_go_one_by_one():
     def deserialize(raw):
         msg = TS.deserialize_cdr(raw, IMU)
         count["n"] += 1
-        if count["n"] > VERIFY_MESSAGES:                  # the record decoder passed; the batch decoder will not
+        # the record decoder passed; the batch decoder will not
+        if count["n"] > VERIFY_MESSAGES:
             msg.angular_velocity.y += 1.0
         return msg
 
@@ -130,8 +132,8 @@ def test_a_disagreeing_batch_decoder_is_dropped_and_records_go_one_by_one():
 
 
 def test_replay_and_node_use_this_step():
-    """One decoding step: both front ends build TopicDecoder (the node in its topics component), neither decodes
-    fields on its own."""
+    """One decoding step: both front ends build TopicDecoder (the node in its topics component), neither
+    decodes fields on its own."""
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[1] / "gap_validation"

@@ -27,24 +27,46 @@ FORBIDDEN_PACKAGES = {
 
 #: Modules -> third-party libraries that importing them must not import.
 FORBIDDEN_LIBRARIES = [
-    (["gap_validation.core." + p.stem for p in sorted((PACKAGE / "core").glob("*.py"))],
-     ("rclpy", "rosbags", "matplotlib", "yaml")),
-    (["gap_validation.messages." + p.stem for p in sorted((PACKAGE / "messages").glob("*.py"))],
-     ("rclpy", "rosbags", "matplotlib", "yaml")),
-    (["gap_validation.ros.status", "gap_validation.ros.stamp_gaps", "gap_validation.ros.parameters",
-      "gap_validation.ros.diagnosis_worker"], ("rclpy", "rosbags", "matplotlib")),
-    (["gap_validation.bag." + p.stem for p in sorted((PACKAGE / "bag").glob("*.py"))], ("rclpy", "matplotlib")),
-    (["gap_validation.logs." + p.stem for p in sorted((PACKAGE / "logs").glob("*.py"))],
-     ("rclpy", "rosbags", "matplotlib")),
-    (["gap_validation.report", "gap_validation.report.terminal", "gap_validation.report.html"],
-     ("rclpy", "rosbags", "matplotlib")),
-    (["gap_validation.campaign." + p.stem for p in sorted((PACKAGE / "campaign").glob("*.py"))]
-     + ["gap_validation.cli.campaign"], ("rclpy", "matplotlib", "distributed")),
+    (
+        ["gap_validation.core." + p.stem for p in sorted((PACKAGE / "core").glob("*.py"))],
+        ("rclpy", "rosbags", "matplotlib", "yaml"),
+    ),
+    (
+        ["gap_validation.messages." + p.stem for p in sorted((PACKAGE / "messages").glob("*.py"))],
+        ("rclpy", "rosbags", "matplotlib", "yaml"),
+    ),
+    (
+        [
+            "gap_validation.ros.status",
+            "gap_validation.ros.stamp_gaps",
+            "gap_validation.ros.parameters",
+            "gap_validation.ros.diagnosis_worker",
+        ],
+        ("rclpy", "rosbags", "matplotlib"),
+    ),
+    (
+        ["gap_validation.bag." + p.stem for p in sorted((PACKAGE / "bag").glob("*.py"))],
+        ("rclpy", "matplotlib"),
+    ),
+    (
+        ["gap_validation.logs." + p.stem for p in sorted((PACKAGE / "logs").glob("*.py"))],
+        ("rclpy", "rosbags", "matplotlib"),
+    ),
+    (
+        ["gap_validation.report", "gap_validation.report.terminal", "gap_validation.report.html"],
+        ("rclpy", "rosbags", "matplotlib"),
+    ),
+    (
+        ["gap_validation.campaign." + p.stem for p in sorted((PACKAGE / "campaign").glob("*.py"))]
+        + ["gap_validation.cli.campaign"],
+        ("rclpy", "matplotlib", "distributed"),
+    ),
 ]
 
 
 def _imported(path: Path) -> set[str]:
-    """The gap_validation subpackages or top-level modules a file imports (module level or inside functions)."""
+    """The gap_validation subpackages or top-level modules a file imports (module level or inside
+    functions)."""
     out = set()
     for node in ast.walk(ast.parse(path.read_text())):
         names = []
@@ -77,9 +99,19 @@ def _loaded_after_import(modules: list[str], libraries: tuple[str, ...]) -> str:
     return done.stdout.strip()
 
 
-@pytest.mark.parametrize("modules, libraries", FORBIDDEN_LIBRARIES,
-                         ids=["core", "messages", "ros-without-rclpy", "bag", "logs", "report-without-matplotlib",
-                              "campaign-without-dask-or-matplotlib"])
+@pytest.mark.parametrize(
+    "modules, libraries",
+    FORBIDDEN_LIBRARIES,
+    ids=[
+        "core",
+        "messages",
+        "ros-without-rclpy",
+        "bag",
+        "logs",
+        "report-without-matplotlib",
+        "campaign-without-dask-or-matplotlib",
+    ],
+)
 def test_layers_import_no_heavier_library(modules, libraries):
     assert _loaded_after_import(modules, libraries) == "[]"
 
@@ -100,5 +132,7 @@ NODE_MAX_LINES = 600
 def test_the_node_module_stays_thin():
     """node.py at most NODE_MAX_LINES lines; its topics and files are components (ros.topics, ros.jobs)."""
     lines = len((PACKAGE / "ros" / "node.py").read_text().splitlines())
-    assert lines <= NODE_MAX_LINES, (f"gap_validation/ros/node.py has {lines} lines (at most {NODE_MAX_LINES}): "
-                                     "move what is not rclpy wiring of the node into its own module")
+    assert lines <= NODE_MAX_LINES, (
+        f"gap_validation/ros/node.py has {lines} lines (at most {NODE_MAX_LINES}): "
+        "move what is not rclpy wiring of the node into its own module"
+    )

@@ -1,8 +1,8 @@
 """Diagnosis on synthetic measured responses: where the model fails and which effect is missing.
 
-Measured responses are ``truth x (1 + d)`` with ``d`` complex, each component of standard deviation ``e_r`` (the
-Bendat & Piersol random error of the coherence and averages given to the estimate), averaged over sweeps the way
-the estimator pools them. The truth is the model with a hidden effect in series.
+Measured responses are ``truth x (1 + d)`` with ``d`` complex, each component of standard deviation ``e_r``
+(the Bendat & Piersol random error of the coherence and averages given to the estimate), averaged over sweeps
+the way the estimator pools them. The truth is the model with a hidden effect in series.
 """
 import dataclasses
 import json
@@ -47,8 +47,18 @@ def estimate(response, coherence, n_averages, n_sweeps=1):
     n = np.broadcast_to(np.asarray(n_averages), response.shape).astype(np.int64)
     gxx = np.ones(response.shape)
     error = diagnosis.bendat_piersol_random_error(coherence, n)
-    return SpectralEstimate(W.copy(), gxx, np.abs(response) ** 2 / coherence, response * gxx, n, response,
-                            coherence, error, n_sweeps=n_sweeps, variance=2.0 * (error * np.abs(response)) ** 2)
+    return SpectralEstimate(
+        W.copy(),
+        gxx,
+        np.abs(response) ** 2 / coherence,
+        response * gxx,
+        n,
+        response,
+        coherence,
+        error,
+        n_sweeps=n_sweeps,
+        variance=2.0 * (error * np.abs(response)) ** 2,
+    )
 
 
 def flight(truth, rng, coherence=0.95, n_per_sweep=20, n_sweeps=3):
@@ -86,7 +96,8 @@ def test_cifer_weight_and_cost_pinned():
 
 
 def test_bendat_piersol_random_error():
-    # e_r = sqrt(1 - g^2) / (|g| sqrt(2 n)): coherence 0.8 with 10 averages -> 0.4472/(0.8944 * 4.4721) = 0.1118
+    # e_r = sqrt(1 - g^2) / (|g| sqrt(2 n)): coherence 0.8 with 10 averages -> 0.4472/(0.8944 * 4.4721) =
+    # 0.1118
     assert diagnosis.bendat_piersol_random_error(0.8, 10) == pytest.approx(0.11180, rel=1e-4)
     assert np.isinf(diagnosis.bendat_piersol_random_error(0.0, 10))
 
@@ -137,7 +148,8 @@ def test_fit_families_agree_with_the_effects_module():
     assert ("first_order_lag", "time_delay") in diagnosis.PAIRS and len(diagnosis.PAIRS) == 15
 
 
-# ------------------------------------------------------------------------------------------------ which effect
+# ------------------------------------------------------------------------------------------------ which
+# effect
 
 
 @pytest.mark.parametrize("seed", range(3))
@@ -158,10 +170,12 @@ def test_hidden_effect_is_named_with_its_parameters(name, seed):
     fixed = model.with_effects(top["effects"]).freqresp(W)
     assert np.max(metrics.epsilon_per_frequency(fixed, est.response)) == pytest.approx(top["epsilon"])
     assert np.max(metrics.chordal_distance(fixed, est.response)) == pytest.approx(top["nu_gap"])
-    assert top["explains"]             # the JSON's explains reaches the sentence (issue 15)
-    assert top["sentence"] == (f"missing: {describe_effect(top['effects'][0])}; adding it brings epsilon from "
-                               f"{top['epsilon_before']:.2f} to {top['epsilon']:.2f}, which explains the mismatch "
-                               f"(the rest is within the data's errors)")
+    assert top["explains"]  # the JSON's explains reaches the sentence (issue 15)
+    assert top["sentence"] == (
+        f"missing: {describe_effect(top['effects'][0])}; adding it brings epsilon from "
+        f"{top['epsilon_before']:.2f} to {top['epsilon']:.2f}, which explains the mismatch "
+        f"(the rest is within the data's errors)"
+    )
     json.dumps([c.to_json_dict() for c in found.candidates], allow_nan=False)
 
 
@@ -188,12 +202,15 @@ def test_servo_lag_and_delay_give_the_pair(seed):
 
 
 def test_a_sign_error_alone_is_a_convention_not_a_gain():
-    """Issue 23: the data the model with the opposite sign, within their errors: a sign convention, no physical
-    candidate (it was named a gain of -1); with a delay on top it is physics (a gain of -1 and the delay)."""
+    """Issue 23: the data the model with the opposite sign, within their errors: a sign convention, no
+    physical candidate (it was named a gain of -1); with a delay on top it is physics (a gain of -1 and the
+    delay)."""
     est, sweeps = measure(PITCH, [{"type": "gain", "factor": -1.0}], 1)
     found = analyse_channel(PITCH, est, sweeps, THRESHOLD)
     assert found.convention is not None and found.convention.kind == "sign" and found.candidates == []
-    est, sweeps = measure(PITCH, [{"type": "gain", "factor": -1.0}, {"type": "time_delay", "seconds": 0.03}], 1)
+    est, sweeps = measure(
+        PITCH, [{"type": "gain", "factor": -1.0}, {"type": "time_delay", "seconds": 0.03}], 1
+    )
     found = analyse_channel(PITCH, est, sweeps, THRESHOLD)
     assert found.convention is None
     top = found.candidates[0]
@@ -201,7 +218,8 @@ def test_a_sign_error_alone_is_a_convention_not_a_gain():
 
 
 def test_wrong_coefficients_give_a_parameter_error_with_a_replacement_model():
-    truth = LinearModel.from_tf([-160.0, -990.76], [1.0, 17.0, 340.0])      # short period 20 % faster, less damped
+    # short period 20 % faster, less damped
+    truth = LinearModel.from_tf([-160.0, -990.76], [1.0, 17.0, 340.0])
     est, sweeps = flight(truth.freqresp(W), np.random.default_rng(5))
     found = analyse_channel(PITCH, est, sweeps, THRESHOLD)
     top = found.candidates[0]
@@ -220,7 +238,8 @@ def test_current_effects_are_kept_and_the_missing_one_is_added():
     assert top["effect"] == "time_delay" and close(top["parameters"]["seconds"], 0.05)
 
 
-# ------------------------------------------------------------------------------------------------ no false alarms
+# ------------------------------------------------------------------------------------------------ no false
+# alarms
 
 
 @pytest.mark.parametrize("seed", range(24))
@@ -244,7 +263,8 @@ def test_small_effect_within_the_random_error_gives_no_candidate():
     assert analyse_channel(PITCH, est, sweeps, THRESHOLD).candidates == []
 
 
-# ------------------------------------------------------------------------------------------------ where it fails
+# ------------------------------------------------------------------------------------------------ where it
+# fails
 
 
 def test_hidden_effect_with_good_data_is_model_limited():
@@ -285,7 +305,11 @@ def test_low_coherence_is_excluded_and_too_few_averages_is_data_limited():
     assert np.all(flags[(W >= 3.0) & (n == 60)] == "ok")
     assert len(found.bands) == 1
     band = found.bands[0]
-    assert band["limited_by"] == "data" and band["min_averages"] == 4 and "too few degrees of freedom" in band["reason"]
+    assert (
+        band["limited_by"] == "data"
+        and band["min_averages"] == 4
+        and "too few degrees of freedom" in band["reason"]
+    )
     assert found.limited_by == "data" and found.candidates == []
     # the same mismatch with enough averages is model-limited; fit=False reports where, not why
     found = analyse_channel(PITCH, estimate(measured, coherence, 60), [], THRESHOLD, fit=False)
@@ -344,8 +368,8 @@ def _evidence(sigma=0.001):
 
 
 def test_improvement_must_remove_half_the_excess_chi_square():
-    # 40 confident points: chi-square 80 expected; a candidate fitting one noise spike removes little of a broad
-    # excess (random error under-reported), a real effect removes most of it
+    # 40 confident points: chi-square 80 expected; a candidate fitting one noise spike removes little of a
+    # broad excess (random error under-reported), a real effect removes most of it
     before = _fit(0.2, 80 + 400)
     assert not diagnosis._chi2_improvement(before, _fit(0.05, 80 + 300), 4, W.size)
     assert diagnosis._chi2_improvement(before, _fit(0.05, 80 + 150), 4, W.size)
@@ -369,11 +393,13 @@ def test_no_pair_when_a_single_effect_explains_it():
     assert not any("+" in c["effect"] for c in found.candidates)
 
 
-# ------------------------------------------------------------------------------------------------ bounds (issue 15)
+# ------------------------------------------------------------------------------------------------ bounds
+# (issue 15)
 
 
 def _on_a_bound(candidate) -> bool:
-    """Whether any fitted parameter of ``candidate`` sits on an edge of the registry's search box (W's band)."""
+    """Whether any fitted parameter of ``candidate`` sits on an edge of the registry's search box (W's
+    band)."""
     from gap_validation.core.effects import EFFECTS
     ctx = FitRange(float(W[0]), float(W[-1]))
     for effect in candidate["effects"]:
@@ -390,8 +416,9 @@ def _on_a_bound(candidate) -> bool:
 
 @pytest.mark.parametrize("seed", range(3))
 def test_gain_beyond_the_search_range_is_never_offered_and_the_widened_refit_is(seed):
-    """x15 (23.5 dB) is beyond the gain's +-20 dB: the gain fit sits on x10 and is not offered; the coefficient
-    refit lands on its x10 bound, is widened to x100 and then fits (numerator x15, denominator unchanged)."""
+    """x15 (23.5 dB) is beyond the gain's +-20 dB: the gain fit sits on x10 and is not offered; the
+    coefficient refit lands on its x10 bound, is widened to x100 and then fits (numerator x15, denominator
+    unchanged)."""
     est, sweeps = measure(PITCH, [{"type": "gain", "factor": 15.0}], seed)
     found = analyse_channel(PITCH, est, sweeps, THRESHOLD)
     assert [c["effect"] for c in found.candidates] == ["parameter_error"], found.message
@@ -399,13 +426,14 @@ def test_gain_beyond_the_search_range_is_never_offered_and_the_widened_refit_is(
     assert top["explains"] and "which explains the mismatch" in top["sentence"]
     np.testing.assert_allclose(top["model"]["numerator"], 15.0 * PITCH.num, rtol=0.05)
     np.testing.assert_allclose(top["model"]["denominator"], PITCH.den, rtol=0.05)
-    assert not found.beyond_range                       # an offered candidate explains it: nothing more to say
+    # an offered candidate explains it: nothing more to say
+    assert not found.beyond_range
 
 
 @pytest.mark.parametrize("seed", range(3))
 def test_sign_error_with_a_gain_beyond_the_range_is_reported_as_beyond_it(seed):
-    """The issue's "gain x-15.5": a negative gain on its -10 bound is no fix; the refit cannot flip a sign; the
-    message says what lay beyond the search range and nothing is offered."""
+    """The issue's "gain x-15.5": a negative gain on its -10 bound is no fix; the refit cannot flip a sign;
+    the message says what lay beyond the search range and nothing is offered."""
     est, sweeps = measure(PITCH, [{"type": "gain", "factor": -15.0}], seed)
     found = analyse_channel(PITCH, est, sweeps, THRESHOLD)
     assert found.limited_by == "model" and found.candidates == []
@@ -423,62 +451,90 @@ def test_gain_error_is_ranked_first_and_delay_is_named_not_a_refit(seed):
         found = analyse_channel(PITCH, *measure(PITCH, [hidden], seed), THRESHOLD)
         top = found.candidates[0]
         assert top["effect"] == name and top["explains"], found.message
-        assert close(next(iter(top["parameters"].values())), next(v for k, v in hidden.items() if k != "type"),
-                     0.05)
+        assert close(
+            next(iter(top["parameters"].values())), next(v for k, v in hidden.items() if k != "type"), 0.05
+        )
         assert not any(_on_a_bound(c) for c in found.candidates), found.candidates
         refits = [c for c in found.candidates if c["effect"] == "parameter_error"]
-        assert all(np.all(np.abs(np.log(np.abs(np.divide(c["model"]["numerator"], PITCH.num)))) < math.log(10) - 1e-3)
-                   for c in refits)
+        assert all(
+            np.all(
+                np.abs(np.log(np.abs(np.divide(c["model"]["numerator"], PITCH.num)))) < math.log(10) - 1e-3
+            )
+            for c in refits
+        )
     assert "time delay of 60 ms" in found.message
 
 
 def test_candidate_that_does_not_explain_says_so():
-    """A first-order model against a short, noisy run of a far-off truth: the refit needs more than x100 (beyond
-    the range, not offered); the lag that is offered leaves the data outside their errors and its sentence says so."""
+    """A first-order model against a short, noisy run of a far-off truth: the refit needs more than x100
+    (beyond the range, not offered); the lag that is offered leaves the data outside their errors and its
+    sentence says so."""
     truth = LinearModel.from_tf([-20.0], [1.0, 2.0])
-    est, sweeps = flight(truth.freqresp(W), np.random.default_rng(1), coherence=0.8, n_per_sweep=8, n_sweeps=1)
+    est, sweeps = flight(
+        truth.freqresp(W), np.random.default_rng(1), coherence=0.8, n_per_sweep=8, n_sweeps=1
+    )
     found = analyse_channel(PITCH, est, sweeps, THRESHOLD)
     assert found.candidates and not any(c["explains"] for c in found.candidates)
     for c in found.candidates:
-        assert ", but does not explain the mismatch (" in c["sentence"] and "noise scales left at" in c["sentence"]
+        assert (
+            ", but does not explain the mismatch (" in c["sentence"]
+            and "noise scales left at" in c["sentence"]
+        )
         assert c["effect"] != "parameter_error" and not _on_a_bound(c)
     assert any(b.startswith("parameter_error (") and "after widening the search to x100" in b
                for b in found.beyond_range), found.beyond_range
     assert found.candidates[0]["sentence"] in found.message
 
 
-# ------------------------------------------------------------------------------------------------ band edges, winding
+# ------------------------------------------------------------------------------------------------ band edges,
+# winding
 
 
 def test_unstable_truth_measured_above_its_pole_warns_at_the_band_edge():
-    """The issue's case: model 1/(s+1), aircraft 1/(s-1), measured over 3-40 rad/s. Over the band the nu-gap is
-    0.18 and epsilon 0.33 (margins of 6.0 dB / 38.9 deg would follow) but the true nu-gap is 1: both sups sit at
-    the lowest confident frequency, so the warning is given and the margins carry the caveat."""
+    """The issue's case: model 1/(s+1), aircraft 1/(s-1), measured over 3-40 rad/s. Over the band the nu-gap
+    is 0.18 and epsilon 0.33 (margins of 6.0 dB / 38.9 deg would follow) but the true nu-gap is 1: both sups
+    sit at the lowest confident frequency, so the warning is given and the margins carry the caveat."""
     w = np.geomspace(3.0, 40.0, 40)
     model, truth = LinearModel.from_tf([1.0], [1.0, 1.0]), LinearModel.from_tf([1.0], [1.0, -1.0])
     assert metrics.nugap(model, truth)[0] == 1.0
     rng = np.random.default_rng(0)
     e = diagnosis.bendat_piersol_random_error(np.full(w.shape, 0.95), 60)
-    measured = truth.freqresp(w) * (1.0 + e * (rng.standard_normal(w.size) + 1j * rng.standard_normal(w.size)))
+    measured = truth.freqresp(w) * (
+        1.0 + e * (rng.standard_normal(w.size) + 1j * rng.standard_normal(w.size))
+    )
     coherence = np.full(w.shape, 0.95)
     n = np.full(w.shape, 60)
     error = diagnosis.bendat_piersol_random_error(coherence, n)
-    est = SpectralEstimate(w, np.ones(w.shape), np.abs(measured) ** 2 / coherence, measured, n, measured, coherence,
-                           error, n_sweeps=3, variance=2.0 * (error * np.abs(measured)) ** 2)
+    est = SpectralEstimate(
+        w,
+        np.ones(w.shape),
+        np.abs(measured) ** 2 / coherence,
+        measured,
+        n,
+        measured,
+        coherence,
+        error,
+        n_sweeps=3,
+        variance=2.0 * (error * np.abs(measured)) ** 2,
+    )
     found = analyse_channel(model, est, [], THRESHOLD)
     nu, w_nu = metrics.nugap_frequency_data(w, model.freqresp(w), measured)
     eps, w_eps = metrics.epsilon_frequency_data(w, model.freqresp(w), measured)
-    assert nu == pytest.approx(0.18, abs=0.01) and eps == pytest.approx(0.33, abs=0.02) and w_nu == w_eps == 3.0
-    assert found.warnings[0] == ("epsilon and sup kappa (the nu-gap) peak at the lowest confident frequency "
-                                 "(3 rad/s), beyond the data's errors: the mismatch may continue outside the band; "
-                                 "the margins then do not hold")
+    assert (
+        nu == pytest.approx(0.18, abs=0.01) and eps == pytest.approx(0.33, abs=0.02) and w_nu == w_eps == 3.0
+    )
+    assert found.warnings[0] == (
+        "epsilon and sup kappa (the nu-gap) peak at the lowest confident frequency "
+        "(3 rad/s), beyond the data's errors: the mismatch may continue outside the band; "
+        "the margins then do not hold"
+    )
     assert "do not hold" in found.margins_caveat
 
 
 @pytest.mark.parametrize("seed", range(24))
 def test_clean_data_give_no_band_edge_warning(seed):
-    """Noise peaks at a band edge as often as anywhere (more: coherence falls there); within the errors it is no
-    evidence of a mismatch outside the band, and gives no warning."""
+    """Noise peaks at a band edge as often as anywhere (more: coherence falls there); within the errors it is
+    no evidence of a mismatch outside the band, and gives no warning."""
     model = ROLL if seed % 2 else PITCH
     coherence = np.where(np.arange(W.size) < 3, 0.7, 0.95)       # weakest at the low edge
     found = analyse_channel(model, *measure(model, [], seed, coherence=coherence), THRESHOLD)
@@ -489,27 +545,31 @@ def test_band_edge_warning_needs_the_sup_at_an_edge_beyond_the_errors():
     w = np.array([1.0, 2.0, 4.0, 8.0])
     confident = np.array([False, True, True, True])           # the lowest confident frequency is 2 rad/s
     eps = np.array([0.9, 0.3, 0.1, 0.1])
-    assert "at the lowest confident frequency (2 rad/s)" in diagnosis.band_edge_warning(w, eps, eps, np.full(4, 9.0),
-                                                                                          confident)
+    assert "at the lowest confident frequency (2 rad/s)" in diagnosis.band_edge_warning(
+        w, eps, eps, np.full(4, 9.0), confident
+    )
     assert diagnosis.band_edge_warning(w, eps, eps, np.array([9.0, 3.0, 9.0, 9.0]), confident) == ""   # noise
     middle = np.array([0.1, 0.1, 0.3, 0.1])
     assert diagnosis.band_edge_warning(w, middle, middle, np.full(4, 9.0), confident) == ""
     top = diagnosis.band_edge_warning(w, np.array([0.1, 0.1, 0.2, 0.3]), np.array([0.1, 0.3, 0.1, 0.2]),
                                       np.full(4, 9.0), confident)
-    assert top.startswith("epsilon peaks at the highest confident frequency (8 rad/s); sup kappa (the nu-gap) "
-                          "peaks at the lowest")
+    assert top.startswith(
+        "epsilon peaks at the highest confident frequency (8 rad/s); sup kappa (the nu-gap) "
+        "peaks at the lowest"
+    )
 
 
 def test_sign_error_fails_the_winding_condition_against_the_diagnosed_model():
-    """A sign error with a delay (physics: a gain of -1 and the delay): the data-path nu-gap over 1-40 rad/s is below
-    1, but the model and the diagnosed model fail the exact winding-number condition: reported, and the margins carry
-    the caveat."""
+    """A sign error with a delay (physics: a gain of -1 and the delay): the data-path nu-gap over 1-40 rad/s
+    is below 1, but the model and the diagnosed model fail the exact winding-number condition: reported, and
+    the margins carry the caveat."""
     hidden = [{"type": "gain", "factor": -1.0}, {"type": "time_delay", "seconds": 0.03}]
     found = analyse_channel(PITCH, *measure(PITCH, hidden, 1), THRESHOLD)
     assert found.candidates[0]["effect"] == "gain+time_delay"
     winding = [w for w in found.warnings if "winding-number condition" in w]
-    assert len(winding) == 1 and winding[0].startswith("the model and the diagnosed model (gain+time_delay) fail the "
-                                                       "winding-number condition"), found.warnings
+    assert len(winding) == 1 and winding[0].startswith(
+        "the model and the diagnosed model (gain+time_delay) fail the winding-number condition"
+    ), found.warnings
     assert "the nu-gap between the model and the aircraft is 1" in winding[0]
     assert "winding-number condition" in found.margins_caveat
 
@@ -527,15 +587,21 @@ def _exact_estimate(w, response, error=0.01, coherence=0.99, dof=40.0):
     """An averaged estimate whose response is ``response`` with a relative random error ``error``."""
     from types import SimpleNamespace
 
-    return SimpleNamespace(w_rad_s=w, response=np.asarray(response, complex), coherence=np.full(w.size, coherence),
-                           n_averages=np.full(w.size, dof), random_error=np.full(w.size, error), coefficients=3,
-                           variance=2 * (error * np.abs(response)) ** 2)
+    return SimpleNamespace(
+        w_rad_s=w,
+        response=np.asarray(response, complex),
+        coherence=np.full(w.size, coherence),
+        n_averages=np.full(w.size, dof),
+        random_error=np.full(w.size, error),
+        coefficients=3,
+        variance=2 * (error * np.abs(response)) ** 2,
+    )
 
 
 def test_a_model_of_another_flight_condition_is_a_parameter_error_not_a_new_mode():
-    """Issue 22: the truth is the model's short period moved (5 -> 6.2 rad/s, damping 0.6 -> 0.45) and its gain
-    scaled (x1.3), as a linearisation at another speed: the diagnosis names parameter_error (the mode moved, said
-    in words), never a structural mode, delay or lag."""
+    """Issue 22: the truth is the model's short period moved (5 -> 6.2 rad/s, damping 0.6 -> 0.45) and its
+    gain scaled (x1.3), as a linearisation at another speed: the diagnosis names parameter_error (the mode
+    moved, said in words), never a structural mode, delay or lag."""
     w = np.geomspace(1.0, 40.0, 40)
     model = LinearModel([-100.0, -400.0], [1.0, 6.0, 25.0])
     truth = LinearModel([-130.0, -520.0 * 6.2 ** 2 / 25.0], [1.0, 2 * 0.45 * 6.2, 6.2 ** 2])
@@ -548,8 +614,8 @@ def test_a_model_of_another_flight_condition_is_a_parameter_error_not_a_new_mode
 
 
 def test_the_simplest_of_candidates_the_data_cannot_tell_apart_is_named_first():
-    """Issue 22: a 40 ms delay fits as well as lag pairs that approximate it over the band; the one-parameter delay
-    is named first (Schwarz's criterion), and a pair is never preferred for a little extra fit."""
+    """Issue 22: a 40 ms delay fits as well as lag pairs that approximate it over the band; the one-parameter
+    delay is named first (Schwarz's criterion), and a pair is never preferred for a little extra fit."""
     from gap_validation.core.diagnosis import information_criteria
 
     w = np.geomspace(1.0, 30.0, 40)
@@ -557,20 +623,24 @@ def test_the_simplest_of_candidates_the_data_cannot_tell_apart_is_named_first():
     truth = model.with_effects([{"type": "time_delay", "seconds": 0.04}])
     found = analyse_channel(model, _exact_estimate(w, truth.freqresp(w), error=0.02), [], 0.6)
     top = found.candidates[0]
-    assert top.effect == "time_delay" and top.parameters["seconds"] == pytest.approx(0.04, rel=0.05), found.message
+    assert top.effect == "time_delay" and top.parameters["seconds"] == pytest.approx(0.04, rel=0.05), (
+        found.message
+    )
     assert all(c.criterion >= top.criterion - 2.0 for c in found.candidates)
     # the criterion: chi-square over the overdispersion of the best fit, plus ln N per parameter
     crit = information_criteria([200.0, 160.0], [1, 3], 80)           # overdispersed: the best fit's 160 / 77
     assert crit[0] == pytest.approx(200.0 / (160.0 / 77.0) + np.log(80))
     assert crit[1] == pytest.approx(77.0 + 3 * np.log(80))
-    assert information_criteria([50.0], [2], 80)[0] == pytest.approx(50.0 + 2 * np.log(80))   # within the errors
+    # within the errors
+    assert information_criteria([50.0], [2], 80)[0] == pytest.approx(50.0 + 2 * np.log(80))
 
 
 def test_a_refit_that_moves_a_mode_beyond_a_condition_change_is_not_offered():
-    """``parameter_error`` is what a flight condition or a mis-estimated derivative moves (each mode near the band
-    within x3, damping within 0.5). The coefficient refit that won on the second simulator's rate-limited elevator
-    moved the pitch-rate zero 7.41 -> 34 rad/s: as the truth here, it is found, said beyond what a parameter error
-    moves, and not offered; a refit within the ranges still is (the short period 20 % faster, above)."""
+    """``parameter_error`` is what a flight condition or a mis-estimated derivative moves (each mode near the
+    band within x3, damping within 0.5). The coefficient refit that won on the second simulator's rate-limited
+    elevator moved the pitch-rate zero 7.41 -> 34 rad/s: as the truth here, it is found, said beyond what a
+    parameter error moves, and not offered; a refit within the ranges still is (the short period 20 % faster,
+    above)."""
     truth = LinearModel.from_tf([-49.36, -1691.2], [1.0, 16.175, 393.84])
     found = analyse_channel(PITCH, *flight(truth.freqresp(W), np.random.default_rng(3)), THRESHOLD)
     assert all(c["effect"] != "parameter_error" for c in found.candidates), found.message
@@ -578,7 +648,8 @@ def test_a_refit_that_moves_a_mode_beyond_a_condition_change_is_not_offered():
                for b in found.beyond_range), found.beyond_range
 
 
-# ------------------------------------------------------------------------------------------------ within the tolerance
+# ------------------------------------------------------------------------------------------------ within the
+# tolerance
 
 
 def _at_amplitude(sweeps, amplitude):
@@ -587,7 +658,8 @@ def _at_amplitude(sweeps, amplitude):
 
 def test_free_play_within_the_tolerance_is_a_constant_factor_read_as_free_play():
     # 0.015 rad of free play under 0.05 rad sweeps: Gelb & Vander Velde's N(0.3) = 0.920 at -10.2 deg at every
-    # frequency, epsilon about 0.1 < 0.15 but 15 noise scales: the model passes, the difference is said, not named
+    # frequency, epsilon about 0.1 < 0.15 but 15 noise scales: the model passes, the difference is said, not
+    # named
     n = backlash_df(0.3)
     est, sweeps = flight(PITCH.freqresp(W) * n, np.random.default_rng(31), coherence=0.97, n_per_sweep=30)
     found = analyse_channel(PITCH, est, _at_amplitude(sweeps, 0.05), THRESHOLD, channel="pitch")
@@ -598,7 +670,10 @@ def test_free_play_within_the_tolerance_is_a_constant_factor_read_as_free_play()
     assert factor.free_play_rad == pytest.approx(0.015, rel=0.1) and factor.amplitude == pytest.approx(0.05)
     assert factor.min_rad_s == pytest.approx(1.0) and factor.max_rad_s == pytest.approx(40.0)
     assert "within the tolerance, the data still resolve a constant factor" in found.message
-    assert "free play of 0.015 rad does at the flown amplitude 0.05" in found.message and "not named" in found.message
+    assert (
+        "free play of 0.015 rad does at the flown amplitude 0.05" in found.message
+        and "not named" in found.message
+    )
     assert "10 deg behind" in found.message and "Bode" in found.message
 
 
@@ -606,10 +681,16 @@ def test_a_gain_within_the_tolerance_is_not_said():
     # a real 0.93, resolved (7 noise scales) and constant: the few per cent every real model is off, not said
     est, sweeps = measure(PITCH, [{"type": "gain", "factor": 0.93}], 32, coherence=0.97, n_per_sweep=30)
     found = analyse_channel(PITCH, est, _at_amplitude(sweeps, 0.05), THRESHOLD)
-    assert found.limited_by == "none" and found.within_tolerance is None and "constant factor" not in found.message
-    # the same with a constant 5 deg lag added (not a free play's: its gain would be 0.97 at 5 deg): said, unread
-    est, sweeps = flight(PITCH.freqresp(W) * 0.93 * np.exp(-0.087j), np.random.default_rng(32), coherence=0.97,
-                         n_per_sweep=30)
+    assert (
+        found.limited_by == "none"
+        and found.within_tolerance is None
+        and "constant factor" not in found.message
+    )
+    # the same with a constant 5 deg lag added (not a free play's: its gain would be 0.97 at 5 deg): said,
+    # unread
+    est, sweeps = flight(
+        PITCH.freqresp(W) * 0.93 * np.exp(-0.087j), np.random.default_rng(32), coherence=0.97, n_per_sweep=30
+    )
     found = analyse_channel(PITCH, est, _at_amplitude(sweeps, 0.05), THRESHOLD)
     assert found.within_tolerance.gain == pytest.approx(0.93, abs=0.01)
     assert found.within_tolerance.phase_deg == pytest.approx(-5.0, abs=1.0)
@@ -618,7 +699,9 @@ def test_a_gain_within_the_tolerance_is_not_said():
 
 def test_what_no_constant_factor_explains_is_not_said():
     # a 5 ms delay: 11 deg at 40 rad/s (epsilon 0.1), resolved, but its phase grows with frequency
-    est, sweeps = measure(PITCH, [{"type": "time_delay", "seconds": 0.005}], 33, coherence=0.97, n_per_sweep=30)
+    est, sweeps = measure(
+        PITCH, [{"type": "time_delay", "seconds": 0.005}], 33, coherence=0.97, n_per_sweep=30
+    )
     found = analyse_channel(PITCH, est, sweeps, THRESHOLD)
     assert found.limited_by == "none" and found.within_tolerance is None
 

@@ -1,39 +1,67 @@
-"""End to end: simulated flights with a hidden effect, written as rosbag2 and replayed. The diagnosis names the
-effect nobody told it about; appending its ``effects`` to the config and replaying again halves epsilon (or
-better) and leaves nothing to diagnose. A clean flight gives no candidate. Heavy noise in one band of a flight
-whose model is the truth is data-limited there; the same config with a hidden effect is model-limited."""
+"""End to end: simulated flights with a hidden effect, written as rosbag2 and replayed. The diagnosis names
+the effect nobody told it about; appending its ``effects`` to the config and replaying again halves epsilon
+(or better) and leaves nothing to diagnose. A clean flight gives no candidate. Heavy noise in one band of a
+flight whose model is the truth is data-limited there; the same config with a hidden effect is
+model-limited."""
 from __future__ import annotations
 
-import pytest
-
 import numpy as np
-
+import pytest
 from _flights import SHORT, config_from, make_bag, raw_config, single_channel
-from gap_validation.history import append_history, format_trend, load_history
+
 from gap_validation.bag.replay import replay
+from gap_validation.history import append_history, format_trend, load_history
 
 pytestmark = pytest.mark.slow
 
 CASES = {
     "time_delay": ("pitch", [{"type": "time_delay", "seconds": 0.045}], {}),
     "first_order_lag": ("roll", [{"type": "first_order_lag", "bandwidth_rad_s": 15.0}], {}),
-    "second_order_lag": ("pitch", [{"type": "second_order_lag", "natural_frequency_rad_s": 25.0,
-                                    "damping": 0.5}], {}),
+    "second_order_lag": (
+        "pitch",
+        [{"type": "second_order_lag", "natural_frequency_rad_s": 25.0, "damping": 0.5}],
+        {},
+    ),
     "gain": ("roll", [{"type": "gain", "factor": 1.5}], {}),
-    "structural_mode": ("pitch", [{"type": "structural_mode", "frequency_rad_s": 22.0, "damping": 0.1,
-                                   "zero_frequency_rad_s": 17.0, "zero_damping": 0.06}], {}),
-    "first_order_lag+time_delay": ("pitch", [{"type": "first_order_lag", "bandwidth_rad_s": 37.7},
-                                             {"type": "time_delay", "seconds": 0.05}], {}),
+    "structural_mode": (
+        "pitch",
+        [
+            {
+                "type": "structural_mode",
+                "frequency_rad_s": 22.0,
+                "damping": 0.1,
+                "zero_frequency_rad_s": 17.0,
+                "zero_damping": 0.06,
+            }
+        ],
+        {},
+    ),
+    "first_order_lag+time_delay": (
+        "pitch",
+        [{"type": "first_order_lag", "bandwidth_rad_s": 37.7}, {"type": "time_delay", "seconds": 0.05}],
+        {},
+    ),
     # another seed, half the sample rates and twice the noise
-    "time_delay, slow rates, noisy": ("roll", [{"type": "time_delay", "seconds": 0.03}],
-                                      {"seed": 7, "imu_rate_hz": 50.0, "surface_rate_hz": 25.0, "noise": 2.0}),
+    "time_delay, slow rates, noisy": (
+        "roll",
+        [{"type": "time_delay", "seconds": 0.03}],
+        {"seed": 7, "imu_rate_hz": 50.0, "surface_rate_hz": 25.0, "noise": 2.0},
+    ),
     # the flight computer's own names: topics /fcu/servos and /fcu/imu_raw, joint elev_l; a fast IMU (200 Hz)
     # and 40 Hz servos, another seed
     "first_order_lag, custom topics and joints, other rates": (
-        "pitch", [{"type": "first_order_lag", "bandwidth_rad_s": 20.0}],
-        {"seed": 4, "imu_rate_hz": 200.0, "surface_rate_hz": 40.0,
-         "config": {"input": {"topic": "/fcu/servos", "field": "position[elev_l]"},
-                    "output": {"topic": "/fcu/imu_raw", "field": "angular_velocity.y"}}}),
+        "pitch",
+        [{"type": "first_order_lag", "bandwidth_rad_s": 20.0}],
+        {
+            "seed": 4,
+            "imu_rate_hz": 200.0,
+            "surface_rate_hz": 40.0,
+            "config": {
+                "input": {"topic": "/fcu/servos", "field": "position[elev_l]"},
+                "output": {"topic": "/fcu/imu_raw", "field": "angular_velocity.y"},
+            },
+        },
+    ),
 }
 
 
@@ -126,14 +154,14 @@ def test_history_follows_the_fix(tmp_path):
     assert after <= before / 2
 
 
-#: Band noise of the data-limited flights: 0.08 rad/s rms between 1.2 and 4 rad/s on the pitch rate (the
-#: pitch response there is about 4 rad/s per rad, the sweep 0.06 rad), where the short flight's windows give
-#: 8-13 averages. The median coherence there falls from about 0.97 to 0.75: the noisiest frequencies drop below
-#: 0.6 (excluded), the others keep enough coherence to count but a random error large enough to push epsilon(w)
-#: past 0.15 at some of them (with few degrees of freedom: "too few degrees of freedom"; with more: "the random error
-#: explains the mismatch", seed 8). Checked by hand on seeds 0-29: never a model-limited frequency, never a
-#: candidate; a data-limited band in 26 of 30 (in the other 4 every frequency where epsilon(w) passes 0.15 has
-#: coherence < 0.6: all excluded, and the channel says "none").
+#: Band noise of the data-limited flights: 0.08 rad/s rms between 1.2 and 4 rad/s on the pitch rate (the pitch
+#: response there is about 4 rad/s per rad, the sweep 0.06 rad), where the short flight's windows give 8-13
+#: averages. The median coherence there falls from about 0.97 to 0.75: the noisiest frequencies drop below 0.6
+#: (excluded), the others keep enough coherence to count but a random error large enough to push epsilon(w)
+#: past 0.15 at some of them (with few degrees of freedom: "too few degrees of freedom"; with more: "the
+#: random error explains the mismatch", seed 8). Checked by hand on seeds 0-29: never a model-limited
+#: frequency, never a candidate; a data-limited band in 26 of 30 (in the other 4 every frequency where
+#: epsilon(w) passes 0.15 has coherence < 0.6: all excluded, and the channel says "none").
 BAND_NOISE_RAD_S = (1.2, 4.0)
 BAND_NOISE_RMS_RAD_S = 0.08
 
@@ -164,7 +192,9 @@ def test_band_noise_is_data_limited_and_a_hidden_effect_model_limited(seed, tmp_
         assert low / 1.25 <= band["min_rad_s"] <= band["max_rad_s"] <= high * 1.25, band
         inside = (w >= band["min_rad_s"]) & (w <= band["max_rad_s"])
         assert np.all(flags[inside] == "data"), band
-        assert "too few degrees of freedom" in band["reason"] or "the random error explains" in band["reason"], band
+        assert (
+            "too few degrees of freedom" in band["reason"] or "the random error explains" in band["reason"]
+        ), band
     assert found.message.startswith("data-limited at "), found.message
     noisy_coherence = np.median(found.coherence[near])
 
@@ -180,10 +210,11 @@ def test_band_noise_is_data_limited_and_a_hidden_effect_model_limited(seed, tmp_
 
 
 def test_short_run_far_off_fits_are_beyond_the_search_range_not_fixes(tmp_path):
-    """issue 15 on a short simulated run (one 30 s sweep, as ``gap-validate simulate --sweeps 1 --sweep-duration 30
-    --seed 2``): a sign error with a x15 gain (main offered 'gain error x-15') is beyond the gain's +-20 dB search
-    range: nothing is offered and the message says what lay beyond; a 60 ms delay is named, and no fit sitting on a
-    bound (main offered a refit with the numerator at x0.1 and a mode with zeros at the band's edge) is offered."""
+    """issue 15 on a short simulated run (one 30 s sweep, as ``gap-validate simulate --sweeps 1
+    --sweep-duration 30 --seed 2``): a sign error with a x15 gain (main offered 'gain error x-15') is beyond
+    the gain's +-20 dB search range: nothing is offered and the message says what lay beyond; a 60 ms delay is
+    named, and no fit sitting on a bound (main offered a refit with the numerator at x0.1 and a mode with
+    zeros at the band's edge) is offered."""
     from test_diagnosis import _on_a_bound
 
     config = config_from(single_channel("pitch"))

@@ -1,12 +1,12 @@
-"""The README and docs/ as a reader meets them: every page is reachable from the README, every relative link and
-anchor resolves, the commands marked runnable run, and no ``--help`` shows reStructuredText markup.
+"""The README and docs/ as a reader meets them: every page is reachable from the README, every relative link
+and anchor resolves, the commands marked runnable run, and no ``--help`` shows reStructuredText markup.
 
-A block is runnable when the line before its opening fence is ``<!-- runnable -->`` (or ``<!-- runnable: output
--->``) and the fence's language is ``console``: each line starting with ``$ `` is one command, run in order in one
-temporary directory per block that holds links to the repository's ``config/`` and ``bags/``, with the
-interpreter's ``bin/`` first on ``PATH`` (the console scripts ``gap-validate`` and ``validator_node`` are there).
-Each must exit 0. With ``runnable: output`` every other non-empty line of the block (the output shown under a
-command) must also be a line of that command's standard output, spaces at the ends aside.
+A block is runnable when the line before its opening fence is ``<!-- runnable -->`` (or ``<!-- runnable:
+output -->``) and the fence's language is ``console``: each line starting with ``$ `` is one command, run in
+order in one temporary directory per block that holds links to the repository's ``config/`` and ``bags/``,
+with the interpreter's ``bin/`` first on ``PATH`` (the console scripts ``gap-validate`` and ``validator_node``
+are there). Each must exit 0. With ``runnable: output`` every other non-empty line of the block (the output
+shown under a command) must also be a line of that command's standard output, spaces at the ends aside.
 """
 from __future__ import annotations
 
@@ -43,7 +43,8 @@ def _prose_lines(text: str):
 
 
 def _slug(heading: str) -> str:
-    """GitHub's anchor of a heading: the rendered text lowercased, punctuation but - and _ dropped, spaces -> -."""
+    """GitHub's anchor of a heading: the rendered text lowercased, punctuation but - and _ dropped, spaces ->
+    -."""
     text = re.sub(r"\[([^\]]*)\]\([^)]*\)", r"\1", heading).replace("`", "").replace("*", "")
     text = re.sub(r"[^\w\- ]", "", text.strip().lower())
     return text.replace(" ", "-")
@@ -113,8 +114,10 @@ def _runnable_blocks():
             if not mark:
                 continue
             fence = lines[i + 1].strip() if i + 1 < len(lines) else ""
-            assert fence == "```console", \
-                f"{page.relative_to(ROOT)}:{i + 1}: a runnable mark must precede a ```console block, got {fence!r}"
+            assert fence == "```console", (
+                f"{page.relative_to(ROOT)}:{i + 1}: a runnable mark must precede a ```console block, got "
+                f"{fence!r}"
+            )
             commands: list[tuple[str, list[str]]] = []
             for body in lines[i + 2:]:
                 if body.strip() == "```":
@@ -157,7 +160,8 @@ def test_runnable_commands_of_the_docs_run(block_id, commands, check_output, tmp
 
 @pytest.mark.parametrize("command", [None, *(name.replace("_", "-") for name in COMMANDS)])
 def test_no_help_text_shows_restructuredtext_double_backticks(command, capsys):
-    """What argparse prints for ``--help`` is plain text: the module docstrings it shows carry no RST markup."""
+    """What argparse prints for ``--help`` is plain text: the module docstrings it shows carry no RST
+    markup."""
     with pytest.raises(SystemExit) as stop:
         main([command, "--help"] if command else ["--help"])
     assert stop.value.code == 0

@@ -1,8 +1,9 @@
 """Docstrings of the core, in the manner of python-control's ``control/tests/docstrings_test.py``.
 
-Every public function, class, method and property of :mod:`gap_validation.core` has a docstring; every function
-or method with parameters has a numpydoc ``Parameters`` section that names each of them (a class documents its
-constructor's parameters in its own docstring, under ``Parameters`` or, for a dataclass, ``Attributes``).
+Every public function, class, method and property of :mod:`gap_validation.core` has a docstring; every
+function or method with parameters has a numpydoc ``Parameters`` section that names each of them (a class
+documents its constructor's parameters in its own docstring, under ``Parameters`` or, for a dataclass,
+``Attributes``).
 """
 from __future__ import annotations
 
@@ -17,8 +18,10 @@ import pytest
 import gap_validation.core
 
 MODULES = sorted(m.name for m in pkgutil.iter_modules(gap_validation.core.__path__, "gap_validation.core."))
-_SECTION = re.compile(r"^(\s*)(Parameters|Attributes|Other Parameters)\n\1-{3,}\n(.*?)(?=^\s*\S[^\n]*\n\s*-{3,}\n|\Z)",
-                      re.M | re.S)
+_SECTION = re.compile(
+    r"^(\s*)(Parameters|Attributes|Other Parameters)\n\1-{3,}\n(.*?)(?=^\s*\S[^\n]*\n\s*-{3,}\n|\Z)",
+    re.M | re.S,
+)
 _NAMES = re.compile(r"^(\s*)(\*{0,2}[A-Za-z_][\w, *]*?)\s*(?::|$)", re.M)
 
 
@@ -30,7 +33,9 @@ def _documented(doc: str, sections: tuple[str, ...] = ("Parameters", "Other Para
             continue
         found = found or set()
         body = match.group(3)
-        indent = min((len(line) - len(line.lstrip()) for line in body.splitlines() if line.strip()), default=0)
+        indent = min(
+            (len(line) - len(line.lstrip()) for line in body.splitlines() if line.strip()), default=0
+        )
         for line in body.splitlines():
             if line.strip() and len(line) - len(line.lstrip()) == indent:
                 head = line.split(" : ")[0].strip()
@@ -109,9 +114,15 @@ def test_public_definitions_have_numpydoc_docstrings(module_name):
 
 
 #: Modules whose every function, private ones too, is annotated; the others' public definitions are.
-FULLY_ANNOTATED = ("gap_validation.core.metrics", "gap_validation.core.models", "gap_validation.core.effects",
-                   "gap_validation.core.numbers", "gap_validation.core.layouts", "gap_validation.core.results",
-                   "gap_validation.core.margins")
+FULLY_ANNOTATED = (
+    "gap_validation.core.metrics",
+    "gap_validation.core.models",
+    "gap_validation.core.effects",
+    "gap_validation.core.numbers",
+    "gap_validation.core.layouts",
+    "gap_validation.core.results",
+    "gap_validation.core.margins",
+)
 
 
 def _functions(module, private: bool):

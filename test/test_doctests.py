@@ -1,5 +1,5 @@
-"""The ``Examples`` sections of the main public functions run as doctests (issue 27): what the documentation shows
-is what the code does.
+"""The ``Examples`` sections of the main public functions run as doctests (issue 27): what the documentation
+shows is what the code does.
 """
 from __future__ import annotations
 

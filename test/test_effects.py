@@ -5,8 +5,17 @@ import math
 import numpy as np
 import pytest
 
-from gap_validation.core.effects import (EFFECT_TYPES, EFFECTS, EffectType, Parameter, check_plausible, describe_effect,
-                                         effect_factor, effect_response, validate_effect)
+from gap_validation.core.effects import (
+    EFFECT_TYPES,
+    EFFECTS,
+    EffectType,
+    Parameter,
+    check_plausible,
+    describe_effect,
+    effect_factor,
+    effect_response,
+    validate_effect,
+)
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.numbers import POSITIVE, Interval
 
@@ -57,7 +66,10 @@ def test_validate_returns_normalised_floats_and_accepts_yaml_exponent_strings():
 @pytest.mark.parametrize(
     "spec, fragment",
     [
-        ({"type": "time_delay", "seconds": "abc"}, "model.effects[1].seconds: expected a number >= 0, got 'abc'"),
+        (
+            {"type": "time_delay", "seconds": "abc"},
+            "model.effects[1].seconds: expected a number >= 0, got 'abc'",
+        ),
         ({"type": "time_delay", "seconds": -0.1}, "model.effects[1].seconds: expected a number >= 0"),
         ({"type": "time_delay", "seconds": True}, "model.effects[1].seconds"),
         ({"type": "time_delay", "seconds": float("nan")}, "model.effects[1].seconds"),
@@ -69,8 +81,16 @@ def test_validate_returns_normalised_floats_and_accepts_yaml_exponent_strings():
         ({"type": "second_order_lag", "natural_frequency_rad_s": 3.0, "damping": -0.1}, "damping: expected"),
         ({"type": "gain", "factor": 0}, "factor: expected a nonzero number"),
         ({"type": "gain", "factor": float("inf")}, "factor"),
-        ({"type": "structural_mode", "frequency_rad_s": 60.0, "damping": 0.02, "zero_frequency_rad_s": -55.0,
-          "zero_damping": 0.03}, "zero_frequency_rad_s: expected a number > 0"),
+        (
+            {
+                "type": "structural_mode",
+                "frequency_rad_s": 60.0,
+                "damping": 0.02,
+                "zero_frequency_rad_s": -55.0,
+                "zero_damping": 0.03,
+            },
+            "zero_frequency_rad_s: expected a number > 0",
+        ),
         ("time_delay", "expected a mapping"),
     ],
 )
@@ -104,13 +124,18 @@ def test_describe_structural_mode_names_both_frequencies():
     assert "55.0 rad/s" in text
 
 
-# ------------------------------------------------------------------------------------------------ the registry
+# ------------------------------------------------------------------------------------------------ the
+# registry
 def test_one_registry_entry_per_effect_serves_every_reader():
     from gap_validation.core import diagnosis
 
     assert EFFECT_TYPES == {name: entry.names for name, entry in EFFECTS.items()}
-    assert all(diagnosis.FAMILIES[name] is entry.fit for name, entry in EFFECTS.items() if entry.factor is not None)
-    assert all(diagnosis.NONLINEAR_FAMILIES[name] is entry for name, entry in EFFECTS.items() if entry.factor is None)
+    assert all(
+        diagnosis.FAMILIES[name] is entry.fit for name, entry in EFFECTS.items() if entry.factor is not None
+    )
+    assert all(
+        diagnosis.NONLINEAR_FAMILIES[name] is entry for name, entry in EFFECTS.items() if entry.factor is None
+    )
     for name, entry in EFFECTS.items():
         spec = {"type": name, **{p.name: 0.5 for p in entry.parameters}}
         amplitude = None if entry.factor is not None else 0.7        # a describing function needs it
@@ -124,13 +149,16 @@ def test_one_registry_entry_per_effect_serves_every_reader():
     ({"type": "second_order_lag", "natural_frequency_rad_s": 30.0, "damping": 1e4}, "damping", 1e4),
 ])
 def test_plausible_ranges_name_the_key(spec, key, value):
-    with pytest.raises(ConfigError, match=rf"^model.effects\[0\]\.{key}: {value!r} is outside the plausible range"):
+    with pytest.raises(
+        ConfigError, match=rf"^model.effects\[0\]\.{key}: {value!r} is outside the plausible range"
+    ):
         check_plausible(validate_effect(spec), "model.effects[0]")
     check_plausible(validate_effect({"type": "gain", "factor": -2.0}), "model.effects[0]")  # |k| counts
 
 
 def test_an_amplitude_dependent_effect_is_one_more_entry():
-    """A describing function (e.g. a rate limit, N(A, w)) needs no factor: the response takes the amplitude."""
+    """A describing function (e.g. a rate limit, N(A, w)) needs no factor: the response takes the
+    amplitude."""
     rate_limit = EffectType(
         "rate_limit", (Parameter("rad_s", POSITIVE, Interval(1e-3, 1e3)),), factor=None,
         describe=lambda p: f"rate limit of {p['rad_s']:.3g} rad/s",
@@ -144,8 +172,9 @@ def test_an_amplitude_dependent_effect_is_one_more_entry():
 
 
 def test_a_zero_order_hold_is_its_textbook_response_and_its_simulation_samples_and_holds():
-    """(1 - exp(-s T)) / (s T) at s = j w (Franklin, Powell & Workman, Digital Control, the ZOH's response); the
-    simulated model holds its input for T and the fundamental of its sine response is the frequency response."""
+    """(1 - exp(-s T)) / (s T) at s = j w (Franklin, Powell & Workman, Digital Control, the ZOH's response);
+    the simulated model holds its input for T and the fundamental of its sine response is the frequency
+    response."""
     from gap_validation.core.models import LinearModel
 
     w = np.array([0.5, 5.0, 44.3, 100.0, 2 * np.pi * 20.0])
@@ -168,7 +197,8 @@ def test_a_zero_order_hold_is_its_textbook_response_and_its_simulation_samples_a
         basis = np.c_[np.sin(wt * t[keep]), np.cos(wt * t[keep])]
         re, im = np.linalg.lstsq(basis, y[keep], rcond=None)[0]
         h = model.freqresp(np.array([wt]))[0]
-        assert abs(complex(re, im) - h) < 0.03 * abs(h)            # the images of the hold are not the response
+        # the images of the hold are not the response
+        assert abs(complex(re, im) - h) < 0.03 * abs(h)
 
 
 @pytest.mark.parametrize("value", [0.0, -20.0, "fast"])

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from _flights import config_from, single_channel, ultrastick
-from gap_validation.core.simulation import FlightOptions, simulate_flight
+
 from gap_validation.cli.arguments import hidden_effects
+from gap_validation.core.simulation import FlightOptions, simulate_flight
 from gap_validation.core.validator import OnlineValidator
 
 #: 3-2-1-1 runs: three per channel, 1 s of trim before the first, 3 s between, 50 Hz streams.
@@ -19,18 +19,25 @@ NASA_RUN = dict(excitation="3211", sweeps_per_channel=1, trim_s=1.0, duration_s=
                 imu_rate_hz=50.0, surface_rate_hz=50.0)
 KINDS = {
     "chirp 30 s": dict(excitation="chirp", sweeps_per_channel=2, sweep_duration_s=30.0, quiet_s=3.0),
-    "multisine": dict(excitation="multisine", sweeps_per_channel=1, multisine_period_s=15.0, multisine_periods=3),
-    "multisine-orthogonal": dict(excitation="multisine-orthogonal", sweeps_per_channel=1, multisine_period_s=15.0,
-                                 multisine_periods=3),
+    "multisine": dict(
+        excitation="multisine", sweeps_per_channel=1, multisine_period_s=15.0, multisine_periods=3
+    ),
+    "multisine-orthogonal": dict(
+        excitation="multisine-orthogonal", sweeps_per_channel=1, multisine_period_s=15.0, multisine_periods=3
+    ),
     "3211 x3": RUNS_3211,
     "doublets": dict(excitation="doublet", sweeps_per_channel=3, quiet_s=3.0),
-    "low SNR chirp": dict(excitation="chirp", sweeps_per_channel=2, sweep_duration_s=30.0, quiet_s=3.0, noise=2.0),
+    "low SNR chirp": dict(
+        excitation="chirp", sweeps_per_channel=2, sweep_duration_s=30.0, quiet_s=3.0, noise=2.0
+    ),
 }
 
 
 def validate(config, options: dict, hidden=(), seed: int = 1):
     """Simulate a flight of ``config`` (``hidden`` effects in the truth) and validate it; the results."""
-    flight = simulate_flight(config, hidden_effects(list(hidden), config), FlightOptions(**options), seed=seed)
+    flight = simulate_flight(
+        config, hidden_effects(list(hidden), config), FlightOptions(**options), seed=seed
+    )
     validator = OnlineValidator(config)
     for name, ch in config.channels.items():
         src, out = flight.topics[ch.input.topic], flight.topics[ch.output.topic]
@@ -89,8 +96,8 @@ def test_three_chirps_3_s_apart_are_three_sweeps():
 
 
 def test_a_grid_above_the_excitation_is_not_excited_there_and_never_model_limited():
-    """Chirps to 50 rad/s (no doublets: their steps excite far higher), grid to 100 rad/s: every point above the
-    sweep says not_excited, the excited band ends at the sweep's end, no mode is named."""
+    """Chirps to 50 rad/s (no doublets: their steps excite far higher), grid to 100 rad/s: every point above
+    the sweep says not_excited, the excited band ends at the sweep's end, no mode is named."""
     data = single_channel("pitch", frequencies={"min_rad_s": 1.0, "max_rad_s": 100.0, "count": 40})
     options = dict(excitation="chirp", sweeps_per_channel=3, sweep_duration_s=40.0, quiet_s=3.0,
                    band_low_factor=0.2, band_high_factor=0.5, doublet_amplitude_rad=0.0)
@@ -102,9 +109,11 @@ def test_a_grid_above_the_excitation_is_not_excited_there_and_never_model_limite
     assert all(ch.frequency_flags[i] == "not_excited" for i in above)
     assert ch.limited_by != "model" and not ch.diagnosis, ch.message
     assert 40.0 < ch.excited_band_rad_s[1] <= 50.0
-    # doublets flown after the sweeps have power above it, but their steps are not band-limited: sampled by the
-    # surface topic, what lies above its Nyquist frequency folds back (issue 22: a doublet logged at 50 Hz was 30 deg
-    # off at 56 rad/s); the band still ends at the sweep's end, and nothing is named
+    # doublets flown after the sweeps have power above it, but their steps are not band-limited: sampled by
+    # the surface topic, what lies above its Nyquist frequency folds back (issue 22: a doublet logged at 50 Hz
+    # was 30 deg off at 56 rad/s); the band still ends at the sweep's end, and nothing is named
     options["doublet_amplitude_rad"] = FlightOptions().doublet_amplitude_rad
     ch = validate(config_from(data), options, seed=4).channels["pitch"]
-    assert 40.0 < ch.excited_band_rad_s[1] <= 50.0 and ch.limited_by != "model" and not ch.diagnosis, ch.message
+    assert 40.0 < ch.excited_band_rad_s[1] <= 50.0 and ch.limited_by != "model" and not ch.diagnosis, (
+        ch.message
+    )

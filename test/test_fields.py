@@ -1,9 +1,9 @@
 """Field paths (gap_validation.core.fields) on rosbags and rclpy message objects."""
 import pytest
+from _messages import T, imu, joints
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from _messages import T, imu, joints
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.fields import FieldError, FieldPath
 from gap_validation.messages.router import stamp_seconds

@@ -9,12 +9,11 @@ import json
 import math
 
 import numpy as np
+from _flights import raw_config, single_channel
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from _flights import raw_config, single_channel
-from gap_validation.core.config import load_config
-from gap_validation.core.config import parse_config
+from gap_validation.core.config import load_config, parse_config
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.fields import FieldPath
 from gap_validation.core.validator import OnlineValidator
@@ -25,9 +24,13 @@ FAST = settings(max_examples=60, deadline=None, suppress_health_check=[HealthChe
 # ------------------------------------------------------------------------------------------------ config
 scalars = st.one_of(st.none(), st.booleans(), st.integers(-10 ** 6, 10 ** 6),
                     st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=12))
-values = st.recursive(scalars, lambda inner: st.one_of(st.lists(inner, max_size=4),
-                                                       st.dictionaries(st.text(max_size=8), inner, max_size=4)),
-                      max_leaves=12)
+values = st.recursive(
+    scalars,
+    lambda inner: st.one_of(
+        st.lists(inner, max_size=4), st.dictionaries(st.text(max_size=8), inner, max_size=4)
+    ),
+    max_leaves=12,
+)
 
 
 def _paths(data, prefix=()):
@@ -110,7 +113,8 @@ def test_field_path_parse_gives_a_path_or_a_config_error(text):
     assert path.steps and FieldPath.parse(path.text) == path  # parsing its own text gives the same path
 
 
-# ------------------------------------------------------------------------------------------------ sample intake
+# ------------------------------------------------------------------------------------------------ sample
+# intake
 CONFIG = parse_config({**single_channel("pitch"), "channels": {"pitch": {
     **single_channel("pitch")["channels"]["pitch"],
     "frequencies": {"min_rad_s": 1.0, "max_rad_s": 20.0, "count": 8},
@@ -126,7 +130,9 @@ def stream(draw, t0, f):
     full = int(30.0 / dt)
     n = draw(st.one_of(st.just(full), st.just(full), st.just(full), st.integers(0, full)))
     t = t0 + np.arange(n) * dt
-    v = np.where((t - t0 > 5.0) & (t - t0 < 20.0), np.sin(2 * np.pi * f * (t - t0) * (1 + (t - t0) / 10)), 0.0)
+    v = np.where(
+        (t - t0 > 5.0) & (t - t0 < 20.0), np.sin(2 * np.pi * f * (t - t0) * (1 + (t - t0) / 10)), 0.0
+    )
     v = v + np.random.default_rng(draw(st.integers(0, 99))).normal(0.0, 1e-3, n)
     for _ in range(draw(st.integers(0, 4))):
         if n == 0:

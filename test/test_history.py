@@ -7,8 +7,14 @@ import pytest
 from gap_validation.core.config import parse_config
 from gap_validation.core.errors import DataError
 from gap_validation.core.results import ChannelResult, ValidationResult
-from gap_validation.history import (append_history, default_history_path, format_trend, load_history,
-                                    model_hash, previous_epsilon)
+from gap_validation.history import (
+    append_history,
+    default_history_path,
+    format_trend,
+    load_history,
+    model_hash,
+    previous_epsilon,
+)
 
 DELAY = {"type": "time_delay", "seconds": 0.045}
 

@@ -1,19 +1,19 @@
 """HTML report: every figure of the paper for every channel of the bundled flight, from a replay and from its
 JSON; names escaped; one failing figure never costs the report; the page renders in headless Chromium."""
 import json
+import os
 import shutil
 import subprocess
-import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 from matplotlib import image
 
-from gap_validation.report import figures
-from gap_validation.report import html as report
 from gap_validation.cli.main import main
 from gap_validation.core.results import ValidationResult
+from gap_validation.report import figures
+from gap_validation.report import html as report
 from gap_validation.report.html import write_report
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -51,7 +51,14 @@ def test_bundled_flight_report_holds_every_figure_for_every_channel(replayed):
             assert f"src='{png.name}'" in text
     # Table 1 form at the top: raw and averaged epsilon and margins per channel, then the verdict
     top = text.split("<h2 id=")[0]
-    for row in ("Gap metric epsilon", "Gain margin, dB", "Phase margin, deg", "Disk margin", "Raw", "Average"):
+    for row in (
+        "Gap metric epsilon",
+        "Gain margin, dB",
+        "Phase margin, deg",
+        "Disk margin",
+        "Raw",
+        "Average",
+    ):
         assert row in top
     assert top.count("class='verdict") == 3 and "not validated: epsilon" in top
     assert "first-order lag" in top                    # the missing effect named in the verdict
@@ -75,7 +82,9 @@ def test_report_command_redraws_the_same_report_from_the_json(replayed, capsys):
     first, second = (replayed / "report" / "index.html").read_text(), (out / "index.html").read_text()
     table = lambda html: html.split("<h3>Verdict")[0].split("<h2>Summary")[1]   # noqa: E731
     assert table(first) == table(second)
-    assert sorted(p.name for p in out.glob("*.png")) == sorted(p.name for p in (replayed / "report").glob("*.png"))
+    assert sorted(p.name for p in out.glob("*.png")) == sorted(
+        p.name for p in (replayed / "report").glob("*.png")
+    )
 
 
 def test_json_round_trip_keeps_what_the_figures_need(replayed):
@@ -139,8 +148,8 @@ def test_report_command_errors_are_one_line(tmp_path, monkeypatch, capsys, args,
 
 
 def test_verdict_in_words():
-    from gap_validation.core.results import ChannelResult
     from gap_validation.core.margins import margins_from_epsilon
+    from gap_validation.core.results import ChannelResult
 
     good = ChannelResult("pitch", epsilon=0.10, margins=margins_from_epsilon(0.10))
     text, cls = report.verdict(good)

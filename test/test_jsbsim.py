@@ -1,9 +1,9 @@
 """JSBSim as a third simulator (``gap-validate linearize --jsbsim``, ``gap-validate simulate --jsbsim``).
 
-The c172x shipped with the ``jsbsim`` wheel, trimmed at 100 kt true airspeed and 3000 ft: its linearisation loads
-as a config, agrees with the nonlinear model in small doublets, a short flight replays with a result per channel,
-and a hidden 60 ms elevator delay shows as its phase lag. Numbers in the tolerances were measured (JSBSim 1.3.3);
-the margins are stated where they are asserted.
+The c172x shipped with the ``jsbsim`` wheel, trimmed at 100 kt true airspeed and 3000 ft: its linearisation
+loads as a config, agrees with the nonlinear model in small doublets, a short flight replays with a result per
+channel, and a hidden 60 ms elevator delay shows as its phase lag. Numbers in the tolerances were measured
+(JSBSim 1.3.3); the margins are stated where they are asserted.
 """
 from __future__ import annotations
 
@@ -22,15 +22,22 @@ pytest.importorskip("jsbsim")
 from gap_validation.bag.replay import replay  # noqa: E402
 from gap_validation.bag.writer import write_flight  # noqa: E402
 from gap_validation.cli.main import main  # noqa: E402
-from gap_validation.core.config import load_config  # noqa: E402
-from gap_validation.core.config import parse_config  # noqa: E402
+from gap_validation.core.config import (
+    load_config,  # noqa: E402
+    parse_config,  # noqa: E402
+)
 from gap_validation.core.errors import ConfigError  # noqa: E402
 from gap_validation.core.models import LinearModel  # noqa: E402
 from gap_validation.core.simulation import multistep  # noqa: E402
-from gap_validation.jsbsim.flight import (HiddenEffects, Turbulence, fly, jsbsim_options, parse_turbulence,  # noqa: E402
-                                          simulate_jsbsim_flight)
-from gap_validation.jsbsim.linearize import (SURFACES, config_mapping, config_text, linearize,  # noqa: E402
-                                             trim)
+from gap_validation.jsbsim.flight import (  # noqa: E402
+    HiddenEffects,
+    Turbulence,
+    fly,
+    jsbsim_options,
+    parse_turbulence,
+    simulate_jsbsim_flight,
+)
+from gap_validation.jsbsim.linearize import SURFACES, config_mapping, config_text, linearize, trim  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 AIRCRAFT, SPEED_KT, ALTITUDE_FT = "c172x", 100.0, 3000.0
@@ -59,14 +66,19 @@ def _response(lin, surface: str, w_rad_s: float) -> complex:
 
 # ------------------------------------------------------------------------------------------------ layering
 def test_the_core_and_the_cli_do_not_import_jsbsim():
-    """jsbsim is imported only inside gap_validation.jsbsim's functions: not by the core, not by the CLI's parser."""
+    """jsbsim is imported only inside gap_validation.jsbsim's functions: not by the core, not by the CLI's
+    parser."""
     for path in sorted((ROOT / "gap_validation" / "core").glob("*.py")):
         for node in ast.walk(ast.parse(path.read_text())):
             names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
                 [node.module or ""] if isinstance(node, ast.ImportFrom) else []
-            assert not any(n == "jsbsim" or n.startswith(("jsbsim.", "gap_validation.jsbsim")) for n in names), path
-    code = ("import sys, gap_validation.cli.main as m; m.build_parser(); import gap_validation.jsbsim.flight; "
-            "import gap_validation.core.simulation; print('jsbsim' in sys.modules)")
+            assert not any(
+                n == "jsbsim" or n.startswith(("jsbsim.", "gap_validation.jsbsim")) for n in names
+            ), path
+    code = (
+        "import sys, gap_validation.cli.main as m; m.build_parser(); import gap_validation.jsbsim.flight; "
+        "import gap_validation.core.simulation; print('jsbsim' in sys.modules)"
+    )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120,
                           env=os.environ.copy())
     assert done.returncode == 0, done.stderr
@@ -98,11 +110,15 @@ def test_linearize_writes_a_config_that_loads(tmp_path, capsys):
                                                                                 rel=1e-6)
     assert main(["linearize", *CONDITION, "--out", str(out)]) == 2          # exists: --force to replace it
     assert "exists already" in capsys.readouterr().err
-    assert all(ch.airspeed is None for ch in config.channels.values())     # the airspeed only when asked for
-    assert main(["linearize", *CONDITION, "--out", str(out), "--force", "--airspeed-topic", "air_data/tas"]) == 0
+    assert all(ch.airspeed is None for ch in config.channels.values())  # the airspeed only when asked for
+    assert (
+        main(["linearize", *CONDITION, "--out", str(out), "--force", "--airspeed-topic", "air_data/tas"]) == 0
+    )
     with_air = load_config(out)
     for ch in with_air.channels.values():
-        assert ch.airspeed.topic == "/air_data/tas" and ch.trim_airspeed_m_s == pytest.approx(51.4444, rel=1e-5)
+        assert ch.airspeed.topic == "/air_data/tas" and ch.trim_airspeed_m_s == pytest.approx(
+            51.4444, rel=1e-5
+        )
     assert "dynamic pressure relative to the" in out.read_text()
 
 
@@ -126,9 +142,9 @@ def test_the_linear_model_agrees_with_a_small_jsbsim_doublet(lin, surface):
     """A 0.5 deg doublet (0.5 s + 0.5 s) in the nonlinear model against the linear model through scipy's lsim
     (zero-order hold: JSBSim holds a surface for a step; the doublet is flown at the steps' middles).
 
-    Measured (JSBSim 1.3.3): RMS error over 10 s 0.37, 0.87, 1.39 % of the peak for aileron -> p, elevator -> q,
-    rudder -> r; peaks +0.9, +2.7, 0.0 %; largest error in the first 4 s 1.4, 4.3, 1.7 % of the peak. Asserted:
-    3 %, 6 %, 8 % (about twice the worst).
+    Measured (JSBSim 1.3.3): RMS error over 10 s 0.37, 0.87, 1.39 % of the peak for aileron -> p, elevator ->
+    q, rudder -> r; peaks +0.9, +2.7, 0.0 %; largest error in the first 4 s 1.4, 4.3, 1.7 % of the peak.
+    Asserted: 3 %, 6 %, 8 % (about twice the worst).
     """
     from scipy import signal
 
@@ -151,10 +167,10 @@ def test_the_linear_model_agrees_with_a_small_jsbsim_doublet(lin, surface):
 
 # ------------------------------------------------------------------------------------------------ simulate
 def test_simulate_jsbsim_writes_a_flight_that_replays(tmp_path, capsys):
-    """The CLI without --config: linearised at the flown condition (saved with --save-config), one round of 40 s
-    sweeps, a result per channel on replay; 31 000 JSBSim steps in about 1.5 s CPU (a 10-minute flight, 72 000
-    steps, in about 3.5 s). Measured nu-gaps (seeds 3-5): roll 0.023-0.026, pitch 0.056-0.075, yaw 0.041-0.045,
-    lateral 0.045-0.046; asserted < 0.15 (twice the largest)."""
+    """The CLI without --config: linearised at the flown condition (saved with --save-config), one round of 40
+    s sweeps, a result per channel on replay; 31 000 JSBSim steps in about 1.5 s CPU (a 10-minute flight, 72
+    000 steps, in about 3.5 s). Measured nu-gaps (seeds 3-5): roll 0.023-0.026, pitch 0.056-0.075, yaw
+    0.041-0.045, lateral 0.045-0.046; asserted < 0.15 (twice the largest)."""
     bag, cfg = tmp_path / "flight", tmp_path / "flown.yaml"
     assert main(["simulate", *CONDITION, "--out", str(bag), "--sweeps", "1", "--sweep-duration", "40",
                  "--save-config", str(cfg), "--seed", "3"]) == 0
@@ -183,19 +199,26 @@ def _phase_error_rad(channel: dict, w_rad_s: float) -> tuple[float, float]:
 
 
 def test_a_hidden_elevator_delay_shows_as_phase_lag(tmp_path, pitch_config):
-    """pitch:time_delay:seconds=0.06 between the logged elevator and JSBSim's: at ~10 rad/s the measured minus the
-    model phase is -w 0.06 rad (-0.58 rad at 9.65 rad/s).
+    """pitch:time_delay:seconds=0.06 between the logged elevator and JSBSim's: at ~10 rad/s the measured minus
+    the model phase is -w 0.06 rad (-0.58 rad at 9.65 rad/s).
 
-    Measured (seeds 1-3, one 60 s sweep): -0.52 to -0.53 rad with the delay, +0.045 to +0.063 rad without it (the
-    nonlinear c172x against its linearisation in a 2 deg sweep: the steady-state mismatch at 10 rad/s is 0.5 deg, the
-    sweep's slowly moving trim adds the rest). Asserted: within 0.12 rad of -w 0.06 (twice the baseline), and
-    the change the delay makes within 0.05 rad of -w 0.06 (random error of one sweep).
+    Measured (seeds 1-3, one 60 s sweep): -0.52 to -0.53 rad with the delay, +0.045 to +0.063 rad without it
+    (the nonlinear c172x against its linearisation in a 2 deg sweep: the steady-state mismatch at 10 rad/s is
+    0.5 deg, the sweep's slowly moving trim adds the rest). Asserted: within 0.12 rad of -w 0.06 (twice the
+    baseline), and the change the delay makes within 0.05 rad of -w 0.06 (random error of one sweep).
     """
     results = {}
     for delay in (0.0, 0.06):
         hidden = {"pitch": [{"type": "time_delay", "seconds": delay}]} if delay else {}
-        flown = simulate_jsbsim_flight(AIRCRAFT, SPEED_KT, ALTITUDE_FT, config=pitch_config, hidden=hidden,
-                                       options=jsbsim_options(sweeps_per_channel=1, sweep_duration_s=60.0), seed=1)
+        flown = simulate_jsbsim_flight(
+            AIRCRAFT,
+            SPEED_KT,
+            ALTITUDE_FT,
+            config=pitch_config,
+            hidden=hidden,
+            options=jsbsim_options(sweeps_per_channel=1, sweep_duration_s=60.0),
+            seed=1,
+        )
         bag = tmp_path / f"delay{delay}"
         write_flight(flown.flight, bag)
         results[delay] = replay([bag], pitch_config).result.to_json_dict()["channels"]["pitch"]
@@ -222,14 +245,22 @@ def test_jsbsim_turbulence_is_seeded(pitch_config):
 
 
 def test_the_pilot_holds_the_flight_condition_in_turbulence(lin):
-    """A test pilot keeps the condition the model is linearised at: every axis no manoeuvre sweeps is held, the
-    airspeed on the throttle. Light turbulence, the three-axis card with one 60 s sweep per channel (6 minutes):
-    every sweep's mean airspeed within 5 % of the trim's (dynamic pressure within 10 %), the altitude within 400 ft
-    (measured, seed 5: 99.0-101.5 kt, 2821-3207 ft; with the swept axis' partner and the throttle let go as before:
-    94-114 kt, the roll and yaw sweeps at +25-31 % dynamic pressure, 3000 -> 651 ft)."""
+    """A test pilot keeps the condition the model is linearised at: every axis no manoeuvre sweeps is held,
+    the airspeed on the throttle. Light turbulence, the three-axis card with one 60 s sweep per channel (6
+    minutes): every sweep's mean airspeed within 5 % of the trim's (dynamic pressure within 10 %), the
+    altitude within 400 ft (measured, seed 5: 99.0-101.5 kt, 2821-3207 ft; with the swept axis' partner and
+    the throttle let go as before: 94-114 kt, the roll and yaw sweeps at +25-31 % dynamic pressure, 3000 ->
+    651 ft)."""
     config = parse_config(config_mapping(lin, airspeed_topic="/airspeed"), "<c172x with its airspeed>")
-    flown = simulate_jsbsim_flight(AIRCRAFT, SPEED_KT, ALTITUDE_FT, config, seed=5, turbulence=parse_turbulence("light"),
-                                   options=jsbsim_options(sweeps_per_channel=1, sweep_duration_s=60.0, quiet_s=5.0))
+    flown = simulate_jsbsim_flight(
+        AIRCRAFT,
+        SPEED_KT,
+        ALTITUDE_FT,
+        config,
+        seed=5,
+        turbulence=parse_turbulence("light"),
+        options=jsbsim_options(sweeps_per_channel=1, sweep_duration_s=60.0, quiet_s=5.0),
+    )
     speed, altitude, t_s = flown.flown.airspeed_kt, flown.flown.altitude_ft, flown.flight.t_s
     logged = flown.flight.topics["/airspeed"]                 # the airspeed stream the config asks for [m/s]
     assert np.median(np.abs(logged.values["data"] - np.interp(logged.stamp_s - flown.flight.start_time_s, t_s,
@@ -254,39 +285,117 @@ def test_parse_turbulence():
 
 def test_hidden_effects_stepped_as_the_linear_model_simulates():
     """The per-step hidden effects (the pilot closes a loop through them) equal LinearModel.simulate."""
-    effects = [{"type": "rate_limit", "rad_s": 0.5}, {"type": "backlash", "width_rad": 0.002},
-               {"type": "time_delay", "seconds": 0.0537}, {"type": "first_order_lag", "bandwidth_rad_s": 25.0},
-               {"type": "structural_mode", "frequency_rad_s": 20.0, "damping": 0.1, "zero_frequency_rad_s": 22.0,
-                "zero_damping": 0.05}]
+    effects = [
+        {"type": "rate_limit", "rad_s": 0.5},
+        {"type": "backlash", "width_rad": 0.002},
+        {"type": "time_delay", "seconds": 0.0537},
+        {"type": "first_order_lag", "bandwidth_rad_s": 25.0},
+        {
+            "type": "structural_mode",
+            "frequency_rad_s": 20.0,
+            "damping": 0.1,
+            "zero_frequency_rad_s": 22.0,
+            "zero_damping": 0.05,
+        },
+    ]
     dt = 1.0 / 120.0
     t = np.arange(2400) * dt + dt / 2
     u = 0.03 * np.sin(3.0 * t ** 1.3) * (t > 0.5)
     stepper = HiddenEffects(effects, dt)
     stepped = np.array([stepper(x) for x in u])
-    assert stepped == pytest.approx(LinearModel.from_tf([1.0], [1.0], effects=effects).simulate(t, u), abs=1e-12)
+    assert stepped == pytest.approx(
+        LinearModel.from_tf([1.0], [1.0], effects=effects).simulate(t, u), abs=1e-12
+    )
 
 
 # ------------------------------------------------------------------------------------------------ bad input
-@pytest.mark.parametrize("argv, words", [
-    (["linearize", "--jsbsim", "c172", "--speed-kt", "100", "--altitude-ft", "3000", "--out", "{tmp}/x.yaml"],
-     ["unknown JSBSim aircraft 'c172'", "c172x", "J3Cub", "pa28"]),
-    (["linearize", "--jsbsim", "c172x", "--speed-kt", "300", "--altitude-ft", "3000", "--out", "{tmp}/x.yaml"],
-     ["cannot trim c172x at 300 kt", "3000 ft"]),
-    (["linearize", "--jsbsim", "c172x", "--altitude-ft", "3000", "--out", "{tmp}/x.yaml"], ["missing --speed-kt"]),
-    (["linearize", "--jsbsim", "c172x", "--speed-kt", "100", "--altitude-ft", "3000"], ["missing --out"]),
-    (["simulate", "--jsbsim", "nosuch", "--speed-kt", "100", "--altitude-ft", "3000", "--out", "{tmp}/b"],
-     ["unknown JSBSim aircraft 'nosuch'", "c172x"]),
-    (["simulate", "--jsbsim", "c172x", "--speed-kt", "100", "--out", "{tmp}/b"], ["missing --altitude-ft"]),
-    (["simulate", *CONDITION, "--out", "{tmp}/b", "--turbulence", "windy"], ["--turbulence 'windy'"]),
-    (["simulate", *CONDITION, "--out", "{tmp}/b", "--coupling", "aileron:rudder:0.3"], ["--coupling"]),
-    (["simulate", *CONDITION, "--out", "{tmp}/b", "--hidden", "lateral:time_delay:seconds=0.05"],
-     ["MIMO"]),
-    (["simulate", "--config", str(ROOT / "config" / "ultrastick25e.yaml"), "--out", "{tmp}/b", "--turbulence",
-      "light"], ["needs --jsbsim"]),
-    (["simulate", "--config", str(ROOT / "config" / "ultrastick25e.yaml"), "--out", "{tmp}/b", "--speed-kt", "90"],
-     ["--speed-kt needs --jsbsim"]),
-    (["simulate", "--out", "{tmp}/b"], ["missing --config"]),
-])
+@pytest.mark.parametrize(
+    "argv, words",
+    [
+        (
+            [
+                "linearize",
+                "--jsbsim",
+                "c172",
+                "--speed-kt",
+                "100",
+                "--altitude-ft",
+                "3000",
+                "--out",
+                "{tmp}/x.yaml",
+            ],
+            ["unknown JSBSim aircraft 'c172'", "c172x", "J3Cub", "pa28"],
+        ),
+        (
+            [
+                "linearize",
+                "--jsbsim",
+                "c172x",
+                "--speed-kt",
+                "300",
+                "--altitude-ft",
+                "3000",
+                "--out",
+                "{tmp}/x.yaml",
+            ],
+            ["cannot trim c172x at 300 kt", "3000 ft"],
+        ),
+        (
+            ["linearize", "--jsbsim", "c172x", "--altitude-ft", "3000", "--out", "{tmp}/x.yaml"],
+            ["missing --speed-kt"],
+        ),
+        (["linearize", "--jsbsim", "c172x", "--speed-kt", "100", "--altitude-ft", "3000"], ["missing --out"]),
+        (
+            [
+                "simulate",
+                "--jsbsim",
+                "nosuch",
+                "--speed-kt",
+                "100",
+                "--altitude-ft",
+                "3000",
+                "--out",
+                "{tmp}/b",
+            ],
+            ["unknown JSBSim aircraft 'nosuch'", "c172x"],
+        ),
+        (
+            ["simulate", "--jsbsim", "c172x", "--speed-kt", "100", "--out", "{tmp}/b"],
+            ["missing --altitude-ft"],
+        ),
+        (["simulate", *CONDITION, "--out", "{tmp}/b", "--turbulence", "windy"], ["--turbulence 'windy'"]),
+        (["simulate", *CONDITION, "--out", "{tmp}/b", "--coupling", "aileron:rudder:0.3"], ["--coupling"]),
+        (
+            ["simulate", *CONDITION, "--out", "{tmp}/b", "--hidden", "lateral:time_delay:seconds=0.05"],
+            ["MIMO"],
+        ),
+        (
+            [
+                "simulate",
+                "--config",
+                str(ROOT / "config" / "ultrastick25e.yaml"),
+                "--out",
+                "{tmp}/b",
+                "--turbulence",
+                "light",
+            ],
+            ["needs --jsbsim"],
+        ),
+        (
+            [
+                "simulate",
+                "--config",
+                str(ROOT / "config" / "ultrastick25e.yaml"),
+                "--out",
+                "{tmp}/b",
+                "--speed-kt",
+                "90",
+            ],
+            ["--speed-kt needs --jsbsim"],
+        ),
+        (["simulate", "--out", "{tmp}/b"], ["missing --config"]),
+    ],
+)
 def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, argv, words):
     argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
     assert main(argv) == 2

@@ -1,6 +1,6 @@
-"""CSV flight logs (gap_validation.logs.csvlog): one file per topic, read back exactly, checked against the ``csv``
-module and hand-computed values; time columns and their units; bad cells, cut files and missing columns as one
-line each, never a traceback."""
+"""CSV flight logs (gap_validation.logs.csvlog): one file per topic, read back exactly, checked against the
+``csv`` module and hand-computed values; time columns and their units; bad cells, cut files and missing
+columns as one line each, never a traceback."""
 import csv
 import math
 
@@ -10,8 +10,8 @@ import pytest
 from gap_validation.core.config import parse_config
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.logs.base import WriteTopic
-from gap_validation.logs.formats import open_log
 from gap_validation.logs.csvlog import TIME_COLUMNS, CsvFile, time_scale, write_csv
+from gap_validation.logs.formats import open_log
 
 
 def _one_line(err, *needles):
@@ -40,9 +40,12 @@ def _reference(path):
 def topics():
     rng = np.random.default_rng(7)
     n = 257
-    imu = WriteTopic("imu", np.cumsum(rng.integers(3000, 5000, n)).astype(np.int64) + 60_000_000,
-                     {"p": rng.standard_normal(n), "q": rng.standard_normal(n) * 1e-9, "r": rng.standard_normal(n) * 1e6},
-                     {"p": "rad/s", "q": "rad/s"})
+    imu = WriteTopic(
+        "imu",
+        np.cumsum(rng.integers(3000, 5000, n)).astype(np.int64) + 60_000_000,
+        {"p": rng.standard_normal(n), "q": rng.standard_normal(n) * 1e-9, "r": rng.standard_normal(n) * 1e6},
+        {"p": "rad/s", "q": "rad/s"},
+    )
     surfaces = WriteTopic("control_surfaces", np.arange(40, dtype=np.int64) * 20_000 + 60_001_000,
                           {"elevator": np.linspace(-0.1, 0.1, 40)})
     return [imu, surfaces]
@@ -97,7 +100,8 @@ def test_time_column_order_unit_by_name_and_the_config_key(tmp_path):
     path = tmp_path / "rates.csv"
     path.write_text("TimeUS,time,t_ms,q\n1000000,2.0,3000,1.5\n")
     assert TIME_COLUMNS.index("time") < TIME_COLUMNS.index("TimeUS")
-    assert CsvFile(path).time_column == "time"                       # the first of TIME_COLUMNS, not the first column
+    # the first of TIME_COLUMNS, not the first column
+    assert CsvFile(path).time_column == "time"
     t_ms = CsvFile(path, time_column="t_ms")
     assert t_ms.read({"rates": ["q"]})["rates"].t_s[0] == pytest.approx(3.0)
     assert "time" in t_ms.topics["rates"].fields and "t_ms" not in t_ms.topics["rates"].fields
@@ -193,7 +197,8 @@ def test_a_file_cut_mid_row_is_read_up_to_the_damage(tmp_path, topics):
     assert np.array_equal(series.values[:, 0], topics[0].fields["p"][:n - 1])
     span = (topics[0].t_us[n - 2] - topics[0].t_us[0]) * 1e-6
     _one_line(log.damage, "imu.csv", f"row {n}", "cut short", f"{span:.1f} s read")
-    whole = tmp_path / "whole.csv"              # cut after "1,2" of "1,25": a whole row to look at, a wrong number
+    # cut after "1,2" of "1,25": a whole row to look at, a wrong number
+    whole = tmp_path / "whole.csv"
     whole.write_text("time,p\n0,1\n1,2")
     log = open_log(whole)
     assert log.read({"whole": ["p"]})["whole"].values[:, 0].tolist() == [1.0]
@@ -204,7 +209,10 @@ def test_a_file_cut_mid_row_is_read_up_to_the_damage(tmp_path, topics):
 
 
 def test_semicolons_tabs_byte_order_mark_and_comments(tmp_path):
-    for name, text in (("semi", "\ufefftime;p\n# a comment\n0;1.5\n1;2.5\n"), ("tab", "t\tp\n0\t1.5\n1\t2.5\n")):
+    for name, text in (
+        ("semi", "\ufefftime;p\n# a comment\n0;1.5\n1;2.5\n"),
+        ("tab", "t\tp\n0\t1.5\n1\t2.5\n"),
+    ):
         path = tmp_path / f"{name}.csv"
         path.write_text(text, encoding="utf-8")
         series = open_log(path).read({name: ["p"]})[name]
@@ -212,8 +220,8 @@ def test_semicolons_tabs_byte_order_mark_and_comments(tmp_path):
 
 
 def test_a_large_file_reads_as_the_csv_module_reads_it(tmp_path):
-    """20 000 rows, 4 columns, two of them wanted: numpy's parser gives exactly the csv module's values (its speed
-    against the csv module is measured by ``benchmarks/bench_csv.py``, not here)."""
+    """20 000 rows, 4 columns, two of them wanted: numpy's parser gives exactly the csv module's values (its
+    speed against the csv module is measured by ``benchmarks/bench_csv.py``, not here)."""
     n = 20_000
     rng = np.random.default_rng(1)
     t = WriteTopic("big", np.arange(n, dtype=np.int64) * 4000, {k: rng.standard_normal(n) for k in "abc"})
@@ -223,5 +231,7 @@ def test_a_large_file_reads_as_the_csv_module_reads_it(tmp_path):
         rows = csv.reader(f)
         next(rows)
         reference = np.array([[row[0], row[1], row[3]] for row in rows], dtype=float).T
-    assert np.array_equal(series.values[:, 0], reference[1]) and np.array_equal(series.values[:, 1], reference[2])
+    assert np.array_equal(series.values[:, 0], reference[1]) and np.array_equal(
+        series.values[:, 1], reference[2]
+    )
     assert np.array_equal(series.t_s, reference[0] * 1e-6)

@@ -19,8 +19,8 @@ from pymavlink import DFReader  # noqa: E402
 from gap_validation.core.errors import ConfigError, DataError  # noqa: E402
 from gap_validation.logs import dataflash as df  # noqa: E402
 from gap_validation.logs.base import WriteTopic  # noqa: E402
-from gap_validation.logs.formats import open_log  # noqa: E402
 from gap_validation.logs.dataflash import DataFlashFile, write_dataflash  # noqa: E402
+from gap_validation.logs.formats import open_log  # noqa: E402
 
 RATE = "RDes,R,ROut,PDes,P,POut,YDes,Y,YOut,ADes,A,AOut,AOutSlew".split(",")   # AP_AHRS/LogStructure.h
 SIDD = "Time,Targ,F,Gx,Gy,Gz,Ax,Ay,Az".split(",")                              # ArduCopter/Log.cpp
@@ -40,9 +40,11 @@ def _flight(seconds: float = 2.0, seed: int = 0) -> list[WriteTopic]:
     def f32(size):
         return rng.normal(scale=50.0, size=size).astype(np.float32)
 
-    topics = [WriteTopic("RATE", t400, {c: f32(n) for c in RATE}, {c: "deg/s" for c in ("RDes", "R", "PDes")}),
-              WriteTopic("SIDD", t400 + 200, {c: f32(n) for c in SIDD}, {"Time": "s", "Gx": "deg/s"}),
-              WriteTopic("RCOU", t50, {c: 1500.0 + rng.uniform(-400, 400, m) for c in RCOU}, {"C1": "us"})]
+    topics = [
+        WriteTopic("RATE", t400, {c: f32(n) for c in RATE}, {c: "deg/s" for c in ("RDes", "R", "PDes")}),
+        WriteTopic("SIDD", t400 + 200, {c: f32(n) for c in SIDD}, {"Time": "s", "Gx": "deg/s"}),
+        WriteTopic("RCOU", t50, {c: 1500.0 + rng.uniform(-400, 400, m) for c in RCOU}, {"C1": "us"}),
+    ]
     for k in (0, 1):
         fields = {c: f32(n) for c in IMU[:6]}
         fields.update(EG=rng.integers(0, 3, n).astype(np.uint32), EA=rng.integers(0, 3, n).astype(np.uint32),
@@ -74,8 +76,8 @@ def _dfreader(path, types=DATA, sequential=False):
     """What DFReader gives: (name, instance label or None, TimeUS, _timestamp, {column: value}) per message.
 
     ``recv_match`` over ``types`` (the usual way; it follows DFReader's index), or with ``sequential`` every
-    message of ``recv_msg`` (its parser, which resynchronises after junk; the index stops at the first header of
-    an undefined type, since pymavlink's commit 93489bcf of March 2026)."""
+    message of ``recv_msg`` (its parser, which resynchronises after junk; the index stops at the first header
+    of an undefined type, since pymavlink's commit 93489bcf of March 2026)."""
     reader = DFReader.DFReader_binary(str(path), zero_time_base=True)
     out = []
     while True:
@@ -86,7 +88,9 @@ def _dfreader(path, types=DATA, sequential=False):
             continue
         inst = m.fmt.instance_field
         label = None if inst is None else str(getattr(m, inst))
-        out.append((m.get_type(), label, m.TimeUS, m._timestamp, {c: getattr(m, c) for c in m.get_fieldnames()}))
+        out.append(
+            (m.get_type(), label, m.TimeUS, m._timestamp, {c: getattr(m, c) for c in m.get_fieldnames()})
+        )
     return reader, out
 
 
@@ -117,7 +121,8 @@ def _compare(ours: dict, theirs: list):
         assert np.array_equal(series.values, expect, equal_nan=True), topic
 
 
-# -- the writer, read back by DFReader -------------------------------------------------------------------------
+# -- the writer, read back by DFReader
+# -------------------------------------------------------------------------
 
 
 def test_dfreader_reads_back_every_value_and_time(theirs, flight):
@@ -149,7 +154,8 @@ def test_messages_in_time_order_as_ardupilot_writes(log, theirs):
     assert head[:3] == b"\xa3\x95\x80" and head[3] == 128 and head[4] == 89 and head[5:8] == b"FMT"
 
 
-# -- the reader against DFReader -----------------------------------------------------------------------------------
+# -- the reader against DFReader
+# -----------------------------------------------------------------------------------
 
 
 def test_reads_the_same_as_dfreader(log, theirs):
@@ -165,9 +171,28 @@ def test_reads_the_same_as_dfreader(log, theirs):
 
 
 def _message(tid: int, fmt: str, *values) -> bytes:
-    codes = {"Q": "Q", "c": "h", "C": "H", "e": "i", "E": "I", "L": "i", "M": "b", "b": "b", "g": "e", "q": "q",
-             "h": "h", "H": "H", "i": "i", "I": "I", "B": "B", "f": "f", "d": "d", "n": "4s", "Z": "64s",
-             "N": "16s"}
+    codes = {
+        "Q": "Q",
+        "c": "h",
+        "C": "H",
+        "e": "i",
+        "E": "I",
+        "L": "i",
+        "M": "b",
+        "b": "b",
+        "g": "e",
+        "q": "q",
+        "h": "h",
+        "H": "H",
+        "i": "i",
+        "I": "I",
+        "B": "B",
+        "f": "f",
+        "d": "d",
+        "n": "4s",
+        "Z": "64s",
+        "N": "16s",
+    }
     return bytes([0xA3, 0x95, tid]) + struct.pack("<" + "".join(codes[c] for c in fmt), *values)
 
 
@@ -184,9 +209,15 @@ TYP2, TYP2_COLS, TYP2_RAW = "QqhHiIBfdn", "TimeUS,q,h,H,i,I,B,f,d,n", (
 
 def test_format_characters_scaled_as_dfreader(tmp_path):
     path = tmp_path / "types.bin"
-    body = (_fmt(128, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns") + _fmt(140, "TYP1", TYP1, TYP1_COLS)
-            + _fmt(142, "TYP2", TYP2, TYP2_COLS) + _fmt(141, "NOTI", "BB", "A,B") + _message(140, TYP1, *TYP1_RAW)
-            + _message(142, TYP2, *TYP2_RAW) + _message(141, "BB", 1, 2))
+    body = (
+        _fmt(128, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns")
+        + _fmt(140, "TYP1", TYP1, TYP1_COLS)
+        + _fmt(142, "TYP2", TYP2, TYP2_COLS)
+        + _fmt(141, "NOTI", "BB", "A,B")
+        + _message(140, TYP1, *TYP1_RAW)
+        + _message(142, TYP2, *TYP2_RAW)
+        + _message(141, "BB", 1, 2)
+    )
     path.write_bytes(body)
     _, msgs = _dfreader(path, ["TYP1", "TYP2"])
     with DataFlashFile(path) as log:
@@ -210,7 +241,8 @@ def test_format_characters_scaled_as_dfreader(tmp_path):
 
 
 def test_instances_named_as_dfreader_names_them(tmp_path):
-    # a text instance (as NVF's name) and a scaled one: DFReader's "%s[%s]" % (name, value) of the decoded value
+    # a text instance (as NVF's name) and a scaled one: DFReader's "%s[%s]" % (name, value) of the decoded
+    # value
     fmtu = "TimeUS,FmtType,UnitIds,MultIds"
     body = [_fmt(128, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns"), _fmt(150, "FMTU", "QBNN", fmtu),
             _fmt(143, "NVF", "QnB", "TimeUS,Name,Value"), _fmt(144, "FIN", "Qcf", "TimeUS,Inst,V"),
@@ -242,7 +274,9 @@ def test_a_type_that_cannot_be_decoded_is_listed_and_refused(tmp_path):
     path.write_bytes(body)
     with DataFlashFile(path) as f:
         assert f.topics["ODD"].count == 1 and f.topics["AA"].count == 2
-        with pytest.raises(DataError, match=r"odd.bin: topic ODD cannot be decoded: unknown format characters 'X'"):
+        with pytest.raises(
+            DataError, match=r"odd.bin: topic ODD cannot be decoded: unknown format characters 'X'"
+        ):
             f.read({"ODD": ["y"]})
         assert f.read({"AA": ["x"]})["AA"].values[:, 0].tolist() == [1.0, 2.0]
 
@@ -274,7 +308,8 @@ def test_unknown_topics_are_left_out_and_empty_reads_work(log):
         assert set(got) == {"IMU[1]"} and got["IMU[1]"].values.shape == (800, 1)
 
 
-# -- damaged files ---------------------------------------------------------------------------------------------------
+# -- damaged files
+# ---------------------------------------------------------------------------------------------------
 
 
 @pytest.mark.parametrize("content", [b"", b"hello world, not a log\n" * 100, bytes(range(256)) * 300,
@@ -305,7 +340,9 @@ def _offsets(path):
     return {n: reader.offsets[reader.name_to_id[n]] for n in DATA}, reader
 
 
-@pytest.mark.parametrize("where", ["boundary", "header+1", "header+2", "header+3", "header+4", "middle", "fmts"])
+@pytest.mark.parametrize(
+    "where", ["boundary", "header+1", "header+2", "header+3", "header+4", "middle", "fmts"]
+)
 def test_truncated_reads_up_to_the_cut(tmp_path, log, where):
     full = _full(log)
     raw = log.read_bytes()
@@ -350,7 +387,8 @@ def test_cut_header_positions_are_damage_not_junk(tmp_path, log):
             assert f.damage is not None and f"at byte {rate[500]} of" in f.damage and f.bad_bytes == 0
 
 
-# -- junk: resynchronisation as DFReader does it -----------------------------------------------------------------
+# -- junk: resynchronisation as DFReader does it
+# -----------------------------------------------------------------
 
 
 def _with_junk(raw: bytes, places: list[tuple[int, bytes]]) -> bytes:
@@ -387,7 +425,10 @@ def test_junk_is_skipped_as_dfreader_skips_it(tmp_path, log, kind, capfd):
         assert bad == 3 * len(junk) + 5 and damage is None
         with DataFlashFile(path) as f:
             f.topics
-            assert f.skipped == f"{path}: skipped {bad} bytes that are not messages (the first at byte {rate[100]})"
+            assert (
+                f.skipped
+                == f"{path}: skipped {bad} bytes that are not messages (the first at byte {rate[100]})"
+            )
         full = _full(log)
         for topic in full:
             assert np.array_equal(full[topic].values, ours[topic].values)
@@ -396,7 +437,8 @@ def test_junk_is_skipped_as_dfreader_skips_it(tmp_path, log, kind, capfd):
     capfd.readouterr()
 
 
-# -- the fast walk against the sequential one --------------------------------------------------------------------
+# -- the fast walk against the sequential one
+# --------------------------------------------------------------------
 
 
 def _spurious_fmt(tid: int, length: int) -> float:
@@ -449,7 +491,8 @@ def test_fast_walk_equals_sequential_walk(tmp_path, monkeypatch, seed):
 
 def test_spurious_fmt_patterns_are_checked_against_the_path(tmp_path, monkeypatch):
     # AAA's values hold the bytes of an FMT giving BB 40 bytes, before BB's real FMT (13 bytes; defined late,
-    # as ArduPilot defines types when first written): the table found by the bytes is wrong, the walk's is right
+    # as ArduPilot defines types when first written): the table found by the bytes is wrong, the walk's is
+    # right
     fake = _spurious_fmt(141, 40)
     body = [_fmt(128, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns"), _fmt(140, "AAA", "Qd", "TimeUS,x")]
     body += [_message(140, "Qd", k, fake) for k in range(50)] + [_fmt(141, "BB", "Qh", "TimeUS,k")]
@@ -461,7 +504,9 @@ def test_spurious_fmt_patterns_are_checked_against_the_path(tmp_path, monkeypatc
         df._grow(table, f._data, np.array([m.start() for m in re.finditer(b"\xa3\x95\x80", f._mm)]))
         assert table.lengths[141] == 40
     fast, table = _walks_agree(path, monkeypatch, 1 << 24)
-    assert table is not None and table.lengths[141] == 13 and fast.counts[140] == 100 and fast.counts[141] == 50
+    assert (
+        table is not None and table.lengths[141] == 13 and fast.counts[140] == 100 and fast.counts[141] == 50
+    )
     data, _, _, bad = _ours(path, ("AAA", "BB"))
     assert bad == 0 and np.array_equal(data["AAA"].values[:, 1], np.full(100, fake))
     assert np.array_equal(data["BB"].values[:, 1], -np.arange(50, 100))
@@ -481,7 +526,8 @@ def test_a_type_redefined_with_another_length_uses_the_sequential_walk(tmp_path)
         assert f.read({"OK": ["y"]})["OK"].values[:, 0].tolist() == [-1, -2]
 
 
-# -- the writer's rules ----------------------------------------------------------------------------------------------
+# -- the writer's rules
+# ----------------------------------------------------------------------------------------------
 
 
 @pytest.mark.parametrize("topic, error", [

@@ -1,7 +1,7 @@
-"""Flight logs through the one data path (gap_validation.bag.replay, ``gap-validate replay|simulate --format``):
-the same simulated flight as a bag, a PX4 ULog, an ArduPilot DataFlash log and CSV files gives the same verdict;
-the logging checks (a stream too slow for the band, irregular stamps, a missing topic or field) say what to fix;
-a damaged log is read up to the damage, reported, and its results written."""
+"""Flight logs through the one data path (gap_validation.bag.replay, ``gap-validate replay|simulate
+--format``): the same simulated flight as a bag, a PX4 ULog, an ArduPilot DataFlash log and CSV files gives
+the same verdict; the logging checks (a stream too slow for the band, irregular stamps, a missing topic or
+field) say what to fix; a damaged log is read up to the damage, reported, and its results written."""
 import copy
 import importlib.util
 import json
@@ -10,20 +10,20 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _flights import CONFIG_PATH, SHORT, config_from, single_channel
 
-from _flights import CONFIG_PATH, SHORT, config_from, single_channel, write_config
 from gap_validation.bag.replay import BAG_GAP_S, replay
 from gap_validation.bag.writer import write_flight
+from gap_validation.cli.arguments import hidden_effects
 from gap_validation.cli.main import main
 from gap_validation.core.config import load_config
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.simulation import simulate_flight, with_options
-from gap_validation.cli.arguments import hidden_effects
 from gap_validation.logs.base import WriteTopic
-from gap_validation.logs.formats import open_log
 from gap_validation.logs.checks import rate_limit_rad_s
 from gap_validation.logs.csvlog import write_csv
 from gap_validation.logs.flight import BOOT_S, SERVO_RANGE_RAD, write_flight_log
+from gap_validation.logs.formats import open_log
 
 #: One 30 s sweep and a doublet of pitch: surfaces and IMU at the same rates in every format.
 CARD = with_options(SHORT, sweeps_per_channel=1, sweep_duration_s=30.0, quiet_s=3.0, surface_rate_hz=50.0,
@@ -42,8 +42,9 @@ def _one_line(text, *needles):
 
 
 def _as_logged(flight, config, log, log_config):
-    """The flight as the log holds it (its stamps on the log's microsecond clock, its values as stored: float32,
-    whole-microsecond PWM), in the config's units: written as a bag, it carries the log's very samples."""
+    """The flight as the log holds it (its stamps on the log's microsecond clock, its values as stored:
+    float32, whole-microsecond PWM), in the config's units: written as a bag, it carries the log's very
+    samples."""
     out = copy.deepcopy(flight)
     for name, ch in config.channels.items():
         for stream in ("input", "output"):
@@ -66,8 +67,8 @@ def pitch():
 
 @pytest.fixture(scope="module")
 def same_flight(tmp_path_factory, pitch):
-    """One flight (seed 2, a hidden 40 ms delay) as a bag and in every log format, each log with its config and
-    a bag of the samples it holds; and every replay."""
+    """One flight (seed 2, a hidden 40 ms delay) as a bag and in every log format, each log with its config
+    and a bag of the samples it holds; and every replay."""
     root = tmp_path_factory.mktemp("same")
     flight = simulate_flight(pitch, hidden_effects(HIDDEN, pitch), CARD, seed=2)
     write_flight(flight, root / "bag")
@@ -93,9 +94,12 @@ def test_every_format_gives_the_bag_verdict_and_names_the_hidden_effect(same_fli
     # the log's very samples as a bag: the same numbers through the same router and validator
     same = same_flight[fmt]["as_logged"].result.channels["pitch"]
     assert abs(log.epsilon - same.epsilon) < 1e-6 and abs(log.nu_gap - same.nu_gap) < 1e-6
-    assert np.allclose(log.epsilon_per_frequency, same.epsilon_per_frequency, rtol=0, atol=1e-6, equal_nan=True)
-    # against the bag of nanosecond stamps and float64 values, only the format's precision moves epsilon: stamps
-    # in whole microseconds (all three), float32 (ULog, DataFlash), PWM in whole microseconds, 0.0007 rad (RCOU)
+    assert np.allclose(
+        log.epsilon_per_frequency, same.epsilon_per_frequency, rtol=0, atol=1e-6, equal_nan=True
+    )
+    # against the bag of nanosecond stamps and float64 values, only the format's precision moves epsilon:
+    # stamps in whole microseconds (all three), float32 (ULog, DataFlash), PWM in whole microseconds, 0.0007
+    # rad (RCOU)
     assert abs(log.epsilon - bag.epsilon) < (2e-3 if fmt == "dataflash" else 1e-5)
 
 
@@ -126,14 +130,17 @@ def test_the_log_clock_and_units_are_the_autopilots(same_flight):
 
 
 def test_servos_at_10_hz_are_validated_up_to_what_their_rate_resolves_and_say_why(tmp_path):
-    """PX4's default: actuator_servos every 100 ms, the gyro at 250 Hz. The servos are read up to their Nyquist
-    frequency (31.4 rad/s; the gyro shows what their sampling folds back): every frequency whose band (+-10 %) lies
-    below it, up to 28.6 rad/s; above that no frequency is confident, each above 31.4 rad/s says
-    ``above_resolution``, no band is model-limited, and the warning says what to change. (test_slow_streams.py has
-    the accuracy.)"""
+    """PX4's default: actuator_servos every 100 ms, the gyro at 250 Hz. The servos are read up to their
+    Nyquist frequency (31.4 rad/s; the gyro shows what their sampling folds back): every frequency whose band
+    (+-10 %) lies below it, up to 28.6 rad/s; above that no frequency is confident, each above 31.4 rad/s says
+    ``above_resolution``, no band is model-limited, and the warning says what to change. (test_slow_streams.py
+    has the accuracy.)"""
     fmt = "ulog" if "ulog" in FORMATS else "csv"
-    config = config_from(single_channel("pitch", frequencies={"min_rad_s": 1.0, "max_rad_s": 40.0, "count": 40}))
-    card = with_options(CARD, surface_rate_hz=10.0, imu_rate_hz=250.0, band_high_factor=0.72)   # sweep to 28.8 rad/s
+    config = config_from(
+        single_channel("pitch", frequencies={"min_rad_s": 1.0, "max_rad_s": 40.0, "count": 40})
+    )
+    # sweep to 28.8 rad/s
+    card = with_options(CARD, surface_rate_hz=10.0, imu_rate_hz=250.0, band_high_factor=0.72)
     flight = simulate_flight(config, {}, card, seed=4)
     log, config_path, _ = write_flight_log(flight, config, tmp_path / "px4", fmt)
     outcome = replay([log], load_config(config_path))
@@ -142,8 +149,13 @@ def test_servos_at_10_hz_are_validated_up_to_what_their_rate_resolves_and_say_wh
     top = limit / 1.1
     slow = [w for w in outcome.warnings if "logged at 10 Hz" in w]
     assert len(slow) == 1 and not any("250 Hz" in w for w in outcome.warnings)
-    _one_line(slow[0], "frequencies above 28.6 rad/s cannot be validated", "Nyquist frequency, 31.4 rad/s", "40 rad/s",
-              "40 Hz or faster")
+    _one_line(
+        slow[0],
+        "frequencies above 28.6 rad/s cannot be validated",
+        "Nyquist frequency, 31.4 rad/s",
+        "40 rad/s",
+        "40 Hz or faster",
+    )
     if fmt == "ulog":
         _one_line(slow[0], "actuator_servos", "SDLOG_PROFILE", "logger_topics.txt")
     ch = outcome.result.channels["pitch"]
@@ -174,8 +186,18 @@ def test_a_truncated_log_is_read_up_to_the_damage_results_written_exit_1(same_fl
     data = victim.read_bytes()
     victim.write_bytes(data[:int(len(data) * 0.8) + 5])
     out = tmp_path / "out.json"
-    status = main(["replay", str(cut), "--config", str(same_flight[fmt]["config"]), "--json", str(out), "--no-history",
-                   "--no-progress"])
+    status = main(
+        [
+            "replay",
+            str(cut),
+            "--config",
+            str(same_flight[fmt]["config"]),
+            "--json",
+            str(out),
+            "--no-history",
+            "--no-progress",
+        ]
+    )
     assert status == 1
     errors = [line for line in capsys.readouterr().err.splitlines() if "error:" in line]
     assert len(errors) == 1 and "Traceback" not in errors[0]
@@ -196,11 +218,14 @@ def test_a_missing_topic_and_a_missing_field_are_one_line_each_and_the_rest_vali
     outcome = replay([same_flight[fmt]["log"]], config_from(data))
     missing = [w for w in outcome.warnings if "NOPE" in w]
     assert len(missing) == 1
-    _one_line(missing[0], "topic NOPE (gone.output) is not in the log", f"it has: ", topic)
+    _one_line(missing[0], "topic NOPE (gone.output) is not in the log", "it has: ", topic)
     field = [e for e in outcome.errors if "NoSuchField" in e]
     assert len(field) == 1
-    have = open_log(Path(same_flight[fmt]["log"]) / f"{topic}.csv" if fmt == "csv" else same_flight[fmt]["log"]) \
-        .topics[topic].fields
+    have = (
+        open_log(Path(same_flight[fmt]["log"]) / f"{topic}.csv" if fmt == "csv" else same_flight[fmt]["log"])
+        .topics[topic]
+        .fields
+    )
     _one_line(field[0], Path(same_flight[fmt]["log"]).name, f"topic {topic} has no field NoSuchField",
               ", ".join(have), "late.output skipped")
     assert not any("late" in e and e is not field[0] for e in outcome.errors)       # one line for that stream
@@ -269,8 +294,18 @@ def test_cli_simulate_writes_the_log_and_its_config_and_replay_reads_it(tmp_path
         assert "surfaces at 10 Hz" in text                      # PX4's default logging interval
         assert "# actuator_servos control[k]" in config.read_text()
     assert main(args) == 2 and "exists already" in capsys.readouterr().err
-    status = main(["replay", str(log), "--config", str(config), "--json", str(tmp_path / "r.json"), "--no-history",
-                   "--no-progress"])
+    status = main(
+        [
+            "replay",
+            str(log),
+            "--config",
+            str(config),
+            "--json",
+            str(tmp_path / "r.json"),
+            "--no-history",
+            "--no-progress",
+        ]
+    )
     assert status == 0
     assert set(json.loads((tmp_path / "r.json").read_text())["channels"]) == {"roll", "pitch", "yaw"}
     assert main(["replay", str(log), "--config", str(config), "--annotate", str(tmp_path / "a.mcap")]) == 2
@@ -298,17 +333,25 @@ def test_a_copter_systemid_log_with_sidd_as_the_excitation_gives_the_plant_like_
     assert layout == "ArduCopter SystemID"
     log_config = load_config(config_path)
     ch = log_config.channels["pitch"]
-    assert (ch.input.topic, ch.input.field, ch.excitation.topic, ch.excitation.field) == ("/RATE", "POut", "/SIDD",
-                                                                                         "Targ")
+    assert (ch.input.topic, ch.input.field, ch.excitation.topic, ch.excitation.field) == (
+        "/RATE",
+        "POut",
+        "/SIDD",
+        "Targ",
+    )
     write_flight(flight, tmp_path / "bag")
     bag_config = copy.deepcopy(pitch.raw)
-    bag_config["channels"]["pitch"]["excitation"] = {"topic": "/sysid/excitation", "field": "position[elevator]"}
+    bag_config["channels"]["pitch"]["excitation"] = {
+        "topic": "/sysid/excitation",
+        "field": "position[elevator]",
+    }
     from_bag = replay([tmp_path / "bag"], config_from(bag_config)).result.channels["pitch"]
     from_log = replay([log], log_config).result.channels["pitch"]
     assert from_log.limited_by == from_bag.limited_by == "model"
     assert from_log.diagnosis[0].effect == from_bag.diagnosis[0].effect == "time_delay"
     assert from_log.diagnosis[0].parameters["seconds"] == pytest.approx(0.04, abs=0.01)
-    assert abs(from_log.epsilon - from_bag.epsilon) < 2e-3      # PWM-free, float32 and microsecond stamps only
+    # PWM-free, float32 and microsecond stamps only
+    assert abs(from_log.epsilon - from_bag.epsilon) < 2e-3
 
 
 def test_conflicting_csv_time_columns_are_a_config_error(same_flight, tmp_path):
@@ -343,7 +386,9 @@ def test_a_ulog_instance_0_may_be_named_with_its_index(same_flight):
     data = __import__("yaml").safe_load(Path(same_flight["ulog"]["config"]).read_text())
     plain = replay([same_flight["ulog"]["log"]], config_from(data))
     for stream in ("input", "output"):
-        data["channels"]["pitch"][stream]["topic"] = data["channels"]["pitch"][stream]["topic"].lstrip("/") + ":0"
+        data["channels"]["pitch"][stream]["topic"] = (
+            data["channels"]["pitch"][stream]["topic"].lstrip("/") + ":0"
+        )
     indexed = replay([same_flight["ulog"]["log"]], config_from(data))
     assert not [w for w in indexed.warnings if "not in the log" in w], indexed.warnings
     assert indexed.result.channels["pitch"].epsilon == plain.result.channels["pitch"].epsilon

@@ -1,23 +1,23 @@
-"""Flight logs replayed block by block (issue 24: streaming and constant memory as for bags): a log read in tiny
-blocks gives the results of one block holding the whole file, the blocks joined are the whole read, the merge of
-the topics is the stable time sort of all their samples, and the logging checks gathered in pieces are those of
-the whole series."""
+"""Flight logs replayed block by block (issue 24: streaming and constant memory as for bags): a log read in
+tiny blocks gives the results of one block holding the whole file, the blocks joined are the whole read, the
+merge of the topics is the stable time sort of all their samples, and the logging checks gathered in pieces
+are those of the whole series."""
 import json
 import math
 
 import numpy as np
 import pytest
-
 from _flights import SHORT, config_from, single_channel
+
 from gap_validation.bag.replay import replay
+from gap_validation.cli.arguments import hidden_effects
 from gap_validation.core.config import load_config
 from gap_validation.core.simulation import simulate_flight, with_options
-from gap_validation.cli.arguments import hidden_effects
 from gap_validation.logs import checks, csvlog, dataflash, ulog
 from gap_validation.logs.base import WriteTopic, join_blocks
-from gap_validation.logs.formats import open_log
 from gap_validation.logs.checks import StampStats, check_stamps
 from gap_validation.logs.flight import BOOT_S, write_flight_log
+from gap_validation.logs.formats import open_log
 from gap_validation.logs.merge import merge_in_time_order
 
 #: One 30 s pitch sweep and a doublet, the gyro at 250 Hz and the servos at 50 Hz (about 0.5 MB as a ULog).
@@ -61,9 +61,10 @@ def _block_starts(log, config, block):
 
 @pytest.mark.parametrize("fmt", list(KNOBS))
 def test_tiny_blocks_give_the_results_of_one_block_holding_the_whole_log(logs, monkeypatch, fmt):
-    """A block boundary every 4 KiB (inside every manoeuvre, between a servo sample and the gyro samples around
-    it) changes nothing: the same JSON results to the last bit, the same warnings, errors and samples, as one
-    block holding the whole file (what the replay of the whole series in memory did) and the default blocks."""
+    """A block boundary every 4 KiB (inside every manoeuvre, between a servo sample and the gyro samples
+    around it) changes nothing: the same JSON results to the last bit, the same warnings, errors and samples,
+    as one block holding the whole file (what the replay of the whole series in memory did) and the default
+    blocks."""
     log, config = logs[fmt]
     whole = _replayed(log, config, monkeypatch, fmt, 1 << 30)
     tiny = _replayed(log, config, monkeypatch, fmt, TINY)
@@ -85,14 +86,24 @@ def _ulog_with_damage(tmp_path):
     rng = np.random.default_rng(3)
     t = np.arange(4000, dtype=np.int64) * 4000 + 1_000_000
     late = t[2500::5]
-    topics = [WriteTopic("rates", t, {"timestamp_sample": t - 700, "xyz[0]": rng.normal(size=t.size).astype(np.float32),
-                                      "xyz[1]": rng.normal(size=t.size).astype(np.float32)}),
-              WriteTopic("servo", t[::5], {"control[0]": rng.normal(size=t[::5].size).astype(np.float32)}),
-              WriteTopic("servo:1", t[2::5], {"control[0]": rng.normal(size=t[2::5].size).astype(np.float32)}),
-              WriteTopic("late", late, {"v": rng.normal(size=late.size)})]
+    topics = [
+        WriteTopic(
+            "rates",
+            t,
+            {
+                "timestamp_sample": t - 700,
+                "xyz[0]": rng.normal(size=t.size).astype(np.float32),
+                "xyz[1]": rng.normal(size=t.size).astype(np.float32),
+            },
+        ),
+        WriteTopic("servo", t[::5], {"control[0]": rng.normal(size=t[::5].size).astype(np.float32)}),
+        WriteTopic("servo:1", t[2::5], {"control[0]": rng.normal(size=t[2::5].size).astype(np.float32)}),
+        WriteTopic("late", late, {"v": rng.normal(size=late.size)}),
+    ]
     whole = ulog.write_ulog(tmp_path / "whole.ulg", topics)
     data = whole.read_bytes()
-    pos = 16                                               # the messages after the header: uint16 size, uint8 type
+    # the messages after the header: uint16 size, uint8 type
+    pos = 16
     while pos < 0.7 * len(data):
         pos += 3 + int.from_bytes(data[pos:pos + 2], "little")
     cut = tmp_path / "cut.ulg"
@@ -102,8 +113,9 @@ def _ulog_with_damage(tmp_path):
 
 @pytest.mark.parametrize("block", [211, 4096, None])
 def test_ulog_blocks_joined_are_the_whole_read(tmp_path, block):
-    """The whole read (one pass gathering every sample) and the blocks (a pass noting where the messages are, then
-    each block read again) are two ways through the file: they give the same numbers, counts, start and damage."""
+    """The whole read (one pass gathering every sample) and the blocks (a pass noting where the messages are,
+    then each block read again) are two ways through the file: they give the same numbers, counts, start and
+    damage."""
     wanted = {"rates": ["xyz[1]", "xyz[0]"], "servo": ["control[0]"], "servo:1": ["control[0]"],
               "late": ["v"], "servo:0": ["control[0]"], "nothere": ["x"]}
     for path in _ulog_with_damage(tmp_path):
@@ -161,9 +173,10 @@ def _merged(out, widths):
 
 @pytest.mark.parametrize("seed", range(8))
 def test_the_merge_is_the_stable_time_sort_of_all_samples(seed):
-    """Random topics (repeated stamps, stamps going back, not numbers, topics starting late and stopping early),
-    split into random blocks, in one stream (a ULog, a DataFlash log) and one stream per topic (CSV files): the
-    merge gives exactly the order of the global sort, and each topic's values in its logged order."""
+    """Random topics (repeated stamps, stamps going back, not numbers, topics starting late and stopping
+    early), split into random blocks, in one stream (a ULog, a DataFlash log) and one stream per topic (CSV
+    files): the merge gives exactly the order of the global sort, and each topic's values in its logged
+    order."""
     rng = np.random.default_rng(seed)
     n_topics = int(rng.integers(1, 5))
     series = []
@@ -198,9 +211,9 @@ def test_the_merge_is_the_stable_time_sort_of_all_samples(seed):
 
 
 def test_the_merge_holds_a_block_or_two_not_the_log():
-    """Blocks of a time-ordered log: every sample of block i is handed out before block i + 2 is read, even with
-    a topic that has not started (it lags its stream by more than ``lag_s``) and one that stopped early; the
-    topic that starts late still comes in time order."""
+    """Blocks of a time-ordered log: every sample of block i is handed out before block i + 2 is read, even
+    with a topic that has not started (it lags its stream by more than ``lag_s``) and one that stopped early;
+    the topic that starts late still comes in time order."""
     read = []
     out_after = []                                        # blocks read when each run came out
 
@@ -230,8 +243,8 @@ def test_the_merge_holds_a_block_or_two_not_the_log():
 @pytest.mark.parametrize("batch", [checks.STAMP_BATCH, 100])
 def test_stamp_checks_in_pieces_are_those_of_the_whole_series(monkeypatch, batch):
     """Counts of repeated, earlier and missing stamps and of gaps, the longest gap, exactly; the rate within a
-    relative 1e-9 of the median of the exact spacings (numpy's); the same result in any split (the stamps counted
-    as they come, or gathered up to ``STAMP_BATCH`` first)."""
+    relative 1e-9 of the median of the exact spacings (numpy's); the same result in any split (the stamps
+    counted as they come, or gathered up to ``STAMP_BATCH`` first)."""
     monkeypatch.setattr(checks, "STAMP_BATCH", batch)
     rng = np.random.default_rng(11)
     us = 60_000_000 + np.cumsum(rng.integers(3990, 4010, 20000))

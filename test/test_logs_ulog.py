@@ -1,5 +1,5 @@
-"""PX4 ULog (gap_validation.logs.ulog): written in PX4's layouts, read back by pyulog (PX4's own reader) value for
-value, read by ours exactly as pyulog reads it, damaged files read up to the damage, one-line errors.
+"""PX4 ULog (gap_validation.logs.ulog): written in PX4's layouts, read back by pyulog (PX4's own reader) value
+for value, read by ours exactly as pyulog reads it, damaged files read up to the damage, one-line errors.
 
 Files the writer cannot make (nested types, padding, appended data, every data-section message type) are built
 here from raw bytes, by the spec, independently of the module.
@@ -11,9 +11,9 @@ import pytest
 import pyulog
 
 from gap_validation.core.errors import DataError
+from gap_validation.logs import ulog as ulog_module
 from gap_validation.logs.base import WriteTopic
 from gap_validation.logs.formats import open_log
-from gap_validation.logs import ulog as ulog_module
 from gap_validation.logs.ulog import ULogFile, write_ulog
 
 MAGIC = b"ULog\x01\x12\x35"
@@ -208,8 +208,15 @@ def test_reads_what_pyulog_reads(ulg, full):
     assert list(topics) == ["vehicle_angular_velocity", "actuator_servos", "sensor_gyro", "sensor_gyro:1",
                             "vehicle_rates_setpoint", "vehicle_global_position"]
     assert topics["vehicle_angular_velocity"].fields == (
-        "timestamp", "timestamp_sample", "xyz[0]", "xyz[1]", "xyz[2]", "xyz_derivative[0]", "xyz_derivative[1]",
-        "xyz_derivative[2]")
+        "timestamp",
+        "timestamp_sample",
+        "xyz[0]",
+        "xyz[1]",
+        "xyz[2]",
+        "xyz_derivative[0]",
+        "xyz_derivative[1]",
+        "xyz_derivative[2]",
+    )
     assert series["vehicle_rates_setpoint"].values[:4, -1].tolist() == [1.0, 0.0, 0.0, 1.0]   # bool -> 0/1
 
 
@@ -218,7 +225,8 @@ def test_time_is_timestamp_sample_where_there_is_one(ulg, flight):
         got = log.read({"vehicle_angular_velocity": ["xyz[1]"], "vehicle_rates_setpoint": ["yaw"],
                         "actuator_servos": []})
     gyro, rates, servos = flight[0], flight[4], flight[1]
-    np.testing.assert_array_equal(got["vehicle_angular_velocity"].t_s, (gyro.t_us - 300) / 1e6)   # sample time
+    # sample time
+    np.testing.assert_array_equal(got["vehicle_angular_velocity"].t_s, (gyro.t_us - 300) / 1e6)
     np.testing.assert_array_equal(got["vehicle_rates_setpoint"].t_s, rates.t_us / 1e6)            # timestamp
     np.testing.assert_array_equal(got["vehicle_angular_velocity"].values[:, 0], gyro.fields["xyz[1]"])
     assert got["actuator_servos"].values.shape == (100, 0)

@@ -134,6 +134,10 @@ def test_margins_grow_with_epsilon_and_describe_the_disk(e1, e2):
     assert m.lower_disk_marker * m.upper_disk_marker == pytest.approx(1.0)
     # disk centre (1 + e^2)/(1 - e^2) and radius 2e/(1 - e^2) (DESIGN.md) meet the real axis at the markers
     e = max(e1, e2)
-    assert (m.upper_disk_marker - m.lower_disk_marker) / 2 == pytest.approx(m.disk_margin, rel=1e-9, abs=1e-12)
-    assert (m.upper_disk_marker + m.lower_disk_marker) / 2 == pytest.approx((1 + e * e) / (1 - e * e), rel=1e-9)
+    assert (m.upper_disk_marker - m.lower_disk_marker) / 2 == pytest.approx(
+        m.disk_margin, rel=1e-9, abs=1e-12
+    )
+    assert (m.upper_disk_marker + m.lower_disk_marker) / 2 == pytest.approx(
+        (1 + e * e) / (1 - e * e), rel=1e-9
+    )
     assert 20 * math.log10(m.upper_disk_marker) == pytest.approx(m.gain_margin_db, abs=1e-9)

@@ -1,9 +1,10 @@
-"""Message types of the node's topics (gap_validation.ros.message_types): from the config, checked on the classes."""
+"""Message types of the node's topics (gap_validation.ros.message_types): from the config, checked on the
+classes."""
 import dataclasses
 
 import pytest
-
 from _messages import make_config
+
 from gap_validation.core.config import SignalSpec, ValidationConfig
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.layouts import FLOAT64, IMU
@@ -17,7 +18,9 @@ def test_types_from_the_config_and_their_conflicts():
     assert resolve_types(config) == {"/control_surfaces": None, "/imu": None}
     pitch = config.channels["pitch"]
     pitch = dataclasses.replace(pitch, output=SignalSpec("/imu", "angular_velocity.y", type=IMU))
-    roll = dataclasses.replace(pitch, name="roll", output=SignalSpec("/imu", "angular_velocity.x", type=FLOAT64))
+    roll = dataclasses.replace(
+        pitch, name="roll", output=SignalSpec("/imu", "angular_velocity.x", type=FLOAT64)
+    )
     assert resolve_types(ValidationConfig({"pitch": pitch}))["/imu"] == IMU
     with pytest.raises(ConfigError, match="cfg.yaml: topic /imu: conflicting types"):
         resolve_types(ValidationConfig({"pitch": pitch, "roll": roll}, source="cfg.yaml"))
@@ -34,8 +37,8 @@ def test_a_type_must_be_installed_and_carry_the_fields():
 
 
 def test_topics_are_subscribed_at_once_with_the_type_their_fields_imply():
-    """No ``type:`` in the config: angular_velocity.* is an Imu, position[...] a JointState, data a Float64; a field
-    that implies nothing waits for the graph; the config's type wins."""
+    """No ``type:`` in the config: angular_velocity.* is an Imu, position[...] a JointState, data a Float64; a
+    field that implies nothing waits for the graph; the config's type wins."""
     config = make_config()
     assert topic_types(config) == {"/control_surfaces": TopicType("sensor_msgs/msg/JointState", "fields"),
                                    "/imu": TopicType(IMU, "fields")}

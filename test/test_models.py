@@ -50,8 +50,9 @@ def test_lateral_symmetric_aileron_to_roll_rate():
     # the weight vector is B[:, 0] - B[:, 1]
     b = np.array(LATERAL["B"])
     explicit = {"A": LATERAL["A"], "B": (b[:, 0] - b[:, 1]).reshape(-1, 1).tolist(), "C": [0, 1, 0, 0]}
-    np.testing.assert_allclose(LinearModel.from_spec({"state_space": explicit}).freqresp(W), model.freqresp(W),
-                               rtol=1e-10)
+    np.testing.assert_allclose(
+        LinearModel.from_spec({"state_space": explicit}).freqresp(W), model.freqresp(W), rtol=1e-10
+    )
     # output as a weight vector too
     weighted = LinearModel.from_spec({"state_space": dict(LATERAL, input=[1, -1, 0], output=[0, 1, 0, 0])})
     np.testing.assert_allclose(weighted.freqresp(W), model.freqresp(W), rtol=1e-12)
@@ -59,7 +60,9 @@ def test_lateral_symmetric_aileron_to_roll_rate():
 
 
 def test_state_space_response_equals_matrix_formula():
-    model = LinearModel.from_spec({"state_space": dict(LATERAL, input=2, output=2, D=np.zeros((4, 3)).tolist())})
+    model = LinearModel.from_spec(
+        {"state_space": dict(LATERAL, input=2, output=2, D=np.zeros((4, 3)).tolist())}
+    )
     a, b, c = np.array(LATERAL["A"]), np.array(LATERAL["B"])[:, 2], np.array(LATERAL["C"])[2]
     direct = np.array([c @ np.linalg.solve(1j * w * np.eye(4) - a, b) for w in W])
     np.testing.assert_allclose(model.freqresp(W), direct, rtol=1e-9)
@@ -70,8 +73,9 @@ def test_tf_zpk_and_ss_forms_give_the_same_response():
     tf = LinearModel.from_spec({"numerator": [-133.7, -990.756285], "denominator": [1.0, 23.37, 235.9302]})
     zero = -990.756285 / 133.7
     pole = complex(-11.685, math.sqrt(235.9302 - 11.685**2))
-    zpk_pairs = LinearModel.from_spec({"zeros": [zero], "poles": [[pole.real, pole.imag], [pole.real, -pole.imag]],
-                                       "gain": -133.7})
+    zpk_pairs = LinearModel.from_spec(
+        {"zeros": [zero], "poles": [[pole.real, pole.imag], [pole.real, -pole.imag]], "gain": -133.7}
+    )
     zpk_strings = LinearModel.from_spec({"zeros": [str(zero)], "poles": [str(pole), str(pole.conjugate())],
                                          "gain": -133.7})
     reference = tf.freqresp(W)
@@ -98,7 +102,9 @@ def test_to_spec_round_trips(spec):
 
 
 def test_effects_multiply_the_response_and_sum_the_delays():
-    base = LinearModel.from_spec({"numerator": [18.75, 225.0], "denominator": [1.0, 9.0, 225.0], "delay_s": 0.01})
+    base = LinearModel.from_spec(
+        {"numerator": [18.75, 225.0], "denominator": [1.0, 9.0, 225.0], "delay_s": 0.01}
+    )
     s = 1j * W
     cases = [
         ({"type": "time_delay", "seconds": 0.04}, np.exp(-0.04 * s)),
@@ -237,21 +243,41 @@ def test_a_million_samples_stay_finite_and_match_lsim():
         ({"numerator": [1.0]}, "missing key 'denominator'"),
         ({"numerator": [1.0], "denominator": [1.0, 1.0], "colour": 3}, "model.colour: unknown key"),
         ({"numerator": [1.0], "denominator": [1.0, 1.0], "poles": [-1]}, "exactly one of"),
-        ({"numerator": [1.0], "denominator": [1.0, 1.0], "delay_s": -1}, "model.delay_s: expected a number >= 0"),
-        ({"numerator": [1.0], "denominator": [1.0, 1.0], "effects": {"type": "gain"}},
-         "model.effects: expected a list"),
-        ({"numerator": [1.0], "denominator": [1.0, 1.0], "effects": [{"type": "time_delay", "seconds": "abc"}]},
-         "model.effects[0].seconds: expected a number >= 0, got 'abc'"),
+        (
+            {"numerator": [1.0], "denominator": [1.0, 1.0], "delay_s": -1},
+            "model.delay_s: expected a number >= 0",
+        ),
+        (
+            {"numerator": [1.0], "denominator": [1.0, 1.0], "effects": {"type": "gain"}},
+            "model.effects: expected a list",
+        ),
+        (
+            {
+                "numerator": [1.0],
+                "denominator": [1.0, 1.0],
+                "effects": [{"type": "time_delay", "seconds": "abc"}],
+            },
+            "model.effects[0].seconds: expected a number >= 0, got 'abc'",
+        ),
         ({"poles": ["-1+2j"]}, "model.poles: complex root -1+2j has no conjugate"),
         ({"poles": [[-1, 2, 3]]}, "model.poles[0]"),
         ({"poles": ["x"]}, "model.poles[0]"),
         ({"zeros": [-1, -2], "poles": [-3]}, "improper model"),
-        ({"state_space": {"A": [[1, 2], [3, 4]], "B": [[1], [2]], "C": [1, 0], "E": 1}}, "model.state_space.E"),
+        (
+            {"state_space": {"A": [[1, 2], [3, 4]], "B": [[1], [2]], "C": [1, 0], "E": 1}},
+            "model.state_space.E",
+        ),
         ({"state_space": {"A": [[1, 2], [3, 4]], "B": [[1], [2], [3]], "C": [1, 0]}}, "model.state_space.B"),
         ({"state_space": {"A": [[1, 2, 3], [3, 4, 5]], "B": [[1], [2]], "C": [1, 0]}}, "model.state_space.A"),
         ({"state_space": dict(LATERAL)}, "model.state_space.input: missing"),
-        ({"state_space": dict(LATERAL, input=[1, -1], output=1)}, "model.state_space.input: expected 3 weights"),
-        ({"state_space": dict(LATERAL, input=0, output=7)}, "model.state_space.output: expected an index 0..3"),
+        (
+            {"state_space": dict(LATERAL, input=[1, -1], output=1)},
+            "model.state_space.input: expected 3 weights",
+        ),
+        (
+            {"state_space": dict(LATERAL, input=0, output=7)},
+            "model.state_space.output: expected an index 0..3",
+        ),
         ({"state_space": {"A": [[1]], "B": [[1]], "C": [[1]], "D": [["a"]]}}, "model.state_space.D"),
         ([1, 2], "model: expected a mapping"),
     ],
@@ -265,8 +291,14 @@ def test_config_errors_name_the_key(spec, fragment):
 
 def test_where_prefix_is_used():
     with pytest.raises(ConfigError, match=r"^channels\.pitch\.model\.effects\[1\]\.seconds"):
-        LinearModel.from_spec({"numerator": [1.0], "denominator": [1.0, 1.0], "effects": [
-            {"type": "gain", "factor": 2}, {"type": "time_delay", "seconds": None}]}, where="channels.pitch.model")
+        LinearModel.from_spec(
+            {
+                "numerator": [1.0],
+                "denominator": [1.0, 1.0],
+                "effects": [{"type": "gain", "factor": 2}, {"type": "time_delay", "seconds": None}],
+            },
+            where="channels.pitch.model",
+        )
 
 
 def test_model_is_immutable():
@@ -277,7 +309,8 @@ def test_model_is_immutable():
         model.delay_s = 1.0
 
 
-# -- MIMO models -----------------------------------------------------------------------------------------------
+# -- MIMO models
+# -----------------------------------------------------------------------------------------------
 
 LATERAL_MIMO = {"A": LATERAL["A"], "B": LATERAL["B"], "C": [LATERAL["C"][1], LATERAL["C"][2]]}
 
@@ -332,26 +365,52 @@ def test_minimal_realization_and_poles_of_a_mimo_model():
     assert model.with_effects([]) is model
 
 
-@pytest.mark.parametrize("spec, fragment", [
-    ({"state_space": dict(LATERAL_MIMO, B=[[1, 2], [3, 4], [5, 6], [7, 8]])},
-     "model.state_space.B: expected 3 columns (one per entry of inputs), got shape 4x2"),
-    ({"state_space": dict(LATERAL_MIMO, C=[LATERAL["C"][1]])},
-     "model.state_space.C: expected 2 rows (one per entry of outputs), got shape 1x4"),
-    ({"state_space": dict(LATERAL_MIMO, D=[[0, 0], [0, 0]])}, "model.state_space.D: expected 3 columns"),
-    ({"state_space": dict(LATERAL_MIMO, input=0)}, "model.state_space.input: not used by a MIMO model"),
-    ({"state_space": {"A": LATERAL["A"], "B": LATERAL["B"]}}, "model.state_space: missing key 'C'"),
-    ({"state_space": dict(LATERAL_MIMO), "delay_s": 0.05}, "model.delay_s: not available for a MIMO model yet"),
-    ({"state_space": dict(LATERAL_MIMO), "effects": []}, "model.effects: not available for a MIMO model yet"),
-    ({"numerator": [1.0], "denominator": [1.0, 1.0]}, "model.numerator: unknown key for a MIMO model"),
-    ({"transfer_matrix": [[1, 2, 3]]}, "model.transfer_matrix: expected 2 rows (one per entry of outputs), got 1"),
-    ({"transfer_matrix": [[1, 2], [3, 4]]}, "model.transfer_matrix[0]: expected 3 elements"),
-    ({"transfer_matrix": [[1, 2, 3], [4, 5]]}, "model.transfer_matrix[1]: expected 3 elements like row 0"),
-    ({"transfer_matrix": [[1, 2, "x"], [4, 5, 6]]}, "model.transfer_matrix[0][2]"),
-    ({"transfer_matrix": [[1, 2, {"numerator": [1], "denominator": [1, 1], "delay_s": 0.1}], [4, 5, 6]]},
-     "model.transfer_matrix[0][2]: delays are not available in a MIMO model yet"),
-    ({"transfer_matrix": [[1, 2, 3], [4, 5, 6]], "state_space": LATERAL_MIMO}, "exactly one of"),
-    ({"state_space": dict(LATERAL_MIMO, A=[[1e300]])}, "model.state_space.A"),
-])
+@pytest.mark.parametrize(
+    "spec, fragment",
+    [
+        (
+            {"state_space": dict(LATERAL_MIMO, B=[[1, 2], [3, 4], [5, 6], [7, 8]])},
+            "model.state_space.B: expected 3 columns (one per entry of inputs), got shape 4x2",
+        ),
+        (
+            {"state_space": dict(LATERAL_MIMO, C=[LATERAL["C"][1]])},
+            "model.state_space.C: expected 2 rows (one per entry of outputs), got shape 1x4",
+        ),
+        ({"state_space": dict(LATERAL_MIMO, D=[[0, 0], [0, 0]])}, "model.state_space.D: expected 3 columns"),
+        ({"state_space": dict(LATERAL_MIMO, input=0)}, "model.state_space.input: not used by a MIMO model"),
+        ({"state_space": {"A": LATERAL["A"], "B": LATERAL["B"]}}, "model.state_space: missing key 'C'"),
+        (
+            {"state_space": dict(LATERAL_MIMO), "delay_s": 0.05},
+            "model.delay_s: not available for a MIMO model yet",
+        ),
+        (
+            {"state_space": dict(LATERAL_MIMO), "effects": []},
+            "model.effects: not available for a MIMO model yet",
+        ),
+        ({"numerator": [1.0], "denominator": [1.0, 1.0]}, "model.numerator: unknown key for a MIMO model"),
+        (
+            {"transfer_matrix": [[1, 2, 3]]},
+            "model.transfer_matrix: expected 2 rows (one per entry of outputs), got 1",
+        ),
+        ({"transfer_matrix": [[1, 2], [3, 4]]}, "model.transfer_matrix[0]: expected 3 elements"),
+        (
+            {"transfer_matrix": [[1, 2, 3], [4, 5]]},
+            "model.transfer_matrix[1]: expected 3 elements like row 0",
+        ),
+        ({"transfer_matrix": [[1, 2, "x"], [4, 5, 6]]}, "model.transfer_matrix[0][2]"),
+        (
+            {
+                "transfer_matrix": [
+                    [1, 2, {"numerator": [1], "denominator": [1, 1], "delay_s": 0.1}],
+                    [4, 5, 6],
+                ]
+            },
+            "model.transfer_matrix[0][2]: delays are not available in a MIMO model yet",
+        ),
+        ({"transfer_matrix": [[1, 2, 3], [4, 5, 6]], "state_space": LATERAL_MIMO}, "exactly one of"),
+        ({"state_space": dict(LATERAL_MIMO, A=[[1e300]])}, "model.state_space.A"),
+    ],
+)
 def test_mimo_config_errors_name_key_and_value(spec, fragment):
     with pytest.raises(ConfigError) as info:
         MimoModel.from_spec(spec, "model", inputs=3, outputs=2, inputs_are="entry of inputs",
@@ -362,12 +421,18 @@ def test_mimo_config_errors_name_key_and_value(spec, fragment):
 
 @pytest.mark.parametrize("seed", range(8))
 def test_transfer_function_of_a_state_space_is_scipys(seed):
-    """models._ss2tf (no scipy.signal import on the replay's path) gives scipy.signal.ss2tf's numbers to the bit."""
+    """models._ss2tf (no scipy.signal import on the replay's path) gives scipy.signal.ss2tf's numbers to the
+    bit."""
     from gap_validation.core.models import _ss2tf
 
     rng = np.random.default_rng(seed)
     n = 1 + seed % 5
-    a, b, c, d = rng.normal(size=(n, n)), rng.normal(size=(n, 1)), rng.normal(size=(1, n)), rng.normal(size=(1, 1))
+    a, b, c, d = (
+        rng.normal(size=(n, n)),
+        rng.normal(size=(n, 1)),
+        rng.normal(size=(1, n)),
+        rng.normal(size=(1, 1)),
+    )
     if seed % 2:
         d[:] = 0.0
     num, den = _ss2tf(a, b, c, d)
@@ -382,8 +447,8 @@ def test_transfer_function_of_a_state_space_is_scipys(seed):
 
 @pytest.mark.parametrize("seed", range(6))
 def test_realization_of_a_transfer_function_is_scipys(seed):
-    """models._tf2ss (no scipy.signal import on the replay's path) gives scipy.signal.tf2ss's matrices to the bit,
-    leading zeros and near-zero numerator coefficients included."""
+    """models._tf2ss (no scipy.signal import on the replay's path) gives scipy.signal.tf2ss's matrices to the
+    bit, leading zeros and near-zero numerator coefficients included."""
     import warnings
 
     from gap_validation.core.models import _tf2ss
@@ -421,15 +486,24 @@ def test_a_replay_with_the_time_domain_check_does_not_import_scipy_signal():
 
 
 def test_loading_a_state_space_config_does_not_import_scipy_signal():
-    """scipy.signal costs a replay's start-up about 0.7 s (benchmarks/bench_replay.py): the config path avoids it."""
+    """scipy.signal costs a replay's start-up about 0.7 s (benchmarks/bench_replay.py): the config path avoids
+    it."""
     import os
     import subprocess
     import sys
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[1]
-    code = ("import sys; from gap_validation.core.config import load_config; "
-            f"load_config({str(root / 'config' / 'ultrastick25e.yaml')!r}); print('scipy.signal' in sys.modules)")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=root, env=os.environ.copy(),
-                         check=True)
+    code = (
+        "import sys; from gap_validation.core.config import load_config; "
+        f"load_config({str(root / 'config' / 'ultrastick25e.yaml')!r}); print('scipy.signal' in sys.modules)"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        cwd=root,
+        env=os.environ.copy(),
+        check=True,
+    )
     assert out.stdout.strip().splitlines()[-1] == "False"

@@ -8,17 +8,23 @@ import math
 
 import numpy as np
 import pytest
-
 from _flights import SHORT, config_from, make_bag, single_channel
+
 from gap_validation.bag.replay import replay
-from gap_validation.core.effects import (backlash_df, backlash_output, effect_response, rate_limit_df, rate_limited,
-                                         validate_effect)
+from gap_validation.cli.arguments import parse_hidden
+from gap_validation.core.effects import (
+    backlash_df,
+    backlash_output,
+    effect_response,
+    rate_limit_df,
+    rate_limited,
+    validate_effect,
+)
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.estimator import record_amplitude
 from gap_validation.core.models import LinearModel
 from gap_validation.core.nonlinearity import NONLINEARITY, flown_amplitude
 from gap_validation.core.simulation import FlightOptions, log_sweep
-from gap_validation.cli.arguments import parse_hidden
 
 
 def first_harmonic(element, amplitude: float, w: float, periods: int = 30, per_period: int = 8000) -> complex:
@@ -29,7 +35,8 @@ def first_harmonic(element, amplitude: float, w: float, periods: int = 30, per_p
     return complex(2 * np.mean(y * np.sin(w * t)), 2 * np.mean(y * np.cos(w * t))) / amplitude
 
 
-# ------------------------------------------------------------------------------------------------ describing functions
+# ------------------------------------------------------------------------------------------------ describing
+# functions
 @pytest.mark.parametrize("rho", [0.3, 0.5, 0.537, 0.55, 0.7, 0.9, 0.99, 1.5])
 def test_rate_limit_describing_function_is_the_first_harmonic_of_a_simulated_sinusoid(rho):
     amplitude, w = 0.05, 10.0
@@ -141,8 +148,9 @@ def _replay(tmp_path, channel, hidden, seed=1, **options):
 
 
 def test_rate_limited_axis_is_fitted_as_a_rate_limit_not_a_mode(tmp_path):
-    """0.8 rad/s at 0.05 rad sweeps (issue 15), also flown at 0.4 of that (issue 22: an amplitude-dependent effect
-    is named only where sweeps at two amplitudes disagree): was a structural mode at the grid top; a rate limit."""
+    """0.8 rad/s at 0.05 rad sweeps (issue 15), also flown at 0.4 of that (issue 22: an amplitude-dependent
+    effect is named only where sweeps at two amplitudes disagree): was a structural mode at the grid top; a
+    rate limit."""
     config, result = _replay(tmp_path, "pitch", ["pitch:rate_limit:rad_s=0.8"], sweep_amplitude_rad=0.05,
                              sweep_amplitude_scales=(1.0, 0.4))
     assert result.limited_by == "model"
@@ -171,8 +179,8 @@ def test_sweeps_at_two_amplitudes_call_a_rate_limit_nonlinear(tmp_path):
 
 
 def test_one_amplitude_names_no_nonlinear_effect_and_no_mode(tmp_path):
-    """Issue 22: at a single amplitude a rate limit fits like any lag; nothing amplitude-dependent is named from one
-    amplitude's mismatch, and no structural mode either."""
+    """Issue 22: at a single amplitude a rate limit fits like any lag; nothing amplitude-dependent is named
+    from one amplitude's mismatch, and no structural mode either."""
     _, result = _replay(tmp_path, "pitch", ["pitch:rate_limit:rad_s=0.8"], sweep_amplitude_rad=0.05)
     assert result.limited_by == "model"
     named = {e["type"] for c in result.diagnosis for e in c["effects"]}
@@ -185,14 +193,16 @@ def test_backlash_is_not_named_a_structural_mode(tmp_path):
     assert result.limited_by == "model", result.message
     top = result.diagnosis[0]
     assert top["effect"] == "backlash", result.message
-    # within the 25 % a named effect must meet (issue 22); measured 0.0166 since records keep the pause after their
-    # manoeuvre (0.015 with the pause split at its midpoint)
+    # within the 25 % a named effect must meet (issue 22); measured 0.0166 since records keep the pause after
+    # their manoeuvre (0.015 with the pause split at its midpoint)
     assert top["effects"][0]["width_rad"] == pytest.approx(0.015, rel=0.25)
     assert "structural mode" not in result.message
 
 
 def test_a_linear_flight_at_two_amplitudes_is_not_called_nonlinear(tmp_path):
-    _, result = _replay(tmp_path, "pitch", [], seed=2, sweep_amplitude_rad=0.05, sweep_amplitude_scales=(1.0, 0.4))
+    _, result = _replay(
+        tmp_path, "pitch", [], seed=2, sweep_amplitude_rad=0.05, sweep_amplitude_scales=(1.0, 0.4)
+    )
     assert result.nonlinearity is None, result.message
     assert "agree within their errors" in result.nonlinearity_evidence
     assert result.limited_by != "model" and result.diagnosis == [], result.message
@@ -219,8 +229,8 @@ def test_a_checkpoint_without_amplitudes_loads_with_them_unknown():
     ({"type": "zero_order_hold", "rate_hz": 50.0}, "zero_order_hold is not a rational factor")])
 def test_compare_models_refuses_an_amplitude_dependent_model_or_a_hold(tmp_path, capsys, effect, words):
     import yaml
-
     from _flights import ROOT
+
     from gap_validation.cli.main import main
 
     p1 = ROOT / "config" / "paper_example_p1.yaml"

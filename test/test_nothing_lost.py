@@ -4,10 +4,10 @@ from __future__ import annotations
 import json
 
 import pytest
+from _flights import SHORT, config_from, make_bag, raw_config, single_channel, with_options, write_config
 
-from _flights import SHORT, config_from, make_bag, raw_config, single_channel, write_config, with_options
-from gap_validation.cli.main import main
 from gap_validation.bag.replay import replay
+from gap_validation.cli.main import main
 
 ONE = with_options(SHORT, sweeps_per_channel=1, sweep_duration_s=40.0, quiet_s=3.0)
 
@@ -49,6 +49,8 @@ def test_channel_whose_topic_is_missing_does_not_stop_the_others_exit_1(tmp_path
     assert len(errors) == 1 and "channel roll" in errors[0] and "not validated" in errors[0]
     channels = json.loads(out.read_text())["channels"]
     assert channels["pitch"]["sweeps"] == 1 and channels["pitch"]["epsilon"] is not None
-    assert channels["roll"]["epsilon"] is None and status == 1   # requested, no data: an error (issue 15)
-    alone = replay([good_bags[0]], config_from(single_channel("pitch")), diagnose=False).result.channels["pitch"]
+    assert channels["roll"]["epsilon"] is None and status == 1  # requested, no data: an error (issue 15)
+    alone = replay([good_bags[0]], config_from(single_channel("pitch")), diagnose=False).result.channels[
+        "pitch"
+    ]
     assert channels["pitch"]["epsilon"] == pytest.approx(alone.epsilon, abs=1e-12)   # unaffected by roll

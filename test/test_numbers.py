@@ -4,8 +4,15 @@ import math
 import pytest
 
 from gap_validation.core.errors import ConfigError
-from gap_validation.core.numbers import (FINITE, NON_NEGATIVE, NONZERO, POSITIVE, Interval, check_number,
-                                         significant)
+from gap_validation.core.numbers import (
+    FINITE,
+    NON_NEGATIVE,
+    NONZERO,
+    POSITIVE,
+    Interval,
+    check_number,
+    significant,
+)
 
 
 @pytest.mark.parametrize("interval, text", [

@@ -1,5 +1,5 @@
-"""Packaging as rosdep and ``ros2 launch`` see it: package.xml declares everything the package imports, and the
-launch file parses and declares the arguments it uses (loaded with ``launch`` where it is installed)."""
+"""Packaging as rosdep and ``ros2 launch`` see it: package.xml declares everything the package imports, and
+the launch file parses and declares the arguments it uses (loaded with ``launch`` where it is installed)."""
 from __future__ import annotations
 
 import ast
@@ -37,8 +37,12 @@ def _imports(paths) -> set[str]:
                 found |= {alias.name.split(".")[0] for alias in node.names}
             elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
                 found.add(node.module.split(".")[0])
-    local = ({p.stem for p in (ROOT / "test").glob("*.py")} | {p.stem for p in (ROOT / "benchmarks").glob("*.py")}
-             | {"gap_validation"})                   # the suite's own modules, and the benchmarks it runs a case of
+    local = (
+        {p.stem for p in (ROOT / "test").glob("*.py")}
+        | {p.stem for p in (ROOT / "benchmarks").glob("*.py")}
+        # the suite's own modules, and the benchmarks it runs a case of
+        | {"gap_validation"}
+    )
     return {m for m in found if m not in sys.stdlib_module_names and m not in local and not m.startswith("_")}
 
 
@@ -50,8 +54,10 @@ def _declared(*tags: str) -> set[str]:
 def _key(module: str) -> str:
     if module in ROSDEP:
         return ROSDEP[module]
-    assert module in ROS_PACKAGES or module in PIP_ONLY, \
-        f"import of {module}: add its rosdep key to test_package.py (ROSDEP / ROS_PACKAGES) and to package.xml"
+    assert module in ROS_PACKAGES or module in PIP_ONLY, (
+        f"import of {module}: add its rosdep key to test_package.py (ROSDEP / ROS_PACKAGES) and to "
+        "package.xml"
+    )
     return module
 
 
@@ -92,19 +98,25 @@ def test_launch_file_parses_and_declares_every_argument_it_uses():
     assert ast.literal_eval(keywords["executable"]) == "validator_node"
     overrides = [d for d in ast.walk(keywords["parameters"]) if isinstance(d, ast.Dict)]
     names = {k.value for d in overrides for k in d.keys}
-    assert names <= set(PARAMETERS) | {"use_sim_time"}, f"not node parameters: {sorted(names - set(PARAMETERS))}"
+    assert names <= set(PARAMETERS) | {"use_sim_time"}, (
+        f"not node parameters: {sorted(names - set(PARAMETERS))}"
+    )
 
 
 def test_launch_file_loads_with_launch(tmp_path, monkeypatch):
-    """Where ``launch`` is installed (a ROS 2 install; not pip's ROS here), the description is built for real."""
+    """Where ``launch`` is installed (a ROS 2 install; not pip's ROS here), the description is built for
+    real."""
     launch = pytest.importorskip("launch", reason=NO_LAUNCH)
-    if not hasattr(launch, "LaunchDescription"):   # the repository's launch/ folder, seen as a namespace package
+    # the repository's launch/ folder, seen as a namespace package
+    if not hasattr(launch, "LaunchDescription"):
         pytest.skip(NO_LAUNCH)
     pytest.importorskip("launch_ros", reason=NO_LAUNCH)
     index = tmp_path / "share" / "ament_index" / "resource_index" / "packages"
     index.mkdir(parents=True)
     (index / "gap_validation").write_text("")
-    monkeypatch.setenv("AMENT_PREFIX_PATH", f"{tmp_path}{os.pathsep}{os.environ.get('AMENT_PREFIX_PATH', '')}")
+    monkeypatch.setenv(
+        "AMENT_PREFIX_PATH", f"{tmp_path}{os.pathsep}{os.environ.get('AMENT_PREFIX_PATH', '')}"
+    )
     from launch.launch_description_sources import get_launch_description_from_python_launch_file
 
     description = get_launch_description_from_python_launch_file(str(LAUNCH))
@@ -116,9 +128,21 @@ def test_run_tests_runs_what_its_arguments_say():
     """``scripts/run-tests test/test_x.py`` runs that file only (it used to append the whole test folder)."""
     import subprocess
 
-    proc = subprocess.run(["bash", str(ROOT / "scripts" / "run-tests"), "--collect-only", "-q", "--noconftest",
-                           "test/test_layouts.py"],
-                          cwd=ROOT, env=dict(os.environ), capture_output=True, text=True, timeout=600)
+    proc = subprocess.run(
+        [
+            "bash",
+            str(ROOT / "scripts" / "run-tests"),
+            "--collect-only",
+            "-q",
+            "--noconftest",
+            "test/test_layouts.py",
+        ],
+        cwd=ROOT,
+        env=dict(os.environ),
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     ids = [line for line in proc.stdout.splitlines() if "::" in line]
     assert ids and all(line.startswith("test/test_layouts.py::") for line in ids), proc.stdout[-2000:]

@@ -1,6 +1,6 @@
-"""``gap-validate plan`` and :mod:`gap_validation.core.plan` (issue 25): the formula is the estimator's, the plan
-reaches its target when flown, what cannot be reached says why, the autopilots' files parse as theirs, the injected
-signal is the card's, bad input is one line."""
+"""``gap-validate plan`` and :mod:`gap_validation.core.plan` (issue 25): the formula is the estimator's, the
+plan reaches its target when flown, what cannot be reached says why, the autopilots' files parse as theirs,
+the injected signal is the card's, bad input is one line."""
 from __future__ import annotations
 
 import copy
@@ -13,14 +13,30 @@ import pytest
 import yaml
 
 from gap_validation.cli.main import main
-from gap_validation.core.config import parse_config
-from gap_validation.core.diagnosis import (BIAS_ERROR, SIGMA_FACTOR, bendat_piersol_random_error, epsilon_noise_scale,
-                                           normalised_mismatch)
-from gap_validation.core.estimator import SpectralEstimate
-from gap_validation.core.plan import (ARDUPILOT_RANGES, EPSILON_THRESHOLD, PX4_RANGES, PlanOptions, TestCard, chirp,
-                                      manoeuvre_signal, noise_ratio, plan_card, predicted_random_error, verdict_error)
-from gap_validation.core.simulation import FlightOptions, log_sweep, simulate_flight
 from gap_validation.core import plan as plan_module
+from gap_validation.core.config import parse_config
+from gap_validation.core.diagnosis import (
+    BIAS_ERROR,
+    SIGMA_FACTOR,
+    bendat_piersol_random_error,
+    epsilon_noise_scale,
+    normalised_mismatch,
+)
+from gap_validation.core.estimator import SpectralEstimate
+from gap_validation.core.plan import (
+    ARDUPILOT_RANGES,
+    EPSILON_THRESHOLD,
+    PX4_RANGES,
+    PlanOptions,
+    TestCard,
+    chirp,
+    manoeuvre_signal,
+    noise_ratio,
+    plan_card,
+    predicted_random_error,
+    verdict_error,
+)
+from gap_validation.core.simulation import FlightOptions, log_sweep, simulate_flight
 from gap_validation.core.spectra import SPECTRA_DEFAULTS, band_bins, record_bands, solve_bands
 from gap_validation.core.validator import OnlineValidator
 
@@ -44,7 +60,8 @@ def _replay(config, flight) -> dict:
 
 @pytest.fixture(scope="module")
 def first(tmp_path_factory):
-    """A short, weak first flight of pitch alone (one 40 s sweep at 0.03 rad, gusts): data-limited at its low end."""
+    """A short, weak first flight of pitch alone (one 40 s sweep at 0.03 rad, gusts): data-limited at its low
+    end."""
     path = tmp_path_factory.mktemp("plan") / "pitch.yaml"
     data = _pitch_only()
     path.write_text(yaml.safe_dump(data, sort_keys=False))
@@ -55,7 +72,13 @@ def first(tmp_path_factory):
     results = _replay(config, flight)
     results_path = path.with_name("results.json")
     results_path.write_text(json.dumps(results))
-    return {"config": config, "config_path": path, "results": results, "results_path": results_path, "opts": opts}
+    return {
+        "config": config,
+        "config_path": path,
+        "results": results,
+        "results_path": results_path,
+        "opts": opts,
+    }
 
 
 @pytest.fixture(scope="module")
@@ -63,11 +86,13 @@ def card(first):
     return plan_card(first["config"], first["results"], PlanOptions(), source="results.json")
 
 
-# ------------------------------------------------------------------------------------------------ the statistics
+# ------------------------------------------------------------------------------------------------ the
+# statistics
 def test_the_predicted_error_is_the_estimators_own_on_the_same_numbers():
-    """The estimator's random error of a record (its sums, its noise) is what predicted_random_error gives from the
-    same sums and noise, and noise_ratio inverts it; at high coherence it is sqrt(2.25) times Bendat and Piersol's
-    on the same coherence and degrees of freedom (a quadratic fitted over evenly filled bins)."""
+    """The estimator's random error of a record (its sums, its noise) is what predicted_random_error gives
+    from the same sums and noise, and noise_ratio inverts it; at high coherence it is sqrt(2.25) times Bendat
+    and Piersol's on the same coherence and degrees of freedom (a quadratic fitted over evenly filled
+    bins)."""
     rng = np.random.default_rng(3)
     dt, w = 0.01, np.geomspace(2.0, 20.0, 12)
     t = np.arange(0.0, 70.0, dt)
@@ -88,12 +113,14 @@ def test_the_predicted_error_is_the_estimators_own_on_the_same_numbers():
 
 @pytest.mark.parametrize("dof", [4.0, 12.0, 40.0, math.inf])
 def test_the_target_is_a_verdict_at_the_threshold(dof):
-    """At the target a mismatch at the threshold is exactly SIGMA_FACTOR noise scales (the validator's law); with a
-    larger error it would not be model-limited."""
+    """At the target a mismatch at the threshold is exactly SIGMA_FACTOR noise scales (the validator's law);
+    with a larger error it would not be model-limited."""
     e = verdict_error(EPSILON_THRESHOLD, dof)
     k = normalised_mismatch(EPSILON_THRESHOLD, epsilon_noise_scale(math.hypot(e, BIAS_ERROR)), dof)
     assert float(k) == pytest.approx(SIGMA_FACTOR, rel=1e-6)
-    k_more = normalised_mismatch(EPSILON_THRESHOLD, epsilon_noise_scale(math.hypot(1.05 * e, BIAS_ERROR)), dof)
+    k_more = normalised_mismatch(
+        EPSILON_THRESHOLD, epsilon_noise_scale(math.hypot(1.05 * e, BIAS_ERROR)), dof
+    )
     assert float(k_more) < SIGMA_FACTOR
     assert 0.03 < e < 0.075
 
@@ -101,37 +128,62 @@ def test_the_target_is_a_verdict_at_the_threshold(dof):
 # ------------------------------------------------------------------------------------------------ the plan
 def test_data_limited_bands_get_a_manoeuvre_that_meets_the_target_and_flying_it_gives_verdicts(first, card):
     ch = first["results"]["channels"]["pitch"]
-    open_points = [w for w, flag, why in zip(ch["frequency_rad_s"], ch["frequency_flags"], ch["frequency_reasons"])
-                   if flag != "model" and (flag == "data" or why is not None)]
-    assert any(flag == "data" for flag in ch["frequency_flags"]), "the first flight should leave a data-limited band"
+    open_points = [
+        w
+        for w, flag, why in zip(ch["frequency_rad_s"], ch["frequency_flags"], ch["frequency_reasons"])
+        if flag != "model" and (flag == "data" or why is not None)
+    ]
+    assert any(flag == "data" for flag in ch["frequency_flags"]), (
+        "the first flight should leave a data-limited band"
+    )
     plan = card.channels["pitch"]
     planned = [w for m in plan.manoeuvres for w in m.frequencies_rad_s]
-    unreachable = [w for w in open_points if any(u.band_rad_s[0] <= w <= u.band_rad_s[1] for u in plan.unreachable)]
+    unreachable = [
+        w for w in open_points if any(u.band_rad_s[0] <= w <= u.band_rad_s[1] for u in plan.unreachable)
+    ]
     assert sorted(planned + unreachable) == pytest.approx(sorted(open_points))
     assert plan.manoeuvres
     for m in plan.manoeuvres:
-        assert all(p * PlanOptions().margin <= t * (1 + 1e-9) for p, t in zip(m.predicted_error, m.target_error))
+        assert all(
+            p * PlanOptions().margin <= t * (1 + 1e-9) for p, t in zip(m.predicted_error, m.target_error)
+        )
         assert m.amplitude_rad <= plan.amplitude_cap_rad * (1 + 1e-9)
-        assert m.flight_time_s == pytest.approx(m.trim_before_s + m.repeats * (m.duration_s + m.trim_between_s))
+        assert m.flight_time_s == pytest.approx(
+            m.trim_before_s + m.repeats * (m.duration_s + m.trim_between_s)
+        )
         assert m.band_rad_s[0] < min(m.frequencies_rad_s) and m.band_rad_s[1] > max(m.frequencies_rad_s)
-    # fly the first manoeuvre on the simulator (the card's chirp is its sweep without a dwell, 1 s fades) and replay
+    # fly the first manoeuvre on the simulator (the card's chirp is its sweep without a dwell, 1 s fades) and
+    # replay
     m = plan.manoeuvres[0]
     data = _pitch_only()
-    data["channels"]["pitch"]["frequencies"] = {"min_rad_s": 2 * m.band_rad_s[0], "max_rad_s": m.band_rad_s[1],
-                                                "count": 10}
-    opts = FlightOptions(sweeps_per_channel=m.repeats, sweep_duration_s=m.duration_s, sweep_amplitude_rad=m.amplitude_rad,
-                         band_low_factor=0.5, band_high_factor=1.0, doublet_amplitude_rad=0.0,
-                         doublet_half_period_s=0.005, quiet_s=(m.trim_between_s - 0.01) / 2, trim_s=m.trim_before_s)
+    data["channels"]["pitch"]["frequencies"] = {
+        "min_rad_s": 2 * m.band_rad_s[0],
+        "max_rad_s": m.band_rad_s[1],
+        "count": 10,
+    }
+    opts = FlightOptions(
+        sweeps_per_channel=m.repeats,
+        sweep_duration_s=m.duration_s,
+        sweep_amplitude_rad=m.amplitude_rad,
+        band_low_factor=0.5,
+        band_high_factor=1.0,
+        doublet_amplitude_rad=0.0,
+        doublet_half_period_s=0.005,
+        quiet_s=(m.trim_between_s - 0.01) / 2,
+        trim_s=m.trim_before_s,
+    )
     flight = simulate_flight(parse_config(data, "manoeuvre"), None, opts, seed=11)
     after = _replay(first["config"], flight)["channels"]["pitch"]
     w = np.asarray(after["frequency_rad_s"])
     measured = []
     for f, target in zip(m.frequencies_rad_s, m.target_error):
         i = int(np.argmin(np.abs(w - f)))
-        assert after["frequency_flags"][i] in ("ok", "model") and after["frequency_reasons"][i] is None   # a verdict
+        # a verdict
+        assert after["frequency_flags"][i] in ("ok", "model") and after["frequency_reasons"][i] is None
         assert after["random_error"][i] <= target
         measured.append(after["random_error"][i])
-    # the band's worst error as predicted (benchmarks/plan_campaigns.py: 10-90 % of bands within 0.7-1.5 of it)
+    # the band's worst error as predicted (benchmarks/plan_campaigns.py: 10-90 % of bands within 0.7-1.5 of
+    # it)
     assert 0.5 <= max(measured) / m.worst_predicted_error <= 1.5
 
 
@@ -163,7 +215,9 @@ def test_unreachable_bands_say_why(first):
     for i in range(35, 40):
         ch["frequency_flags"][i], ch["frequency_reasons"][i] = "not_excited", "above_resolution"
     gone = plan_card(config, said, PlanOptions()).channels["pitch"].unreachable
-    assert any("above what the logs resolve" in u.reason and u.band_rad_s[1] == pytest.approx(40.0) for u in gone)
+    assert any(
+        "above what the logs resolve" in u.reason and u.band_rad_s[1] == pytest.approx(40.0) for u in gone
+    )
     capped = plan_card(config, results, PlanOptions(max_amplitude_rad=1e-4))
     assert not capped.channels["pitch"].manoeuvres
     assert capped.channels["pitch"].unreachable
@@ -173,8 +227,13 @@ def test_unreachable_bands_say_why(first):
 
 def test_the_amplitude_is_capped_by_what_was_flown_and_lowered_where_the_response_depended_on_it(first, card):
     results = first["results"]
-    seen = max(max(results["channels"]["pitch"]["input_amplitudes"]),
-               max(max(abs(x - k["input"][0]) for x in k["input"]) for k in results["channels"]["pitch"]["time_domain"]))
+    seen = max(
+        max(results["channels"]["pitch"]["input_amplitudes"]),
+        max(
+            max(abs(x - k["input"][0]) for x in k["input"])
+            for k in results["channels"]["pitch"]["time_domain"]
+        ),
+    )
     assert card.channels["pitch"].amplitude_cap_rad == pytest.approx(seen, rel=0.05)
     assert card.channels["pitch"].amplitude_cap_reason == "the largest deflection flown"
     lower = plan_card(first["config"], results, PlanOptions(max_amplitude_rad=0.02))
@@ -191,10 +250,12 @@ def test_the_amplitude_is_capped_by_what_was_flown_and_lowered_where_the_respons
     assert all(m.amplitude_rad <= 0.012 * (1 + 1e-9) for m in plan.manoeuvres)
 
 
-# ------------------------------------------------------------------------------------------------ the first flight's |H|
+# ------------------------------------------------------------------------------------------------ the first
+# flight's |H|
 def test_the_bins_two_bands_share_are_those_the_estimator_picks():
-    """_shared_bins (from a record's sums: r_lo, r_hi, the bin spacing) is the intersection of the bands' bins as the
-    estimator's band_bins picks them; at the low end of a 40 s record neighbouring grid points share most of them."""
+    """_shared_bins (from a record's sums: r_lo, r_hi, the bin spacing) is the intersection of the bands' bins
+    as the estimator's band_bins picks them; at the low end of a 40 s record neighbouring grid points share
+    most of them."""
     dt = 0.01
     t = np.arange(-1.0, 41.0, dt)
     u = chirp(t, 40.0, 0.05, 8.0, 1.0, 1.0)
@@ -211,8 +272,9 @@ def test_the_bins_two_bands_share_are_those_the_estimator_picks():
 
 
 def test_pooling_counts_the_bins_two_estimates_share_once():
-    """Two estimates on the same bins carry the information of one (hand-computed variances, equal weights): pooled
-    with a third on bins of their own the mean's variance is (e^2 + e^2 + 2 e^2 + e^2) / 9 = 5 e^2 / 9, not e^2 / 3."""
+    """Two estimates on the same bins carry the information of one (hand-computed variances, equal weights):
+    pooled with a third on bins of their own the mean's variance is (e^2 + e^2 + 2 e^2 + e^2) / 9 = 5 e^2 / 9,
+    not e^2 / 3."""
     x = np.log10([1.0, 1.1, 3.0])
     y = np.array([0.3, 0.1, -0.1])
     e = np.full(3, 0.3)
@@ -222,13 +284,13 @@ def test_pooling_counts_the_bins_two_estimates_share_once():
     assert variance[0] == pytest.approx(5.0 * 0.09 / 9.0)
     _, independent = plan_module._pool_response(x, y, e, None, 1e-3)
     assert independent[0] == pytest.approx(0.09 / 3.0)
-    value, variance = plan_module._pool_response(x, y, e, same, 0.31)           # one point is enough
-    assert value.tolist() == pytest.approx(y.tolist()) and variance.tolist() == pytest.approx((e ** 2).tolist())
+    value, variance = plan_module._pool_response(x, y, e, same, 0.31)  # one point is enough
+    assert value.tolist() == pytest.approx(y.tolist()) and variance.tolist() == pytest.approx((e**2).tolist())
 
 
 def test_a_point_without_bins_leaves_the_others_shared_bins_counted():
-    """A point whose band has no bins in the rebuilt flight (S_ii = 0) counts as independent; the two that share
-    their bins still count once: (e^2 + e^2 + 2 e^2 + e^2) / 9 = 5 e^2 / 9 as above, not e^2 / 3."""
+    """A point whose band has no bins in the rebuilt flight (S_ii = 0) counts as independent; the two that
+    share their bins still count once: (e^2 + e^2 + 2 e^2 + e^2) / 9 = 5 e^2 / 9 as above, not e^2 / 3."""
     x = np.log10([1.0, 1.1, 3.0])
     e = np.full(3, 0.3)
     same = np.array([[7.0, 7.0, 0.0], [7.0, 7.0, 0.0], [0.0, 0.0, 0.0]])
@@ -237,7 +299,9 @@ def test_a_point_without_bins_leaves_the_others_shared_bins_counted():
 
 
 def test_no_point_with_an_error_pools_nothing():
-    value, variance = plan_module._pool_response(np.log10([1.0, 2.0]), np.ones(2), np.full(2, np.inf), None, 0.1)
+    value, variance = plan_module._pool_response(
+        np.log10([1.0, 2.0]), np.ones(2), np.full(2, np.inf), None, 0.1
+    )
     assert value.tolist() == [0.0, 0.0] and np.all(np.isinf(variance))
 
 
@@ -249,41 +313,50 @@ def test_the_amplitude_is_rounded_up_to_four_digits(value, up):
 
 def test_the_response_error_budget_gives_the_prediction_factor_on_its_share_of_bands():
     """RESPONSE_ERROR is derived, not tuned: a measured error whose noise variance goes as chi2(40) / 40 (the
-    DESIGN_DOF) against a prediction with two log-normal errors of RESPONSE_ERROR (noise level and |H|) holds within
-    PREDICTION_FACTOR on PREDICTION_SHARE of the draws (seeded Monte Carlo, not the closed form)."""
+    DESIGN_DOF) against a prediction with two log-normal errors of RESPONSE_ERROR (noise level and |H|) holds
+    within PREDICTION_FACTOR on PREDICTION_SHARE of the draws (seeded Monte Carlo, not the closed form)."""
     assert plan_module.RESPONSE_ERROR == pytest.approx(0.1548, abs=5e-4)
     rng = np.random.default_rng(25)
     n = 400_000
     measured = 0.5 * np.log(rng.chisquare(2 * plan_module.DESIGN_DOF, n) / (2 * plan_module.DESIGN_DOF))
     predicted = rng.normal(0.0, plan_module.RESPONSE_ERROR, (2, n)).sum(axis=0)
-    share = np.mean(np.abs(measured - np.mean(measured) - predicted) <= math.log(plan_module.PREDICTION_FACTOR))
+    share = np.mean(
+        np.abs(measured - np.mean(measured) - predicted) <= math.log(plan_module.PREDICTION_FACTOR)
+    )
     assert share == pytest.approx(plan_module.PREDICTION_SHARE, abs=0.005)
 
 
 def _response_ratio(config, results):
-    """The planner's pooled |H| over the model's and its standard error, and the measured one unpooled, on the grid."""
+    """The planner's pooled |H| over the model's and its standard error, and the measured one unpooled, on the
+    grid."""
     data = results["channels"]["pitch"]
     c = plan_module._channel_base("pitch", config.channels["pitch"])
     assert plan_module._from_results(c, data, PlanOptions())
-    measured = 10.0 ** (np.array([np.nan if v is None else v for v in data["measured"]["magnitude_db"]]) / 20.0)
+    measured = 10.0 ** (
+        np.array([np.nan if v is None else v for v in data["measured"]["magnitude_db"]]) / 20.0
+    )
     model = np.abs(np.asarray(config.channels["pitch"].model.freqresp(c.w), dtype=complex)).ravel()
     return c.w, np.log(c.mag_ratio), c.mag_ratio_error, np.log(measured / model)
 
 
 @pytest.mark.parametrize("gain", [1.0, 1.4])
 def test_the_measured_response_is_pooled_to_its_stated_error_at_the_low_edge(first, card, gain):
-    """The short first flight (3 degrees of freedom per frequency at its low end, random error 0.15-0.6) with the true
-    |H| the model's (gain 1) or 1.4 times it: at the planned frequencies the pooled ln |H| / |H_model| carries at most
-    RESPONSE_ERROR and lies within its 90 % bound (1.645 RESPONSE_ERROR) of the truth, where the unpooled measurement
-    is off by more at some frequency (seeded flights)."""
+    """The short first flight (3 degrees of freedom per frequency at its low end, random error 0.15-0.6) with
+    the true |H| the model's (gain 1) or 1.4 times it: at the planned frequencies the pooled ln |H| /
+    |H_model| carries at most RESPONSE_ERROR and lies within its 90 % bound (1.645 RESPONSE_ERROR) of the
+    truth, where the unpooled measurement is off by more at some frequency (seeded flights)."""
     config, results, plan_ = first["config"], first["results"], card
     if gain != 1.0:
         flight = simulate_flight(config, {"pitch": [{"type": "gain", "factor": gain}]}, first["opts"], seed=7)
         results = _replay(config, flight)
         plan_ = plan_card(config, results, PlanOptions())
     w, pooled, error, raw = _response_ratio(config, results)
-    at = [int(np.argmin(np.abs(w - f))) for m in plan_.channels["pitch"].manoeuvres for f in m.frequencies_rad_s
-          if f < 3.0]
+    at = [
+        int(np.argmin(np.abs(w - f)))
+        for m in plan_.channels["pitch"].manoeuvres
+        for f in m.frequencies_rad_s
+        if f < 3.0
+    ]
     assert len(at) >= 4
     bound = 1.645 * plan_module.RESPONSE_ERROR
     assert np.all(error[at] <= plan_module.RESPONSE_ERROR * (1 + 1e-9))
@@ -303,8 +376,23 @@ def test_the_chirp_is_the_simulators_sweep_and_ardupilots_dwell():
 def test_the_signal_csv_is_the_cards_manoeuvres_sampled_at_the_rate(first, tmp_path, capsys):
     out = tmp_path / "signal.csv"
     rate = 40.0
-    assert main(["plan", str(first["results_path"]), "--config", str(first["config_path"]), "--signal", str(out),
-                 "--signal-rate-hz", str(rate), "--out", str(tmp_path / "card.yaml")]) == 0
+    assert (
+        main(
+            [
+                "plan",
+                str(first["results_path"]),
+                "--config",
+                str(first["config_path"]),
+                "--signal",
+                str(out),
+                "--signal-rate-hz",
+                str(rate),
+                "--out",
+                str(tmp_path / "card.yaml"),
+            ]
+        )
+        == 0
+    )
     card = TestCard.from_dict(yaml.safe_load((tmp_path / "card.yaml").read_text()))
     rows = np.genfromtxt(out, delimiter=",", names=True)
     t0 = 0.0
@@ -319,9 +407,13 @@ def test_the_signal_csv_is_the_cards_manoeuvres_sampled_at_the_rate(first, tmp_p
             tau = t - start
             phase = (2 * math.pi * m.f_start_hz * m.duration_s / math.log(m.f_stop_hz / m.f_start_hz)
                      * np.expm1(math.log(m.f_stop_hz / m.f_start_hz) * tau / m.duration_s))
-            fade = np.minimum(np.clip(tau / m.fade_in_s, 0, 1), np.clip((m.duration_s - tau) / m.fade_out_s, 0, 1))
+            fade = np.minimum(
+                np.clip(tau / m.fade_in_s, 0, 1), np.clip((m.duration_s - tau) / m.fade_out_s, 0, 1)
+            )
             inside = (tau > 0) & (tau <= m.duration_s)
-            expected += np.where(inside, m.amplitude_rad * (0.5 - 0.5 * np.cos(np.pi * fade)) * np.sin(phase), 0.0)
+            expected += np.where(
+                inside, m.amplitude_rad * (0.5 - 0.5 * np.cos(np.pi * fade)) * np.sin(phase), 0.0
+            )
         got = rows[f"{m.channel}_rad"][mine]
         assert np.max(np.abs(got - expected)) < 1e-6 * max(m.amplitude_rad, 1e-3) + 1e-9
         assert np.all(got[t < m.trim_before_s] == 0.0)               # trim before
@@ -333,7 +425,8 @@ def test_the_signal_csv_is_the_cards_manoeuvres_sampled_at_the_rate(first, tmp_p
     assert np.allclose(u_node, rows[f"{card.manoeuvres[0].channel}_rad"][first_rows], atol=1e-7)
 
 
-# ------------------------------------------------------------------------------------------------ the autopilots
+# ------------------------------------------------------------------------------------------------ the
+# autopilots
 def test_the_parm_file_parses_as_ardupilot_parameters_within_their_ranges(first, tmp_path, capsys):
     from pymavlink.mavparm import MAVParmDict
 
@@ -361,13 +454,19 @@ def test_the_parm_file_parses_as_ardupilot_parameters_within_their_ranges(first,
         assert block["SID_AXIS"] == 11                                   # mixer pitch: the elevator
         assert block["SID_MAGNITUDE"] == pytest.approx(m.amplitude_rad / math.radians(30), abs=1e-4)
         assert block["SID_F_START_HZ"] <= m.f_start_hz and block["SID_F_STOP_HZ"] >= m.f_stop_hz
-        assert block["SID_T_REC"] > 2.0 / block["SID_F_START_HZ"]       # or ArduPilot stops: "Parameter Error"
+        # or ArduPilot stops: "Parameter Error"
+        assert block["SID_T_REC"] > 2.0 / block["SID_F_START_HZ"]
         assert block["SID_T_REC"] == pytest.approx(m.duration_s + 2.0 / block["SID_F_START_HZ"], abs=0.01)
 
 
 def test_the_px4_file_is_qgroundcontrols_format_within_the_ranges(first, tmp_path, capsys):
     params = tmp_path / "card.params"
-    assert main(["plan", str(first["results_path"]), "--config", str(first["config_path"]), "--px4", str(params)]) == 0
+    assert (
+        main(
+            ["plan", str(first["results_path"]), "--config", str(first["config_path"]), "--px4", str(params)]
+        )
+        == 0
+    )
     rows = [line.split("\t") for line in params.read_text().splitlines() if line and not line.startswith("#")]
     assert rows and all(len(r) == 5 and r[0] == "1" and r[1] == "1" for r in rows)
     for _, _, name, value, kind in rows:
@@ -380,15 +479,19 @@ def test_the_px4_file_is_qgroundcontrols_format_within_the_ranges(first, tmp_pat
 
 def test_the_card_yaml_reads_back(first, tmp_path, capsys):
     out = tmp_path / "card.yaml"
-    assert main(["plan", str(first["results_path"]), "--config", str(first["config_path"]), "--out", str(out)]) == 0
+    assert (
+        main(["plan", str(first["results_path"]), "--config", str(first["config_path"]), "--out", str(out)])
+        == 0
+    )
     table = capsys.readouterr().out
     assert "flight time" in table and "pitch" in table
     data = yaml.safe_load(out.read_text())
     card = TestCard.from_dict(data)
     again = plan_card(first["config"], first["results"], PlanOptions())
     assert [m.index for m in card.manoeuvres] == [m.index for m in again.manoeuvres]
-    assert [m.amplitude_rad for m in card.manoeuvres] == pytest.approx([m.amplitude_rad for m in again.manoeuvres],
-                                                                       rel=1e-3)
+    assert [m.amplitude_rad for m in card.manoeuvres] == pytest.approx(
+        [m.amplitude_rad for m in again.manoeuvres], rel=1e-3
+    )
     assert data["flight_time_s"] == pytest.approx(again.flight_time_s, rel=1e-3)
 
 

@@ -8,32 +8,44 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from gap_validation.cli.main import main
 from gap_validation.core.config import load_config
 from gap_validation.core.plottable import frequency_response_table, topic_token
 from gap_validation.core.results import ChannelResult
-from gap_validation.report.layouts import (BODE_PLOTS, foxglove_json, foxglove_layout, foxglove_plots,
-                                           plotjuggler_layout, plotjuggler_series)
+from gap_validation.report.layouts import (
+    BODE_PLOTS,
+    foxglove_json,
+    foxglove_layout,
+    foxglove_plots,
+    plotjuggler_layout,
+    plotjuggler_series,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "config" / "ultrastick25e.yaml"
 
 
 def _messages(config, node="/gap_validator"):
-    """Per channel a different result (gain 0.9, 0.8, 0.7 of the model; estimates on part of the grid only), as
-    the node publishes it; and the curves the JSON holds."""
+    """Per channel a different result (gain 0.9, 0.8, 0.7 of the model; estimates on part of the grid only),
+    as the node publishes it; and the curves the JSON holds."""
     messages, expected = {}, {}
     for k, (name, channel) in enumerate(config.channels.items()):
         grid = channel.frequencies.values()
         w = grid[3 + k:30 + k]
         p = channel.model.freqresp(w)
         gain = 0.9 - 0.1 * k
-        result = ChannelResult(name=name, frequency_rad_s=w, measured=gain * p * np.exp(-0.01j * w), model=p,
-                               coherence=np.linspace(0.6 + 0.1 * k, 0.99, w.size), kappa=np.full(w.size, 0.05),
-                               epsilon_per_frequency=np.linspace(0.05, 0.3 + k, w.size),
-                               random_error=np.full(w.size, 0.02), frequency_flags=["ok"] * w.size)
+        result = ChannelResult(
+            name=name,
+            frequency_rad_s=w,
+            measured=gain * p * np.exp(-0.01j * w),
+            model=p,
+            coherence=np.linspace(0.6 + 0.1 * k, 0.99, w.size),
+            kappa=np.full(w.size, 0.05),
+            epsilon_per_frequency=np.linspace(0.05, 0.3 + k, w.size),
+            random_error=np.full(w.size, 0.02),
+            frequency_flags=["ok"] * w.size,
+        )
         table = frequency_response_table(result, channel)
         messages[f"{node}/{topic_token(name)}/frequency_response"] = table.ravel().tolist()
         data = result.to_json_dict(samples=False)
@@ -98,7 +110,9 @@ def test_a_wrong_index_is_seen():
     config = load_config(CONFIG)
     messages, expected = _messages(config)
     layout = foxglove_layout(config)
-    pid = next(k for k, p in layout["configById"].items() if p.get("foxglovePanelTitle") == "pitch: magnitude")
+    pid = next(
+        k for k, p in layout["configById"].items() if p.get("foxglovePanelTitle") == "pitch: magnitude"
+    )
     layout["configById"][pid]["paths"][0]["value"] = "/gap_validator/pitch/frequency_response.data[160:199]"
     (_, _, y), _ = foxglove_plots(layout, messages)["pitch: magnitude"]
     assert not np.allclose(y, expected["pitch"]["measured_magnitude_db"])
@@ -110,5 +124,8 @@ def test_layouts_command_errors_are_one_line(tmp_path, capsys):
     assert main(["layouts", "--config", str(CONFIG), "--foxglove", str(tmp_path / "no" / "f.json")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "does not exist" in err
-    assert main(["layouts", "--config", str(tmp_path / "missing.yaml"), "--foxglove", str(tmp_path / "f.json")]) != 0
+    assert (
+        main(["layouts", "--config", str(tmp_path / "missing.yaml"), "--foxglove", str(tmp_path / "f.json")])
+        != 0
+    )
     assert len(capsys.readouterr().err.strip().splitlines()) == 1

@@ -1,6 +1,6 @@
-"""What to fly next in the replay's report and terminal (issue 25, item 4): per channel the bands without a verdict
-and the test card's manoeuvre that would close them, the planned bands shaded on the Bode figure, one terminal line
-pointing at ``gap-validate plan``; a plan that fails never costs the replay its report."""
+"""What to fly next in the replay's report and terminal (issue 25, item 4): per channel the bands without a
+verdict and the test card's manoeuvre that would close them, the planned bands shaded on the Bode figure, one
+terminal line pointing at ``gap-validate plan``; a plan that fails never costs the replay its report."""
 from __future__ import annotations
 
 import contextlib
@@ -25,16 +25,36 @@ CONFIG = ROOT / "config" / "ultrastick25e.yaml"
 
 @pytest.fixture(scope="module")
 def flight(tmp_path_factory):
-    """A short, weak flight of pitch alone (one 40 s sweep at 1.7 deg, gusts): data-limited at its low end; replayed
-    once with --json and --report, and planned by ``gap-validate plan`` from its JSON."""
+    """A short, weak flight of pitch alone (one 40 s sweep at 1.7 deg, gusts): data-limited at its low end;
+    replayed once with --json and --report, and planned by ``gap-validate plan`` from its JSON."""
     out = tmp_path_factory.mktemp("report_plan")
     data = yaml.safe_load(CONFIG.read_text())
     data["channels"] = {"pitch": data["channels"]["pitch"]}
     config = out / "pitch.yaml"
     config.write_text(yaml.safe_dump(data, sort_keys=False))
     bag = out / "flight"
-    assert main(["simulate", "--config", str(config), "--out", str(bag), "--sweeps", "1", "--sweep-duration", "40",
-                 "--amplitude-deg", "1.72", "--sweep-gap-s", "4", "--seed", "7"]) == 0
+    assert (
+        main(
+            [
+                "simulate",
+                "--config",
+                str(config),
+                "--out",
+                str(bag),
+                "--sweeps",
+                "1",
+                "--sweep-duration",
+                "40",
+                "--amplitude-deg",
+                "1.72",
+                "--sweep-gap-s",
+                "4",
+                "--seed",
+                "7",
+            ]
+        )
+        == 0
+    )
     return {"out": out, "config": config, "bag": bag}
 
 
@@ -43,8 +63,23 @@ def replayed(flight):
     out = flight["out"]
     buffer = io.StringIO()
     with contextlib.redirect_stdout(buffer):
-        assert main(["replay", str(flight["bag"]), "--config", str(flight["config"]), "--json", str(out / "r1.json"),
-                     "--report", str(out / "report"), "--no-history", "--no-progress"]) == 0
+        assert (
+            main(
+                [
+                    "replay",
+                    str(flight["bag"]),
+                    "--config",
+                    str(flight["config"]),
+                    "--json",
+                    str(out / "r1.json"),
+                    "--report",
+                    str(out / "report"),
+                    "--no-history",
+                    "--no-progress",
+                ]
+            )
+            == 0
+        )
     with contextlib.redirect_stdout(io.StringIO()):
         assert main(["plan", str(out / "r1.json"), "--config", str(flight["config"]), "--out",
                      str(out / "card.yaml")]) == 0
@@ -78,10 +113,15 @@ def test_the_report_shows_the_data_limited_band_and_the_manoeuvre_that_closes_it
     rows = section.split("<table class='card'>")[1].split("</table>")[0]
     for m in manoeuvres:
         lo, hi = m["band_rad_s"]
-        expected = [f"{m['closes_rad_s'][0]:.3g}-{m['closes_rad_s'][1]:.3g}", f"{lo:.3g}-{hi:.3g}",
-                    f"{lo / (2 * math.pi):.3g}-{hi / (2 * math.pi):.3g}",
-                    f"{math.degrees(m['amplitude_rad']):.2f} ({m['amplitude_rad']:.3g})", f"{m['duration_s']:.0f}",
-                    str(m["repeats"]), f"{max(m['predicted_error']):.3f}"]
+        expected = [
+            f"{m['closes_rad_s'][0]:.3g}-{m['closes_rad_s'][1]:.3g}",
+            f"{lo:.3g}-{hi:.3g}",
+            f"{lo / (2 * math.pi):.3g}-{hi / (2 * math.pi):.3g}",
+            f"{math.degrees(m['amplitude_rad']):.2f} ({m['amplitude_rad']:.3g})",
+            f"{m['duration_s']:.0f}",
+            str(m["repeats"]),
+            f"{max(m['predicted_error']):.3f}",
+        ]
         for cell in expected:
             assert f"<td>{cell}</td>" in rows, (cell, rows)
         minutes, seconds = divmod(m["flight_time_s"], 60)
@@ -117,17 +157,32 @@ def test_a_plan_that_fails_costs_the_replay_nothing(replayed, monkeypatch, capsy
         raise RuntimeError("planner exploded\non two lines")
 
     monkeypatch.setattr(report_card, "plan_card", boom)
-    code = main(["replay", str(replayed["bag"]), "--config", str(replayed["config"]), "--json",
-                 str(tmp_path / "r.json"), "--report", str(tmp_path / "report"), "--no-history", "--no-progress"])
+    code = main(
+        [
+            "replay",
+            str(replayed["bag"]),
+            "--config",
+            str(replayed["config"]),
+            "--json",
+            str(tmp_path / "r.json"),
+            "--report",
+            str(tmp_path / "report"),
+            "--no-history",
+            "--no-progress",
+        ]
+    )
     assert code == 0
     captured = capsys.readouterr()
     assert (tmp_path / "r.json").exists()
     text = (tmp_path / "report" / "index.html").read_text()
-    assert text.count("plan unavailable: RuntimeError: planner exploded on two lines</p>") == 2   # summary, pitch
+    # summary, pitch
+    assert text.count("plan unavailable: RuntimeError: planner exploded on two lines</p>") == 2
     assert "<table class='open-bands'>" in text            # the bands are still shown, from the results
     assert (tmp_path / "report" / "pitch_bode.png").exists()
     assert "Shaded" not in text
-    assert "gap-validate: warning: plan unavailable: RuntimeError: planner exploded on two lines" in captured.err
+    assert (
+        "gap-validate: warning: plan unavailable: RuntimeError: planner exploded on two lines" in captured.err
+    )
     lines = [line for line in captured.out.splitlines() if "pitch: no verdict" in line]
     assert len(lines) == 1 and "plan unavailable (RuntimeError: planner exploded on two lines)" in lines[0]
 
@@ -139,8 +194,9 @@ def _channel(flags, reasons, w=(1.0, 2.0, 4.0, 8.0, 16.0, 32.0)) -> ChannelResul
 
 
 def test_open_bands_follow_the_planners_rule():
-    """model-limited: a verdict whatever the estimate; data-limited: open whatever the estimate; else open where the
-    estimate is not confident; a run splits where flying can no longer help (above what the logs resolve)."""
+    """model-limited: a verdict whatever the estimate; data-limited: open whatever the estimate; else open
+    where the estimate is not confident; a run splits where flying can no longer help (above what the logs
+    resolve)."""
     ch = _channel(["data", "ok", "model", "ok", "not_excited", "not_excited"],
                   [None, "too_few_dof", "low_coherence", None, "not_excited", "above_resolution"])
     bands = report_card.open_bands(ch)
@@ -167,8 +223,16 @@ def test_the_bode_figure_shades_the_planned_bands(tmp_path):
 
     w = np.geomspace(1.0, 40.0, 12)
     h = 5.0 / (1j * w + 2.0)
-    ch = ChannelResult("pitch", sweeps=1, frequency_rad_s=w, measured=h, model=h, coherence=np.full(w.size, 0.9),
-                       confident=np.ones(w.size, bool), sweep_measured=[h])
+    ch = ChannelResult(
+        "pitch",
+        sweeps=1,
+        frequency_rad_s=w,
+        measured=h,
+        model=h,
+        coherence=np.full(w.size, 0.9),
+        confident=np.ones(w.size, bool),
+        sweep_measured=[h],
+    )
     plain, shaded = tmp_path / "plain.png", tmp_path / "shaded.png"
     figures.bode_figure(ch, plain)
     figures.bode_figure(ch, shaded, planned=[(w[0], w[2])])

@@ -4,10 +4,10 @@ import math
 
 import numpy as np
 import pytest
+from _messages import FakeValidator, T, imu, joints, make_config
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from _messages import T, FakeValidator, imu, joints, make_config
 from gap_validation.core.config import SignalSpec, ValidationConfig
 from gap_validation.core.fields import FieldError, FieldPath
 from gap_validation.messages.router import MessageRouter, stamp_seconds
@@ -18,8 +18,11 @@ def test_router_batches_scales_and_uses_header_stamp():
     router = MessageRouter(make_config(output_scale=math.pi / 180), val, batch=3)
     for k in range(7):
         router.on_message("/imu", imu(y=10.0 * k, sec=100, nanosec=k * 10_000_000), receive_time_s=999.0 + k)
-        router.on_message("/control_surfaces", joints(["elevator"], [0.01 * k], sec=100, nanosec=k * 10_000_000),
-                          receive_time_s=999.0 + k)
+        router.on_message(
+            "/control_surfaces",
+            joints(["elevator"], [0.01 * k], sec=100, nanosec=k * 10_000_000),
+            receive_time_s=999.0 + k,
+        )
         router.on_message("/other", imu(), receive_time_s=0.0)  # not configured: ignored
     assert len([b for b in val.batches if b[1] == "output"]) == 2  # two full batches of 3 pushed
     router.flush()
@@ -51,7 +54,9 @@ def test_router_receive_time_without_header_and_trigger_bool():
     router = MessageRouter(make_config(input_field="data", trigger=True), val)
     router.routes["/control_surfaces"]  # Float64 surface topic
     for k in range(4):
-        router.on_message("/control_surfaces", T["std_msgs/msg/Float64"](data=0.5 * k), receive_time_s=5.0 + k)
+        router.on_message(
+            "/control_surfaces", T["std_msgs/msg/Float64"](data=0.5 * k), receive_time_s=5.0 + k
+        )
         router.on_message("/sweep", T["std_msgs/msg/Bool"](data=k % 2 == 1), receive_time_s=5.0 + k)
     router.flush()
     t, u = val.samples("pitch", "input")
@@ -93,7 +98,9 @@ def test_on_values_matches_on_message_with_time_offset():
     for k in range(5):
         msg = joints(["elevator"], [0.1 * k], sec=k + 1)
         a.on_message("/control_surfaces", msg, 0.0)
-        b.on_values("/control_surfaces", stamp_seconds(msg), [FieldPath.parse("position[elevator]").extract(msg)])
+        b.on_values(
+            "/control_surfaces", stamp_seconds(msg), [FieldPath.parse("position[elevator]").extract(msg)]
+        )
     a.flush()
     b.flush()
     for stream in ("input",):
@@ -194,15 +201,19 @@ _STEP = st.sampled_from([0.125, 0.125, 0.25, 0.0, 0.375, -0.125, -40.0, float("n
                           st.floats(-1.0, 1.0) | st.just(float("nan"))), min_size=1, max_size=120),
        st.lists(st.integers(0, 120), max_size=6), st.lists(st.integers(0, 120), max_size=4),
        st.integers(1, 40), st.sampled_from([0.25, 0.5, 1.0, 1.5]), st.sampled_from([0.0, 60.0, -12.5]))
-def test_runs_of_values_reach_the_validator_as_message_by_message(messages, cuts, singles, batch, span, offset):
-    """``on_values_batch`` pushes the same batches at the same messages as ``on_values`` one by one (full batches,
-    time spans, time jumping back, NaN times and values, runs mixed with single messages)."""
+def test_runs_of_values_reach_the_validator_as_message_by_message(
+    messages, cuts, singles, batch, span, offset
+):
+    """``on_values_batch`` pushes the same batches at the same messages as ``on_values`` one by one (full
+    batches, time spans, time jumping back, NaN times and values, runs mixed with single messages)."""
     times, t = [], 50.0
     for _, step, _ in messages:
         t = t + step if math.isfinite(step) else t
         times.append(t if math.isfinite(step) else float("nan"))
     one, many = FakeValidator(), FakeValidator()
-    routers = [MessageRouter(make_config(trigger=True), v, batch=batch, max_batch_s=span) for v in (one, many)]
+    routers = [
+        MessageRouter(make_config(trigger=True), v, batch=batch, max_batch_s=span) for v in (one, many)
+    ]
     for router in routers:
         router.time_offset_s = offset
     for (topic, _, value), t in zip(messages, times):
@@ -232,7 +243,8 @@ def test_runs_of_values_reach_the_validator_as_message_by_message(messages, cuts
     assert sorted(one.bad) == sorted(many.bad) and routers[0].messages == routers[1].messages
 
 
-@pytest.mark.parametrize("times", [50 + 0.125 * np.arange(30),                               # span reached exactly
+# span reached exactly
+@pytest.mark.parametrize("times", [50 + 0.125 * np.arange(30),
                                    np.r_[50 + 0.125 * np.arange(9), 8 + 0.125 * np.arange(9)],  # a jump back
                                    np.r_[50.0, 50.0, 50.0, 49.9, 50.25, 50.5]])                 # reordered
 def test_runs_push_where_message_by_message_pushes(times):

@@ -1,6 +1,7 @@
-"""Harder cases of the second simulator (``../shared/flights``), scored as ``benchmarks/second_simulator.py`` scores
-all 29 (issue 22): a closed loop without its excitation logged, a rate limit, a servo that holds its command. The
-easier cases are in test_second_simulator.py (two files: the suite's two workers make them side by side)."""
+"""Harder cases of the second simulator (``../shared/flights``), scored as ``benchmarks/second_simulator.py``
+scores all 29 (issue 22): a closed loop without its excitation logged, a rate limit, a servo that holds its
+command. The easier cases are in test_second_simulator.py (two files: the suite's two workers make them side
+by side)."""
 import sys
 from pathlib import Path
 
@@ -33,8 +34,8 @@ def test_the_case_is_judged_as_its_truth_says(scored, name):
 
 
 def test_a_hold_is_named_a_hold_at_its_rate(scored):
-    """zoh20_yaw: the rudder held at 20 Hz is a zero_order_hold within 10 % of 20 Hz, not a lag pair (which fits as
-    well with a parameter more) nor a delay (which leaves the droop)."""
+    """zoh20_yaw: the rudder held at 20 Hz is a zero_order_hold within 10 % of 20 Hz, not a lag pair (which
+    fits as well with a parameter more) nor a delay (which leaves the droop)."""
     result, _ = scored["zoh20_yaw"]
     yaw = result["channels"]["yaw"]
     assert yaw["top"]["effect"] == "zero_order_hold" and yaw["top"]["explains"]

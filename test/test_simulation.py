@@ -1,4 +1,5 @@
-"""Synthetic flights (gap_validation.core.simulation): ROS-free, seeded, realistic enough to validate against."""
+"""Synthetic flights (gap_validation.core.simulation): ROS-free, seeded, realistic enough to validate
+against."""
 import math
 import subprocess
 import sys
@@ -6,15 +7,23 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from _flights import SHORT, config_from, raw_config, single_channel, ultrastick
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import signal
 
-from _flights import SHORT, config_from, raw_config, single_channel, ultrastick
-from gap_validation.core.errors import ConfigError
-from gap_validation.core.simulation import (FlightOptions, band_noise, doublet, log_sweep, plan_topics, simulate_flight,
-                                            truth_models, with_options)
 from gap_validation.cli.arguments import hidden_effects, parse_band_noise, parse_hidden
+from gap_validation.core.errors import ConfigError
+from gap_validation.core.simulation import (
+    FlightOptions,
+    band_noise,
+    doublet,
+    log_sweep,
+    plan_topics,
+    simulate_flight,
+    truth_models,
+    with_options,
+)
 
 CHANNELS = ("roll", "pitch", "yaw")
 
@@ -30,12 +39,22 @@ def flight(config):
 
 
 # ------------------------------------------------------------------------------------------- --hidden
-@pytest.mark.parametrize("text, channel, effect", [
-    ("pitch:time_delay:seconds=0.04", "pitch", {"type": "time_delay", "seconds": 0.04}),
-    ("roll:first_order_lag:bandwidth_rad_s=37.7", "roll", {"type": "first_order_lag", "bandwidth_rad_s": 37.7}),
-    (" yaw : second_order_lag : natural_frequency_rad_s=30, damping=0.5 ", "yaw",
-     {"type": "second_order_lag", "natural_frequency_rad_s": 30.0, "damping": 0.5}),
-])
+@pytest.mark.parametrize(
+    "text, channel, effect",
+    [
+        ("pitch:time_delay:seconds=0.04", "pitch", {"type": "time_delay", "seconds": 0.04}),
+        (
+            "roll:first_order_lag:bandwidth_rad_s=37.7",
+            "roll",
+            {"type": "first_order_lag", "bandwidth_rad_s": 37.7},
+        ),
+        (
+            " yaw : second_order_lag : natural_frequency_rad_s=30, damping=0.5 ",
+            "yaw",
+            {"type": "second_order_lag", "natural_frequency_rad_s": 30.0, "damping": 0.5},
+        ),
+    ],
+)
 def test_parse_hidden(text, channel, effect):
     assert parse_hidden(text, CHANNELS) == (channel, effect)
 
@@ -59,7 +78,9 @@ def test_parse_hidden_errors_name_the_bad_part(text, part):
 
 
 def test_hidden_effects_collect_in_order(config):
-    hidden = hidden_effects(["roll:first_order_lag:bandwidth_rad_s=37.7", "roll:time_delay:seconds=0.05"], config)
+    hidden = hidden_effects(
+        ["roll:first_order_lag:bandwidth_rad_s=37.7", "roll:time_delay:seconds=0.05"], config
+    )
     assert [e["type"] for e in hidden["roll"]] == ["first_order_lag", "time_delay"]
     truth = truth_models(config, hidden)
     w = np.array([5.0, 20.0])
@@ -170,7 +191,9 @@ def test_sensor_quantisation_and_noise(config):
 
 def test_gusts_are_low_frequency(config):
     """The disturbance is coloured: its power sits below the gust bandwidth, so coherence falls there."""
-    fl = simulate_flight(config, options=with_options(SHORT, gyro_noise_rad_s=0.0, gyro_lsb_rad_s=0.0), seed=2)
+    fl = simulate_flight(
+        config, options=with_options(SHORT, gyro_noise_rad_s=0.0, gyro_lsb_rad_s=0.0), seed=2
+    )
     imu = fl.topics["/imu"]
     disturbance = imu.values["angular_velocity.x"] - np.interp(imu.stamp_s - fl.start_time_s, fl.t_s,
                                                                fl.outputs["roll"])
@@ -216,8 +239,8 @@ def test_band_noise_is_off_by_default():
 
 
 def test_band_noise_is_band_limited_on_the_chosen_channel_only(config):
-    """Same seed with and without band noise: only the pitch rate differs, by noise of the asked RMS whose power
-    lies in the band."""
+    """Same seed with and without band noise: only the pitch rate differs, by noise of the asked RMS whose
+    power lies in the band."""
     plain = simulate_flight(config, options=replace(BAND, band_noise_rad_s=None), seed=6)
     noisy = simulate_flight(config, options=BAND, seed=6)
     np.testing.assert_array_equal(plain.topics["/control_surfaces"].values["position[elevator]"],
@@ -225,7 +248,9 @@ def test_band_noise_is_band_limited_on_the_chosen_channel_only(config):
     np.testing.assert_array_equal(plain.topics["/imu"].stamp_s, noisy.topics["/imu"].stamp_s)
     for key in ("angular_velocity.x", "angular_velocity.z"):
         np.testing.assert_array_equal(plain.topics["/imu"].values[key], noisy.topics["/imu"].values[key])
-    added = noisy.topics["/imu"].values["angular_velocity.y"] - plain.topics["/imu"].values["angular_velocity.y"]
+    added = (
+        noisy.topics["/imu"].values["angular_velocity.y"] - plain.topics["/imu"].values["angular_velocity.y"]
+    )
     assert 0.9 * 0.05 < np.std(added) < 1.1 * 0.05
     f, pxx = signal.welch(added, fs=SHORT.imu_rate_hz, nperseg=2048)
     w = 2 * math.pi * f
@@ -300,9 +325,20 @@ def test_band_noise_unknown_channel(config):
 
 def test_cli_band_noise(tmp_path, capsys):
     from _flights import CONFIG_PATH
+
     from gap_validation.cli.main import main
 
-    base = ["simulate", "--config", str(CONFIG_PATH), "--sweeps", "1", "--sweep-duration", "10", "--seed", "2"]
+    base = [
+        "simulate",
+        "--config",
+        str(CONFIG_PATH),
+        "--sweeps",
+        "1",
+        "--sweep-duration",
+        "10",
+        "--seed",
+        "2",
+    ]
     assert main(base + ["--out", str(tmp_path / "a"), "--band-noise", "5:10:0.05:pitch"]) == 0
     assert "band noise: 0.05 rad/s rms at 5-10 rad/s on pitch" in capsys.readouterr().out
     for bad, part in (("5:10", "LOW:HIGH:RMS"), ("5:x:0.05", "'x'"), ("5:10:0.05:wing", "'wing'")):
@@ -313,8 +349,8 @@ def test_cli_band_noise(tmp_path, capsys):
 
 
 def test_bundled_example_bag_is_reproduced(tmp_path):
-    """Options added to the simulator leave default flights alone: scripts/make_example_bag rebuilds the bundled
-    bag byte for byte."""
+    """Options added to the simulator leave default flights alone: scripts/make_example_bag rebuilds the
+    bundled bag byte for byte."""
     from _flights import ROOT
 
     out = tmp_path / "ultrastick25e_flight"

@@ -1,7 +1,7 @@
 """Tests of gap_validation.core.spectra: the local polynomial estimate of whole records, pooled over records.
 
-References: the true response of the simulated system, scipy.signal's Welch estimates (csd / welch) of the same
-samples, and the F distribution the error statistic must follow.
+References: the true response of the simulated system, scipy.signal's Welch estimates (csd / welch) of the
+same samples, and the F distribution the error statistic must follow.
 """
 import math
 
@@ -10,9 +10,18 @@ import pytest
 from scipy import signal, stats
 
 from gap_validation.core.alignment import StreamResampler
-from gap_validation.core.spectra import (STATUS_ABOVE_GRID, STATUS_NOT_EXCITED, STATUS_TOO_SHORT, BandSums,
-                                         band_bins, expected_estimate, interpolation_gain, neighbour_noise_floor,
-                                         record_bands, solve_bands)
+from gap_validation.core.spectra import (
+    STATUS_ABOVE_GRID,
+    STATUS_NOT_EXCITED,
+    STATUS_TOO_SHORT,
+    BandSums,
+    band_bins,
+    expected_estimate,
+    interpolation_gain,
+    neighbour_noise_floor,
+    record_bands,
+    solve_bands,
+)
 
 DT = 0.01
 W = np.geomspace(1.0, 40.0, 25)
@@ -64,7 +73,8 @@ def test_noise_free_record_gives_the_model_through_the_estimator():
 
 
 def test_a_singular_band_leaves_only_itself_unknown():
-    """The bands are solved together; one whose regressors are singular is NaN and the others are as before."""
+    """The bands are solved together; one whose regressors are singular is NaN and the others are as
+    before."""
     u, y = noisy_record(np.random.default_rng(0), noise=0.0)
     sums, _ = estimate([(u, y)])
     before, _ = expected_estimate(sums, W, 0.1, response)
@@ -77,8 +87,9 @@ def test_a_singular_band_leaves_only_itself_unknown():
 
 
 def test_error_statistic_follows_the_f_distribution():
-    # |H_est - H|^2 / variance ~ F(2, 2 dof): its 95 % quantile is exceeded 5 % of the time; the neighbour floor
-    # on the noise (solve_bands) only ever raises the variance, so a little less (3.4 % here; 5.0 % without it)
+    # |H_est - H|^2 / variance ~ F(2, 2 dof): its 95 % quantile is exceeded 5 % of the time; the neighbour
+    # floor on the noise (solve_bands) only ever raises the variance, so a little less (3.4 % here; 5.0 %
+    # without it)
     rng = np.random.default_rng(1)
     exceed, total = 0, 0
     for _ in range(60):
@@ -107,9 +118,9 @@ def test_agrees_with_scipy_welch_on_a_long_record():
 
 
 def test_a_record_cut_mid_response_is_handled_by_the_transient_term():
-    # the record starts while the system still rings from a large earlier input (nonzero initial state): without
-    # a transient term the free response lands in the estimate (33 % median error here), a constant one removes
-    # most of it (4 %), a linear one more (1 %); the error bounds stay honest in every case
+    # the record starts while the system still rings from a large earlier input (nonzero initial state):
+    # without a transient term the free response lands in the estimate (33 % median error here), a constant
+    # one removes most of it (4 %), a linear one more (1 %); the error bounds stay honest in every case
     rng = np.random.default_rng(3)
     errors = {-1: [], 0: [], 1: []}
     for _ in range(12):
@@ -200,9 +211,9 @@ def test_neighbour_noise_floor_pools_a_frequency_with_its_neighbours():
 
 
 def test_the_floor_makes_chance_low_noise_estimates_rare():
-    """On 3 degrees of freedom a noise estimate falls below a quarter of the truth one time in 25 (chi^2(6) / 6);
-    never below its neighbours' pooled estimate, one time in thousands. Where the estimate is right it changes
-    it little (median ratio of the floored to the own estimate at most 1.2)."""
+    """On 3 degrees of freedom a noise estimate falls below a quarter of the truth one time in 25 (chi^2(6) /
+    6); never below its neighbours' pooled estimate, one time in thousands. Where the estimate is right it
+    changes it little (median ratio of the floored to the own estimate at most 1.2)."""
     rng = np.random.default_rng(7)
     d = 3
     own = rng.chisquare(2 * d, size=(20000, 40)) / (2 * d)       # true noise 1 at every frequency
@@ -222,5 +233,7 @@ def test_solve_bands_raises_a_noise_below_its_neighbours_floor_and_its_variance_
     known = np.isfinite(floor)
     assert known.sum() >= 15 and np.any(floor[known] > own.noise[known])     # some are raised
     assert np.allclose(est.noise[known], np.maximum(own.noise[known], floor[known]), rtol=1e-12)
-    assert np.allclose(est.variance[known] / own.variance[known], est.noise[known] / own.noise[known], rtol=1e-12)
+    assert np.allclose(
+        est.variance[known] / own.variance[known], est.noise[known] / own.noise[known], rtol=1e-12
+    )
     assert np.array_equal(est.response[known], own.response[known])     # the response itself is untouched

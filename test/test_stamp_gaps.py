@@ -1,4 +1,5 @@
-"""Messages missing from a topic's stamps (gap_validation.ros.stamp_gaps): gaps counted, pauses and jitter not."""
+"""Messages missing from a topic's stamps (gap_validation.ros.stamp_gaps): gaps counted, pauses and jitter
+not."""
 import random
 
 import pytest

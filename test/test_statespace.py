@@ -1,8 +1,9 @@
 """State-space tools: minimal realizations, normalised coprime factors, Riccati equations, H-infinity norm.
 
-Defining properties rather than re-computations: P = N M^-1 = Mt^-1 Nt with G~ G = I and Gt Gt~ = I; the Riccati
-residual vanishes and the closed loop is stable; the H-infinity norm equals analytic peaks and is never below a
-dense grid of singular values; a minimal realization keeps the transfer function and drops hidden modes.
+Defining properties rather than re-computations: P = N M^-1 = Mt^-1 Nt with G~ G = I and Gt Gt~ = I; the
+Riccati residual vanishes and the closed loop is stable; the H-infinity norm equals analytic peaks and is
+never below a dense grid of singular values; a minimal realization keeps the transfer function and drops
+hidden modes.
 """
 import math
 
@@ -61,7 +62,8 @@ def test_normalised_coprime_factors(seed, states, outputs, inputs, stable):
 
 def test_coprime_factors_of_an_integrator_and_an_undamped_oscillator():
     for den, w_pole in (([1.0, 0.0], 0.0), ([1.0, 0.0, 4.0], 2.0)):
-        g = ss.freqresp(ss.right_ncf(_tf2ss([1.0], den)), np.array([w_pole]))   # finite at the pole on the axis
+        # finite at the pole on the axis
+        g = ss.freqresp(ss.right_ncf(_tf2ss([1.0], den)), np.array([w_pole]))
         assert np.all(np.isfinite(g))
         assert abs(g[0, 1, 0]) < 1e-12 and abs(g[0, 0, 0]) == pytest.approx(1.0)  # P = N/M: M = 0, |N| = 1
 
@@ -81,7 +83,9 @@ def test_stabilising_riccati_residual_and_failure_on_a_hidden_mode_on_the_axis()
     residual = a.T @ x + x @ a - x @ g @ x + q
     assert np.abs(residual).max() <= 1e-9 * max(1.0, np.abs(x).max())
     assert np.all(np.linalg.eigvals(a - g @ x).real < 0.0)
-    np.testing.assert_allclose(x, scipy.linalg.solve_continuous_are(a, b, q, np.eye(2)), rtol=1e-8, atol=1e-10)
+    np.testing.assert_allclose(
+        x, scipy.linalg.solve_continuous_are(a, b, q, np.eye(2)), rtol=1e-8, atol=1e-10
+    )
     # an integrator the input cannot move and the output cannot see: no stabilising solution
     with pytest.raises(np.linalg.LinAlgError):
         ss.stabilising_riccati(np.zeros((1, 1)), np.zeros((1, 1)), np.zeros((1, 1)))
@@ -99,8 +103,12 @@ def test_minimal_realization_drops_hidden_modes_and_keeps_the_transfer_function(
     w = np.array([0.1, 1.0, 10.0])
     np.testing.assert_allclose(ss.freqresp(minimal, w), ss.freqresp(system, w), rtol=1e-12)
     # a 2x2 transfer matrix with the same pole in every element has McMillan degree 1
-    four = (-np.eye(4), np.array([[1.0, 0], [1, 0], [0, 1], [0, 1]]), np.array([[1.0, 0, 1, 0], [0, 1, 0, 1]]),
-            np.zeros((2, 2)))
+    four = (
+        -np.eye(4),
+        np.array([[1.0, 0], [1, 0], [0, 1], [0, 1]]),
+        np.array([[1.0, 0, 1, 0], [0, 1, 0, 1]]),
+        np.zeros((2, 2)),
+    )
     reduced = ss.minimal_realization(four)
     assert reduced[0].shape[0] < 4
     np.testing.assert_allclose(ss.freqresp(reduced, w), ss.freqresp(four, w), rtol=1e-12)
@@ -121,7 +129,10 @@ def test_hinf_norm_is_the_sup_of_a_dense_grid(seed, states, outputs, inputs, fee
 
 def test_hinf_norm_of_textbook_systems():
     # 1/(s+1): peak 1 at w = 0
-    assert ss.hinf_norm((np.array([[-1.0]]), np.array([[1.0]]), np.array([[1.0]]), np.zeros((1, 1)))) == (1.0, 0.0)
+    assert ss.hinf_norm((np.array([[-1.0]]), np.array([[1.0]]), np.array([[1.0]]), np.zeros((1, 1)))) == (
+        1.0,
+        0.0,
+    )
     # wn^2/(s^2 + 2 z wn s + wn^2): peak 1/(2 z sqrt(1 - z^2)) at wn sqrt(1 - 2 z^2)
     for zeta in (0.02, 0.1, 0.5):
         wn = 7.0
@@ -151,7 +162,9 @@ def test_series_paraconjugate_and_zeros():
     rng = np.random.default_rng(5)
     g1, g2 = random_system(rng, 3, 2, 2), random_system(rng, 2, 2, 2)
     w = np.array([0.5, 3.0])
-    np.testing.assert_allclose(ss.freqresp(ss.series(g1, g2), w), ss.freqresp(g2, w) @ ss.freqresp(g1, w), rtol=1e-10)
+    np.testing.assert_allclose(
+        ss.freqresp(ss.series(g1, g2), w), ss.freqresp(g2, w) @ ss.freqresp(g1, w), rtol=1e-10
+    )
     np.testing.assert_allclose(ss.freqresp(ss.paraconjugate(g1), w), conj_t(ss.freqresp(g1, w)), rtol=1e-10)
     zeros = ss.zeros_square(g1)
     for z in zeros:

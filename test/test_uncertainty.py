@@ -1,14 +1,19 @@
 """Monte Carlo of the uncertain model (paper Fig. 6): all-pass perturbations on the epsilon-disk boundary."""
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from gap_validation.core import metrics
 from gap_validation.core.errors import DataError
 from gap_validation.core.manoeuvres import Manoeuvre
 from gap_validation.core.models import LinearModel
-from gap_validation.core.uncertainty import (filter_uniform, monte_carlo_tube, sample_perturbations,
-                                             time_domain_check)
+from gap_validation.core.uncertainty import (
+    filter_uniform,
+    monte_carlo_tube,
+    sample_perturbations,
+    time_domain_check,
+)
 
 P1 = LinearModel.from_spec({"numerator": [18.75, 225.0], "denominator": [1.0, 9.0, 225.0]})   # eq. 18
 
@@ -81,7 +86,9 @@ def test_time_domain_check_tic_of_model_against_itself_and_a_wrong_model():
     t, u = doublet_input()
     trim_u, trim_y = 0.02, 0.3
     y = P1.simulate(t, u)
-    same = time_domain_check(P1, Manoeuvre("doublet", 1.7e9 + t, u + trim_u, y + trim_y, 1.7e9 + 1, 1.7e9 + 4, 90))
+    same = time_domain_check(
+        P1, Manoeuvre("doublet", 1.7e9 + t, u + trim_u, y + trim_y, 1.7e9 + 1, 1.7e9 + 4, 90)
+    )
     assert same.tic == pytest.approx(0.0, abs=1e-9)
     opposite = time_domain_check(P1, Manoeuvre("doublet", t, u, -y, 1.0, 4.0, 90))
     assert opposite.tic == pytest.approx(1.0)

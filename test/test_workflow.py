@@ -73,8 +73,22 @@ def test_unwritable_history_keeps_the_other_outputs_and_the_bag_errors(tmp_path,
     blocker.write_text("")
     fixed = tmp_path / "fixed.yaml"
     out_json = tmp_path / "out.json"
-    status = main(["replay", BAG, str(tmp_path / "missing.mcap"), "--config", CONFIG, "--json", str(out_json),
-                   "--history", str(blocker / "history.jsonl"), "--apply-diagnosis", str(fixed), "--no-progress"])
+    status = main(
+        [
+            "replay",
+            BAG,
+            str(tmp_path / "missing.mcap"),
+            "--config",
+            CONFIG,
+            "--json",
+            str(out_json),
+            "--history",
+            str(blocker / "history.jsonl"),
+            "--apply-diagnosis",
+            str(fixed),
+            "--no-progress",
+        ]
+    )
     assert status == 1                                   # the missing bag, not the history
     err = capsys.readouterr().err
     assert "cannot write the validation history" in err and "history is not appended" in err

@@ -1,9 +1,10 @@
-"""Writing rosbag2 files (gap_validation.bag.writer): simulated flights round-trip exactly, in every storage."""
+"""Writing rosbag2 files (gap_validation.bag.writer): simulated flights round-trip exactly, in every
+storage."""
 import numpy as np
 import pytest
+from _flights import TINY, make_bag
 from rosbags.rosbag2 import Reader
 
-from _flights import TINY, make_bag
 from gap_validation.bag.reader import open_bag
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.fields import FieldPath
@@ -37,7 +38,9 @@ def test_mcap_round_trip_is_exact(mcap_bag, flight):
     _check_contents(mcap_bag, flight)
 
 
-@pytest.mark.parametrize("name, storage", [("flight_sql", "sqlite3"), ("bare.mcap", None), ("bare.db3", None)])
+@pytest.mark.parametrize(
+    "name, storage", [("flight_sql", "sqlite3"), ("bare.mcap", None), ("bare.db3", None)]
+)
 def test_other_storages_round_trip(tmp_path, flight, name, storage):
     from gap_validation.bag.writer import write_flight
 

@@ -1,8 +1,8 @@
 """Records of a bag in batches, for the vectorised decoding of replay.
 
-:meth:`gap_validation.bag.reader.Bag.record_batches` yields the records :meth:`~gap_validation.bag.reader.Bag.records`
-yields, in the same order, grouped as :class:`RecordBatch` (topic per record, bag time, and the serialized
-messages as :class:`~gap_validation.messages.cdr.Records`).
+:meth:`gap_validation.bag.reader.Bag.record_batches` yields the records
+:meth:`~gap_validation.bag.reader.Bag.records` yields, in the same order, grouped as :class:`RecordBatch`
+(topic per record, bag time, and the serialized messages as :class:`~gap_validation.messages.cdr.Records`).
 
 For an indexed mcap file (what ``gap-validate simulate`` and ``ros2 bag record`` write) a batch is one
 decompressed chunk as it is: the messages are found with the chunk's message indexes (read straight into numpy
@@ -10,8 +10,9 @@ arrays and checked: each indexed record is a message of its channel and log time
 them is whole records none of which is a message, so no message is missed) and
 ordered as rosbags orders them (by log time, stably, within a chunk; chunk after chunk), without a line of
 Python per message. A chunk whose index does not tile it is read by rosbags' own chunk reader; a file whose
-chunks overlap in time, an unindexed one, per-message compression, sqlite3 and salvaged files group the records
-of :meth:`~gap_validation.bag.reader.Bag.records` (:func:`grouped`). Memory holds one chunk or one batch.
+chunks overlap in time, an unindexed one, per-message compression, sqlite3 and salvaged files group the
+records of :meth:`~gap_validation.bag.reader.Bag.records` (:func:`grouped`). Memory holds one chunk or one
+batch.
 """
 from __future__ import annotations
 
@@ -34,14 +35,20 @@ BATCH = 4096
 _U32 = struct.Struct("<I")
 _INDEX_HEAD = struct.Struct("<BQHI")   # opcode 0x07, record length, channel id, byte length of the entries
 _MESSAGE_HEAD = 9 + 22                 # opcode, record length; channel id, sequence, log time, publish time
-_HEAD_DTYPE = np.dtype({"names": ["opcode", "length", "channel", "log_time"], "formats": ["u1", "<u8", "<u2", "<u8"],
-                        "offsets": [0, 1, 9, 15], "itemsize": _MESSAGE_HEAD})
+_HEAD_DTYPE = np.dtype(
+    {
+        "names": ["opcode", "length", "channel", "log_time"],
+        "formats": ["u1", "<u8", "<u2", "<u8"],
+        "offsets": [0, 1, 9, 15],
+        "itemsize": _MESSAGE_HEAD,
+    }
+)
 
 
 @dataclass(frozen=True)
 class RecordBatch:
-    """Consecutive records of a bag: record ``i`` is of topic ``topics[which[i]]``, at bag time ``t_ns[i]``, with
-    serialized message ``records.raw(i)``."""
+    """Consecutive records of a bag: record ``i`` is of topic ``topics[which[i]]``, at bag time ``t_ns[i]``,
+    with serialized message ``records.raw(i)``."""
 
     topics: tuple[str, ...]
     which: np.ndarray
@@ -91,9 +98,12 @@ def grouped(records: Iterable[tuple[str, str, int, Any]], size: int = BATCH) -> 
         yield batch()
 
 
-def storage_batches(storage: Any, topic_of: dict[int, str], size: int = BATCH) -> Iterator[RecordBatch] | None:
-    """The records of the channels ``topic_of`` (storage connection id -> topic) of one storage file of rosbags,
-    in batches, in the order of its ``messages``; None when it cannot be read so (then group the records)."""
+def storage_batches(
+    storage: Any, topic_of: dict[int, str], size: int = BATCH
+) -> Iterator[RecordBatch] | None:
+    """The records of the channels ``topic_of`` (storage connection id -> topic) of one storage file of
+    rosbags, in batches, in the order of its ``messages``; None when it cannot be read so (then group the
+    records)."""
     names = tuple(dict.fromkeys(topic_of.values()))
     code = np.full(1 << 16, -1, dtype=np.int64)     # connection id -> index of its topic in names, or -1
     for cid, topic in topic_of.items():
@@ -107,18 +117,23 @@ def storage_batches(storage: Any, topic_of: dict[int, str], size: int = BATCH) -
     chunks = sorted((c for c in storage.chunks if any(c.channel_count.get(cid, 0) for cid in topic_of)),
                     key=lambda c: (c.message_start_time, c.chunk_start_offset))
     for a, b in zip(chunks, chunks[1:]):   # rosbags merges the chunks' messages by (log time, chunk offset)
-        if not (a.message_end_time < b.message_start_time
-                or (a.message_end_time == b.message_start_time and a.chunk_start_offset < b.chunk_start_offset)):
+        if not (
+            a.message_end_time < b.message_start_time
+            or (a.message_end_time == b.message_start_time and a.chunk_start_offset < b.chunk_start_offset)
+        ):
             return None
     return _chunk_batches(storage, chunks, topic_of, names, code, size)
 
 
 def _sqlite_batches(storage: Any, topic_of: dict[int, str], names: tuple[str, ...], code: np.ndarray,
                     size: int) -> Iterator[RecordBatch]:
-    """rosbags' query of ``Sqlite3Reader.messages`` (same text, same order), its rows fetched ``size`` at a time."""
+    """rosbags' query of ``Sqlite3Reader.messages`` (same text, same order), its rows fetched ``size`` at a
+    time."""
     ids = tuple(set(topic_of))
-    query = ("SELECT topics.id,messages.timestamp,messages.data FROM messages JOIN topics ON "
-             f"messages.topic_id=topics.id WHERE topics.id IN ({','.join('?' for _ in ids)}) ORDER BY timestamp")
+    query = (
+        "SELECT topics.id,messages.timestamp,messages.data FROM messages JOIN topics ON "
+        f"messages.topic_id=topics.id WHERE topics.id IN ({','.join('?' for _ in ids)}) ORDER BY timestamp"
+    )
     cursor = storage.dbconn.execute(query, ids)
     while rows := list(islice(cursor, size)):
         cids, times, raws = zip(*rows)
@@ -135,8 +150,13 @@ def _chunk_batches(storage: Any, chunks: Sequence[Any], topic_of: dict[int, str]
         except Exception:  # noqa: BLE001 - a damaged chunk: rosbags' reader says what is wrong with it
             batch = None
         if batch is None:
-            messages = [m for m in msgsrc(chunk, connections, chunk.message_start_time, chunk.message_end_time + 1,
-                                          storage.bio) if m.offset]
+            messages = [
+                m
+                for m in msgsrc(
+                    chunk, connections, chunk.message_start_time, chunk.message_end_time + 1, storage.bio
+                )
+                if m.offset
+            ]
             batch = RecordBatch(names, code[np.asarray([m.connection.id for m in messages], dtype=np.int64)],
                                 np.asarray([m.timestamp for m in messages], dtype=np.int64),
                                 Records.from_raws([m.data for m in messages]))

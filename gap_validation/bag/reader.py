@@ -1,15 +1,15 @@
 """Reading rosbag2 files (through ``rosbags``): open, list topics, stream records, deserialise.
 
 :func:`open_bag` accepts a rosbag2 directory (with ``metadata.yaml``), a bare ``.mcap`` or ``.db3`` file, or a
-directory without metadata that holds exactly one storage file. :meth:`Bag.records` streams the raw CDR records
-of the requested topics one by one (rosbags reads mcap chunk by chunk and sqlite3 through a cursor), so an
-hour-long bag is never held in memory. Messages are decoded with the ``ROS2_JAZZY`` typestore (types the store
-lacks are registered from the bag's own message definitions); replay reads most of them with the fast field
-decoders of :mod:`gap_validation.messages.cdr` instead.
+directory without metadata that holds exactly one storage file. :meth:`Bag.records` streams the raw CDR
+records of the requested topics one by one (rosbags reads mcap chunk by chunk and sqlite3 through a cursor),
+so an hour-long bag is never held in memory. Messages are decoded with the ``ROS2_JAZZY`` typestore (types the
+store lacks are registered from the bag's own message definitions); replay reads most of them with the fast
+field decoders of :mod:`gap_validation.messages.cdr` instead.
 
-A damaged file (a recording cut short, a broken index) is read by :func:`gap_validation.bag.salvage.salvage` up
-to the damage, and :meth:`Bag.records` ends with a :class:`DataError` saying where the file stopped and how many
-seconds before it were read.
+A damaged file (a recording cut short, a broken index) is read by :func:`gap_validation.bag.salvage.salvage`
+up to the damage, and :meth:`Bag.records` ends with a :class:`DataError` saying where the file stopped and how
+many seconds before it were read.
 """
 from __future__ import annotations
 
@@ -20,8 +20,8 @@ from pathlib import Path
 from typing import Any, Iterator, Sequence
 
 from rosbags.rosbag2 import Reader
-from rosbags.rosbag2.reader import DirectoryReader
 from rosbags.rosbag2.errors import ReaderError
+from rosbags.rosbag2.reader import DirectoryReader
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, TypesysError, get_types_from_idl, get_types_from_msg, get_typestore
 
@@ -94,7 +94,9 @@ class Bag:
         except Exception as err:  # noqa: BLE001 - any failure to open means "not a readable bag"
             self._reader = _salvage(self._storage)
             if self._reader is None:
-                raise DataError(f"{self.path}: cannot read bag ({one_line(err)}; nothing recoverable)") from None
+                raise DataError(
+                    f"{self.path}: cannot read bag ({one_line(err)}; nothing recoverable)"
+                ) from None
             self.damage = self._reader.damage or Damage(0, one_line(err), "the index")
         self._closed = False
 
@@ -207,9 +209,10 @@ class Bag:
             raise DataError(f"{where}: {self.damage.text}{self._before()}")
 
     def record_batches(self, topics: Sequence[str] | None = None, size: int = BATCH) -> Iterator[RecordBatch]:
-        """The records of :meth:`records`, in the same order, as :class:`~gap_validation.bag.batches.RecordBatch`
-        of at most ``size`` records (an indexed mcap file: straight from its chunks; sqlite3: rows fetched many at
-        a time; see :mod:`gap_validation.bag.batches`).
+        """The records of :meth:`records`, in the same order, as
+        :class:`~gap_validation.bag.batches.RecordBatch` of at most ``size`` records (an indexed mcap file:
+        straight from its chunks; sqlite3: rows fetched many at a time; see
+        :mod:`gap_validation.bag.batches`).
 
         Parameters
         ----------
@@ -242,15 +245,16 @@ class Bag:
                 from None
 
     def _batch_sources(self, conns: Sequence[Any], size: int) -> list[Iterator[RecordBatch]] | None:
-        """Per storage file, its batches (:func:`~gap_validation.bag.batches.storage_batches`), in the order rosbags
-        reads the files; None when one of them cannot be read so (then :meth:`records` is grouped)."""
+        """Per storage file, its batches (:func:`~gap_validation.bag.batches.storage_batches`), in the order
+        rosbags reads the files; None when one of them cannot be read so (then :meth:`records` is grouped)."""
         if self.damage is not None or not isinstance(self._reader, Reader):
             return None
         storage = self._reader.storage
         if isinstance(storage, DirectoryReader):
             if self._reader.compression_mode == "message":
                 return None
-            parts = [(part, {x.id: y.topic for x in part.connections for y in conns   # as DirectoryReader.messages
+            # as DirectoryReader.messages
+            parts = [(part, {x.id: y.topic for x in part.connections for y in conns
                              if y.topic == x.topic and y.msgtype == x.msgtype and y.ext == x.ext
                              and (not x.digest or not y.digest or y.digest == x.digest)})
                      for part in storage.storages]
@@ -339,5 +343,7 @@ def open_bag(path: str | Path) -> Bag:
 
 def _salvage(storage: Path) -> Any:
     """A reader of what a damaged bag (its one storage file) still holds, or None (:func:`salvage`)."""
-    files = [storage] if storage.is_file() else sorted(p for p in storage.iterdir() if p.suffix in BAG_SUFFIXES)
+    files = (
+        [storage] if storage.is_file() else sorted(p for p in storage.iterdir() if p.suffix in BAG_SUFFIXES)
+    )
     return salvage(files[0]) if len(files) == 1 else None

@@ -1,15 +1,16 @@
 """Replay recorded flights (rosbag2, and flight logs: PX4 ULog, ArduPilot DataFlash, CSV) into the online
 validator: the offline front end of the one data path.
 
-Every bag is streamed in batches of records (only the config's topics; :meth:`Bag.record_batches`: an mcap chunk
-at a time), each record goes through the one decoding step (:class:`~gap_validation.messages.decoding.TopicDecoder`,
-as in the node) and :class:`~gap_validation.messages.router.MessageRouter` into
-:class:`~gap_validation.core.validator.OnlineValidator` -- the same objects the ROS 2 node uses -- and the result
-is the validator's :class:`ValidationResult`. Per batch, each topic's records are decoded at once
-(``TopicDecoder.decode_batch``: the fields read straight from many records, vectorised) and go to the router as
-runs in bag order (``MessageRouter.on_values_batch``, which pushes the same batches at the same messages as one by
-one); the records it does not read (the first of every topic while the decoder is verified, odd records) go one
-by one, in their place, as before batching. The result is the record-by-record one to the bit.
+Every bag is streamed in batches of records (only the config's topics; :meth:`Bag.record_batches`: an mcap
+chunk at a time), each record goes through the one decoding step
+(:class:`~gap_validation.messages.decoding.TopicDecoder`, as in the node) and
+:class:`~gap_validation.messages.router.MessageRouter` into
+:class:`~gap_validation.core.validator.OnlineValidator` -- the same objects the ROS 2 node uses -- and the
+result is the validator's :class:`ValidationResult`. Per batch, each topic's records are decoded at once
+(``TopicDecoder.decode_batch``: the fields read straight from many records, vectorised) and go to the router
+as runs in bag order (``MessageRouter.on_values_batch``, which pushes the same batches at the same messages as
+one by one); the records it does not read (the first of every topic while the decoder is verified, odd
+records) go one by one, in their place, as before batching. The result is the record-by-record one to the bit.
 
 Several bags add up: sweeps from all of them count. Bags are replayed in order of their start time; when a
 bag's clock overlaps the data already replayed (e.g. two simulated flights that both start at the same epoch),
@@ -19,22 +20,23 @@ increasing time.
 A bad input never discards what was computed: an unreadable bag, a topic of the wrong type or a damaged record
 is reported (one line naming the file and topic) and the other bags, topics and records are still validated.
 
-Flight logs (``.ulg``, ``.bin``, ``.csv``; :mod:`gap_validation.logs`) go the same way from the router on, streamed
-as bags are. A log gives the topics and fields the config names (a config topic ``/vehicle_angular_velocity`` is the
-log's ``vehicle_angular_velocity``, ``/IMU[1]`` its ``IMU[1]``) in blocks
-(:meth:`~gap_validation.logs.base.LogFile.blocks`: a ULog per 1 MiB block of the file, a DataFlash log per 1 MiB
-window of its memory map, a CSV file per 1 MiB of rows); the blocks of all its topics are merged in time order as
-they come (:func:`~gap_validation.logs.merge.merge_in_time_order`: the order of a stable sort of all the samples,
-each topic keeping its logged order) and pushed through ``MessageRouter.on_values_batch`` as raw values, a run at a
-time: the router applies each stream's offset, scale and ``time_offset_s``, as for bags. Memory holds a block or
-two of samples, not the flight (``benchmarks/bench_replay_memory.py --format ulog|dataflash|csv``). The CSV files of
-one directory are one flight (one file per topic, one clock), read side by side. A log is ordered among the bags by
-its first sample (a ULog: its earliest stamp; a DataFlash log, a CSV flight: the earliest of its first block) and
-shifted by the same rule. Its logging is checked (:mod:`gap_validation.logs.checks`, gathered block by block and
-reported when the log was replayed): a topic logged too slowly for the channel's band, irregular stamps, values that
-are not numbers, each a warning with the fix in words; a topic the log lacks is a warning listing what it has; a
-field a topic lacks an error naming both (that stream skipped, the rest validated); a damaged log its ``damage``
-line as an error, with what came before it validated.
+Flight logs (``.ulg``, ``.bin``, ``.csv``; :mod:`gap_validation.logs`) go the same way from the router on,
+streamed as bags are. A log gives the topics and fields the config names (a config topic
+``/vehicle_angular_velocity`` is the log's ``vehicle_angular_velocity``, ``/IMU[1]`` its ``IMU[1]``) in blocks
+(:meth:`~gap_validation.logs.base.LogFile.blocks`: a ULog per 1 MiB block of the file, a DataFlash log per 1
+MiB window of its memory map, a CSV file per 1 MiB of rows); the blocks of all its topics are merged in time
+order as they come (:func:`~gap_validation.logs.merge.merge_in_time_order`: the order of a stable sort of all
+the samples, each topic keeping its logged order) and pushed through ``MessageRouter.on_values_batch`` as raw
+values, a run at a time: the router applies each stream's offset, scale and ``time_offset_s``, as for bags.
+Memory holds a block or two of samples, not the flight (``benchmarks/bench_replay_memory.py --format
+ulog|dataflash|csv``). The CSV files of one directory are one flight (one file per topic, one clock), read
+side by side. A log is ordered among the bags by its first sample (a ULog: its earliest stamp; a DataFlash
+log, a CSV flight: the earliest of its first block) and shifted by the same rule. Its logging is checked
+(:mod:`gap_validation.logs.checks`, gathered block by block and reported when the log was replayed): a topic
+logged too slowly for the channel's band, irregular stamps, values that are not numbers, each a warning with
+the fix in words; a topic the log lacks is a warning listing what it has; a field a topic lacks an error
+naming both (that stream skipped, the rest validated); a damaged log its ``damage`` line as an error, with
+what came before it validated.
 """
 from __future__ import annotations
 
@@ -56,8 +58,8 @@ from gap_validation.core.fields import FieldError
 from gap_validation.core.results import ValidationResult
 from gap_validation.core.validator import OnlineValidator
 from gap_validation.logs.base import LogBlocks, LogFile, LogSeries, is_log
-from gap_validation.logs.formats import open_log
 from gap_validation.logs.checks import StampStats, rate_warning
+from gap_validation.logs.formats import open_log
 from gap_validation.logs.merge import merge_in_time_order
 from gap_validation.messages.decoding import TopicDecoder, Undecodable
 from gap_validation.messages.router import MessageRouter, note_saturation, stamp_seconds
@@ -152,7 +154,8 @@ def _check_topics(bag: Bag, router: MessageRouter, report: BagReport) -> dict[st
             continue
         try:
             bag.ensure_type(msgtype)
-        except DataError as err:               # every record would fail: one line for the topic, not per record
+        # every record would fail: one line for the topic, not per record
+        except DataError as err:
             report.errors.append(f"{_after_path(str(err), bag)} (topic {topic}, {feeds}); topic skipped")
             continue
         if info[topic].count == 0:
@@ -166,8 +169,8 @@ def _check_topics(bag: Bag, router: MessageRouter, report: BagReport) -> dict[st
 
 
 def _set_time_offset(router: MessageRouter, report: BagReport, t_s: float) -> None:
-    """Shift the times of a new bag or log whose first sample is at ``t_s`` to start :data:`BAG_GAP_S` after the
-    data already replayed when its clock overlaps them (else no shift)."""
+    """Shift the times of a new bag or log whose first sample is at ``t_s`` to start :data:`BAG_GAP_S` after
+    the data already replayed when its clock overlaps them (else no shift)."""
     latest = router.latest_time_s()
     offset = 0.0
     if math.isfinite(latest) and t_s < latest + BAG_GAP_S:
@@ -197,7 +200,9 @@ TICK_RECORDS = 64
 class _Ticks:
     """``on_tick`` every ``tick_s`` of bag time from the first record on, and at the end."""
 
-    def __init__(self, on_tick: TickCallback, tick_s: float, validator: OnlineValidator, router: MessageRouter):
+    def __init__(
+        self, on_tick: TickCallback, tick_s: float, validator: OnlineValidator, router: MessageRouter
+    ):
         self.on_tick, self.validator, self.router = on_tick, validator, router
         self.period_ns = max(1, int(round(float(tick_s) * 1e9)))
         self.next_ns: int | None = None
@@ -237,8 +242,17 @@ class _BagReplay:
         present = _check_topics(self.bag, self.router, self.report)
         for topic, msgtype in present.items():
             deserialize = partial(self.bag.deserialize, msgtype=msgtype, topic=topic)
-            self.states[topic] = _TopicState(TopicDecoder(self.router, topic, msgtype, deserialize, fast=self.fast,
-                                                          errors=(DataError,), on_disagree=_disagree))
+            self.states[topic] = _TopicState(
+                TopicDecoder(
+                    self.router,
+                    topic,
+                    msgtype,
+                    deserialize,
+                    fast=self.fast,
+                    errors=(DataError,),
+                    on_disagree=_disagree,
+                )
+            )
         count = 0
         try:
             size = REPLAY_RECORDS if self.ticks is None else TICK_RECORDS
@@ -258,8 +272,9 @@ class _BagReplay:
                                              if s.decoding.decoder is not None and not s.disabled)
 
     def _route_batch(self, batch: RecordBatch) -> None:
-        """Route a batch in bag order: the records each topic's decoding step reads at once go to the router as
-        runs (``on_values_batch``); every other record, one by one through :meth:`_route` (as before batching)."""
+        """Route a batch in bag order: the records each topic's decoding step reads at once go to the router
+        as runs (``on_values_batch``); every other record, one by one through :meth:`_route` (as before
+        batching)."""
         states = [self.states[topic] for topic in batch.topics]
         n = len(batch)
         t_bag = batch.t_ns.astype(np.float64) * 1e-9
@@ -299,7 +314,9 @@ class _BagReplay:
             return
         if not self.offset_set:
             self._set_offset(float(t[0]))
-        self.router.on_values_batch(batch.topics, which, t, [v[rows[which == k]] for k, v in enumerate(values)])
+        self.router.on_values_batch(
+            batch.topics, which, t, [v[rows[which == k]] for k, v in enumerate(values)]
+        )
 
     def _set_offset(self, t_s: float) -> None:
         _set_time_offset(self.router, self.report, t_s)
@@ -337,8 +354,8 @@ def _disagree(topic: str) -> None:
 
 
 def is_log_source(path: str | Path) -> bool:
-    """Whether replay reads ``path`` as a flight log: a ``.ulg``, ``.bin`` or ``.csv`` file, or a directory of CSV
-    files (one per topic) without a rosbag2 ``metadata.yaml`` or storage file.
+    """Whether replay reads ``path`` as a flight log: a ``.ulg``, ``.bin`` or ``.csv`` file, or a directory of
+    CSV files (one per topic) without a rosbag2 ``metadata.yaml`` or storage file.
 
     Parameters
     ----------
@@ -353,8 +370,8 @@ def is_log_source(path: str | Path) -> bool:
 
 
 def _sources(paths: Sequence[str | Path]) -> list[tuple[str, Path | list[Path]]]:
-    """``(label, bag path or log files)`` per flight, in the order given: the CSV files of one directory (given
-    one by one or as the directory) are one flight."""
+    """``(label, bag path or log files)`` per flight, in the order given: the CSV files of one directory
+    (given one by one or as the directory) are one flight."""
     out: list[tuple[str, Path | list[Path]]] = []
     csv_groups: dict[Path, list[Path]] = {}
     for path in map(Path, paths):
@@ -384,7 +401,9 @@ class _BagSource:
     def count(self, topics: Sequence[str]) -> int:
         return self.bag.message_count(topics)
 
-    def run(self, router: MessageRouter, fast: bool, progress: Callable[[int], None], ticks: "_Ticks | None") -> None:
+    def run(
+        self, router: MessageRouter, fast: bool, progress: Callable[[int], None], ticks: "_Ticks | None"
+    ) -> None:
         _BagReplay(self.bag, router, self.report, fast, progress, ticks).run()
 
     def close(self) -> None:
@@ -396,10 +415,10 @@ LOG_CHUNK = 65536
 
 
 class _LogTopic:
-    """A config topic read from a log: its routes, the column of its series each route reads (-1: the topic lacks
-    the field, NaN), its logging checks gathered block by block; ``samples`` as the reader knows them (None: known
-    once read; the merge takes only these), ``count`` for the progress (the topic table's where the reader does not
-    know: a CSV file's lines)."""
+    """A config topic read from a log: its routes, the column of its series each route reads (-1: the topic
+    lacks the field, NaN), its logging checks gathered block by block; ``samples`` as the reader knows them
+    (None: known once read; the merge takes only these), ``count`` for the progress (the topic table's where
+    the reader does not know: a CSV file's lines)."""
 
     __slots__ = ("name", "log", "routes", "columns", "stamps", "not_finite", "samples", "count")
 
@@ -423,13 +442,14 @@ class _LogTopic:
 
 
 class _LogFlight:
-    """One flight from log files (a ``.ulg``, a ``.bin``, or the CSV files of one directory): the config's topics
-    and fields checked at :meth:`load` (each log opened for its blocks, :meth:`LogFile.blocks`), then streamed by
-    :meth:`run`: block by block, merged in time order (:func:`~gap_validation.logs.merge.merge_in_time_order`) into
-    the router, the logging checks gathered on the way and reported at the end.
+    """One flight from log files (a ``.ulg``, a ``.bin``, or the CSV files of one directory): the config's
+    topics and fields checked at :meth:`load` (each log opened for its blocks, :meth:`LogFile.blocks`), then
+    streamed by
+    :meth:`run`: block by block, merged in time order (:func:`~gap_validation.logs.merge.merge_in_time_order`)
+    into the router, the logging checks gathered on the way and reported at the end.
 
-    ``skipped`` holds the ``(channel, stream)`` whose field a topic lacks: their column is NaN (the router counts
-    those samples as not finite), the error names file, topic, field and the fields it has.
+    ``skipped`` holds the ``(channel, stream)`` whose field a topic lacks: their column is NaN (the router
+    counts those samples as not finite), the error names file, topic, field and the fields it has.
     """
 
     def __init__(self, paths: list[Path], router: MessageRouter, config: ValidationConfig, report: BagReport):
@@ -460,13 +480,15 @@ class _LogFlight:
         routes = self.router.routes.get("/" + path.stem, ())
         columns = {r.spec.time_column for r in routes if r.spec is not None and r.spec.time_column}
         if len(columns) > 1:
-            raise ConfigError(f"{self.config.source}: the streams of topic /{path.stem} name different time_column "
-                              f"({', '.join(sorted(columns))}): a CSV file has one time column")
+            raise ConfigError(
+                f"{self.config.source}: the streams of topic /{path.stem} name different time_column "
+                f"({', '.join(sorted(columns))}): a CSV file has one time column"
+            )
         return CsvFile(path, time_column=columns.pop() if columns else None)
 
     def load(self) -> "_LogFlight":
-        """Open every file and its blocks of the config's topics and fields, check them (warnings and errors in the
-        report; the logging checks come with :meth:`run`).
+        """Open every file and its blocks of the config's topics and fields, check them (warnings and errors
+        in the report; the logging checks come with :meth:`run`).
 
         Raises
         ------
@@ -488,7 +510,9 @@ class _LogFlight:
         logs = self.logs
         asked = {}                                   # log topic -> every field the config reads from it
         for topic, routes in self.router.routes.items():
-            asked[topic[1:] if topic.startswith("/") else topic] = list(dict.fromkeys(r.spec.field for r in routes))
+            asked[topic[1:] if topic.startswith("/") else topic] = list(
+                dict.fromkeys(r.spec.field for r in routes)
+            )
         first = {id(log): self._first_blocks(log, asked) for log in logs}
         have = {}
         for log in logs:
@@ -514,12 +538,15 @@ class _LogFlight:
                         fields.append(r.spec.field)
                 else:
                     self.skipped.add((r.channel, r.stream))
-                    self.report.errors.append(f"{log.missing_field(name, r.spec.field)}; {r.channel}.{r.stream} "
-                                              f"skipped")
+                    self.report.errors.append(
+                        f"{log.missing_field(name, r.spec.field)}; {r.channel}.{r.stream} skipped"
+                    )
         if logs and not wanted and not self.report.errors:
-            raise DataError(f"{self._label()}: none of the configured topics "
-                            f"({', '.join(t.lstrip('/') for t in self.router.topics)}) is in the log (it has: "
-                            f"{', '.join(sorted(have)) or 'none'})")
+            raise DataError(
+                f"{self._label()}: none of the configured topics "
+                f"({', '.join(t.lstrip('/') for t in self.router.topics)}) is in the log (it has: "
+                f"{', '.join(sorted(have)) or 'none'})"
+            )
         for log in logs:
             if id(log) in wanted:
                 self._open_blocks(log, wanted[id(log)], first[id(log)])
@@ -527,8 +554,9 @@ class _LogFlight:
 
     @staticmethod
     def _first_blocks(log: LogFile, asked: dict[str, list[str]]) -> LogBlocks | None:
-        """The blocks of every field the config asks of ``log`` (one pass over a ULog gives its topics too), or None
-        when that fails (a field a topic lacks: then the fields are checked one by one and asked again)."""
+        """The blocks of every field the config asks of ``log`` (one pass over a ULog gives its topics too),
+        or None when that fails (a field a topic lacks: then the fields are checked one by one and asked
+        again)."""
         try:
             return log.blocks(asked)
         except DataError:
@@ -537,9 +565,11 @@ class _LogFlight:
     def _label(self) -> str:
         return self.report.path
 
-    def _open_blocks(self, log: LogFile, wanted: dict[str, list[str]], blocks: LogBlocks | None = None) -> None:
-        """The blocks of ``wanted`` from one log (``blocks``: what the first ask gave already), its topics added to
-        the merge; its damage, when known already, an error."""
+    def _open_blocks(
+        self, log: LogFile, wanted: dict[str, list[str]], blocks: LogBlocks | None = None
+    ) -> None:
+        """The blocks of ``wanted`` from one log (``blocks``: what the first ask gave already), its topics
+        added to the merge; its damage, when known already, an error."""
         try:
             if blocks is None:
                 blocks = log.blocks({name: fields for name, fields in wanted.items() if fields})
@@ -566,8 +596,8 @@ class _LogFlight:
             self.report.errors.append(log.damage)
 
     def _checks(self, topic: _LogTopic) -> list[str]:
-        """The logging checks of one topic: its rate against the band of the channels it feeds, its stamps, its
-        values that are not numbers."""
+        """The logging checks of one topic: its rate against the band of the channels it feeds, its stamps,
+        its values that are not numbers."""
         out = []
         log, name, routes = topic.log, topic.name, topic.routes
         where = f"{log.path}: topic {name}"
@@ -586,20 +616,27 @@ class _LogFlight:
         for j, r in enumerate(routes):
             bad = int(topic.not_finite[j]) if (r.channel, r.stream) not in self.skipped else 0
             if bad:
-                out.append(f"{where}: {bad} of {stamps.samples} values of {r.spec.field} are not numbers (counted as "
-                           f"bad samples of {r.channel}.{r.stream})")
+                out.append(
+                    f"{where}: {bad} of {stamps.samples} values of {r.spec.field} are not numbers (counted "
+                    "as "
+                    f"bad samples of {r.channel}.{r.stream})"
+                )
         return out
 
-    def _stream(self, blocks: LogBlocks, indices: list[int]) -> Iterator[dict[int, tuple[np.ndarray, np.ndarray]]]:
+    def _stream(
+        self, blocks: LogBlocks, indices: list[int]
+    ) -> Iterator[dict[int, tuple[np.ndarray, np.ndarray]]]:
         """A log's blocks as the merge takes them: topic index -> (t, raw values per route)."""
         mine = [(k, self.topics[k]) for k in indices]
         for block in blocks:
             yield {k: topic.take(block[topic.name]) for k, topic in mine if topic.name in block}
 
-    def run(self, router: MessageRouter, fast: bool, progress: Callable[[int], None], ticks: "_Ticks | None") -> None:
-        """Route every topic's samples in time order (each topic in its logged order) through ``on_values_batch``,
-        block by block, the time shift set by the first sample; then the logging checks and a damage found on the
-        way."""
+    def run(
+        self, router: MessageRouter, fast: bool, progress: Callable[[int], None], ticks: "_Ticks | None"
+    ) -> None:
+        """Route every topic's samples in time order (each topic in its logged order) through
+        ``on_values_batch``, block by block, the time shift set by the first sample; then the logging checks
+        and a damage found on the way."""
         if not self.topics:
             return
         names = ["/" + t.name for t in self.topics]
@@ -632,8 +669,8 @@ class _LogFlight:
 
 def _open_all(paths: Sequence[str | Path], reports: list[BagReport], router: MessageRouter,
               config: ValidationConfig) -> list["_BagSource | _LogFlight"]:
-    """Every bag and log opened (logs read), ordered by start time; a file that cannot be opened is an error of its
-    report."""
+    """Every bag and log opened (logs read), ordered by start time; a file that cannot be opened is an error
+    of its report."""
     opened: list[_BagSource | _LogFlight] = []
     for label, item in _sources(paths):
         report = BagReport(label)
@@ -657,7 +694,11 @@ def _channel_checks(config: ValidationConfig, router: MessageRouter,
     their own error already."""
     errors, warnings = [], []
     for name, channel in config.channels.items():
-        for stream in (*channel.input_streams, *channel.output_streams, *(extra for extra, _ in channel.extra_streams())):
+        for stream in (
+            *channel.input_streams,
+            *channel.output_streams,
+            *(extra for extra, _ in channel.extra_streams()),
+        ):
             spec = channel.signal(stream)
             if router.samples(name, stream) or (name, stream) in reported:
                 continue
@@ -668,7 +709,9 @@ def _channel_checks(config: ValidationConfig, router: MessageRouter,
                 reasons = ", ".join(f"{n} {reason}" for reason, n in sorted(bad.items()))
                 errors.append(f"{where}: no usable sample ({reasons})" + (f": {first}" if first else ""))
             else:
-                errors.append(f"{where}: no samples (topic missing from the data or silent): channel not validated")
+                errors.append(
+                    f"{where}: no samples (topic missing from the data or silent): channel not validated"
+                )
     if not any(all(router.samples(name, stream) for stream in ch.input_streams + ch.output_streams)
                for name, ch in config.channels.items()):
         errors.append("no channel has both input and output samples in the data: nothing to validate "
@@ -684,8 +727,9 @@ def replay(bags: Sequence[str | Path], config: ValidationConfig, *, progress: Pr
     Parameters
     ----------
     bags : sequence of path
-        rosbag2 directories, ``.mcap`` or ``.db3`` files, and flight logs: ``.ulg``, ``.bin``, ``.csv`` files or a
-        directory of CSV files (the CSV files of one directory are one flight); sweeps from all of them count.
+        rosbag2 directories, ``.mcap`` or ``.db3`` files, and flight logs: ``.ulg``, ``.bin``, ``.csv`` files
+        or a directory of CSV files (the CSV files of one directory are one flight); sweeps from all of them
+        count.
     config : ValidationConfig
         Channels, models, topics and fields.
     progress : callable, optional
@@ -699,8 +743,8 @@ def replay(bags: Sequence[str | Path], config: ValidationConfig, *, progress: Pr
     on_tick : callable, optional
         ``on_tick(t_ns, validator, router)`` every ``tick_s`` of bag time, the router flushed up to there (the
         records are then read in small batches: the tick comes at most :data:`TICK_RECORDS` records late), and
-        once more at the end of the last bag after the last manoeuvre closed: what a node would have seen at each
-        moment (``--annotate``).
+        once more at the end of the last bag after the last manoeuvre closed: what a node would have seen at
+        each moment (``--annotate``).
     tick_s : float
         Period of ``on_tick`` [s] of bag time.
 

@@ -1,10 +1,10 @@
 """Salvage of damaged rosbag2 storage files: what a recording cut short or a broken index still holds.
 
 rosbags refuses an mcap without its footer (a recording cut short) and a sqlite3 file whose index is broken.
-:class:`gap_validation.bag.reader.Bag` then falls back to :func:`salvage`, a linear scan (:class:`_McapSalvage`:
-records and chunks up to the first one that is cut off or does not decompress; :class:`_SqliteSalvage`: rows in
-insertion order up to the first unreadable page) whose :attr:`damage` says where the file stopped, so replay
-validates what was recorded and reports the rest.
+:class:`gap_validation.bag.reader.Bag` then falls back to :func:`salvage`, a linear scan
+(:class:`_McapSalvage`: records and chunks up to the first one that is cut off or does not decompress;
+:class:`_SqliteSalvage`: rows in insertion order up to the first unreadable page) whose :attr:`damage` says
+where the file stopped, so replay validates what was recorded and reports the rest.
 """
 from __future__ import annotations
 
@@ -218,14 +218,18 @@ class _SqliteSalvage:
             self.first_ns = t_ns if self.first_ns is None else min(self.first_ns, t_ns)
             self.last_ns = t_ns if self.last_ns is None else max(self.last_ns, t_ns)
         self._rows = sum(self.counts.values())
-        self.connections = [_SalvagedConnection(tid, name, msgtype, self.counts.get(tid, 0), _MsgDef(None, ""))
-                            for tid, name, msgtype in topics]
+        self.connections = [
+            _SalvagedConnection(tid, name, msgtype, self.counts.get(tid, 0), _MsgDef(None, ""))
+            for tid, name, msgtype in topics
+        ]
         self.start_time = self.first_ns or 0
 
     def _scan(self, wanted):
         done = 0
         try:
-            for tid, t_ns, data in self._con.execute("SELECT topic_id, timestamp, data FROM messages ORDER BY id"):
+            for tid, t_ns, data in self._con.execute(
+                "SELECT topic_id, timestamp, data FROM messages ORDER BY id"
+            ):
                 done += 1
                 if 0 <= self._rows < done:
                     return
@@ -247,7 +251,8 @@ class _SqliteSalvage:
 
 
 def salvage(path: Path) -> "_McapSalvage | _SqliteSalvage | None":
-    """A reader of what a damaged ``.mcap`` / ``.db3`` file still holds, or None when nothing can be recovered.
+    """A reader of what a damaged ``.mcap`` / ``.db3`` file still holds, or None when nothing can be
+    recovered.
 
     Parameters
     ----------

@@ -113,7 +113,9 @@ class _TopicSerializer:
 
     def __init__(self, builder: _MessageBuilder, typestore):
         self.builder = builder
-        self.serialize_full = lambda msg: bytes(typestore.serialize_cdr(msg, builder.msgtype, little_endian=True))
+        self.serialize_full = lambda msg: bytes(
+            typestore.serialize_cdr(msg, builder.msgtype, little_endian=True)
+        )
         self.template: bytes | None = None
         self.fields: list[tuple[int, str]] = []
         self.stamp_offset: int | None = None

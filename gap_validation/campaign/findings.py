@@ -3,8 +3,8 @@ that are real against the flights' random error, in words ("UAV-3 pitch: delay g
 to 45 ms"; "UAV-3 pitch: epsilon grows 29 % per week, from 0.41 to 1.5").
 
 Quantities: ``epsilon`` of every validated flight, and every parameter of the flight's *top* diagnosis
-candidate, named ``<effect type>.<parameter>`` (``time_delay.seconds``); a flight whose top candidate lacks the
-parameter (or has no diagnosis) is left out of that series. Statistics: :mod:`gap_validation.core.trends`
+candidate, named ``<effect type>.<parameter>`` (``time_delay.seconds``); a flight whose top candidate lacks
+the parameter (or has no diagnosis) is left out of that series. Statistics: :mod:`gap_validation.core.trends`
 (least squares over date, slope against the residual scatter, Holm over every trend of the campaign), on
 ``log(epsilon)`` for epsilon.
 No matplotlib, no Dask.
@@ -56,7 +56,8 @@ def quantity_label(quantity: str) -> tuple[str, str, float]:
 
 
 def format_value(value: float) -> str:
-    """A value for a sentence: two significant figures, whole numbers from 10 up (``21``, ``6.1``, ``0.45``)."""
+    """A value for a sentence: two significant figures, whole numbers from 10 up (``21``, ``6.1``,
+    ``0.45``)."""
     if not math.isfinite(value):
         return str(value)
     if abs(value) >= 10:
@@ -110,14 +111,18 @@ class Finding:
     def rate_per_week(self) -> tuple[float, float, str]:
         """(rate, standard error, unit) per week in display units: ``%`` for epsilon."""
         t = self.trend
-        if self.log:   # exp(b) - 1, its error by the delta method
-            return (100 * math.expm1(t.slope_per_week), 100 * math.exp(t.slope_per_week) * 7 * t.slope_error_per_day,
-                    "%")
+        if self.log:  # exp(b) - 1, its error by the delta method
+            return (
+                100 * math.expm1(t.slope_per_week),
+                100 * math.exp(t.slope_per_week) * 7 * t.slope_error_per_day,
+                "%",
+            )
         _, unit, scale = self.label
         return t.slope_per_week * scale, 7 * t.slope_error_per_day * scale, unit
 
     def sentence(self) -> str:
-        """The trend in words: ``UAV-3 pitch: delay grows 6.1 ms per week, from 20 to 45 ms (6 flights, ...)``."""
+        """The trend in words: ``UAV-3 pitch: delay grows 6.1 ms per week, from 20 to 45 ms (6 flights,
+        ...)``."""
         s, t = self.series, self.trend
         words, unit, _ = self.label
         head = f"{s.aircraft} {s.channel}: {words}"
@@ -126,8 +131,11 @@ class Finding:
         rate, error, rate_unit = self.rate_per_week()
         stats = f"{t.n} flights, {s.dates[0]:%Y-%m-%d} to {s.dates[-1]:%Y-%m-%d}, p = {t.p_value:.1g}"
         if not self.significant:
-            return (f"{head}: no real trend ({_with_unit(f'{format_value(rate)} +- {format_value(error)}', rate_unit)} "
-                    f"per week, {stats})")
+            return (
+                f"{head}: no real trend "
+                f"({_with_unit(f'{format_value(rate)} +- {format_value(error)}', rate_unit)} "
+                f"per week, {stats})"
+            )
         verb = "grows" if rate > 0 else "falls"
         span = f"{format_value(self.fitted(t.first_day))} to {format_value(self.fitted(t.last_day))}"
         return (f"{head} {verb} {_with_unit(format_value(abs(rate)), rate_unit)} per week, from "
@@ -135,9 +143,16 @@ class Finding:
 
     def to_json_dict(self) -> dict:
         s = self.series
-        out = {"aircraft": s.aircraft, "channel": s.channel, "quantity": s.quantity, "flights": len(s.values),
-               "significant": self.significant, "sentence": self.sentence(), "fitted_to": "log" if self.log else
-               "value", "trend": self.trend.to_json_dict() if self.trend is not None else None}
+        out = {
+            "aircraft": s.aircraft,
+            "channel": s.channel,
+            "quantity": s.quantity,
+            "flights": len(s.values),
+            "significant": self.significant,
+            "sentence": self.sentence(),
+            "fitted_to": "log" if self.log else "value",
+            "trend": self.trend.to_json_dict() if self.trend is not None else None,
+        }
         if self.trend is not None:
             rate, error, unit = self.rate_per_week()
             out.update(rate_per_week=rate, rate_error_per_week=error, rate_unit=unit,

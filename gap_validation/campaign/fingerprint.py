@@ -1,13 +1,14 @@
 """Fingerprints of a flight's inputs: a campaign re-run skips flights whose results exist for the same inputs.
 
-The fingerprint is the SHA-256 of the *content* of everything a flight's result depends on: every byte of every
-bag file (a rosbag2 directory: each regular file in it, by relative path, ``metadata.yaml`` included), every byte
-of the validation config, the gap_validation version and the campaign's options. Not size and modification time:
-a copied, touched or restored bag keeps its fingerprint, and an edited one (even of the same size, even within
-the same second) never does. Hashing is cheap next to a replay, which reads the same bytes and decodes them:
-on this machine SHA-256 (SHA-NI) hashes the bundled 17-minute flight (4.0 MB of zstd mcap, 100k messages) in
-6 ms, about 700 MB/s, while replaying it takes 1.6 s without the diagnosis (2.5 MB/s): under 1 % of the work.
-The client hashes every flight before submitting, so resuming costs a read of the bags, not a replay.
+The fingerprint is the SHA-256 of the *content* of everything a flight's result depends on: every byte of
+every bag file (a rosbag2 directory: each regular file in it, by relative path, ``metadata.yaml`` included),
+every byte of the validation config, the gap_validation version and the campaign's options. Not size and
+modification time: a copied, touched or restored bag keeps its fingerprint, and an edited one (even of the
+same size, even within the same second) never does. Hashing is cheap next to a replay, which reads the same
+bytes and decodes them: on this machine SHA-256 (SHA-NI) hashes the bundled 17-minute flight (4.0 MB of zstd
+mcap, 100k messages) in 6 ms, about 700 MB/s, while replaying it takes 1.6 s without the diagnosis (2.5 MB/s):
+under 1 % of the work. The client hashes every flight before submitting, so resuming costs a read of the bags,
+not a replay.
 
 The config is hashed as a file: a change of a comment or of a key's order redoes the flight (safe side).
 """

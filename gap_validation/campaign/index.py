@@ -18,12 +18,12 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable
 
-from gap_validation.core.atomic import atomic_write_text
 from gap_validation.campaign import trend_figures
 from gap_validation.campaign.findings import EPSILON, Finding, format_value
 from gap_validation.campaign.results import CampaignOutcome, FlightOutcome
-from gap_validation.core.trends import FAMILY_ALPHA, MIN_FLIGHTS
+from gap_validation.core.atomic import atomic_write_text
 from gap_validation.core.errors import DataError, one_line
+from gap_validation.core.trends import FAMILY_ALPHA, MIN_FLIGHTS
 from gap_validation.report.terminal import fmt
 
 log = logging.getLogger(__name__)
@@ -51,7 +51,8 @@ _FIGURE_FILE = re.compile(r"^(trend|fleet)_[A-Za-z0-9_]*-[0-9a-f]{12}\.png$")
 
 
 def _figure_key(findings: list[Finding], *extra: str) -> str:
-    """12 hex of a hash of everything a figure shows: a figure whose data did not change is not drawn again."""
+    """12 hex of a hash of everything a figure shows: a figure whose data did not change is not drawn
+    again."""
     data = [FIGURE_VERSION, *extra] + [dict(f.to_json_dict(), dates=[d.isoformat() for d in f.series.dates],
                                             values=f.series.values) for f in findings]
     return hashlib.sha256(json.dumps(data, sort_keys=True, default=str).encode()).hexdigest()[:12]
@@ -140,17 +141,22 @@ def _fleet_table(outcome: CampaignOutcome, groups) -> str:
 
 
 def _flight_rows(outcome: CampaignOutcome) -> str:
-    rows = ["<table><tr><th class='l'>flight</th><th class='l'>aircraft</th><th>date</th><th class='l'>tags</th>"
-            "<th class='l'>channel</th><th>epsilon</th><th>nu-gap</th><th>limited by</th><th>sweeps</th>"
-            "<th class='l'>top diagnosis</th><th class='l'>status</th></tr>"]
+    rows = [
+        "<table><tr><th class='l'>flight</th><th class='l'>aircraft</th><th>date</th><th class='l'>tags</th>"
+        "<th class='l'>channel</th><th>epsilon</th><th>nu-gap</th><th>limited by</th><th>sweeps</th>"
+        "<th class='l'>top diagnosis</th><th class='l'>status</th></tr>"
+    ]
     for o in sorted(outcome.flights, key=lambda o: (o.flight.aircraft, o.flight.date)):
         f = o.flight
         link = _e(f.name)
         if o.results_path is not None:
             link = f"<a href='{_e(o.results_path.relative_to(outcome.out_dir).as_posix())}'>{link}</a>"
         status = o.status + (": " + "; ".join(o.errors) if o.errors else "")
-        head = (f"<td class='l'>{link}</td><td class='l'>{_e(f.aircraft)}</td><td class='d'>{_e(f.date_text)}</td>"
-                f"<td class='l'>{_e(', '.join(f.tags))}</td>")
+        head = (
+            f"<td class='l'>{link}</td><td class='l'>{_e(f.aircraft)}</td><td "
+            f"class='d'>{_e(f.date_text)}</td>"
+            f"<td class='l'>{_e(', '.join(f.tags))}</td>"
+        )
         tail = f"<td class='l {'bad' if o.errors else ''}'>{_e(status)}</td>"
         if not o.channels:
             rows.append(f"<tr>{head}<td colspan='6'></td>{tail}</tr>")
@@ -191,8 +197,10 @@ def _aircraft_sections(outcome: CampaignOutcome, groups, figures: _Figures, orig
             parts += [f"<li class='finding {'bad' if f.significant else ''}'>{_e(f.sentence())}</li>"
                       for f in findings]
             parts.append("</ul>")
-            caption = (f"{name} {channel}: epsilon and each diagnosed parameter over date; red line: a real trend, "
-                       f"grey dashes: within the flights' random error")
+            caption = (
+                f"{name} {channel}: epsilon and each diagnosed parameter over date; red line: a real trend, "
+                f"grey dashes: within the flights' random error"
+            )
             stem = f"trend_{i}_{j}_{_slug(name)}_{_slug(channel)}"
             parts.append(figures.draw(stem, caption, findings,
                                       lambda p, fs=findings: trend_figures.trend_figure(fs, origin, p)))
@@ -213,11 +221,13 @@ def write_index(outcome: CampaignOutcome, warn: Callable[[str], None] | None = N
     groups = _groups(findings)
     when = datetime.now(timezone.utc).isoformat(timespec="seconds")
     counts = ", ".join(f"{outcome.count(s)} {s}" for s in ("validated", "reused", "failed"))
-    parts = ["<!doctype html><html><head><meta charset='utf-8'><title>gap_validation campaign</title>",
-             f"<style>{_STYLE}</style></head><body><h1>Campaign: model validation across the fleet</h1>",
-             f"<p class='note'>manifest: {_e(outcome.manifest.source)}; {len(outcome.flights)} flights ({counts}) "
-             f"of {len(outcome.manifest.aircraft)} aircraft; written {when}; results: "
-             f"<a href='campaign.json'>campaign.json</a>, <a href='campaign.csv'>campaign.csv</a></p>"]
+    parts = [
+        "<!doctype html><html><head><meta charset='utf-8'><title>gap_validation campaign</title>",
+        f"<style>{_STYLE}</style></head><body><h1>Campaign: model validation across the fleet</h1>",
+        f"<p class='note'>manifest: {_e(outcome.manifest.source)}; {len(outcome.flights)} flights ({counts}) "
+        f"of {len(outcome.manifest.aircraft)} aircraft; written {when}; results: "
+        f"<a href='campaign.json'>campaign.json</a>, <a href='campaign.csv'>campaign.csv</a></p>",
+    ]
     if outcome.errors:
         parts.append("<h2 id='errors'>Errors</h2><ul>" +
                      "".join(f"<li class='bad'>{_e(e)}</li>" for e in outcome.errors) + "</ul>")
@@ -229,8 +239,14 @@ def write_index(outcome: CampaignOutcome, warn: Callable[[str], None] | None = N
     for k, channel in enumerate(channels):
         eps = [f for f in findings if f.series.channel == channel and f.series.quantity == EPSILON]
         if eps:
-            parts.append(figures.draw(f"fleet_{k}_{_slug(channel)}", f"{channel}: epsilon over date, every aircraft",
-                                      eps, lambda p, fs=eps, c=channel: trend_figures.fleet_figure(fs, c, p)))
+            parts.append(
+                figures.draw(
+                    f"fleet_{k}_{_slug(channel)}",
+                    f"{channel}: epsilon over date, every aircraft",
+                    eps,
+                    lambda p, fs=eps, c=channel: trend_figures.fleet_figure(fs, c, p),
+                )
+            )
     parts += _aircraft_sections(outcome, groups, figures, origin)
     parts += ["<h2 id='flights'>Flights</h2>", _flight_rows(outcome), "</body></html>"]
     index = directory / "index.html"

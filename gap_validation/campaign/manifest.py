@@ -103,8 +103,11 @@ def _bags(value: Any, base: Path, source: str, where: str) -> tuple[Path, ...]:
 
 def _date(value: Any, source: str, where: str) -> dt.datetime:
     if isinstance(value, dt.datetime):
-        return value.replace(tzinfo=None) if value.tzinfo is None else value.astimezone(dt.timezone.utc).replace(
-            tzinfo=None)
+        return (
+            value.replace(tzinfo=None)
+            if value.tzinfo is None
+            else value.astimezone(dt.timezone.utc).replace(tzinfo=None)
+        )
     if isinstance(value, dt.date):
         return dt.datetime(value.year, value.month, value.day)
     if isinstance(value, str):
@@ -128,7 +131,9 @@ def _tags(value: Any, source: str, where: str) -> tuple[str, ...]:
 def _flight(entry: Any, index: int, base: Path, source: str) -> Flight:
     where = f"flights[{index}]"
     if not isinstance(entry, dict):
-        raise _fail(source, where, f"expected a mapping with keys {', '.join(REQUIRED_KEYS)}, got {_show(entry)}")
+        raise _fail(
+            source, where, f"expected a mapping with keys {', '.join(REQUIRED_KEYS)}, got {_show(entry)}"
+        )
     unknown = sorted(str(k) for k in entry if k not in FLIGHT_KEYS)
     if unknown:
         raise _fail(source, f"{where}.{unknown[0]}", f"unknown key (allowed: {', '.join(FLIGHT_KEYS)})")
@@ -174,8 +179,11 @@ def parse_manifest(data: Any, source: str = "<manifest>", base: str | os.PathLik
     seen: dict[str, int] = {}
     for i, f in enumerate(flights):
         if f.name in seen:
-            raise _fail(source, f"flights[{i}].name", f"{f.name!r} is already the name of flights[{seen[f.name]}] "
-                                                      "(names must be unique)")
+            raise _fail(
+                source,
+                f"flights[{i}].name",
+                f"{f.name!r} is already the name of flights[{seen[f.name]}] (names must be unique)",
+            )
         seen[f.name] = i
     configs = tuple(dict.fromkeys(f.config for f in flights))
     return Manifest(flights=tuple(flights), source=source, configs=configs)
@@ -192,7 +200,8 @@ def load_manifest(path: str | os.PathLike) -> Manifest:
     Raises
     ------
     ConfigError
-        One line naming the file and the problem (missing file, YAML syntax with line number, bad key or value).
+        One line naming the file and the problem (missing file, YAML syntax with line number, bad key or
+        value).
     """
     path = Path(path)
     data = read_yaml(path, "manifest")

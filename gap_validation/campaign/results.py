@@ -1,10 +1,10 @@
 """A campaign's results: what happened to each flight, and the files ``campaign.json`` and ``campaign.csv``.
 
 Each validated flight's full replay JSON (``replay --json``, plus a ``campaign`` object with the flight's
-manifest entry, fingerprint, errors and warnings) is written as ``DIR/flights/<flight>.json`` as soon as its task
-finishes (atomically): a campaign that is interrupted keeps every finished flight, and a re-run reuses them
-(:mod:`gap_validation.campaign.fingerprint`). ``gap-validate report DIR/flights/<flight>.json --out R`` draws the
-flight's full report.
+manifest entry, fingerprint, errors and warnings) is written as ``DIR/flights/<flight>.json`` as soon as its
+task finishes (atomically): a campaign that is interrupted keeps every finished flight, and a re-run reuses
+them (:mod:`gap_validation.campaign.fingerprint`). ``gap-validate report DIR/flights/<flight>.json --out R``
+draws the flight's full report.
 
 ``campaign.json`` (DESIGN.md, CLI contract)::
 
@@ -29,14 +29,25 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Iterable
 
-from gap_validation.core.atomic import atomic_open
 from gap_validation.campaign.manifest import Flight, Manifest
+from gap_validation.core.atomic import atomic_open
 from gap_validation.core.errors import ConfigError, DataError
 
-__all__ = ["FlightOutcome", "CampaignOutcome", "channel_summary", "flight_file", "load_flight_file",
-           "write_campaign_json", "write_campaign_csv", "ensure_directory", "CSV_COLUMNS", "FLIGHTS_DIR", "VALIDATED",
-           "REUSED",
-           "FAILED"]
+__all__ = [
+    "FlightOutcome",
+    "CampaignOutcome",
+    "channel_summary",
+    "flight_file",
+    "load_flight_file",
+    "write_campaign_json",
+    "write_campaign_csv",
+    "ensure_directory",
+    "CSV_COLUMNS",
+    "FLIGHTS_DIR",
+    "VALIDATED",
+    "REUSED",
+    "FAILED",
+]
 
 FLIGHTS_DIR = "flights"
 VALIDATED, REUSED, FAILED = "validated", "reused", "failed"
@@ -79,7 +90,8 @@ class CampaignOutcome:
     warnings: list[str] = field(default_factory=list)
     elapsed_s: float = 0.0
     workers: int | None = None
-    workers_lost: int = 0                                 # workers gone during the run (their tasks were rerun)
+    # workers gone during the run (their tasks were rerun)
+    workers_lost: int = 0
     scheduler: str | None = None
     findings: list = field(default_factory=list)          # campaign.findings.Finding, one per trend tested
     files: dict[str, Path] = field(default_factory=dict)
@@ -104,8 +116,8 @@ def channel_summary(channel: dict) -> dict:
     Returns
     -------
     dict
-        ``epsilon``, ``epsilon_raw``, ``nu_gap``, ``limited_by``, ``sweeps``, ``excitation`` (the replay JSON's
-        ``excitation`` key if present, else None) and ``diagnosis``: the top candidate's ``effect``,
+        ``epsilon``, ``epsilon_raw``, ``nu_gap``, ``limited_by``, ``sweeps``, ``excitation`` (the replay
+        JSON's ``excitation`` key if present, else None) and ``diagnosis``: the top candidate's ``effect``,
         ``parameters``, ``effects``, ``epsilon`` and ``sentence``, or None when the diagnosis is empty.
     """
     top = (channel.get("diagnosis") or [None])[0]
@@ -121,7 +133,8 @@ def channel_summary(channel: dict) -> dict:
 
 
 def flight_file(out_dir: Path, flight: Flight) -> Path:
-    """``DIR/flights/<slug>-<8 hex of the name>.json``: a file name for any flight name, stable across runs."""
+    """``DIR/flights/<slug>-<8 hex of the name>.json``: a file name for any flight name, stable across
+    runs."""
     slug = re.sub(r"[^A-Za-z0-9._-]+", "_", flight.name).strip("._")[:60] or "flight"
     tag = hashlib.sha256(flight.name.encode("utf-8", "surrogateescape")).hexdigest()[:8]
     return out_dir / FLIGHTS_DIR / f"{slug}-{tag}.json"
@@ -140,10 +153,18 @@ def load_flight_file(path: Path) -> dict | None:
 
 
 def _entry(outcome: FlightOutcome, out_dir: Path, channels: dict) -> dict:
-    return {**outcome.flight.metadata(), "channels": channels, "status": outcome.status,
-            "errors": list(outcome.errors), "warnings": list(outcome.warnings), "fingerprint": outcome.fingerprint,
-            "results": outcome.results_path.relative_to(out_dir).as_posix() if outcome.results_path else None,
-            "elapsed_s": outcome.elapsed_s, "cpu_s": outcome.cpu_s, "worker": outcome.worker}
+    return {
+        **outcome.flight.metadata(),
+        "channels": channels,
+        "status": outcome.status,
+        "errors": list(outcome.errors),
+        "warnings": list(outcome.warnings),
+        "fingerprint": outcome.fingerprint,
+        "results": outcome.results_path.relative_to(out_dir).as_posix() if outcome.results_path else None,
+        "elapsed_s": outcome.elapsed_s,
+        "cpu_s": outcome.cpu_s,
+        "worker": outcome.worker,
+    }
 
 
 def _write_entries(handle, outcomes: Iterable[FlightOutcome], out_dir: Path) -> None:
@@ -163,9 +184,13 @@ def write_campaign_json(outcome: CampaignOutcome, path: Path | None = None) -> P
         One line naming the file when it cannot be written (the old file, if any, is kept).
     """
     path = path or outcome.out_dir / "campaign.json"
-    head = {"manifest": outcome.manifest.source, "written": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-            "errors": list(outcome.errors), "warnings": list(outcome.warnings),
-            "trends": [f.to_json_dict() for f in outcome.findings]}
+    head = {
+        "manifest": outcome.manifest.source,
+        "written": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "errors": list(outcome.errors),
+        "warnings": list(outcome.warnings),
+        "trends": [f.to_json_dict() for f in outcome.findings],
+    }
     try:
         with atomic_open(path, "w") as handle:
             handle.write(json.dumps(head, allow_nan=False)[:-1] + ', "flights": [')
@@ -199,10 +224,23 @@ def _csv_rows(outcome: FlightOutcome) -> list[list[str]]:
     rows = []
     for name, ch in outcome.channels.items():
         top = ch.get("diagnosis") or {}
-        rows.append(head + [name, outcome.status, _cell(ch["epsilon"]), _cell(ch["epsilon_raw"]), _cell(ch["nu_gap"]),
-                            _cell(ch["limited_by"]), str(ch["sweeps"]), _cell(top.get("effect")),
-                            _parameters_cell(top.get("parameters") or {}), _cell(top.get("epsilon")),
-                            _cell(ch.get("excitation")), error])
+        rows.append(
+            head
+            + [
+                name,
+                outcome.status,
+                _cell(ch["epsilon"]),
+                _cell(ch["epsilon_raw"]),
+                _cell(ch["nu_gap"]),
+                _cell(ch["limited_by"]),
+                str(ch["sweeps"]),
+                _cell(top.get("effect")),
+                _parameters_cell(top.get("parameters") or {}),
+                _cell(top.get("epsilon")),
+                _cell(ch.get("excitation")),
+                error,
+            ]
+        )
     return rows
 
 

@@ -1,16 +1,17 @@
 """Run a campaign on Dask distributed: one task per flight, nothing lost, nothing redone.
 
 * **Where**: a local cluster of worker processes (one thread each: a replay is CPU-bound Python) by default,
-  ``workers`` of them (default: the core count); or an existing scheduler (``scheduler="tcp://host:8786"``, started
-  with ``dask scheduler`` / ``dask worker``, dask-jobqueue or dask-kubernetes). Workers read the bags and configs
-  by the paths in the manifest (resolved to absolute paths), so remote workers need the same file system.
+  ``workers`` of them (default: the core count); or an existing scheduler (``scheduler="tcp://host:8786"``,
+  started with ``dask scheduler`` / ``dask worker``, dask-jobqueue or dask-kubernetes). Workers read the bags
+  and configs by the paths in the manifest (resolved to absolute paths), so remote workers need the same file
+  system.
 * **Nothing lost**: a flight whose data cannot be validated is reported (one line naming it) and the others
   complete. A worker that dies mid-task (killed, out of memory) is replaced by its nanny and the scheduler
   reruns its tasks elsewhere (Dask's own resilience; a task that kills three workers in a row is given up as
-  ``KilledWorker`` and reported). Unexpected exceptions are retried once (``retries=1``). Every finished flight
-  is written to ``DIR/flights/`` at once, so an interrupted campaign keeps what it finished.
-* **Nothing redone**: a flight whose results file exists with the same fingerprint (content of the bags and the
-  config, :mod:`gap_validation.campaign.fingerprint`) is reused, not submitted.
+  ``KilledWorker`` and reported). Unexpected exceptions are retried once (``retries=1``). Every finished
+  flight is written to ``DIR/flights/`` at once, so an interrupted campaign keeps what it finished.
+* **Nothing redone**: a flight whose results file exists with the same fingerprint (content of the bags and
+  the config, :mod:`gap_validation.campaign.fingerprint`) is reused, not submitted.
 
 Then ``campaign.json``, ``campaign.csv`` and ``index.html`` are written from all flights
 (:mod:`gap_validation.campaign.results`, :mod:`gap_validation.campaign.index`).
@@ -28,9 +29,19 @@ from typing import Callable, Iterator
 from gap_validation.campaign.findings import find_trends, fleet_series
 from gap_validation.campaign.fingerprint import flight_fingerprint
 from gap_validation.campaign.manifest import Manifest
-from gap_validation.campaign.results import (FAILED, REUSED, VALIDATED, CampaignOutcome, FlightOutcome,
-                                             channel_summary, ensure_directory, flight_file, load_flight_file,
-                                             write_campaign_csv, write_campaign_json)
+from gap_validation.campaign.results import (
+    FAILED,
+    REUSED,
+    VALIDATED,
+    CampaignOutcome,
+    FlightOutcome,
+    channel_summary,
+    ensure_directory,
+    flight_file,
+    load_flight_file,
+    write_campaign_csv,
+    write_campaign_json,
+)
 from gap_validation.campaign.task import TASK_OPTIONS, validate_flight
 from gap_validation.core.config import load_config
 from gap_validation.core.errors import ConfigError, DataError, one_line
@@ -50,7 +61,8 @@ ProgressCallback = Callable[[FlightOutcome, int, int], None]
 
 @contextlib.contextmanager
 def dask_client(scheduler: str | None = None, workers: int | None = None, quiet: bool = True) -> Iterator:
-    """A ``distributed.Client``: connected to ``scheduler``, or to a new local cluster of ``workers`` processes.
+    """A ``distributed.Client``: connected to ``scheduler``, or to a new local cluster of ``workers``
+    processes.
 
     Local workers are spawned processes that inherit this process' environment (``os.environ``, e.g. the
     ``LD_LIBRARY_PATH`` the ROS 2 wheels set up), one thread each, the HTTP endpoints on a free port. Both are
@@ -107,7 +119,9 @@ def _adopt(outcome: FlightOutcome, data: dict, path: Path | None) -> None:
     """Take a flight's results (its replay JSON with the ``campaign`` object) into its outcome."""
     meta = data.get("campaign") or {}
     outcome.results_path = path
-    outcome.channels = {name: channel_summary(ch) for name, ch in data["channels"].items() if isinstance(ch, dict)}
+    outcome.channels = {
+        name: channel_summary(ch) for name, ch in data["channels"].items() if isinstance(ch, dict)
+    }
     outcome.errors = list(meta.get("errors") or [])
     outcome.warnings = list(meta.get("warnings") or [])
     outcome.elapsed_s, outcome.cpu_s = meta.get("elapsed_s"), meta.get("cpu_s")
@@ -123,10 +137,14 @@ def _store(outcome: FlightOutcome, done: dict, out_dir: Path) -> None:
             _fail(outcome, error)
         return
     data = dict(done["results"])
-    data["campaign"] = {**outcome.flight.metadata(), "fingerprint": outcome.fingerprint,
-                        "errors": list(done.get("errors") or []), "warnings": list(done.get("warnings") or []),
-                        **{k: done.get(k) for k in ("messages", "elapsed_s", "cpu_s", "worker")},
-                        "finished": datetime.now(timezone.utc).isoformat(timespec="seconds")}
+    data["campaign"] = {
+        **outcome.flight.metadata(),
+        "fingerprint": outcome.fingerprint,
+        "errors": list(done.get("errors") or []),
+        "warnings": list(done.get("warnings") or []),
+        **{k: done.get(k) for k in ("messages", "elapsed_s", "cpu_s", "worker")},
+        "finished": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+    }
     path = flight_file(out_dir, outcome.flight)
     try:
         write_json(data, path)
@@ -164,14 +182,21 @@ def _task_key(outcome: FlightOutcome) -> str:
     return f"gap-validate-flight-{flight_file(Path(), outcome.flight).stem}-{outcome.fingerprint[:16]}"
 
 
-def _submit_all(client, pending: list[FlightOutcome], out_dir: Path, step: Callable[[FlightOutcome], None]) -> None:
+def _submit_all(
+    client, pending: list[FlightOutcome], out_dir: Path, step: Callable[[FlightOutcome], None]
+) -> None:
     """One task per flight; results stored as they arrive (any order); a failed task fails only its flight."""
     from distributed import as_completed
 
     futures = {}
     for outcome in pending:
-        future = client.submit(validate_flight, [str(b) for b in outcome.flight.bags], str(outcome.flight.config),
-                               key=_task_key(outcome), retries=TASK_RETRIES)
+        future = client.submit(
+            validate_flight,
+            [str(b) for b in outcome.flight.bags],
+            str(outcome.flight.config),
+            key=_task_key(outcome),
+            retries=TASK_RETRIES,
+        )
         futures[future] = outcome
     try:
         for future in as_completed(futures):
@@ -191,7 +216,8 @@ def _submit_all(client, pending: list[FlightOutcome], out_dir: Path, step: Calla
 def run_campaign(manifest: Manifest, out_dir: str | os.PathLike, *, scheduler: str | None = None,
                  workers: int | None = None, client=None, progress: ProgressCallback | None = None,
                  warn: Callable[[str], None] | None = None) -> CampaignOutcome:
-    """Validate every flight of ``manifest`` on Dask and write ``campaign.json``, ``campaign.csv``, ``index.html``.
+    """Validate every flight of ``manifest`` on Dask and write ``campaign.json``, ``campaign.csv``,
+    ``index.html``.
 
     Parameters
     ----------
@@ -237,7 +263,11 @@ def run_campaign(manifest: Manifest, out_dir: str | os.PathLike, *, scheduler: s
     result = CampaignOutcome(manifest=manifest, out_dir=out_dir, flights=outcomes, scheduler=scheduler)
     if pending:
         quiet = not logging.getLogger().isEnabledFor(logging.DEBUG)
-        with contextlib.nullcontext(client) if client is not None else dask_client(scheduler, workers, quiet) as cl:
+        with (
+            contextlib.nullcontext(client)
+            if client is not None
+            else dask_client(scheduler, workers, quiet) as cl
+        ):
             _run_pending(cl, result, pending, step, warn)
     result.errors = [f"{o.flight.name}: {e}" for o in outcomes for e in o.errors]
     result.warnings = [f"{o.flight.name}: {w}" for o in outcomes for w in o.warnings]
@@ -265,7 +295,7 @@ def _run_pending(client, result: CampaignOutcome, pending: list[FlightOutcome],
 
 def _write_files(result: CampaignOutcome, warn: Callable[[str], None] | None) -> None:
     """``campaign.json``, ``campaign.csv`` and ``index.html`` (each written whole or not at all)."""
-    from gap_validation.campaign.index import write_index   # matplotlib: imported when needed
+    from gap_validation.campaign.index import write_index  # matplotlib: imported when needed
 
     result.files["json"] = write_campaign_json(result)
     result.files["csv"] = write_campaign_csv(result)

@@ -1,6 +1,7 @@
 """One flight of a campaign: the function a Dask worker runs (plain Python, no Dask import).
 
-It is exactly ``gap-validate replay BAG... --config CFG --json``: :func:`gap_validation.core.config.load_config` and
+It is exactly ``gap-validate replay BAG... --config CFG --json``:
+:func:`gap_validation.core.config.load_config` and
 :func:`gap_validation.bag.replay.replay` (the diagnosis included), and the result is the replay JSON
 (:meth:`ValidationResult.to_json_dict`), so a campaign's epsilons are a single replay's.
 """
@@ -11,9 +12,9 @@ import socket
 import time
 from typing import Sequence
 
+from gap_validation.bag.replay import replay
 from gap_validation.core.config import load_config
 from gap_validation.core.errors import GapValidationError, one_line
-from gap_validation.bag.replay import replay
 
 __all__ = ["validate_flight", "TASK_OPTIONS"]
 
@@ -27,7 +28,8 @@ def validate_flight(bags: Sequence[str], config: str) -> dict:
     Parameters
     ----------
     bags : sequence of str
-        rosbag2 directories, ``.mcap`` or ``.db3`` files (sweeps from all count), as paths the worker can read.
+        rosbag2 directories, ``.mcap`` or ``.db3`` files (sweeps from all count), as paths the worker can
+        read.
     config : str
         Validation config file.
 
@@ -35,8 +37,8 @@ def validate_flight(bags: Sequence[str], config: str) -> dict:
     -------
     dict
         ``results``: the replay JSON, or None when nothing could be validated; ``errors`` and ``warnings``:
-        one line each (replay's); ``messages``, ``elapsed_s`` (wall), ``cpu_s`` (CPU time of the task's thread:
-        below ``elapsed_s`` when the machine is shared) and ``worker`` (``host:pid``).
+        one line each (replay's); ``messages``, ``elapsed_s`` (wall), ``cpu_s`` (CPU time of the task's
+        thread: below ``elapsed_s`` when the machine is shared) and ``worker`` (``host:pid``).
         Bad data never raises: it is reported in ``errors``.
     """
     start, cpu = time.perf_counter(), time.thread_time()

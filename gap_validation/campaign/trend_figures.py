@@ -1,8 +1,8 @@
 """Figures of a campaign's trends (front end: matplotlib, Agg backend, PNG written atomically).
 
-* :func:`trend_figure`: one aircraft's channel over date, a panel per quantity (epsilon on a log axis, then each
-  diagnosed parameter), each flight a point, the least-squares line red when the trend is real, grey and dashed
-  when it is within the flights' random error;
+* :func:`trend_figure`: one aircraft's channel over date, a panel per quantity (epsilon on a log axis, then
+  each diagnosed parameter), each flight a point, the least-squares line red when the trend is real, grey and
+  dashed when it is within the flights' random error;
 * :func:`fleet_figure`: epsilon over date of every aircraft for one channel (log axis).
 """
 from __future__ import annotations
@@ -13,8 +13,8 @@ from typing import Sequence
 
 import numpy as np
 
-from gap_validation.core.atomic import atomic_open
 from gap_validation.campaign.findings import Finding, format_value
+from gap_validation.core.atomic import atomic_open
 from gap_validation.report.figures import pyplot
 
 __all__ = ["trend_figure", "fleet_figure"]
@@ -33,12 +33,18 @@ def _margins(fig, top_in: float) -> None:
     """Fixed margins in inches (room for the title, the y label and the slanted dates): a tenth of the time of
     ``tight_layout``, which draws the figure twice."""
     width, height = fig.get_size_inches()
-    fig.subplots_adjust(left=0.85 / width, right=1 - 0.15 / width, top=1 - top_in / height, bottom=0.85 / height,
-                        hspace=0.5 / max(1.0, (height - 1.2) / len(fig.axes)))
+    fig.subplots_adjust(
+        left=0.85 / width,
+        right=1 - 0.15 / width,
+        top=1 - top_in / height,
+        bottom=0.85 / height,
+        hspace=0.5 / max(1.0, (height - 1.2) / len(fig.axes)),
+    )
 
 
 def _log_axis(ax) -> None:
-    """A log y axis labelled 0.4, 0.6, 1, 2 (not 4x10^-1); minor ticks labelled when it spans under a decade."""
+    """A log y axis labelled 0.4, 0.6, 1, 2 (not 4x10^-1); minor ticks labelled when it spans under a
+    decade."""
     from matplotlib import ticker
 
     ax.set_yscale("log")
@@ -79,8 +85,14 @@ def trend_figure(findings: Sequence[Finding], origin: datetime, path: Path) -> N
     for ax, finding in zip(axes[:, 0], findings):
         _, _, scale = finding.label
         s = finding.series
-        ax.plot(s.dates, [v * scale for v in s.values], "o", color="tab:red" if finding.significant else "tab:blue",
-                ms=5, label="flights")
+        ax.plot(
+            s.dates,
+            [v * scale for v in s.values],
+            "o",
+            color="tab:red" if finding.significant else "tab:blue",
+            ms=5,
+            label="flights",
+        )
         _line(ax, finding, origin)
         if finding.log:
             _log_axis(ax)
@@ -94,7 +106,8 @@ def trend_figure(findings: Sequence[Finding], origin: datetime, path: Path) -> N
 
 
 def fleet_figure(findings: Sequence[Finding], channel: str, path: Path) -> None:
-    """Epsilon over date of every aircraft (``findings``: epsilon findings of ``channel``); saved to ``path``."""
+    """Epsilon over date of every aircraft (``findings``: epsilon findings of ``channel``); saved to
+    ``path``."""
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(7.5, 3.6))
     for finding in findings:

@@ -1,14 +1,15 @@
 """``gap-validate replay BAG --config CFG --annotate OUT.mcap``: the flight and its verdict on one timeline.
 
 The output is one MCAP file (the ``mcap`` package's writer: a single file Foxglove opens, where rosbags would
-write a rosbag2 directory) holding every message of the bag, unchanged (ROS 2 CDR, the bag's own schemas), plus
-what the node ``gap_validator`` would have published as the flight went on: ``/diagnostics`` every ``period_s`` of
-bag time, and the plottable topics ``/gap_validator/<channel>/frequency_response`` and ``.../verdict``
-(docs/NODE_TOPICS.md) whenever they changed. They come from the same data path as replay (:func:`replay`'s
-``on_tick``: the router flushed at each tick, the cheap results, :func:`~gap_validation.ros.status.channel_status`,
-:func:`~gap_validation.core.plottable.frequency_response_table`), with the full diagnosis re-run when a channel's
-sweep count changed (the node runs it after each new sweep). What a bag cannot show is left out: the ages of the
-samples and STALE (the node's clock against the data's).
+write a rosbag2 directory) holding every message of the bag, unchanged (ROS 2 CDR, the bag's own schemas),
+plus what the node ``gap_validator`` would have published as the flight went on: ``/diagnostics`` every
+``period_s`` of bag time, and the plottable topics ``/gap_validator/<channel>/frequency_response`` and
+``.../verdict`` (docs/NODE_TOPICS.md) whenever they changed. They come from the same data path as replay
+(:func:`replay`'s ``on_tick``: the router flushed at each tick, the cheap results,
+:func:`~gap_validation.ros.status.channel_status`,
+:func:`~gap_validation.core.plottable.frequency_response_table`), with the full diagnosis re-run when a
+channel's sweep count changed (the node runs it after each new sweep). What a bag cannot show is left out: the
+ages of the samples and STALE (the node's clock against the data's).
 """
 from __future__ import annotations
 
@@ -40,7 +41,8 @@ _STRING = "std_msgs/msg/String"
 
 
 class Annotator:
-    """What the node would publish at each tick of bag time, serialized (``replay(..., on_tick=annotator.tick)``).
+    """What the node would publish at each tick of bag time, serialized (``replay(...,
+    on_tick=annotator.tick)``).
 
     Parameters
     ----------
@@ -49,7 +51,8 @@ class Annotator:
     node_name : str
         Name of the node the topics and status names are those of.
     diagnose : bool
-        Re-run the full diagnosis when a channel's sweep count changed (its sentence in the statuses and verdicts).
+        Re-run the full diagnosis when a channel's sweep count changed (its sentence in the statuses and
+        verdicts).
 
     Attributes
     ----------
@@ -87,7 +90,9 @@ class Annotator:
             state = "off" if not self.diagnose else ("done" if name in self._top else "pending")
             statuses.append(channel_status(ch, candidate=self._top.get(name), diagnosis_state=state,
                                            extra_values=extra, nonlinearity=self._nonlinearity.get(name)))
-        stamp = types["builtin_interfaces/msg/Time"](sec=int(t_ns // 1_000_000_000), nanosec=int(t_ns % 1_000_000_000))
+        stamp = types["builtin_interfaces/msg/Time"](
+            sec=int(t_ns // 1_000_000_000), nanosec=int(t_ns % 1_000_000_000)
+        )
         header = types["std_msgs/msg/Header"](stamp=stamp, frame_id="")
         status_type, kv = types["diagnostic_msgs/msg/DiagnosticStatus"], types["diagnostic_msgs/msg/KeyValue"]
         array = types[_DIAGNOSTICS](header=header, status=[
@@ -171,7 +176,9 @@ def write_annotated(bag_path: str | Path, out: str | Path, annotator: Annotator)
                 key = (topic, msgtype)
                 if key not in channels:
                     if msgtype not in schemas:
-                        store = annotator.typestore if msgtype in annotator.typestore.fielddefs else bag.typestore
+                        store = (
+                            annotator.typestore if msgtype in annotator.typestore.fielddefs else bag.typestore
+                        )
                         if store is bag.typestore:
                             bag.ensure_type(msgtype)
                         text = store.generate_msgdef(msgtype)[0]
@@ -182,7 +189,9 @@ def write_annotated(bag_path: str | Path, out: str | Path, annotator: Annotator)
                 return channels[key]
 
             ours = ((t, 1, topic, msgtype, data) for t, topic, msgtype, data in annotator.messages)
-            for t_ns, _, topic, msgtype, data in heapq.merge(_bag_records(bag), ours, key=lambda r: (r[0], r[1])):
+            for t_ns, _, topic, msgtype, data in heapq.merge(
+                _bag_records(bag), ours, key=lambda r: (r[0], r[1])
+            ):
                 writer.add_message(channel_id=channel(topic, msgtype), log_time=t_ns, data=data,
                                    publish_time=t_ns, sequence=written)
                 written += 1

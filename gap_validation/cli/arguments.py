@@ -1,7 +1,8 @@
 """The command line's own small languages, parsed into what the library takes: ``--hidden
-CHANNEL:EFFECT:key=value[,key=value]``, ``--band-noise LOW:HIGH:RMS[:CHANNELS]``, ``--coupling FROM:TO:GAIN`` and
-``--cross-response OUTPUT:SURFACE:GAIN[:WN[:DAMPING]]`` (``gap-validate simulate``). Each error is one line naming
-the argument and its bad part. The simulator (:mod:`gap_validation.core.simulation`) takes the parsed values.
+CHANNEL:EFFECT:key=value[,key=value]``, ``--band-noise LOW:HIGH:RMS[:CHANNELS]``, ``--coupling FROM:TO:GAIN``
+and ``--cross-response OUTPUT:SURFACE:GAIN[:WN[:DAMPING]]`` (``gap-validate simulate``). Each error is one
+line naming the argument and its bad part. The simulator (:mod:`gap_validation.core.simulation`) takes the
+parsed values.
 """
 from __future__ import annotations
 
@@ -112,7 +113,9 @@ def parse_band_noise(text: str, channels: list[str] | tuple[str, ...] | None = N
     parts = [p.strip() for p in text.split(":")]
     if len(parts) not in (3, 4):
         raise ConfigError(f"--band-noise {text!r}: {usage}")
-    low, high, rms = (_finite(part, f"--band-noise {text!r}: bad part {part!r} ({usage})") for part in parts[:3])
+    low, high, rms = (
+        _finite(part, f"--band-noise {text!r}: bad part {part!r} ({usage})") for part in parts[:3]
+    )
     if not 0 < low < high:
         raise ConfigError(f"--band-noise {text!r}: bad band {parts[0]}:{parts[1]} (expected 0 < LOW < HIGH)")
     if rms < 0:
@@ -124,8 +127,10 @@ def parse_band_noise(text: str, channels: list[str] | tuple[str, ...] | None = N
             raise ConfigError(f"--band-noise {text!r}: no channel after the last ':' ({usage})")
         unknown = [c for c in chosen if channels is not None and c not in channels]
         if unknown:
-            raise ConfigError(f"--band-noise {text!r}: bad part {unknown[0]!r}: no such channel in the config "
-                              f"(channels: {', '.join(channels)})")
+            raise ConfigError(
+                f"--band-noise {text!r}: bad part {unknown[0]!r}: no such channel in the config "
+                f"(channels: {', '.join(channels)})"
+            )
     return (low, high), rms, chosen
 
 def _resolve_surface(config: ValidationConfig, name: str, text: str) -> str:
@@ -136,12 +141,15 @@ def _resolve_surface(config: ValidationConfig, name: str, text: str) -> str:
         if ch.input is not None and FieldPath.parse(ch.input.field).key == name:
             return channel
     joints = [FieldPath.parse(ch.input.field).key for ch in config.channels.values() if ch.input is not None]
-    raise ConfigError(f"{text}: bad part {name!r}: no channel or input joint of that name in the config "
-                      f"(channels: {', '.join(config.channels)}; joints: {', '.join(str(j) for j in joints if j)})")
+    raise ConfigError(
+        f"{text}: bad part {name!r}: no channel or input joint of that name in the config "
+        f"(channels: {', '.join(config.channels)}; joints: {', '.join(str(j) for j in joints if j)})"
+    )
 
 def parse_coupling(text: str, config: ValidationConfig) -> tuple[str, str, float]:
-    """Parse ``--coupling FROM:TO:GAIN`` (e.g. ``aileron:rudder:0.3``): the surface TO also moves by GAIN times
-    the surface FROM's deflection (an aileron-rudder interconnect). Surfaces are channel names or input joints.
+    """Parse ``--coupling FROM:TO:GAIN`` (e.g. ``aileron:rudder:0.3``): the surface TO also moves by GAIN
+    times the surface FROM's deflection (an aileron-rudder interconnect). Surfaces are channel names or input
+    joints.
 
     Parameters
     ----------
@@ -170,9 +178,9 @@ def parse_coupling(text: str, config: ValidationConfig) -> tuple[str, str, float
     return source, target, gain
 
 def parse_cross_response(text: str, config: ValidationConfig) -> tuple[str, str, float, float, float]:
-    """Parse ``--cross-response OUTPUT:SURFACE:GAIN[:WN[:DAMPING]]`` (e.g. ``roll:rudder:-0.8:3:0.2``): the rate
-    of channel OUTPUT also responds to SURFACE through ``GAIN wn^2 / (s^2 + 2 zeta wn s + wn^2)`` (default
-    ``wn`` 3 rad/s, damping 0.2: a Dutch-roll-like cross response).
+    """Parse ``--cross-response OUTPUT:SURFACE:GAIN[:WN[:DAMPING]]`` (e.g. ``roll:rudder:-0.8:3:0.2``): the
+    rate of channel OUTPUT also responds to SURFACE through ``GAIN wn^2 / (s^2 + 2 zeta wn s + wn^2)``
+    (default ``wn`` 3 rad/s, damping 0.2: a Dutch-roll-like cross response).
 
     Parameters
     ----------
@@ -188,9 +196,13 @@ def parse_cross_response(text: str, config: ValidationConfig) -> tuple[str, str,
     where = f"--cross-response {text!r}"
     parts = [p.strip() for p in text.split(":")]
     if not 3 <= len(parts) <= 5:
-        raise ConfigError(f"{where}: expected OUTPUT:SURFACE:GAIN[:WN[:DAMPING]], e.g. roll:rudder:-0.8:3:0.2")
+        raise ConfigError(
+            f"{where}: expected OUTPUT:SURFACE:GAIN[:WN[:DAMPING]], e.g. roll:rudder:-0.8:3:0.2"
+        )
     if parts[0] not in config.channels:
-        raise ConfigError(f"{where}: bad part {parts[0]!r}: no such channel (channels: {', '.join(config.channels)})")
+        raise ConfigError(
+            f"{where}: bad part {parts[0]!r}: no such channel (channels: {', '.join(config.channels)})"
+        )
     surface = _resolve_surface(config, parts[1], where)
     numbers = [_finite(p, f"{where}: bad part {p!r} (expected a finite number)") for p in parts[2:]]
     gain, wn, damping = (numbers + [3.0, 0.2][len(numbers) - 1:])[:3]

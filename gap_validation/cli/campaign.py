@@ -1,10 +1,10 @@
 """gap-validate campaign MANIFEST.yaml --out DIR [--scheduler ADDRESS] [--workers N]: many flights on Dask.
 
-Validates every flight of the manifest as one Dask task (a local cluster of ``--workers`` processes by default,
-an existing scheduler with ``--scheduler tcp://host:8786``), reuses the results of flights whose bags and config
-are unchanged, and writes ``DIR/campaign.json``, ``DIR/campaign.csv`` and ``DIR/index.html`` (fleet table and
-trends per aircraft). A flight that cannot be validated is reported in one line and the others complete
-(exit status 1).
+Validates every flight of the manifest as one Dask task (a local cluster of ``--workers`` processes by
+default, an existing scheduler with ``--scheduler tcp://host:8786``), reuses the results of flights whose bags
+and config are unchanged, and writes ``DIR/campaign.json``, ``DIR/campaign.csv`` and ``DIR/index.html`` (fleet
+table and trends per aircraft). A flight that cannot be validated is reported in one line and the others
+complete (exit status 1).
 """
 from __future__ import annotations
 
@@ -19,10 +19,17 @@ __all__ = ["register", "run", "FlightProgress"]
 def register(sub) -> None:
     p = sub.add_parser("campaign", help="validate many flights as Dask tasks; fleet trends per aircraft",
                        description=__doc__.split("\n\n")[0])
-    p.add_argument("manifest", metavar="MANIFEST", help="campaign manifest (YAML: flights with name, bag, config, "
-                                                        "aircraft, date, tags)")
-    p.add_argument("--out", required=True, metavar="DIR", help="results directory (campaign.json, campaign.csv, "
-                                                               "index.html, flights/)")
+    p.add_argument(
+        "manifest",
+        metavar="MANIFEST",
+        help="campaign manifest (YAML: flights with name, bag, config, aircraft, date, tags)",
+    )
+    p.add_argument(
+        "--out",
+        required=True,
+        metavar="DIR",
+        help="results directory (campaign.json, campaign.csv, index.html, flights/)",
+    )
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="existing Dask scheduler, e.g. tcp://host:8786 (default: a local cluster)")
     p.add_argument("--workers", type=int, metavar="N",
@@ -32,7 +39,8 @@ def register(sub) -> None:
 
 
 class FlightProgress(ProgressBar):
-    """A one-line progress bar of a campaign on a stream (flights done / total), redrawn at most 10 times a second."""
+    """A one-line progress bar of a campaign on a stream (flights done / total), redrawn at most 10 times a
+    second."""
 
     def __init__(self, stream=None, width: int = 30):
         super().__init__(stream, width, label="campaign")
@@ -41,8 +49,15 @@ class FlightProgress(ProgressBar):
     def __call__(self, outcome, done: int, total: int) -> None:
         if outcome.status in self.counts:
             self.counts[outcome.status] += 1
-        self.draw(done, total, lambda rate: f"flights ({self.counts['reused']} reused, {self.counts['failed']} "
-                                            f"failed) {rate:.2f} flights/s", ran=done - self.counts["reused"])
+        self.draw(
+            done,
+            total,
+            lambda rate: (
+                f"flights ({self.counts['reused']} reused, {self.counts['failed']} "
+                f"failed) {rate:.2f} flights/s"
+            ),
+            ran=done - self.counts["reused"],
+        )
 
 
 def _warn(message: str) -> None:
@@ -56,13 +71,16 @@ def run(args) -> int:
     if args.workers is not None and args.workers < 1:
         raise ConfigError(f"--workers {args.workers}: expected an integer >= 1")
     if args.workers is not None and args.scheduler:
-        raise ConfigError("--workers sets the size of the local cluster; with --scheduler the scheduler's workers "
-                          "are used (start more with 'dask worker')")
+        raise ConfigError(
+            "--workers sets the size of the local cluster; with --scheduler the scheduler's workers "
+            "are used (start more with 'dask worker')"
+        )
     manifest = load_manifest(args.manifest)
     bar = FlightProgress() if not args.no_progress and sys.stderr.isatty() else None
     try:
-        outcome = run_campaign(manifest, args.out, scheduler=args.scheduler, workers=args.workers, progress=bar,
-                               warn=_warn)
+        outcome = run_campaign(
+            manifest, args.out, scheduler=args.scheduler, workers=args.workers, progress=bar, warn=_warn
+        )
     finally:
         if bar is not None:
             bar.close()
@@ -72,11 +90,15 @@ def run(args) -> int:
              f"({'scheduler ' + args.scheduler if args.scheduler else 'local cluster'})"
              if outcome.workers is not None else "(nothing to run)")
     if outcome.workers_lost:
-        where += (f"; {outcome.workers_lost} worker{'s' if outcome.workers_lost != 1 else ''} lost during the run "
-                  "(the scheduler reran their flights)")
-    print(f"{len(outcome.flights)} flights of {len(manifest.aircraft)} aircraft: {outcome.count('validated')} "
-          f"validated, {outcome.count('reused')} reused, {outcome.count('failed')} failed in "
-          f"{outcome.elapsed_s:.1f} s {where}")
+        where += (
+            f"; {outcome.workers_lost} worker{'s' if outcome.workers_lost != 1 else ''} lost during the run "
+            "(the scheduler reran their flights)"
+        )
+    print(
+        f"{len(outcome.flights)} flights of {len(manifest.aircraft)} aircraft: {outcome.count('validated')} "
+        f"validated, {outcome.count('reused')} reused, {outcome.count('failed')} failed in "
+        f"{outcome.elapsed_s:.1f} s {where}"
+    )
     real = [f for f in outcome.findings if f.significant]
     if real:
         print("trends real against the flights' random error:")

@@ -11,17 +11,17 @@ import math
 
 import numpy as np
 
-from gap_validation.core.config import load_config
 from gap_validation.core import metrics, robust
-from gap_validation.core.config import ChannelConfig, ValidationConfig
+from gap_validation.core.config import ChannelConfig, ValidationConfig, load_config
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.margins import margins_from_epsilon, margins_note
 from gap_validation.core.models import MimoModel
 from gap_validation.report.terminal import fmt, table, write_json
 
 #: Why a MIMO channel has no epsilon and no margins.
-MIMO_MARGINS_NOTE = ("epsilon (eq. 14) and its margins are defined for SISO channels; a MIMO channel is compared "
-                     "by the nu-gap")
+MIMO_MARGINS_NOTE = (
+    "epsilon (eq. 14) and its margins are defined for SISO channels; a MIMO channel is compared by the nu-gap"
+)
 
 
 def register(sub) -> None:
@@ -47,8 +47,10 @@ def compare(config_a: ValidationConfig, config_b: ValidationConfig) -> dict:
         try:
             out[name] = _compare_channel(name, config_a, config_b)
         except np.linalg.LinAlgError as err:  # e.g. a nearly hidden mode on the imaginary axis
-            raise ConfigError(f"channels.{name}: the models of {config_a.source} and {config_b.source} cannot be "
-                              f"compared ({err})") from None
+            raise ConfigError(
+                f"channels.{name}: the models of {config_a.source} and {config_b.source} cannot be "
+                f"compared ({err})"
+            ) from None
     return {"channels": out, "config_a": config_a.source, "config_b": config_b.source}
 
 
@@ -64,10 +66,17 @@ def _compare_channel(name: str, config_a: ValidationConfig, config_b: Validation
     if shape == [1, 1]:
         eps, w_eps = metrics.epsilon(m1, m2)
         margins = margins_from_epsilon(eps)
-        entry.update({"epsilon": _finite(eps), "worst_frequency_rad_s": _finite(w_eps), **margins.to_json_dict(),
-                      "disk_markers": [margins.lower_disk_marker, margins.upper_disk_marker]
-                      if margins.lower_disk_marker is not None else None,
-                      "margins_note": margins_note(eps)})
+        entry.update(
+            {
+                "epsilon": _finite(eps),
+                "worst_frequency_rad_s": _finite(w_eps),
+                **margins.to_json_dict(),
+                "disk_markers": [margins.lower_disk_marker, margins.upper_disk_marker]
+                if margins.lower_disk_marker is not None
+                else None,
+                "margins_note": margins_note(eps),
+            }
+        )
     else:
         entry.update({"epsilon": None, "worst_frequency_rad_s": _finite(w_nugap),
                       **margins_from_epsilon(math.nan).to_json_dict(), "disk_markers": None,
@@ -85,24 +94,26 @@ def _compare_channel(name: str, config_a: ValidationConfig, config_b: Validation
 
 
 def _refuse_nonlinear(name: str, channels) -> None:
-    """ConfigError when a model holds an amplitude-dependent effect (``rate_limit``, ``backlash``): its response
-    needs the amplitude of a flight, which two configs do not have; or a ``zero_order_hold``, which is not
-    rational (the exact nu-gap's winding number needs polynomials)."""
+    """ConfigError when a model holds an amplitude-dependent effect (``rate_limit``, ``backlash``): its
+    response needs the amplitude of a flight, which two configs do not have; or a ``zero_order_hold``, which
+    is not rational (the exact nu-gap's winding number needs polynomials)."""
     for source, ch in channels:
-        from gap_validation.core.effects import is_nonlinear
-
-        from gap_validation.core.effects import EFFECTS
+        from gap_validation.core.effects import EFFECTS, is_nonlinear
 
         kinds = [e["type"] for e in getattr(ch.model, "effects", ()) if is_nonlinear(e)]
         if kinds:
-            raise ConfigError(f"{source}: channels.{name}.model.effects: {kinds[0]} depends on the input amplitude "
-                              f"of a flight; compare-models compares linear models only (remove it to compare "
-                              f"the linear parts)")
+            raise ConfigError(
+                f"{source}: channels.{name}.model.effects: {kinds[0]} depends on the input amplitude "
+                f"of a flight; compare-models compares linear models only (remove it to compare "
+                f"the linear parts)"
+            )
         holds = [e["type"] for e in getattr(ch.model, "effects", ()) if EFFECTS[e["type"]].shape is not None]
         if holds:
-            raise ConfigError(f"{source}: channels.{name}.model.effects: {holds[0]} is not a rational factor and the "
-                              f"exact nu-gap needs one; compare-models compares rational models (replace it by a "
-                              f"time_delay of half its period to compare the rest)")
+            raise ConfigError(
+                f"{source}: channels.{name}.model.effects: {holds[0]} is not a rational factor and the "
+                f"exact nu-gap needs one; compare-models compares rational models (replace it by a "
+                f"time_delay of half its period to compare the rest)"
+            )
 
 
 def _aligned(name: str, ch_a: ChannelConfig, ch_b: ChannelConfig, source_a: str, source_b: str):
@@ -139,7 +150,17 @@ def run(args) -> int:
     result = compare(load_config(args.config_a), load_config(args.config_b))
     channels = result["channels"]
     with_controller = any("stability_margin_b" in ch for ch in channels.values())
-    headers = ["channel", "nu-gap", "at rad/s", "epsilon", "worst rad/s", "GM dB", "PM deg", "disk", "markers"]
+    headers = [
+        "channel",
+        "nu-gap",
+        "at rad/s",
+        "epsilon",
+        "worst rad/s",
+        "GM dB",
+        "PM deg",
+        "disk",
+        "markers",
+    ]
     if with_controller:
         headers += ["b(P1,C)", "stable"]
     rows = []

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from gap_validation.core.config import load_config
 from gap_validation.core.atomic import atomic_write_text
+from gap_validation.core.config import load_config
 from gap_validation.core.errors import ConfigError
 from gap_validation.report.layouts import DEFAULT_NODE, foxglove_json, plotjuggler_layout, plotted_channels
 
@@ -19,8 +19,12 @@ def register(sub) -> None:
     p = sub.add_parser("layouts", help="Foxglove and PlotJuggler layouts for the node's plot topics",
                        description=__doc__.split("\n\n")[0])
     p.add_argument("--config", required=True, metavar="CFG", help="the validation config the node runs")
-    p.add_argument("--node", default=DEFAULT_NODE, metavar="NAME",
-                   help=f"the node's fully qualified name ({DEFAULT_NODE}; with a namespace /ns/gap_validator)")
+    p.add_argument(
+        "--node",
+        default=DEFAULT_NODE,
+        metavar="NAME",
+        help=f"the node's fully qualified name ({DEFAULT_NODE}; with a namespace /ns/gap_validator)",
+    )
     p.add_argument("--foxglove", metavar="OUT.json", help="write the Foxglove layout here")
     p.add_argument("--plotjuggler", metavar="OUT.xml", help="write the PlotJuggler layout here")
     p.set_defaults(func=run)

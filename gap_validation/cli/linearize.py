@@ -2,8 +2,8 @@
 
 Trims a JSBSim aircraft (shipped with the jsbsim wheel) straight and level at V knots TRUE airspeed and H ft
 above sea level, linearises it with JSBSim's own FGLinearization and writes a validation config: SISO channels
-roll (aileron -> p), pitch (elevator -> q), yaw (rudder -> r) and the MIMO channel lateral (aileron, rudder -> p,
-r); surfaces in rad (the FCS's normalised commands converted with its gains at trim), body rates in rad/s.
+roll (aileron -> p), pitch (elevator -> q), yaw (rudder -> r) and the MIMO channel lateral (aileron, rudder ->
+p, r); surfaces in rad (the FCS's normalised commands converted with its gains at trim), body rates in rad/s.
 """
 from __future__ import annotations
 
@@ -22,7 +22,9 @@ def _grid(text: str):
         low, high = float(parts[0]), float(parts[1])
         count = int(parts[2]) if len(parts) == 3 else 40
     except (ValueError, IndexError):
-        raise argparse.ArgumentTypeError(f"expected MIN:MAX[:COUNT] in rad/s, e.g. 1:30:40, got {text!r}") from None
+        raise argparse.ArgumentTypeError(
+            f"expected MIN:MAX[:COUNT] in rad/s, e.g. 1:30:40, got {text!r}"
+        ) from None
     if len(parts) > 3 or not (0 < low < high < 1e4) or not 2 <= count <= 1000:
         raise argparse.ArgumentTypeError(f"expected 0 < MIN < MAX and COUNT from 2 to 1000, got {text!r}")
     return FrequencyGrid(low, high, count)
@@ -38,10 +40,14 @@ def register(sub) -> None:
     p.add_argument("--out", metavar="CFG.yaml", help="the config to write (required)")
     p.add_argument("--frequencies", type=_grid, default=None, metavar="MIN:MAX[:COUNT]",
                    help="frequency grid of every channel [rad/s] (default 1:30:40)")
-    p.add_argument("--airspeed-topic", metavar="TOPIC", default=None,
-                   help="give every channel an airspeed stream on TOPIC (std_msgs/Float64, true airspeed m/s) "
-                        "with the trim's: the surfaces' deviations are scaled by the dynamic pressure ratio "
-                        "(simulate --jsbsim then logs it)")
+    p.add_argument(
+        "--airspeed-topic",
+        metavar="TOPIC",
+        default=None,
+        help="give every channel an airspeed stream on TOPIC (std_msgs/Float64, true airspeed m/s) "
+        "with the trim's: the surfaces' deviations are scaled by the dynamic pressure ratio "
+        "(simulate --jsbsim then logs it)",
+    )
     p.add_argument("--force", action="store_true", help="replace CFG.yaml if it exists")
     p.set_defaults(func=run)
 
@@ -82,10 +88,15 @@ def run(args) -> int:
     if topic is not None and (not topic.strip() or " " in topic):
         raise ConfigError(f"--airspeed-topic {topic!r}: expected a ROS topic name such as /airspeed")
     write_config(lin, out, grid, None if topic is None else "/" + topic.lstrip("/"))
-    poles = ", ".join(f"{z.real:.3g}{z.imag:+.3g}j" if abs(z.imag) > 1e-9 else f"{z.real:.3g}" for z in lin.poles())
+    poles = ", ".join(
+        f"{z.real:.3g}{z.imag:+.3g}j" if abs(z.imag) > 1e-9 else f"{z.real:.3g}" for z in lin.poles()
+    )
     print(f"wrote {out}: JSBSim {lin.point.version} {lin.point.describe()}")
-    print(f"  channels roll (aileron -> p), pitch (elevator -> q), yaw (rudder -> r), lateral (aileron, rudder -> "
-          f"p, r); grid {grid.min_rad_s:g}-{grid.max_rad_s:g} rad/s x {grid.count}")
+    print(
+        "  channels roll (aileron -> p), pitch (elevator -> q), yaw (rudder -> r), lateral (aileron, rudder "
+        "-> "
+        f"p, r); grid {grid.min_rad_s:g}-{grid.max_rad_s:g} rad/s x {grid.count}"
+    )
     print(f"  {len(lin.states)} states ({', '.join(lin.states)}); poles [rad/s]: {poles}")
     for warning in lin.warnings:
         print(f"  warning: {warning}")

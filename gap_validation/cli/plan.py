@@ -1,25 +1,33 @@
 """gap-validate plan [RESULTS.json] --config CFG: what to fly next, as a test card (issue 25).
 
-From a replay's results (``replay --json``, the node's ``~/save_results``) and the config they were made with: per
-channel and per run of frequencies without a verdict (data-limited, not excited, too few degrees of freedom, low
-coherence), the log chirp that brings the random error there to what a verdict needs, its flight time and the error
-it is expected to give; what cannot be reached, with the reason. From the config alone: a first flight, the model's
-response and stated noise assumptions setting the levels. The planning is :mod:`gap_validation.core.plan`; this
-module reads, checks and writes: the card (YAML, docs/PLAN.md), a table on stdout, and in the autopilots' words
-(``--ardupilot`` SystemID parameters, ``--px4`` fixed-wing autotune parameters, ``--signal`` the offsets to inject).
+From a replay's results (``replay --json``, the node's ``~/save_results``) and the config they were made with:
+per channel and per run of frequencies without a verdict (data-limited, not excited, too few degrees of
+freedom, low coherence), the log chirp that brings the random error there to what a verdict needs, its flight
+time and the error it is expected to give; what cannot be reached, with the reason. From the config alone: a
+first flight, the model's response and stated noise assumptions setting the levels. The planning is
+:mod:`gap_validation.core.plan`; this module reads, checks and writes: the card (YAML, docs/PLAN.md), a table
+on stdout, and in the autopilots' words (``--ardupilot`` SystemID parameters, ``--px4`` fixed-wing autotune
+parameters, ``--signal`` the offsets to inject).
 """
 from __future__ import annotations
 
 import math
 from pathlib import Path
 
-from gap_validation.core.atomic import atomic_write_text
 from gap_validation.cards import card_yaml
+from gap_validation.cli.report import load_results_json
+from gap_validation.core.atomic import atomic_write_text
 from gap_validation.core.config import load_config
 from gap_validation.core.errors import ConfigError, DataError, GapValidationError, one_line
-from gap_validation.core.plan import (ARDUPILOT_THROW_RAD, PlanOptions, TestCard, ardupilot_parameters, card_signal,
-                                      plan_card, px4_parameters)
-from gap_validation.cli.report import load_results_json
+from gap_validation.core.plan import (
+    ARDUPILOT_THROW_RAD,
+    PlanOptions,
+    TestCard,
+    ardupilot_parameters,
+    card_signal,
+    plan_card,
+    px4_parameters,
+)
 from gap_validation.report.terminal import duration_text
 
 #: PX4's QGroundControl parameter file: MAV_PARAM_TYPE of each value (9 REAL32, 6 INT32).
@@ -30,24 +38,45 @@ _PX4_TYPES = {"FW_AT_SYSID_F0": 9, "FW_AT_SYSID_F1": 9, "FW_AT_SYSID_TIME": 9, "
 def register(sub) -> None:
     p = sub.add_parser("plan", help="the test card that turns data-limited bands into verdicts",
                        description=__doc__.split("\n\n")[0])
-    p.add_argument("results", nargs="?", metavar="RESULTS.json",
-                   help="results of replay --json or ~/save_results (without: a first flight from the config alone)")
+    p.add_argument(
+        "results",
+        nargs="?",
+        metavar="RESULTS.json",
+        help="results of replay --json or ~/save_results (without: a first flight from the config alone)",
+    )
     p.add_argument("--config", metavar="CFG", help="the config the results were made with (required)")
-    p.add_argument("--target-error", type=float, metavar="E",
-                   help="random error to reach at every planned frequency (default: what a verdict at the channel's "
-                        "threshold needs, about 0.067)")
-    p.add_argument("--max-amplitude-rad", type=float, metavar="A",
-                   help="largest sweep amplitude [rad] (with results also capped by the largest deflection flown; "
-                        "from a config alone 0.06 rad by default)")
+    p.add_argument(
+        "--target-error",
+        type=float,
+        metavar="E",
+        help="random error to reach at every planned frequency (default: what a verdict at the channel's "
+        "threshold needs, about 0.067)",
+    )
+    p.add_argument(
+        "--max-amplitude-rad",
+        type=float,
+        metavar="A",
+        help="largest sweep amplitude [rad] (with results also capped by the largest deflection flown; "
+        "from a config alone 0.06 rad by default)",
+    )
     p.add_argument("--log-rate-hz", type=float, metavar="R",
                    help="rate of the slowest logged stream [Hz] (planned up to a quarter of it)")
     p.add_argument("--out", metavar="CARD.yaml", help="write the card here (YAML, docs/PLAN.md)")
-    p.add_argument("--ardupilot", metavar="FILE.parm", help="ArduPilot SystemID parameters, one block per manoeuvre")
-    p.add_argument("--surface-throw-deg", action="append", default=[], metavar="[CHANNEL=]DEG",
-                   help="surface deflection at full mixer output for SID_MAGNITUDE (default 45 deg, ArduPilot's "
-                        "notional travel; repeatable per channel)")
+    p.add_argument(
+        "--ardupilot", metavar="FILE.parm", help="ArduPilot SystemID parameters, one block per manoeuvre"
+    )
+    p.add_argument(
+        "--surface-throw-deg",
+        action="append",
+        default=[],
+        metavar="[CHANNEL=]DEG",
+        help="surface deflection at full mixer output for SID_MAGNITUDE (default 45 deg, ArduPilot's "
+        "notional travel; repeatable per channel)",
+    )
     p.add_argument("--px4", metavar="FILE.params", help="PX4 fixed-wing autotune parameters, where they fit")
-    p.add_argument("--signal", metavar="FILE.csv", help="the surface offsets to inject, every manoeuvre in turn")
+    p.add_argument(
+        "--signal", metavar="FILE.csv", help="the surface offsets to inject, every manoeuvre in turn"
+    )
     p.add_argument("--signal-rate-hz", type=float, metavar="R", help="sample rate of --signal [Hz]")
     p.set_defaults(func=run)
 
@@ -84,15 +113,20 @@ def _writable(path: str | None, option: str) -> None:
 def run(args) -> int:
     results_path, config_path = args.results, args.config
     if config_path is None and results_path and Path(results_path).suffix.lower() in (".yaml", ".yml"):
-        results_path, config_path = None, results_path          # ``plan CFG.yaml``: a first flight (DESIGN.md)
+        # ``plan CFG.yaml``: a first flight (DESIGN.md)
+        results_path, config_path = None, results_path
     if config_path is None:
-        raise ConfigError("plan: give --config CFG (with RESULTS.json: the config the results were made with)")
+        raise ConfigError(
+            "plan: give --config CFG (with RESULTS.json: the config the results were made with)"
+        )
     for option, value in (("--out", args.out), ("--ardupilot", args.ardupilot), ("--px4", args.px4),
                           ("--signal", args.signal)):
         _writable(value, option)
     if args.signal and args.signal_rate_hz is None:
         raise ConfigError("--signal needs --signal-rate-hz R (the rate the offsets are sampled at)")
-    if args.signal_rate_hz is not None and not (math.isfinite(args.signal_rate_hz) and args.signal_rate_hz > 0):
+    if args.signal_rate_hz is not None and not (
+        math.isfinite(args.signal_rate_hz) and args.signal_rate_hz > 0
+    ):
         raise ConfigError(f"--signal-rate-hz {args.signal_rate_hz:g}: expected a rate > 0 Hz")
     options = PlanOptions(target_error=args.target_error, max_amplitude_rad=args.max_amplitude_rad,
                           log_rate_hz=args.log_rate_hz).check()
@@ -132,26 +166,53 @@ def render_table(card: TestCard) -> str:
     card : TestCard
         The card.
     """
-    head = ("#", "channel", "closes rad/s", "sweep Hz", "amp deg", "sweep s", "x", "time", "error now", "predicted",
-            "target", "why")
+    head = (
+        "#",
+        "channel",
+        "closes rad/s",
+        "sweep Hz",
+        "amp deg",
+        "sweep s",
+        "x",
+        "time",
+        "error now",
+        "predicted",
+        "target",
+        "why",
+    )
     rows = []
     for m in card.manoeuvres:
         now = [e for e in m.error_now if e is not None]
-        rows.append((str(m.index), m.channel, f"{m.closes_rad_s[0]:.3g}-{m.closes_rad_s[1]:.3g}",
-                     f"{m.f_start_hz:.3g}-{m.f_stop_hz:.3g}", f"{math.degrees(m.amplitude_rad):.2f}",
-                     f"{m.duration_s:.0f}", str(m.repeats), duration_text(m.flight_time_s),
-                     f"{max(now):.3f}" if now else "-", f"{m.worst_predicted_error:.3f}", f"{min(m.target_error):.3f}",
-                     ", ".join(m.reasons)))
+        rows.append(
+            (
+                str(m.index),
+                m.channel,
+                f"{m.closes_rad_s[0]:.3g}-{m.closes_rad_s[1]:.3g}",
+                f"{m.f_start_hz:.3g}-{m.f_stop_hz:.3g}",
+                f"{math.degrees(m.amplitude_rad):.2f}",
+                f"{m.duration_s:.0f}",
+                str(m.repeats),
+                duration_text(m.flight_time_s),
+                f"{max(now):.3f}" if now else "-",
+                f"{m.worst_predicted_error:.3f}",
+                f"{min(m.target_error):.3f}",
+                ", ".join(m.reasons),
+            )
+        )
     widths = [max(len(h), *(len(r[i]) for r in rows)) if rows else len(h) for i, h in enumerate(head)]
     lines = ["  ".join(h.ljust(w) for h, w in zip(head, widths)).rstrip(), "  ".join("-" * w for w in widths)]
     lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows]
     if not rows:
         lines.append("(nothing to fly)")
-    lines.append(f"  flight time {duration_text(card.flight_time_s)} for {len(rows)} manoeuvre(s); error: the worst "
-                 f"random error over the frequencies closed, now and predicted for the card replayed on its own")
+    lines.append(
+        f"  flight time {duration_text(card.flight_time_s)} for {len(rows)} manoeuvre(s); error: the worst "
+        f"random error over the frequencies closed, now and predicted for the card replayed on its own"
+    )
     for name, plan in card.channels.items():
         for u in plan.unreachable:
-            lines.append(f"  {name}: unreachable at {u.band_rad_s[0]:.3g}-{u.band_rad_s[1]:.3g} rad/s: {u.reason}")
+            lines.append(
+                f"  {name}: unreachable at {u.band_rad_s[0]:.3g}-{u.band_rad_s[1]:.3g} rad/s: {u.reason}"
+            )
         for note in plan.notes:
             if note.startswith(f"{name}: nothing") or "MIMO" in note or "not in the results" in note:
                 lines.append(f"  {note}")
@@ -172,14 +233,20 @@ def parm_text(card: TestCard, config, throws: dict[str, float]) -> str:
         Channel -> surface deflection at full mixer output [rad].
     """
     blocks = ardupilot_parameters(card, config, throws)
-    lines = ["# gap-validate plan: ArduPilot SystemID parameters (SID_*), one block per manoeuvre of the card.",
-             "# A .parm holds one value per name: the first block is active, the others are commented out. Load the",
-             "# block of the manoeuvre you fly next (uncomment it, comment the active one), fly it SID_* repeats with",
-             "# trim between, then the next. SID_AXIS 10/11/12 injects at the mixer (the surface, the model's input).",
-             f"# SID_MAGNITUDE is 0-1 of full mixer output ({math.degrees(ARDUPILOT_THROW_RAD):g} deg of notional "
-             "travel unless --surface-throw-deg); ranges from ArduPilot's",
-             "# parameter docs (AP_SystemID / ModeSystemId var_info: F_START/F_STOP 0.01-100 Hz, T_FADE_IN 0-20 s,",
-             "# T_REC 0-255 s, T_FADE_OUT 0-5 s); every value below is inside them."]
+    lines = [
+        "# gap-validate plan: ArduPilot SystemID parameters (SID_*), one block per manoeuvre of the card.",
+        "# A .parm holds one value per name: the first block is active, the others are commented out. Load "
+        "the",
+        "# block of the manoeuvre you fly next (uncomment it, comment the active one), fly it SID_* repeats "
+        "with",
+        "# trim between, then the next. SID_AXIS 10/11/12 injects at the mixer (the surface, the model's "
+        "input).",
+        f"# SID_MAGNITUDE is 0-1 of full mixer output ({math.degrees(ARDUPILOT_THROW_RAD):g} deg of notional "
+        "travel unless --surface-throw-deg); ranges from ArduPilot's",
+        "# parameter docs (AP_SystemID / ModeSystemId var_info: F_START/F_STOP 0.01-100 Hz, T_FADE_IN "
+        "0-20 s,",
+        "# T_REC 0-255 s, T_FADE_OUT 0-5 s); every value below is inside them.",
+    ]
     return _blocks_text(lines, blocks, "", lambda name, value: f"{name} {_number(value)}")
 
 
@@ -194,17 +261,24 @@ def px4_text(card: TestCard, config) -> str:
         The config (each channel's axis).
     """
     blocks = px4_parameters(card, config)
-    lines = ["# gap-validate plan: PX4 fixed-wing autotune system-identification parameters, one block per manoeuvre.",
-             "# Onboard parameters format: Vehicle-Id Component-Id Name Value Type. One value per name: the first",
-             "# block is active, the others commented out. Ranges from fw_autotune_attitude_control_params.c",
-             "# (F0/F1 0.1-30 Hz, TIME 5-120 s); FW_AT_APPLY 0 logs only (the gains are not changed).",
-             "#", "# Vehicle-Id\tComponent-Id\tName\tValue\tType"]
-    return _blocks_text(lines, blocks, "#", lambda name, value: f"1\t1\t{name}\t{_number(value)}\t{_PX4_TYPES[name]}")
+    lines = [
+        "# gap-validate plan: PX4 fixed-wing autotune system-identification parameters, one block per "
+        "manoeuvre.",
+        "# Onboard parameters format: Vehicle-Id Component-Id Name Value Type. One value per name: the first",
+        "# block is active, the others commented out. Ranges from fw_autotune_attitude_control_params.c",
+        "# (F0/F1 0.1-30 Hz, TIME 5-120 s); FW_AT_APPLY 0 logs only (the gains are not changed).",
+        "#",
+        "# Vehicle-Id\tComponent-Id\tName\tValue\tType",
+    ]
+    return _blocks_text(
+        lines, blocks, "#", lambda name, value: f"1\t1\t{name}\t{_number(value)}\t{_PX4_TYPES[name]}"
+    )
 
 
 def _blocks_text(head: list[str], blocks, separator: str, line) -> str:
     """``head``, then per block ``separator``, its comment and notes as comments and its values (``line(name,
-    value)``): the first block with values active, the others commented out (one value per name in the file)."""
+    value)``): the first block with values active, the others commented out (one value per name in the
+    file)."""
     lines, active = list(head), False
     for block in blocks:
         lines += [separator, f"# {block.comment}"] + [f"# {note}" for note in block.notes]
@@ -215,7 +289,8 @@ def _blocks_text(head: list[str], blocks, separator: str, line) -> str:
 
 
 def signal_csv(card: TestCard, rate_hz: float) -> str:
-    """The ``--signal`` CSV: ``time_s``, ``manoeuvre`` and one ``<channel>_rad`` column of surface offsets each.
+    """The ``--signal`` CSV: ``time_s``, ``manoeuvre`` and one ``<channel>_rad`` column of surface offsets
+    each.
 
     Parameters
     ----------

@@ -3,7 +3,8 @@
 Streams rosbag2 directories, ``.mcap`` and ``.db3`` files, and flight logs -- PX4 ULog (``.ulg``), ArduPilot
 DataFlash (``.bin``), CSV (``.csv``, or a directory of them) -- (only the config's topics) through the online
 validator, prints the per-channel table and writes the JSON results. Several flights add up (sweeps from all
-count); an unreadable or damaged one is reported and the rest is still validated (exit status 1, results kept).
+count); an unreadable or damaged one is reported and the rest is still validated (exit status 1, results
+kept).
 """
 from __future__ import annotations
 
@@ -12,45 +13,69 @@ import importlib.util
 import shlex
 import sys
 import time
-
 from pathlib import Path
 
+from gap_validation.bag.replay import is_log_source, replay
 from gap_validation.core.config import dump_config, load_config
 from gap_validation.core.errors import ConfigError, DataError
-from gap_validation.history import (append_history, default_history_path, epsilon_versions, format_trend,
-                                    load_history, model_hash, previous_epsilon)
+from gap_validation.history import (
+    append_history,
+    default_history_path,
+    epsilon_versions,
+    format_trend,
+    load_history,
+    model_hash,
+    previous_epsilon,
+)
 from gap_validation.report.card import plan_for, plan_lines
 from gap_validation.report.terminal import format_table, write_json
-from gap_validation.bag.replay import is_log_source, replay
 
 
 def register(sub) -> None:
-    p = sub.add_parser("replay", help="validate recorded flights (rosbag2 directories, .mcap, .db3; flight logs .ulg, "
-                                      ".bin, .csv)",
-                       description=__doc__.split("\n\n")[0])
-    p.add_argument("bags", nargs="+", metavar="FLIGHT",
-                   help="rosbag2 directory, .mcap or .db3 file, or a flight log: .ulg (PX4), .bin (ArduPilot), .csv "
-                        "(one file per topic; the CSV files of one directory are one flight)")
+    p = sub.add_parser(
+        "replay",
+        help="validate recorded flights (rosbag2 directories, .mcap, .db3; flight logs .ulg, .bin, .csv)",
+        description=__doc__.split("\n\n")[0],
+    )
+    p.add_argument(
+        "bags",
+        nargs="+",
+        metavar="FLIGHT",
+        help="rosbag2 directory, .mcap or .db3 file, or a flight log: .ulg (PX4), .bin (ArduPilot), .csv "
+        "(one file per topic; the CSV files of one directory are one flight)",
+    )
     p.add_argument("--config", required=True, metavar="CFG", help="validation config (YAML)")
     p.add_argument("--json", metavar="OUT", help="write the results as JSON")
     p.add_argument("--report", metavar="DIR", help="write the HTML report with figures into DIR")
-    p.add_argument("--apply-diagnosis", metavar="OUT_YAML",
-                   help="write the config with the fix of each model-limited channel whose diagnosis has a candidate "
-                        "that explains the mismatch (review it, keep it); the others are left as they are")
-    p.add_argument("--force", action="store_true",
-                   help="with --apply-diagnosis: write each channel's top candidate even when it does not explain "
-                        "the mismatch or the channel is not model-limited")
+    p.add_argument(
+        "--apply-diagnosis",
+        metavar="OUT_YAML",
+        help="write the config with the fix of each model-limited channel whose diagnosis has a candidate "
+        "that explains the mismatch (review it, keep it); the others are left as they are",
+    )
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="with --apply-diagnosis: write each channel's top candidate even when it does not explain "
+        "the mismatch or the channel is not model-limited",
+    )
     p.add_argument("--history", metavar="FILE",
                    help="validation history to append to (default: the config's 'history' key, else "
                         "<config stem>.history.jsonl beside the config)")
     p.add_argument("--no-history", action="store_true", help="do not read or append the validation history")
     p.add_argument("--no-progress", action="store_true", help="no progress bar (default: on a terminal)")
-    p.add_argument("--annotate", metavar="OUT_MCAP",
-                   help="write one MCAP file with the flight's messages and, on the same timeline, what the node "
-                        "would have published: /diagnostics every second and the plottable topics "
-                        "(docs/NODE_TOPICS.md); one bag")
-    p.add_argument("--full-decode", action="store_true",
-                   help="deserialise every message fully (default: read only the needed fields where possible)")
+    p.add_argument(
+        "--annotate",
+        metavar="OUT_MCAP",
+        help="write one MCAP file with the flight's messages and, on the same timeline, what the node "
+        "would have published: /diagnostics every second and the plottable topics "
+        "(docs/NODE_TOPICS.md); one bag",
+    )
+    p.add_argument(
+        "--full-decode",
+        action="store_true",
+        help="deserialise every message fully (default: read only the needed fields where possible)",
+    )
     p.set_defaults(func=run)
 
 
@@ -90,7 +115,8 @@ class ProgressBar:
 
 
 def _report_writer():
-    """``gap_validation.report.html.write_report`` or a one-line error when the report module is not installed."""
+    """``gap_validation.report.html.write_report`` or a one-line error when the report module is not
+    installed."""
     if importlib.util.find_spec("gap_validation.report.html") is None:
         raise ConfigError("--report: report not available (gap_validation.report.html is not installed)")
     module = importlib.import_module("gap_validation.report.html")
@@ -103,11 +129,15 @@ def _report_writer():
 def _check_outputs(args) -> None:
     """Refuse output paths that cannot be written before the replay, not after it (ConfigError, one line)."""
     if getattr(args, "annotate", None) and len(args.bags) != 1:
-        raise ConfigError(f"--annotate {args.annotate}: takes one bag (got {len(args.bags)}): the annotation is on "
-                          "that bag's timeline")
+        raise ConfigError(
+            f"--annotate {args.annotate}: takes one bag (got {len(args.bags)}): the annotation is on "
+            "that bag's timeline"
+        )
     if getattr(args, "annotate", None) and is_log_source(args.bags[0]):
-        raise ConfigError(f"--annotate {args.annotate}: takes a bag, not the flight log {args.bags[0]} (the annotation "
-                          "copies the bag's messages); replay the log without --annotate")
+        raise ConfigError(
+            f"--annotate {args.annotate}: takes a bag, not the flight log {args.bags[0]} (the annotation "
+            "copies the bag's messages); replay the log without --annotate"
+        )
     for option, value in (("--json", args.json), ("--apply-diagnosis", args.apply_diagnosis),
                           ("--annotate", getattr(args, "annotate", None))):
         if not value:
@@ -144,8 +174,11 @@ def run(args) -> int:
 
         try:
             n = write_annotated(args.bags[0], args.annotate, annotator)
-            print(f"annotated: {args.annotate} ({n} messages: the flight and {len(annotator.messages)} of the "
-                  "node's)", file=sys.stderr)
+            print(
+                f"annotated: {args.annotate} ({n} messages: the flight and {len(annotator.messages)} of the "
+                "node's)",
+                file=sys.stderr,
+            )
         except DataError as err:
             outcome.errors.append(str(err))
     for warning in outcome.warnings:
@@ -161,10 +194,11 @@ def run(args) -> int:
 def _write_outputs(args, config, result, write_report) -> None:
     """Table, JSON, report, history and --apply-diagnosis of a replay's result.
 
-    The test card (``gap-validate plan``, :func:`~gap_validation.report.card.plan_for`) is planned for the report
-    only: it costs 0.3 s on the bundled flight (replay 6 s, report 7 s more) but 3 s on a short flight with three
-    data-limited channels whose replay takes 1.4 s; without ``--report`` a line per channel with bands without a
-    verdict says how to plan it. A plan that fails is a warning and a line in the report, never an error."""
+    The test card (``gap-validate plan``, :func:`~gap_validation.report.card.plan_for`) is planned for the
+    report only: it costs 0.3 s on the bundled flight (replay 6 s, report 7 s more) but 3 s on a short flight
+    with three data-limited channels whose replay takes 1.4 s; without ``--report`` a line per channel with
+    bands without a verdict says how to plan it. A plan that fails is a warning and a line in the report,
+    never an error."""
     history = None if args.no_history else _history_path(args, config)
     records = _load_history(history) if history is not None else None
     if records is not None:
@@ -173,7 +207,9 @@ def _write_outputs(args, config, result, write_report) -> None:
     if isinstance(plan, str):
         _warn(f"plan unavailable: {plan}")
     print(format_table(result))
-    command = f"gap-validate plan {shlex.quote(args.json or 'RESULTS.json')} --config {shlex.quote(args.config)}"
+    command = (
+        f"gap-validate plan {shlex.quote(args.json or 'RESULTS.json')} --config {shlex.quote(args.config)}"
+    )
     for line in plan_lines(result, plan, command):
         print(line)
     if records is not None and any(ch.sweeps for ch in result.channels.values()):
@@ -212,7 +248,8 @@ def _history_path(args, config) -> Path:
 
 
 def _load_history(path: Path) -> list[dict] | None:
-    """The history records, or None (with a one-line warning) when the file is unreadable: results come first."""
+    """The history records, or None (with a one-line warning) when the file is unreadable: results come
+    first."""
     try:
         return load_history(path)
     except DataError as err:
@@ -232,7 +269,9 @@ def _trends(records: list[dict], result) -> list[str]:
     """Trend lines for channels validated with more than one model version."""
     lines = []
     for name in result.channels:
-        hashes = {r["channels"].get(name, {}).get("model_hash") for r in records if name in r.get("channels", {})}
+        hashes = {
+            r["channels"].get(name, {}).get("model_hash") for r in records if name in r.get("channels", {})
+        }
         if len(hashes) > 1:
             lines.append("  " + format_trend(records, name))
     return lines
@@ -251,7 +290,8 @@ def _apply_diagnosis(config, result, out_path: str, history: Path | None, force:
     applied, left = [], []
     done = set()
     for name, ch in result.channels.items():
-        if ch.conventions:       # a sign, units, the body frame or a clock (issue 23): the streams, not the model
+        # a sign, units, the body frame or a clock (issue 23): the streams, not the model
+        if ch.conventions:
             for change in (c for convention in ch.conventions for c in convention.changes):
                 key = (change["channel"], change["stream"], change["key"])
                 if key not in done:
@@ -261,7 +301,8 @@ def _apply_diagnosis(config, result, out_path: str, history: Path | None, force:
             if not any(line in a for a in applied):        # one fix for the channels that share it
                 applied.append(f"{name}: {line}")
             continue
-        if ch.diagnosis and config.channels[name].is_mimo:   # MIMO models take no effects yet: say what to change
+        # MIMO models take no effects yet: say what to change
+        if ch.diagnosis and config.channels[name].is_mimo:
             print(f"gap-validate: --apply-diagnosis: {name}: not applied (a MIMO model takes no effects yet; "
                   f"change its model by hand): {ch.diagnosis[0].sentence}", file=sys.stderr)
             continue
@@ -278,8 +319,12 @@ def _apply_diagnosis(config, result, out_path: str, history: Path | None, force:
     if history is not None:
         raw["history"] = str(history.resolve())
     if not applied:
-        print(f"gap-validate: --apply-diagnosis: no channel has a fix that explains its mismatch; {out_path} not "
-              f"written", file=sys.stderr)
+        print(
+            f"gap-validate: --apply-diagnosis: no channel has a fix that explains its mismatch; {out_path} "
+            "not "
+            f"written",
+            file=sys.stderr,
+        )
         for line in left:
             print(f"  {line}", file=sys.stderr)
         return
@@ -295,8 +340,8 @@ def _apply_diagnosis(config, result, out_path: str, history: Path | None, force:
 def _fix_for(ch, force: bool):
     """``(candidate, note)`` to write for a channel, or ``(None, why not)``.
 
-    Without ``force``: the first candidate that explains the mismatch of a model-limited channel. With it: that,
-    else the top candidate, with a note saying what it does not do.
+    Without ``force``: the first candidate that explains the mismatch of a model-limited channel. With it:
+    that, else the top candidate, with a note saying what it does not do.
     """
     if not ch.diagnosis:
         if ch.limited_by == "model":

@@ -18,7 +18,9 @@ from gap_validation.history import epsilon_versions, load_history
 def register(sub) -> None:
     p = sub.add_parser("report", help="HTML report with the paper's figures from a results JSON",
                        description=__doc__.split("\n\n")[0])
-    p.add_argument("results", metavar="RESULTS.json", help="results written by replay --json or ~/save_results")
+    p.add_argument(
+        "results", metavar="RESULTS.json", help="results written by replay --json or ~/save_results"
+    )
     p.add_argument("--out", required=True, metavar="DIR", help="directory for index.html and the figures")
     p.add_argument("--history", metavar="FILE",
                    help="validation history to plot epsilon over model versions from (default: the one in "

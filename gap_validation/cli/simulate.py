@@ -3,21 +3,23 @@
 Writes a synthetic sweep flight as a rosbag2: the true aircraft of each channel is the config's model with
 the hidden effects in series; sweeps per axis (roll, pitch, yaw in turn), doublets, pilot trim inputs, gusts,
 sensor noise, message rates with jitter and drops. The same seed gives the same bag.
-``--band-noise LOW:HIGH:RMS[:CHANNEL[,CHANNEL]]`` adds a narrow-band output disturbance (band-pass filtered noise
-between LOW and HIGH rad/s, RMS rad/s) to the measured rates: the coherence drops there and the diagnosis
-should call that band data-limited. ``--closed-loop-gain-margin-db``, ``--turbulence``, ``--log-excitation``,
-``--coupling`` and ``--cross-response`` fly closed-loop sweeps and coupled surfaces (docs/closed_loop.md).
+``--band-noise LOW:HIGH:RMS[:CHANNEL[,CHANNEL]]`` adds a narrow-band output disturbance (band-pass filtered
+noise between LOW and HIGH rad/s, RMS rad/s) to the measured rates: the coherence drops there and the
+diagnosis should call that band data-limited. ``--closed-loop-gain-margin-db``, ``--turbulence``,
+``--log-excitation``, ``--coupling`` and ``--cross-response`` fly closed-loop sweeps and coupled surfaces
+(docs/closed_loop.md).
 
-``--format ulog|dataflash|csv`` writes the same flight as a PX4 ULog, an ArduPilot DataFlash log or CSV files (each
-autopilot's topic names, units and logging rates: PX4's servos at 10 Hz, ArduPlane's at 25 Hz unless
+``--format ulog|dataflash|csv`` writes the same flight as a PX4 ULog, an ArduPilot DataFlash log or CSV files
+(each autopilot's topic names, units and logging rates: PX4's servos at 10 Hz, ArduPlane's at 25 Hz unless
 ``--surface-rate-hz`` says otherwise) and the config that reads it beside it (``FLIGHT.ulg.yaml``;
 :mod:`gap_validation.logs.flight`).
 
-``gap-validate simulate --jsbsim AIRCRAFT --speed-kt V --altitude-ft H --out BAG [--config CFG]`` flies the same
-card in JSBSim's nonlinear model trimmed at V knots true airspeed and H ft (:mod:`gap_validation.jsbsim.flight`):
-the truth is JSBSim, the hidden effects act between the logged surface and the airframe, ``--turbulence`` is
-JSBSim's own (light, moderate, severe or SEVERITY[:WIND_KT][:milspec|tustin]). Without ``--config`` the channels,
-topics and grid are those of ``gap-validate linearize`` at the flown condition.
+``gap-validate simulate --jsbsim AIRCRAFT --speed-kt V --altitude-ft H --out BAG [--config CFG]`` flies the
+same card in JSBSim's nonlinear model trimmed at V knots true airspeed and H ft
+(:mod:`gap_validation.jsbsim.flight`): the truth is JSBSim, the hidden effects act between the logged surface
+and the airframe, ``--turbulence`` is JSBSim's own (light, moderate, severe or
+SEVERITY[:WIND_KT][:milspec|tustin]). Without ``--config`` the channels, topics and grid are those of
+``gap-validate linearize`` at the flown condition.
 """
 from __future__ import annotations
 
@@ -28,13 +30,24 @@ from pathlib import Path
 
 from gap_validation.bag.reader import BAG_SUFFIXES
 from gap_validation.bag.writer import STORAGES, write_flight
+from gap_validation.cli.arguments import (
+    hidden_effects,
+    parse_band_noise,
+    parse_coupling,
+    parse_cross_response,
+)
 from gap_validation.core.config import load_config
 from gap_validation.core.effects import describe_effect
 from gap_validation.core.errors import ConfigError
-from gap_validation.logs.flight import (FORMATS, SURFACE_RATE_HZ, log_layout, log_path, with_logged_excitation,
-                                        write_flight_log)
 from gap_validation.core.simulation import EXCITATIONS, FlightOptions, simulate_flight, with_options
-from gap_validation.cli.arguments import hidden_effects, parse_band_noise, parse_coupling, parse_cross_response
+from gap_validation.logs.flight import (
+    FORMATS,
+    SURFACE_RATE_HZ,
+    log_layout,
+    log_path,
+    with_logged_excitation,
+    write_flight_log,
+)
 
 
 def _positive(kind):
@@ -86,32 +99,52 @@ def register(sub) -> None:
     d = FlightOptions()
     p = sub.add_parser("simulate", help="write a synthetic sweep flight (truth = model + hidden effects)",
                        description=__doc__.split("\n\n")[0])
-    p.add_argument("--config", metavar="CFG",
-                   help="validation config (YAML): models and topics (required, except with --jsbsim, where the "
-                        "default is the linearisation at the flown condition)")
-    p.add_argument("--jsbsim", metavar="AIRCRAFT",
-                   help="fly the card in JSBSim's nonlinear model of AIRCRAFT (c172x, J3Cub, pa28 ...) instead of the "
-                        "config's linear models; needs --speed-kt and --altitude-ft")
-    p.add_argument("--speed-kt", type=float, metavar="V", help="with --jsbsim: TRUE airspeed of the trim [kt]")
+    p.add_argument(
+        "--config",
+        metavar="CFG",
+        help="validation config (YAML): models and topics (required, except with --jsbsim, where the "
+        "default is the linearisation at the flown condition)",
+    )
+    p.add_argument(
+        "--jsbsim",
+        metavar="AIRCRAFT",
+        help="fly the card in JSBSim's nonlinear model of AIRCRAFT (c172x, J3Cub, pa28 ...) instead of the "
+        "config's linear models; needs --speed-kt and --altitude-ft",
+    )
+    p.add_argument(
+        "--speed-kt", type=float, metavar="V", help="with --jsbsim: TRUE airspeed of the trim [kt]"
+    )
     p.add_argument("--altitude-ft", type=float, metavar="H",
                    help="with --jsbsim: altitude of the trim above sea level [ft]")
     p.add_argument("--save-config", metavar="CFG.yaml",
                    help="with --jsbsim and no --config: also write the linearised config the flight used")
-    p.add_argument("--out", metavar="BAG", help="new rosbag2 directory (or a bare .mcap / .db3 file; required); with "
-                                                "--format ulog or dataflash the .ulg or .bin file, csv a directory")
-    p.add_argument("--format", choices=("bag",) + FORMATS, default="bag",
-                   help="bag (default), or a flight log: ulog (PX4: vehicle_angular_velocity, actuator_servos), "
-                        "dataflash (ArduPilot: IMU, RCOU; with --log-excitation the SystemID layout RATE, SIDD), csv "
-                        "(one file per topic); the config that reads it is written beside it (OUT.yaml)")
+    p.add_argument(
+        "--out",
+        metavar="BAG",
+        help="new rosbag2 directory (or a bare .mcap / .db3 file; required); with "
+        "--format ulog or dataflash the .ulg or .bin file, csv a directory",
+    )
+    p.add_argument(
+        "--format",
+        choices=("bag",) + FORMATS,
+        default="bag",
+        help="bag (default), or a flight log: ulog (PX4: vehicle_angular_velocity, actuator_servos), "
+        "dataflash (ArduPilot: IMU, RCOU; with --log-excitation the SystemID layout RATE, SIDD), csv "
+        "(one file per topic); the config that reads it is written beside it (OUT.yaml)",
+    )
     p.add_argument("--hidden", action="append", default=[], metavar="CHANNEL:EFFECT:key=value[,key=value]",
                    help="effect in series with the channel's model in the truth (repeatable), "
                         "e.g. pitch:time_delay:seconds=0.04; rate_limit:rad_s=R and backlash:width_rad=B act "
                         "on the surface command in the time domain (nonlinear)")
     p.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
     p.add_argument("--storage", choices=STORAGES, default=None, help="storage plugin (default mcap)")
-    p.add_argument("--excitation", choices=EXCITATIONS, default=d.excitation,
-                   help="manoeuvre flown: log chirp then a doublet (default), multisine then a doublet, "
-                        "multisine-orthogonal (every channel at once on interleaved harmonics), 3211, doublet")
+    p.add_argument(
+        "--excitation",
+        choices=EXCITATIONS,
+        default=d.excitation,
+        help="manoeuvre flown: log chirp then a doublet (default), multisine then a doublet, "
+        "multisine-orthogonal (every channel at once on interleaved harmonics), 3211, doublet",
+    )
     p.add_argument("--sweeps", type=_positive(int), default=d.sweeps_per_channel, metavar="N",
                    help=f"manoeuvres per channel (rounds of the test card; default {d.sweeps_per_channel})")
     p.add_argument("--sweep-gap-s", type=_non_negative, default=d.quiet_s, metavar="S",
@@ -120,8 +153,13 @@ def register(sub) -> None:
                    help="trim before the first manoeuvre [s] (default: the gap)")
     p.add_argument("--duration-s", type=_positive(float), default=None, metavar="S",
                    help="length of the flight [s]: the test card is cut there (default: the whole card)")
-    p.add_argument("--multisine-period-s", type=_positive(float), default=d.multisine_period_s, metavar="S",
-                   help=f"period of a multisine [s] (lowest line 2 pi / period; default {d.multisine_period_s:g})")
+    p.add_argument(
+        "--multisine-period-s",
+        type=_positive(float),
+        default=d.multisine_period_s,
+        metavar="S",
+        help=f"period of a multisine [s] (lowest line 2 pi / period; default {d.multisine_period_s:g})",
+    )
     p.add_argument("--multisine-periods", type=_positive(int), default=d.multisine_periods, metavar="N",
                    help=f"periods flown per multisine (default {d.multisine_periods})")
     p.add_argument("--multistep-unit-s", type=_positive(float), default=d.multistep_unit_s, metavar="S",
@@ -130,40 +168,78 @@ def register(sub) -> None:
                    help=f"length of one sweep [s] (default {d.sweep_duration_s:g})")
     p.add_argument("--imu-rate-hz", type=_positive(float), default=d.imu_rate_hz,
                    help=f"rate of the output (IMU) topics [Hz] (default {d.imu_rate_hz:g})")
-    p.add_argument("--surface-rate-hz", type=_positive(float), default=None,
-                   help=f"rate of the input (surface) topics [Hz] (default {d.surface_rate_hz:g}; --format ulog "
-                        f"{SURFACE_RATE_HZ['ulog']:g}: PX4 logs actuator_servos every 100 ms; dataflash "
-                        f"{SURFACE_RATE_HZ['dataflash']:g}: ArduPlane writes RCOU at 25 Hz)")
+    p.add_argument(
+        "--surface-rate-hz",
+        type=_positive(float),
+        default=None,
+        help=f"rate of the input (surface) topics [Hz] (default {d.surface_rate_hz:g}; --format ulog "
+        f"{SURFACE_RATE_HZ['ulog']:g}: PX4 logs actuator_servos every 100 ms; dataflash "
+        f"{SURFACE_RATE_HZ['dataflash']:g}: ArduPlane writes RCOU at 25 Hz)",
+    )
     p.add_argument("--amplitude-deg", type=_positive(float), default=None,
                    help="sweep amplitude [deg] (default 3.4; with --jsbsim 2, and 2 deg doublets)")
-    p.add_argument("--amplitude-scales", type=_amplitude_scales, default=None, metavar="S[,S...]",
-                   help="round i of the test card flies its sweeps at S[i mod n] times the amplitude, e.g. 1,0.4 "
-                        "(sweeps at different amplitudes reveal a nonlinear response; default: all the same)")
+    p.add_argument(
+        "--amplitude-scales",
+        type=_amplitude_scales,
+        default=None,
+        metavar="S[,S...]",
+        help="round i of the test card flies its sweeps at S[i mod n] times the amplitude, e.g. 1,0.4 "
+        "(sweeps at different amplitudes reveal a nonlinear response; default: all the same)",
+    )
     p.add_argument("--noise", type=_non_negative, default=d.noise, metavar="SCALE",
                    help="multiplies sensor noise and gust levels (default 1; 0: noise-free)")
     p.add_argument("--drop-probability", type=_non_negative, default=d.drop_probability,
                    help=f"probability of a lost message (default {d.drop_probability:g})")
-    p.add_argument("--band-noise", default=None, metavar="LOW:HIGH:RMS[:CHANNEL[,CHANNEL]]",
-                   help="band-pass filtered noise between LOW and HIGH rad/s with RMS rad/s added to the measured "
-                        "rate of every channel (or of the channels named), e.g. 8:14:0.05 (default: none)")
-    p.add_argument("--closed-loop-gain-margin-db", type=_positive(float), default=None, metavar="DB",
-                   help="fly every channel inside a rate damper u = r - K s/(s+0.3) y with this gain margin; the "
-                        "manoeuvre r is injected inside the loop (default: open loop)")
-    p.add_argument("--loop-delay-s", type=_positive(float), default=None, metavar="S",
-                   help="delay of the flight computer and actuator in the loop [s] (default: one surface sample)")
-    p.add_argument("--turbulence", type=_turbulence, default=None, metavar="RMS|LEVEL",
-                   help="turbulence at the rates: first-order filtered noise at 8 rad/s, RMS rad/s (default 0); with "
-                        "--jsbsim JSBSim's Dryden turbulence: light, moderate, severe or SEVERITY[:WIND_KT] "
-                        "(severity 1-7, wind at 20 ft in kt), then optionally :milspec (default) or :tustin")
+    p.add_argument(
+        "--band-noise",
+        default=None,
+        metavar="LOW:HIGH:RMS[:CHANNEL[,CHANNEL]]",
+        help="band-pass filtered noise between LOW and HIGH rad/s with RMS rad/s added to the measured "
+        "rate of every channel (or of the channels named), e.g. 8:14:0.05 (default: none)",
+    )
+    p.add_argument(
+        "--closed-loop-gain-margin-db",
+        type=_positive(float),
+        default=None,
+        metavar="DB",
+        help="fly every channel inside a rate damper u = r - K s/(s+0.3) y with this gain margin; the "
+        "manoeuvre r is injected inside the loop (default: open loop)",
+    )
+    p.add_argument(
+        "--loop-delay-s",
+        type=_positive(float),
+        default=None,
+        metavar="S",
+        help="delay of the flight computer and actuator in the loop [s] (default: one surface sample)",
+    )
+    p.add_argument(
+        "--turbulence",
+        type=_turbulence,
+        default=None,
+        metavar="RMS|LEVEL",
+        help="turbulence at the rates: first-order filtered noise at 8 rad/s, RMS rad/s (default 0); with "
+        "--jsbsim JSBSim's Dryden turbulence: light, moderate, severe or SEVERITY[:WIND_KT] "
+        "(severity 1-7, wind at 20 ft in kt), then optionally :milspec (default) or :tustin",
+    )
     p.add_argument("--log-excitation", default=None, metavar="TOPIC",
                    help="log the injected manoeuvre of every channel on TOPIC (its input's joint; a Float64 "
                         "TOPIC/<channel> for Float64 inputs): the config's excitation")
-    p.add_argument("--coupling", action="append", default=[], metavar="FROM:TO:GAIN",
-                   help="surface TO also moves by GAIN x surface FROM (an interconnect; surfaces by channel or "
-                        "joint name), e.g. aileron:rudder:0.3 (repeatable)")
-    p.add_argument("--cross-response", action="append", default=[], metavar="OUTPUT:SURFACE:GAIN[:WN[:DAMPING]]",
-                   help="the rate of channel OUTPUT also responds to SURFACE through GAIN wn^2/(s^2+2 zeta wn s+wn^2) "
-                        "(default wn 3 rad/s, damping 0.2), e.g. roll:rudder:-3:3:0.15 (repeatable)")
+    p.add_argument(
+        "--coupling",
+        action="append",
+        default=[],
+        metavar="FROM:TO:GAIN",
+        help="surface TO also moves by GAIN x surface FROM (an interconnect; surfaces by channel or "
+        "joint name), e.g. aileron:rudder:0.3 (repeatable)",
+    )
+    p.add_argument(
+        "--cross-response",
+        action="append",
+        default=[],
+        metavar="OUTPUT:SURFACE:GAIN[:WN[:DAMPING]]",
+        help="the rate of channel OUTPUT also responds to SURFACE through GAIN wn^2/(s^2+2 zeta wn s+wn^2) "
+        "(default wn 3 rad/s, damping 0.2), e.g. roll:rudder:-3:3:0.15 (repeatable)",
+    )
     p.add_argument("--flip", action="append", default=[], metavar="CHANNEL:input|output",
                    help="log that stream with the opposite sign (a reversed surface or rate; repeatable)")
     p.add_argument("--degrees", action="store_true",
@@ -210,7 +286,8 @@ def _check_out(out: Path) -> None:
 
 def options_from_args(args, channels: tuple[str, ...] | None = None, config=None) -> FlightOptions:
     """The :class:`FlightOptions` the command-line arguments ask for (``channels``: the config's, to check the
-    ones ``--band-noise`` names; ``config``: to resolve the surfaces of ``--coupling`` and ``--cross-response``)."""
+    ones ``--band-noise`` names; ``config``: to resolve the surfaces of ``--coupling`` and
+    ``--cross-response``)."""
     import math
 
     turbulence = getattr(args, "turbulence", None)
@@ -218,14 +295,18 @@ def options_from_args(args, channels: tuple[str, ...] | None = None, config=None
         try:
             turbulence = float(turbulence)
         except ValueError:
-            raise ConfigError(f"--turbulence {turbulence}: a JSBSim turbulence level needs --jsbsim (without it: "
-                              "the RMS at the rates in rad/s)") from None
+            raise ConfigError(
+                f"--turbulence {turbulence}: a JSBSim turbulence level needs --jsbsim (without it: "
+                "the RMS at the rates in rad/s)"
+            ) from None
     loop = {"closed_loop_gain_margin_db": getattr(args, "closed_loop_gain_margin_db", None),
             "loop_delay_s": getattr(args, "loop_delay_s", None),
             "turbulence_rms_rad_s": turbulence,
             "log_excitation_topic": getattr(args, "log_excitation", None)}
     if config is not None:
-        loop["coupling"] = tuple(parse_coupling(t, config) for t in getattr(args, "coupling", None) or ()) or None
+        loop["coupling"] = (
+            tuple(parse_coupling(t, config) for t in getattr(args, "coupling", None) or ()) or None
+        )
         loop["cross_responses"] = tuple(parse_cross_response(t, config)
                                         for t in getattr(args, "cross_response", None) or ()) or None
     mistakes = _mistakes(args, config)
@@ -286,8 +367,15 @@ def _mistakes(args, config) -> dict:
 def run(args) -> int:
     if getattr(args, "jsbsim", None) is not None:
         return run_jsbsim(args)
-    extra = [flag for flag, name in (("--speed-kt", "speed_kt"), ("--altitude-ft", "altitude_ft"),
-                                     ("--save-config", "save_config")) if getattr(args, name, None) is not None]
+    extra = [
+        flag
+        for flag, name in (
+            ("--speed-kt", "speed_kt"),
+            ("--altitude-ft", "altitude_ft"),
+            ("--save-config", "save_config"),
+        )
+        if getattr(args, name, None) is not None
+    ]
     if extra:
         raise ConfigError(f"simulate: {extra[0]} needs --jsbsim AIRCRAFT")
     if not args.config:
@@ -307,7 +395,10 @@ def run(args) -> int:
     if not _write_log(args, flight, config, out, str(config.source)):
         write_flight(flight, out, args.storage, compress=not args.no_compression,
                      custom_data={"gap_validation.config": str(config.source)})
-        print(f"wrote {out}: {flight.duration_s / 60:.1f} min, {flight.message_count} messages, seed {args.seed}")
+        print(
+            f"wrote {out}: {flight.duration_s / 60:.1f} min, {flight.message_count} messages, seed "
+            f"{args.seed}"
+        )
         for topic, series in flight.topics.items():
             print(f"  {topic}: {series.msgtype}, {len(series)} messages")
     for name in config.channels:
@@ -348,21 +439,24 @@ def _prepare_out(args) -> Path:
 
 
 def _format_defaults(args) -> None:
-    """``--format``'s defaults: the autopilot's surface logging rate unless ``--surface-rate-hz`` is given; bag
-    options refused with a log format."""
+    """``--format``'s defaults: the autopilot's surface logging rate unless ``--surface-rate-hz`` is given;
+    bag options refused with a log format."""
     fmt = getattr(args, "format", "bag") or "bag"
     if fmt == "bag":
         return
     if args.storage is not None or args.no_compression:
-        raise ConfigError(f"simulate --format {fmt}: {'--storage' if args.storage else '--no-compression'} applies to "
-                          f"bags only")
+        raise ConfigError(
+            f"simulate --format {fmt}: {'--storage' if args.storage else '--no-compression'} applies to "
+            f"bags only"
+        )
     if args.surface_rate_hz is None:
         args.surface_rate_hz = SURFACE_RATE_HZ.get(fmt)
 
 
 def _prepare_log_out(args, fmt: str) -> Path:
-    """The log ``--out`` names (``.ulg``/``.bin`` added when missing; a CSV flight is a directory), checked; an
-    existing one replaced only with ``--force`` (a CSV directory only when it holds nothing but CSV files)."""
+    """The log ``--out`` names (``.ulg``/``.bin`` added when missing; a CSV flight is a directory), checked;
+    an existing one replaced only with ``--force`` (a CSV directory only when it holds nothing but CSV
+    files)."""
     out = log_path(args.out, fmt)
     existing = next((p for p in out.parents if p.exists()), None)
     if existing is not None and not existing.is_dir():
@@ -377,7 +471,9 @@ def _prepare_log_out(args, fmt: str) -> Path:
             raise ConfigError(f"--out {out}: {path} exists already (use --force to replace it)")
         if path.is_dir():
             if fmt != "csv" or any(p.suffix.lower() != ".csv" or p.is_dir() for p in path.iterdir()):
-                raise ConfigError(f"--out {out}: {path} is a directory that is not a CSV flight; not replacing it")
+                raise ConfigError(
+                    f"--out {out}: {path} is a directory that is not a CSV flight; not replacing it"
+                )
             shutil.rmtree(path)
         elif path == out and fmt == "csv":
             raise ConfigError(f"--out {out}: is a file; a CSV flight is a directory")
@@ -387,21 +483,26 @@ def _prepare_log_out(args, fmt: str) -> Path:
 
 
 def _write_log(args, flight, config, out: Path, source: str) -> bool:
-    """With ``--format ulog|dataflash|csv``: write the flight as that log and its config, print what was written
-    and the replay command; False for a bag."""
+    """With ``--format ulog|dataflash|csv``: write the flight as that log and its config, print what was
+    written and the replay command; False for a bag."""
     fmt = getattr(args, "format", "bag") or "bag"
     if fmt == "bag":
         return False
     log, config_path, layout = write_flight_log(flight, config, out, fmt, source)
-    print(f"wrote {log} ({layout}): {flight.duration_s / 60:.1f} min, surfaces at "
-          f"{flight.options.surface_rate_hz:g} Hz, rates at {flight.options.imu_rate_hz:g} Hz, seed {args.seed}")
-    print(f"wrote {config_path} (the config that reads it: the same models, the streams under {layout}'s names)")
+    print(
+        f"wrote {log} ({layout}): {flight.duration_s / 60:.1f} min, surfaces at "
+        f"{flight.options.surface_rate_hz:g} Hz, rates at {flight.options.imu_rate_hz:g} Hz, seed {args.seed}"
+    )
+    print(
+        f"wrote {config_path} (the config that reads it: the same models, the streams under {layout}'s names)"
+    )
     print(f"  next: gap-validate replay {log} --config {config_path}")
     return True
 
 
 def run_jsbsim(args) -> int:
-    """``simulate --jsbsim``: the card flown in JSBSim (:func:`gap_validation.jsbsim.flight.simulate_jsbsim_flight`)."""
+    """``simulate --jsbsim``: the card flown in JSBSim
+    (:func:`gap_validation.jsbsim.flight.simulate_jsbsim_flight`)."""
     import dataclasses
     import json
     import math
@@ -419,7 +520,9 @@ def run_jsbsim(args) -> int:
             raise ConfigError(f"simulate --jsbsim: {flag} is not available (JSBSim flies the card open loop; "
                               "cross responses and couplings are its own)")
     if args.config and args.save_config:
-        raise ConfigError("simulate --jsbsim: --save-config writes the linearised config, not wanted with --config")
+        raise ConfigError(
+            "simulate --jsbsim: --save-config writes the linearised config, not wanted with --config"
+        )
     started = time.process_time()
     from gap_validation.jsbsim.flight import SWEEP_AMPLITUDE_RAD, parse_turbulence, simulate_jsbsim_flight
     from gap_validation.jsbsim.linearize import DEFAULT_GRID, write_config
@@ -437,7 +540,8 @@ def run_jsbsim(args) -> int:
     hidden = None
     if config is not None:
         hidden = hidden_effects(args.hidden, config)
-    elif args.hidden:                               # the channels of the config to come, checked before the trim
+    # the channels of the config to come, checked before the trim
+    elif args.hidden:
         from gap_validation.cli.arguments import parse_hidden
         from gap_validation.jsbsim.linearize import CHANNELS, MIMO_CHANNEL
 
@@ -449,12 +553,20 @@ def run_jsbsim(args) -> int:
                                 seed=args.seed, turbulence=turbulence)
     flight, config = jf.flight, jf.config
     source = str(config.source) if args.config else (args.save_config or "linearised at the flown condition")
-    custom = {"gap_validation.config": source,
-              "gap_validation.jsbsim": json.dumps({"aircraft": jf.point.aircraft, "speed_kt_true": jf.point.speed_kt,
-                                                   "altitude_ft": jf.point.altitude_ft, "version": jf.point.version,
-                                                   "turbulence": dataclasses.asdict(jf.turbulence)
-                                                   if jf.turbulence else None,
-                                                   "surface_effects": jf.surface_effects}, sort_keys=True)}
+    custom = {
+        "gap_validation.config": source,
+        "gap_validation.jsbsim": json.dumps(
+            {
+                "aircraft": jf.point.aircraft,
+                "speed_kt_true": jf.point.speed_kt,
+                "altitude_ft": jf.point.altitude_ft,
+                "version": jf.point.version,
+                "turbulence": dataclasses.asdict(jf.turbulence) if jf.turbulence else None,
+                "surface_effects": jf.surface_effects,
+            },
+            sort_keys=True,
+        ),
+    }
     if not _write_log(args, flight, config, out, source):
         write_flight(flight, out, args.storage, compress=not args.no_compression, custom_data=custom)
     if args.save_config and jf.linearization is not None:

@@ -31,13 +31,14 @@ NO_INDEX = -(2 ** 62)               # "no grid index yet"
 JUMP_BACK_S = 1.0
 #: Consecutive increasing samples after a jump back that confirm it (fewer: stray stamps, dropped).
 JUMP_CONFIRM = 3
-_MAX_ABS_TIME_S = 1e11           # beyond 3000 years from the epoch: a corrupt stamp (also keeps grid indices in int64)
+# beyond 3000 years from the epoch: a corrupt stamp (also keeps grid indices in int64)
+_MAX_ABS_TIME_S = 1e11
 _MAX_ABS_VALUE = 1e100           # a corrupt value (squares and slopes of larger ones overflow float64)
 
 
 def jump_back_s(max_gap_s: float) -> float:
-    """How far [s] time must step back to start a new time base rather than be a reordered or duplicate sample:
-    ``max(JUMP_BACK_S, max_gap_s)`` (the estimator's threshold, which the message router applies too).
+    """How far [s] time must step back to start a new time base rather than be a reordered or duplicate
+    sample: ``max(JUMP_BACK_S, max_gap_s)`` (the estimator's threshold, which the message router applies too).
 
     Parameters
     ----------
@@ -339,7 +340,8 @@ class StreamResampler:
 
     @staticmethod
     def _slopes(V: np.ndarray, h: np.ndarray, gap: np.ndarray, nodes: np.ndarray) -> np.ndarray:
-        """Slope at each node: derivative of the parabola through it and its neighbours (one-sided at gaps)."""
+        """Slope at each node: derivative of the parabola through it and its neighbours (one-sided at
+        gaps)."""
         left_node = np.maximum(nodes - 1, 0)
         hl, hr = h[left_node], h[nodes]
         dl = (V[nodes] - V[left_node]) / hl

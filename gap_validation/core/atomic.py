@@ -2,11 +2,11 @@
 
 Every result file of the tool (JSON, report, configs written by ``--apply-diagnosis``, the validation history,
 the node's checkpoint) is written the same way: into a hidden temporary file in the target's directory
-(``.<name>.<random>.tmp``, so the rename cannot cross file systems), flushed and ``fsync``-ed, then renamed over
-the target with :func:`os.replace` (atomic on POSIX and Windows), and the directory is ``fsync``-ed so that the
-rename itself survives a power cut. Readers therefore see either the old file or the new one, never a mixture.
-When anything fails before the rename, the temporary file is removed and the old file is untouched; only a
-process killed between creating and renaming the temporary file can leave one behind (never the target
+(``.<name>.<random>.tmp``, so the rename cannot cross file systems), flushed and ``fsync``-ed, then renamed
+over the target with :func:`os.replace` (atomic on POSIX and Windows), and the directory is ``fsync``-ed so
+that the rename itself survives a power cut. Readers therefore see either the old file or the new one, never a
+mixture. When anything fails before the rename, the temporary file is removed and the old file is untouched;
+only a process killed between creating and renaming the temporary file can leave one behind (never the target
 half-written).
 
 Plain Python (``os``, ``tempfile``): the core uses it, and so does every front end.

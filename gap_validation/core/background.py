@@ -1,23 +1,24 @@
 """The trim motion between manoeuvres, per frequency: what the flight does when nobody flies a manoeuvre.
 
-Between manoeuvres the surfaces are not still: a pilot corrects the trim, turbulence is answered by a damper or an
-autopilot, a vibration line rides on a rate controller's output. That motion is the background against which a
-manoeuvre must stand out, and it says something of its own: in open loop the surface's trim motion drives the
-airframe like any input (the response between manoeuvres is the plant), in closed loop the loop drives the surface
-from the measured rate (the response between manoeuvres tends to ``-1/C``).
+Between manoeuvres the surfaces are not still: a pilot corrects the trim, turbulence is answered by a damper
+or an autopilot, a vibration line rides on a rate controller's output. That motion is the background against
+which a manoeuvre must stand out, and it says something of its own: in open loop the surface's trim motion
+drives the airframe like any input (the response between manoeuvres is the plant), in closed loop the loop
+drives the surface from the measured rate (the response between manoeuvres tends to ``-1/C``).
 
-:class:`TrimSpectrum` measures it on the flight itself. The estimator hands it every grid sample that lies outside
-its records (manoeuvres with their trim margins); a stretch of trim is cut into segments of at most
+:class:`TrimSpectrum` measures it on the flight itself. The estimator hands it every grid sample that lies
+outside its records (manoeuvres with their trim margins); a stretch of trim is cut into segments of at most
 :data:`SEGMENT_S` (half overlapping; the last part of a stretch as a shorter segment of at least
 :data:`MIN_SEGMENT_S`), each segment's straight line is removed, it is Hann-windowed and transformed, and per
-analysis frequency the cross-spectral matrix of every stream over the segment's bins near that frequency is added
-up (Welch's method, with the local bands of :mod:`gap_validation.core.spectra`: ``|w_k - w| <= band_fraction w``, at
-least the nearest bins within :data:`NEAR_BINS` spacings; a segment too short to resolve ``w`` adds nothing there).
+analysis frequency the cross-spectral matrix of every stream over the segment's bins near that frequency is
+added up (Welch's method, with the local bands of :mod:`gap_validation.core.spectra`: ``|w_k - w| <=
+band_fraction w``, at least the nearest bins within :data:`NEAR_BINS` spacings; a segment too short to resolve
+``w`` adds nothing there).
 
 Units: the transform is normalised by the window's energy (``sqrt(sum w^2)``), so white noise of variance
 ``s^2`` gives ``E |X_k|^2 = s^2`` per bin, whatever the segment length, and a stationary process the same
-``|X_k|^2`` as the normalised whole-record DFT of :func:`gap_validation.core.spectra.record_bands` (which divides by
-``sqrt(N)``): the two are compared directly.
+``|X_k|^2`` as the normalised whole-record DFT of :func:`gap_validation.core.spectra.record_bands` (which
+divides by ``sqrt(N)``): the two are compared directly.
 
 The last :data:`GUARD_S` of trim before the newest sample is held back: a manoeuvre is detected up to several
 seconds after it began (a slow sweep), and the record that then opens reaches back into what looked like trim.
@@ -32,9 +33,23 @@ from typing import Sequence
 
 import numpy as np
 
-__all__ = ["TrimSpectrum", "TrimResponse", "LeadTest", "LeadResult", "LEAD_LAGS_S", "LEAD_LAGS", "LEAD_MIN_S",
-           "SEGMENT_S", "MIN_SEGMENT_S", "GUARD_S", "NEAR_BINS", "TRIM_COHERENCE", "TRIM_CHANCE", "MIN_TRIM_AVERAGES",
-           "HANN_BINS_PER_AVERAGE"]
+__all__ = [
+    "TrimSpectrum",
+    "TrimResponse",
+    "LeadTest",
+    "LeadResult",
+    "LEAD_LAGS_S",
+    "LEAD_LAGS",
+    "LEAD_MIN_S",
+    "SEGMENT_S",
+    "MIN_SEGMENT_S",
+    "GUARD_S",
+    "NEAR_BINS",
+    "TRIM_COHERENCE",
+    "TRIM_CHANCE",
+    "MIN_TRIM_AVERAGES",
+    "HANN_BINS_PER_AVERAGE",
+]
 
 #: Longest segment of trim transformed at once [s] (half-overlapping segments in a longer stretch).
 SEGMENT_S = 20.0
@@ -43,32 +58,33 @@ MIN_SEGMENT_S = 2.0
 #: Trim this recent is held back until no record reaches back into it [s] (the estimator's look-back, 10 s).
 GUARD_S = 10.0
 #: A frequency's band holds the bins within ``band_fraction w`` of it, and at least those within this many bin
-#: spacings (Hann: the main lobe is 2 spacings wide); a segment whose band would reach past ``max_band_fraction w``
-#: does not resolve the frequency.
+#: spacings (Hann: the main lobe is 2 spacings wide); a segment whose band would reach past
+#: ``max_band_fraction w`` does not resolve the frequency.
 NEAR_BINS = 1.5
-#: Segments whose powers and spreads are kept for the medians (the latest ones: with half-overlapping 20 s segments,
-#: the last 10 minutes of trim).
+#: Segments whose powers and spreads are kept for the medians (the latest ones: with half-overlapping 20 s
+#: segments, the last 10 minutes of trim).
 SEGMENTS_KEPT = 64
-#: Trim coherence a frequency needs before its response between manoeuvres counts, and the chance that noise alone
-#: reaches it (the magnitude-squared coherence of n independent averages with none there: ``P = (1 - c)^(n - 1)``,
-#: Carter 1973).
+#: Trim coherence a frequency needs before its response between manoeuvres counts, and the chance that noise
+#: alone reaches it (the magnitude-squared coherence of n independent averages with none there: ``P = (1 -
+#: c)^(n - 1)``, Carter 1973).
 TRIM_COHERENCE = 0.6
 TRIM_CHANCE = 1e-3
-#: ... on at least this many independent averages: below, the coherence estimate is biased high (one average gives
-#: exactly 1) and the error formula of :meth:`TrimResponse.relative_variance` does not hold.
+#: ... on at least this many independent averages: below, the coherence estimate is biased high (one average
+#: gives exactly 1) and the error formula of :meth:`TrimResponse.relative_variance` does not hold.
 MIN_TRIM_AVERAGES = 8
 #: Adjacent bins of a Hann-windowed segment are correlated (|rho| = 1/2): a band of b bins holds about b / 1.5
 #: independent averages.
 HANN_BINS_PER_AVERAGE = 1.5
 
 
-#: The lead test regresses the surface on its own past and the rate's over this long [s] (a damper or an autopilot
-#: answers within it; a pilot's corrections and the airframe's response are in the surface's own past) ...
+#: The lead test regresses the surface on its own past and the rate's over this long [s] (a damper or an
+#: autopilot answers within it; a pilot's corrections and the airframe's response are in the surface's own
+#: past) ...
 LEAD_LAGS_S = 0.25
 #: ... in at least and at most this many lags of each (spaced further apart on a fine grid).
 LEAD_LAGS = (3, 16)
-#: Trim regressed before the test says anything [s]: a few seconds after one manoeuvre hold one transient, not a
-#: process (a slow mode settling in the rate can stand in for the surface's own slow shape).
+#: Trim regressed before the test says anything [s]: a few seconds after one manoeuvre hold one transient, not
+#: a process (a slow mode settling in the rate can stand in for the surface's own slow shape).
 LEAD_MIN_S = 30.0
 
 
@@ -103,13 +119,13 @@ class LeadResult:
 class LeadTest:
     """Which signal leads between the manoeuvres: does the rate's past predict the surface's next move?
 
-    In open loop the surface's trim motion (a pilot's corrections, sensor noise) is made without looking at the
-    rate: once the surface's own past is known, the rate's past adds nothing (Granger 1969); the F statistic of the
-    rate's lags then follows its F law. A loop (damper, autopilot, a pilot holding an attitude) moves the surface
-    from the rate: the rate's past explains a share of what the surface's own past does not. Each trim sample is
-    regressed once (the spectra's half-overlapping segments are not counted twice), on its segment's detrended
-    values. The lags span :data:`LEAD_LAGS_S`: the newest sample, then at most ``LEAD_LAGS[1]`` in all, spaced
-    further apart on a fine grid.
+    In open loop the surface's trim motion (a pilot's corrections, sensor noise) is made without looking at
+    the rate: once the surface's own past is known, the rate's past adds nothing (Granger 1969); the F
+    statistic of the rate's lags then follows its F law. A loop (damper, autopilot, a pilot holding an
+    attitude) moves the surface from the rate: the rate's past explains a share of what the surface's own past
+    does not. Each trim sample is regressed once (the spectra's half-overlapping segments are not counted
+    twice), on its segment's detrended values. The lags span :data:`LEAD_LAGS_S`: the newest sample, then at
+    most ``LEAD_LAGS[1]`` in all, spaced further apart on a fine grid.
 
     Parameters
     ----------
@@ -134,7 +150,8 @@ class LeadTest:
         self._result: tuple | None = None           # (rows, result) of the last result()
 
     def add(self, x: np.ndarray, fresh: int = 0) -> None:
-        """Regress the samples of ``x`` (streams x n) from index ``fresh`` on (each on the ``lags`` before it).
+        """Regress the samples of ``x`` (streams x n) from index ``fresh`` on (each on the ``lags`` before
+        it).
 
         Parameters
         ----------
@@ -153,8 +170,8 @@ class LeadTest:
         self.rows += z.shape[0]
 
     def result(self) -> LeadResult | None:
-        """The test on everything regressed so far (None before :data:`LEAD_MIN_S` of trim); computed again only
-        after new rows."""
+        """The test on everything regressed so far (None before :data:`LEAD_MIN_S` of trim); computed again
+        only after new rows."""
         if self._result is not None and self._result[0] == self.rows:
             return self._result[1]
         out = self._compute()
@@ -247,7 +264,8 @@ class TrimSpectrum:
         self._pend_n = 0
         self._pend_k = 0                             # grid index of the first pending sample
         self._covered = 0                            # leading pending samples already transformed
-        self.version = 0                             # segments added (power, std, response are kept until then)
+        # segments added (power, std, response are kept until then)
+        self.version = 0
         self._memo: dict = {}
         self._memo_version = -1
 
@@ -279,8 +297,8 @@ class TrimSpectrum:
             self._release()
 
     def cut(self, k: int) -> None:
-        """A record now begins at grid index ``k``: pending trim from ``k`` on belongs to it; the stretch before
-        ``k`` is complete.
+        """A record now begins at grid index ``k``: pending trim from ``k`` on belongs to it; the stretch
+        before ``k`` is complete.
 
         Parameters
         ----------
@@ -293,9 +311,10 @@ class TrimSpectrum:
         self.end_stretch()
 
     def end_stretch(self) -> None:
-        """The stretch of trim in progress ends (a record begins, the data break, or the end of data): what has
-        not been transformed yet is, in half-overlapping segments, the last one ending at the stretch's end (a
-        remainder shorter than :data:`MIN_SEGMENT_S` after segments already transformed adds nothing)."""
+        """The stretch of trim in progress ends (a record begins, the data break, or the end of data): what
+        has not been transformed yet is, in half-overlapping segments, the last one ending at the stretch's
+        end (a remainder shorter than :data:`MIN_SEGMENT_S` after segments already transformed adds
+        nothing)."""
         n, covered = self._pend_n, self._covered
         if covered and n - covered >= self.min_n:
             a = max(0, n - self.segment_n)
@@ -373,8 +392,8 @@ class TrimSpectrum:
         return self.samples * self.dt
 
     def _kept(self, key: tuple, compute):
-        """``compute()`` once per :attr:`version` (the node asks every diagnostics tick; the trim changes a segment
-        at a time); copies of the arrays."""
+        """``compute()`` once per :attr:`version` (the node asks every diagnostics tick; the trim changes a
+        segment at a time); copies of the arrays."""
         if self._memo_version != self.version:
             self._memo, self._memo_version = {}, self.version
         if key not in self._memo:
@@ -385,9 +404,10 @@ class TrimSpectrum:
 
     def power(self, streams: Sequence[int]) -> np.ndarray:
         """The ``streams``' summed trim power per frequency, mean ``|X|^2`` per bin in
-        :func:`~gap_validation.core.spectra.record_bands`' units: the median over the kept segments that resolve
-        the frequency (NaN where none does). A median, so that a stretch of manoeuvre the detector missed (the slow
-        start of a faint sweep) does not raise the floor the next manoeuvres are measured against.
+        :func:`~gap_validation.core.spectra.record_bands`' units: the median over the kept segments that
+        resolve the frequency (NaN where none does). A median, so that a stretch of manoeuvre the detector
+        missed (the slow start of a faint sweep) does not raise the floor the next manoeuvres are measured
+        against.
 
         Parameters
         ----------
@@ -401,9 +421,12 @@ class TrimSpectrum:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)                         # all-NaN columns
             median = np.nanmedian(per_segment, axis=0)
-            k = np.nanmedian(np.where(self.seg_bins > 0, self.seg_bins, np.nan), axis=0) / HANN_BINS_PER_AVERAGE
-        # a segment's band power is about Gamma(k, 1/k) on k averages: its median is (1 - 1/(9k))^3 of its mean
-        # (Wilson and Hilferty), so the median over segments is raised by that to estimate the mean
+            k = (
+                np.nanmedian(np.where(self.seg_bins > 0, self.seg_bins, np.nan), axis=0)
+                / HANN_BINS_PER_AVERAGE
+            )
+        # a segment's band power is about Gamma(k, 1/k) on k averages: its median is (1 - 1/(9k))^3 of its
+        # mean (Wilson and Hilferty), so the median over segments is raised by that to estimate the mean
         return median / (1.0 - 1.0 / (9.0 * np.maximum(k, 0.5))) ** 3
 
     def std(self, stream: int) -> float:
@@ -423,8 +446,9 @@ class TrimSpectrum:
         return self._kept(("std", int(stream)), compute)
 
     def response(self, inp: int, out: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The response from stream ``inp`` to stream ``out`` between manoeuvres (``S_yu / S_uu``), its coherence
-        and its degrees of freedom (bins; Hann-windowed half-overlapping segments count about 1/1.9 of that).
+        """The response from stream ``inp`` to stream ``out`` between manoeuvres (``S_yu / S_uu``), its
+        coherence and its degrees of freedom (bins; Hann-windowed half-overlapping segments count about 1/1.9
+        of that).
 
         Parameters
         ----------
@@ -445,10 +469,19 @@ class TrimSpectrum:
     # ------------------------------------------------------------------ checkpoint
     def state_dict(self) -> dict:
         """State as numpy arrays and numbers (fixed size)."""
-        return {"sums": self.sums.copy(), "bins": self.bins.copy(), "seg_power": self.seg_power.copy(),
-                "seg_std": self.seg_std.copy(), "seg_bins": self.seg_bins.copy(), "samples": self.samples, "segments": self.segments,
-                "pend": self._pend[:, :self._pend_n].copy(), "pend_k": self._pend_k, "covered": self._covered,
-                **({f"lead_{k}": v for k, v in self.lead.state_dict().items()} if self.lead is not None else {})}
+        return {
+            "sums": self.sums.copy(),
+            "bins": self.bins.copy(),
+            "seg_power": self.seg_power.copy(),
+            "seg_std": self.seg_std.copy(),
+            "seg_bins": self.seg_bins.copy(),
+            "samples": self.samples,
+            "segments": self.segments,
+            "pend": self._pend[:, : self._pend_n].copy(),
+            "pend_k": self._pend_k,
+            "covered": self._covered,
+            **({f"lead_{k}": v for k, v in self.lead.state_dict().items()} if self.lead is not None else {}),
+        }
 
     def load_state(self, st: dict) -> None:
         """Inverse of :meth:`state_dict`.
@@ -485,7 +518,8 @@ class TrimResponse:
     coherence : ndarray, (F,)
         Its magnitude-squared coherence.
     dof : ndarray, (F,)
-        Independent spectral averages behind it (Hann-windowed segments: :data:`HANN_BINS_PER_AVERAGE` bins each).
+        Independent spectral averages behind it (Hann-windowed segments: :data:`HANN_BINS_PER_AVERAGE` bins
+        each).
     input_power : ndarray, (F,)
         The input's trim motion, mean ``|X|^2`` per bin in the records' units (NaN where unknown).
     """
@@ -507,19 +541,23 @@ class TrimResponse:
                                                              self.input_power)))
 
     def relative_variance(self) -> np.ndarray:
-        """``E |dH|^2 / |H|^2`` of the trim response: ``(1 - g^2) / (g^2 n_d)`` (Bendat and Piersol, ch. 9)."""
+        """``E |dH|^2 / |H|^2`` of the trim response: ``(1 - g^2) / (g^2 n_d)`` (Bendat and Piersol, ch.
+        9)."""
         g2 = np.clip(np.asarray(self.coherence, float), 1e-12, 1.0)
         with np.errstate(divide="ignore", invalid="ignore"):
             return np.where(self.dof > 0, (1.0 - g2) / (g2 * np.maximum(self.dof, 1e-12)), np.inf)
 
     def confident(self) -> np.ndarray:
-        """Frequencies with at least :data:`MIN_TRIM_AVERAGES` independent averages whose trim coherence passes
-        :data:`TRIM_COHERENCE` and could not come from noise alone: ``(1 - c)^(n - 1) <= TRIM_CHANCE / F`` over the
-        F frequencies with enough averages (Bonferroni: noise alone passes somewhere on a channel with probability
-        at most :data:`TRIM_CHANCE`)."""
+        """Frequencies with at least :data:`MIN_TRIM_AVERAGES` independent averages whose trim coherence
+        passes
+        :data:`TRIM_COHERENCE` and could not come from noise alone: ``(1 - c)^(n - 1) <= TRIM_CHANCE / F``
+        over the F frequencies with enough averages (Bonferroni: noise alone passes somewhere on a channel
+        with probability at most :data:`TRIM_CHANCE`)."""
         g2 = np.clip(np.nan_to_num(np.asarray(self.coherence, float)), 0.0, 1.0)
         n = np.asarray(self.dof, float)
         enough = np.isfinite(self.response) & (n >= MIN_TRIM_AVERAGES)
         with np.errstate(invalid="ignore", divide="ignore"):
             chance = np.where(n >= 2, (1.0 - g2) ** np.maximum(n - 1.0, 1.0), 1.0)
-        return enough & (g2 >= TRIM_COHERENCE) & (chance <= TRIM_CHANCE / max(int(np.count_nonzero(enough)), 1))
+        return (
+            enough & (g2 >= TRIM_COHERENCE) & (chance <= TRIM_CHANCE / max(int(np.count_nonzero(enough)), 1))
+        )

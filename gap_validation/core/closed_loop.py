@@ -1,37 +1,40 @@
 """Closed loop and coupled surfaces: what the numbers may not show when the input is not the only cause.
 
 The estimator reads one surface against one rate and assumes the surface is the cause (open loop, one
-surface moving). Two things break that in flight, and without the config keys that handle them (``excitation``,
-``other_inputs``: :mod:`gap_validation.core.spectra` estimates with instruments or several inputs) this module
+surface moving). Two things break that in flight, and without the config keys that handle them
+(``excitation``, ``other_inputs``: :mod:`gap_validation.core.spectra` estimates with instruments or several
+inputs) this module
 *warns instead of guessing*:
 
-- **Coupled surfaces.** During a channel's manoeuvres another configured surface moves coherently with its input
-  (a mixer or an aileron-rudder interconnect). :class:`CouplingMonitor` regresses each other configured surface
-  on the channel's input over the channel's own manoeuvres (those its estimator found); a coherence above
+- **Coupled surfaces.** During a channel's manoeuvres another configured surface moves coherently with its
+  input (a mixer or an aileron-rudder interconnect). :class:`CouplingMonitor` regresses each other configured
+  surface on the channel's input over the channel's own manoeuvres (those its estimator found); a coherence
+  above
   :data:`COUPLING_COHERENCE` with a gain above :data:`COUPLING_GAIN` in manoeuvres carrying
   :data:`COUPLING_SHARE` of the input's energy names that surface and the key to add.
-- **Feedback.** A damper or an autopilot moves the surface with the measured rate: the direct estimate tends to
-  ``-1/C`` where the disturbances drive the surface (Ljung, *System Identification*, ch. 13; Bendat and Piersol
-  ch. 7). Coherence between surface and rate cannot tell it: an open-loop airframe answering a pilot's trim
-  corrections is coherent too. What feedback changes is the response itself. Between the manoeuvres the surface
-  moves with the trim motion (:class:`~gap_validation.core.background.TrimSpectrum`): in open loop the rate answers
-  it as it answers the manoeuvres (the response between manoeuvres is the airframe's), in closed loop the loop
-  drives it from the rate and the response between manoeuvres is ``-1/C``: where the loop gain exceeds one, on the
-  *opposite side* of the airframe's response (``Re(H_trim / H_manoeuvre) < 0``), which no open-loop input can give.
+- **Feedback.** A damper or an autopilot moves the surface with the measured rate: the direct estimate tends
+  to ``-1/C`` where the disturbances drive the surface (Ljung, *System Identification*, ch. 13; Bendat and
+  Piersol ch. 7). Coherence between surface and rate cannot tell it: an open-loop airframe answering a pilot's
+  trim corrections is coherent too. What feedback changes is the response itself. Between the manoeuvres the
+  surface moves with the trim motion (:class:`~gap_validation.core.background.TrimSpectrum`): in open loop the
+  rate answers it as it answers the manoeuvres (the response between manoeuvres is the airframe's), in closed
+  loop the loop drives it from the rate and the response between manoeuvres is ``-1/C``: where the loop gain
+  exceeds one, on the
+  *opposite side* of the airframe's response (``Re(H_trim / H_manoeuvre) < 0``), which no open-loop input can
+  give.
   :func:`feedback_evidence` tests exactly that, frequency by frequency, against both estimates' random errors;
   with a configured ``controller`` a measured response closer to ``-1/C`` than to the model is a second sign
   (:func:`near_minus_inverse`).
 
-A feedback loop biases a manoeuvre's estimate only by the share of the surface's motion that the manoeuvre does not
-explain: ``b(w) = S_trim(w) / S_manoeuvre(w) |H_trim(w) - H(w)|`` (:func:`feedback_bias`). Points where that
-bound passes the random error -- and every point a coupling warning covers -- are *data-limited*, never
-model-limited, and no effect is named from them (:func:`with_bias_allowance` gives the diagnosis an estimate whose
-error covers a bias as large as the response). A manoeuvre 20 dB above the trim motion is not biased, whatever
-happens between manoeuvres.
+A feedback loop biases a manoeuvre's estimate only by the share of the surface's motion that the manoeuvre
+does not explain: ``b(w) = S_trim(w) / S_manoeuvre(w) |H_trim(w) - H(w)|`` (:func:`feedback_bias`). Points
+where that bound passes the random error -- and every point a coupling warning covers -- are *data-limited*,
+never model-limited, and no effect is named from them (:func:`with_bias_allowance` gives the diagnosis an
+estimate whose error covers a bias as large as the response). A manoeuvre 20 dB above the trim motion is not
+biased, whatever happens between manoeuvres.
 """
 from __future__ import annotations
 
-import math
 from collections import deque
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
@@ -46,10 +49,24 @@ if TYPE_CHECKING:
     from gap_validation.core.estimator import SpectralEstimate
     from gap_validation.core.models import LinearModel
 
-__all__ = ["CouplingMonitor", "SurfaceHistory", "FeedbackEvidence", "feedback_evidence",
-           "feedback_bias", "near_minus_inverse", "with_bias_allowance", "COUPLING_COHERENCE", "COUPLING_GAIN",
-           "COUPLING_SHARE", "FEEDBACK_FALSE_ALARM", "LEAD_SHARE", "rate_leads", "KAPPA_MINUS_INVERSE",
-           "BIAS_ALLOWANCE", "PENDING_RECORDS"]
+__all__ = [
+    "CouplingMonitor",
+    "SurfaceHistory",
+    "FeedbackEvidence",
+    "feedback_evidence",
+    "feedback_bias",
+    "near_minus_inverse",
+    "with_bias_allowance",
+    "COUPLING_COHERENCE",
+    "COUPLING_GAIN",
+    "COUPLING_SHARE",
+    "FEEDBACK_FALSE_ALARM",
+    "LEAD_SHARE",
+    "rate_leads",
+    "KAPPA_MINUS_INVERSE",
+    "BIAS_ALLOWANCE",
+    "PENDING_RECORDS",
+]
 
 #: Coherence (R^2) between a channel's input and another surface during its manoeuvres that names the surface.
 COUPLING_COHERENCE = 0.6
@@ -59,14 +76,14 @@ COUPLING_GAIN = 0.05
 COUPLING_SHARE = 0.25
 #: Manoeuvres that wait for another surface's samples (whole histories fed one channel after the other).
 PENDING_RECORDS = 64
-#: Probability, per channel, that an open-loop flight is called closed loop by :func:`feedback_evidence` (split
-#: over the frequencies tested: Bonferroni).
+#: Probability, per channel, that an open-loop flight is called closed loop by :func:`feedback_evidence`
+#: (split over the frequencies tested: Bonferroni).
 FEEDBACK_FALSE_ALARM = 1e-3
 #: Share of the surface's unpredictable trim motion that the rate's past must explain before the lead test
-#: (:class:`~gap_validation.core.background.LeadTest`) calls it a loop: a loop driving less moves an estimate drowned
-#: in the trim motion by less than a tenth, the margin between a model that fits and one that does not (epsilon
-#: 0.1-0.15). Resampling, gyro filters and deterministic inputs leave small shares in open loop (measured: at most
-#: 2 % with the F test passed on the second simulator and JSBSim; see docs/JUDGEMENTS.md).
+#: (:class:`~gap_validation.core.background.LeadTest`) calls it a loop: a loop driving less moves an estimate
+#: drowned in the trim motion by less than a tenth, the margin between a model that fits and one that does not
+#: (epsilon 0.1-0.15). Resampling, gyro filters and deterministic inputs leave small shares in open loop
+#: (measured: at most 2 % with the F test passed on the second simulator and JSBSim; see docs/JUDGEMENTS.md).
 LEAD_SHARE = 0.1
 #: Chordal distance to ``-1/C`` under which a measured response looks like the inverse of the controller.
 KAPPA_MINUS_INVERSE = 0.2
@@ -75,8 +92,8 @@ BIAS_ALLOWANCE = 1e6
 
 
 class SurfaceHistory:
-    """The latest samples of one surface (``keep_s`` of them; everything for whole recorded histories), to be read
-    at the grid times of another channel's manoeuvres.
+    """The latest samples of one surface (``keep_s`` of them; everything for whole recorded histories), to be
+    read at the grid times of another channel's manoeuvres.
 
     Parameters
     ----------
@@ -90,7 +107,8 @@ class SurfaceHistory:
         self.v = np.empty(0)
 
     def add(self, t_s: np.ndarray, values: np.ndarray, whole: bool = False) -> None:
-        """Samples in time order (a step back starts afresh); ``whole``: a whole recorded history, kept entire.
+        """Samples in time order (a step back starts afresh); ``whole``: a whole recorded history, kept
+        entire.
 
         Parameters
         ----------
@@ -136,8 +154,8 @@ class SurfaceHistory:
 
 
 def _covered(u: np.ndarray, t0_s: float, dt_s: float, history: SurfaceHistory) -> np.ndarray | None:
-    """The other surface at the times of ``u``'s samples (from ``t0_s``, step ``dt_s``); None for a manoeuvre too
-    short to regress (under 8 samples) or one the surface's samples do not cover."""
+    """The other surface at the times of ``u``'s samples (from ``t0_s``, step ``dt_s``); None for a manoeuvre
+    too short to regress (under 8 samples) or one the surface's samples do not cover."""
     if u.size < 8:
         return None
     t = t0_s + dt_s * np.arange(u.size)
@@ -151,8 +169,8 @@ class CouplingMonitor:
     samples of the input over the excited span. The other surface is read at the same times from its
     :class:`SurfaceHistory` and regressed on the input and its rate (a static or lagged interconnect): the
     multiple coherence ``R^2`` and the gain. An interconnect gives ``R^2`` near 1; a surface held at trim, or
-    flown on other lines of an orthogonal multisine, near 0. A manoeuvre whose surface samples have not arrived
-    yet waits (at most :data:`PENDING_RECORDS` of them).
+    flown on other lines of an orthogonal multisine, near 0. A manoeuvre whose surface samples have not
+    arrived yet waits (at most :data:`PENDING_RECORDS` of them).
     """
 
     def __init__(self) -> None:
@@ -203,8 +221,8 @@ class CouplingMonitor:
 
     @staticmethod
     def _fit(u: np.ndarray, other: np.ndarray) -> tuple[float, float, float] | None:
-        """``(R^2, gain, input energy)`` of the other surface regressed on the input and its rate (None: either
-        flat)."""
+        """``(R^2, gain, input energy)`` of the other surface regressed on the input and its rate (None:
+        either flat)."""
         u, other = u - np.mean(u), other - np.mean(other)
         x = np.stack([u, np.gradient(u)])
         uu, oo = float(u @ u), float(other @ other)
@@ -220,12 +238,12 @@ class CouplingMonitor:
     def leads(self, u: np.ndarray, t0_s: float, dt_s: float, history: SurfaceHistory, own_trim: float,
               other_trim: float) -> bool:
         """Whether a manoeuvre of the channel is the other surface's: the other surface moves with the input
-        (``R^2`` >= :data:`COUPLING_COHERENCE`, gain >= :data:`COUPLING_GAIN`) and moves more, each in units of its
-        own trim motion between the manoeuvres (in its own units while either is unknown): the input follows the
-        other surface through an interconnect (an aileron-rudder interconnect moves the rudder in the aileron's
-        sweeps), as ``other_inputs`` keep a manoeuvre for the input most excited over its trim. Such a manoeuvre
-        is counted here (:meth:`followed`) and nowhere else. False where the surface's samples do not cover the
-        manoeuvre yet (it is then judged as any other, by :meth:`observe`).
+        (``R^2`` >= :data:`COUPLING_COHERENCE`, gain >= :data:`COUPLING_GAIN`) and moves more, each in units
+        of its own trim motion between the manoeuvres (in its own units while either is unknown): the input
+        follows the other surface through an interconnect (an aileron-rudder interconnect moves the rudder in
+        the aileron's sweeps), as ``other_inputs`` keep a manoeuvre for the input most excited over its trim.
+        Such a manoeuvre is counted here (:meth:`followed`) and nowhere else. False where the surface's
+        samples do not cover the manoeuvre yet (it is then judged as any other, by :meth:`observe`).
 
         Parameters
         ----------
@@ -281,8 +299,9 @@ class CouplingMonitor:
 
     def coupled(self) -> tuple[bool, float, float]:
         """Whether the other surface moves with the input: in manoeuvres carrying at least
-        :data:`COUPLING_SHARE` of the input's energy, the surface follows the input (multiple coherence ``R^2`` of
-        the surface on the input and its rate >= :data:`COUPLING_COHERENCE`, gain >= :data:`COUPLING_GAIN`).
+        :data:`COUPLING_SHARE` of the input's energy, the surface follows the input (multiple coherence
+        ``R^2`` of the surface on the input and its rate >= :data:`COUPLING_COHERENCE`, gain >=
+        :data:`COUPLING_GAIN`).
 
         Returns
         -------
@@ -321,22 +340,24 @@ class FeedbackEvidence:
 def feedback_evidence(trim: TrimResponse, response: np.ndarray, variance: np.ndarray, confident: np.ndarray,
                       model: np.ndarray | None = None,
                       false_alarm: float = FEEDBACK_FALSE_ALARM) -> FeedbackEvidence:
-    """Test for a feedback loop: the response between the manoeuvres on the opposite side of the response during
-    them.
+    """Test for a feedback loop: the response between the manoeuvres on the opposite side of the response
+    during them.
 
     With the loop gain ``L = C P`` above one and the disturbances driving the surface, the estimate between
-    manoeuvres is ``-1/C = -P/L``: ``Re(H_trim / P) < 0`` wherever ``Re(L) > 0``. In open loop both estimates see
-    the same airframe: ``H_trim / H = 1 + noise``, whose real part is about normal with mean 1 and standard
-    deviation ``sigma = sqrt((v_trim + v)/2)`` (the two estimates' relative variances). A frequency counts as
-    evidence when ``Re(H_trim / H) < 0`` and ``z = (1 - Re(H_trim / H)) / sigma`` passes the one-sided normal
-    quantile of ``false_alarm / n`` (n frequencies tested, Bonferroni): an open-loop flight is called closed loop
-    with probability at most ``false_alarm``. An amplitude-dependent airframe (a rate limit, free play) changes the
-    gain between small trim motion and a manoeuvre, not the sign: it gives no evidence.
+    manoeuvres is ``-1/C = -P/L``: ``Re(H_trim / P) < 0`` wherever ``Re(L) > 0``. In open loop both estimates
+    see the same airframe: ``H_trim / H = 1 + noise``, whose real part is about normal with mean 1 and
+    standard deviation ``sigma = sqrt((v_trim + v)/2)`` (the two estimates' relative variances). A frequency
+    counts as evidence when ``Re(H_trim / H) < 0`` and ``z = (1 - Re(H_trim / H)) / sigma`` passes the
+    one-sided normal quantile of ``false_alarm / n`` (n frequencies tested, Bonferroni): an open-loop flight
+    is called closed loop with probability at most ``false_alarm``. An amplitude-dependent airframe (a rate
+    limit, free play) changes the gain between small trim motion and a manoeuvre, not the sign: it gives no
+    evidence.
 
-    Where the manoeuvres give no confident response (a loop answering turbulence may leave them only part of the
-    band: the trim motion is largest where the loop gain is), the reference ``H`` is the ``model``, scaled by the
-    manoeuvres' response over the model at the nearest frequency where they give one (so that a model of the wrong
-    sign or with a missing delay is corrected by what the manoeuvres measured), with that frequency's variance.
+    Where the manoeuvres give no confident response (a loop answering turbulence may leave them only part of
+    the band: the trim motion is largest where the loop gain is), the reference ``H`` is the ``model``, scaled
+    by the manoeuvres' response over the model at the nearest frequency where they give one (so that a model
+    of the wrong sign or with a missing delay is corrected by what the manoeuvres measured), with that
+    frequency's variance.
 
     Parameters
     ----------
@@ -382,9 +403,9 @@ def feedback_evidence(trim: TrimResponse, response: np.ndarray, variance: np.nda
 
 
 def rate_leads(lead: LeadResult | None, false_alarm: float = FEEDBACK_FALSE_ALARM) -> bool:
-    """Whether the lead test (:class:`~gap_validation.core.background.LeadResult`, None before enough trim) says a
-    loop moves the surface between the manoeuvres: the rate's past explains at least :data:`LEAD_SHARE` of what the
-    surface's own past does not, beyond chance (``p_value < false_alarm``).
+    """Whether the lead test (:class:`~gap_validation.core.background.LeadResult`, None before enough trim)
+    says a loop moves the surface between the manoeuvres: the rate's past explains at least :data:`LEAD_SHARE`
+    of what the surface's own past does not, beyond chance (``p_value < false_alarm``).
 
     Parameters
     ----------
@@ -400,11 +421,11 @@ def feedback_bias(trim: TrimResponse, response: np.ndarray, variance: np.ndarray
                   manoeuvre_power: np.ndarray) -> np.ndarray:
     """Frequencies whose pooled estimate a feedback loop may bias beyond its random error.
 
-    During a manoeuvre the surface moves with the manoeuvre and, as between manoeuvres, with the loop answering the
-    disturbances; the estimate is the power-weighted mix of the airframe and ``H_trim``: its bias is at most
-    ``S_trim / S_manoeuvre |H_trim - H|`` (where the trim response is unknown, ``2 |H|``: a ``-1/C`` as large as
-    the response). Biased where that passes the random error ``sqrt(variance)``, or where the trim motion was not
-    measured.
+    During a manoeuvre the surface moves with the manoeuvre and, as between manoeuvres, with the loop
+    answering the disturbances; the estimate is the power-weighted mix of the airframe and ``H_trim``: its
+    bias is at most ``S_trim / S_manoeuvre |H_trim - H|`` (where the trim response is unknown, ``2 |H|``: a
+    ``-1/C`` as large as the response). Biased where that passes the random error ``sqrt(variance)``, or where
+    the trim motion was not measured.
 
     Parameters
     ----------
@@ -463,7 +484,16 @@ def with_bias_allowance(estimate: "SpectralEstimate", mask: np.ndarray) -> "Spec
         return estimate
     error = np.where(mask, np.maximum(np.asarray(estimate.random_error, float), BIAS_ALLOWANCE),
                      estimate.random_error)
-    variance = None if estimate.variance is None else np.where(
-        mask, np.maximum(np.asarray(estimate.variance, float),
-                         2.0 * (BIAS_ALLOWANCE * np.abs(np.nan_to_num(estimate.response))) ** 2), estimate.variance)
+    variance = (
+        None
+        if estimate.variance is None
+        else np.where(
+            mask,
+            np.maximum(
+                np.asarray(estimate.variance, float),
+                2.0 * (BIAS_ALLOWANCE * np.abs(np.nan_to_num(estimate.response))) ** 2,
+            ),
+            estimate.variance,
+        )
+    )
     return replace(estimate, random_error=error, variance=variance)

@@ -7,11 +7,11 @@ the key path and the offending value, e.g. ``cfg.yaml: channels.pitch.input.fiel
 Unknown keys are errors (a typo must not silently fall back to a default).
 
 A channel is SISO (``input``/``output``, a :class:`~gap_validation.core.models.LinearModel`) or MIMO
-(``inputs``/``outputs`` lists, a :class:`~gap_validation.core.models.MimoModel` whose B columns and C rows follow
-the lists). An optional ``controller`` (``u = -C y``, negative feedback) maps the outputs to the inputs: a SISO
-model mapping, or for a MIMO channel a MIMO one (``B`` columns = outputs, ``C`` rows = inputs). MIMO channels are
-compared model against model (``compare-models``) and validated from flight data (streams ``inputs[j]`` and
-``outputs[i]``, :meth:`ChannelConfig.input_streams`).
+(``inputs``/``outputs`` lists, a :class:`~gap_validation.core.models.MimoModel` whose B columns and C rows
+follow the lists). An optional ``controller`` (``u = -C y``, negative feedback) maps the outputs to the
+inputs: a SISO model mapping, or for a MIMO channel a MIMO one (``B`` columns = outputs, ``C`` rows = inputs).
+MIMO channels are compared model against model (``compare-models``) and validated from flight data (streams
+``inputs[j]`` and ``outputs[i]``, :meth:`ChannelConfig.input_streams`).
 """
 from __future__ import annotations
 
@@ -32,11 +32,25 @@ from gap_validation.core.numbers import FINITE, NONZERO, POSITIVE, Interval, che
 STREAMS = ("input", "output", "trigger")
 
 _TOP_KEYS = {"channels", "aircraft", "description", "history"}
-_CHANNEL_KEYS = {"input", "output", "inputs", "outputs", "model", "frequencies", "coherence_threshold", "trigger",
-                 "estimator", "controller", "excitation", "other_inputs", "airspeed"}
+_CHANNEL_KEYS = {
+    "input",
+    "output",
+    "inputs",
+    "outputs",
+    "model",
+    "frequencies",
+    "coherence_threshold",
+    "trigger",
+    "estimator",
+    "controller",
+    "excitation",
+    "other_inputs",
+    "airspeed",
+}
 #: Stream name of the channel's injected excitation (closed-loop flights; the estimator's instrument).
 EXCITATION_STREAM = "excitation"
-#: Stream of a channel's ``airspeed`` (the flight condition: the inputs are scaled by the dynamic pressure ratio).
+#: Stream of a channel's ``airspeed`` (the flight condition: the inputs are scaled by the dynamic pressure
+#: ratio).
 AIRSPEED_STREAM = "airspeed"
 #: Stream name of the j-th of a channel's ``other_inputs`` (``other_input0``, ``other_input1`` ...).
 OTHER_INPUT_STREAM = "other_input{}"
@@ -52,14 +66,14 @@ class SignalSpec:
     """Where a signal comes from: ``topic``, ``field`` path into the message, ``scale`` to SI units, and the
     message ``type`` (e.g. ``sensor_msgs/msg/Imu``; ``None``: discovered from the bag or the graph).
 
-    Issue 23's corrections of the usual mistakes: the value is ``(raw + offset) * scale`` (``offset`` in the raw
-    units, e.g. a servo's PWM centre), times -1 for the y and z components of a rate given in the ROS body frame
-    (``frame: flu``; the models are FRD), and ``time_offset_s`` is added to the stream's stamps (a topic stamped by
-    another clock).
+    Issue 23's corrections of the usual mistakes: the value is ``(raw + offset) * scale`` (``offset`` in the
+    raw units, e.g. a servo's PWM centre), times -1 for the y and z components of a rate given in the ROS body
+    frame (``frame: flu``; the models are FRD), and ``time_offset_s`` is added to the stream's stamps (a topic
+    stamped by another clock).
 
-    ``time_column`` names a CSV log's time column (issue 24; default: the first of ``time``, ``t``, ``TimeUS``,
-    ``timestamp`` the file has; :mod:`gap_validation.logs.csvlog` gives its unit from its name); other sources
-    ignore it."""
+    ``time_column`` names a CSV log's time column (issue 24; default: the first of ``time``, ``t``,
+    ``TimeUS``, ``timestamp`` the file has; :mod:`gap_validation.logs.csvlog` gives its unit from its name);
+    other sources ignore it."""
 
     topic: str
     field: str
@@ -73,7 +87,9 @@ class SignalSpec:
     @property
     def gain(self) -> float:
         """What a raw value (plus ``offset``) is multiplied by: ``scale``, with the sign of the body frame."""
-        return -self.scale if self.frame == "flu" and self.field.rsplit(".", 1)[-1] in ("y", "z") else self.scale
+        return (
+            -self.scale if self.frame == "flu" and self.field.rsplit(".", 1)[-1] in ("y", "z") else self.scale
+        )
 
     def value(self, raw):
         """The signal in SI units and the models' frame from raw values (numbers or arrays).
@@ -118,9 +134,9 @@ class FrequencyGrid:
 class ChannelConfig:
     """One input-output pair (e.g. elevator to pitch rate) with its model and analysis settings.
 
-    A MIMO channel (e.g. aileron and rudder to roll and yaw rate) has ``input``/``output`` None and its signals
-    in ``inputs``/``outputs``; its model is a :class:`~gap_validation.core.models.MimoModel`. ``controller`` is
-    the feedback ``u = -C y`` of the controller check b(P1, C) > nu-gap (None without one).
+    A MIMO channel (e.g. aileron and rudder to roll and yaw rate) has ``input``/``output`` None and its
+    signals in ``inputs``/``outputs``; its model is a :class:`~gap_validation.core.models.MimoModel`.
+    ``controller`` is the feedback ``u = -C y`` of the controller check b(P1, C) > nu-gap (None without one).
     """
 
     name: str
@@ -147,8 +163,8 @@ class ChannelConfig:
         return bool(self.inputs)
 
     def signal(self, stream: str) -> SignalSpec | None:
-        """The :class:`SignalSpec` of ``stream`` (``input``, ``output`` or ``trigger``; for a MIMO channel also
-        ``inputs[j]`` and ``outputs[i]``, and ``input``/``output`` are its first input/output).
+        """The :class:`SignalSpec` of ``stream`` (``input``, ``output`` or ``trigger``; for a MIMO channel
+        also ``inputs[j]`` and ``outputs[i]``, and ``input``/``output`` are its first input/output).
 
         Parameters
         ----------
@@ -172,7 +188,8 @@ class ChannelConfig:
 
     def extra_streams(self) -> list[tuple[str, SignalSpec]]:
         """The channel's streams beyond :data:`STREAMS`: each of ``other_inputs`` (``other_input0`` ...), the
-        ``excitation`` and the ``airspeed``, as ``(stream, spec)`` in that order (empty without those keys)."""
+        ``excitation`` and the ``airspeed``, as ``(stream, spec)`` in that order (empty without those
+        keys)."""
         out = [(OTHER_INPUT_STREAM.format(j), spec) for j, spec in enumerate(self.other_inputs)]
         if self.excitation is not None:
             out.append((EXCITATION_STREAM, self.excitation))
@@ -183,12 +200,18 @@ class ChannelConfig:
     @property
     def input_streams(self) -> tuple[str, ...]:
         """Names of the input streams: ``("input",)``, or ``("inputs[0]", "inputs[1]", ...)`` for MIMO."""
-        return tuple(mimo_stream("inputs", j) for j in range(len(self.inputs))) if self.is_mimo else ("input",)
+        return (
+            tuple(mimo_stream("inputs", j) for j in range(len(self.inputs))) if self.is_mimo else ("input",)
+        )
 
     @property
     def output_streams(self) -> tuple[str, ...]:
         """Names of the output streams: ``("output",)``, or ``("outputs[0]", ...)`` for MIMO."""
-        return tuple(mimo_stream("outputs", i) for i in range(len(self.outputs))) if self.is_mimo else ("output",)
+        return (
+            tuple(mimo_stream("outputs", i) for i in range(len(self.outputs)))
+            if self.is_mimo
+            else ("output",)
+        )
 
 
 def mimo_stream(kind: str, index: int) -> str:
@@ -206,7 +229,8 @@ def mimo_stream(kind: str, index: int) -> str:
 
 @dataclass(frozen=True)
 class ValidationConfig:
-    """A whole validation config: channels by name, where it came from, and the raw mapping (for rewriting)."""
+    """A whole validation config: channels by name, where it came from, and the raw mapping (for
+    rewriting)."""
 
     channels: dict[str, ChannelConfig]
     source: str | None = None
@@ -219,7 +243,9 @@ class ValidationConfig:
         """
         out: dict[str, list[tuple[str, str, SignalSpec]]] = {}
         for name, channel in self.channels.items():
-            streams = channel.input_streams + channel.output_streams + ("trigger",) if channel.is_mimo else STREAMS
+            streams = (
+                channel.input_streams + channel.output_streams + ("trigger",) if channel.is_mimo else STREAMS
+            )
             for stream in streams:
                 spec = channel.signal(stream)
                 if spec is not None:
@@ -241,8 +267,10 @@ class ValidationConfig:
         if channel not in self.channels:
             raise ConfigError(f"{self.source or '<config>'}: no channel {channel!r}")
         if self.channels[channel].is_mimo:
-            raise ConfigError(f"{self.source or '<config>'}: channels.{channel}.model.effects: effects on a MIMO "
-                              f"model are not available yet")
+            raise ConfigError(
+                f"{self.source or '<config>'}: channels.{channel}.model.effects: effects on a MIMO "
+                f"model are not available yet"
+            )
         raw = copy.deepcopy(self.raw)
         model = raw["channels"][channel]["model"]
         model["effects"] = list(model.get("effects") or []) + [dict(e) for e in effects]
@@ -295,8 +323,12 @@ def _signal(value: Any, source: str, path: str) -> SignalSpec:
     frame = data.get("frame")
     if frame is not None:
         if not isinstance(frame, str) or frame.strip().lower() not in FRAMES:
-            raise _fail(source, f"{path}.frame", f"expected one of {', '.join(FRAMES)} (ROS REP 103 body frame: flu; "
-                                                 f"aircraft: frd), got {frame!r}")
+            raise _fail(
+                source,
+                f"{path}.frame",
+                f"expected one of {', '.join(FRAMES)} (ROS REP 103 body frame: flu; "
+                f"aircraft: frd), got {frame!r}",
+            )
         frame = frame.strip().lower()
         if spec_field.rsplit(".", 1)[-1] not in ("x", "y", "z"):
             raise _fail(source, f"{path}.frame", f"applies to a rate's x, y or z component, not to field "
@@ -307,7 +339,9 @@ def _signal(value: Any, source: str, path: str) -> SignalSpec:
         if msg_type.count("/") == 1:  # sensor_msgs/Imu -> sensor_msgs/msg/Imu
             pkg, name = msg_type.split("/")
             msg_type = f"{pkg}/msg/{name}"
-    time_column = _string(data["time_column"], source, f"{path}.time_column") if "time_column" in data else None
+    time_column = (
+        _string(data["time_column"], source, f"{path}.time_column") if "time_column" in data else None
+    )
     return SignalSpec(topic=topic, field=spec_field, scale=scale, type=msg_type, offset=offset,
                       time_offset_s=time_offset, frame=frame, time_column=time_column)
 
@@ -347,18 +381,28 @@ def _grid(value: Any, source: str, path: str) -> FrequencyGrid:
 def _signals(value: Any, source: str, path: str) -> tuple[SignalSpec, ...]:
     """A MIMO channel's ``inputs`` or ``outputs``: a non-empty list of signal specs, no signal twice."""
     if not isinstance(value, (list, tuple)) or not value:
-        raise _fail(source, path, f"expected a non-empty list of signals ({{topic, field}} mappings), got {value!r}")
+        raise _fail(
+            source, path, f"expected a non-empty list of signals ({{topic, field}} mappings), got {value!r}"
+        )
     specs = tuple(_signal(item, source, f"{path}[{i}]") for i, item in enumerate(value))
     seen: dict[tuple[str, str], int] = {}
     for i, spec in enumerate(specs):
         first = seen.setdefault((spec.topic, spec.field), i)
         if first != i:
-            raise _fail(source, f"{path}[{i}]", f"the same signal as {path}[{first}] ({spec.topic} {spec.field})")
+            raise _fail(
+                source, f"{path}[{i}]", f"the same signal as {path}[{first}] ({spec.topic} {spec.field})"
+            )
     return specs
 
 
-def _model(spec: Any, source: str, path: str, inputs: tuple[SignalSpec, ...] | None,
-           outputs: tuple[SignalSpec, ...] | None, controller: bool = False) -> tuple[LinearModel | MimoModel, dict]:
+def _model(
+    spec: Any,
+    source: str,
+    path: str,
+    inputs: tuple[SignalSpec, ...] | None,
+    outputs: tuple[SignalSpec, ...] | None,
+    controller: bool = False,
+) -> tuple[LinearModel | MimoModel, dict]:
     """The channel's model (or controller): SISO without signal lists, MIMO with them (shapes checked)."""
     spec = _mapping(spec, source, path, None)
     try:
@@ -384,7 +428,9 @@ def _channel(name: str, value: Any, source: str) -> ChannelConfig:
     mimo = "inputs" in data or "outputs" in data
     for key in ("input", "output") if mimo else ():
         if key in data:
-            raise _fail(source, f"{path}.{key}", "give input/output (SISO) or inputs/outputs lists (MIMO), not both")
+            raise _fail(
+                source, f"{path}.{key}", "give input/output (SISO) or inputs/outputs lists (MIMO), not both"
+            )
     for key in ("inputs", "outputs", "model") if mimo else ("input", "output", "model"):
         if key not in data:
             raise _fail(source, f"{path}.{key}", "missing")
@@ -393,11 +439,13 @@ def _channel(name: str, value: Any, source: str) -> ChannelConfig:
     model, model_spec = _model(data["model"], source, f"{path}.model", inputs, outputs)
     controller, controller_spec = None, None
     if data.get("controller") is not None:
-        controller, controller_spec = _model(data["controller"], source, f"{path}.controller", inputs, outputs,
-                                             controller=True)
+        controller, controller_spec = _model(
+            data["controller"], source, f"{path}.controller", inputs, outputs, controller=True
+        )
     estimator = _mapping(data.get("estimator", {}) or {}, source, f"{path}.estimator", None)
     _check_estimator_options(estimator, source, f"{path}.estimator")
-    input_spec = None if mimo else _signal(data["input"], source, f"{path}.input")   # checked before it is compared
+    # checked before it is compared
+    input_spec = None if mimo else _signal(data["input"], source, f"{path}.input")
     excitation, other_inputs = _closed_loop_signals(data, source, path, mimo, input_spec)
     airspeed, trim_airspeed = _airspeed(data.get("airspeed"), source, f"{path}.airspeed")
     return ChannelConfig(
@@ -406,11 +454,17 @@ def _channel(name: str, value: Any, source: str) -> ChannelConfig:
         output=None if mimo else _signal(data["output"], source, f"{path}.output"),
         model=model,
         model_spec=model_spec,
-        frequencies=(_grid(data["frequencies"] or {}, source, f"{path}.frequencies") if "frequencies" in data
-                     else flown_grid(float(estimator.get("sample_rate_hz", 100.0)))),
-        coherence_threshold=_number(data.get("coherence_threshold", 0.6), source,
-                                    f"{path}.coherence_threshold", Interval(0.0, 0.999)),
-        trigger=_signal(data["trigger"], source, f"{path}.trigger") if data.get("trigger") is not None else None,
+        frequencies=(
+            _grid(data["frequencies"] or {}, source, f"{path}.frequencies")
+            if "frequencies" in data
+            else flown_grid(float(estimator.get("sample_rate_hz", 100.0)))
+        ),
+        coherence_threshold=_number(
+            data.get("coherence_threshold", 0.6), source, f"{path}.coherence_threshold", Interval(0.0, 0.999)
+        ),
+        trigger=_signal(data["trigger"], source, f"{path}.trigger")
+        if data.get("trigger") is not None
+        else None,
         estimator=dict(estimator),
         inputs=inputs or (),
         outputs=outputs or (),
@@ -424,14 +478,17 @@ def _channel(name: str, value: Any, source: str) -> ChannelConfig:
 
 
 def _airspeed(value: Any, source: str, path: str) -> tuple[SignalSpec | None, float | None]:
-    """A channel's ``airspeed``: a signal spec plus ``trim_m_s``, the airspeed the model is for (in the signal's
-    SI units, m/s)."""
+    """A channel's ``airspeed``: a signal spec plus ``trim_m_s``, the airspeed the model is for (in the
+    signal's SI units, m/s)."""
     if value is None:
         return None, None
     data = dict(_mapping(value, source, path, _SIGNAL_KEYS | {"trim_m_s"}))
     if "trim_m_s" not in data:
-        raise _fail(source, f"{path}.trim_m_s", "missing (the airspeed the model is for, m/s: the inputs are scaled "
-                                                "by (airspeed / trim_m_s)^2)")
+        raise _fail(
+            source,
+            f"{path}.trim_m_s",
+            "missing (the airspeed the model is for, m/s: the inputs are scaled by (airspeed / trim_m_s)^2)",
+        )
     trim = _number(data.pop("trim_m_s"), source, f"{path}.trim_m_s", POSITIVE)
     spec = _signal(data, source, path)
     if spec.frame is not None:
@@ -454,11 +511,16 @@ def _closed_loop_signals(data: dict, source: str, path: str, mimo: bool, own_inp
     own = {(own_input.topic.lstrip("/"), own_input.field)} if own_input is not None else set()
     for i, other in enumerate(specs):
         if (other.topic.lstrip("/"), other.field) in own:
-            raise _fail(source, f"{path}.other_inputs[{i}]", f"the channel's own input ({other.topic} {other.field})")
+            raise _fail(
+                source, f"{path}.other_inputs[{i}]", f"the channel's own input ({other.topic} {other.field})"
+            )
     if spec is not None and specs:
-        raise _fail(source, f"{path}.other_inputs",
-                    f"{len(specs) + 1} inputs but 1 excitation: the instrumental-variable estimate needs at least as "
-                    f"many excitations as inputs (q >= m); give other_inputs without excitation, or excitation alone")
+        raise _fail(
+            source,
+            f"{path}.other_inputs",
+            f"{len(specs) + 1} inputs but 1 excitation: the instrumental-variable estimate needs at least as "
+            f"many excitations as inputs (q >= m); give other_inputs without excitation, or excitation alone",
+        )
     return spec, specs
 
 
@@ -525,8 +587,8 @@ def load_config(path: str | os.PathLike) -> ValidationConfig:
 def read_yaml(path: str | os.PathLike, what: str, short: str | None = None) -> Any:
     """The YAML document of a file (configs, campaign manifests), or a one-line :class:`ConfigError`.
 
-    ``what`` names the kind of file in the messages (``"config file"``: "config file not found", "is a directory,
-    not a config file"); ``short`` in "cannot read <short>" (default ``what``).
+    ``what`` names the kind of file in the messages (``"config file"``: "config file not found", "is a
+    directory, not a config file"); ``short`` in "cannot read <short>" (default ``what``).
 
     Parameters
     ----------
@@ -537,7 +599,7 @@ def read_yaml(path: str | os.PathLike, what: str, short: str | None = None) -> A
     short : str, optional
         The kind of file in "cannot read <short>" (default ``what``).
     """
-    import yaml   # only when a file is read: importing the schema needs no yaml
+    import yaml  # only when a file is read: importing the schema needs no yaml
 
     path = Path(path)
     try:
@@ -562,8 +624,8 @@ def read_yaml(path: str | os.PathLike, what: str, short: str | None = None) -> A
 
 
 def dump_config(config: ValidationConfig | dict, path: str | os.PathLike) -> None:
-    """Write a config (its raw mapping) as YAML, atomically (:mod:`gap_validation.core.atomic`: temporary file, then
-    rename; a crash never leaves a half-written config).
+    """Write a config (its raw mapping) as YAML, atomically (:mod:`gap_validation.core.atomic`: temporary
+    file, then rename; a crash never leaves a half-written config).
 
     Parameters
     ----------

@@ -1,26 +1,29 @@
 """The mistakes every user makes, named as such (issue 23): a sign, units, the body frame, a clock.
 
-The first flight a team validates usually fails for a reason that is not physics: a surface whose positive direction
-is the other way round, positions logged in degrees where the config says radians, an IMU in ROS's body frame (REP
-103: x forward, y left, z up) against a model in the aircraft's (x forward, y right, z down), two topics stamped by
-different clocks. Each makes the measured response the model's times a *convention factor*:
+The first flight a team validates usually fails for a reason that is not physics: a surface whose positive
+direction is the other way round, positions logged in degrees where the config says radians, an IMU in ROS's
+body frame (REP 103: x forward, y left, z up) against a model in the aircraft's (x forward, y right, z down),
+two topics stamped by different clocks. Each makes the measured response the model's times a *convention
+factor*:
 
-=================  =====================================  ==========================================================
+=================  =====================================  ====================================================
 kind               the data are the model times           what it is
-=================  =====================================  ==========================================================
+=================  =====================================  ====================================================
 ``sign``           -1                                     a surface (or a rate) reversed
-``units``          1/57.2958, 57.2958 or 10^k (either     surfaces (or rates) in degrees, or in another decade of
-                   sign)                                  units than the config says
-``body_frame``     -1 on pitch and yaw, +1 on roll        the IMU is FLU (ROS), the model FRD (across channels)
-``clock_offset``   exp(+j w T), T > 0 (a lead)            the input stamped late (or the output early): a lead is
-                                                          never the physics of a causal airframe
-=================  =====================================  ==========================================================
+``units``          1/57.2958, 57.2958 or 10^k (either     surfaces (or rates) in degrees, or in another decade
+                   sign)                                  of units than the config says
+``body_frame``     -1 on pitch and yaw, +1 on roll        the IMU is FLU (ROS), the model FRD (across
+                                                          channels)
+``clock_offset``   exp(+j w T), T > 0 (a lead)            the input stamped late (or the output early): a
+                                                          lead is never the physics of a causal airframe
+=================  =====================================  ====================================================
 
-:func:`candidates` lists them for one channel; the diagnosis (:func:`gap_validation.core.diagnosis.analyse_channel`)
-accepts one only where the model times it leaves the data within their random error, like any candidate, and a
-channel with one gets no physical diagnosis. :func:`resolve` looks across the channels (pitch and yaw reversed with
-roll right is the body frame) and words the fix: the config change that makes the data the model's
-(:class:`Convention`, the JSON ``conventions``).
+:func:`candidates` lists them for one channel; the diagnosis
+(:func:`gap_validation.core.diagnosis.analyse_channel`) accepts one only where the model times it leaves the
+data within their random error, like any candidate, and a channel with one gets no physical
+diagnosis. :func:`resolve` looks across the channels (pitch and yaw reversed with roll right is the body
+frame) and words the fix: the config change that makes the data the model's (:class:`Convention`, the JSON
+``conventions``).
 """
 from __future__ import annotations
 
@@ -30,8 +33,17 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["Convention", "ConventionFit", "candidates", "fit_clock", "clock", "resolve", "with_stream_changes", "KINDS",
-           "DEGREES"]
+__all__ = [
+    "Convention",
+    "ConventionFit",
+    "candidates",
+    "fit_clock",
+    "clock",
+    "resolve",
+    "with_stream_changes",
+    "KINDS",
+    "DEGREES",
+]
 
 #: The kinds the JSON ``conventions`` holds.
 KINDS = ("sign", "units", "body_frame", "clock_offset")
@@ -64,8 +76,8 @@ class ConventionFit:
 
 
 def candidates() -> list[ConventionFit]:
-    """The constant factors to try on a channel: the sign, degrees (either way, either sign) and decades of units
-    (either way, either sign). The clock offset is fitted (:meth:`fit_clock`), not listed."""
+    """The constant factors to try on a channel: the sign, degrees (either way, either sign) and decades of
+    units (either way, either sign). The clock offset is fitted (:meth:`fit_clock`), not listed."""
     out = [ConventionFit("sign", -1.0)]
     for sign in (1.0, -1.0):
         out += [ConventionFit("units", sign / DEGREES), ConventionFit("units", sign * DEGREES)]
@@ -75,8 +87,9 @@ def candidates() -> list[ConventionFit]:
 
 
 def fit_clock(w_rad_s: np.ndarray, ratio: np.ndarray, weight: np.ndarray) -> float:
-    """The lead ``T`` whose ``exp(+j w T)`` best matches a measured-over-model ratio (weighted least squares on the
-    complex ratio, over a grid of ``T`` in (0, :data:`MAX_OFFSET_S`] refined about its best point); 0 when none.
+    """The lead ``T`` whose ``exp(+j w T)`` best matches a measured-over-model ratio (weighted least squares
+    on the complex ratio, over a grid of ``T`` in (0, :data:`MAX_OFFSET_S`] refined about its best point); 0
+    when none.
 
     Parameters
     ----------
@@ -121,8 +134,8 @@ class Convention:
     sentence : str
         What it is and the fix, one sentence.
     changes : list of dict
-        The change as data, for ``--apply-diagnosis``: ``{"channel", "stream", "key", "value"}`` (the new value of
-        the stream's ``scale``, ``frame`` or ``time_offset_s``).
+        The change as data, for ``--apply-diagnosis``: ``{"channel", "stream", "key", "value"}`` (the new
+        value of the stream's ``scale``, ``frame`` or ``time_offset_s``).
     """
 
     kind: str
@@ -140,7 +153,9 @@ class Convention:
             out["factor"] = float(self.factor)
         if self.seconds is not None:
             out["seconds"] = float(self.seconds)
-        out.update(stream=self.stream, fix=self.fix, sentence=self.sentence, changes=[dict(c) for c in self.changes])
+        out.update(
+            stream=self.stream, fix=self.fix, sentence=self.sentence, changes=[dict(c) for c in self.changes]
+        )
         return out
 
     @classmethod
@@ -172,30 +187,52 @@ def _single(channel: str, fit: ConventionFit, spec_of: Callable[[str, str], obje
         new = float(getattr(spec, "time_offset_s", 0.0)) - fit.seconds
         where = f"{spec.topic}" if spec is not None else "the input"
         fix = f"add time_offset_s: {_fmt(new)} to {_stream_words(channel, 'input')}"
-        return Convention("clock_offset", seconds=fit.seconds, stream="input", fix=fix,
-                          sentence=(f"the rate leads the surface by {1000 * fit.seconds:.0f} ms, which no airframe "
-                                    f"does: the surface topic ({where}) is stamped late (or the IMU early, by another "
-                                    f"clock); {fix}"),
-                          changes=[{"channel": channel, "stream": "input", "key": "time_offset_s", "value": new}])
+        return Convention(
+            "clock_offset",
+            seconds=fit.seconds,
+            stream="input",
+            fix=fix,
+            sentence=(
+                f"the rate leads the surface by {1000 * fit.seconds:.0f} ms, which no airframe "
+                f"does: the surface topic ({where}) is stamped late (or the IMU early, by another "
+                f"clock); {fix}"
+            ),
+            changes=[{"channel": channel, "stream": "input", "key": "time_offset_s", "value": new}],
+        )
     if fit.kind == "sign":
         spec = spec_of(channel, "input")
         new = -float(getattr(spec, "scale", 1.0))
         fix = f"add scale: {_fmt(new)} to {_stream_words(channel, 'input')}"
-        return Convention("sign", factor=-1.0, stream="input", fix=fix,
-                          sentence=(f"the data are the model with the opposite sign: the surface's positive direction "
-                                    f"is the other way round (or the model's sign is); {fix}"),
-                          changes=[{"channel": channel, "stream": "input", "key": "scale", "value": new}])
-    # units: data = model x factor; a factor below one is an input read too large (surfaces in degrees), above one
-    # an output read too large (rates in deg/s)
+        return Convention(
+            "sign",
+            factor=-1.0,
+            stream="input",
+            fix=fix,
+            sentence=(
+                f"the data are the model with the opposite sign: the surface's positive direction "
+                f"is the other way round (or the model's sign is); {fix}"
+            ),
+            changes=[{"channel": channel, "stream": "input", "key": "scale", "value": new}],
+        )
+    # units: data = model x factor; a factor below one is an input read too large (surfaces in degrees), above
+    # one an output read too large (rates in deg/s)
     stream = "input" if abs(fit.factor) < 1.0 else "output"
     spec = spec_of(channel, stream)
     correction = fit.factor if stream == "input" else 1.0 / fit.factor
     new = float(getattr(spec, "scale", 1.0)) * correction
-    unit = ("degrees" if math.isclose(abs(fit.factor), 1.0 / DEGREES, rel_tol=1e-6) or
-            math.isclose(abs(fit.factor), DEGREES, rel_tol=1e-6) else f"units {1.0 / abs(correction):g} times too small")
-    what = (f"the surface is logged in {unit} where the config says radians" if stream == "input" else
-            f"the rate is logged in {unit if unit != 'degrees' else 'degrees per second'} where the config says "
-            f"radians per second")
+    unit = (
+        "degrees"
+        if math.isclose(abs(fit.factor), 1.0 / DEGREES, rel_tol=1e-6)
+        or math.isclose(abs(fit.factor), DEGREES, rel_tol=1e-6)
+        else f"units {1.0 / abs(correction):g} times too small"
+    )
+    what = (
+        f"the surface is logged in {unit} where the config says radians"
+        if stream == "input"
+        else f"the rate is logged in {unit if unit != 'degrees' else 'degrees per second'} where the config "
+             "says "
+        f"radians per second"
+    )
     fix = f"add scale: {_fmt(new)} to {_stream_words(channel, stream)}"
     sign = " and the opposite sign" if fit.factor < 0 else ""
     return Convention("units", factor=fit.factor, stream=stream, fix=fix,
@@ -207,9 +244,10 @@ def resolve(found: dict[str, ConventionFit], spec_of: Callable[[str, str], objec
             fitting: set[str] | None = None) -> dict[str, list[Convention]]:
     """The conventions of every channel, looked at together, with their fixes.
 
-    Pitch and yaw reversed with roll right (fitting, or not reversed) is the body frame: the IMU is FLU (ROS), the
-    model FRD, and ``frame: flu`` on their outputs fixes both. Roll, pitch and yaw all reversed is a reversed IMU
-    mounting (or every surface reversed): ``scale`` on the three outputs. Anything else is worded per channel.
+    Pitch and yaw reversed with roll right (fitting, or not reversed) is the body frame: the IMU is FLU (ROS),
+    the model FRD, and ``frame: flu`` on their outputs fixes both. Roll, pitch and yaw all reversed is a
+    reversed IMU mounting (or every surface reversed): ``scale`` on the three outputs. Anything else is worded
+    per channel.
 
     Parameters
     ----------
@@ -228,29 +266,59 @@ def resolve(found: dict[str, ConventionFit], spec_of: Callable[[str, str], objec
     others = {ch for ch in found if ch not in signs} | fitting
     if yz and {"y", "z"} <= {axes[ch] for ch in yz} and any(
             getattr(spec_of(ch, "output"), "field", "").endswith(".x") for ch in others):
-        # the frame the config gives those outputs is the wrong one: FRD where the IMU is FLU, or the other way
+        # the frame the config gives those outputs is the wrong one: FRD where the IMU is FLU, or the other
+        # way
         said = {getattr(spec_of(ch, "output"), "frame", None) or "frd" for ch in yz}
         frame = "frd" if said == {"flu"} else "flu"
-        imu, model = ("FLU (ROS REP 103)", "FRD") if frame == "flu" else ("FRD", "FRD too (the config's frame: flu is wrong)")
+        imu, model = (
+            ("FLU (ROS REP 103)", "FRD")
+            if frame == "flu"
+            else ("FRD", "FRD too (the config's frame: flu is wrong)")
+        )
         fix = f"add frame: {frame} to " + " and ".join(_stream_words(ch, "output") for ch in sorted(yz))
         for ch in yz:
             spec = spec_of(ch, "output")
-            out[ch] = [Convention("body_frame", factor=-1.0, stream="output", fix=fix,
-                                  sentence=(f"the rate is reversed relative to the model on pitch and yaw, not on roll: "
-                                            f"the IMU ({spec.topic}) is {imu}, the model {model}; {fix}"),
-                                  changes=[{"channel": c, "stream": "output", "key": "frame", "value": frame}
-                                           for c in sorted(yz)])]
+            out[ch] = [
+                Convention(
+                    "body_frame",
+                    factor=-1.0,
+                    stream="output",
+                    fix=fix,
+                    sentence=(
+                        f"the rate is reversed relative to the model on pitch and yaw, not on roll: "
+                        f"the IMU ({spec.topic}) is {imu}, the model {model}; {fix}"
+                    ),
+                    changes=[
+                        {"channel": c, "stream": "output", "key": "frame", "value": frame} for c in sorted(yz)
+                    ],
+                )
+            ]
         signs -= yz
     if len(signs) >= 3 and {axes[ch] for ch in signs} >= {"x", "y", "z"}:
         fix = "add scale: -1 to " + " and ".join(_stream_words(ch, "output") for ch in sorted(signs))
         for ch in signs:
             spec = spec_of(ch, "output")
-            out[ch] = [Convention("sign", factor=-1.0, stream="output", fix=fix,
-                                  sentence=(f"roll, pitch and yaw rates are all reversed relative to the model: the IMU "
-                                            f"({spec.topic}) is mounted reversed (or every surface is); {fix}"),
-                                  changes=[{"channel": c, "stream": "output", "key": "scale",
-                                            "value": -float(getattr(spec_of(c, "output"), "scale", 1.0))}
-                                           for c in sorted(signs)])]
+            out[ch] = [
+                Convention(
+                    "sign",
+                    factor=-1.0,
+                    stream="output",
+                    fix=fix,
+                    sentence=(
+                        f"roll, pitch and yaw rates are all reversed relative to the model: the IMU "
+                        f"({spec.topic}) is mounted reversed (or every surface is); {fix}"
+                    ),
+                    changes=[
+                        {
+                            "channel": c,
+                            "stream": "output",
+                            "key": "scale",
+                            "value": -float(getattr(spec_of(c, "output"), "scale", 1.0)),
+                        }
+                        for c in sorted(signs)
+                    ],
+                )
+            ]
         signs = set()
     _shared(found, out, spec_of)
     for ch, fit in found.items():
@@ -261,15 +329,20 @@ def resolve(found: dict[str, ConventionFit], spec_of: Callable[[str, str], objec
 
 def _shared(found: dict[str, ConventionFit], out: dict[str, list[Convention]],
             spec_of: Callable[[str, str], object]) -> None:
-    """Units or a clock offset shown alike by every channel whose stream comes from one topic: the topic is the
-    culprit; one sentence and one fix for all of them (the clock's lead averaged over the channels)."""
+    """Units or a clock offset shown alike by every channel whose stream comes from one topic: the topic is
+    the culprit; one sentence and one fix for all of them (the clock's lead averaged over the channels)."""
     groups: dict[tuple, list[str]] = {}
     for ch, fit in found.items():
         if ch in out or fit.kind not in ("units", "clock_offset"):
             continue
         stream = "input" if fit.kind == "clock_offset" or abs(fit.factor) < 1.0 else "output"
         spec = spec_of(ch, stream)
-        key = (fit.kind, stream, getattr(spec, "topic", None), round(fit.factor, 9) if fit.kind == "units" else 0.0)
+        key = (
+            fit.kind,
+            stream,
+            getattr(spec, "topic", None),
+            round(fit.factor, 9) if fit.kind == "units" else 0.0,
+        )
         groups.setdefault(key, []).append(ch)
     for (kind, stream, topic, _), members in groups.items():
         if len(members) < 2:
@@ -277,32 +350,55 @@ def _shared(found: dict[str, ConventionFit], out: dict[str, list[Convention]],
         members = sorted(members)
         if kind == "clock_offset":
             lead = float(np.mean([found[ch].seconds for ch in members]))
-            changes = [{"channel": ch, "stream": stream, "key": "time_offset_s",
-                        "value": float(getattr(spec_of(ch, stream), "time_offset_s", 0.0)) - lead} for ch in members]
-            fix = "add " + ", ".join(f"time_offset_s: {_fmt(c['value'])} to {_stream_words(c['channel'], stream)}"
-                                     for c in changes)
-            sentence = (f"on {', '.join(members)} the rate leads the surface by {1000 * lead:.0f} ms, which no airframe "
-                        f"does: {topic} is stamped late (or the IMU early, by another clock); {fix}")
-            conv = Convention("clock_offset", seconds=lead, stream=stream, fix=fix, sentence=sentence, changes=changes)
+            changes = [
+                {
+                    "channel": ch,
+                    "stream": stream,
+                    "key": "time_offset_s",
+                    "value": float(getattr(spec_of(ch, stream), "time_offset_s", 0.0)) - lead,
+                }
+                for ch in members
+            ]
+            fix = "add " + ", ".join(
+                f"time_offset_s: {_fmt(c['value'])} to {_stream_words(c['channel'], stream)}" for c in changes
+            )
+            sentence = (
+                f"on {', '.join(members)} the rate leads the surface by {1000 * lead:.0f} ms, which no "
+                "airframe "
+                f"does: {topic} is stamped late (or the IMU early, by another clock); {fix}"
+            )
+            conv = Convention(
+                "clock_offset", seconds=lead, stream=stream, fix=fix, sentence=sentence, changes=changes
+            )
         else:
             factor = found[members[0]].factor
             correction = factor if stream == "input" else 1.0 / factor
-            changes = [{"channel": ch, "stream": stream, "key": "scale",
-                        "value": float(getattr(spec_of(ch, stream), "scale", 1.0)) * correction} for ch in members]
+            changes = [
+                {
+                    "channel": ch,
+                    "stream": stream,
+                    "key": "scale",
+                    "value": float(getattr(spec_of(ch, stream), "scale", 1.0)) * correction,
+                }
+                for ch in members
+            ]
             fix = "add " + ", ".join(f"scale: {_fmt(c['value'])} to {_stream_words(c['channel'], stream)}"
                                      for c in changes)
             single = _single(members[0], found[members[0]], spec_of)
             what = single.sentence.split(": ", 1)[1].rsplit("; add", 1)[0]
-            sentence = (f"on {', '.join(members)} the data are the model times {factor:.6g}: {what} ({topic}); "
-                        f"{fix}")
-            conv = Convention("units", factor=factor, stream=stream, fix=fix, sentence=sentence, changes=changes)
+            sentence = (
+                f"on {', '.join(members)} the data are the model times {factor:.6g}: {what} ({topic}); {fix}"
+            )
+            conv = Convention(
+                "units", factor=factor, stream=stream, fix=fix, sentence=sentence, changes=changes
+            )
         for ch in members:
             out[ch] = [conv]
 
 
 def with_stream_changes(raw: dict, conventions: list[Convention]) -> dict:
-    """``raw`` (a config mapping, changed in place and returned) with the conventions' changes written into the
-    streams they name.
+    """``raw`` (a config mapping, changed in place and returned) with the conventions' changes written into
+    the streams they name.
 
     Parameters
     ----------

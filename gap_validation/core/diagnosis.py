@@ -17,8 +17,8 @@ frequency is *confident* (:func:`confident_points`, the one definition the valid
 coherence passes the threshold and pure noise would reach that coherence with probability at most
 :data:`COHERENCE_FALSE_ALARM` (a Beta law in the fit's coefficients and degrees of freedom,
 :func:`minimum_averages`); only confident frequencies count for epsilon, the nu-gap and the fits. Frequencies
-the flight did not excite are ``not_excited`` and never model-limited; a coherent frequency with too few degrees
-of freedom is data-limited where epsilon passes the threshold.
+the flight did not excite are ``not_excited`` and never model-limited; a coherent frequency with too few
+degrees of freedom is data-limited where epsilon passes the threshold.
 
 Bands where ``epsilon(w)`` passes the threshold are **model-limited** when at a usable frequency of the band
 the mismatch exceeds ``k = SIGMA_FACTOR`` (4), and **data-limited** otherwise: low coherence, too few degrees
@@ -28,21 +28,23 @@ model). Measured: model-limited on 0.3 % of the channels of 240 simulated flight
 
 Which effect is missing
 -----------------------
-Each effect of the vocabulary (:mod:`gap_validation.core.effects`) is fitted in series with the current model to
-the averaged measured response with the CIFER cost (Tischler & Remple, *Aircraft and Rotorcraft System
+Each effect of the vocabulary (:mod:`gap_validation.core.effects`) is fitted in series with the current model
+to the averaged measured response with the CIFER cost (Tischler & Remple, *Aircraft and Rotorcraft System
 Identification*, 2nd ed., ch. 11)::
 
-    J = 20/n sum_w W_g [ (|T_m| - |T_c|)^2  +  0.01745 (angle T_m - angle T_c)^2 ],   W_g = [1.58 (1 - exp(-g^2))]^2
+    J = 20/n sum_w W_g [ (|T_m| - |T_c|)^2  +  0.01745 (angle T_m - angle T_c)^2 ],   W_g = [1.58 (1 -
+    exp(-g^2))]^2
 
 (magnitudes in dB, phases in deg, ``g^2`` the coherence) over the usable frequencies: a grid over physically
-sensible parameter ranges, then a bounded local refinement (:func:`scipy.optimize.least_squares`) from the best
-distinct grid points. Pairs of effects are fitted when no single effect explains the mismatch, and the model's
-own coefficients are refitted as ``parameter_error``.
+sensible parameter ranges, then a bounded local refinement (:func:`scipy.optimize.least_squares`) from the
+best distinct grid points. Pairs of effects are fitted when no single effect explains the mismatch, and the
+model's own coefficients are refitted as ``parameter_error``.
 
 Candidates are ranked by the epsilon they would leave (averaged data, confident frequencies). A candidate is
 reported only when its improvement is real against the data's errors, at the usable frequencies:
 
-* the current mismatch is outside the errors (some usable frequency beyond ``k``), else the diagnosis is empty;
+* the current mismatch is outside the errors (some usable frequency beyond ``k``), else the diagnosis is
+  empty;
 * epsilon falls by at least :data:`MIN_RELATIVE_IMPROVEMENT` of its value;
 * it falls by more than :data:`IMPROVEMENT_SIGMA_FACTOR` sigma, or the candidate leaves a mismatch within
   ``k`` where the model was beyond ``k + 1``;
@@ -53,13 +55,14 @@ reported only when its improvement is real against the data's errors, at the usa
 Candidates that leave the data within their errors everywhere come first, the simplest (fewest parameters)
 first; then those as good as the best one, simplest first; the rest follow by epsilon.
 
-No fit at its bounds: a fit whose parameter sits on an edge of its search range (:data:`BOUND_TOLERANCE` of the
-range; the ranges are the registry's, e.g. a structural mode inside the confident band with damping up to 1, a
-gain within +-20 dB of either sign) is *beyond the search range*: it is never offered as a fix, and said so in
-the message when no offered candidate explains the mismatch. ``parameter_error`` searches each coefficient
-within x10 of the model's and, when it lands on that bound, once more within x100 (:data:`COEFFICIENT_RANGES`).
-Each sentence says the epsilon the candidate leaves and whether it *explains* the mismatch (the JSON's
-``explains``: the data within their errors at every confident frequency), or how many noise scales it leaves.
+No fit at its bounds: a fit whose parameter sits on an edge of its search range (:data:`BOUND_TOLERANCE` of
+the range; the ranges are the registry's, e.g. a structural mode inside the confident band with damping up to
+1, a gain within +-20 dB of either sign) is *beyond the search range*: it is never offered as a fix, and said
+so in the message when no offered candidate explains the mismatch. ``parameter_error`` searches each
+coefficient within x10 of the model's and, when it lands on that bound, once more within x100
+(:data:`COEFFICIENT_RANGES`). Each sentence says the epsilon the candidate leaves and whether it *explains*
+the mismatch (the JSON's ``explains``: the data within their errors at every confident frequency), or how many
+noise scales it leaves.
 """
 from __future__ import annotations
 
@@ -76,9 +79,17 @@ from scipy.optimize import brentq
 from scipy.special import betainc
 
 from gap_validation.core import metrics
+from gap_validation.core.effects import (
+    EFFECTS,
+    AmplitudeFitRange,
+    EffectFit,
+    EffectType,
+    FitRange,
+    backlash_df,
+    describe_effect,
+    validate_effect,
+)
 from gap_validation.core.errors import GapValidationError
-from gap_validation.core.effects import (EFFECTS, AmplitudeFitRange, EffectFit, EffectType, FitRange, backlash_df,
-                                         describe_effect, validate_effect)
 from gap_validation.core.models import LinearModel
 from gap_validation.core.numbers import significant
 from gap_validation.core.results import Band, Candidate, ConstantFactor
@@ -88,10 +99,29 @@ if TYPE_CHECKING:  # pragma: no cover
     from gap_validation.core.estimator import SpectralEstimate
 
 __all__ = [
-    "ChannelDiagnosis", "analyse_channel", "fit_effects", "FittedCandidate", "cifer_weight", "cifer_cost",
-    "bendat_piersol_random_error", "effective_random_error", "epsilon_noise_scale", "minimum_averages",
-    "normalised_mismatch", "frequency_flags", "find_bands", "FAMILIES", "PAIRS", "SIGMA_FACTOR", "BIAS_ERROR",
-    "band_edge_warning", "information_criteria", "confident_mask", "INDISTINGUISHABLE", "constant_factor", "FACTOR_SPAN",
+    "ChannelDiagnosis",
+    "analyse_channel",
+    "fit_effects",
+    "FittedCandidate",
+    "cifer_weight",
+    "cifer_cost",
+    "bendat_piersol_random_error",
+    "effective_random_error",
+    "epsilon_noise_scale",
+    "minimum_averages",
+    "normalised_mismatch",
+    "frequency_flags",
+    "find_bands",
+    "FAMILIES",
+    "PAIRS",
+    "SIGMA_FACTOR",
+    "BIAS_ERROR",
+    "band_edge_warning",
+    "information_criteria",
+    "confident_mask",
+    "INDISTINGUISHABLE",
+    "constant_factor",
+    "FACTOR_SPAN",
 ]
 
 #: Noise-only epsilon is Rayleigh with scale ``sigma = e/2``; ``P(eps > k sigma) = exp(-k^2/2)``: k = 4 gives
@@ -104,11 +134,13 @@ MIN_RELATIVE_IMPROVEMENT = 0.25
 #: A pair must remove at least this fraction of its best single member's epsilon.
 PAIR_RELATIVE_IMPROVEMENT = 0.25
 #: Candidates whose information criterion (:func:`information_criteria`) lies within this of the lowest are
-#: indistinguishable by the data (a Bayes factor below e, "not worth more than a bare mention"; Kass and Raftery
-#: 1995): the one with the fewest parameters is named first, and the sentence says which others fit as well.
+#: indistinguishable by the data (a Bayes factor below e, "not worth more than a bare mention"; Kass and
+#: Raftery 1995): the one with the fewest parameters is named first, and the sentence says which others fit as
+#: well.
 INDISTINGUISHABLE = 2.0
-#: A noise scale more than this many times wider than the coherence allows (the classical random error with the
-#: systematic floor) is no random error: :func:`find_bands` says so rather than "the random error explains it".
+#: A noise scale more than this many times wider than the coherence allows (the classical random error with
+#: the systematic floor) is no random error: :func:`find_bands` says so rather than "the random error explains
+#: it".
 BOUND_CHECK = 10.0
 #: Systematic error floor of a measured response, relative (1 % of |H|, 0.6 deg): interpolation of the
 #: streams onto the grid and timestamp offsets between them. The estimator's own smoothing bias is not in it:
@@ -128,9 +160,9 @@ BOUND_TOLERANCE = 1e-3
 #: when the fit sits on a bound; still on it, the refit is beyond the search range.
 COEFFICIENT_RANGES = (10.0, 100.0)
 _MIN_POINTS = 4        # fewer confident points: no fitting
-#: A constant factor within the tolerance (:func:`constant_factor`) is said only over confident frequencies that span
-#: at least this ratio: a decade, the span over which Bode's gain-phase relation ties a linear element's phase to
-#: its gain slope (a delay of 10 ms is a constant 4 +- 2 deg over 5-12 rad/s).
+#: A constant factor within the tolerance (:func:`constant_factor`) is said only over confident frequencies
+#: that span at least this ratio: a decade, the span over which Bode's gain-phase relation ties a linear
+#: element's phase to its gain slope (a delay of 10 ms is a constant 4 +- 2 deg over 5-12 rad/s).
 FACTOR_SPAN = 10.0
 _MAX_CANDIDATES = 6    # reported at most
 
@@ -167,13 +199,14 @@ class ChannelDiagnosis:
         What the data-path numbers may not show (:func:`band_edge_warning`, a failed winding-number condition
         between the model and the top candidate's model), one line each (``ChannelResult.warnings``).
     margins_caveat : str
-        Why the margins from epsilon are not guaranteed although epsilon < 1 (empty: nothing known against them).
+        Why the margins from epsilon are not guaranteed although epsilon < 1 (empty: nothing known against
+        them).
     nonlinearity : str or None
         :data:`~gap_validation.core.nonlinearity.NONLINEARITY` when sweeps flown at different amplitudes
         disagree beyond their errors (JSON ``nonlinearity``), else None.
     nonlinearity_evidence : str or None
-        The comparison in words (JSON ``nonlinearity_evidence``), also when nothing was detected; None when the
-        sweeps do not span different amplitudes.
+        The comparison in words (JSON ``nonlinearity_evidence``), also when nothing was detected; None when
+        the sweeps do not span different amplitudes.
     amplitude : ndarray or None
         Input amplitude flown per frequency (:func:`~gap_validation.core.nonlinearity.flown_amplitude`).
     convention : ConventionFit or None
@@ -295,7 +328,9 @@ def _sweep_scatter_error(estimate, sweeps: Sequence, coherence_threshold: float)
     """
     w = np.asarray(estimate.w_rad_s, dtype=float)
     out = np.full(w.shape, np.nan)
-    usable = [s for s in sweeps if np.shape(s.response) == w.shape and getattr(s, "variance", None) is not None]
+    usable = [
+        s for s in sweeps if np.shape(s.response) == w.shape and getattr(s, "variance", None) is not None
+    ]
     if len(usable) < 3:
         return out
     h = np.array([np.asarray(s.response, dtype=complex) for s in usable])
@@ -360,9 +395,9 @@ def minimum_averages(coherence_threshold: float, false_alarm: float = COHERENCE_
     """Fewest degrees of freedom for which a coherence above the threshold is not plausibly noise.
 
     The coherence of a local polynomial fit with ``nh`` complex coefficients and ``d`` residual degrees of
-    freedom is, for pure noise, Beta(nh, d) distributed (the share of the output a random regression explains);
-    the result is the smallest ``d`` making ``P(coherence > c)`` at most ``false_alarm`` (10 for c = 0.6 and
-    the default first-order polynomial, nh = 2), within [4, 64].
+    freedom is, for pure noise, Beta(nh, d) distributed (the share of the output a random regression
+    explains); the result is the smallest ``d`` making ``P(coherence > c)`` at most ``false_alarm`` (10 for c
+    = 0.6 and the default first-order polynomial, nh = 2), within [4, 64].
 
     Parameters
     ----------
@@ -396,8 +431,13 @@ def confident_points(estimate: SpectralEstimate, coherence_threshold: float) -> 
     coherence_threshold : float
         The channel's coherence threshold.
     """
-    return confident_mask(estimate.response, estimate.coherence, _n_averages(estimate), _coefficients(estimate),
-                          coherence_threshold)
+    return confident_mask(
+        estimate.response,
+        estimate.coherence,
+        _n_averages(estimate),
+        _coefficients(estimate),
+        coherence_threshold,
+    )
 
 
 def confident_mask(response: ArrayLike, coherence: ArrayLike, dof: ArrayLike, coefficients: int,
@@ -436,8 +476,8 @@ def _coefficients(estimate) -> int:
 def normalised_mismatch(eps_w: ArrayLike, sigma: ArrayLike, dof: ArrayLike = np.inf) -> np.ndarray:
     """How many noise scales the mismatch is: the Rayleigh-equivalent ``k`` of ``epsilon / sigma``.
 
-    With the noise variance estimated on ``d`` (complex) degrees of freedom the normalised squared error of the
-    response is ``F(2, 2 d)`` distributed: ``P = (1 + r^2 / (2 d))^-d`` for ``r = epsilon / sigma``, and
+    With the noise variance estimated on ``d`` (complex) degrees of freedom the normalised squared error of
+    the response is ``F(2, 2 d)`` distributed: ``P = (1 + r^2 / (2 d))^-d`` for ``r = epsilon / sigma``, and
     ``k = sqrt(-2 ln P) = sqrt(2 d ln(1 + r^2 / (2 d)))``, which tends to ``r`` (Rayleigh) for many degrees of
     freedom.
 
@@ -456,7 +496,8 @@ def normalised_mismatch(eps_w: ArrayLike, sigma: ArrayLike, dof: ArrayLike = np.
     return np.where(np.isfinite(r), k, np.where(np.isnan(r), 0.0, np.inf))
 
 
-# ------------------------------------------------------------------------------------------------ where it fails
+# ------------------------------------------------------------------------------------------------ where it
+# fails
 
 
 def frequency_flags(eps_w: ArrayLike, mismatch: ArrayLike, coherent: ArrayLike, confident: ArrayLike,
@@ -506,9 +547,18 @@ def frequency_flags(eps_w: ArrayLike, mismatch: ArrayLike, coherent: ArrayLike, 
     return flags
 
 
-def find_bands(w_rad_s: ArrayLike, eps_w: ArrayLike, mismatch: ArrayLike, coherence: ArrayLike, n_averages: ArrayLike,
-               flags: Sequence[str], coherence_threshold: float, min_averages: int = 0,
-               sigma_factor: float = SIGMA_FACTOR, sigma: ArrayLike | None = None) -> list[Band]:
+def find_bands(
+    w_rad_s: ArrayLike,
+    eps_w: ArrayLike,
+    mismatch: ArrayLike,
+    coherence: ArrayLike,
+    n_averages: ArrayLike,
+    flags: Sequence[str],
+    coherence_threshold: float,
+    min_averages: int = 0,
+    sigma_factor: float = SIGMA_FACTOR,
+    sigma: ArrayLike | None = None,
+) -> list[Band]:
     """Runs of adjacent frequencies flagged ``model`` or ``data``, each with its verdict and reason.
 
     A band is model-limited when at least one of its frequencies is; otherwise data-limited. Excluded and
@@ -531,10 +581,10 @@ def find_bands(w_rad_s: ArrayLike, eps_w: ArrayLike, mismatch: ArrayLike, cohere
     sigma_factor : float
         As for :func:`frequency_flags`.
     sigma : array_like, optional
-        The noise scale of epsilon(w) each point was judged with: where it is far wider than the coherence allows
-        (:data:`BOUND_CHECK` times the classical bound with the systematic floor) and the classical bound alone
-        puts the mismatch beyond ``sigma_factor``, a data-limited band says it is a bias allowance, not random
-        error.
+        The noise scale of epsilon(w) each point was judged with: where it is far wider than the coherence
+        allows (:data:`BOUND_CHECK` times the classical bound with the systematic floor) and the classical
+        bound alone puts the mismatch beyond ``sigma_factor``, a data-limited band says it is a bias
+        allowance, not random error.
     """
     bands, start = [], None
     for i, flag in enumerate(list(flags) + ["ok"]):
@@ -563,15 +613,19 @@ def _band(idx, w_rad_s, eps_w, mismatch, coherence, n_averages, flags, coherence
         reason = (f"low coherence (down to {coh_min:.2f} < {coherence_threshold:g}): noise or disturbances "
                   f"dominate; fly better sweeps there (more amplitude, longer, calmer air)")
     elif n_min < min_averages:
-        reason = (f"too few degrees of freedom ({n_min:.0f} < {min_averages}) for the coherence to mean much; "
-                  f"fly the manoeuvre again, or longer, there")
+        reason = (
+            f"too few degrees of freedom ({n_min:.0f} < {min_averages}) for the coherence to mean much; "
+            f"fly the manoeuvre again, or longer, there"
+        )
     elif sigma is not None and (k_coherence := _coherence_mismatch(
             eps[idx], np.asarray(coherence, float)[idx], np.asarray(n_averages, float)[idx],
             np.asarray(sigma, float)[idx])) > sigma_factor:
-        reason = (f"the coherence (down to {coh_min:.2f}) and degrees of freedom put the mismatch at "
-                  f"{k_coherence:.0f} noise scales: the larger error allowed there is no random error but a bias "
-                  f"allowance (feedback, or another surface moving with the input: see the warnings); not "
-                  f"validated there")
+        reason = (
+            f"the coherence (down to {coh_min:.2f}) and degrees of freedom put the mismatch at "
+            f"{k_coherence:.0f} noise scales: the larger error allowed there is no random error but a bias "
+            f"allowance (feedback, or another surface moving with the input: see the warnings); not "
+            f"validated there"
+        )
     else:
         reason = (f"the random error explains the mismatch (at most {k_max:.1f} noise scales, coherence down "
                   f"to {coh_min:.2f}); fly better sweeps there")
@@ -581,20 +635,25 @@ def _band(idx, w_rad_s, eps_w, mismatch, coherence, n_averages, flags, coherence
                 min_averages=n_min if math.isfinite(n_min) else None)
 
 
-def _coherence_mismatch(eps_w: np.ndarray, coherence: np.ndarray, dof: np.ndarray, sigma: np.ndarray) -> float:
-    """The largest normalised mismatch, by the classical coherence bound (Bendat and Piersol's random error of a
-    response with this coherence on these degrees of freedom, :func:`bendat_piersol_random_error`, with the
-    systematic floor :data:`BIAS_ERROR`; half of it the noise scale of epsilon), at the points whose noise scale
-    ``sigma`` is more than :data:`BOUND_CHECK` times wider: a check on an error a point was given beyond what its
-    coherence allows (a bias allowance). 0 where none is."""
-    classical = epsilon_noise_scale(np.hypot(bendat_piersol_random_error(coherence, np.maximum(dof, 1.0)), BIAS_ERROR))
+def _coherence_mismatch(
+    eps_w: np.ndarray, coherence: np.ndarray, dof: np.ndarray, sigma: np.ndarray
+) -> float:
+    """The largest normalised mismatch, by the classical coherence bound (Bendat and Piersol's random error of
+    a response with this coherence on these degrees of freedom, :func:`bendat_piersol_random_error`, with the
+    systematic floor :data:`BIAS_ERROR`; half of it the noise scale of epsilon), at the points whose noise
+    scale ``sigma`` is more than :data:`BOUND_CHECK` times wider: a check on an error a point was given beyond
+    what its coherence allows (a bias allowance). 0 where none is."""
+    classical = epsilon_noise_scale(
+        np.hypot(bendat_piersol_random_error(coherence, np.maximum(dof, 1.0)), BIAS_ERROR)
+    )
     wide = np.asarray(sigma, float) > BOUND_CHECK * classical
     k = normalised_mismatch(eps_w, classical, dof)
     k = np.where(wide & np.isfinite(k), k, 0.0)
     return float(np.max(k)) if k.size else 0.0
 
 
-# ------------------------------------------------------------------------------------------------ effect families
+# ------------------------------------------------------------------------------------------------ effect
+# families
 
 
 #: Effect type -> how it is fitted (:class:`~gap_validation.core.effects.EffectFit`), a view of the registry.
@@ -668,7 +727,9 @@ class _Combo:
         return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
 
     def specs(self, x: np.ndarray) -> list[dict]:
-        return [validate_effect(f.fit.spec(p)) for f, p in zip(self.families, self._split(np.asarray(x, float)))]
+        return [
+            validate_effect(f.fit.spec(p)) for f, p in zip(self.families, self._split(np.asarray(x, float)))
+        ]
 
 
 def _distinct_starts(grid: np.ndarray, costs: np.ndarray, span: np.ndarray, count: int) -> list[np.ndarray]:
@@ -696,7 +757,7 @@ def _fit_combo(combo: _Combo, data: _FitData) -> np.ndarray:
     for x0 in _distinct_starts(grid, costs, span, _N_STARTS):
         lo, hi = combo.bounds(x0, data.ctx)
         x0 = np.clip(x0, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
-        from scipy.optimize import least_squares   # scipy.optimize costs 0.6 s at import: only when used
+        from scipy.optimize import least_squares  # scipy.optimize costs 0.6 s at import: only when used
         sol = least_squares(lambda x: data.residuals(combo.response(x, data.w))[0], x0, bounds=(lo, hi),
                             x_scale=(hi - lo) / 10.0, method="trf", max_nfev=200)
         cost = data.cost(combo.response(sol.x, data.w))[0]
@@ -738,7 +799,7 @@ def _coefficient_fit(model: LinearModel, data: _FitData, factor: float = COEFFIC
             x0 = np.log(np.concatenate([np.asarray(start.airframe.num, float)[free_num] / num0[free_num],
                                         np.asarray(start.airframe.den, float)[free_den] / den0[free_den]]))
         x0 = np.clip(np.where(np.isfinite(x0), x0, 0.0), -0.999 * bound, 0.999 * bound)
-    from scipy.optimize import least_squares   # scipy.optimize costs 0.6 s at import: only when used
+    from scipy.optimize import least_squares  # scipy.optimize costs 0.6 s at import: only when used
     sol = least_squares(residuals, x0, bounds=(-bound, bound), method="trf", max_nfev=100 * n_free)
     num, den = build(sol.x)
     num = np.array([significant(v, 6) for v in num])
@@ -774,8 +835,8 @@ class _Evidence:
         return normalised_mismatch(eps_w, sigma, self.n_averages)
 
     def expected(self, response: Callable[[np.ndarray], ArrayLike]) -> tuple[np.ndarray, np.ndarray]:
-        """A model's response through the estimator, and the expansion error (:meth:`SpectralEstimate.expected`);
-        the plain response where the estimate cannot say."""
+        """A model's response through the estimator, and the expansion error
+        (:meth:`SpectralEstimate.expected`); the plain response where the estimate cannot say."""
         direct = np.asarray(response(self.w), complex)
         method = getattr(self.estimate, "expected", None)
         if method is None:
@@ -787,9 +848,9 @@ class _Evidence:
     def fit(self, response: Callable[[np.ndarray], ArrayLike]) -> "_Fit":
         """epsilon(w) of a model (``response(w) -> complex``) against the data, with its sups and statistics.
 
-        epsilon(w) is the paper's (the model at w against the estimate); the mismatch ``k`` and the chi-square,
-        which decide, compare the estimate with the model seen through the estimator, so the estimator's own
-        smoothing does not count as a mismatch.
+        epsilon(w) is the paper's (the model at w against the estimate); the mismatch ``k`` and the
+        chi-square, which decide, compare the estimate with the model seen through the estimator, so the
+        estimator's own smoothing does not count as a mismatch.
         """
         p_fit = np.asarray(response(self.w), complex)
         eps_w = np.asarray(metrics.epsilon_per_frequency(p_fit, self.p_meas), float)
@@ -800,8 +861,8 @@ class _Evidence:
         return _Fit(eps_w, eps, worst, k_max, self._chi2(through, error), k)
 
     def _chi2(self, p_fit, expansion_error) -> float:
-        """``sum |ln(P_fit / P_meas)|^2 / e^2`` over the usable frequencies (about 2 per frequency when the fit
-        equals the truth: chi-square with 2 n degrees of freedom)."""
+        """``sum |ln(P_fit / P_meas)|^2 / e^2`` over the usable frequencies (about 2 per frequency when the
+        fit equals the truth: chi-square with 2 n degrees of freedom)."""
         u = self.confident
         log_q = _log_ratio(np.asarray(p_fit, complex)[u], self.p_meas[u])
         e2 = (2.0 * self.sigma[u]) ** 2 + np.asarray(expansion_error, float)[u] ** 2
@@ -868,7 +929,8 @@ class FittedCandidate:
     indistinguishable : list of str
         For the top-ranked candidate: the others the data cannot tell from it (:data:`INDISTINGUISHABLE`).
     detail : str
-        ``parameter_error`` refitted by its modes: the moves in words (``gain x1.3, mode 4.24 -> 5.1 rad/s ...``).
+        ``parameter_error`` refitted by its modes: the moves in words (``gain x1.3, mode 4.24 -> 5.1 rad/s
+        ...``).
     """
 
     name: str
@@ -879,7 +941,8 @@ class FittedCandidate:
     replacement: bool = False
     score: _Fit | None = None
     at_bound: str = ""
-    criterion: float | None = None          # information criterion (:func:`information_criteria`), when ranked
+    # information criterion (:func:`information_criteria`), when ranked
+    criterion: float | None = None
     indistinguishable: list[str] = field(default_factory=list)   # the ranked top's equals
     detail: str = ""                        # a refit's changes in words
 
@@ -899,7 +962,9 @@ def _fit_combo_candidate(combo: _Combo, model: LinearModel, data: _FitData) -> F
     effects = combo.specs(x)
     members = tuple(f.name for f in combo.families)
     lo, hi = combo.bounds(x, data.ctx)
-    names = [f"{f.name}.{p.name}" if len(members) > 1 else p.name for f in combo.families for p in f.parameters]
+    names = [
+        f"{f.name}.{p.name}" if len(members) > 1 else p.name for f in combo.families for p in f.parameters
+    ]
     values = [v for e in effects for k, v in e.items() if k != "type"]
     return FittedCandidate(combo.name, combo.complexity, effects, model.with_effects(effects),
                            members if len(members) > 1 else (),
@@ -907,7 +972,8 @@ def _fit_combo_candidate(combo: _Combo, model: LinearModel, data: _FitData) -> F
 
 
 def _on_bound(x: np.ndarray, lo: np.ndarray, hi: np.ndarray, names: Sequence[str], values: Sequence) -> str:
-    """Words for the parameters of ``x`` that sit on an edge of the box ``[lo, hi]`` (empty when none does)."""
+    """Words for the parameters of ``x`` that sit on an edge of the box ``[lo, hi]`` (empty when none
+    does)."""
     x, lo, hi = (np.asarray(v, float) for v in (x, lo, hi))
     tol = BOUND_TOLERANCE * np.where(np.isfinite(hi - lo), hi - lo, 1.0)
     words = []
@@ -924,10 +990,10 @@ def _fit_parameter_error(model: LinearModel, data: _FitData) -> FittedCandidate 
     """The model's own parameters refitted as a flight condition or a mis-estimated derivative moves them: its
     modes near the band moved and its gain scaled (:func:`_mode_fit`, each within :data:`MODE_RANGE` and
     :data:`MODE_DAMPING_RANGE`). A free refit of every coefficient (:func:`_coefficient_fit`) can reshape the
-    response as it likes (on a rate-limited elevator it dropped the high-frequency gain by 63 % while moving the
-    short period up 29 %, which no condition change does) and so soaks up dynamics the model lacks: it is the
-    candidate only where the mode fit cannot reach (the model has no mode near the band, or a mode or the gain
-    sits on its range's bound; the coefficients are searched within x10, then x100)."""
+    response as it likes (on a rate-limited elevator it dropped the high-frequency gain by 63 % while moving
+    the short period up 29 %, which no condition change does) and so soaks up dynamics the model lacks: it is
+    the candidate only where the mode fit cannot reach (the model has no mode near the band, or a mode or the
+    gain sits on its range's bound; the coefficients are searched within x10, then x100)."""
     modes = _mode_fit(model, data)
     candidate = None
     if modes is not None:
@@ -957,8 +1023,8 @@ def _fit_parameter_error(model: LinearModel, data: _FitData) -> FittedCandidate 
 
 
 def _modes_beyond_range(model: LinearModel, refit: LinearModel, data: _FitData) -> str:
-    """Which of the model's modes near the band (poles and zeros within :data:`MODE_REACH` of it) a coefficient
-    refit moved beyond the ranges of :func:`_mode_fit` (frequency x :data:`MODE_RANGE`, damping
+    """Which of the model's modes near the band (poles and zeros within :data:`MODE_REACH` of it) a
+    coefficient refit moved beyond the ranges of :func:`_mode_fit` (frequency x :data:`MODE_RANGE`, damping
     :data:`MODE_DAMPING_RANGE`), or turned from a pair into real roots or back: in words, empty when none."""
     lo, hi = data.ctx.w_lo / MODE_REACH, data.ctx.w_hi * MODE_REACH
     words = []
@@ -974,7 +1040,9 @@ def _modes_beyond_range(model: LinearModel, refit: LinearModel, data: _FitData) 
                 words.append(f"{kind} {abs(w):.3g} rad/s changed its kind")
                 continue
             w1, z1 = min(same, key=lambda m: abs(math.log(m[0] / abs(w))))
-            if max(w1 / abs(w), abs(w) / w1) > MODE_RANGE or (zeta is not None and abs(z1 - zeta) > MODE_DAMPING_RANGE):
+            if max(w1 / abs(w), abs(w) / w1) > MODE_RANGE or (
+                zeta is not None and abs(z1 - zeta) > MODE_DAMPING_RANGE
+            ):
                 words.append(f"{kind} {abs(w):.3g} -> {w1:.3g} rad/s" + (
                     "" if zeta is None else f" (damping {zeta:.2g} -> {z1:.2g})"))
     return ", ".join(words)
@@ -987,10 +1055,12 @@ MODE_MATCH = 0.25
 
 
 def _moves_own_mode(candidate: FittedCandidate, model: LinearModel) -> bool:
-    """Whether a candidate's structural mode only moves one of the model's own modes: its zeros on a pole pair of
-    the model (within :data:`MODE_MATCH`). A linearisation at another speed has the same modes, moved; a structural
-    mode fitted there is that move, and ``parameter_error`` (:func:`_mode_fit`) says it as such."""
-    poles = [(w, z) for w, z in _roots_as_modes(np.roots(np.asarray(model.airframe.den, float))) if z is not None]
+    """Whether a candidate's structural mode only moves one of the model's own modes: its zeros on a pole pair
+    of the model (within :data:`MODE_MATCH`). A linearisation at another speed has the same modes, moved; a
+    structural mode fitted there is that move, and ``parameter_error`` (:func:`_mode_fit`) says it as such."""
+    poles = [
+        (w, z) for w, z in _roots_as_modes(np.roots(np.asarray(model.airframe.den, float))) if z is not None
+    ]
     for effect in candidate.effects:
         if effect.get("type") != "structural_mode":
             continue
@@ -1000,8 +1070,8 @@ def _moves_own_mode(candidate: FittedCandidate, model: LinearModel) -> bool:
     return False
 
 
-#: A mode of the model (a pole or zero, a complex pair or a real root) is refitted by :func:`_mode_fit` when its
-#: natural frequency lies within this factor of the confident band ...
+#: A mode of the model (a pole or zero, a complex pair or a real root) is refitted by :func:`_mode_fit` when
+#: its natural frequency lies within this factor of the confident band ...
 MODE_REACH = 3.0
 #: ... each frequency and the gain within this factor of the model's, each damping within this of the model's.
 MODE_RANGE = 3.0
@@ -1011,7 +1081,8 @@ CANCEL = 0.02
 
 
 def _roots_as_modes(roots: np.ndarray) -> list[tuple[float, float | None]]:
-    """Roots as modes: ``(w, zeta)`` per complex pair (upper half-plane root), ``(a, None)`` per real root -a."""
+    """Roots as modes: ``(w, zeta)`` per complex pair (upper half-plane root), ``(a, None)`` per real root
+    -a."""
     out = []
     for r in roots:
         if abs(r.imag) > 1e-9 * max(abs(r), 1e-300):
@@ -1032,12 +1103,12 @@ def _modes_poly(modes: list[tuple[float, float | None]]) -> np.ndarray:
 
 
 def _mode_fit(model: LinearModel, data: _FitData) -> tuple[LinearModel, str, int, str] | None:
-    """Refit the model's gain and the modes near the confident band: each pole and zero whose natural frequency
-    lies within :data:`MODE_REACH` of the band, a complex pair by its frequency and damping, a real root by its
-    corner (within :data:`MODE_RANGE` and :data:`MODE_DAMPING_RANGE`); the effects kept. What a linearisation at
-    another speed or weight gives: the same modes, moved, and the gains scaled -- not new modes. Returns the
-    refitted model, the moves in words, the parameters fitted, and which sit on their bound (empty: none); None
-    when no mode is near the band."""
+    """Refit the model's gain and the modes near the confident band: each pole and zero whose natural
+    frequency lies within :data:`MODE_REACH` of the band, a complex pair by its frequency and damping, a real
+    root by its corner (within :data:`MODE_RANGE` and :data:`MODE_DAMPING_RANGE`); the effects kept. What a
+    linearisation at another speed or weight gives: the same modes, moved, and the gains scaled -- not new
+    modes. Returns the refitted model, the moves in words, the parameters fitted, and which sit on their bound
+    (empty: none); None when no mode is near the band."""
     air = model.airframe
     num, den = np.asarray(air.num, float), np.asarray(air.den, float)
     if not np.any(num):
@@ -1049,7 +1120,8 @@ def _mode_fit(model: LinearModel, data: _FitData) -> tuple[LinearModel, str, int
     def near(w: float) -> bool:
         return lo <= abs(w) <= hi
 
-    # a pole and a zero that (nearly) cancel carry no response (a mode of another axis, barely coupled): they stay
+    # a pole and a zero that (nearly) cancel carry no response (a mode of another axis, barely coupled): they
+    # stay
     def cancels(a: tuple, b: tuple) -> bool:
         (wa, za), (wb, zb) = a, b
         return (za is None) == (zb is None) and abs(wa - wb) <= CANCEL * max(abs(wb), 1e-12) and \
@@ -1091,8 +1163,12 @@ def _mode_fit(model: LinearModel, data: _FitData) -> tuple[LinearModel, str, int
                 pos += 1
             target[i] = (w, zeta)
         num_new = _modes_poly(z)
-        gain = lead * math.exp(x[0]) * np.prod([w * w if zt is not None else w for w, zt in zeros] or [1.0]) / \
-            np.prod([w * w if zt is not None else w for w, zt in z] or [1.0])
+        gain = (
+            lead
+            * math.exp(x[0])
+            * np.prod([w * w if zt is not None else w for w, zt in zeros] or [1.0])
+            / np.prod([w * w if zt is not None else w for w, zt in z] or [1.0])
+        )
         return gain * num_new, _modes_poly(p)
 
     def residuals(x: np.ndarray) -> np.ndarray:
@@ -1100,14 +1176,21 @@ def _mode_fit(model: LinearModel, data: _FitData) -> tuple[LinearModel, str, int
         p = np.polyval(n_new, s) / np.polyval(d_new, s) * others
         return data.residuals((p / data.p_model)[None, :])[0]
 
-    from scipy.optimize import least_squares   # scipy.optimize costs 0.6 s at import: only when used
+    from scipy.optimize import least_squares  # scipy.optimize costs 0.6 s at import: only when used
     sol = least_squares(residuals, x0, bounds=(lo_b, hi_b), method="trf", max_nfev=100 * x0.size)
     n_new, d_new = build(sol.x)
-    refit = LinearModel(np.array([significant(v, 6) for v in n_new]), np.array([significant(v, 6) for v in d_new]),
-                        air.delay_s, model.effects)
+    refit = LinearModel(
+        np.array([significant(v, 6) for v in n_new]),
+        np.array([significant(v, 6) for v in d_new]),
+        air.delay_s,
+        model.effects,
+    )
     tol = BOUND_TOLERANCE * (hi_b - lo_b)
-    edge = [f"{n} ({'lower' if v <= a + t else 'upper'} bound)" for n, v, a, b_, t in zip(names, sol.x, lo_b, hi_b, tol)
-            if v <= a + t or v >= b_ - t]
+    edge = [
+        f"{n} ({'lower' if v <= a + t else 'upper'} bound)"
+        for n, v, a, b_, t in zip(names, sol.x, lo_b, hi_b, tol)
+        if v <= a + t or v >= b_ - t
+    ]
     words = [f"gain x{math.exp(sol.x[0]):.3g}"]
     pos = 1
     for kind, i in free:
@@ -1161,8 +1244,8 @@ _PACE: contextvars.ContextVar[Callable[[], None] | None] = contextvars.ContextVa
 
 @contextmanager
 def paced(callback: Callable[[], None]) -> Iterator[None]:
-    """Within this block (in this thread), the diagnosis calls ``callback`` between two candidate fits: the node's
-    diagnosis worker sleeps there to hold the fitting to a share of a core. The results are the same.
+    """Within this block (in this thread), the diagnosis calls ``callback`` between two candidate fits: the
+    node's diagnosis worker sleeps there to hold the fitting to a share of a core. The results are the same.
 
     Parameters
     ----------
@@ -1204,8 +1287,8 @@ def _fit_all(model, ev: _Evidence, *, pairs: bool, parameter_error: bool, single
 
 
 def _chi2_improvement(before: _Fit, after: _Fit, extra_parameters: int, n_usable: int) -> bool:
-    """``after`` removes at least half of ``before``'s chi-square excess over its expectation (2 per frequency)
-    and more than fitting noise with the extra parameters could (``10 + 3 p``)."""
+    """``after`` removes at least half of ``before``'s chi-square excess over its expectation (2 per
+    frequency) and more than fitting noise with the extra parameters could (``10 + 3 p``)."""
     gain = before.chi2 - after.chi2
     return gain >= max(0.5 * (before.chi2 - 2.0 * n_usable), 10.0 + 3.0 * max(extra_parameters, 1))
 
@@ -1226,8 +1309,9 @@ def _real_improvement(ev: _Evidence, before: _Fit, after: _Fit, extra_parameters
 
 def _select(ev: _Evidence, base: _Fit, fitted: list[FittedCandidate]) -> list[FittedCandidate]:
     """Keep the candidates with a real improvement (pairs only when clearly better than their best member) and
-    rank them by parsimony (:func:`information_criteria`): the lowest criterion first, and among the candidates the
-    data cannot tell from it (within :data:`INDISTINGUISHABLE`) the one with the fewest parameters."""
+    rank them by parsimony (:func:`information_criteria`): the lowest criterion first, and among the
+    candidates the data cannot tell from it (within :data:`INDISTINGUISHABLE`) the one with the fewest
+    parameters."""
     singles = {c.name: c for c in fitted if not c.members and not c.replacement}
     kept = []
     for cand in fitted:
@@ -1258,13 +1342,13 @@ def _select(ev: _Evidence, base: _Fit, fitted: list[FittedCandidate]) -> list[Fi
 def information_criteria(chi2: Sequence[float], parameters: Sequence[int], residuals: int) -> np.ndarray:
     """Schwarz's criterion of each candidate on the weighted residuals, corrected for overdispersion.
 
-    The chi-square of a fit, ``sum |ln(P_fit / P_meas)|^2 / e^2`` over the confident frequencies, is ``-2 ln L`` up
-    to a constant when the errors ``e`` are right, on ``N = 2 n`` real residuals. A model that is a little wrong
-    everywhere (real models are off by 5-10 %) leaves a misfit the errors do not cover, and every extra parameter
-    soaks some of it up: the chi-squares are therefore divided by ``c = max(1, min chi2 / (N - p))``, the smallest
-    reduced chi-square among the candidates (quasi-likelihood), before the penalty ``p ln N`` is added
-    (``QBIC = chi2 / c + p ln N``). An extra parameter must then remove more misfit than ``ln N`` times what is left
-    per residual. Nested or not, candidates compare on the same scale.
+    The chi-square of a fit, ``sum |ln(P_fit / P_meas)|^2 / e^2`` over the confident frequencies, is ``-2 ln
+    L`` up to a constant when the errors ``e`` are right, on ``N = 2 n`` real residuals. A model that is a
+    little wrong everywhere (real models are off by 5-10 %) leaves a misfit the errors do not cover, and every
+    extra parameter soaks some of it up: the chi-squares are therefore divided by ``c = max(1, min chi2 / (N -
+    p))``, the smallest reduced chi-square among the candidates (quasi-likelihood), before the penalty ``p ln
+    N`` is added (``QBIC = chi2 / c + p ln N``). An extra parameter must then remove more misfit than ``ln N``
+    times what is left per residual. Nested or not, candidates compare on the same scale.
 
     Parameters
     ----------
@@ -1291,9 +1375,13 @@ def _candidate(c: FittedCandidate, ev: _Evidence, base: _Fit, p_model: np.ndarra
     score = c.score
     replacement = {}
     if c.replacement:
-        replacement = {"model": c.model.to_spec(),
-                       "note": ("parameter error: the model's own coefficients refitted (same structure); nothing "
-                                "to append to effects: replace the model by 'model'")}
+        replacement = {
+            "model": c.model.to_spec(),
+            "note": (
+                "parameter error: the model's own coefficients refitted (same structure); nothing "
+                "to append to effects: replace the model by 'model'"
+            ),
+        }
     return Candidate(
         effect=c.name,
         parameters=_parameters(c),
@@ -1325,12 +1413,15 @@ def _parameters(c: FittedCandidate) -> dict:
 
 
 def _sentence(c: FittedCandidate, base: _Fit, ev: _Evidence) -> str:
-    """What the candidate is, the epsilon it leaves, and whether it explains the mismatch (the data within their
-    errors at every confident frequency, JSON ``explains``)."""
+    """What the candidate is, the epsilon it leaves, and whether it explains the mismatch (the data within
+    their errors at every confident frequency, JSON ``explains``)."""
     after = c.score
     if c.replacement and c.detail:
-        text = (f"parameter error (a model of another flight condition?): the model's own modes moved and its gain "
-                f"scaled ({c.detail}) bring epsilon from {base.eps:.2f} to {after.eps:.2f}")
+        text = (
+            "parameter error (a model of another flight condition?): the model's own modes moved and its "
+            "gain "
+            f"scaled ({c.detail}) bring epsilon from {base.eps:.2f} to {after.eps:.2f}"
+        )
     elif c.replacement:
         text = (f"parameter error: refitting the model's coefficients (same structure) brings epsilon from "
                 f"{base.eps:.2f} to {after.eps:.2f}")
@@ -1345,8 +1436,11 @@ def _sentence(c: FittedCandidate, base: _Fit, ev: _Evidence) -> str:
         text += (f", but does not explain the mismatch ({after.k_max:.0f} noise scales left at "
                  f"{ev.w[worst]:.3g} rad/s)")
     if c.indistinguishable:
-        text += (f"; the data cannot tell it from {' or '.join(_NAMES.get(n, n) for n in c.indistinguishable)} "
-                 f"(information criterion within {INDISTINGUISHABLE:g}): it is named for having the fewest parameters")
+        text += (
+            f"; the data cannot tell it from {' or '.join(_NAMES.get(n, n) for n in c.indistinguishable)} "
+            f"(information criterion within {INDISTINGUISHABLE:g}): it is named for having the fewest "
+            "parameters"
+        )
     return text
 
 
@@ -1356,14 +1450,17 @@ _NAMES = {"parameter_error": "a refit of the model's coefficients"}
 
 def _raw_epsilon(model: LinearModel, sweeps: Sequence, coherence_threshold: float,
                  average_confident: np.ndarray) -> float | None:
-    """Sup of epsilon over every sweep's points (:func:`~gap_validation.core.spectra.sweep_points`) for ``model`` (raw epsilon, Table 1)."""
+    """Sup of epsilon over every sweep's points (:func:`~gap_validation.core.spectra.sweep_points`) for
+    ``model`` (raw epsilon, Table 1)."""
     best = None
     for s in sweeps:
         ok = sweep_points(s, average_confident, coherence_threshold)
         if np.any(ok):
             w = np.asarray(s.w_rad_s, float)[ok]
             m = _at_sweep_amplitude(model, s)
-            e = float(np.max(metrics.epsilon_per_frequency(m.freqresp(w), np.asarray(s.response, complex)[ok])))
+            e = float(
+                np.max(metrics.epsilon_per_frequency(m.freqresp(w), np.asarray(s.response, complex)[ok]))
+            )
             best = e if best is None else max(best, e)
     return best
 
@@ -1418,17 +1515,22 @@ def analyse_channel(model: LinearModel, estimate: SpectralEstimate, sweeps: Sequ
     from gap_validation.core.nonlinearity import amplitude_dependence
 
     dependence = amplitude_dependence(sweeps, ev.confident, coherence_threshold, bias_error)
-    # a sign, units or a clock (issue 23) before any physics: checked on the cheap path too (the node warns at once)
+    # a sign, units or a clock (issue 23) before any physics: checked on the cheap path too (the node warns at
+    # once)
     result.convention = _convention(model, ev, base) if result.limited_by == "model" else None
     if fit and result.limited_by == "model" and result.convention is None:
-        # an amplitude-dependent effect is fitted only where amplitude dependence was seen: one amplitude's mismatch
-        # is no evidence of it (a rate limit or free play fits any lag at a single amplitude)
+        # an amplitude-dependent effect is fitted only where amplitude dependence was seen: one amplitude's
+        # mismatch is no evidence of it (a rate limit or free play fits any lag at a single amplitude)
         nonlinear = dependence is not None and dependence.detected
-        fitted = [c for c in _diagnose(model, ev, amplitude if nonlinear else None) if not _moves_own_mode(c, model)]
+        fitted = [
+            c for c in _diagnose(model, ev, amplitude if nonlinear else None) if not _moves_own_mode(c, model)
+        ]
         chosen = _select(ev, base, [c for c in fitted if not c.at_bound])
         result.candidates = [_candidate(c, ev, base, p_model, sweeps, coherence_threshold) for c in chosen]
-        if not any(c.explains for c in result.candidates):   # said only when no offered fix explains it
-            result.beyond_range = [f"{c.name} ({c.at_bound})" for c in _select(ev, base, fitted) if c.at_bound]
+        if not any(c.explains for c in result.candidates):  # said only when no offered fix explains it
+            result.beyond_range = [
+                f"{c.name} ({c.at_bound})" for c in _select(ev, base, fitted) if c.at_bound
+            ]
         if chosen:
             _winding_warning(model, chosen[0], result)
     if fit and result.limited_by != "model" and result.convention is None:
@@ -1437,17 +1539,19 @@ def analyse_channel(model: LinearModel, estimate: SpectralEstimate, sweeps: Sequ
         ev.w, base.eps_w, metrics.chordal_distance(p_model, ev.p_meas), base.k, ev.confident, sigma_factor)
     if edge:
         result.warnings.insert(0, edge)
-        result.margins_caveat = result.margins_caveat or ("the mismatch peaks at the edge of the measured band and "
-                                                          "may continue outside it: the margins then do not hold")
+        result.margins_caveat = result.margins_caveat or (
+            "the mismatch peaks at the edge of the measured band and "
+            "may continue outside it: the margins then do not hold"
+        )
     result.message = _message(ev, base, result, coherence_threshold, epsilon_threshold, channel)
     _call_nonlinearity(result, ev, dependence, amplitude)
     return result
 
 
 def _convention(model: LinearModel, ev: _Evidence, base: _Fit):
-    """The convention factor (:mod:`gap_validation.core.conventions`: a sign, units, a clock) that leaves the data
-    within their errors where the model alone does not, the one with the smallest chi-square; None when none does.
-    A lead (the rate ahead of the surface) is fitted; a lag is physics (a delay), not a clock."""
+    """The convention factor (:mod:`gap_validation.core.conventions`: a sign, units, a clock) that leaves the
+    data within their errors where the model alone does not, the one with the smallest chi-square; None when
+    none does. A lead (the rate ahead of the surface) is fitted; a lag is physics (a delay), not a clock."""
     from gap_validation.core.conventions import candidates, clock, fit_clock
 
     if base.worst < 0 or base.k_max <= ev.sigma_factor or np.count_nonzero(ev.confident) < _MIN_POINTS:
@@ -1472,8 +1576,8 @@ def _convention(model: LinearModel, ev: _Evidence, base: _Fit):
 
 def band_edge_warning(w_rad_s: ArrayLike, eps_w: ArrayLike, kappa: ArrayLike, mismatch: ArrayLike,
                       confident: ArrayLike, sigma_factor: float = SIGMA_FACTOR) -> str:
-    """A warning when epsilon's or the nu-gap's sup (eqs. 13-14) sits at the lowest or highest confident frequency
-    with a mismatch there beyond the errors (``k > sigma_factor``), else an empty string.
+    """A warning when epsilon's or the nu-gap's sup (eqs. 13-14) sits at the lowest or highest confident
+    frequency with a mismatch there beyond the errors (``k > sigma_factor``), else an empty string.
 
     The data-path numbers are sups over the measured band: a mismatch that peaks at an edge of it may grow
     outside, where nothing was measured, and then neither epsilon nor the margins from it (eqs. 15-17) hold. A
@@ -1513,25 +1617,30 @@ def band_edge_warning(w_rad_s: ArrayLike, eps_w: ArrayLike, kappa: ArrayLike, mi
 
 
 def _winding_warning(model: LinearModel, top: FittedCandidate, result: ChannelDiagnosis) -> None:
-    """The exact winding-number condition between the model and the top candidate's model (the data-path nu-gap
-    assumes it holds between the model and the aircraft): a warning and a margins caveat when it fails."""
+    """The exact winding-number condition between the model and the top candidate's model (the data-path
+    nu-gap assumes it holds between the model and the aircraft): a warning and a margins caveat when it
+    fails."""
     try:
         check = metrics.winding_condition(model, top.model)
     except (ValueError, ArithmeticError, np.linalg.LinAlgError, GapValidationError):   # a degenerate model
         return
     if check.satisfied:
         return
-    result.warnings.append(f"the model and the diagnosed model ({top.name}) fail the winding-number condition "
-                           f"({check.reason}): if the diagnosis is right, the nu-gap between the model and the "
-                           f"aircraft is 1, not the sup over the measured band, and the margins do not hold")
-    result.margins_caveat = ("the model and the diagnosed model fail the winding-number condition: the margins "
-                             "do not hold if the diagnosis is right")
+    result.warnings.append(
+        f"the model and the diagnosed model ({top.name}) fail the winding-number condition "
+        f"({check.reason}): if the diagnosis is right, the nu-gap between the model and the "
+        f"aircraft is 1, not the sup over the measured band, and the margins do not hold"
+    )
+    result.margins_caveat = (
+        "the model and the diagnosed model fail the winding-number condition: the margins "
+        "do not hold if the diagnosis is right"
+    )
 
 
 def _diagnose(model: LinearModel, ev: _Evidence, amplitude=None) -> list[FittedCandidate]:
-    """Singles and the coefficient refit (and the amplitude-dependent effects when ``amplitude``, the flown amplitude,
-    is given: only where amplitude dependence was seen); pairs too when no single effect leaves a mismatch within the
-    errors."""
+    """Singles and the coefficient refit (and the amplitude-dependent effects when ``amplitude``, the flown
+    amplitude, is given: only where amplitude dependence was seen); pairs too when no single effect leaves a
+    mismatch within the errors."""
     fitted = _fit_all(model, ev, pairs=False, parameter_error=True)
     if amplitude is not None:
         fitted += _fit_nonlinear(model, ev, amplitude)
@@ -1567,8 +1676,10 @@ def _message(ev: _Evidence, base: _Fit, result: ChannelDiagnosis, coherence_thre
     if base.worst < 0:
         coherent = estimated & (ev.coherence >= coherence_threshold)
         if coherent.any():
-            why = (f"too few degrees of freedom (at most {np.max(ev.n_averages[coherent]):.0f} < {ev.min_dof}): "
-                   f"fly the manoeuvre again, or longer")
+            why = (
+                f"too few degrees of freedom (at most {np.max(ev.n_averages[coherent]):.0f} < {ev.min_dof}): "
+                f"fly the manoeuvre again, or longer"
+            )
         elif estimated.any():
             why = (f"coherence below {coherence_threshold:g} everywhere (at most "
                    f"{np.max(ev.coherence[estimated]):.2f}): fly with more excitation, or in calmer air")
@@ -1608,19 +1719,24 @@ def _message(ev: _Evidence, base: _Fit, result: ChannelDiagnosis, coherence_thre
     return text
 
 
-# ------------------------------------------------------------------------------------------------ within the tolerance
+# ------------------------------------------------------------------------------------------------ within the
+# tolerance
 
 
 def _factor_sentence(found: ConstantFactor) -> str:
     """A :class:`ConstantFactor` in words, for the channel's message."""
-    text = (f"within the tolerance, the data still resolve a constant factor ({found.noise_scales:.0f} noise "
-            f"scales): the response is {found.gain:.3g} x the model's, {abs(found.phase_deg):.0f} deg "
-            f"{'behind' if found.phase_deg < 0 else 'ahead'} at every confident frequency "
-            f"({_range(found.min_rad_s, found.max_rad_s)}, +-{found.error:.2g}), which no linear element gives "
-            f"(Bode's gain-phase relation)")
+    text = (
+        f"within the tolerance, the data still resolve a constant factor ({found.noise_scales:.0f} noise "
+        f"scales): the response is {found.gain:.3g} x the model's, {abs(found.phase_deg):.0f} deg "
+        f"{'behind' if found.phase_deg < 0 else 'ahead'} at every confident frequency "
+        f"({_range(found.min_rad_s, found.max_rad_s)}, +-{found.error:.2g}), which no linear element gives "
+        f"(Bode's gain-phase relation)"
+    )
     if found.free_play_rad is not None:
-        text += (f": free play of {found.free_play_rad:.2g} rad does at the flown amplitude {found.amplitude:.2g} "
-                 f"(not named from one amplitude: sweeps at two amplitudes would tell)")
+        text += (
+            f": free play of {found.free_play_rad:.2g} rad does at the flown amplitude {found.amplitude:.2g} "
+            f"(not named from one amplitude: sweeps at two amplitudes would tell)"
+        )
     return text
 
 
@@ -1634,17 +1750,20 @@ def constant_factor(model: LinearModel, ev: _Evidence, base: _Fit,
     0.01). Naming an effect there would name the few per cent every real model is off, so only the simplest
     statement is made, and only when it is resolved, sufficient and more than a gain:
 
-    * some confident frequency is beyond ``SIGMA_FACTOR`` noise scales (the model alone is not within the errors);
-    * ``c``, the inverse-variance mean of ``P_meas / P_model`` over the confident frequencies, differs from 1 by
-      more than ``SIGMA_FACTOR`` standard errors, the error of ``c`` never below ``bias_error``: a systematic
-      error (interpolation, a timestamp offset) is common to all frequencies and does not average down;
+    * some confident frequency is beyond ``SIGMA_FACTOR`` noise scales (the model alone is not within the
+      errors);
+    * ``c``, the inverse-variance mean of ``P_meas / P_model`` over the confident frequencies, differs from 1
+      by more than ``SIGMA_FACTOR`` standard errors, the error of ``c`` never below ``bias_error``: a
+      systematic error (interpolation, a timestamp offset) is common to all frequencies and does not average
+      down;
     * ``c`` times the model leaves every confident frequency within ``SIGMA_FACTOR`` noise scales;
     * the confident frequencies span at least :data:`FACTOR_SPAN` (a decade): over less, a delay or a lag is a
       constant factor within the errors too, and "the same at every frequency" would say nothing;
-    * its phase differs from 0 by more than ``SIGMA_FACTOR`` errors. A real gain a few per cent off is what every
-      real model is (a mass, an inertia, the dynamic pressure: JSBSim's linearisations are 4-9 % off in gain on
-      14 % of their channels), inside the tolerance by design; a constant phase over a decade with a flat gain is
-      no linear element's (Bode's gain-phase relation ties a linear element's phase to its gain slope).
+    * its phase differs from 0 by more than ``SIGMA_FACTOR`` errors. A real gain a few per cent off is what
+      every real model is (a mass, an inertia, the dynamic pressure: JSBSim's linearisations are 4-9 % off in
+      gain on 14 % of their channels), inside the tolerance by design; a constant phase over a decade with a
+      flat gain is no linear element's (Bode's gain-phase relation ties a linear element's phase to its gain
+      slope).
 
     Parameters
     ----------
@@ -1695,14 +1814,19 @@ def constant_factor(model: LinearModel, ev: _Evidence, base: _Fit,
     return found
 
 
-# ------------------------------------------------------------------------------------------------ nonlinear effects
+# ------------------------------------------------------------------------------------------------ nonlinear
+# effects
 
 
 #: Amplitude-dependent effects the diagnosis fits through their describing functions (a view of the registry).
-NONLINEAR_FAMILIES: dict[str, EffectType] = {name: e for name, e in EFFECTS.items() if e.describing_fit is not None}
+NONLINEAR_FAMILIES: dict[str, EffectType] = {
+    name: e for name, e in EFFECTS.items() if e.describing_fit is not None
+}
 
 
-def flown_model(model: LinearModel, estimate: SpectralEstimate, sweeps: Sequence) -> tuple[LinearModel, object]:
+def flown_model(
+    model: LinearModel, estimate: SpectralEstimate, sweeps: Sequence
+) -> tuple[LinearModel, object]:
     """The model bound to the input amplitude flown per frequency, and that amplitude as ``amplitude(w)``.
 
     The amplitude comes from the records (:func:`~gap_validation.core.nonlinearity.flown_amplitude`); without
@@ -1776,9 +1900,13 @@ def _fit_nonlinear(model: LinearModel, ev: _Evidence, amplitude) -> list[FittedC
         effects = combo.specs(x)
         lo, hi = combo.bounds(x, data.ctx)
         values = [v for e in effects for k, v in e.items() if k != "type"]
-        cand = FittedCandidate(combo.name, combo.complexity, effects,
-                               model.with_effects(effects).at_amplitude(amplitude),
-                               at_bound=_on_bound(x, lo, hi, [k for e in effects for k in e if k != "type"], values))
+        cand = FittedCandidate(
+            combo.name,
+            combo.complexity,
+            effects,
+            model.with_effects(effects).at_amplitude(amplitude),
+            at_bound=_on_bound(x, lo, hi, [k for e in effects for k in e if k != "type"], values),
+        )
         cand.score = ev.fit(cand.model.freqresp)
         out.append(cand)
     return out
@@ -1786,8 +1914,8 @@ def _fit_nonlinear(model: LinearModel, ev: _Evidence, amplitude) -> list[FittedC
 
 def _call_nonlinearity(result: ChannelDiagnosis, ev: _Evidence, found, amplitude) -> None:
     """The sweeps flown at different amplitudes compared (``found``: :func:`~gap_validation.core.nonlinearity.
-    amplitude_dependence`, None when they do not span different amplitudes); when they disagree beyond their errors,
-    say :data:`~gap_validation.core.nonlinearity.NONLINEARITY` in the result and the message."""
+    amplitude_dependence`, None when they do not span different amplitudes); when they disagree beyond their
+    errors, say :data:`~gap_validation.core.nonlinearity.NONLINEARITY` in the result and the message."""
     from gap_validation.core.nonlinearity import NONLINEARITY
 
     result.amplitude = None if amplitude is None else np.asarray(amplitude(ev.w), float)

@@ -4,20 +4,20 @@ Each effect is a plain mapping such as ``{"type": "time_delay", "seconds": 0.05}
 with the model is a rational part (numerator, denominator in descending powers of s) times a pure delay
 ``exp(-s T)``:
 
-==================  ===============================================================  ==============================
-type                parameters                                                       factor
-==================  ===============================================================  ==============================
-time_delay          seconds                                                          exp(-s T)
-first_order_lag     bandwidth_rad_s                                                  a / (s + a)
-second_order_lag    natural_frequency_rad_s, damping                                 wn^2 / (s^2 + 2 z wn s + wn^2)
-gain                factor                                                           k
-structural_mode     frequency_rad_s, damping, zero_frequency_rad_s, zero_damping     (s^2/wz^2 + 2 zz s/wz + 1) /
-                                                                                     (s^2/wp^2 + 2 zp s/wp + 1)
-rate_limit          rad_s                                                            describing function N(A w / R)
-backlash            width_rad                                                        describing function N(b / A)
-zero_order_hold     rate_hz                                                          exp(-s T/2) sinc(w T/2),
-                                                                                     T = 1 / rate_hz
-==================  ===============================================================  ==============================
+==================  ==================================  ==============================
+type                parameters                          factor
+==================  ==================================  ==============================
+time_delay          seconds                             exp(-s T)
+first_order_lag     bandwidth_rad_s                     a / (s + a)
+second_order_lag    natural_frequency_rad_s, damping    wn^2 / (s^2 + 2 z wn s + wn^2)
+gain                factor                              k
+structural_mode     frequency_rad_s, damping,           (s^2/wz^2 + 2 zz s/wz + 1) /
+                    zero_frequency_rad_s, zero_damping  (s^2/wp^2 + 2 zp s/wp + 1)
+rate_limit          rad_s                               describing function N(A w / R)
+backlash            width_rad                           describing function N(b / A)
+zero_order_hold     rate_hz                             exp(-s T/2) sinc(w T/2),
+                                                        T = 1 / rate_hz
+==================  ==================================  ==============================
 
 All factors except ``gain`` have unit gain at s = 0. The names and parameters are a user contract: they are
 written in configs and reported by the diagnosis, so they are never renamed.
@@ -25,31 +25,32 @@ written in configs and reported by the diagnosis, so they are never renamed.
 The registry
 ------------
 :data:`EFFECTS` holds one :class:`EffectType` per effect, the one place that knows it: its parameters with the
-values a config may give (:attr:`Parameter.valid`, checked by :func:`validate_effect`) and the values that make
-physical sense (:attr:`Parameter.plausible`, checked by :func:`check_plausible` when a model is read from a
-config), its factor ``(num, den, delay_s)`` and response, its words (:func:`describe_effect`) and how the
+values a config may give (:attr:`Parameter.valid`, checked by :func:`validate_effect`) and the values that
+make physical sense (:attr:`Parameter.plausible`, checked by :func:`check_plausible` when a model is read from
+a config), its factor ``(num, den, delay_s)`` and response, its words (:func:`describe_effect`) and how the
 diagnosis fits it (:class:`EffectFit`: start grid, bounds and vectorised response in fit coordinates, e.g. log
-frequencies). :mod:`gap_validation.core.models`, the config checks and :mod:`gap_validation.core.diagnosis` all
-read it.
+frequencies). :mod:`gap_validation.core.models`, the config checks and :mod:`gap_validation.core.diagnosis`
+all read it.
 
 Amplitude-dependent (nonlinear) effects
 ---------------------------------------
 ``rate_limit`` (a surface rate limit R [rad/s]) and ``backlash`` (free play of total width b [rad]) act on the
-surface command before the airframe. They have no linear factor (``factor=None``); in the frequency domain they
-are their *describing functions* (the first harmonic of the output for a sinusoid of amplitude A at w, divided
-by the input's), evaluated at the amplitude flown at each frequency (:func:`rate_limit_df`,
+surface command before the airframe. They have no linear factor (``factor=None``); in the frequency domain
+they are their *describing functions* (the first harmonic of the output for a sinusoid of amplitude A at w,
+divided by the input's), evaluated at the amplitude flown at each frequency (:func:`rate_limit_df`,
 :func:`backlash_df`). :meth:`EffectType.response` then needs the amplitude; a
 :class:`~gap_validation.core.models.LinearModel` holding one needs it too (``at_amplitude``), and simulates it
-in the time domain (:func:`rate_limited`, :func:`backlash_output`). Their fits (:attr:`EffectType.describing_fit`)
-take the flown amplitude per frequency as a third argument of the response.
+in the time domain (:func:`rate_limited`, :func:`backlash_output`). Their fits
+(:attr:`EffectType.describing_fit`) take the flown amplitude per frequency as a third argument of the
+response.
 
 A hold is not rational
 ----------------------
-``zero_order_hold`` (a servo or an output stage that takes a new command ``rate_hz`` times a second and holds it:
-analog servos at their 50 Hz frame, a slow autopilot output loop) is linear, but its factor
+``zero_order_hold`` (a servo or an output stage that takes a new command ``rate_hz`` times a second and holds
+it: analog servos at their 50 Hz frame, a slow autopilot output loop) is linear, but its factor
 ``(1 - exp(-s T)) / (s T) = exp(-s T/2) sinc(w T/2)`` is not rational: half a period of delay (its
-:attr:`EffectType.factor`, exact) times a real, zero-phase droop (:attr:`EffectType.shape`), which reaches 0.64 at
-half the hold rate. The frequency response is exact; in the time domain the element samples and holds
+:attr:`EffectType.factor`, exact) times a real, zero-phase droop (:attr:`EffectType.shape`), which reaches
+0.64 at half the hold rate. The frequency response is exact; in the time domain the element samples and holds
 (:func:`held`), so a model holding one is simulated exactly (not as its delay). The droop is what tells a hold
 from a delay: over a band reaching a quarter of the hold rate it is 10 %.
 """
@@ -65,10 +66,28 @@ import numpy as np
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.numbers import NON_NEGATIVE, NONZERO, POSITIVE, Interval, check_number, significant
 
-__all__ = ["Parameter", "FitRange", "EffectFit", "EffectType", "EFFECTS", "EFFECT_TYPES", "MAX_DELAY_S",
-           "validate_effect", "check_plausible", "effect_factor", "effect_response", "describe_effect",
-           "is_nonlinear", "rate_limit_df", "backlash_df", "rate_limited", "backlash_output", "apply_nonlinear",
-           "held", "apply_holds"]
+__all__ = [
+    "Parameter",
+    "FitRange",
+    "EffectFit",
+    "EffectType",
+    "EFFECTS",
+    "EFFECT_TYPES",
+    "MAX_DELAY_S",
+    "validate_effect",
+    "check_plausible",
+    "effect_factor",
+    "effect_response",
+    "describe_effect",
+    "is_nonlinear",
+    "rate_limit_df",
+    "backlash_df",
+    "rate_limited",
+    "backlash_output",
+    "apply_nonlinear",
+    "held",
+    "apply_holds",
+]
 
 #: Largest delay the diagnosis fits [s].
 MAX_DELAY_S = 0.5
@@ -159,9 +178,9 @@ class EffectType:
     time_domain : callable or None
         ``time_domain(params, t_s, u) -> y``: the element on sampled signals (simulation).
     shape : callable or None
-        ``shape(params, w_rad_s) -> real array``: the non-rational, zero-phase part of a linear effect's factor
-        (the droop of a hold), multiplying :attr:`factor`'s response; :attr:`time_domain` then simulates the whole
-        effect, its delay included.
+        ``shape(params, w_rad_s) -> real array``: the non-rational, zero-phase part of a linear effect's
+        factor (the droop of a hold), multiplying :attr:`factor`'s response; :attr:`time_domain` then
+        simulates the whole effect, its delay included.
     """
 
     name: str
@@ -223,7 +242,8 @@ class EffectType:
         return out if self.shape is None else out * self.shape(params, w)
 
 
-# ------------------------------------------------------------------------------------------------ factors, words
+# ------------------------------------------------------------------------------------------------ factors,
+# words
 def _hz(w_rad_s: float) -> float:
     return w_rad_s / (2.0 * math.pi)
 
@@ -297,8 +317,8 @@ def _hold_words(p: Mapping[str, float]) -> str:
 
 
 def held(t_s: Any, u: Any, rate_hz: float) -> np.ndarray:
-    """A signal through a zero-order hold: at each time, the (linearly interpolated) signal at the last tick of a
-    ``rate_hz`` clock that starts at the first sample.
+    """A signal through a zero-order hold: at each time, the (linearly interpolated) signal at the last tick
+    of a ``rate_hz`` clock that starts at the first sample.
 
     Parameters
     ----------
@@ -318,8 +338,9 @@ def held(t_s: Any, u: Any, rate_hz: float) -> np.ndarray:
 
 
 def apply_holds(effects: Sequence[Mapping[str, Any]], t_s: Any, u: Any) -> tuple[np.ndarray, float]:
-    """The command ``u`` through the holds of ``effects`` (:attr:`EffectType.shape`), and the delay their factors
-    carry (which the held samples already have: a simulation applies the rest of the model's delay only).
+    """The command ``u`` through the holds of ``effects`` (:attr:`EffectType.shape`), and the delay their
+    factors carry (which the held samples already have: a simulation applies the rest of the model's delay
+    only).
 
     Parameters
     ----------
@@ -398,8 +419,9 @@ def _lag1_spec(x: np.ndarray) -> dict:
 
 
 def _hold_bounds(x0: np.ndarray | None, ctx: FitRange) -> tuple[np.ndarray, np.ndarray]:
-    # from the rate whose first null (w = 2 pi rate) is the band's top (slower holds alias the band away) up to
-    # the rate whose half-period delay turns the top by 0.01 rad; and no slower than the largest delay fitted
+    # from the rate whose first null (w = 2 pi rate) is the band's top (slower holds alias the band away) up
+    # to the rate whose half-period delay turns the top by 0.01 rad; and no slower than the largest delay
+    # fitted
     lo = max(ctx.w_hi / (2.0 * math.pi), 0.5 / MAX_DELAY_S)
     return np.log([lo]), np.log([max(50.0 * ctx.w_hi, 2.0 * lo)])
 
@@ -498,7 +520,8 @@ def _mode_spec(x: np.ndarray) -> dict:
             "zero_damping": significant(x[3], 3)}
 
 
-# ------------------------------------------------------------------------------------------------ nonlinear effects
+# ------------------------------------------------------------------------------------------------ nonlinear
+# effects
 #: Largest R / (A w) of a rate limit whose output is a pure triangle wave (it never catches the sinusoid):
 #: 1 / sqrt(1 + pi^2 / 4).
 _RHO_TRIANGLE = 1.0 / math.sqrt(1.0 + math.pi ** 2 / 4.0)
@@ -510,8 +533,8 @@ def rate_limit_df(rho: Any) -> np.ndarray:
     For ``x = A sin(w t)`` through ``|dy/dt| <= R``: ``rho >= 1``, the limit is never reached (N = 1);
     ``rho <= 1 / sqrt(1 + pi^2/4)``, the output is a triangle wave of slope R that never catches the input:
     ``N = (4 rho / pi) exp(-j acos(pi rho / 2))``; in between the output follows the sinusoid near its peaks
-    (where ``|dx/dt| <= R``) and slews at R from ``theta_2 = pi - acos(rho)`` until it meets the input again at
-    ``theta_m + pi``, with ``sqrt(1 - rho^2) + sin(theta_m) = rho (theta_m + acos(rho))``; N is the first
+    (where ``|dx/dt| <= R``) and slews at R from ``theta_2 = pi - acos(rho)`` until it meets the input again
+    at ``theta_m + pi``, with ``sqrt(1 - rho^2) + sin(theta_m) = rho (theta_m + acos(rho))``; N is the first
     Fourier coefficient of that output, integrated piecewise in closed form.
 
     Parameters
@@ -729,43 +752,91 @@ def _backlash_spec(x: np.ndarray) -> dict:
     return {"type": "backlash", "width_rad": significant(math.exp(x[0]))}
 
 
-# ------------------------------------------------------------------------------------------------ the registry
+# ------------------------------------------------------------------------------------------------ the
+# registry
 _FREQUENCY = dict(valid=POSITIVE, plausible=Interval(1e-4, 1e5))
 _DAMPING = dict(valid=NON_NEGATIVE, plausible=Interval(0.0, 100.0))
 
 #: Effect type -> its :class:`EffectType`, in the order of DESIGN.md's table.
-EFFECTS: dict[str, EffectType] = {e.name: e for e in (
-    EffectType("time_delay", (Parameter("seconds", NON_NEGATIVE, Interval(0.0, 10.0)),),
-               _delay_factor, _delay_words, EffectFit(_delay_grid, _delay_bounds, _delay_response, _delay_spec)),
-    EffectType("first_order_lag", (Parameter("bandwidth_rad_s", **_FREQUENCY),),
-               _lag1_factor, _lag1_words, EffectFit(_lag1_grid, _lag1_bounds, _lag1_response, _lag1_spec)),
-    EffectType("second_order_lag", (Parameter("natural_frequency_rad_s", **_FREQUENCY),
-                                    Parameter("damping", **_DAMPING)),
-               _lag2_factor, _lag2_words, EffectFit(_lag2_grid, _lag2_bounds, _lag2_response, _lag2_spec)),
-    EffectType("gain", (Parameter("factor", NONZERO, Interval(1e-6, 1e6), magnitude=True),),
-               _gain_factor, _gain_words, EffectFit(_gain_grid, _gain_bounds, _gain_response, _gain_spec)),
-    EffectType("structural_mode", (Parameter("frequency_rad_s", **_FREQUENCY), Parameter("damping", **_DAMPING),
-                                   Parameter("zero_frequency_rad_s", **_FREQUENCY),
-                                   Parameter("zero_damping", **_DAMPING)),
-               _mode_factor, _mode_words, EffectFit(_mode_grid, _mode_bounds, _mode_response, _mode_spec)),
-    EffectType("rate_limit", (Parameter("rad_s", POSITIVE, Interval(1e-3, 1e3)),), None, _rate_words,
-               describing_function=_rate_df,
-               describing_fit=EffectFit(_rate_grid, _rate_bounds, _rate_response, _rate_spec),
-               time_domain=lambda p, t, u: rate_limited(t, u, p["rad_s"])),
-    EffectType("backlash", (Parameter("width_rad", POSITIVE, Interval(1e-6, 1.0)),), None, _backlash_words,
-               describing_function=_backlash_df,
-               describing_fit=EffectFit(_backlash_grid, _backlash_bounds, _backlash_response, _backlash_spec),
-               time_domain=lambda p, t, u: backlash_output(u, p["width_rad"])),
-    EffectType("zero_order_hold", (Parameter("rate_hz", POSITIVE, Interval(0.1, 1e5)),),
-               _hold_factor, _hold_words, EffectFit(_hold_grid, _hold_bounds, _hold_response, _hold_spec),
-               time_domain=lambda p, t, u: held(t, u, p["rate_hz"]), shape=_hold_shape),
-)}
+EFFECTS: dict[str, EffectType] = {
+    e.name: e
+    for e in (
+        EffectType(
+            "time_delay",
+            (Parameter("seconds", NON_NEGATIVE, Interval(0.0, 10.0)),),
+            _delay_factor,
+            _delay_words,
+            EffectFit(_delay_grid, _delay_bounds, _delay_response, _delay_spec),
+        ),
+        EffectType(
+            "first_order_lag",
+            (Parameter("bandwidth_rad_s", **_FREQUENCY),),
+            _lag1_factor,
+            _lag1_words,
+            EffectFit(_lag1_grid, _lag1_bounds, _lag1_response, _lag1_spec),
+        ),
+        EffectType(
+            "second_order_lag",
+            (Parameter("natural_frequency_rad_s", **_FREQUENCY), Parameter("damping", **_DAMPING)),
+            _lag2_factor,
+            _lag2_words,
+            EffectFit(_lag2_grid, _lag2_bounds, _lag2_response, _lag2_spec),
+        ),
+        EffectType(
+            "gain",
+            (Parameter("factor", NONZERO, Interval(1e-6, 1e6), magnitude=True),),
+            _gain_factor,
+            _gain_words,
+            EffectFit(_gain_grid, _gain_bounds, _gain_response, _gain_spec),
+        ),
+        EffectType(
+            "structural_mode",
+            (
+                Parameter("frequency_rad_s", **_FREQUENCY),
+                Parameter("damping", **_DAMPING),
+                Parameter("zero_frequency_rad_s", **_FREQUENCY),
+                Parameter("zero_damping", **_DAMPING),
+            ),
+            _mode_factor,
+            _mode_words,
+            EffectFit(_mode_grid, _mode_bounds, _mode_response, _mode_spec),
+        ),
+        EffectType(
+            "rate_limit",
+            (Parameter("rad_s", POSITIVE, Interval(1e-3, 1e3)),),
+            None,
+            _rate_words,
+            describing_function=_rate_df,
+            describing_fit=EffectFit(_rate_grid, _rate_bounds, _rate_response, _rate_spec),
+            time_domain=lambda p, t, u: rate_limited(t, u, p["rad_s"]),
+        ),
+        EffectType(
+            "backlash",
+            (Parameter("width_rad", POSITIVE, Interval(1e-6, 1.0)),),
+            None,
+            _backlash_words,
+            describing_function=_backlash_df,
+            describing_fit=EffectFit(_backlash_grid, _backlash_bounds, _backlash_response, _backlash_spec),
+            time_domain=lambda p, t, u: backlash_output(u, p["width_rad"]),
+        ),
+        EffectType(
+            "zero_order_hold",
+            (Parameter("rate_hz", POSITIVE, Interval(0.1, 1e5)),),
+            _hold_factor,
+            _hold_words,
+            EffectFit(_hold_grid, _hold_bounds, _hold_response, _hold_spec),
+            time_domain=lambda p, t, u: held(t, u, p["rate_hz"]),
+            shape=_hold_shape,
+        ),
+    )
+}
 
 #: Effect type -> required parameter names, in the order of DESIGN.md's table (a view of :data:`EFFECTS`).
 EFFECT_TYPES: dict[str, tuple[str, ...]] = {name: e.names for name, e in EFFECTS.items()}
 
 
-# ------------------------------------------------------------------------------------------------ effect mappings
+# ------------------------------------------------------------------------------------------------ effect
+# mappings
 def validate_effect(spec: Any, where: str = "effects[0]") -> dict:
     """Check one effect mapping and return a normalised copy.
 
@@ -794,7 +865,9 @@ def validate_effect(spec: Any, where: str = "effects[0]") -> dict:
         raise ConfigError(f"{where}: missing key 'type' (one of {', '.join(EFFECTS)})")
     kind = spec["type"]
     if not isinstance(kind, str) or kind not in EFFECTS:
-        raise ConfigError(f"{where}.type: unknown effect type {kind!r} (expected one of {', '.join(EFFECTS)})")
+        raise ConfigError(
+            f"{where}.type: unknown effect type {kind!r} (expected one of {', '.join(EFFECTS)})"
+        )
     entry = EFFECTS[kind]
     names = entry.names
     unknown = [key for key in spec if key != "type" and key not in names]

@@ -1,8 +1,8 @@
 """A package's public face, imported on first use (PEP 562).
 
-Each package's ``__init__`` names what it offers in ``__all__`` and where each name lives; the name's module is
-imported when the name is first used, not when the package is. So ``import gap_validation.ros`` still imports no
-rclpy, and importing one module of the core does not import all of it.
+Each package's ``__init__`` names what it offers in ``__all__`` and where each name lives; the name's module
+is imported when the name is first used, not when the package is. So ``import gap_validation.ros`` still
+imports no rclpy, and importing one module of the core does not import all of it.
 """
 from __future__ import annotations
 
@@ -20,8 +20,8 @@ def lazy_exports(package: str, names: dict[str, str]) -> tuple[Callable[[str], A
     package : str
         The package's ``__name__``.
     names : dict
-        Public name -> the module (relative to ``package``, or absolute when it starts with ``gap_validation.``)
-        that defines it.
+        Public name -> the module (relative to ``package``, or absolute when it starts with
+        ``gap_validation.``) that defines it.
 
     Returns
     -------

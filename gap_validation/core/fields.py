@@ -1,6 +1,6 @@
-"""Field paths into ROS messages: ``angular_velocity.y``, ``position[elevator]`` (JointState by name), ``[2]``,
-``data``. Pure attribute access, so the same :class:`FieldPath` reads rosbags and rclpy message objects (and the
-config schema checks the syntax); no ROS import.
+"""Field paths into ROS messages: ``angular_velocity.y``, ``position[elevator]`` (JointState by name),
+``[2]``, ``data``. Pure attribute access, so the same :class:`FieldPath` reads rosbags and rclpy message
+objects (and the config schema checks the syntax); no ROS import.
 """
 from __future__ import annotations
 
@@ -84,8 +84,10 @@ def _parse_steps(text: str) -> tuple[_Step, ...]:
         for content in _BRACKET.findall(match.group("brackets")):
             step = _parse_bracket(content, text)
             if step.kind == "key" and (not steps or steps[-1].kind != "attr"):
-                raise ConfigError(f"field {text!r}: name lookup [{step.value}] needs the array field before it, "
-                                  "e.g. position[elevator]")
+                raise ConfigError(
+                    f"field {text!r}: name lookup [{step.value}] needs the array field before it, "
+                    "e.g. position[elevator]"
+                )
             steps.append(step)
     return tuple(steps)
 
@@ -167,7 +169,8 @@ def _index_getter(index: int, text: str) -> Callable[[Any], Any]:
 
 
 class _NameLookup:
-    """``parent.<array>[name]``: index of ``name`` in ``parent.name`` (cached while the order is unchanged)."""
+    """``parent.<array>[name]``: index of ``name`` in ``parent.name`` (cached while the order is
+    unchanged)."""
 
     def __init__(self, array: str, key: str, text: str) -> None:
         self.array = array

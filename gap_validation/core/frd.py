@@ -105,9 +105,13 @@ def paired_responses(m1: Any, m2: Any) -> tuple[np.ndarray, np.ndarray, np.ndarr
     if d1 is None and d2 is None:
         return None
     if d1 is not None and d2 is not None:
-        if d1.w_rad_s.shape != d2.w_rad_s.shape or not np.allclose(d1.w_rad_s, d2.w_rad_s, rtol=1e-12, atol=0.0):
-            raise ValueError("measured data against measured data: the frequencies differ (compare them on the "
-                             "same frequencies)")
+        if d1.w_rad_s.shape != d2.w_rad_s.shape or not np.allclose(
+            d1.w_rad_s, d2.w_rad_s, rtol=1e-12, atol=0.0
+        ):
+            raise ValueError(
+                "measured data against measured data: the frequencies differ (compare them on the "
+                "same frequencies)"
+            )
         return d1.w_rad_s, d1.response, d2.response
     w = (d1 or d2).w_rad_s
     p1 = d1.response if d1 is not None else np.asarray(m1.freqresp(w), dtype=complex)

@@ -2,8 +2,8 @@
 
 One definition of what ``sensor_msgs/msg/Imu``, ``sensor_msgs/msg/JointState`` and ``std_msgs/msg/Float64 |
 Float32 | Bool`` carry, read by the simulator (which topics a config's fields imply), the fast CDR decoders of
-:mod:`gap_validation.messages.cdr` and the bag writer of :mod:`gap_validation.bag.writer`. It lives in the core,
-below :mod:`gap_validation.messages`, because the core's simulator needs it. No ROS import.
+:mod:`gap_validation.messages.cdr` and the bag writer of :mod:`gap_validation.bag.writer`. It lives in the
+core, below :mod:`gap_validation.messages`, because the core's simulator needs it. No ROS import.
 """
 from __future__ import annotations
 
@@ -27,7 +27,8 @@ SCALAR_TYPES = (FLOAT64, FLOAT32, BOOL)
 #: Types with a ``header`` (their samples are stamped with ``header.stamp``).
 STAMPED_TYPES = (IMU, JOINT_STATE)
 
-#: Message type -> the attribute paths of its numeric fields (JointState: the arrays, indexed by name or index).
+#: Message type -> the attribute paths of its numeric fields (JointState: the arrays, indexed by name or
+#: index).
 LAYOUTS: dict[str, set[tuple[str, ...]]] = {
     IMU: {(vector, c) for vector, components in IMU_VECTORS for c in components},
     JOINT_STATE: {(array,) for array in JOINT_ARRAYS},

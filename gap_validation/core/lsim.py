@@ -1,10 +1,10 @@
 """Time response of a linear state-space model to sampled input (``LinearModel.simulate``'s engine).
 
 The rational part is discretised exactly for the input between samples (linear: first-order hold as
-``scipy.signal.lsim``; or held), with one matrix exponential per distinct step. Uniform grids (and uniform runs
-between dropouts) are simulated in blocks with matrix products; irregular (jittered) steps exactly in modal
-coordinates, vectorised; a per-step recursion only when A is not diagonalisable. A pure delay is applied to the
-input exactly (:func:`delayed_input`), not by a Pade approximation.
+``scipy.signal.lsim``; or held), with one matrix exponential per distinct step. Uniform grids (and uniform
+runs between dropouts) are simulated in blocks with matrix products; irregular (jittered) steps exactly in
+modal coordinates, vectorised; a per-step recursion only when A is not diagonalisable. A pure delay is applied
+to the input exactly (:func:`delayed_input`), not by a Pade approximation.
 """
 from __future__ import annotations
 
@@ -19,8 +19,16 @@ _UNIFORM_RTOL = 1e-8  # steps equal to this relative tolerance are treated as on
 _BLOCK = 256  # block length of the uniform-grid simulation
 
 
-def simulate_state_space(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray, t: np.ndarray, u: np.ndarray,
-                         x: np.ndarray, hold: str = "linear") -> np.ndarray:
+def simulate_state_space(
+    a: np.ndarray,
+    b: np.ndarray,
+    c: np.ndarray,
+    d: np.ndarray,
+    t: np.ndarray,
+    u: np.ndarray,
+    x: np.ndarray,
+    hold: str = "linear",
+) -> np.ndarray:
     """Output samples of the SISO realization ``(a, b, c, d)`` for input ``u`` at the times ``t``.
 
     Parameters
@@ -90,7 +98,9 @@ def _uniform_runs(steps: np.ndarray, min_steps: int = 32) -> list[tuple[int, int
     return [(first, last) for first, last, _ in runs]
 
 
-def _discretise(a: np.ndarray, b: np.ndarray, h: float, hold: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _discretise(
+    a: np.ndarray, b: np.ndarray, h: float, hold: str
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Exact discretisation for input held (``zero``) or linear (``linear``) over a step h [s].
 
     Returns Phi, Ga, Gb with x[k+1] = Phi x[k] + Ga u[k] + Gb u[k+1].
@@ -168,8 +178,18 @@ def _phi_functions(z: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     return phi1, phi2
 
 
-def _simulate_modal(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray, t: np.ndarray, u: np.ndarray,
-                    x: np.ndarray, hold: str, y_out: np.ndarray, max_condition: float = 1e6) -> np.ndarray | None:
+def _simulate_modal(
+    a: np.ndarray,
+    b: np.ndarray,
+    c: np.ndarray,
+    d: np.ndarray,
+    t: np.ndarray,
+    u: np.ndarray,
+    x: np.ndarray,
+    hold: str,
+    y_out: np.ndarray,
+    max_condition: float = 1e6,
+) -> np.ndarray | None:
     """Irregular steps in modal coordinates, vectorised; None when A is not safely diagonalisable.
 
     With A = V diag(lam) V^-1 every mode obeys z[k+1] = exp(lam h_k) z[k] + f_k (f from the phi functions

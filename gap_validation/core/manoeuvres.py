@@ -1,11 +1,12 @@
 """Short manoeuvres (doublets) kept from the flight for the time-domain check (paper Fig. 6, eqs. 1 and 3).
 
 The estimator splits the flight into manoeuvres (:mod:`gap_validation.core.records`) and offers the short ones
-(doublets, pulses and multisteps such as a 3-2-1-1, at most 20 s of excitation) to a :class:`ManoeuvreRecorder`
-with the aligned input and output around them (the trim before, the response after). It keeps one when it
+(doublets, pulses and multisteps such as a 3-2-1-1, at most 20 s of excitation) to a
+:class:`ManoeuvreRecorder` with the aligned input and output around them (the trim before, the response
+after). It keeps one when it
 **returns to trim** (the input's mean over the last second differs from its trim, the mean before the
-excitation, by less than a quarter of the peak excursion) and there is at least half a second of trim before it
-and a second after.
+excitation, by less than a quarter of the peak excursion) and there is at least half a second of trim before
+it and a second after.
 
 The ``max_kept`` largest (by input RMS about trim) are kept, in fixed-size arrays: the state stays constant in
 size however long the flight, and is part of the estimator checkpoint.

@@ -14,11 +14,13 @@ from dataclasses import asdict, dataclass
 __all__ = ["Margins", "margins_from_epsilon", "margins_note", "STANDARD_EPSILON", "WARN_EPSILON",
            "STANDARD_MARGINS"]
 
-#: epsilon of the paper's "standard stability margins of a 6 dB gain margin and a 45 deg phase margin" (Section
-#: III, eqs. 15-16: 2 asin(0.38) = 44.7 deg): below it a controller with standard margins on the model is
-#: guaranteed stable on the aircraft. The node's ERROR level, the figures' and the report's standard line.
+#: epsilon of the paper's "standard stability margins of a 6 dB gain margin and a 45 deg phase margin"
+#: (Section III, eqs. 15-16: 2 asin(0.38) = 44.7 deg): below it a controller with standard margins on the
+#: model is guaranteed stable on the aircraft. The node's ERROR level, the figures' and the report's standard
+#: line.
 STANDARD_EPSILON = 0.38
-#: epsilon of the warning level (eqs. 15-16: 4.4 dB, 29 deg guaranteed), before :data:`STANDARD_EPSILON` is reached.
+#: epsilon of the warning level (eqs. 15-16: 4.4 dB, 29 deg guaranteed), before :data:`STANDARD_EPSILON` is
+#: reached.
 WARN_EPSILON = 0.25
 #: The traditional Nichols exclusion region the standard margins draw: gain [dB] and phase [deg] margins.
 STANDARD_MARGINS = (6.0, 45.0)
@@ -59,7 +61,8 @@ class Margins:
         return self.gain_margin_db is not None
 
     def to_json_dict(self) -> dict:
-        """JSON keys of DESIGN.md: ``gain_margin_db``, ``phase_margin_deg``, ``disk_margin`` (None -> null)."""
+        """JSON keys of DESIGN.md: ``gain_margin_db``, ``phase_margin_deg``, ``disk_margin`` (None ->
+        null)."""
         data = asdict(self)
         return {key: data[key] for key in ("gain_margin_db", "phase_margin_deg", "disk_margin")}
 
@@ -75,7 +78,8 @@ def margins_note(eps: float | None) -> str | None:
     Examples
     --------
     >>> margins_note(1.2)
-    'epsilon 1.2 >= 1: the disk around the model contains -P (eq. 14), no stability guarantee, margins not given'
+    'epsilon 1.2 >= 1: the disk around the model contains -P (eq. 14), no stability guarantee, margins not
+    given'
     """
     if eps is None or (isinstance(eps, float) and math.isnan(eps)):
         return "no epsilon (no frequency passed the coherence threshold): margins not given"

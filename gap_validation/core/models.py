@@ -31,8 +31,15 @@ from typing import Any, Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-from gap_validation.core.effects import (EFFECTS, apply_holds, apply_nonlinear, check_plausible, effect_factor, is_nonlinear,
-                                        validate_effect)
+from gap_validation.core.effects import (
+    EFFECTS,
+    apply_holds,
+    apply_nonlinear,
+    check_plausible,
+    effect_factor,
+    is_nonlinear,
+    validate_effect,
+)
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.lsim import delayed_input, simulate_state_space
 from gap_validation.core.numbers import NON_NEGATIVE, check_number
@@ -71,7 +78,9 @@ _MAX_MATRIX_ENTRY = 1e15
 def _check_magnitude(values: np.ndarray, where: str, limit: float) -> None:
     big = np.flatnonzero(np.abs(values) > limit)
     if big.size:
-        raise ConfigError(f"{where}: {values.ravel()[big[0]]!r} is beyond {limit:g} in magnitude (wrong units?)")
+        raise ConfigError(
+            f"{where}: {values.ravel()[big[0]]!r} is beyond {limit:g} in magnitude (wrong units?)"
+        )
 
 
 def _complex_value(value: Any, where: str) -> complex:
@@ -109,7 +118,9 @@ def _check_conjugates(roots: np.ndarray, where: str) -> None:
     unused = [r for r in roots if abs(r.imag) > tol]
     while unused:
         root = unused.pop(0)
-        match = [i for i, other in enumerate(unused) if abs(other - np.conj(root)) <= 1e-6 * max(1.0, abs(root))]
+        match = [
+            i for i, other in enumerate(unused) if abs(other - np.conj(root)) <= 1e-6 * max(1.0, abs(root))
+        ]
         if not match:
             raise ConfigError(
                 f"{where}: complex root {_format_root(root)} has no conjugate {_format_root(np.conj(root))} "
@@ -127,7 +138,8 @@ def _real_poly(roots: np.ndarray) -> np.ndarray:
 
 
 def _matrix(value: Any, where: str, rows: int | None = None, cols: int | None = None) -> np.ndarray:
-    """A 2-D matrix from nested lists; a flat list is a row when ``rows == 1``, a column when ``cols == 1``."""
+    """A 2-D matrix from nested lists; a flat list is a row when ``rows == 1``, a column when ``cols ==
+    1``."""
     try:
         array = np.array(value, dtype=float)
     except (TypeError, ValueError):
@@ -154,14 +166,18 @@ def _selector(value: Any, count: int, where: str, what: str) -> np.ndarray:
     if value is None:
         if count == 1:
             return np.array([1.0])
-        raise ConfigError(f"{where}: missing key (the model has {count} {what}s: give an index or a weight list)")
+        raise ConfigError(
+            f"{where}: missing key (the model has {count} {what}s: give an index or a weight list)"
+        )
     if isinstance(value, (list, tuple)):
         weights = _number_list(value, where)
         if weights.size != count:
             raise ConfigError(f"{where}: expected {count} weights (one per {what}), got {value!r}")
         return weights
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 0 <= value < count:
-        raise ConfigError(f"{where}: expected an index 0..{count - 1} or a list of {count} weights, got {value!r}")
+        raise ConfigError(
+            f"{where}: expected an index 0..{count - 1} or a list of {count} weights, got {value!r}"
+        )
     weights = np.zeros(count)
     weights[int(value)] = 1.0
     return weights
@@ -266,14 +282,14 @@ class LinearModel:
     -----
     Build models from a config mapping with :meth:`from_spec`; :meth:`to_spec` gives it back.
 
-    Amplitude-dependent effects (``rate_limit``, ``backlash``) act on the input before everything else: they are
-    not in ``num``/``den`` (the linear part); :meth:`simulate` applies them in the time domain, and
+    Amplitude-dependent effects (``rate_limit``, ``backlash``) act on the input before everything else: they
+    are not in ``num``/``den`` (the linear part); :meth:`simulate` applies them in the time domain, and
     :meth:`freqresp` multiplies by their describing functions at the amplitude given to :meth:`at_amplitude`
     (a ConfigError without one). A model without them behaves as a plain linear model.
 
     A ``zero_order_hold`` is linear but not rational: ``num``/``den``/``delay_s`` hold its half-period delay,
-    :meth:`freqresp` multiplies by its droop exactly, and :meth:`simulate` samples and holds the input (its delay
-    then comes from the hold, not from ``delay_s``).
+    :meth:`freqresp` multiplies by its droop exactly, and :meth:`simulate` samples and holds the input (its
+    delay then comes from the hold, not from ``delay_s``).
 
     Examples
     --------
@@ -361,8 +377,10 @@ class LinearModel:
                                          ("state space", ("state_space",)))
                  if any(key in spec for key in keys)]
         if len(forms) != 1:
-            raise ConfigError(f"{where}: expected exactly one of numerator/denominator, zeros/poles/gain or "
-                              f"state_space, got keys {sorted(k for k in spec if k not in ('delay_s', 'effects'))}")
+            raise ConfigError(
+                f"{where}: expected exactly one of numerator/denominator, zeros/poles/gain or "
+                f"state_space, got keys {sorted(k for k in spec if k not in ('delay_s', 'effects'))}"
+            )
         delay_s = 0.0
         if "delay_s" in spec:
             delay_s = check_number(spec["delay_s"], f"{where}.delay_s", NON_NEGATIVE, strings=True,
@@ -412,7 +430,10 @@ class LinearModel:
         if self._air_spec is not None:
             spec = copy.deepcopy(self._air_spec)
         else:
-            spec = {"numerator": [float(v) for v in self._air_num], "denominator": [float(v) for v in self._air_den]}
+            spec = {
+                "numerator": [float(v) for v in self._air_num],
+                "denominator": [float(v) for v in self._air_den],
+            }
         if self._air_delay_s:
             spec["delay_s"] = float(self._air_delay_s)
         if self._effects:
@@ -439,8 +460,8 @@ class LinearModel:
         return any(is_nonlinear(e) for e in self._effects)
 
     def at_amplitude(self, amplitude: Any) -> LinearModel:
-        """A copy whose :meth:`freqresp` evaluates the amplitude-dependent effects' describing functions at the
-        flown input amplitude (the model itself is unchanged; without such effects it is returned as is).
+        """A copy whose :meth:`freqresp` evaluates the amplitude-dependent effects' describing functions at
+        the flown input amplitude (the model itself is unchanged; without such effects it is returned as is).
 
         Parameters
         ----------
@@ -451,7 +472,9 @@ class LinearModel:
             return self
         out = LinearModel(self._air_num, self._air_den, self._air_delay_s, self._effects,
                           _airframe_spec=self._air_spec, _airframe_ss=self._air_ss)
-        out._amplitude = amplitude if callable(amplitude) else (lambda w, a=float(amplitude): np.full(np.shape(w), a))
+        out._amplitude = (
+            amplitude if callable(amplitude) else (lambda w, a=float(amplitude): np.full(np.shape(w), a))
+        )
         return out
 
     @property
@@ -501,7 +524,10 @@ class LinearModel:
             return float(self._num[-1] / self._den[-1]) if self._den[-1] != 0 else math.inf
 
     def __repr__(self) -> str:
-        parts = [f"num={np.array2string(self._num, precision=6)}", f"den={np.array2string(self._den, precision=6)}"]
+        parts = [
+            f"num={np.array2string(self._num, precision=6)}",
+            f"den={np.array2string(self._den, precision=6)}",
+        ]
         if self._delay_s:
             parts.append(f"delay_s={self._delay_s:g}")
         if self._effects:
@@ -535,8 +561,10 @@ class LinearModel:
                 response = response * shape(effect, w)
             if is_nonlinear(effect):
                 if self._amplitude is None:
-                    raise ConfigError(f"model.effects[{i}] ({effect['type']}) depends on the input amplitude: "
-                                      "its response needs the flown amplitude")
+                    raise ConfigError(
+                        f"model.effects[{i}] ({effect['type']}) depends on the input amplitude: "
+                        "its response needs the flown amplitude"
+                    )
                 response = response * EFFECTS[effect["type"]].response(effect, w, self._amplitude(w))
         return response
 
@@ -558,16 +586,18 @@ class LinearModel:
             self._realization = tuple(np.array(m, dtype=float) for m in system)
         return self._realization
 
-    def simulate(self, t_s: ArrayLike, u: ArrayLike, x0: ArrayLike | None = None, hold: str = "linear") -> np.ndarray:
+    def simulate(
+        self, t_s: ArrayLike, u: ArrayLike, x0: ArrayLike | None = None, hold: str = "linear"
+    ) -> np.ndarray:
         """Output for input samples ``u`` at times ``t_s`` (possibly irregular), delay applied exactly.
 
         The input between samples is linear (first-order hold, as ``scipy.signal.lsim``) or constant
         (``hold="zero"``). The rational part is discretised exactly for that input (matrix exponential per
-        distinct step). The pure delay is applied exactly: the rational part is driven by u(t - T), obtained by
-        interpolating ``u`` at ``t_s - T`` (zero before the first sample), so a delayed ramp or sine is
+        distinct step). The pure delay is applied exactly: the rational part is driven by u(t - T), obtained
+        by interpolating ``u`` at ``t_s - T`` (zero before the first sample), so a delayed ramp or sine is
         reproduced to interpolation accuracy, not a Pade approximation.
-        Amplitude-dependent effects (``rate_limit``, ``backlash``) are applied first, in the time domain, to the
-        samples of ``u`` (:func:`~gap_validation.core.effects.apply_nonlinear`); then the holds
+        Amplitude-dependent effects (``rate_limit``, ``backlash``) are applied first, in the time domain, to
+        the samples of ``u`` (:func:`~gap_validation.core.effects.apply_nonlinear`); then the holds
         (:func:`~gap_validation.core.effects.apply_holds`), whose delay the held samples carry.
 
         Uniform grids (and uniform runs between dropouts) are simulated in blocks with matrix products
@@ -607,7 +637,8 @@ class LinearModel:
             raise ValueError("simulate: t_s must be strictly increasing")
         if self.nonlinear:        # on the surface command, before the linear part
             u = apply_nonlinear(self._effects, t, u)
-        u, held_delay_s = apply_holds(self._effects, t, u)      # sampled and held: their delay is in the samples
+        # sampled and held: their delay is in the samples
+        u, held_delay_s = apply_holds(self._effects, t, u)
         delay_s = self._delay_s - held_delay_s
         if delay_s > 1e-12:
             u = delayed_input(t, u, delay_s, hold)
@@ -627,7 +658,9 @@ class LinearModel:
 def _parse_tf(spec: dict, where: str) -> Airframe:
     for key in ("numerator", "denominator"):
         if key not in spec:
-            raise ConfigError(f"{where}: missing key {key!r} (a transfer function needs numerator and denominator)")
+            raise ConfigError(
+                f"{where}: missing key {key!r} (a transfer function needs numerator and denominator)"
+            )
     num = _number_list(spec["numerator"], f"{where}.numerator")
     den = _number_list(spec["denominator"], f"{where}.denominator")
     if not np.any(den):
@@ -644,7 +677,11 @@ def _parse_zpk(spec: dict, where: str) -> Airframe:
     gain = check_number(spec.get("gain", 1.0), f"{where}.gain", strings=True)
     num = gain * _real_poly(zeros)
     den = _real_poly(poles)
-    air_spec = {"zeros": [_root_spec(r) for r in zeros], "poles": [_root_spec(r) for r in poles], "gain": gain}
+    air_spec = {
+        "zeros": [_root_spec(r) for r in zeros],
+        "poles": [_root_spec(r) for r in poles],
+        "gain": gain,
+    }
     return num, den, air_spec, None
 
 
@@ -654,7 +691,9 @@ def _root_spec(root: complex) -> float | list[float]:
 
 def _parse_ss(spec: Any, where: str) -> Airframe:
     if not isinstance(spec, dict):
-        raise ConfigError(f"{where}: expected a mapping with A, B, C (D, input, output optional), got {spec!r}")
+        raise ConfigError(
+            f"{where}: expected a mapping with A, B, C (D, input, output optional), got {spec!r}"
+        )
     unknown = [key for key in spec if key not in _SS_KEYS]
     if unknown:
         raise ConfigError(f"{where}.{unknown[0]}: unknown key (expected {', '.join(_SS_KEYS)}), got "
@@ -684,8 +723,8 @@ def _parse_ss(spec: Any, where: str) -> Airframe:
 
 
 def _abc(spec: dict, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The A (square), B (a row per state) and C (a column per state) matrices of a state-space mapping (SISO or
-    MIMO), or a one-line ConfigError naming the key."""
+    """The A (square), B (a row per state) and C (a column per state) matrices of a state-space mapping (SISO
+    or MIMO), or a one-line ConfigError naming the key."""
     a = _matrix(spec["A"], f"{where}.A")
     n = a.shape[0]
     if a.shape != (n, n):
@@ -717,9 +756,9 @@ _MIMO_SS_KEYS = ("A", "B", "C", "D")
 class MimoModel:
     """A MIMO linear model ``P(s) = C (sI - A)^-1 B + D`` with p outputs and m inputs, immutable.
 
-    The model of a channel with ``inputs:``/``outputs:`` lists (DESIGN.md): column j of B (and of D) belongs to
-    ``inputs[j]``, row i of C (and of D) to ``outputs[i]``. No delays or effects (yet); rational effects may be
-    put into the elements of the ``transfer_matrix`` form.
+    The model of a channel with ``inputs:``/``outputs:`` lists (DESIGN.md): column j of B (and of D) belongs
+    to ``inputs[j]``, row i of C (and of D) to ``outputs[i]``. No delays or effects (yet); rational effects
+    may be put into the elements of the ``transfer_matrix`` form.
 
     Parameters
     ----------
@@ -753,8 +792,16 @@ class MimoModel:
     # -- construction from / to the config mapping ----------------------------------------------------------
 
     @classmethod
-    def from_spec(cls, spec: Any, where: str = "model", inputs: int | None = None, outputs: int | None = None, *,
-                  inputs_are: str = "input", outputs_are: str = "output") -> MimoModel:
+    def from_spec(
+        cls,
+        spec: Any,
+        where: str = "model",
+        inputs: int | None = None,
+        outputs: int | None = None,
+        *,
+        inputs_are: str = "input",
+        outputs_are: str = "output",
+    ) -> MimoModel:
         """Build a MIMO model from a config ``model:`` (or ``controller:``) mapping.
 
         Forms::
@@ -789,8 +836,10 @@ class MimoModel:
             raise ConfigError(f"{where}: expected a mapping (state_space or transfer_matrix), got {spec!r}")
         for key in spec:
             if key in ("delay_s", "effects"):
-                raise ConfigError(f"{where}.{key}: not available for a MIMO model yet (put rational effects into "
-                                  f"the elements of a transfer_matrix), got {spec[key]!r}")
+                raise ConfigError(
+                    f"{where}.{key}: not available for a MIMO model yet (put rational effects into "
+                    f"the elements of a transfer_matrix), got {spec[key]!r}"
+                )
             if key not in _MIMO_KEYS:
                 raise ConfigError(f"{where}.{key}: unknown key for a MIMO model (expected state_space or "
                                   f"transfer_matrix), got {key!r}: {spec[key]!r}")
@@ -852,7 +901,8 @@ class MimoModel:
         return ()
 
     def with_effects(self, effects: Sequence[dict]) -> MimoModel:
-        """Effects in series are not available for a MIMO model yet: the model itself when ``effects`` is empty.
+        """Effects in series are not available for a MIMO model yet: the model itself when ``effects`` is
+        empty.
 
         Parameters
         ----------
@@ -908,8 +958,8 @@ class MimoModel:
     # -- frequency response ---------------------------------------------------------------------------------
 
     def freqresp(self, w_rad_s: ArrayLike) -> np.ndarray:
-        """Complex frequency response matrices P(j w), from the minimal realization (a hidden mode on the axis,
-        e.g. an unobserved heading integrator, does not make P(j0) infinite).
+        """Complex frequency response matrices P(j w), from the minimal realization (a hidden mode on the
+        axis, e.g. an unobserved heading integrator, does not make P(j0) infinite).
 
         Parameters
         ----------
@@ -932,10 +982,14 @@ def _parse_mimo_ss(spec: Any, where: str, outputs: int | None, inputs: int | Non
         raise ConfigError(f"{where}: expected a mapping with A, B, C (D optional) or only D, got {spec!r}")
     for key in spec:
         if key in ("input", "output"):
-            raise ConfigError(f"{where}.{key}: not used by a MIMO model (columns of B follow the inputs list, rows "
-                              f"of C the outputs list), got {spec[key]!r}")
+            raise ConfigError(
+                f"{where}.{key}: not used by a MIMO model (columns of B follow the inputs list, rows "
+                f"of C the outputs list), got {spec[key]!r}"
+            )
         if key not in _MIMO_SS_KEYS:
-            raise ConfigError(f"{where}.{key}: unknown key (expected {', '.join(_MIMO_SS_KEYS)}), got {key!r}")
+            raise ConfigError(
+                f"{where}.{key}: unknown key (expected {', '.join(_MIMO_SS_KEYS)}), got {key!r}"
+            )
     given = [key for key in ("A", "B", "C") if key in spec]
     if not given:
         if "D" not in spec:
@@ -974,12 +1028,14 @@ def _parse_transfer_matrix(spec: Any, where: str, outputs: int | None, inputs: i
         raise ConfigError(f"{where}: expected a non-empty list of rows (one per output), each a list of "
                           f"elements (one per input), got {spec!r}")
     if outputs is not None and len(spec) != outputs:
-        raise ConfigError(f"{where}: expected {outputs} row{'s' * (outputs != 1)} (one per {outputs_are}), got "
-                          f"{len(spec)}")
+        raise ConfigError(
+            f"{where}: expected {outputs} row{'s' * (outputs != 1)} (one per {outputs_are}), got {len(spec)}"
+        )
     m = len(spec[0])
     if inputs is not None and m != inputs:
-        raise ConfigError(f"{where}[0]: expected {inputs} element{'s' * (inputs != 1)} (one per {inputs_are}), "
-                          f"got {m}")
+        raise ConfigError(
+            f"{where}[0]: expected {inputs} element{'s' * (inputs != 1)} (one per {inputs_are}), got {m}"
+        )
     blocks = []
     for i, row in enumerate(spec):
         if len(row) != m:

@@ -4,19 +4,20 @@ A linear system's response does not depend on the input amplitude; a surface rat
 or saturation does. Two things here:
 
 * :func:`flown_amplitude`: per analysis frequency, the input amplitude the pooled estimate saw: the records'
-  amplitudes (:attr:`SpectralEstimate.amplitude`, ``sqrt(2)`` x the RMS of the input over the manoeuvre, exactly
-  the amplitude of a constant-amplitude chirp) weighted by each record's input power at that frequency (the
-  pooled local fit weighs the records the same way). The describing functions of ``rate_limit`` and
+  amplitudes (:attr:`SpectralEstimate.amplitude`, ``sqrt(2)`` x the RMS of the input over the manoeuvre,
+  exactly the amplitude of a constant-amplitude chirp) weighted by each record's input power at that frequency
+  (the pooled local fit weighs the records the same way). The describing functions of ``rate_limit`` and
   ``backlash`` (:mod:`gap_validation.core.effects`) are evaluated there.
 * :func:`amplitude_dependence`: when the flight has sweeps at clearly different amplitudes (largest over
   smallest at least :data:`AMPLITUDE_RATIO`), the low- and high-amplitude groups' responses are compared
   frequency by frequency against their errors: ``z^2 = |H_lo - H_hi|^2 / (v_lo + v_hi + floor)``, each group
   the inverse-variance mean of its records, its variance scaled by the group's Birge ratio (scatter between
-  its own records beyond their errors) and a systematic floor of :data:`~gap_validation.core.diagnosis.BIAS_ERROR`
-  on each. The variances are themselves estimated (the records' degrees of freedom d, combined by
-  Welch-Satterthwaite), so for a linear system z^2 is F(2, 2 d) at each frequency: its tail probability p gives
-  the *surprise* ``-ln p``, Exp(1) for a linear response, and the summed surprise is Gamma(n, 1). Nonlinearity is
-  called only when the sum is beyond it with probability below :data:`FALSE_ALARM` *and* at least
+  its own records beyond their errors) and a systematic floor of
+  :data:`~gap_validation.core.diagnosis.BIAS_ERROR` on each. The variances are themselves estimated (the
+  records' degrees of freedom d, combined by Welch-Satterthwaite), so for a linear system z^2 is F(2, 2 d) at
+  each frequency: its tail probability p gives the *surprise* ``-ln p``, Exp(1) for a linear response, and the
+  summed surprise is Gamma(n, 1). Nonlinearity is called only when the sum is beyond it with probability below
+  :data:`FALSE_ALARM` *and* at least
   :data:`MIN_FREQUENCIES` frequencies each have a surprise above 16 (p < 1e-7, as k = 4 noise scales), differ
   by more than :data:`MIN_RELATIVE_DIFFERENCE` of the response and by less than 90 deg in phase (a rate limit,
   free play or saturation shifts the phase between two amplitudes by less than that; more is a bad record).
@@ -90,8 +91,10 @@ class AmplitudeDependence:
         """The evidence in words (for the message and JSON ``nonlinearity_evidence``)."""
         amplitudes = f"sweeps at {self.low_amplitude:.3g} and {self.high_amplitude:.3g} amplitude"
         if not self.detected:
-            return (f"{amplitudes} agree within their errors ({self.frequencies} frequencies compared, chance "
-                    f"{min(self.probability, 1.0):.2g} for a linear response)")
+            return (
+                f"{amplitudes} agree within their errors ({self.frequencies} frequencies compared, chance "
+                f"{min(self.probability, 1.0):.2g} for a linear response)"
+            )
         return (f"{amplitudes} disagree beyond their errors at {self.disagreeing} of {self.frequencies} "
                 f"frequencies (at {self.worst_rad_s:.3g} rad/s the larger one's response is "
                 f"x{self.gain_ratio:.2f}, {self.phase_deg:+.0f} deg)")
@@ -133,7 +136,9 @@ def flown_amplitude(w_rad_s: Sequence[float], sweeps: Sequence) -> np.ndarray | 
     return np.where(total > 0, per, overall)
 
 
-def amplitude_function(w_rad_s: Sequence[float], amplitude: Sequence[float]) -> Callable[[np.ndarray], np.ndarray]:
+def amplitude_function(
+    w_rad_s: Sequence[float], amplitude: Sequence[float]
+) -> Callable[[np.ndarray], np.ndarray]:
     """``amplitude(w)`` at any frequency: interpolated in log frequency, constant beyond the ends.
 
     Parameters
@@ -210,8 +215,9 @@ def amplitude_dependence(sweeps: Sequence, average_confident: np.ndarray, cohere
     h_hi, v_hi, d_hi = _group(high, [sweep_points(s, average_confident, coherence_threshold) for s in high])
     both = np.isfinite(h_lo) & np.isfinite(h_hi) & np.isfinite(v_lo) & np.isfinite(v_hi)
     n = int(np.count_nonzero(both))
-    result = AmplitudeDependence(False, float(np.mean(amps[amps < split])), float(np.mean(amps[amps >= split])),
-                                 n, 0, 1.0)
+    result = AmplitudeDependence(
+        False, float(np.mean(amps[amps < split])), float(np.mean(amps[amps >= split])), n, 0, 1.0
+    )
     if n == 0:
         return result
     diff = np.abs(h_lo - h_hi)
@@ -219,8 +225,8 @@ def amplitude_dependence(sweeps: Sequence, average_confident: np.ndarray, cohere
     with np.errstate(divide="ignore", invalid="ignore"):
         z2 = np.where(both, diff ** 2 / (v_lo + v_hi + floor), 0.0)
         relative = np.where(both, diff / np.abs(h_hi), 0.0)
-        # the variances are estimated (d degrees of freedom, Welch-Satterthwaite): z^2 is F(2, 2 d), not Exp(1);
-        # its tail probability p turned into -ln p, which is Exp(1) for a linear response
+        # the variances are estimated (d degrees of freedom, Welch-Satterthwaite): z^2 is F(2, 2 d), not
+        # Exp(1); its tail probability p turned into -ln p, which is Exp(1) for a linear response
         d = np.where(both, (v_lo + v_hi) ** 2 / (v_lo ** 2 / d_lo + v_hi ** 2 / d_hi), 1.0)
         tail = np.where(both, fdtrc(2.0, 2.0 * np.maximum(d, 1.0), z2), 1.0)
         surprise = -np.log(np.maximum(tail, 1e-300))

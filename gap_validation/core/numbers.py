@@ -3,10 +3,11 @@
 The config schema (:mod:`gap_validation.core.config`), the effects (:mod:`gap_validation.core.effects`), the
 models (:mod:`gap_validation.core.models`), the estimator options (:mod:`gap_validation.core.estimator`,
 :mod:`gap_validation.core.sweeps`) and the simulation options (:mod:`gap_validation.core.simulation`) all read
-their numbers with :func:`check_number`. A number is a real number (int or float: booleans are refused, ``true``
-is no delay), finite, and inside the :class:`Interval` its key allows. Numeric strings (``"5e-2"``, which YAML
-1.1 loads as a string) are accepted where the reader asks for them (``strings=True``: effects, models, estimator
-options); the schema's own keys refuse them. Errors are one line: ``<where>: expected <what>, got <value>``.
+their numbers with :func:`check_number`. A number is a real number (int or float: booleans are refused,
+``true`` is no delay), finite, and inside the :class:`Interval` its key allows. Numeric strings (``"5e-2"``,
+which YAML 1.1 loads as a string) are accepted where the reader asks for them (``strings=True``: effects,
+models, estimator options); the schema's own keys refuse them. Errors are one line: ``<where>: expected
+<what>, got <value>``.
 """
 from __future__ import annotations
 
@@ -54,7 +55,8 @@ class Interval:
         return f"a number {'<' if self.high_open else '<='} {self.high:g}"
 
     def text(self) -> str:
-        """What the interval allows, in words: ``a number > 0``, ``a number in [0, 0.5)``, ``a nonzero number``."""
+        """What the interval allows, in words: ``a number > 0``, ``a number in [0, 0.5)``, ``a nonzero
+        number``."""
         if self.nonzero:
             return "a nonzero number"
         if math.isinf(self.low) and math.isinf(self.high):

@@ -1,9 +1,10 @@
 """What to fly next (issue 25): the test card that turns each data-limited band into a verdict. ROS-free.
 
 A replay says per frequency whether the model is validated there (a *verdict*: the model fits within the
-threshold, or it is model-limited) or not (data-limited, not excited, too few degrees of freedom, low coherence).
-This module plans, per channel and per run of frequencies without a verdict, one manoeuvre that brings the random
-error there to what a verdict needs, and says what it costs in flight time and what error it is expected to give.
+threshold, or it is model-limited) or not (data-limited, not excited, too few degrees of freedom, low
+coherence). This module plans, per channel and per run of frequencies without a verdict, one manoeuvre that
+brings the random error there to what a verdict needs, and says what it costs in flight time and what error it
+is expected to give.
 
 The principle: the estimator's own formula, run forward
 ------------------------------------------------------
@@ -13,51 +14,57 @@ The random error the validator reports (``random_error``) is that of the local p
     e(w)^2 = Var(H) / (2 |H|^2),      Var(H) = sigma^2 [(Phi^H Phi)^-1]_00
 
 with ``sigma^2`` the output noise per DFT bin and ``Phi`` the input's DFT bins around ``w`` times the response
-polynomial (after each record's transient is projected out), summed over the records. Its two factors separate what
-the flight's disturbances do (``q = sigma^2 / |H|^2``, the noise-to-signal ratio per unit of input power) from what
-the manoeuvre puts in (``Phi^H Phi``, which grows with the amplitude squared and with the time spent near ``w``).
-To first order it is Bendat and Piersol's ``e^2 = (1 - g^2) / (2 n_d g^2)``
-(:func:`~gap_validation.core.diagnosis.bendat_piersol_random_error`) times the variance inflation of the fitted
-polynomial at the band's centre (2.25 for a quadratic over evenly filled bins: the measured ``random_error`` is 1.5
-times Bendat and Piersol's on the same coherence and degrees of freedom): the error falls as one over the square root
-of the degrees of freedom and grows as the coherence falls. Hence:
+polynomial (after each record's transient is projected out), summed over the records. Its two factors separate
+what the flight's disturbances do (``q = sigma^2 / |H|^2``, the noise-to-signal ratio per unit of input power)
+from what the manoeuvre puts in (``Phi^H Phi``, which grows with the amplitude squared and with the time spent
+near ``w``). To first order it is Bendat and Piersol's ``e^2 = (1 - g^2) / (2 n_d g^2)``
+(:func:`~gap_validation.core.diagnosis.bendat_piersol_random_error`) times the variance inflation of the
+fitted polynomial at the band's centre (2.25 for a quadratic over evenly filled bins: the measured
+``random_error`` is 1.5 times Bendat and Piersol's on the same coherence and degrees of freedom): the error
+falls as one over the square root of the degrees of freedom and grows as the coherence falls. Hence:
 
 1. The noise from the flight flown (:func:`_rebuild_flight`, :func:`_fill_noise`): ``q = 2 e1^2 /
-   [(Phi1^H Phi1)^-1]_00`` (:func:`noise_ratio`), with ``Phi1`` the first flight's manoeuvres rebuilt from the results
-   (each chirp's amplitude, length and excited band; the doublets and multisteps kept for the time domain from their
-   own samples). The estimator's noise ``q |H_meas|^2`` less the surface's trim motion seen through the response
-   (errors in variables) is the output's own noise, smoothed over frequency (a local linear fit of its logarithm in
-   log w, chi-square bias removed) from the frequencies whose rebuild is trustworthy, continued with its slope beyond
-   them or taken from the output's trim before the kept manoeuvres. From a config alone (a first flight) the noise is
-   the stated assumption of :class:`PlanOptions`.
-2. For a candidate manoeuvre (a log chirp, :func:`chirp`) its own ``Phi2^H Phi2`` and degrees of freedom come from
-   the estimator's code on its samples (:func:`~gap_validation.core.spectra.record_bands`): which target frequencies
-   it counts at (excited, long enough, enough bins) and with what information; its ``|H|`` is the model seen
-   through the same bands (:func:`~gap_validation.core.spectra.expected_estimate`) times the measured ratio to it,
-   pooled over neighbouring frequencies until its random error is :data:`RESPONSE_ERROR` (:func:`_pool_response`:
-   the first flight's ``|H|`` at its data-limited low end is off by the random error that made it data-limited, and
-   enters the prediction one for one; neighbouring frequencies that share DFT bins count once). The predicted error
-   is ``e2 = sqrt(q2 [(n A^2 Phi2^H Phi2)^-1]_00 / 2)`` (:func:`predicted_random_error`) for ``n`` repeats at
-   amplitude ``A``, ``q2`` the output's noise over ``|H|^2`` plus the input's trim motion; the predicted coherence
-   ``1 - d q / (n A^2 |Phi2|^2_00 + D q)`` (``D`` the bins less the transients, ``d = D - 3``) must pass the
-   channel's threshold with the validator's Beta law (:func:`~gap_validation.core.diagnosis.confident_points`).
-3. The target (:func:`verdict_error`): the largest random error at which a mismatch at the channel's epsilon threshold
-   (0.15) would be model-limited, i.e. ``normalised_mismatch(0.15, sigma, d) = 4`` with ``sigma = hypot(e, 0.01) / 2``
-   (:func:`~gap_validation.core.diagnosis.normalised_mismatch`, :data:`~gap_validation.core.diagnosis.SIGMA_FACTOR`,
-   :data:`~gap_validation.core.diagnosis.BIAS_ERROR`): about 0.067 on 20 degrees of freedom, 0.075 on many. At that
-   error a correct model stays within the threshold (noise reaches it with probability exp(-8)) and a wrong one is
-   called model-limited: either way a verdict. The plan aims :data:`PLAN_MARGIN` below it.
-4. The manoeuvre (:func:`plan_card`): for every swept band (the targets with margins, at least 5:1 so the estimator
-   calls it a chirp), sweep length and number of repeats, the smallest amplitude that meets the target, the
-   coherence, the sweep detector (:func:`~gap_validation.core.sweeps.detrended_std` of the sweep over its ``on_ratio``
-   and ``off_ratio`` thresholds) and the input's own noise (20 dB, as :func:`~gap_validation.core.spectra.band_excited`);
-   the one of least flight time whose amplitude stays under the cap is flown. Bands that no such manoeuvre reaches
-   say why (above what the logs resolve; the amplitude cap; too slow for the sweep detector).
+   [(Phi1^H Phi1)^-1]_00`` (:func:`noise_ratio`), with ``Phi1`` the first flight's manoeuvres rebuilt from the
+   results (each chirp's amplitude, length and excited band; the doublets and multisteps kept for the time
+   domain from their own samples). The estimator's noise ``q |H_meas|^2`` less the surface's trim motion seen
+   through the response (errors in variables) is the output's own noise, smoothed over frequency (a local
+   linear fit of its logarithm in log w, chi-square bias removed) from the frequencies whose rebuild is
+   trustworthy, continued with its slope beyond them or taken from the output's trim before the kept
+   manoeuvres. From a config alone (a first flight) the noise is the stated assumption of
+   :class:`PlanOptions`.
+2. For a candidate manoeuvre (a log chirp, :func:`chirp`) its own ``Phi2^H Phi2`` and degrees of freedom come
+   from the estimator's code on its samples (:func:`~gap_validation.core.spectra.record_bands`): which target
+   frequencies it counts at (excited, long enough, enough bins) and with what information; its ``|H|`` is the
+   model seen through the same bands (:func:`~gap_validation.core.spectra.expected_estimate`) times the
+   measured ratio to it, pooled over neighbouring frequencies until its random error is :data:`RESPONSE_ERROR`
+   (:func:`_pool_response`: the first flight's ``|H|`` at its data-limited low end is off by the random error
+   that made it data-limited, and enters the prediction one for one; neighbouring frequencies that share DFT
+   bins count once). The predicted error is ``e2 = sqrt(q2 [(n A^2 Phi2^H Phi2)^-1]_00 / 2)``
+   (:func:`predicted_random_error`) for ``n`` repeats at amplitude ``A``, ``q2`` the output's noise over
+   ``|H|^2`` plus the input's trim motion; the predicted coherence ``1 - d q / (n A^2 |Phi2|^2_00 + D q)``
+   (``D`` the bins less the transients, ``d = D - 3``) must pass the channel's threshold with the validator's
+   Beta law (:func:`~gap_validation.core.diagnosis.confident_points`).
+3. The target (:func:`verdict_error`): the largest random error at which a mismatch at the channel's epsilon
+   threshold (0.15) would be model-limited, i.e. ``normalised_mismatch(0.15, sigma, d) = 4`` with ``sigma =
+   hypot(e, 0.01) / 2`` (:func:`~gap_validation.core.diagnosis.normalised_mismatch`,
+   :data:`~gap_validation.core.diagnosis.SIGMA_FACTOR`,
+   :data:`~gap_validation.core.diagnosis.BIAS_ERROR`): about 0.067 on 20 degrees of freedom, 0.075 on many. At
+   that error a correct model stays within the threshold (noise reaches it with probability exp(-8)) and a
+   wrong one is called model-limited: either way a verdict. The plan aims :data:`PLAN_MARGIN` below it.
+4. The manoeuvre (:func:`plan_card`): for every swept band (the targets with margins, at least 5:1 so the
+   estimator calls it a chirp), sweep length and number of repeats, the smallest amplitude that meets the
+   target, the coherence, the sweep detector (:func:`~gap_validation.core.sweeps.detrended_std` of the sweep
+   over its ``on_ratio`` and ``off_ratio`` thresholds) and the input's own noise (20 dB, as
+   :func:`~gap_validation.core.spectra.band_excited`); the one of least flight time whose amplitude stays
+   under the cap is flown. Bands that no such manoeuvre reaches say why (above what the logs resolve; the
+   amplitude cap; too slow for the sweep detector).
 
-The chirp is ArduPilot's waveform (``AP_Math/chirp.cpp``: an exponential sweep, half-cosine fade in and out within
-the record) without its dwell at the start frequency, which the estimator's sweep detector follows badly (ArduPilot's
-mode flies two cycles there first: :func:`ardupilot_parameters` adds them to ``SID_T_REC``). It is the simulator's
-:func:`~gap_validation.core.simulation.log_sweep` with 1 s fades, so a simulated flight flies the card exactly.
+The chirp is ArduPilot's waveform (``AP_Math/chirp.cpp``: an exponential sweep, half-cosine fade in and out
+within the record) without its dwell at the start frequency, which the estimator's sweep detector follows
+badly (ArduPilot's mode flies two cycles there first: :func:`ardupilot_parameters` adds them to
+``SID_T_REC``). It is the simulator's
+:func:`~gap_validation.core.simulation.log_sweep` with 1 s fades, so a simulated flight flies the card
+exactly.
 """
 from __future__ import annotations
 
@@ -73,8 +80,12 @@ from scipy.special import digamma, polygamma
 from scipy.stats import norm
 
 from gap_validation.core.config import ChannelConfig, ValidationConfig
-from gap_validation.core.diagnosis import (BIAS_ERROR, SIGMA_FACTOR, analyse_channel, confident_points,
-                                           epsilon_noise_scale, normalised_mismatch)
+from gap_validation.core.diagnosis import (
+    BIAS_ERROR,
+    SIGMA_FACTOR,
+    analyse_channel,
+    confident_points,
+)
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.estimator import ESTIMATOR_DEFAULTS, LOOKBACK_S, RESOLVED_FRACTION
 from gap_validation.core.numbers import NON_NEGATIVE, POSITIVE, Interval, check_number
@@ -89,26 +100,28 @@ __all__ = [
     "ARDUPILOT_RANGES", "PX4_RANGES", "DWELL_CYCLES",
 ]
 
-#: The epsilon threshold the validator judges bands at: :func:`~gap_validation.core.diagnosis.analyse_channel`'s
-#: default, which the validator uses (read from its signature: one definition).
+#: The epsilon threshold the validator judges bands at:
+#: :func:`~gap_validation.core.diagnosis.analyse_channel`'s default, which the validator uses (read from its
+#: signature: one definition).
 EPSILON_THRESHOLD = float(inspect.signature(analyse_channel).parameters["epsilon_threshold"].default)
 #: The plan aims this factor below the target error (and above the coherence and detection thresholds): the
-#: measured error scatters about the prediction (the noise estimate of the first flight on few degrees of freedom,
-#: the new flight's own noise estimate; ``benchmarks/plan_campaigns.py`` measures it).
+#: measured error scatters about the prediction (the noise estimate of the first flight on few degrees of
+#: freedom, the new flight's own noise estimate; ``benchmarks/plan_campaigns.py`` measures it).
 PLAN_MARGIN = 1.25
-#: Cycles ArduPilot's chirp dwells at the start frequency (``time_const_freq = 2 / frequency_start``); the card's
-#: own sweeps do not dwell (the sweep detector follows a slow start badly: a 0.6 rad/s dwell split into pulses).
+#: Cycles ArduPilot's chirp dwells at the start frequency (``time_const_freq = 2 / frequency_start``); the
+#: card's own sweeps do not dwell (the sweep detector follows a slow start badly: a 0.6 rad/s dwell split into
+#: pulses).
 DWELL_CYCLES = 2.0
-#: Below this frequency times 2 s / ``energy_window_s`` [rad/s] the sweep detector sees a sine by its curvature only
-#: (:mod:`gap_validation.core.sweeps`): a sweep may spend there at most what a record reaches back
-#: (:data:`~gap_validation.core.estimator.LOOKBACK_S`, 10 s). Measured: a 0.5-2.5 rad/s sweep of 80 s at 0.05 rad fell
-#: apart into steps and pulses (no response), of 30 s it held; from 0.8 rad/s, 80 s held.
+#: Below this frequency times 2 s / ``energy_window_s`` [rad/s] the sweep detector sees a sine by its
+#: curvature only (:mod:`gap_validation.core.sweeps`): a sweep may spend there at most what a record reaches
+#: back (:data:`~gap_validation.core.estimator.LOOKBACK_S`, 10 s). Measured: a 0.5-2.5 rad/s sweep of 80 s at
+#: 0.05 rad fell apart into steps and pulses (no response), of 30 s it held; from 0.8 rad/s, 80 s held.
 SLOW_SWEEP = 0.8
 #: Shortest sweep planned [s].
 MIN_SWEEP_S = 10.0
 #: The estimator calls a manoeuvre a chirp when the 90th percentile of its half-periods is 3 times the 10th
-#: (:mod:`gap_validation.core.records`, ``_is_chirp``); a log sweep's zero crossings fall evenly in frequency, so
-#: that takes a sweep of (1 + 0.9 (k - 1)) / (1 + 0.1 (k - 1)) >= 3, k >= 4.3: 5:1 at least (a 3:1 sweep at
+#: (:mod:`gap_validation.core.records`, ``_is_chirp``); a log sweep's zero crossings fall evenly in frequency,
+#: so that takes a sweep of (1 + 0.9 (k - 1)) / (1 + 0.1 (k - 1)) >= 3, k >= 4.3: 5:1 at least (a 3:1 sweep at
 #: 0.6-1.7 rad/s was called a multistep).
 MIN_SWEEP_RATIO = 5.0
 #: ... and at least 13 zero crossings (``_is_chirp``): with a margin, 16 half-periods.
@@ -118,57 +131,67 @@ MIN_HALF_PERIODS = 16
 SWEEP_MARGINS = ((1.4, 1.3), (1.8, 1.5), (2.5, 2.0))
 #: Sweep lengths tried: geometric steps from the shortest the band allows to ``PlanOptions.max_sweep_s``.
 SWEEP_LENGTH_STEP = 1.2
-#: The sweep must stand this many times over the detector's thresholds (``on_ratio``, ``off_ratio`` times the trim's
-#: level) ...
+#: The sweep must stand this many times over the detector's thresholds (``on_ratio``, ``off_ratio`` times the
+#: trim's level) ...
 DETECTION_MARGIN = 1.25
 #: ... and its input power near every target this many times over 20 dB above the input's noise (power ratio).
 EXCITATION_MARGIN = 4.0
-#: Half-width of the kernel the output's noise spectrum is smoothed over [decades] (:func:`_fill_noise`): the grid's
-#: points within a factor 1.45, about four on each side of a 25-per-decade grid. Not widened to reach the degrees of
-#: freedom the error budget asks of the noise (11, :data:`RESPONSE_ERROR`): at the low end of a short first card the
-#: grid's neighbours share most of their DFT bins (a 7-bin band moves by about one bin per grid step), so those lie
-#: half a decade and more away, over which the noise falls ten- to a hundredfold; pooled that far (nearest first, to
-#: 6, 11 or 21 degrees of freedom) the planned error came out worse, not better (docs/PLAN.md, "The first flight's
-#: |H|").
+#: Half-width of the kernel the output's noise spectrum is smoothed over [decades] (:func:`_fill_noise`): the
+#: grid's points within a factor 1.45, about four on each side of a 25-per-decade grid. Not widened to reach
+#: the degrees of freedom the error budget asks of the noise (11, :data:`RESPONSE_ERROR`): at the low end of a
+#: short first card the grid's neighbours share most of their DFT bins (a 7-bin band moves by about one bin
+#: per grid step), so those lie half a decade and more away, over which the noise falls ten- to a hundredfold;
+#: pooled that far (nearest first, to 6, 11 or 21 degrees of freedom) the planned error came out worse, not
+#: better (docs/PLAN.md, "The first flight's |H|").
 NOISE_WIDTH = 0.25
-#: Slopes (log-log) a noise spectrum is continued with beyond the frequencies it was measured at: turbulence falls
-#: as w^-4 at most above its corner (a second-order low-pass, as Dryden's); rising faster than w^2 is no noise.
+#: Slopes (log-log) a noise spectrum is continued with beyond the frequencies it was measured at: turbulence
+#: falls as w^-4 at most above its corner (a second-order low-pass, as Dryden's); rising faster than w^2 is no
+#: noise.
 SLOPE_RANGE = (-4.0, 2.0)
-#: A first-flight frequency within this factor of its excited band's edges is not used for the noise: the band's edge
-#: is where the flight's input is least known (a sweep whose slow start the detector lost counted a band below it).
+#: A first-flight frequency within this factor of its excited band's edges is not used for the noise: the
+#: band's edge is where the flight's input is least known (a sweep whose slow start the detector lost counted
+#: a band below it).
 EDGE_CORE = 1.25
 #: The predicted random error is to hold within this factor of the one measured after flying the manoeuvre ...
 PREDICTION_FACTOR = 1.5
 #: ... on this share of the bands (issue 25).
 PREDICTION_SHARE = 0.9
-#: Degrees of freedom the error budget of :data:`RESPONSE_ERROR` assumes for a planned manoeuvre's estimate: those
-#: the target is quoted on (a verdict needs about 0.067 on 20; :func:`verdict_error`). A nominal value, not each
-#: manoeuvre's own (its ``predicted_dof``, known only once the manoeuvre is designed from the response this budget
-#: sets): on 10 the budget would be 0.131, on 40 0.165.
+#: Degrees of freedom the error budget of :data:`RESPONSE_ERROR` assumes for a planned manoeuvre's estimate:
+#: those the target is quoted on (a verdict needs about 0.067 on 20; :func:`verdict_error`). A nominal value,
+#: not each manoeuvre's own (its ``predicted_dof``, known only once the manoeuvre is designed from the
+#: response this budget sets): on 10 the budget would be 0.131, on 40 0.165.
 DESIGN_DOF = 20.0
-#: Largest random error of ``ln |H|`` the measured response may carry into a prediction (:func:`_pool_response`), from
-#: the budget of :data:`PREDICTION_FACTOR`: log-normal scatter of at most ``ln 1.5 / z(0.95) = 0.246`` between the
-#: predicted and the measured error. The measured error scatters by ``sqrt(psi'(20)) / 2 = 0.113`` on its own (its noise
-#: variance on :data:`DESIGN_DOF` degrees of freedom goes as ``chi2(40) / 40``, the error as its square root); what
-#: is left, ``sqrt(0.246^2 - 0.113^2) = 0.219``, is shared evenly by the two numbers the prediction takes from the
-#: first flight, the noise level and the response's magnitude (the error goes as ``sigma / |H|``): 0.155 each. (For a
-#: noise variance that is ``sqrt(psi'(N)) / 2 = 0.155``: N = 11 degrees of freedom.)
+#: Largest random error of ``ln |H|`` the measured response may carry into a prediction
+#: (:func:`_pool_response`), from the budget of :data:`PREDICTION_FACTOR`: log-normal scatter of at most ``ln
+#: 1.5 / z(0.95) = 0.246`` between the predicted and the measured error. The measured error scatters by
+#: ``sqrt(psi'(20)) / 2 = 0.113`` on its own (its noise variance on :data:`DESIGN_DOF` degrees of freedom goes
+#: as ``chi2(40) / 40``, the error as its square root); what is left, ``sqrt(0.246^2 - 0.113^2) = 0.219``, is
+#: shared evenly by the two numbers the prediction takes from the first flight, the noise level and the
+#: response's magnitude (the error goes as ``sigma / |H|``): 0.155 each. (For a noise variance that is
+#: ``sqrt(psi'(N)) / 2 = 0.155``: N = 11 degrees of freedom.)
 RESPONSE_ERROR = float(math.sqrt(((math.log(PREDICTION_FACTOR) / norm.ppf(0.5 + PREDICTION_SHARE / 2.0)) ** 2
                                   - float(polygamma(1, DESIGN_DOF)) / 4.0) / 2.0))
 #: 20 dB: what :func:`~gap_validation.core.spectra.band_excited` asks of a manoeuvre over the input's noise.
 _EXCITATION_SNR = 1e2
 #: Why a frequency has no verdict, from the results' ``frequency_reasons`` and ``frequency_flags``, in words.
 REASON_WORDS = {
-    "data": "data-limited", "not_excited": "not excited", "too_short": "records too short",
-    "too_few_bins": "too few excited bins", "below_trim": "below the surface's trim motion",
-    "too_few_dof": "too few degrees of freedom", "low_coherence": "low coherence", "biased": "biased (feedback)",
-    "above_resolution": "above what the logs resolve", "first_flight": "not flown yet",
+    "data": "data-limited",
+    "not_excited": "not excited",
+    "too_short": "records too short",
+    "too_few_bins": "too few excited bins",
+    "below_trim": "below the surface's trim motion",
+    "too_few_dof": "too few degrees of freedom",
+    "low_coherence": "low coherence",
+    "biased": "biased (feedback)",
+    "above_resolution": "above what the logs resolve",
+    "first_flight": "not flown yet",
 }
 
 # ArduPilot's SystemID parameters (AP_SystemID::var_info, ArduPlane/systemid.cpp, and ModeSystemId::var_info,
-# ArduCopter/mode_systemid.cpp: the @Range of each; SID_MAGNITUDE has none: "Magnitude of sweep in deg, deg/s and
-# 0-1 for mixer outputs"; SID_AXIS @Values 0-13, 10-12 the mixer's roll, pitch, yaw). The waveform: AP_Math/chirp.cpp
-# (Chirp::update); the mode stops with "SystemID Parameter Error" unless SID_T_REC > 2 / SID_F_START_HZ.
+# ArduCopter/mode_systemid.cpp: the @Range of each; SID_MAGNITUDE has none: "Magnitude of sweep in deg, deg/s
+# and 0-1 for mixer outputs"; SID_AXIS @Values 0-13, 10-12 the mixer's roll, pitch, yaw). The waveform:
+# AP_Math/chirp.cpp (Chirp::update); the mode stops with "SystemID Parameter Error" unless SID_T_REC > 2 /
+# SID_F_START_HZ.
 ARDUPILOT_RANGES = {
     "SID_AXIS": (0, 13), "SID_MAGNITUDE": (0.0, 1.0), "SID_F_START_HZ": (0.01, 100.0),
     "SID_F_STOP_HZ": (0.01, 100.0), "SID_T_FADE_IN": (0.0, 20.0), "SID_T_REC": (0.0, 255.0),
@@ -179,10 +202,11 @@ ARDUPILOT_MIXER_AXIS = {"roll": 10, "pitch": 11, "yaw": 12}
 #: ArduPilot's fixed-wing convention: a full mixer output is 4500 centidegrees of notional surface travel
 #: (AP_RollController IMAX: "Servos are assumed to have +/- 4500 centi-degrees of travel").
 ARDUPILOT_THROW_RAD = math.radians(45.0)
-# PX4's fixed-wing autotune (src/modules/fw_autotune_attitude_control/fw_autotune_attitude_control_params.c and
-# _params.yaml): FW_AT_SYSID_F0/F1 0.1-30 Hz (one decimal), FW_AT_SYSID_TIME 5-120 s, FW_AT_SYSID_TYPE 0 step, 1 linear,
-# 2 logarithmic sine sweep, FW_AT_AXES bitmask 1-7 (roll, pitch, yaw), FW_AT_APPLY 0 logging only,
-# FW_AT_SYSID_AMP 0.1-6 scales a rate setpoint (signal_generator.hpp: getLogSineSweep, no dwell, no fades).
+# PX4's fixed-wing autotune (src/modules/fw_autotune_attitude_control/fw_autotune_attitude_control_params.c
+# and _params.yaml): FW_AT_SYSID_F0/F1 0.1-30 Hz (one decimal), FW_AT_SYSID_TIME 5-120 s, FW_AT_SYSID_TYPE 0
+# step, 1 linear, 2 logarithmic sine sweep, FW_AT_AXES bitmask 1-7 (roll, pitch, yaw), FW_AT_APPLY 0 logging
+# only, FW_AT_SYSID_AMP 0.1-6 scales a rate setpoint (signal_generator.hpp: getLogSineSweep, no dwell, no
+# fades).
 PX4_RANGES = {
     "FW_AT_SYSID_F0": (0.1, 30.0), "FW_AT_SYSID_F1": (0.1, 30.0), "FW_AT_SYSID_TIME": (5.0, 120.0),
     "FW_AT_SYSID_TYPE": (0, 2), "FW_AT_AXES": (1, 7), "FW_AT_APPLY": (0, 2),
@@ -190,7 +214,8 @@ PX4_RANGES = {
 PX4_AXIS_BIT = {"roll": 1, "pitch": 2, "yaw": 4}
 
 
-# ------------------------------------------------------------------------------------------------ options, results
+# ------------------------------------------------------------------------------------------------ options,
+# results
 @dataclass(frozen=True)
 class PlanOptions:
     """How the card is planned.
@@ -198,22 +223,24 @@ class PlanOptions:
     Attributes
     ----------
     target_error : float, optional
-        Random error to reach at every planned frequency; None: what a verdict at the channel's threshold needs
-        (:func:`verdict_error`).
+        Random error to reach at every planned frequency; None: what a verdict at the channel's threshold
+        needs (:func:`verdict_error`).
     max_amplitude_rad : float, optional
         Largest sweep amplitude allowed [rad]. With results the cap is the smaller of this and the largest
-        deflection the flight already flew (both when given); from a config alone it defaults to the simulator's
-        sweep amplitude (0.06 rad).
+        deflection the flight already flew (both when given); from a config alone it defaults to the
+        simulator's sweep amplitude (0.06 rad).
     log_rate_hz : float, optional
         Rate of the slowest logged stream of the channels [Hz]: the estimator resolves up to a quarter of it.
         None: known only where the results say ``above_resolution``.
     fade_s : float
-        Fade in and out of each chirp [s] (ArduPilot's ``SID_T_FADE_IN``/``SID_T_FADE_OUT``; the simulator's 1 s).
+        Fade in and out of each chirp [s] (ArduPilot's ``SID_T_FADE_IN``/``SID_T_FADE_OUT``; the simulator's 1
+        s).
     trim_before_s, trim_between_s : float
-        Trim before a manoeuvre's first sweep and after each sweep [s]. The estimator keeps ``pre_s`` before and
-        ``post_s`` after a manoeuvre; its sweep detector ends a stretch ``hold_s`` after the energy over
-        ``energy_window_s`` falls, so identical sweeps 5 s apart stayed one stretch, cut at ``max_record_s`` in the
-        middle of a sweep (its level there then looked like trim: every sweep fell apart); 6 s apart they did not.
+        Trim before a manoeuvre's first sweep and after each sweep [s]. The estimator keeps ``pre_s`` before
+        and ``post_s`` after a manoeuvre; its sweep detector ends a stretch ``hold_s`` after the energy over
+        ``energy_window_s`` falls, so identical sweeps 5 s apart stayed one stretch, cut at ``max_record_s``
+        in the middle of a sweep (its level there then looked like trim: every sweep fell apart); 6 s apart
+        they did not.
     max_sweep_s : float
         Longest single sweep [s] (PX4's ``FW_AT_SYSID_TIME`` allows 120 s).
     max_repeats : int
@@ -221,9 +248,9 @@ class PlanOptions:
     margin : float
         :data:`PLAN_MARGIN`.
     noise_rms_rad_s, noise_corner_rad_s, gyro_noise_rad_s, gyro_rate_hz, surface_noise_rad : float
-        From a config alone: the assumed output disturbance (a second-order low-pass of this rms and corner, as
-        light turbulence), the gyro's white noise at its rate, and the surface sensor's noise (the simulator's
-        defaults, :class:`~gap_validation.core.simulation.FlightOptions`).
+        From a config alone: the assumed output disturbance (a second-order low-pass of this rms and corner,
+        as light turbulence), the gyro's white noise at its rate, and the surface sensor's noise (the
+        simulator's defaults, :class:`~gap_validation.core.simulation.FlightOptions`).
     """
 
     target_error: float | None = None
@@ -253,7 +280,9 @@ class PlanOptions:
                      "surface_noise_rad"):
             check_number(getattr(self, name), f"plan option {name}", NON_NEGATIVE, expected="a number >= 0")
         if self.fade_s > ARDUPILOT_RANGES["SID_T_FADE_OUT"][1]:
-            raise ConfigError(f"--fade-s {self.fade_s:g}: expected at most 5 s (ArduPilot's SID_T_FADE_OUT range)")
+            raise ConfigError(
+                f"--fade-s {self.fade_s:g}: expected at most 5 s (ArduPilot's SID_T_FADE_OUT range)"
+            )
         if not isinstance(self.max_repeats, int) or self.max_repeats < 1:
             raise ConfigError(f"plan option max_repeats: expected an integer >= 1, got {self.max_repeats!r}")
         return self
@@ -286,14 +315,15 @@ class PlannedManoeuvre:
     trim_before_s, trim_between_s : float
         Trim before the first sweep and after each sweep [s].
     amplitude_set_by : str
-        What the amplitude is the least of: ``random error``, ``coherence``, ``sweep detection``, ``input noise``.
+        What the amplitude is the least of: ``random error``, ``coherence``, ``sweep detection``, ``input
+        noise``.
     frequencies_rad_s : tuple of float
         The grid frequencies it closes [rad/s].
     error_now : tuple of float or None
         Their random error before (None where nothing was estimated).
     predicted_error, predicted_coherence, predicted_dof, target_error : tuple of float
-        Per frequency: the random error, coherence and degrees of freedom this manoeuvre is expected to give when
-        replayed on its own, and the error a verdict needs there.
+        Per frequency: the random error, coherence and degrees of freedom this manoeuvre is expected to give
+        when replayed on its own, and the error a verdict needs there.
     kind : str
         ``chirp``: a log sweep without a dwell (:func:`chirp`).
     """
@@ -371,18 +401,28 @@ class PlannedManoeuvre:
         data : dict
             The manoeuvre's mapping.
         """
-        return cls(channel=channel, index=int(data["index"]), closes_rad_s=tuple(data["closes_rad_s"]),
-                   reasons=tuple(data.get("reasons") or ()), band_rad_s=tuple(float(v) for v in data["band_rad_s"]),
-                   amplitude_rad=float(data["amplitude_rad"]), duration_s=float(data["duration_s"]),
-                   repeats=int(data["repeats"]), fade_in_s=float(data["fade_in_s"]),
-                   fade_out_s=float(data["fade_out_s"]), trim_before_s=float(data["trim_before_s"]),
-                   trim_between_s=float(data["trim_between_s"]), amplitude_set_by=str(data.get("amplitude_set_by", "")),
-                   frequencies_rad_s=tuple(data.get("frequencies_rad_s") or ()),
-                   error_now=tuple(data.get("error_now") or ()),
-                   predicted_error=tuple(data.get("predicted_error") or ()),
-                   predicted_coherence=tuple(data.get("predicted_coherence") or ()),
-                   predicted_dof=tuple(data.get("predicted_dof") or ()),
-                   target_error=tuple(data.get("target_error") or ()), kind=str(data.get("kind", "chirp")))
+        return cls(
+            channel=channel,
+            index=int(data["index"]),
+            closes_rad_s=tuple(data["closes_rad_s"]),
+            reasons=tuple(data.get("reasons") or ()),
+            band_rad_s=tuple(float(v) for v in data["band_rad_s"]),
+            amplitude_rad=float(data["amplitude_rad"]),
+            duration_s=float(data["duration_s"]),
+            repeats=int(data["repeats"]),
+            fade_in_s=float(data["fade_in_s"]),
+            fade_out_s=float(data["fade_out_s"]),
+            trim_before_s=float(data["trim_before_s"]),
+            trim_between_s=float(data["trim_between_s"]),
+            amplitude_set_by=str(data.get("amplitude_set_by", "")),
+            frequencies_rad_s=tuple(data.get("frequencies_rad_s") or ()),
+            error_now=tuple(data.get("error_now") or ()),
+            predicted_error=tuple(data.get("predicted_error") or ()),
+            predicted_coherence=tuple(data.get("predicted_coherence") or ()),
+            predicted_dof=tuple(data.get("predicted_dof") or ()),
+            target_error=tuple(data.get("target_error") or ()),
+            kind=str(data.get("kind", "chirp")),
+        )
 
 
 @dataclass(frozen=True)
@@ -497,10 +537,14 @@ class TestCard:
         channels = {}
         for name, ch in (data.get("channels") or {}).items():
             channels[name] = ChannelPlan(
-                name, [PlannedManoeuvre.from_dict(name, m) for m in ch.get("manoeuvres") or []],
+                name,
+                [PlannedManoeuvre.from_dict(name, m) for m in ch.get("manoeuvres") or []],
                 [Unreachable(name, tuple(u["band_rad_s"]), u["reason"]) for u in ch.get("unreachable") or []],
-                ch.get("amplitude_cap_rad"), ch.get("amplitude_cap_reason", ""), int(ch.get("verdicts_already", 0)),
-                list(ch.get("notes") or []))
+                ch.get("amplitude_cap_rad"),
+                ch.get("amplitude_cap_reason", ""),
+                int(ch.get("verdicts_already", 0)),
+                list(ch.get("notes") or []),
+            )
         return cls(channels, str(data.get("source", "")), str(data.get("target_rule", "")),
                    list(data.get("assumptions") or []))
 
@@ -526,13 +570,13 @@ def chirp(t_s: np.ndarray, duration_s: float, f_start_hz: float, f_stop_hz: floa
           fade_out_s: float, amplitude: float = 1.0, dwell_cycles: float = 0.0) -> np.ndarray:
     """ArduPilot's system-identification chirp (``AP_Math/chirp.cpp``, ``Chirp::update``), zero outside.
 
-    ``dwell_cycles`` cycles at the start frequency (``t_c = dwell_cycles / f_start``; ArduPilot dwells 2), then
-    ``sin(w0 (T - t_c) / B (exp(B (t - t_c) / (T - t_c)) - 1))`` with ``B = ln(f_stop / f_start)``, every octave the
-    same time; a half-cosine window rises over ``fade_in_s`` from 0 and falls over the last ``fade_out_s`` of
-    ``duration_s``. With equal fades of at most a quarter of the record it is
-    :func:`~gap_validation.core.simulation.log_sweep` with the same ``dwell_cycles``. The card's manoeuvres dwell 0
-    cycles (the estimator's sweep detector follows a slow start badly); ArduPilot's mode flies its two cycles before
-    the same sweep (:func:`ardupilot_parameters`).
+    ``dwell_cycles`` cycles at the start frequency (``t_c = dwell_cycles / f_start``; ArduPilot dwells 2),
+    then ``sin(w0 (T - t_c) / B (exp(B (t - t_c) / (T - t_c)) - 1))`` with ``B = ln(f_stop / f_start)``, every
+    octave the same time; a half-cosine window rises over ``fade_in_s`` from 0 and falls over the last
+    ``fade_out_s`` of ``duration_s``. With equal fades of at most a quarter of the record it is
+    :func:`~gap_validation.core.simulation.log_sweep` with the same ``dwell_cycles``. The card's manoeuvres
+    dwell 0 cycles (the estimator's sweep detector follows a slow start badly); ArduPilot's mode flies its two
+    cycles before the same sweep (:func:`ardupilot_parameters`).
 
     Parameters
     ----------
@@ -553,11 +597,15 @@ def chirp(t_s: np.ndarray, duration_s: float, f_start_hz: float, f_stop_hz: floa
     w0, w1 = 2.0 * math.pi * f_start_hz, 2.0 * math.pi * f_stop_hz
     const_s = dwell_cycles / f_start_hz
     if not duration_s > const_s:
-        raise ConfigError(f"chirp: duration {duration_s:g} s must exceed the dwell of {dwell_cycles:g} cycles at the "
-                          f"start frequency ({const_s:g} s)")
+        raise ConfigError(
+            f"chirp: duration {duration_s:g} s must exceed the dwell of {dwell_cycles:g} cycles at the "
+            f"start frequency ({const_s:g} s)"
+        )
     window = np.ones_like(t)
     if fade_in_s > 0:
-        window = np.where(t <= fade_in_s, 0.5 - 0.5 * np.cos(np.pi * np.clip(t, 0.0, None) / fade_in_s), window)
+        window = np.where(
+            t <= fade_in_s, 0.5 - 0.5 * np.cos(np.pi * np.clip(t, 0.0, None) / fade_in_s), window
+        )
     if fade_out_s > 0:
         tail = duration_s - fade_out_s
         window = np.where(t > tail, 0.5 + 0.5 * np.cos(np.pi * (t - tail) / fade_out_s), window)
@@ -638,17 +686,18 @@ def card_signal(card: TestCard, rate_hz: float) -> tuple[np.ndarray, np.ndarray,
     return cat(ts), cat(idx, int), {name: cat(parts) for name, parts in offsets.items()}
 
 
-# ------------------------------------------------------------------------------------------------ the statistics
+# ------------------------------------------------------------------------------------------------ the
+# statistics
 def verdict_error(epsilon_threshold: float = EPSILON_THRESHOLD, dof: float = math.inf,
                   sigma_factor: float = SIGMA_FACTOR, bias_error: float = BIAS_ERROR) -> float:
     """The largest random error at which a mismatch at the threshold is a verdict.
 
     Solves ``normalised_mismatch(epsilon_threshold, sigma, dof) = sigma_factor`` with ``sigma =
-    epsilon_noise_scale(hypot(e, bias_error))`` (:mod:`gap_validation.core.diagnosis`: the validator's own law) for
-    ``e``. With ``k = sqrt(2 d ln(1 + r^2 / (2 d)))``, ``r = epsilon / sigma``, that is ``r^2 = 2 d (exp(k^2 / (2 d)) -
-    1)`` (``r = k`` for infinitely many degrees of freedom), ``sigma = epsilon / r`` and ``e = sqrt((2 sigma)^2 -
-    bias^2)``: a point whose epsilon is the threshold is then exactly model-limited, and noise alone passes the
-    threshold with probability ``exp(-sigma_factor^2 / 2)``.
+    epsilon_noise_scale(hypot(e, bias_error))`` (:mod:`gap_validation.core.diagnosis`: the validator's own
+    law) for ``e``. With ``k = sqrt(2 d ln(1 + r^2 / (2 d)))``, ``r = epsilon / sigma``, that is ``r^2 = 2 d
+    (exp(k^2 / (2 d)) - 1)`` (``r = k`` for infinitely many degrees of freedom), ``sigma = epsilon / r`` and
+    ``e = sqrt((2 sigma)^2 - bias^2)``: a point whose epsilon is the threshold is then exactly model-limited,
+    and noise alone passes the threshold with probability ``exp(-sigma_factor^2 / 2)``.
 
     Parameters
     ----------
@@ -688,9 +737,10 @@ def _inv00(ff: np.ndarray) -> np.ndarray:
 def predicted_random_error(noise_to_signal: Any, information: Any) -> np.ndarray:
     """The estimator's random error of ``|H|`` for an input whose information is ``Phi^H Phi``.
 
-    ``e = sqrt(q [(Phi^H Phi)^-1]_00 / 2)``: the variance of the local polynomial fit's value at the band's centre,
-    ``sigma^2 [(Phi^H Phi)^-1]_00``, over ``2 |H|^2``, with ``q = sigma^2 / |H|^2``
-    (:meth:`~gap_validation.core.estimator.SpectralEstimate.from_sums` computes the same from the fitted sums).
+    ``e = sqrt(q [(Phi^H Phi)^-1]_00 / 2)``: the variance of the local polynomial fit's value at the band's
+    centre, ``sigma^2 [(Phi^H Phi)^-1]_00``, over ``2 |H|^2``, with ``q = sigma^2 / |H|^2``
+    (:meth:`~gap_validation.core.estimator.SpectralEstimate.from_sums` computes the same from the fitted
+    sums).
 
     Parameters
     ----------
@@ -731,8 +781,8 @@ def _coherence(q: np.ndarray, ff00: np.ndarray, bins: np.ndarray, nh: int) -> np
 def check_results(results: dict, config: ValidationConfig, source: str = "results") -> None:
     """Raise a one-line :class:`DataError` when the results are not of this config.
 
-    Every channel of the results must be a channel of the config with the same frequency grid (a configured grid:
-    the same points; the flown grid: points within it).
+    Every channel of the results must be a channel of the config with the same frequency grid (a configured
+    grid: the same points; the flown grid: points within it).
 
     Parameters
     ----------
@@ -760,9 +810,11 @@ def check_results(results: dict, config: ValidationConfig, source: str = "result
         else:
             same = bool(np.all(w >= grid.min_rad_s * (1 - 1e-6)) and np.all(w <= grid.max_rad_s * (1 + 1e-6)))
         if not same:
-            raise DataError(f"{source}: channel {name!r}: frequencies {w[0]:.4g}-{w[-1]:.4g} rad/s ({w.size} points) "
-                            f"are not the grid of {config_name(config)} ({grid.min_rad_s:g}-{grid.max_rad_s:g} rad/s, "
-                            f"{grid.count} points): results of another config?")
+            raise DataError(
+                f"{source}: channel {name!r}: frequencies {w[0]:.4g}-{w[-1]:.4g} rad/s ({w.size} points) "
+                f"are not the grid of {config_name(config)} ({grid.min_rad_s:g}-{grid.max_rad_s:g} rad/s, "
+                f"{grid.count} points): results of another config?"
+            )
 
 
 def config_name(config: ValidationConfig) -> str:
@@ -805,7 +857,8 @@ class _Channel:
     cap: float = 0.0
     cap_reason: str = ""
     coherence_threshold: float = 0.6
-    detect_on_input: bool = True       # the detector sees the (noisy) surface; False with an excitation stream
+    # the detector sees the (noisy) surface; False with an excitation stream
+    detect_on_input: bool = True
     resolved_rad_s: float = math.inf
     verdicts: int = 0
     notes: list = field(default_factory=list)
@@ -814,19 +867,27 @@ class _Channel:
 def _channel_base(name: str, ch: ChannelConfig) -> _Channel:
     est = {**ESTIMATOR_DEFAULTS, **(ch.estimator or {})}
     w = ch.frequencies.values()
-    return _Channel(name=name, w=w, dt=1.0 / float(est["sample_rate_hz"]),
-                    spectra={k: est[k] for k in SPECTRA_DEFAULTS}, detector={k: est[k] for k in DETECTOR_DEFAULTS},
-                    pre_s=float(est["pre_s"]), post_s=float(est["post_s"]),
-                    model_mag=np.abs(np.asarray(ch.model.freqresp(w), dtype=complex)).ravel(), model=ch.model,
-                    coherence_threshold=float(ch.coherence_threshold), detect_on_input=ch.excitation is None)
+    return _Channel(
+        name=name,
+        w=w,
+        dt=1.0 / float(est["sample_rate_hz"]),
+        spectra={k: est[k] for k in SPECTRA_DEFAULTS},
+        detector={k: est[k] for k in DETECTOR_DEFAULTS},
+        pre_s=float(est["pre_s"]),
+        post_s=float(est["post_s"]),
+        model_mag=np.abs(np.asarray(ch.model.freqresp(w), dtype=complex)).ravel(),
+        model=ch.model,
+        coherence_threshold=float(ch.coherence_threshold),
+        detect_on_input=ch.excitation is None,
+    )
 
 
 def _shared_bins(sums: BandSums, status: np.ndarray, w: np.ndarray, n: int, dt: float,
                  band_fraction: float) -> np.ndarray:
-    """``S[i, j]``: the DFT bins one record's bands at the grid frequencies ``i`` and ``j`` have in common (``S[i, i]``
-    its bins at ``i``; 0 where the record does not count). A band is the bins from ``w (1 + r_lo f)`` to
-    ``w (1 + r_hi f)`` (:func:`~gap_validation.core.spectra.band_bins`: contiguous for a sweep), ``f`` the band
-    fraction, on the record's bin spacing ``2 pi / (n dt)``."""
+    """``S[i, j]``: the DFT bins one record's bands at the grid frequencies ``i`` and ``j`` have in common
+    (``S[i, i]`` its bins at ``i``; 0 where the record does not count). A band is the bins from ``w (1 + r_lo
+    f)`` to ``w (1 + r_hi f)`` (:func:`~gap_validation.core.spectra.band_bins`: contiguous for a sweep), ``f``
+    the band fraction, on the record's bin spacing ``2 pi / (n dt)``."""
     ok = (status == 0) & (sums.bins > 0)
     spacing = 2.0 * math.pi / (n * dt)
     lo = np.where(ok, np.round(w * (1.0 + np.where(ok, sums.r_lo, 0.0) * band_fraction) / spacing), 0.0)
@@ -836,14 +897,15 @@ def _shared_bins(sums: BandSums, status: np.ndarray, w: np.ndarray, n: int, dt: 
 
 
 def _rebuild_flight(c: _Channel, data: dict, opts: PlanOptions) -> tuple[BandSums, list[str], np.ndarray]:
-    """The local polynomial sums of the first flight's manoeuvres (``Phi1^H Phi1``, degrees of freedom, bands),
-    rebuilt from its results, and the DFT bins the grid frequencies' bands share (:func:`_shared_bins`, summed over
-    the records).
+    """The local polynomial sums of the first flight's manoeuvres (``Phi1^H Phi1``, degrees of freedom,
+    bands), rebuilt from its results, and the DFT bins the grid frequencies' bands share
+    (:func:`_shared_bins`, summed over the records).
 
-    Chirps (the raw sweeps): amplitude ``input_amplitudes``, length from ``raw_sweeps``' spans, input power density
-    ``A^2 T / ln(w1 / w0)`` of a log sweep over the excited band widened by the planner's first margins (a sweep
-    must pass a frequency to count it); generated over a wider band at the same density, so no band edge falls on a
-    grid point. Manoeuvres kept for the time domain (doublets, 3-2-1-1s): their own samples."""
+    Chirps (the raw sweeps): amplitude ``input_amplitudes``, length from ``raw_sweeps``' spans, input power
+    density ``A^2 T / ln(w1 / w0)`` of a log sweep over the excited band widened by the planner's first
+    margins (a sweep must pass a frequency to count it); generated over a wider band at the same density, so
+    no band edge falls on a grid point. Manoeuvres kept for the time domain (doublets, 3-2-1-1s): their own
+    samples."""
     w, notes = c.w, []
     total = BandSums.zeros(w.size, order=int(c.spectra["order"]))
     shared = np.zeros((w.size, w.size))
@@ -865,7 +927,13 @@ def _rebuild_flight(c: _Channel, data: dict, opts: PlanOptions) -> tuple[BandSum
             if start is None or end is None or round(float(start), 1) in kept_starts:
                 continue
             length = float(end) - float(start)
-            amp = amps[r] if r < amps.size and math.isfinite(amps[r]) else np.nanmax(amps) if amps.size else math.nan
+            amp = (
+                amps[r]
+                if r < amps.size and math.isfinite(amps[r])
+                else np.nanmax(amps)
+                if amps.size
+                else math.nan
+            )
             if not (length > 0 and math.isfinite(amp) and amp > 0):
                 continue
             t = np.arange(-min(c.pre_s, opts.trim_before_s), length + c.post_s, c.dt)
@@ -884,9 +952,11 @@ def _rebuild_flight(c: _Channel, data: dict, opts: PlanOptions) -> tuple[BandSum
             total.bins = np.round(total.bins * scale).astype(total.bins.dtype)
             shared *= scale
         if rebuilt:
-            notes.append(f"the flight's {rebuilt} {kind or 'sweep'} record(s) rebuilt as log sweeps over "
-                         f"{lo:.3g}-{hi:.3g} rad/s (the excited band {float(band[0]):.3g}-{float(band[1]):.3g} "
-                         f"rad/s with margins) at their amplitude and length")
+            notes.append(
+                f"the flight's {rebuilt} {kind or 'sweep'} record(s) rebuilt as log sweeps over "
+                f"{lo:.3g}-{hi:.3g} rad/s (the excited band {float(band[0]):.3g}-{float(band[1]):.3g} "
+                f"rad/s with margins) at their amplitude and length"
+            )
     for k in kept:
         u = _array(k.get("input"), 0.0)
         dt = float(k.get("dt_s") or 0.0)
@@ -901,10 +971,10 @@ def _rebuild_flight(c: _Channel, data: dict, opts: PlanOptions) -> tuple[BandSum
 
 
 def _trim_levels(c: _Channel, data: dict | None, opts: PlanOptions) -> str:
-    """The sweep detector's trim level and the input's trim motion per frequency (what a manoeuvre must stand 20 dB
-    above): from the trim before the manoeuvres kept in the results (their samples: the detector's energy over its
-    window; a Hann periodogram normalised as the estimator's DFT, the largest within a factor 1.5 of each grid
-    frequency), else the assumed surface noise. Returns the sentence saying which."""
+    """The sweep detector's trim level and the input's trim motion per frequency (what a manoeuvre must stand
+    20 dB above): from the trim before the manoeuvres kept in the results (their samples: the detector's
+    energy over its window; a Hann periodogram normalised as the estimator's DFT, the largest within a factor
+    1.5 of each grid frequency), else the assumed surface noise. Returns the sentence saying which."""
     window = float(c.detector["energy_window_s"])
     levels, spectra = [], []
     for k in (data or {}).get("time_domain") or []:
@@ -927,19 +997,26 @@ def _trim_levels(c: _Channel, data: dict | None, opts: PlanOptions) -> str:
         c.quiet = float(np.max(levels))
         spectra = np.array(spectra)                      # (manoeuvres, F, [largest, mean])
         c.input_floor, c.input_noise = np.max(spectra[:, :, 0], axis=0), np.mean(spectra[:, :, 1], axis=0)
-        return (f"{c.name}: the surface's trim motion {float(np.sqrt(np.median(c.input_noise))):.2g} rad per DFT bin "
-                f"(median over the grid), from the trim before the {len(levels)} manoeuvre(s) kept in the results")
+        return (
+            f"{c.name}: the surface's trim motion {float(np.sqrt(np.median(c.input_noise))):.2g} rad per DFT "
+            "bin "
+            f"(median over the grid), from the trim before the {len(levels)} manoeuvre(s) kept in the results"
+        )
     sigma = math.hypot(opts.surface_noise_rad, FlightOptions.surface_lsb_rad / math.sqrt(12.0))
     c.quiet, c.input_noise = sigma, np.full(c.w.shape, 2.0 * sigma ** 2)
     c.input_floor = c.input_noise
-    return (f"{c.name}: the surface's trim motion assumed {sigma:.2g} rad rms of white noise (its sensor's noise; no "
-            f"trim samples in the results)")
+    return (
+        f"{c.name}: the surface's trim motion assumed {sigma:.2g} rad rms of white noise (its sensor's "
+        "noise; no "
+        f"trim samples in the results)"
+    )
 
 
 def _output_trim_noise(c: _Channel, data: dict) -> np.ndarray:
     """The output's noise per DFT bin from the trim before the manoeuvres kept in the results (their output
     samples: a Hann periodogram normalised as the estimator's DFT, the mean within a factor 1.25 of each grid
-    frequency, the mean over the manoeuvres); NaN where those few seconds resolve nothing (below three bins)."""
+    frequency, the mean over the manoeuvres); NaN where those few seconds resolve nothing (below three
+    bins)."""
     rows = []
     for k in data.get("time_domain") or []:
         y = _array(k.get("output"), 0.0)
@@ -953,8 +1030,14 @@ def _output_trim_noise(c: _Channel, data: dict) -> np.ndarray:
         power = np.abs(np.fft.rfft(trim * hann)) ** 2 / float(np.sum(hann ** 2))
         w_bins = 2.0 * math.pi * np.fft.rfftfreq(n0, dt)
         resolved = 3.0 * w_bins[1]
-        rows.append([float(np.mean(p)) if wi >= resolved and (p := power[(w_bins >= wi / 1.25) & (w_bins <= wi * 1.25)]
-                                                              ).size else math.nan for wi in c.w])
+        rows.append(
+            [
+                float(np.mean(p))
+                if wi >= resolved and (p := power[(w_bins >= wi / 1.25) & (w_bins <= wi * 1.25)]).size
+                else math.nan
+                for wi in c.w
+            ]
+        )
     if not rows:
         return np.full(c.w.shape, np.nan)
     rows = np.array(rows)
@@ -962,24 +1045,32 @@ def _output_trim_noise(c: _Channel, data: dict) -> np.ndarray:
     return np.where(count > 0, np.nansum(rows, axis=0) / np.maximum(count, 1), np.nan)
 
 
-def _fill_noise(c: _Channel, q: np.ndarray, dof: np.ndarray, measured_mag: np.ndarray, seen_mag: np.ndarray,
-                trusted: np.ndarray, trim_noise: np.ndarray | None = None, shared: np.ndarray | None = None) -> None:
+def _fill_noise(
+    c: _Channel,
+    q: np.ndarray,
+    dof: np.ndarray,
+    measured_mag: np.ndarray,
+    seen_mag: np.ndarray,
+    trusted: np.ndarray,
+    trim_noise: np.ndarray | None = None,
+    shared: np.ndarray | None = None,
+) -> None:
     """``c.sigma2`` (the output's own noise per DFT bin) and ``c.mag_ratio`` on the whole grid.
 
     Where the first flight measured it, the estimator's noise is ``q |H_meas|^2`` (its own ``rss / d``): the
-    output's noise plus the input's, seen through the response (errors in variables: ``|H|^2`` times the input's
-    trim motion, :func:`_trim_levels`), which is taken off. The output's noise is smoothed over frequency by a local
-    linear fit of its logarithm in log w (tricube kernel of :data:`NOISE_WIDTH` decades, weights the degrees of
-    freedom, each log corrected by its chi-square bias ``psi(d) - ln d``): noise spectra are smooth, and on 3 degrees
-    of freedom one estimate scatters by 58 %. Only ``trusted`` points count (the rebuilt manoeuvres give their
-    degrees of freedom, inside the excited band's core): at a band's edge the first flight's input is not known
-    well enough to turn its error into a noise level. Beyond them the fit continues with its slope at the edge
-    (between ``-4``, turbulence's fall, and ``+2``), or takes the output's noise measured in the trim before the kept
-    manoeuvres (:func:`_output_trim_noise`) where that resolves the frequency. The measured ``|H|`` over the model's
-    as the first flight's records see it (``seen_mag``: a lightly damped zero is smoothed more by a short record),
-    pooled over neighbouring frequencies until its random error is :data:`RESPONSE_ERROR` (:func:`_pool_response`,
-    the bins they share from ``shared``): a planned manoeuvre's ``|H|`` is its own view of the model times that
-    ratio."""
+    output's noise plus the input's, seen through the response (errors in variables: ``|H|^2`` times the
+    input's trim motion, :func:`_trim_levels`), which is taken off. The output's noise is smoothed over
+    frequency by a local linear fit of its logarithm in log w (tricube kernel of :data:`NOISE_WIDTH` decades,
+    weights the degrees of freedom, each log corrected by its chi-square bias ``psi(d) - ln d``): noise
+    spectra are smooth, and on 3 degrees of freedom one estimate scatters by 58 %. Only ``trusted`` points
+    count (the rebuilt manoeuvres give their degrees of freedom, inside the excited band's core): at a band's
+    edge the first flight's input is not known well enough to turn its error into a noise level. Beyond them
+    the fit continues with its slope at the edge (between ``-4``, turbulence's fall, and ``+2``), or takes the
+    output's noise measured in the trim before the kept manoeuvres (:func:`_output_trim_noise`) where that
+    resolves the frequency. The measured ``|H|`` over the model's as the first flight's records see it
+    (``seen_mag``: a lightly damped zero is smoothed more by a short record), pooled over neighbouring
+    frequencies until its random error is :data:`RESPONSE_ERROR` (:func:`_pool_response`, the bins they share
+    from ``shared``): a planned manoeuvre's ``|H|`` is its own view of the model times that ratio."""
     measured = np.isfinite(measured_mag) & (measured_mag > 0)
     total = q * np.where(measured, measured_mag, np.nan) ** 2
     use = trusted & measured & np.isfinite(total) & (total > 0) & (dof >= 1)
@@ -1010,8 +1101,9 @@ def _response(model: Any):
 
 def _local_linear(x: np.ndarray, y: np.ndarray, weight: np.ndarray, width: float,
                   slopes: tuple[float, float]) -> np.ndarray:
-    """A local linear fit of ``y(x)`` at every ``x`` (tricube kernel of half-width ``width``, the given weights);
-    beyond the weighted points, the fit at the nearest edge continued with its slope clipped to ``slopes``."""
+    """A local linear fit of ``y(x)`` at every ``x`` (tricube kernel of half-width ``width``, the given
+    weights); beyond the weighted points, the fit at the nearest edge continued with its slope clipped to
+    ``slopes``."""
     out = np.empty(x.shape)
     have = weight > 0
     lo, hi = x[have].min(), x[have].max()
@@ -1035,15 +1127,16 @@ def _pool_response(x: np.ndarray, y: np.ndarray, error: np.ndarray, shared: np.n
     """Per grid point, the pooled ``ln |H_meas| / |H_model|`` and its variance.
 
     The points with a finite random error ``error`` (each ``ln |H|``'s standard error: the validator's
-    ``random_error`` is ``|H|``'s relative one) are taken nearest first in ``x`` (log frequency) and averaged with
-    weights ``1 / error^2`` until the mean's variance ``a^T C a`` is at most ``target^2`` (or every point is in). Two
-    estimates that share DFT bins are not independent: ``C_ij = rho_ij e_i e_j`` with ``rho_ij = S_ij / sqrt(S_ii
-    S_jj)``, the share of the bins the two bands have in common (``shared``, :func:`_shared_bins`; an approximation:
-    the local polynomial weighs a band's bins unevenly). Points without bins in ``shared``, or all of them without
-    ``shared``, count as independent. At the low end of a short record neighbouring grid points share six of their
-    seven bins: there the pool reaches much further than a count of grid points would say. Beyond the points, the
-    nearest are pooled (the ratio continued flat). The pool is a local mean: where the measured ``|H|`` departs from
-    the model's in shape (not by a constant factor) over the pool's reach, the mean is biased by that slope.
+    ``random_error`` is ``|H|``'s relative one) are taken nearest first in ``x`` (log frequency) and averaged
+    with weights ``1 / error^2`` until the mean's variance ``a^T C a`` is at most ``target^2`` (or every point
+    is in). Two estimates that share DFT bins are not independent: ``C_ij = rho_ij e_i e_j`` with ``rho_ij =
+    S_ij / sqrt(S_ii S_jj)``, the share of the bins the two bands have in common (``shared``,
+    :func:`_shared_bins`; an approximation: the local polynomial weighs a band's bins unevenly). Points
+    without bins in ``shared``, or all of them without ``shared``, count as independent. At the low end of a
+    short record neighbouring grid points share six of their seven bins: there the pool reaches much further
+    than a count of grid points would say. Beyond the points, the nearest are pooled (the ratio continued
+    flat). The pool is a local mean: where the measured ``|H|`` departs from the model's in shape (not by a
+    constant factor) over the pool's reach, the mean is biased by that slope.
 
     Parameters
     ----------
@@ -1090,10 +1183,11 @@ def _pool_response(x: np.ndarray, y: np.ndarray, error: np.ndarray, shared: np.n
 
 
 def no_verdict_reason(flag: str | None, reason: str | None) -> str | None:
-    """Why a frequency of the results has no verdict (a key of :data:`REASON_WORDS`), or None where it has one.
+    """Why a frequency of the results has no verdict (a key of :data:`REASON_WORDS`), or None where it has
+    one.
 
-    A frequency has a verdict where it is model-limited, or where its estimate is confident and not data-limited
-    (``frequency_reasons`` None); a data-limited one is ``data`` whatever its estimate.
+    A frequency has a verdict where it is model-limited, or where its estimate is confident and not
+    data-limited (``frequency_reasons`` None); a data-limited one is ``data`` whatever its estimate.
 
     Parameters
     ----------
@@ -1116,7 +1210,9 @@ def _targets(c: _Channel, data: dict) -> None:
     reasons += [None] * (n - len(reasons))
     above = [i for i in range(n) if reasons[i] == "above_resolution"]
     if above:
-        c.resolved_rad_s = min(c.resolved_rad_s, float(c.w[above[0]]) / (1.0 + float(c.spectra["band_fraction"])))
+        c.resolved_rad_s = min(
+            c.resolved_rad_s, float(c.w[above[0]]) / (1.0 + float(c.spectra["band_fraction"]))
+        )
     for i in range(n):
         why = no_verdict_reason(flags[i], reasons[i])
         if why is None:
@@ -1129,9 +1225,12 @@ def _targets(c: _Channel, data: dict) -> None:
 
 def _resolution_reason(c: _Channel) -> str:
     limit = c.resolved_rad_s
-    return (f"above what the logs resolve ({limit:.3g} rad/s here: a quarter of the slowest stream's rate, or where "
-            f"the results say so); log the surface and the rate at 4 x w / 2 pi Hz or faster "
-            f"(e.g. {4.0 * c.w.max() / (2 * math.pi):.0f} Hz for {c.w.max():.3g} rad/s)")
+    return (
+        f"above what the logs resolve ({limit:.3g} rad/s here: a quarter of the slowest stream's rate, or "
+        "where "
+        f"the results say so); log the surface and the rate at 4 x w / 2 pi Hz or faster "
+        f"(e.g. {4.0 * c.w.max() / (2 * math.pi):.0f} Hz for {c.w.max():.3g} rad/s)"
+    )
 
 
 # ------------------------------------------------------------------------------------------------ the search
@@ -1160,8 +1259,8 @@ def _minimum_coherence(threshold: float, dof: np.ndarray, nh: int) -> np.ndarray
 
 @functools.lru_cache(maxsize=4096)
 def _least_confident(threshold: float, dof: float, nh: int) -> float:
-    """The smallest coherence :func:`~gap_validation.core.diagnosis.confident_points` calls confident on ``dof``
-    degrees of freedom (a stand-in estimate; bisection); 1 when none is."""
+    """The smallest coherence :func:`~gap_validation.core.diagnosis.confident_points` calls confident on
+    ``dof`` degrees of freedom (a stand-in estimate; bisection); 1 when none is."""
     lo, hi = threshold, 0.99999
     if not _confident(hi, dof, nh, threshold):
         return 1.0
@@ -1183,17 +1282,18 @@ def _design(c: _Channel, idx: list[int], reasons: tuple[str, ...], opts: PlanOpt
     """The manoeuvre of least flight time that brings the grid points ``idx`` to the target, or why none does.
 
     Per swept band, the longest usable sweep with the most repeats is tried first: every need but the sweep
-    detector's falls with the time spent (the error as one over its square root), so a band it cannot reach under
-    the cap is given up at once (unless the detector was what it lacked: a shorter sweep is faster); otherwise the
-    lengths are scanned from the shortest."""
+    detector's falls with the time spent (the error as one over its square root), so a band it cannot reach
+    under the cap is given up at once (unless the detector was what it lacked: a shorter sweep is faster);
+    otherwise the lengths are scanned from the shortest."""
     w = c.w[idx]
     best: PlannedManoeuvre | None = None
     fail = _Design(None)
     slow = SLOW_SWEEP * 2.0 / float(c.detector["energy_window_s"])
     slow_rejected = False
     for (m_lo, m_hi), ratio in _bands_tried(float(w.min()), slow):
-        # at least 5:1, widened upwards (a slower start is what the estimator follows worst), below the resolution;
-        # a start below the detector's slow limit also 10:1 and 20:1 (through the slow part faster, as densely)
+        # at least 5:1, widened upwards (a slower start is what the estimator follows worst), below the
+        # resolution; a start below the detector's slow limit also 10:1 and 20:1 (through the slow part
+        # faster, as densely)
         w0 = float(w.min()) / m_lo
         w1 = min(max(float(w.max()) * m_hi, ratio * w0), c.resolved_rad_s)
         w0 = min(w0, w1 / ratio)
@@ -1206,7 +1306,9 @@ def _design(c: _Channel, idx: list[int], reasons: tuple[str, ...], opts: PlanOpt
         probe = _candidate(c, idx, w0, w1, lengths[-1], opts)
         if probe is None:
             continue
-        found, needed, limit = _best_repeats(c, idx, probe, opts, math.inf, reasons, index, only=opts.max_repeats)
+        found, needed, limit = _best_repeats(
+            c, idx, probe, opts, math.inf, reasons, index, only=opts.max_repeats
+        )
         if found is None:
             if needed < fail.needed_rad:
                 fail = _Design(None, needed, limit)
@@ -1231,9 +1333,9 @@ def _design(c: _Channel, idx: list[int], reasons: tuple[str, ...], opts: PlanOpt
 
 def _usable_lengths(c: _Channel, w: np.ndarray, w0: float, w1: float, slow: float,
                     opts: PlanOptions) -> tuple[list[float], bool]:
-    """Sweep lengths worth trying for the band ``w0``-``w1`` (geometric steps), and whether the sweep detector's slow
-    limit cut them short: long enough for ``min_bins`` bins within ``max_band_fraction`` of the lowest target and for
-    the chirp test's zero crossings, short enough below the slow limit."""
+    """Sweep lengths worth trying for the band ``w0``-``w1`` (geometric steps), and whether the sweep
+    detector's slow limit cut them short: long enough for ``min_bins`` bins within ``max_band_fraction`` of
+    the lowest target and for the chirp test's zero crossings, short enough below the slow limit."""
     shortest_record = (int(c.spectra["min_bins"]) - 1) * 2.0 * math.pi / (
         2.0 * float(c.spectra["max_band_fraction"]) * float(w.min()))
     out, length, cut = [], max(4.0 * opts.fade_s, MIN_SWEEP_S), False
@@ -1318,14 +1420,31 @@ def _best_repeats(c: _Channel, idx: list[int], cand: _Candidate, opts: PlanOptio
         pred = np.sqrt(cand.q * cand.inv00 / (2.0 * n)) / amplitude
         coh = _coherence(cand.q, n * amplitude ** 2 * cand.ff00, n * cand.dof, nh)
         w = c.w[idx]
-        return PlannedManoeuvre(
-            channel=c.name, index=index, closes_rad_s=(float(w.min()), float(w.max())), reasons=reasons,
-            band_rad_s=(_r(cand.w0, 5), _r(cand.w1, 5)), amplitude_rad=amplitude, duration_s=round(cand.length, 2),
-            repeats=n, fade_in_s=opts.fade_s, fade_out_s=opts.fade_s, trim_before_s=opts.trim_before_s,
-            trim_between_s=opts.trim_between_s, amplitude_set_by=by, frequencies_rad_s=tuple(float(x) for x in w),
-            error_now=tuple(None if not math.isfinite(e) else float(e) for e in c.error_now[idx]),
-            predicted_error=tuple(float(x) for x in pred), predicted_coherence=tuple(float(x) for x in coh),
-            predicted_dof=tuple(float(x) for x in d), target_error=tuple(float(x) for x in target)), needed, limit
+        return (
+            PlannedManoeuvre(
+                channel=c.name,
+                index=index,
+                closes_rad_s=(float(w.min()), float(w.max())),
+                reasons=reasons,
+                band_rad_s=(_r(cand.w0, 5), _r(cand.w1, 5)),
+                amplitude_rad=amplitude,
+                duration_s=round(cand.length, 2),
+                repeats=n,
+                fade_in_s=opts.fade_s,
+                fade_out_s=opts.fade_s,
+                trim_before_s=opts.trim_before_s,
+                trim_between_s=opts.trim_between_s,
+                amplitude_set_by=by,
+                frequencies_rad_s=tuple(float(x) for x in w),
+                error_now=tuple(None if not math.isfinite(e) else float(e) for e in c.error_now[idx]),
+                predicted_error=tuple(float(x) for x in pred),
+                predicted_coherence=tuple(float(x) for x in coh),
+                predicted_dof=tuple(float(x) for x in d),
+                target_error=tuple(float(x) for x in target),
+            ),
+            needed,
+            limit,
+        )
     return None, needed, limit
 
 
@@ -1340,15 +1459,19 @@ def _verdict_error(dof: float) -> float:
     return verdict_error(EPSILON_THRESHOLD, dof)
 
 
-def _detection_amplitude(c: _Channel, u: np.ndarray, pre_s: float, length_s: float, opts: PlanOptions) -> float:
-    """The amplitude at which the sweep detector (:mod:`gap_validation.core.sweeps`) holds the whole sweep: its
-    energy (:func:`~gap_validation.core.sweeps.detrended_std` over ``energy_window_s``) passes ``on_ratio`` times the
-    trim's level within :data:`~gap_validation.core.estimator.LOOKBACK_S` of the start (the record reaches back that
-    far) and stays above ``off_ratio`` times it but for runs shorter than ``hold_s``, with
+def _detection_amplitude(
+    c: _Channel, u: np.ndarray, pre_s: float, length_s: float, opts: PlanOptions
+) -> float:
+    """The amplitude at which the sweep detector (:mod:`gap_validation.core.sweeps`) holds the whole sweep:
+    its energy (:func:`~gap_validation.core.sweeps.detrended_std` over ``energy_window_s``) passes
+    ``on_ratio`` times the trim's level within :data:`~gap_validation.core.estimator.LOOKBACK_S` of the start
+    (the record reaches back that far) and stays above ``off_ratio`` times it but for runs shorter than
+    ``hold_s``, with
     :data:`DETECTION_MARGIN` on the level."""
     window_n = max(3, int(round(float(c.detector["energy_window_s"]) / c.dt)))
     energy = detrended_std(u, window_n)
-    t = (np.arange(energy.size) + window_n - 1) * c.dt - pre_s          # each window's end, from the sweep start
+    # each window's end, from the sweep start
+    t = (np.arange(energy.size) + window_n - 1) * c.dt - pre_s
     level = c.quiet * DETECTION_MARGIN
     early = (t >= 0) & (t <= LOOKBACK_S)
     peak = float(np.max(energy[early])) if early.any() else 0.0
@@ -1412,8 +1535,8 @@ def _runs(idx: list[int]) -> list[list[int]]:
 
 def _plan_run(c: _Channel, run: list[int], why: dict, opts: PlanOptions, index: int,
               depth: int = 0) -> tuple[list[PlannedManoeuvre], list[Unreachable]]:
-    """Plan one run of grid points; split it in two when no single chirp reaches it (a narrower sweep puts more
-    power per frequency)."""
+    """Plan one run of grid points; split it in two when no single chirp reaches it (a narrower sweep puts
+    more power per frequency)."""
     reasons = tuple(dict.fromkeys(REASON_WORDS.get(why[i], why[i]) for i in run))
     design = _design(c, run, reasons, opts, index)
     if design.manoeuvre is not None:
@@ -1428,16 +1551,25 @@ def _plan_run(c: _Channel, run: list[int], why: dict, opts: PlanOptions, index: 
     band = (float(c.w[run[0]]), float(c.w[run[-1]]))
     if math.isinf(design.needed_rad) and design.limit == "slow":
         slow = SLOW_SWEEP * 2.0 / float(c.detector["energy_window_s"])
-        reason = (f"too slow for the sweep detector: below {slow:.2g} rad/s it follows a sweep on the surface for "
-                  f"{LOOKBACK_S:g} s at most, too short a record for {band[0]:.3g} rad/s; log the injected signal as "
-                  f"channels.{c.name}.excitation (or a trigger), or raise estimator.energy_window_s")
+        reason = (
+            f"too slow for the sweep detector: below {slow:.2g} rad/s it follows a sweep on the surface for "
+            f"{LOOKBACK_S:g} s at most, too short a record for {band[0]:.3g} rad/s; log the injected signal "
+            "as "
+            f"channels.{c.name}.excitation (or a trigger), or raise estimator.energy_window_s"
+        )
     elif math.isinf(design.needed_rad):
-        reason = (f"no chirp of up to {opts.max_sweep_s:g} s x {opts.max_repeats} counts there (too short for the "
-                  f"estimator's records at these frequencies)")
+        reason = (
+            f"no chirp of up to {opts.max_sweep_s:g} s x {opts.max_repeats} counts there (too short for the "
+            f"estimator's records at these frequencies)"
+        )
     else:
-        reason = (f"amplitude cap: the {design.limit} needs {design.needed_rad:.3g} rad ({math.degrees(design.needed_rad):.2g} "
-                  f"deg) even with {opts.max_repeats} sweeps of {opts.max_sweep_s:g} s, above the cap of {c.cap:.3g} rad "
-                  f"({c.cap_reason}); raise --max-amplitude-rad, or fly in calmer air")
+        reason = (
+            f"amplitude cap: the {design.limit} needs {design.needed_rad:.3g} rad "
+            f"({math.degrees(design.needed_rad):.2g} "
+            f"deg) even with {opts.max_repeats} sweeps of {opts.max_sweep_s:g} s, above the cap of "
+            f"{c.cap:.3g} rad "
+            f"({c.cap_reason}); raise --max-amplitude-rad, or fly in calmer air"
+        )
     return [], [Unreachable(c.name, band, reason)]
 
 
@@ -1462,8 +1594,8 @@ def plan_card(config: ValidationConfig, results: dict | None = None, options: Pl
     config : ValidationConfig
         The config (models, grids, estimator options).
     results : dict, optional
-        A replay's results JSON (``replay --json``, the node's ``~/save_results``). None: a first flight, planned
-        from the model and the noise assumptions of ``options`` over each channel's whole grid.
+        A replay's results JSON (``replay --json``, the node's ``~/save_results``). None: a first flight,
+        planned from the model and the noise assumptions of ``options`` over each channel's whole grid.
     options : PlanOptions, optional
         Target, cap, rates and the card's shape.
     source : str
@@ -1496,14 +1628,18 @@ def plan_card(config: ValidationConfig, results: dict | None = None, options: Pl
         if opts.log_rate_hz is not None:
             c.resolved_rad_s = 2.0 * math.pi * RESOLVED_FRACTION * opts.log_rate_hz
         if results is not None and data is None:
-            c.notes.append(f"{name}: not in the results (not flown?): planned as a first flight, from the model")
+            c.notes.append(
+                f"{name}: not in the results (not flown?): planned as a first flight, from the model"
+            )
         if data is None or not _from_results(c, data, opts):
             if data is not None:                 # nothing estimated: start afresh with the model's levels
                 c = _channel_base(name, ch)
                 if opts.log_rate_hz is not None:
                     c.resolved_rad_s = 2.0 * math.pi * RESOLVED_FRACTION * opts.log_rate_hz
-                c.notes.append(f"{name}: nothing estimated in the results ({data.get('message') or 'no sweep'}): "
-                               f"planned as a first flight, from the model")
+                c.notes.append(
+                    f"{name}: nothing estimated in the results ({data.get('message') or 'no sweep'}): "
+                    f"planned as a first flight, from the model"
+                )
             _first_flight(c, opts)
             first_flights += 1
         plan.amplitude_cap_rad, plan.amplitude_cap_reason, plan.verdicts = c.cap, c.cap_reason, c.verdicts
@@ -1519,11 +1655,15 @@ def plan_card(config: ValidationConfig, results: dict | None = None, options: Pl
             index += len(done)
         if not c.targets and not c.unreachable:
             plan.notes.append(f"{name}: nothing to fly: every frequency has a verdict")
-    rule = (f"random error {opts.target_error:g} at every planned frequency (--target-error)" if opts.target_error
-            else f"what a verdict at epsilon {EPSILON_THRESHOLD:g} needs: a mismatch at the threshold {SIGMA_FACTOR:g} "
-                 f"noise scales out (with the {100 * BIAS_ERROR:g} % systematic floor), about "
-                 f"{verdict_error(EPSILON_THRESHOLD, DESIGN_DOF):.3f} on {DESIGN_DOF:g} degrees of freedom; planned "
-                 f"{opts.margin:g} x below it")
+    rule = (
+        f"random error {opts.target_error:g} at every planned frequency (--target-error)"
+        if opts.target_error
+        else f"what a verdict at epsilon {EPSILON_THRESHOLD:g} needs: a mismatch at the threshold "
+             f"{SIGMA_FACTOR:g} "
+        f"noise scales out (with the {100 * BIAS_ERROR:g} % systematic floor), about "
+        f"{verdict_error(EPSILON_THRESHOLD, DESIGN_DOF):.3f} on {DESIGN_DOF:g} degrees of freedom; planned "
+        f"{opts.margin:g} x below it"
+    )
     return TestCard(channels, "config" if results is None else "results", rule,
                     _assumptions(results is None, opts, first_flights > 0))
 
@@ -1564,8 +1704,10 @@ def _from_results(c: _Channel, data: dict, opts: PlanOptions) -> bool:
     seen = np.isfinite(c.error_now) & (dof > 0)
     if seen.any():
         agree = int(np.count_nonzero(np.abs(dof_pred[seen] - dof[seen]) <= 0.25 * np.maximum(dof[seen], 4)))
-        c.notes.append(f"{c.name}: the rebuilt manoeuvres give the flight's degrees of freedom (within 25 %) at {agree} "
-                       f"of {int(seen.sum())} estimated frequencies")
+        c.notes.append(
+            f"{c.name}: the rebuilt manoeuvres give the flight's degrees of freedom (within 25 %) at {agree} "
+            f"of {int(seen.sum())} estimated frequencies"
+        )
     band = data.get("excited_band_rad_s") or [c.w.min(), c.w.max()]
     core = (c.w >= float(band[0]) * EDGE_CORE) & (c.w <= float(band[1]) / EDGE_CORE)
     agrees = np.abs(dof_pred - dof) <= 0.25 * np.maximum(dof, 4.0)
@@ -1576,8 +1718,8 @@ def _from_results(c: _Channel, data: dict, opts: PlanOptions) -> bool:
 
 
 def _cap(c: _Channel, data: dict, opts: PlanOptions) -> None:
-    """The amplitude cap: the smaller of ``--max-amplitude-rad`` and the largest deflection flown, the smallest
-    flown where the response depended on the amplitude."""
+    """The amplitude cap: the smaller of ``--max-amplitude-rad`` and the largest deflection flown, the
+    smallest flown where the response depended on the amplitude."""
     amps = _array(data.get("input_amplitudes"))
     amps = amps[np.isfinite(amps) & (amps > 0)]
     peaks = []
@@ -1588,51 +1730,82 @@ def _cap(c: _Channel, data: dict, opts: PlanOptions) -> None:
             peaks.append(float(np.max(np.abs(u - (np.mean(u[:n0]) if n0 else u[0])))))
     seen = max([*amps.tolist(), *peaks], default=math.nan)
     if data.get("nonlinearity") and amps.size:
-        c.cap, c.cap_reason = float(np.min(amps)), (f"the smallest sweep amplitude flown: the response depends on the "
-                                                    f"amplitude ({data['nonlinearity']})")
+        c.cap, c.cap_reason = (
+            float(np.min(amps)),
+            (
+                f"the smallest sweep amplitude flown: the response depends on the "
+                f"amplitude ({data['nonlinearity']})"
+            ),
+        )
     elif math.isfinite(seen):
         c.cap, c.cap_reason = seen, "the largest deflection flown"
     else:
-        c.cap, c.cap_reason = FlightOptions.sweep_amplitude_rad, "nothing flown: the simulator's sweep amplitude"
+        c.cap, c.cap_reason = (
+            FlightOptions.sweep_amplitude_rad,
+            "nothing flown: the simulator's sweep amplitude",
+        )
     if opts.max_amplitude_rad is not None and opts.max_amplitude_rad < c.cap:
         c.cap, c.cap_reason = float(opts.max_amplitude_rad), "--max-amplitude-rad"
 
 
 def _first_flight(c: _Channel, opts: PlanOptions) -> None:
     """A channel never flown: the model's response and the assumed noise over the whole grid."""
-    g = 4.0 * math.sqrt(2.0) * opts.noise_rms_rad_s ** 2 / opts.noise_corner_rad_s      # low-pass PSD at 0 [/Hz]
+    # low-pass PSD at 0 [/Hz]
+    g = 4.0 * math.sqrt(2.0) * opts.noise_rms_rad_s ** 2 / opts.noise_corner_rad_s
     gust = g / (1.0 + (c.w / opts.noise_corner_rad_s) ** 4)
     gyro = 2.0 * opts.gyro_noise_rad_s ** 2 / opts.gyro_rate_hz
     sigma2 = (gust + gyro) / (2.0 * c.dt)                # noise per bin of the estimator's normalised DFT
     c.sigma2, c.mag_ratio = sigma2, np.ones(c.w.shape)
     c.error_now = np.full(c.w.shape, np.nan)
     c.notes.append(_trim_levels(c, None, opts))
-    c.targets = [(i, "first_flight") for i in range(c.w.size) if c.w[i] * (1 + float(c.spectra["band_fraction"]))
-                 <= c.resolved_rad_s]
+    c.targets = [
+        (i, "first_flight")
+        for i in range(c.w.size)
+        if c.w[i] * (1 + float(c.spectra["band_fraction"])) <= c.resolved_rad_s
+    ]
     c.unreachable = [(i, _resolution_reason(c)) for i in range(c.w.size) if i not in dict(c.targets)]
     if opts.max_amplitude_rad is not None:
         c.cap, c.cap_reason = float(opts.max_amplitude_rad), "--max-amplitude-rad"
     else:
-        c.cap, c.cap_reason = FlightOptions.sweep_amplitude_rad, "nothing flown yet: the simulator's sweep amplitude"
+        c.cap, c.cap_reason = (
+            FlightOptions.sweep_amplitude_rad,
+            "nothing flown yet: the simulator's sweep amplitude",
+        )
 
 
 def _assumptions(first: bool, opts: PlanOptions, some_first: bool = False) -> list[str]:
-    out = ["predicted errors are for the planned card replayed on its own; replayed with the flight already flown the "
-           "records pool and the error is lower where the noise is the same",
-           "the noise is the first flight's: the output's own spectrum, smoothed over frequency and continued with its "
-           "slope beyond the frequencies estimated, plus the surface's trim motion seen through the response: fly in "
-           "the same air" if not first else "fly in air like the assumed",
-           "each chirp is a log sweep with half-cosine fades, flown at the surface (an actuator lag or a feedback loop "
-           "changes the input power the estimator sees: log the surface, or the injected signal as the channel's "
-           "excitation)"]
+    out = [
+        "predicted errors are for the planned card replayed on its own; replayed with the flight already "
+        "flown the "
+        "records pool and the error is lower where the noise is the same",
+        "the noise is the first flight's: the output's own spectrum, smoothed over frequency and continued "
+        "with its "
+        "slope beyond the frequencies estimated, plus the surface's trim motion seen through the response: "
+        "fly in "
+        "the same air"
+        if not first
+        else "fly in air like the assumed",
+        "each chirp is a log sweep with half-cosine fades, flown at the surface (an actuator lag or a "
+        "feedback loop "
+        "changes the input power the estimator sees: log the surface, or the injected signal as the "
+        "channel's "
+        "excitation)",
+    ]
     if first or some_first:
-        out.insert(0, f"{'first flight from the config alone' if first else 'channels not estimated yet'}: output disturbance {opts.noise_rms_rad_s:g} rad/s rms below "
-                      f"{opts.noise_corner_rad_s:g} rad/s (second-order roll-off), gyro noise {opts.gyro_noise_rad_s:g} "
-                      f"rad/s at {opts.gyro_rate_hz:g} Hz, surface noise {opts.surface_noise_rad:g} rad (the "
-                      f"simulator's defaults); the model's |H| sets the signal")
+        out.insert(
+            0,
+            f"{'first flight from the config alone' if first else 'channels not estimated yet'}: output "
+            f"disturbance {opts.noise_rms_rad_s:g} rad/s rms below "
+            f"{opts.noise_corner_rad_s:g} rad/s (second-order roll-off), gyro noise "
+            f"{opts.gyro_noise_rad_s:g} "
+            f"rad/s at {opts.gyro_rate_hz:g} Hz, surface noise {opts.surface_noise_rad:g} rad (the "
+            f"simulator's defaults); the model's |H| sets the signal",
+        )
     if opts.log_rate_hz is None:
-        out.append("log rates unknown (--log-rate-hz): only frequencies the results call above_resolution are "
-                   "taken as beyond the logs")
+        out.append(
+            "log rates unknown (--log-rate-hz): only frequencies the results call above_resolution are "
+            "taken as beyond the logs"
+        )
     return out
 
 
@@ -1674,14 +1847,18 @@ def _axis(config: ValidationConfig, channel: str) -> str | None:
 
 def _in_range(name: str, value: float, ranges: dict) -> None:
     low, high = ranges[name]
-    check_number(value, name, Interval(low, high), expected=f"a value in [{low:g}, {high:g}] (its documented range)")
+    check_number(
+        value, name, Interval(low, high), expected=f"a value in [{low:g}, {high:g}] (its documented range)"
+    )
 
 
 def _block(m: PlannedManoeuvre, how: str, values: dict, ranges: dict, notes: tuple[str, ...] = (),
            problem: str | None = None) -> ParameterBlock:
-    """The manoeuvre's block (head: what it closes, then ``how`` to fly it): its values when every one is inside
-    its documented range in ``ranges`` and there is no ``problem``, else no values and the first reason."""
-    head = f"manoeuvre {m.index}: {m.channel}, closes {m.closes_rad_s[0]:.3g}-{m.closes_rad_s[1]:.3g} rad/s; {how}"
+    """The manoeuvre's block (head: what it closes, then ``how`` to fly it): its values when every one is
+    inside its documented range in ``ranges`` and there is no ``problem``, else no values and the first
+    reason."""
+    head = (f"manoeuvre {m.index}: {m.channel}, closes {m.closes_rad_s[0]:.3g}-{m.closes_rad_s[1]:.3g} "
+            f"rad/s; {how}")
     try:
         if problem:
             raise ConfigError(problem)
@@ -1694,9 +1871,11 @@ def _block(m: PlannedManoeuvre, how: str, values: dict, ranges: dict, notes: tup
 
 def ardupilot_parameters(card: TestCard, config: ValidationConfig,
                          throw_rad: dict[str, float] | None = None) -> list[ParameterBlock]:
-    """ArduPilot's SystemID parameters per manoeuvre (injected at the mixer: the surface, as the model's input).
+    """ArduPilot's SystemID parameters per manoeuvre (injected at the mixer: the surface, as the model's
+    input).
 
-    ``SID_MAGNITUDE`` is the amplitude over the surface's deflection at full mixer output (``throw_rad``, default
+    ``SID_MAGNITUDE`` is the amplitude over the surface's deflection at full mixer output (``throw_rad``,
+    default
     :data:`ARDUPILOT_THROW_RAD`); ``SID_T_REC`` is the card's sweep plus the two cycles at the start frequency
     ArduPilot flies first (fades inside). Every value
     is checked against :data:`ARDUPILOT_RANGES`; a manoeuvre that does not fit (an unknown axis, a magnitude
@@ -1727,12 +1906,25 @@ def ardupilot_parameters(card: TestCard, config: ValidationConfig,
                   "SID_T_FADE_OUT": m.fade_out_s}
         short = (f"SID_T_REC {values['SID_T_REC']:g} s is not longer than 2 / SID_F_START_HZ"
                  if not values["SID_T_REC"] > DWELL_CYCLES / values["SID_F_START_HZ"] else None)
-        blocks.append(_block(m, how, values, ARDUPILOT_RANGES, problem=short, notes=(
-            f"SID_MAGNITUDE {values['SID_MAGNITUDE']:g} = {m.amplitude_rad:.4g} rad over a full-mixer deflection of "
-            f"{throw:.4g} rad ({math.degrees(throw):.3g} deg; --surface-throw-deg)",
-            f"SID_T_REC = the card's {m.duration_s:.4g} s sweep + ArduPilot's two cycles at SID_F_START_HZ "
-            f"({DWELL_CYCLES / f_start:.3g} s) flown first; log SIDD.Targ as channels.{m.channel}.excitation so the "
-            f"estimator finds the slow start")))
+        blocks.append(
+            _block(
+                m,
+                how,
+                values,
+                ARDUPILOT_RANGES,
+                problem=short,
+                notes=(
+                    f"SID_MAGNITUDE {values['SID_MAGNITUDE']:g} = {m.amplitude_rad:.4g} rad over a "
+                    "full-mixer deflection of "
+                    f"{throw:.4g} rad ({math.degrees(throw):.3g} deg; --surface-throw-deg)",
+                    f"SID_T_REC = the card's {m.duration_s:.4g} s sweep + ArduPilot's two cycles at "
+                    "SID_F_START_HZ "
+                    f"({DWELL_CYCLES / f_start:.3g} s) flown first; log SIDD.Targ as "
+                    f"channels.{m.channel}.excitation so the "
+                    f"estimator finds the slow start",
+                ),
+            )
+        )
     return blocks
 
 
@@ -1740,11 +1932,11 @@ def px4_parameters(card: TestCard, config: ValidationConfig) -> list[ParameterBl
     """PX4 fixed-wing autotune's system-identification parameters per manoeuvre, where they fit.
 
     The band (``FW_AT_SYSID_F0``/``F1``, 0.1-30 Hz in steps of 0.1 Hz, rounded outwards), the sweep length
-    (``FW_AT_SYSID_TIME``, 5-120 s), the log sweep (``FW_AT_SYSID_TYPE`` 2), the axis (``FW_AT_AXES``) and logging
-    only (``FW_AT_APPLY`` 0). What does not fit: the amplitude (``FW_AT_SYSID_AMP`` scales a *rate setpoint*, not
-    the surface: the autotune flies the sweep through the rate controller, so log it and give the channel an
-    ``excitation`` stream), the repeats (start the autotune once per sweep) and a band below 0.1 Hz or above 30 Hz
-    (no values then). Checked against :data:`PX4_RANGES`.
+    (``FW_AT_SYSID_TIME``, 5-120 s), the log sweep (``FW_AT_SYSID_TYPE`` 2), the axis (``FW_AT_AXES``) and
+    logging only (``FW_AT_APPLY`` 0). What does not fit: the amplitude (``FW_AT_SYSID_AMP`` scales a *rate
+    setpoint*, not the surface: the autotune flies the sweep through the rate controller, so log it and give
+    the channel an ``excitation`` stream), the repeats (start the autotune once per sweep) and a band below
+    0.1 Hz or above 30 Hz (no values then). Checked against :data:`PX4_RANGES`.
 
     Parameters
     ----------
@@ -1759,10 +1951,22 @@ def px4_parameters(card: TestCard, config: ValidationConfig) -> list[ParameterBl
         f0, f1 = math.floor(m.f_start_hz * 10) / 10, math.ceil(m.f_stop_hz * 10) / 10
         values = {"FW_AT_SYSID_F0": f0, "FW_AT_SYSID_F1": f1, "FW_AT_SYSID_TIME": float(round(m.duration_s)),
                   "FW_AT_SYSID_TYPE": 2, "FW_AT_AXES": PX4_AXIS_BIT.get(axis or "", 0), "FW_AT_APPLY": 0}
-        blocks.append(_block(m, f"start the autotune {m.repeats} time(s)", values, PX4_RANGES,
-                             problem="the channel's axis is unknown" if axis is None else None, notes=(
-            f"FW_AT_SYSID_AMP not set: it scales the rate setpoint the autotune injects, not the surface; set it so the "
-            f"surface moves about {m.amplitude_rad:.3g} rad, log the injected signal and give channels.{m.channel}."
-            f"excitation (the sweep is flown in closed loop)",
-            "no dwell and no fades in PX4's sweep (signal_generator.hpp): the band's margins cover its ends")))
+        blocks.append(
+            _block(
+                m,
+                f"start the autotune {m.repeats} time(s)",
+                values,
+                PX4_RANGES,
+                problem="the channel's axis is unknown" if axis is None else None,
+                notes=(
+                    "FW_AT_SYSID_AMP not set: it scales the rate setpoint the autotune injects, not the "
+                    "surface; set it so the "
+                    f"surface moves about {m.amplitude_rad:.3g} rad, log the injected signal and give "
+                    f"channels.{m.channel}."
+                    f"excitation (the sweep is flown in closed loop)",
+                    "no dwell and no fades in PX4's sweep (signal_generator.hpp): the band's margins cover "
+                    "its ends",
+                ),
+            )
+        )
     return blocks

@@ -17,8 +17,15 @@ import numpy as np
 from gap_validation.core.config import ChannelConfig
 from gap_validation.core.results import ChannelResult
 
-__all__ = ["CURVES", "FLAG_CODES", "frequency_response_table", "read_table", "flags_from_codes", "topic_token",
-           "table_dims"]
+__all__ = [
+    "CURVES",
+    "FLAG_CODES",
+    "frequency_response_table",
+    "read_table",
+    "flags_from_codes",
+    "topic_token",
+    "table_dims",
+]
 
 #: The rows of the table, in order: the frequency (also as log10, for plot axes without a log scale), the
 #: measured and model Bode curves, coherence, epsilon(w) (eq. 14), kappa(w) (the chordal distance), the random
@@ -60,15 +67,22 @@ def frequency_response_table(result: ChannelResult, channel: ChannelConfig) -> n
     if not np.allclose(grid[at], w, rtol=1e-9, atol=0.0):
         raise ValueError(f"channel {result.name}: its result's frequencies are not on its analysis grid")
     data = result.to_json_dict(samples=False)
-    rows = {"measured_magnitude_db": data["measured"]["magnitude_db"],
-            "measured_phase_deg": data["measured"]["phase_deg"],
-            "model_magnitude_db": data["model"]["magnitude_db"], "model_phase_deg": data["model"]["phase_deg"],
-            "coherence": data["coherence"], "epsilon": data["epsilon_per_frequency"], "kappa": data["kappa"],
-            "random_error": data["random_error"],
-            "flag": [FLAG_CODES.get(f) for f in data["frequency_flags"]]}
+    rows = {
+        "measured_magnitude_db": data["measured"]["magnitude_db"],
+        "measured_phase_deg": data["measured"]["phase_deg"],
+        "model_magnitude_db": data["model"]["magnitude_db"],
+        "model_phase_deg": data["model"]["phase_deg"],
+        "coherence": data["coherence"],
+        "epsilon": data["epsilon_per_frequency"],
+        "kappa": data["kappa"],
+        "random_error": data["random_error"],
+        "flag": [FLAG_CODES.get(f) for f in data["frequency_flags"]],
+    }
     for name, values in rows.items():
         if values is not None and len(values) == w.size:
-            table[CURVES.index(name), at] = np.array([np.nan if v is None else v for v in values], dtype=float)
+            table[CURVES.index(name), at] = np.array(
+                [np.nan if v is None else v for v in values], dtype=float
+            )
     return table
 
 

@@ -6,22 +6,23 @@ around it and hands it here, where it is split into the manoeuvres a pilot flew 
 
 Splitting (:func:`split_record`)
 --------------------------------
-* **Trim in between.** A stretch of at least ``min_quiet_s`` (1 s) during which the excitation stays at trim --
-  within ``max(4 noise, 10 % of the excursion)`` of the level before the stretch or of the level after it --
-  separates two manoeuvres. A slow sine is not "at trim" for long (it crosses the trim level quickly; its
+* **Trim in between.** A stretch of at least ``min_quiet_s`` (1 s) during which the excitation stays at trim
+  -- within ``max(4 noise, 10 % of the excursion)`` of the level before the stretch or of the level after it
+  -- separates two manoeuvres. A slow sine is not "at trim" for long (it crosses the trim level quickly; its
   peaks are far from it), so the slow start of a sweep is not split.
 * **A restart of the swept frequency.** Sweeps flown back to back without a pause: the zero crossings of the
   excitation about trim give its instantaneous frequency; where a monotonic trend (at least eight
   half-periods rising, or falling) is followed by a half-period at least four times longer (shorter), and the
-  median of the next three (of those left in the group) is too (a new sweep stays at its start frequency; crossings lost in noise give one
-  long half-period among short ones: seen splitting the top of low-SNR chirps), a new sweep starts -- unless the excitation is periodic: a Schroeder-phased multisine sweeps within each of its
-  periods, and identical sweeps flown back to back *are* a periodic excitation; either stays one record (a
-  multisine of several periods, the best record there is for a frequency response). Fly a second of trim
-  between identical sweeps to have them counted one by one.
-Each manoeuvre keeps the trim before it from half the pause on, and the trim after it up to the next manoeuvre's
-start (its response settles in the pause: the records of two manoeuvres share the pause's second half, where the
-first one's response ends and the next one has not begun); the estimator's transient term takes what has not
-settled.
+  median of the next three (of those left in the group) is too (a new sweep stays at its start frequency;
+  crossings lost in noise give one long half-period among short ones: seen splitting the top of low-SNR
+  chirps), a new sweep starts -- unless the excitation is periodic: a Schroeder-phased multisine sweeps within
+  each of its periods, and identical sweeps flown back to back *are* a periodic excitation; either stays one
+  record (a multisine of several periods, the best record there is for a frequency response). Fly a second of
+  trim between identical sweeps to have them counted one by one.
+Each manoeuvre keeps the trim before it from half the pause on, and the trim after it up to the next
+manoeuvre's start (its response settles in the pause: the records of two manoeuvres share the pause's second
+half, where the first one's response ends and the next one has not begun); the estimator's transient term
+takes what has not settled.
 
 Kinds (:func:`classify`)
 ------------------------
@@ -33,21 +34,33 @@ responses), else ``broadband`` (random or hand-flown excitation).
 
 Saturation (:func:`saturated_share`)
 ------------------------------------
-A smooth manoeuvre (chirp, multisine, broadband: steps have plateaus by design) whose excitation sits pinned at the same value at its largest or smallest excursion (repeated to
-round-off, in runs of three samples or more: a clipped command, a surface logged at its stop) for
+A smooth manoeuvre (chirp, multisine, broadband: steps have plateaus by design) whose excitation sits pinned
+at the same value at its largest or smallest excursion (repeated to round-off, in runs of three samples or
+more: a clipped command, a surface logged at its stop) for
 :data:`SATURATED_SHARE` (5 %) of its samples or more is *saturated*: the loop held a nonlinearity the linear
 model does not have, so the estimator does not use it and says so. A noisy signal never repeats its extreme
 value exactly, so noise alone cannot trigger this.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Piece", "split_record", "classify", "trim_noise", "period", "KINDS", "RESPONSE_KINDS", "SWEEP_KINDS",
-           "trim_tolerance", "saturated_share", "SATURATED_SHARE", "TRIM_MOTION_SHARE"]
+__all__ = [
+    "Piece",
+    "split_record",
+    "classify",
+    "trim_noise",
+    "period",
+    "KINDS",
+    "RESPONSE_KINDS",
+    "SWEEP_KINDS",
+    "trim_tolerance",
+    "saturated_share",
+    "SATURATED_SHARE",
+    "TRIM_MOTION_SHARE",
+]
 
 #: Every kind :func:`classify` returns.
 KINDS = ("chirp", "multisine", "multistep", "doublet", "pulse", "broadband", "step")
@@ -59,7 +72,8 @@ SWEEP_KINDS = ("chirp", "multisine", "multistep", "broadband")
 _TREND_HALF_PERIODS = 20
 _TREND_WINDOW = 100          # the trend before a restart is judged on at most this many half-periods
 _RESTART_RATIO = 4.0
-_RESTART_CONFIRM = 3         # ... and the median of the next this many half-periods too (of those left, if fewer)
+# ... and the median of the next this many half-periods too (of those left, if fewer)
+_RESTART_CONFIRM = 3
 _MIN_PLATEAU_S = 0.15
 
 
@@ -85,15 +99,15 @@ class Piece:
     group: int = 0
 
 
-#: The trim motion widens the band about trim to at most this share of the excursion: a manoeuvre only a few times
-#: larger than the trim motion is still a manoeuvre, and its slow parts must not read as trim.
+#: The trim motion widens the band about trim to at most this share of the excursion: a manoeuvre only a few
+#: times larger than the trim motion is still a manoeuvre, and its slow parts must not read as trim.
 TRIM_MOTION_SHARE = 0.25
 
 
 def trim_tolerance(excursion: float, noise_std: float, trim_std: float = 0.0) -> float:
-    """Half-width of the band about trim that counts as "at trim": ``max(4 noise, 10 % of the excursion)``, widened
-    to four standard deviations of the trim motion (a pilot's corrections, a damper answering turbulence: measured
-    between the manoeuvres) but not beyond :data:`TRIM_MOTION_SHARE` of the excursion.
+    """Half-width of the band about trim that counts as "at trim": ``max(4 noise, 10 % of the excursion)``,
+    widened to four standard deviations of the trim motion (a pilot's corrections, a damper answering
+    turbulence: measured between the manoeuvres) but not beyond :data:`TRIM_MOTION_SHARE` of the excursion.
 
     Parameters
     ----------
@@ -170,7 +184,8 @@ def _restarts(dev: np.ndarray, tol: float, lo: int, hi: int) -> list[int]:
             continue
         # a new sweep stays at its start frequency for several half-periods; crossings lost to noise give one
         # long (or short) half-period among the others
-        after = values[j + 1:j + 1 + _RESTART_CONFIRM]     # fewer at the end of a group (a doublet after a sweep)
+        # fewer at the end of a group (a doublet after a sweep)
+        after = values[j + 1:j + 1 + _RESTART_CONFIRM]
         if not after:
             continue
         lasting = sorted(after)[(len(after) - 1) // 2] if longer else sorted(after)[len(after) // 2]
@@ -229,7 +244,8 @@ def split_record(u: np.ndarray, dt: float, noise_std: float, pre_n: int, post_n:
             groups[-1][1] = int(b)
         else:
             groups.append([int(a), int(b)])
-    # an excursion no larger than the noise, or shorter than a tenth of a second, is a noise spike, not a manoeuvre
+    # an excursion no larger than the noise, or shorter than a tenth of a second, is a noise spike, not a
+    # manoeuvre
     shortest = max(2, int(round(MIN_ACTIVE_S / dt)))
     groups = [(a, b) for a, b in groups if b - a >= shortest
               and np.max(np.abs(dev[a:b])) > SPIKE_FACTOR * max(noise_std, 0.0)]
@@ -238,7 +254,8 @@ def split_record(u: np.ndarray, dt: float, noise_std: float, pre_n: int, post_n:
     for g, (a, b) in enumerate(groups):
         cuts = [a] + _restarts(dev, tol, a, b) + [b]
         if len(cuts) > 2 and _is_periodic(dev[a:b], dt):
-            cuts = [a, b]                    # a periodic excitation (a Schroeder multisine sweeps every period)
+            # a periodic excitation (a Schroeder multisine sweeps every period)
+            cuts = [a, b]
         active_spans += [(c0, c1, g) for c0, c1 in zip(cuts[:-1], cuts[1:]) if c1 > c0]
     pieces = []
     for i, (a, b, g) in enumerate(active_spans):
@@ -434,8 +451,8 @@ def saturated_share(u: np.ndarray, piece: Piece) -> float:
     Returns
     -------
     float
-        Samples in runs of three or more equal to the extreme value (either side), over the excited samples; 0 for
-        a signal that never repeats its extremes (any noisy signal).
+        Samples in runs of three or more equal to the extreme value (either side), over the excited samples; 0
+        for a signal that never repeats its extremes (any noisy signal).
     """
     active = np.asarray(u[piece.active_start:piece.active_end], float)
     if active.size < 3:

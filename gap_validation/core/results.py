@@ -16,8 +16,10 @@ from gap_validation.core.manoeuvres import Manoeuvre
 from gap_validation.core.margins import Margins, margins_from_epsilon, margins_note
 
 #: Note attached to every measured nu-gap: on frequency data the winding-number condition cannot be checked.
-NUGAP_DATA_NOTE = ("nu-gap on measured frequency points, over the measured band only, assumes the winding-number "
-                   "condition holds (as the paper does for rigid-body aircraft)")
+NUGAP_DATA_NOTE = (
+    "nu-gap on measured frequency points, over the measured band only, assumes the winding-number "
+    "condition holds (as the paper does for rigid-body aircraft)"
+)
 
 
 def _num(value: Any) -> float | None:
@@ -53,7 +55,8 @@ def phase_deg(response: np.ndarray, reference: np.ndarray | None = None) -> np.n
 
 
 def _unwrap_finite(angle_rad: np.ndarray) -> np.ndarray:
-    """``np.unwrap`` over the finite entries only (NaN stays NaN at its own index instead of every later one)."""
+    """``np.unwrap`` over the finite entries only (NaN stays NaN at its own index instead of every later
+    one)."""
     ok = np.isfinite(angle_rad)
     if ok.all() or angle_rad.ndim != 1:
         return np.unwrap(angle_rad)
@@ -88,7 +91,8 @@ def _mag_phase(response: np.ndarray | None, reference: np.ndarray | None = None)
 
 
 class _JsonView:
-    """A result dataclass that reads like its JSON object and is rebuilt from it (fields in JSON key order)."""
+    """A result dataclass that reads like its JSON object and is rebuilt from it (fields in JSON key
+    order)."""
 
     def to_json_dict(self) -> dict:
         """The JSON object (defined by each result)."""
@@ -116,7 +120,8 @@ class _JsonView:
 
 @dataclass(frozen=True)
 class Band(_JsonView):
-    """A run of adjacent frequencies where epsilon(w) passes the diagnosis threshold, and why (JSON ``bands``).
+    """A run of adjacent frequencies where epsilon(w) passes the diagnosis threshold, and why (JSON
+    ``bands``).
 
     Attributes
     ----------
@@ -227,14 +232,26 @@ class Candidate(_JsonView):
     indistinguishable_from: list = field(default_factory=list)
 
     def to_json_dict(self) -> dict:
-        """The JSON object of DESIGN.md's ``diagnosis`` entries (``model`` and ``note`` only when refitted)."""
-        out = {"effect": self.effect, "parameters": self.parameters, "effects": [dict(e) for e in self.effects],
-               "epsilon": self.epsilon, "nu_gap": self.nu_gap, "sentence": self.sentence,
-               "improvement": self.improvement, "epsilon_before": self.epsilon_before,
-               "epsilon_raw": self.epsilon_raw, "worst_frequency_rad_s": self.worst_frequency_rad_s,
-               "complexity": self.complexity, "explains": self.explains, "cost": self.cost,
-               "cost_before": self.cost_before, "criterion": self.criterion,
-               "indistinguishable_from": list(self.indistinguishable_from)}
+        """The JSON object of DESIGN.md's ``diagnosis`` entries (``model`` and ``note`` only when
+        refitted)."""
+        out = {
+            "effect": self.effect,
+            "parameters": self.parameters,
+            "effects": [dict(e) for e in self.effects],
+            "epsilon": self.epsilon,
+            "nu_gap": self.nu_gap,
+            "sentence": self.sentence,
+            "improvement": self.improvement,
+            "epsilon_before": self.epsilon_before,
+            "epsilon_raw": self.epsilon_raw,
+            "worst_frequency_rad_s": self.worst_frequency_rad_s,
+            "complexity": self.complexity,
+            "explains": self.explains,
+            "cost": self.cost,
+            "cost_before": self.cost_before,
+            "criterion": self.criterion,
+            "indistinguishable_from": list(self.indistinguishable_from),
+        }
         if self.model is not None:
             out["model"] = self.model
             out["note"] = self.note
@@ -282,14 +299,22 @@ def _float(value: Any) -> float:
 
 
 def _manoeuvre_json(m: Manoeuvre, check: dict | None, samples: bool = True) -> dict:
-    """A kept manoeuvre: its TIC against the model and its samples (so a report can be drawn from the JSON)."""
+    """A kept manoeuvre: its TIC against the model and its samples (so a report can be drawn from the
+    JSON)."""
     dt = float(m.t_s[1] - m.t_s[0]) if m.t_s.size > 1 else 0.0
     out = {"kind": m.kind, "start_s": _num(m.start_s), "end_s": _num(m.end_s)}
     out.update({key: _num(value) for key, value in (check or {}).items()})
     if not samples:
         return out
-    out.update({"t0_s": _num(m.t_s[0]) if m.t_s.size else None, "dt_s": dt, "trim_samples": int(m.trim_samples),
-                "input": _list(m.u), "output": _list(m.y)})
+    out.update(
+        {
+            "t0_s": _num(m.t_s[0]) if m.t_s.size else None,
+            "dt_s": dt,
+            "trim_samples": int(m.trim_samples),
+            "input": _list(m.u),
+            "output": _list(m.y),
+        }
+    )
     return out
 
 
@@ -297,9 +322,15 @@ def _manoeuvre_from_json(data: dict) -> Manoeuvre:
     u, y = _array(data.get("input")), _array(data.get("output"))
     n = 0 if u is None else u.size
     t = float(data.get("t0_s") or 0.0) + np.arange(n) * float(data.get("dt_s") or 0.0)
-    return Manoeuvre(str(data.get("kind", "doublet")), t, u if u is not None else np.zeros(0),
-                     y if y is not None else np.zeros(0), _float(data.get("start_s")), _float(data.get("end_s")),
-                     int(data.get("trim_samples") or 0))
+    return Manoeuvre(
+        str(data.get("kind", "doublet")),
+        t,
+        u if u is not None else np.zeros(0),
+        y if y is not None else np.zeros(0),
+        _float(data.get("start_s")),
+        _float(data.get("end_s")),
+        int(data.get("trim_samples") or 0),
+    )
 
 
 @dataclass
@@ -371,17 +402,32 @@ class MimoDetail:
                 meas, model = self.measured[:, i, j], self.model[:, i, j]
                 with np.errstate(divide="ignore", invalid="ignore"):
                     rel = np.sqrt(self.variance[:, i, j] / 2.0) / np.abs(meas)
-                elements.append({"output": self.outputs[i], "input": self.inputs[j], "output_index": i,
-                                 "input_index": j, "measured": _mag_phase(meas, model), "model": _mag_phase(model),
-                                 "partial_coherence": _list(self.partial_coherence[:, i, j]),
-                                 "random_error": _list(rel)})
-        return {"shape": [p, m], "inputs": list(self.inputs), "outputs": list(self.outputs), "elements": elements,
-                "multiple_coherence": [_list(self.multiple_coherence[:, i]) for i in range(p)],
-                "singular_values": {"measured": [_list(row) for row in self.singular_values("measured").T],
-                                    "model": [_list(row) for row in self.singular_values("model").T]},
-                "kappa_noise": _list(self.kappa_noise),
-                "worst_elements": [dict(e) for e in self.worst_elements],
-                "worst_elements_frequency_rad_s": self.worst_elements_frequency_rad_s}
+                elements.append(
+                    {
+                        "output": self.outputs[i],
+                        "input": self.inputs[j],
+                        "output_index": i,
+                        "input_index": j,
+                        "measured": _mag_phase(meas, model),
+                        "model": _mag_phase(model),
+                        "partial_coherence": _list(self.partial_coherence[:, i, j]),
+                        "random_error": _list(rel),
+                    }
+                )
+        return {
+            "shape": [p, m],
+            "inputs": list(self.inputs),
+            "outputs": list(self.outputs),
+            "elements": elements,
+            "multiple_coherence": [_list(self.multiple_coherence[:, i]) for i in range(p)],
+            "singular_values": {
+                "measured": [_list(row) for row in self.singular_values("measured").T],
+                "model": [_list(row) for row in self.singular_values("model").T],
+            },
+            "kappa_noise": _list(self.kappa_noise),
+            "worst_elements": [dict(e) for e in self.worst_elements],
+            "worst_elements_frequency_rad_s": self.worst_elements_frequency_rad_s,
+        }
 
     @classmethod
     def from_json_dict(cls, data: dict) -> "MimoDetail":
@@ -458,14 +504,17 @@ class ChannelResult:
     excitation: str | None = None                                    # kind flown (chirp, multisine, ...)
     excited_band_rad_s: tuple[float, float] | None = None            # where the flight excited the input
     manoeuvres_by_kind: dict[str, int] = field(default_factory=dict)  # manoeuvres that gave a response
-    manoeuvres_flown: dict[str, int] = field(default_factory=dict)   # every manoeuvre seen, per kind, used or not
-    # with an airspeed stream: (V / V_trim)^2 over the flight (mean, min, max, clipped), the inputs scaled by it
+    # every manoeuvre seen, per kind, used or not
+    manoeuvres_flown: dict[str, int] = field(default_factory=dict)
+    # with an airspeed stream: (V / V_trim)^2 over the flight (mean, min, max, clipped), the inputs scaled by
+    # it
     dynamic_pressure_ratio: dict | None = None
     # the lead test between the manoeuvres (background.LeadTest): share, f, p_value, rows, lags_s; None before
     # enough trim
     rate_leads_surface: dict | None = None
     degrees_of_freedom: np.ndarray | None = None                     # of the noise estimate, per frequency
-    frequency_reasons: list = field(default_factory=list)            # per frequency: why not confident, or None
+    # per frequency: why not confident, or None
+    frequency_reasons: list = field(default_factory=list)
     # the controller check (a channel with a controller): b(P1, C) and b > nu-gap (core.robust)
     stability_margin_b: float | None = None
     stability_margin_frequency_rad_s: float | None = None
@@ -482,13 +531,14 @@ class ChannelResult:
     nonlinearity: str | None = None
     nonlinearity_evidence: str | None = None
     input_amplitudes: list[float] = field(default_factory=list)
-    # fits that sat on a search bound (never offered as a fix), said when no offered fix explains the mismatch:
-    # "gain (factor at -10 (lower bound))"
+    # fits that sat on a search bound (never offered as a fix), said when no offered fix explains the
+    # mismatch: "gain (factor at -10 (lower bound))"
     beyond_range: list[str] = field(default_factory=list)
-    # within the tolerance, a difference the data resolve and one constant factor explains (ConstantFactor, found
-    # by core.diagnosis.constant_factor), None otherwise
+    # within the tolerance, a difference the data resolve and one constant factor explains (ConstantFactor,
+    # found by core.diagnosis.constant_factor), None otherwise
     within_tolerance: ConstantFactor | None = None
-    # a sign, units, the body frame or a clock (issue 23): core.conventions.Convention, none when the config is right
+    # a sign, units, the body frame or a clock (issue 23): core.conventions.Convention, none when the config
+    # is right
     conventions: list = field(default_factory=list)
     # closed loop and coupled surfaces (issue 13): per frequency, only with the config keys
     excitation_coherence: dict | None = None      # {"r_to_u": array, "r_to_y": array} with an ``excitation``
@@ -501,7 +551,8 @@ class ChannelResult:
 
     @property
     def margins_guaranteed(self) -> bool:
-        """Margins exist (epsilon < 1) and nothing known says they do not hold (JSON ``margins_guaranteed``)."""
+        """Margins exist (epsilon < 1) and nothing known says they do not hold (JSON
+        ``margins_guaranteed``)."""
         return bool(self.margins.guaranteed and not self.margins_caveat)
 
     def margins_text(self) -> str | None:
@@ -542,7 +593,8 @@ class ChannelResult:
             "nu_gap_frequency_rad_s": _num(self.nu_gap_frequency_rad_s),
             "epsilon_raw_frequency_rad_s": _num(self.epsilon_raw_frequency_rad_s),
             "margins_raw": self.margins_raw.to_json_dict(),
-            "margins_note": self.margins_text(),  # why the margins are null or not guaranteed (None: they are)
+            # why the margins are null or not guaranteed (None: they are)
+            "margins_note": self.margins_text(),
             "margins_guaranteed": self.margins_guaranteed,
             "coherence_threshold": self.coherence_threshold,
             "points_used": self.points_used,
@@ -607,35 +659,47 @@ class ChannelResult:
         data : dict
             The channel's object of the JSON results.
         """
-        ch = cls(name=name, sweeps=int(data.get("sweeps") or 0), nu_gap=data.get("nu_gap"),
-                 nu_gap_frequency_rad_s=data.get("nu_gap_frequency_rad_s"), epsilon=data.get("epsilon"),
-                 worst_frequency_rad_s=data.get("worst_frequency_rad_s"), epsilon_raw=data.get("epsilon_raw"),
-                 epsilon_raw_frequency_rad_s=data.get("epsilon_raw_frequency_rad_s"),
-                 coherence_threshold=float(data.get("coherence_threshold", 0.6)),
-                 points_excluded=int(data.get("points_excluded") or 0), limited_by=data.get("limited_by", "none"),
-                 frequency_flags=list(data.get("frequency_flags") or []),
-                 bands=[Band.from_json_dict(b) for b in data.get("bands") or []],
-                 diagnosis=[Candidate.from_json_dict(c) for c in data.get("diagnosis") or []],
-                 bad_samples=dict(data.get("bad_samples") or {}),
-                 epsilon_previous=data.get("epsilon_previous"),
-                 model_description=data.get("model_description", ""), message=data.get("message", ""),
-                 model_spec=dict(data.get("model_spec") or {}), excitation=data.get("excitation"),
-                 manoeuvres_by_kind=dict(data.get("manoeuvres_by_kind") or {}),
-                 manoeuvres_flown=dict(data.get("manoeuvres_flown") or {}),
-                 frequency_reasons=list(data.get("frequency_reasons") or []),
-                 stability_margin_b=data.get("stability_margin_b"),
-                 stability_margin_frequency_rad_s=data.get("stability_margin_frequency_rad_s"),
-                 guaranteed_stable=data.get("guaranteed_stable"), stability_note=data.get("stability_note") or "",
-                 warnings=[str(w) for w in data.get("warnings") or []],
-                 margins_caveat=_caveat(data),
-                 nonlinearity=data.get("nonlinearity"), nonlinearity_evidence=data.get("nonlinearity_evidence"),
-                 input_amplitudes=[float(a) if a is not None else float("nan")
-                                   for a in data.get("input_amplitudes") or []],
-                 beyond_range=[str(b) for b in data.get("beyond_range") or []],
-                 within_tolerance=_within_tolerance(data.get("within_tolerance")),
-                 conventions=[Convention.from_json_dict(c) for c in data.get("conventions") or []],
-                 dynamic_pressure_ratio=data.get("dynamic_pressure_ratio"),
-                 rate_leads_surface=data.get("rate_leads_surface"))
+        ch = cls(
+            name=name,
+            sweeps=int(data.get("sweeps") or 0),
+            nu_gap=data.get("nu_gap"),
+            nu_gap_frequency_rad_s=data.get("nu_gap_frequency_rad_s"),
+            epsilon=data.get("epsilon"),
+            worst_frequency_rad_s=data.get("worst_frequency_rad_s"),
+            epsilon_raw=data.get("epsilon_raw"),
+            epsilon_raw_frequency_rad_s=data.get("epsilon_raw_frequency_rad_s"),
+            coherence_threshold=float(data.get("coherence_threshold", 0.6)),
+            points_excluded=int(data.get("points_excluded") or 0),
+            limited_by=data.get("limited_by", "none"),
+            frequency_flags=list(data.get("frequency_flags") or []),
+            bands=[Band.from_json_dict(b) for b in data.get("bands") or []],
+            diagnosis=[Candidate.from_json_dict(c) for c in data.get("diagnosis") or []],
+            bad_samples=dict(data.get("bad_samples") or {}),
+            epsilon_previous=data.get("epsilon_previous"),
+            model_description=data.get("model_description", ""),
+            message=data.get("message", ""),
+            model_spec=dict(data.get("model_spec") or {}),
+            excitation=data.get("excitation"),
+            manoeuvres_by_kind=dict(data.get("manoeuvres_by_kind") or {}),
+            manoeuvres_flown=dict(data.get("manoeuvres_flown") or {}),
+            frequency_reasons=list(data.get("frequency_reasons") or []),
+            stability_margin_b=data.get("stability_margin_b"),
+            stability_margin_frequency_rad_s=data.get("stability_margin_frequency_rad_s"),
+            guaranteed_stable=data.get("guaranteed_stable"),
+            stability_note=data.get("stability_note") or "",
+            warnings=[str(w) for w in data.get("warnings") or []],
+            margins_caveat=_caveat(data),
+            nonlinearity=data.get("nonlinearity"),
+            nonlinearity_evidence=data.get("nonlinearity_evidence"),
+            input_amplitudes=[
+                float(a) if a is not None else float("nan") for a in data.get("input_amplitudes") or []
+            ],
+            beyond_range=[str(b) for b in data.get("beyond_range") or []],
+            within_tolerance=_within_tolerance(data.get("within_tolerance")),
+            conventions=[Convention.from_json_dict(c) for c in data.get("conventions") or []],
+            dynamic_pressure_ratio=data.get("dynamic_pressure_ratio"),
+            rate_leads_surface=data.get("rate_leads_surface"),
+        )
         band = data.get("excited_band_rad_s")
         ch.excited_band_rad_s = (float(band[0]), float(band[1])) if band and None not in band else None
         ch.margins = margins_from_epsilon(ch.epsilon if ch.epsilon is not None and not ch.conventions
@@ -664,8 +728,8 @@ class ChannelResult:
 
 
 def _caveat(data: dict) -> str:
-    """The margins caveat of a channel's JSON object (its ``margins_note`` when ``margins_guaranteed`` is false
-    while margins are given)."""
+    """The margins caveat of a channel's JSON object (its ``margins_note`` when ``margins_guaranteed`` is
+    false while margins are given)."""
     note = data.get("margins_note") or ""
     prefix = "margins not guaranteed: "
     if data.get("margins_guaranteed") is False and data.get("gain_margin_db") is not None:
@@ -691,8 +755,8 @@ class ConstantFactor:
         The confident frequencies it was fitted over [rad/s].
     free_play_rad : float or None
         The total free play whose describing function at the flown amplitude has this gain *and* this phase
-        (within the decision's noise scales), else None. Said, never named: one amplitude cannot show amplitude
-        dependence (:mod:`gap_validation.core.nonlinearity`). Found by
+        (within the decision's noise scales), else None. Said, never named: one amplitude cannot show
+        amplitude dependence (:mod:`gap_validation.core.nonlinearity`). Found by
         :func:`gap_validation.core.diagnosis.constant_factor`.
     amplitude : float or None
         Mean input amplitude flown over those frequencies [input units].
@@ -731,9 +795,21 @@ class ConstantFactor:
         -------
         ConstantFactor
         """
-        return cls(**{k: (None if data.get(k) is None else float(data[k])) for k in
-                      ("gain", "phase_deg", "error", "noise_scales", "min_rad_s", "max_rad_s", "free_play_rad",
-                       "amplitude")})
+        return cls(
+            **{
+                k: (None if data.get(k) is None else float(data[k]))
+                for k in (
+                    "gain",
+                    "phase_deg",
+                    "error",
+                    "noise_scales",
+                    "min_rad_s",
+                    "max_rad_s",
+                    "free_play_rad",
+                    "amplitude",
+                )
+            }
+        )
 
 
 def _within_tolerance(data: Any) -> ConstantFactor | None:

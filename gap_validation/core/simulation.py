@@ -1,20 +1,21 @@
-"""Synthetic flights: time histories of a sweep flight, ROS-free (arrays only; :mod:`gap_validation.bag.writer`
-writes them as a rosbag2).
+"""Synthetic flights: time histories of a sweep flight, ROS-free (arrays only;
+:mod:`gap_validation.bag.writer` writes them as a rosbag2).
 
 The "true aircraft" of each channel is the config's model (with its effects) with *hidden* effects in series
-(:meth:`LinearModel.with_effects`), so a replay of the flight measures the truth and the validation sees how far
-the config's model is from it. The flight follows the paper's test card (Section V): frequency sweeps per axis
-(roll, pitch, yaw in turn, several rounds), a doublet after each sweep, pilot re-trims between manoeuvres,
-gusts entering at the output as low-pass filtered (coloured) noise, optionally a narrow-band output
-disturbance (band-pass filtered noise, e.g. a vibration or a poorly flown band), gyro and surface sensor noise and
-quantisation, and topics published at their own rates with timestamp jitter, dropped messages and a transport
-latency (bag time = ``header.stamp`` + latency).
+(:meth:`LinearModel.with_effects`), so a replay of the flight measures the truth and the validation sees how
+far the config's model is from it. The flight follows the paper's test card (Section V): frequency sweeps per
+axis (roll, pitch, yaw in turn, several rounds), a doublet after each sweep, pilot re-trims between
+manoeuvres, gusts entering at the output as low-pass filtered (coloured) noise, optionally a narrow-band
+output disturbance (band-pass filtered noise, e.g. a vibration or a poorly flown band), gyro and surface
+sensor noise and quantisation, and topics published at their own rates with timestamp jitter, dropped messages
+and a transport latency (bag time = ``header.stamp`` + latency).
 
 Sweeps are exponential (log) chirps, ``w(t) = w0 (w1/w0)^(t/T)``, so every octave receives the same time.
-By default a sweep lasts 120 s and runs from half the channel's lowest grid frequency to 1.3 times its highest:
-the estimator's analysis windows are anchored at the sweep start and last up to 20 s, so the grid's lowest
-frequencies need the sweep to pass them well inside the first windows (a sweep that starts *at* the lowest
-grid frequency biases the estimate there, most visibly near the lightly damped yaw zeros of the Ultra Stick).
+By default a sweep lasts 120 s and runs from half the channel's lowest grid frequency to 1.3 times its
+highest: the estimator's analysis windows are anchored at the sweep start and last up to 20 s, so the grid's
+lowest frequencies need the sweep to pass them well inside the first windows (a sweep that starts *at* the
+lowest grid frequency biases the estimate there, most visibly near the lightly damped yaw zeros of the Ultra
+Stick).
 
 Everything is seeded (``numpy.random.default_rng(seed)``) and drawn in a fixed order: the same seed gives the
 same flight. The band noise draws from its own stream of the same seed, so switching it on changes nothing
@@ -33,7 +34,15 @@ from gap_validation.core.effects import EFFECTS, validate_effect
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.fields import FieldPath
 from gap_validation.core.layouts import JOINT_STATE, LAYOUTS, infer_type
-from gap_validation.core.numbers import FINITE as FINITE_NUMBER, NON_NEGATIVE, POSITIVE, Interval, check_number
+from gap_validation.core.numbers import (
+    FINITE as FINITE_NUMBER,
+)
+from gap_validation.core.numbers import (
+    NON_NEGATIVE,
+    POSITIVE,
+    Interval,
+    check_number,
+)
 
 if TYPE_CHECKING:  # pragma: no cover
     from gap_validation.core.models import LinearModel
@@ -134,7 +143,8 @@ class FlightOptions:
         Unit of the 3-2-1-1 [s] (3, 2, 1, 1 units of alternating sign).
     step_rise_s : float
         Transition time of every step of a doublet or multistep (raised cosine; the surface actuator is not
-        infinitely fast, and a measured step sampled at tens of hertz would be ambiguous by half a sample) [s].
+        infinitely fast, and a measured step sampled at tens of hertz would be ambiguous by half a sample)
+        [s].
     sweep_amplitude_scales : tuple of float, optional
         Round i of the test card flies its identification manoeuvres (sweeps, multisines, multisteps) at
         ``scales[i % len(scales)]`` times their amplitude, e.g. ``(1.0, 0.4)`` (sweeps at different amplitudes
@@ -187,9 +197,12 @@ class FlightOptions:
     coupling: tuple = ()
     cross_responses: tuple = ()
     # the mistakes every user makes (issue 23): what the logged topics get wrong relative to the config
-    flips: tuple = ()                      # (channel, "input"|"output"): that stream logged with the opposite sign
-    surfaces_in_degrees: bool = False      # every input (surface) logged in degrees where the config says radians
-    imu_frame: str = "frd"                 # "flu": IMU rate outputs logged in ROS's body frame (y and z reversed)
+    # (channel, "input"|"output"): that stream logged with the opposite sign
+    flips: tuple = ()
+    # every input (surface) logged in degrees where the config says radians
+    surfaces_in_degrees: bool = False
+    # "flu": IMU rate outputs logged in ROS's body frame (y and z reversed)
+    imu_frame: str = "frd"
     stamp_offsets: tuple = ()              # (topic, seconds): that topic stamped late by seconds
 
     def check(self) -> "FlightOptions":
@@ -203,7 +216,9 @@ class FlightOptions:
                      "surface_noise_rad", "gust_rms_rad_s", "trim_step_rad", "trim_offset_rad", "jitter_s",
                      "gyro_lsb_rad_s", "surface_lsb_rad",
                      "latency_s", "latency_jitter_s", "band_noise_rms_rad_s"):
-            check_number(getattr(self, name), f"simulation option {name}", NON_NEGATIVE, expected="a number >= 0")
+            check_number(
+                getattr(self, name), f"simulation option {name}", NON_NEGATIVE, expected="a number >= 0"
+            )
         if self.excitation not in EXCITATIONS:
             raise ConfigError(f"simulation option excitation: expected one of {', '.join(EXCITATIONS)}, "
                               f"got {self.excitation!r}")
@@ -222,8 +237,12 @@ class FlightOptions:
         if self.band_low_factor >= self.band_high_factor:
             raise ConfigError(f"simulation options band_low_factor {self.band_low_factor!r} must be below "
                               f"band_high_factor {self.band_high_factor!r}")
-        check_number(self.drop_probability, "simulation option drop_probability", Interval(0.0, 0.5, high_open=True),
-                     expected="a number in [0, 0.5)")
+        check_number(
+            self.drop_probability,
+            "simulation option drop_probability",
+            Interval(0.0, 0.5, high_open=True),
+            expected="a number in [0, 0.5)",
+        )
         self._check_band_noise()
         self._check_amplitude_scales()
         _check_loop_options(self)
@@ -233,13 +252,16 @@ class FlightOptions:
     def _check_mistakes(self) -> None:
         for item in self.flips:
             if not (isinstance(item, tuple) and len(item) == 2 and item[1] in ("input", "output")):
-                raise ConfigError(f"simulation option flips: expected (channel, 'input' or 'output') pairs, got "
-                                  f"{item!r}")
+                raise ConfigError(
+                    f"simulation option flips: expected (channel, 'input' or 'output') pairs, got {item!r}"
+                )
         if self.imu_frame not in ("frd", "flu"):
             raise ConfigError(f"simulation option imu_frame: expected frd or flu, got {self.imu_frame!r}")
         for item in self.stamp_offsets:
             if not (isinstance(item, tuple) and len(item) == 2 and isinstance(item[0], str)):
-                raise ConfigError(f"simulation option stamp_offsets: expected (topic, seconds) pairs, got {item!r}")
+                raise ConfigError(
+                    f"simulation option stamp_offsets: expected (topic, seconds) pairs, got {item!r}"
+                )
             check_number(item[1], f"simulation option stamp_offsets {item[0]}", FINITE_NUMBER,
                          expected="a finite number of seconds")
 
@@ -269,7 +291,9 @@ class FlightOptions:
             raise ConfigError(f"simulation option band_noise_rad_s: expected 0 < low < high < "
                               f"{nyquist_rad_s:.0f} rad/s (Nyquist of sim_rate_hz), got {band!r}")
         channels = self.band_noise_channels
-        if channels is not None and (isinstance(channels, str) or not all(isinstance(c, str) for c in channels)):
+        if channels is not None and (
+            isinstance(channels, str) or not all(isinstance(c, str) for c in channels)
+        ):
             raise ConfigError(f"simulation option band_noise_channels: expected a tuple of channel names, "
                               f"got {channels!r}")
 
@@ -279,7 +303,8 @@ class Segment:
     """One manoeuvre of the test card; times from the flight start [s].
 
     ``kind`` is ``sweep`` (log chirp), ``multisine``, ``multisine-orthogonal`` (one segment per channel, same
-    times), ``3211`` or ``doublet``. On a MIMO channel each input is flown in turn: ``input_index`` says which.
+    times), ``3211`` or ``doublet``. On a MIMO channel each input is flown in turn: ``input_index`` says
+    which.
     """
 
     channel: str
@@ -534,7 +559,9 @@ def log_sweep(t_s: np.ndarray, duration_s: float, w0_rad_s: float, w1_rad_s: flo
     envelope = np.ones_like(t)
     if taper_s > 0:
         envelope = np.minimum(envelope, 0.5 - 0.5 * np.cos(np.pi * np.clip(tau / taper_s, 0.0, 1.0)))
-        envelope = np.minimum(envelope, 0.5 - 0.5 * np.cos(np.pi * np.clip((duration_s - tau) / taper_s, 0.0, 1.0)))
+        envelope = np.minimum(
+            envelope, 0.5 - 0.5 * np.cos(np.pi * np.clip((duration_s - tau) / taper_s, 0.0, 1.0))
+        )
     return np.where(inside, np.sin(phase) * envelope, 0.0)
 
 
@@ -571,7 +598,8 @@ def card_segments(config: ValidationConfig, opt: FlightOptions) -> tuple[list[Se
     Parameters
     ----------
     config : ValidationConfig
-        The channels flown (config order; a MIMO channel's inputs one after the other) and their grids (sweep bands).
+        The channels flown (config order; a MIMO channel's inputs one after the other) and their grids (sweep
+        bands).
     opt : FlightOptions
         The card: excitation, rounds, sweep lengths, gaps, ``duration_s``.
     """
@@ -580,11 +608,18 @@ def card_segments(config: ValidationConfig, opt: FlightOptions) -> tuple[list[Se
     t = opt.quiet_s if opt.trim_s is None else opt.trim_s
     doublet_s = 2 * opt.doublet_half_period_s
     for _ in range(opt.sweeps_per_channel):
-        bands = {name: (ch.frequencies.min_rad_s * opt.band_low_factor, ch.frequencies.max_rad_s * opt.band_high_factor)
-                 for name, ch in config.channels.items()}
+        bands = {
+            name: (
+                ch.frequencies.min_rad_s * opt.band_low_factor,
+                ch.frequencies.max_rad_s * opt.band_high_factor,
+            )
+            for name, ch in config.channels.items()
+        }
         if opt.excitation == "multisine-orthogonal":
             length = opt.multisine_period_s * opt.multisine_periods
-            segments += [Segment(name, "multisine-orthogonal", t, t + length, bands[name], j) for name, j in units]
+            segments += [
+                Segment(name, "multisine-orthogonal", t, t + length, bands[name], j) for name, j in units
+            ]
             t += length + opt.quiet_s
             continue
         for name, j in units:
@@ -608,7 +643,8 @@ def card_segments(config: ValidationConfig, opt: FlightOptions) -> tuple[list[Se
 
 def pilot_trim(t_s: np.ndarray, segments: list[Segment], duration_s: float, opt: FlightOptions,
                 rng: np.random.Generator) -> np.ndarray:
-    """One surface's trim [rad]: a random constant (``trim_offset_rad``) plus the pilot's slow re-trims in the gaps.
+    """One surface's trim [rad]: a random constant (``trim_offset_rad``) plus the pilot's slow re-trims in the
+    gaps.
 
     In about half of the quiet gaps between manoeuvres the pilot ramps the trim (over 1-3 s) by
     ``trim_step_rad`` up or down (a bounded random walk). A re-trim moves the equilibrium the linear model is
@@ -650,7 +686,7 @@ def _gust(n: int, fs_hz: float, opt: FlightOptions, rng: np.random.Generator) ->
     white = rng.standard_normal(n + int(5 * fs_hz))
     if rms == 0.0:
         return np.zeros(n)
-    from scipy import signal   # here: scipy.signal is slow to import
+    from scipy import signal  # here: scipy.signal is slow to import
 
     b, a = signal.butter(2, opt.gust_bandwidth_rad_s / (2 * math.pi), fs=fs_hz)
     coloured = signal.lfilter(b, a, white)[-n:]
@@ -820,7 +856,8 @@ def simulate_flight(config: ValidationConfig, hidden: dict[str, list[dict]] | No
 
 def sample_topics(plans: dict, measured: dict, t_s: np.ndarray, duration_s: float, opt: FlightOptions,
                    rng: np.random.Generator) -> dict[str, TopicSeries]:
-    """Topic -> :class:`TopicSeries`: each topic of ``plans`` sampled at its rate with jitter, drops and latency.
+    """Topic -> :class:`TopicSeries`: each topic of ``plans`` sampled at its rate with jitter, drops and
+    latency.
 
     Parameters
     ----------
@@ -863,8 +900,8 @@ def sample_topics(plans: dict, measured: dict, t_s: np.ndarray, duration_s: floa
 
 def _logged(spec: SignalSpec, value: np.ndarray, channel: str, stream: str, opt: FlightOptions) -> np.ndarray:
     """What a topic carries for a signal ``value`` (SI, the models' frame): the config's raw units
-    (:meth:`SignalSpec.raw`), then the mistakes flown (:class:`FlightOptions`: a reversed stream, surfaces in degrees,
-    rates in ROS's body frame)."""
+    (:meth:`SignalSpec.raw`), then the mistakes flown (:class:`FlightOptions`: a reversed stream, surfaces in
+    degrees, rates in ROS's body frame)."""
     raw = spec.raw(value)
     if (channel, stream) in opt.flips:
         raw = -raw
@@ -879,8 +916,10 @@ def _topic_time_offset(topic: str, entries) -> float:
     """The config's ``time_offset_s`` of a topic's streams (one value: the stamps are the topic's)."""
     offsets = {float(spec.time_offset_s) for _, stream, spec, _ in entries if stream != "trigger"}
     if len(offsets) > 1:
-        raise ConfigError(f"simulate: the streams of {topic} have different time_offset_s ({sorted(offsets)}): a "
-                          f"simulated topic has one clock")
+        raise ConfigError(
+            f"simulate: the streams of {topic} have different time_offset_s ({sorted(offsets)}): a "
+            f"simulated topic has one clock"
+        )
     return offsets.pop() if offsets else 0.0
 
 
@@ -924,9 +963,13 @@ def channel_deviation(name: str, t_s: np.ndarray, segments: list[Segment], opt: 
             u += opt.sweep_amplitude_rad * multisine(tau, opt.multisine_period_s, opt.multisine_periods,
                                                      *seg.band_rad_s, share=share)
         elif seg.kind == "3211":
-            u += opt.doublet_amplitude_rad * multistep(tau, opt.multistep_unit_s, (3, 2, 1, 1), opt.step_rise_s)
+            u += opt.doublet_amplitude_rad * multistep(
+                tau, opt.multistep_unit_s, (3, 2, 1, 1), opt.step_rise_s
+            )
         else:
-            u += opt.doublet_amplitude_rad * multistep(tau, opt.doublet_half_period_s, (1, 1), opt.step_rise_s)
+            u += opt.doublet_amplitude_rad * multistep(
+                tau, opt.doublet_half_period_s, (1, 1), opt.step_rise_s
+            )
     return u
 
 
@@ -947,8 +990,8 @@ def multisine(t_s: np.ndarray, period_s: float, periods: int, w0_rad_s: float, w
 
     The harmonics ``k 2 pi / period_s`` within ``[w0, w1]`` of equal amplitude, phases
     ``-pi j (j - 1) / n`` (Schroeder: low peak factor); ``share = (c, n)`` keeps the harmonics with
-    ``k mod n == c`` only (orthogonal multisines on n axes flown at once). A half-cosine fade of ``taper_s`` at
-    both ends.
+    ``k mod n == c`` only (orthogonal multisines on n axes flown at once). A half-cosine fade of ``taper_s``
+    at both ends.
 
     Parameters
     ----------
@@ -1057,28 +1100,41 @@ def _mimo_outputs(model, t_s: np.ndarray, u: np.ndarray) -> np.ndarray:
     y = np.zeros((p, t_s.size))
     for i in range(p):
         for j in range(m):
-            element = LinearModel.from_spec({"state_space": {"A": a.tolist(), "B": b[:, [j]].tolist(),
-                                                             "C": c[[i], :].tolist(), "D": [[float(d[i, j])]]}})
+            element = LinearModel.from_spec(
+                {
+                    "state_space": {
+                        "A": a.tolist(),
+                        "B": b[:, [j]].tolist(),
+                        "C": c[[i], :].tolist(),
+                        "D": [[float(d[i, j])]],
+                    }
+                }
+            )
             y[i] += np.asarray(element.simulate(t_s, u[j]), float).ravel()
     return y
 
 
 def _mimo_measured(name: str, channel, u: np.ndarray, y: np.ndarray, opt: FlightOptions) -> dict:
-    """``(name, stream) -> (series, noise std, lsb)`` of a MIMO channel's streams ``inputs[j]``, ``outputs[i]``."""
+    """``(name, stream) -> (series, noise std, lsb)`` of a MIMO channel's streams ``inputs[j]``,
+    ``outputs[i]``."""
     from gap_validation.core.config import mimo_stream
 
     out = {(name, mimo_stream("inputs", j)): (u[j], opt.surface_noise_rad * opt.noise, opt.surface_lsb_rad)
            for j in range(len(channel.inputs))}
-    out.update({(name, mimo_stream("outputs", i)): (y[i], opt.gyro_noise_rad_s * opt.noise, opt.gyro_lsb_rad_s)
-                for i in range(len(channel.outputs))})
+    out.update(
+        {
+            (name, mimo_stream("outputs", i)): (y[i], opt.gyro_noise_rad_s * opt.noise, opt.gyro_lsb_rad_s)
+            for i in range(len(channel.outputs))
+        }
+    )
     return out
 
 
 # --------------------------------------------------------------------------------------------- closed loop
 # Issue 13: a rate damper closing the loop around each channel with the manoeuvre injected inside it (the
-# injected signal logged as the excitation), turbulence, interconnected surfaces (``coupling``) and the response
-# of one channel's rate to another channel's surface (``cross_responses``). Kept apart from the open-loop flight
-# above: without these options a flight is exactly what it was.
+# injected signal logged as the excitation), turbulence, interconnected surfaces (``coupling``) and the
+# response of one channel's rate to another channel's surface (``cross_responses``). Kept apart from the
+# open-loop flight above: without these options a flight is exactly what it was.
 
 #: Spawn keys of the closed loop's random streams (gyro noise fed back, turbulence).
 _LOOP_NOISE_STREAM, _TURBULENCE_STREAM = 2, 3
@@ -1096,8 +1152,10 @@ def _check_loop_options(opt: FlightOptions) -> None:
     check_number(opt.turbulence_bandwidth_rad_s, "simulation option turbulence_bandwidth_rad_s", POSITIVE,
                  expected="a number > 0")
     if opt.coupling and opt.closed_loop_gain_margin_db is not None:
-        raise ConfigError("simulation options coupling and closed_loop_gain_margin_db: not available together "
-                          "yet (fly them as separate flights)")
+        raise ConfigError(
+            "simulation options coupling and closed_loop_gain_margin_db: not available together "
+            "yet (fly them as separate flights)"
+        )
 
 
 #: Washout of the simulated rate damper [rad/s]: ``C(s) = K s / (s + a)`` (no feedback in steady state, so the
@@ -1110,9 +1168,9 @@ def damper_gain(model: LinearModel, gain_margin_db: float, loop_delay_s: float,
     """Gain K of a rate damper ``u = r - C(s) y``, ``C = K s / (s + a)`` (washout ``a`` =
     :data:`WASHOUT_RAD_S`), with the given gain margin around ``model`` and a loop delay.
 
-    The sign makes the feedback negative in the channel's band (``K Re P(j w) > 0`` at 1 rad/s); ``|K|`` is the
-    critical gain (smallest ``1 / |P W|`` where the phase of ``K W(j w) P(j w) exp(-j w T)`` crosses -180 deg)
-    over ``10^(gain_margin_db / 20)``.
+    The sign makes the feedback negative in the channel's band (``K Re P(j w) > 0`` at 1 rad/s); ``|K|`` is
+    the critical gain (smallest ``1 / |P W|`` where the phase of ``K W(j w) P(j w) exp(-j w T)`` crosses -180
+    deg) over ``10^(gain_margin_db / 20)``.
 
     Parameters
     ----------
@@ -1217,8 +1275,10 @@ def _loop_flight(config: ValidationConfig, truth: dict, references: dict, gusts:
         return None
     mimo = [name for name, ch in config.channels.items() if ch.is_mimo]
     if mimo:
-        raise ConfigError(f"closed loop, turbulence, coupling and cross responses: not available for the MIMO "
-                          f"channel {mimo[0]} yet (fly it open loop)")
+        raise ConfigError(
+            f"closed loop, turbulence, coupling and cross responses: not available for the MIMO "
+            f"channel {mimo[0]} yet (fly it open loop)"
+        )
     from scipy import signal
 
     n = t_s.size
@@ -1233,8 +1293,10 @@ def _loop_flight(config: ValidationConfig, truth: dict, references: dict, gusts:
         for name in config.channels:
             sampled = [e["type"] for e in truth[name].effects if EFFECTS[e["type"]].time_domain is not None]
             if sampled:
-                raise ConfigError(f"closed loop: channel {name}: {sampled[0]} is simulated on the surface samples, "
-                                  f"which the discretised loop does not have (fly it open loop)")
+                raise ConfigError(
+                    f"closed loop: channel {name}: {sampled[0]} is simulated on the surface samples, "
+                    f"which the discretised loop does not have (fly it open loop)"
+                )
         noise_rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(_LOOP_NOISE_STREAM,)))
         delay_s = opt.loop_delay_s if opt.loop_delay_s is not None else 1.0 / opt.surface_rate_hz
         n_c = max(1, int(round(delay_s * fs_hz)))
@@ -1247,8 +1309,10 @@ def _loop_flight(config: ValidationConfig, truth: dict, references: dict, gusts:
             den_w, num_w = np.convolve(den, wash_a), np.convolve(num, wash_b)
             closed = _shifted(den_w, 0, size) + k * _shifted(num_w, n_c + n_p, size)
             if np.max(np.abs(np.roots(np.trim_zeros(closed, "b")))) >= 1.0:
-                raise ConfigError(f"closed loop: channel {name}: the rate damper K = {k:.4g} does not stabilise the "
-                                  f"simulated loop (gain margin {opt.closed_loop_gain_margin_db:g} dB)")
+                raise ConfigError(
+                    f"closed loop: channel {name}: the rate damper K = {k:.4g} does not stabilise the "
+                    f"simulated loop (gain margin {opt.closed_loop_gain_margin_db:g} dB)"
+                )
             noise[name] = opt.gyro_noise_rad_s * opt.noise * noise_rng.standard_normal(n)
             disturbance = gusts[name] + bands.get(name, 0.0) + noise[name]
             fed_back = signal.lfilter(_shifted(k * np.convolve(den, wash_b), n_c, size), closed, disturbance)
@@ -1308,7 +1372,11 @@ def _extra_measured(plans: dict, config: ValidationConfig, references: dict, mea
                 measured[(name, stream)] = (np.asarray(references[name], float), 0.0, 0.0)
             elif stream == AIRSPEED_STREAM:    # this airframe flies at one condition: the model's
                 trim = config.channels[name].trim_airspeed_m_s
-                measured[(name, stream)] = (np.full(np.shape(next(iter(references.values()))), trim), 0.0, 0.0)
+                measured[(name, stream)] = (
+                    np.full(np.shape(next(iter(references.values()))), trim),
+                    0.0,
+                    0.0,
+                )
             elif stream.startswith("other_input"):
                 owner = by_signal.get((spec.topic, spec.field))
                 if owner is not None:

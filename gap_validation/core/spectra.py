@@ -2,8 +2,8 @@
 
 Every manoeuvre (a sweep, a multisine, a 3-2-1-1, a doublet ...) is one *record*: the grid samples of its
 signals from the trim before it to the trim after it. A record is transformed whole (``numpy.fft.rfft``,
-normalised by ``sqrt(N)`` so that white noise has the same variance per bin whatever the record length) and the
-response at each analysis frequency ``w`` is estimated from the DFT bins around it, the *band*
+normalised by ``sqrt(N)`` so that white noise has the same variance per bin whatever the record length) and
+the response at each analysis frequency ``w`` is estimated from the DFT bins around it, the *band*
 ``|w_k - w| <= max(band_fraction w, min_bins/2 spacing)``, by the local polynomial method (Pintelon and
 Schoukens, *System Identification: A Frequency Domain Approach*, 2nd ed., ch. 7; Pintelon et al.,
 "Estimation of nonparametric noise and FRF models for multivariable systems", MSSP 24, 2010)::
@@ -11,19 +11,19 @@ Schoukens, *System Identification: A Frequency Domain Approach*, 2nd ed., ch. 7;
     Y(w_k) = sum_j H_j(r) X_j(w_k) + T(r) + V(w_k),   r = (w_k - w) / (band_fraction w)
 
 with ``H_j`` (the response from input j) and ``T`` (the transient: initial and final conditions of a record
-that is not periodic, leakage) polynomials in ``r`` of low degree and ``V`` the noise. The transient has its own
-coefficients in every record; the response polynomial is shared by all records, so the normal equations of the
-records add up (the transient is projected out of each record first: Frisch-Waugh-Lovell) and the estimate is the
-pooled least-squares (or, with an excitation signal as instrument, instrumental-variable) solution. What is kept
-per analysis frequency is a handful of small matrices: memory does not grow with the flight.
+that is not periodic, leakage) polynomials in ``r`` of low degree and ``V`` the noise. The transient has its
+own coefficients in every record; the response polynomial is shared by all records, so the normal equations of
+the records add up (the transient is projected out of each record first: Frisch-Waugh-Lovell) and the estimate
+is the pooled least-squares (or, with an excitation signal as instrument, instrumental-variable) solution.
+What is kept per analysis frequency is a handful of small matrices: memory does not grow with the flight.
 
 What it gives per frequency: the response ``H(w)`` (the polynomial at r = 0), the noise variance from the
-residuals with its real degrees of freedom (bins minus every fitted coefficient), the variance of ``H`` and the
-multiple coherence ``1 - RSS / |Y|^2`` (fraction of the output explained, after the transient). A record counts
-at a frequency only where its input is excited there (:func:`band_excited`: power at the band's centre within
-20 dB of the record's in-band level and 20 dB above the input noise floor, and no extrapolation from one side
-of the band) and where the band stays within ``max_band_fraction`` of ``w`` (a short record cannot resolve a low
-frequency: its bins are too far apart).
+residuals with its real degrees of freedom (bins minus every fitted coefficient), the variance of ``H`` and
+the multiple coherence ``1 - RSS / |Y|^2`` (fraction of the output explained, after the transient). A record
+counts at a frequency only where its input is excited there (:func:`band_excited`: power at the band's centre
+within 20 dB of the record's in-band level and 20 dB above the input noise floor, and no extrapolation from
+one side of the band) and where the band stays within ``max_band_fraction`` of ``w`` (a short record cannot
+resolve a low frequency: its bins are too far apart).
 
 Bias. The local polynomial follows ``H`` only approximately over a wide band, and a lightly damped mode or a
 short record makes the band wide. :meth:`PooledBands.expected` therefore gives the estimate a *model* would
@@ -31,12 +31,13 @@ produce through the very same estimator (the model expanded as a polynomial of d
 bands the records used): comparing the data with that, rather than with the model at ``w``, removes the
 estimator's smoothing bias from the test whether data and model agree (the diagnosis does this).
 
-Slow streams. The streams reach the grid by interpolation, whose gain :func:`interpolation_gain` restores; below a
-stream's Nyquist frequency that is exact (the images of its sampling all lie above it), and the bands must lie below
-what every stream resolves (:func:`resolved_hz`): a quarter of its rate, or for a slow stream whose sampling faster
-streams witness, its Nyquist frequency (PX4's servos at 10 Hz: 31.4 rad/s, sweeps validated to 28.6 rad/s). What
-the sampling folds back from above the Nyquist frequency (aliasing) is in the logged samples and no filter removes
-it: a band counts only where the witnesses show it small (:data:`MIRROR_MARGIN`, :data:`FOLD_NEAR`).
+Slow streams. The streams reach the grid by interpolation, whose gain :func:`interpolation_gain` restores;
+below a stream's Nyquist frequency that is exact (the images of its sampling all lie above it), and the bands
+must lie below what every stream resolves (:func:`resolved_hz`): a quarter of its rate, or for a slow stream
+whose sampling faster streams witness, its Nyquist frequency (PX4's servos at 10 Hz: 31.4 rad/s, sweeps
+validated to 28.6 rad/s). What the sampling folds back from above the Nyquist frequency (aliasing) is in the
+logged samples and no filter removes it: a band counts only where the witnesses show it small
+(:data:`MIRROR_MARGIN`, :data:`FOLD_NEAR`).
 """
 from __future__ import annotations
 
@@ -46,10 +47,29 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-__all__ = ["SPECTRA_DEFAULTS", "BandSums", "record_bands", "interpolation_gain", "resolved_hz", "stream_limit_hz",
-           "band_excited", "LocalEstimate", "solve_bands", "expected_estimate", "EXTRA_ORDER", "MatrixEstimate",
-           "solve_matrix", "expected_matrix", "excitation_coherence", "partial_coherence", "RESOLVED_FRACTION",
-           "SLOW_GRID_FRACTION", "MIRROR_MARGIN", "FOLD_NEAR", "sweep_points"]
+__all__ = [
+    "SPECTRA_DEFAULTS",
+    "BandSums",
+    "record_bands",
+    "interpolation_gain",
+    "resolved_hz",
+    "stream_limit_hz",
+    "band_excited",
+    "LocalEstimate",
+    "solve_bands",
+    "expected_estimate",
+    "EXTRA_ORDER",
+    "MatrixEstimate",
+    "solve_matrix",
+    "expected_matrix",
+    "excitation_coherence",
+    "partial_coherence",
+    "RESOLVED_FRACTION",
+    "SLOW_GRID_FRACTION",
+    "MIRROR_MARGIN",
+    "FOLD_NEAR",
+    "sweep_points",
+]
 
 #: Options of the local polynomial estimate (estimator options of the same names).
 SPECTRA_DEFAULTS = {
@@ -60,67 +80,74 @@ SPECTRA_DEFAULTS = {
     "transient_order": 0,         # degree of the transient polynomial (one per record; -1: none)
 }
 #: :func:`record_bands` status codes: why a record does not count at a frequency (0: it counts).
-STATUS_NOT_EXCITED, STATUS_TOO_SHORT, STATUS_ABOVE_GRID, STATUS_TOO_FEW_BINS, STATUS_BELOW_TRIM = 1, 2, 3, 4, 5
+STATUS_NOT_EXCITED, STATUS_TOO_SHORT, STATUS_ABOVE_GRID, STATUS_TOO_FEW_BINS, STATUS_BELOW_TRIM = (
+    1,
+    2,
+    3,
+    4,
+    5,
+)
 #: Extra polynomial degree over which a model is expanded for :func:`expected_estimate`.
 EXTRA_ORDER = 4
 #: A band's centre power must be at least this fraction of the record's in-band level (20 dB) ...
 _RELATIVE_EXCITATION = 1e-2
-#: ... and at least this multiple of the input's noise floor (20 dB), when only the noise at the record's ends is
-#: known (white noise from half a second of trim: it says nothing of coloured trim motion) ...
+#: ... and at least this multiple of the input's noise floor (20 dB), when only the noise at the record's ends
+#: is known (white noise from half a second of trim: it says nothing of coloured trim motion) ...
 _EXCITATION_SNR = 1e2
-#: The floor is the trim motion between the manoeuvres wherever it was measured on this flight at that frequency
-#: (:class:`gap_validation.core.background.TrimSpectrum`): the manoeuvre then carries at least 99 % of the input's
-#: power there, and what is not the manoeuvre -- sensor noise, which biases the response low by its share (errors
-#: in variables), or trim motion -- stays within the 1 % systematic floor of the diagnosis. A line elsewhere in the
-#: spectrum (a vibration answered by a rate loop) raises the floor only at its own frequencies. Under "nothing
-#: flown" the central bins' mean power over the background is Gamma(n, 1/n) on n >= 1 bins: it never reaches 100.
-#: A sampled input carries a frequency only while it is band-limited: its power near the top of what its stream
-#: resolves (:data:`ALIAS_BAND`, a fraction of the Nyquist frequency of the input's own rate or of the grid) must
-#: stay this far below its power at the frequency (20 dB): what lies there continues, folded back unseen, above the
-#: Nyquist frequency. A manoeuvre with steps (a doublet, a 3-2-1-1) has power
-#: falling only as 1/w^2 and continues above the Nyquist frequency, folded back unseen: a step sampled between its
-#: samples is timed within half a sample interval only, an error in phase of w T/2 that grows with frequency (a
-#: doublet logged at 50 Hz: 30 deg at 56 rad/s, seen on the second simulator). The error relative to the step's
-#: response is about the square root of that power ratio (10 % at 20 dB).
+#: The floor is the trim motion between the manoeuvres wherever it was measured on this flight at that
+#: frequency (:class:`gap_validation.core.background.TrimSpectrum`): the manoeuvre then carries at least 99 %
+#: of the input's power there, and what is not the manoeuvre -- sensor noise, which biases the response low by
+#: its share (errors in variables), or trim motion -- stays within the 1 % systematic floor of the diagnosis.
+#: A line elsewhere in the spectrum (a vibration answered by a rate loop) raises the floor only at its own
+#: frequencies. Under "nothing flown" the central bins' mean power over the background is Gamma(n, 1/n) on n
+#: >= 1 bins: it never reaches 100. A sampled input carries a frequency only while it is band-limited: its
+#: power near the top of what its stream resolves (:data:`ALIAS_BAND`, a fraction of the Nyquist frequency of
+#: the input's own rate or of the grid) must stay this far below its power at the frequency (20 dB): what lies
+#: there continues, folded back unseen, above the Nyquist frequency. A manoeuvre with steps (a doublet, a
+#: 3-2-1-1) has power falling only as 1/w^2 and continues above the Nyquist frequency, folded back unseen: a
+#: step sampled between its samples is timed within half a sample interval only, an error in phase of w T/2
+#: that grows with frequency (a doublet logged at 50 Hz: 30 deg at 56 rad/s, seen on the second simulator).
+#: The error relative to the step's response is about the square root of that power ratio (10 % at 20 dB).
 ALIAS_MARGIN = 1e2
-#: Band near the top of what a stream resolves whose input power :data:`ALIAS_MARGIN` compares [fraction of the
-#: stream's Nyquist frequency].
+#: Band near the top of what a stream resolves whose input power :data:`ALIAS_MARGIN` compares [fraction of
+#: the stream's Nyquist frequency].
 ALIAS_BAND = (0.6, 0.8)
 #: Bins with less than this fraction of the largest input power near a frequency carry no input (between a
 #: multisine's lines, another axis' harmonics, the nulls of a doublet): they are left out of its band.
 _BIN_FLOOR = 1e-2
 #: Highest usable bin relative to the Nyquist frequency of the grid (interpolation droop above).
 _NYQUIST_FRACTION = 0.8
-#: A stream sampled at fs resolves frequencies up to this fraction of fs (half its Nyquist frequency) when nothing
-#: faster shows what its sampling folds back: the interpolation onto the grid loses magnitude below it (cubic: 0.9 %
-#: at 0.15 fs, 6 % at 0.25 fs), which :func:`interpolation_gain` restores. A stream at half the grid's rate (50 Hz on
-#: the 100 Hz grid) keeps it: the images of its sampling fold back onto the band through the grid's own sampling,
-#: 0.6 % at 0.25 fs but 1.4 % at 0.45 fs.
+#: A stream sampled at fs resolves frequencies up to this fraction of fs (half its Nyquist frequency) when
+#: nothing faster shows what its sampling folds back: the interpolation onto the grid loses magnitude below it
+#: (cubic: 0.9 % at 0.15 fs, 6 % at 0.25 fs), which :func:`interpolation_gain` restores. A stream at half the
+#: grid's rate (50 Hz on the 100 Hz grid) keeps it: the images of its sampling fold back onto the band through
+#: the grid's own sampling, 0.6 % at 0.25 fs but 1.4 % at 0.45 fs.
 RESOLVED_FRACTION = 0.25
-#: A slow stream is read up to its Nyquist frequency (every bin of a band below it) when it is sampled at no more
-#: than this fraction of the grid's rate (the images of its sampling then fold back onto the grid by less than
-#: 0.1 %) and every stream of the other side (the outputs of an input, the excitation of an output) resolves its
-#: whole rate (sampled at least four times faster): those *witnesses* show what its sampling folds back
-#: (:data:`MIRROR_MARGIN`). A faster stream resolves at least as much as a slower one would (no step down):
-#: ``max(RESOLVED_FRACTION fs, min(fs, SLOW_GRID_FRACTION grid, RESOLVED_FRACTION witness) / 2)``
-#: (:func:`resolved_hz`); from twice this fraction of the grid's rate on (40 Hz on the 100 Hz grid, well below the
-#: usual 50 Hz surfaces, jitter and all) that is a quarter of its rate, as for every stream before.
+#: A slow stream is read up to its Nyquist frequency (every bin of a band below it) when it is sampled at no
+#: more than this fraction of the grid's rate (the images of its sampling then fold back onto the grid by less
+#: than 0.1 %) and every stream of the other side (the outputs of an input, the excitation of an output)
+#: resolves its whole rate (sampled at least four times faster): those *witnesses* show what its sampling
+#: folds back (:data:`MIRROR_MARGIN`). A faster stream resolves at least as much as a slower one would (no
+#: step down): ``max(RESOLVED_FRACTION fs, min(fs, SLOW_GRID_FRACTION grid, RESOLVED_FRACTION witness) / 2)``
+#: (:func:`resolved_hz`); from twice this fraction of the grid's rate on (40 Hz on the 100 Hz grid, well below
+#: the usual 50 Hz surfaces, jitter and all) that is a quarter of its rate, as for every stream before.
 SLOW_GRID_FRACTION = 0.2
-#: Sampling at fs folds a frequency fs - f above the Nyquist frequency onto f. Where a slow stream is read up to its
-#: Nyquist frequency, a band counts only where its witnesses' power at the mirror frequencies ``fs - f`` stays this
-#: far (30 dB) below their power in the band: the part of the slow stream folded onto the band then stays below
-#: about 3 % of it in amplitude (the response's error: about a third of that, measured on chirps ending near
-#: the Nyquist frequency). This replaces :data:`ALIAS_BAND` for such a stream: a sweep may then run up to its
-#: Nyquist frequency; its tail past it, a manoeuvre flown past it, a doublet's steps are refused where they fold
-#: (with :data:`FOLD_NEAR` below 0.4 of the rate).
+#: Sampling at fs folds a frequency fs - f above the Nyquist frequency onto f. Where a slow stream is read up
+#: to its Nyquist frequency, a band counts only where its witnesses' power at the mirror frequencies ``fs -
+#: f`` stays this far (30 dB) below their power in the band: the part of the slow stream folded onto the band
+#: then stays below about 3 % of it in amplitude (the response's error: about a third of that, measured on
+#: chirps ending near the Nyquist frequency). This replaces :data:`ALIAS_BAND` for such a stream: a sweep may
+#: then run up to its Nyquist frequency; its tail past it, a manoeuvre flown past it, a doublet's steps are
+#: refused where they fold (with :data:`FOLD_NEAR` below 0.4 of the rate).
 MIRROR_MARGIN = 1e3
-#: The witnesses' power at the mirror frequency ``fs - f`` tells what folds onto f while the response there is about
-#: the response at f: for f above this fraction of fs (fs - f within 1.5 times f). Below it, what folds back comes
-#: from beyond ``(1 - FOLD_NEAR) fs``, where a manoeuvre's power only falls off (a sweep's tail, noise): at most what
-#: folds onto ``[FOLD_NEAR, 1/2] fs`` (:func:`_fold_bound`: all of the stream's power there where the witnesses
-#: cannot tell), which a frequency's own power must exceed by :data:`ALIAS_MARGIN` (20 dB: what folds that far comes
-#: from another part of a sweep, so it biases the response by about its power ratio, 1 %). A manoeuvre flown far
-#: past the Nyquist frequency therefore counts nowhere, as before; steps are held to :data:`ALIAS_BAND` too.
+#: The witnesses' power at the mirror frequency ``fs - f`` tells what folds onto f while the response there is
+#: about the response at f: for f above this fraction of fs (fs - f within 1.5 times f). Below it, what folds
+#: back comes from beyond ``(1 - FOLD_NEAR) fs``, where a manoeuvre's power only falls off (a sweep's tail,
+#: noise): at most what folds onto ``[FOLD_NEAR, 1/2] fs`` (:func:`_fold_bound`: all of the stream's power
+#: there where the witnesses cannot tell), which a frequency's own power must exceed by :data:`ALIAS_MARGIN`
+#: (20 dB: what folds that far comes from another part of a sweep, so it biases the response by about its
+#: power ratio, 1 %). A manoeuvre flown far past the Nyquist frequency therefore counts nowhere, as before;
+#: steps are held to :data:`ALIAS_BAND` too.
 FOLD_NEAR = 0.4
 
 
@@ -129,8 +156,9 @@ class BandSums:
     """Sufficient statistics of the local polynomial fits at F frequencies (one record, or pooled).
 
     With ``m`` inputs, ``q`` instruments (the inputs themselves without an excitation signal) and ``p``
-    outputs, ``nh = m (order + 1)`` response coefficients, ``ne = m (order + EXTRA_ORDER + 1)`` extended ones and
-    ``nz = q (order + 1)`` instrument columns, per frequency (after the record's transient is projected out):
+    outputs, ``nh = m (order + 1)`` response coefficients, ``ne = m (order + EXTRA_ORDER + 1)`` extended ones
+    and ``nz = q (order + 1)`` instrument columns, per frequency (after the record's transient is projected
+    out):
 
     Attributes
     ----------
@@ -189,10 +217,20 @@ class BandSums:
         q = inputs if instruments is None else instruments
         nh, ne, nz = inputs * (order + 1), inputs * (order + EXTRA_ORDER + 1), q * (order + 1)
         c = complex
-        return cls(np.zeros((n_freq, nz, ne), c), np.zeros((n_freq, nz, nz), c), np.zeros((n_freq, nh, nh), c),
-                   np.zeros((n_freq, nz, outputs), c), np.zeros((n_freq, nh, outputs), c),
-                   np.zeros((n_freq, outputs, outputs), c), np.zeros(n_freq, np.int64), np.zeros(n_freq, np.int64),
-                   np.zeros(n_freq, np.int64), np.full(n_freq, np.inf), np.full(n_freq, -np.inf), np.zeros(n_freq))
+        return cls(
+            np.zeros((n_freq, nz, ne), c),
+            np.zeros((n_freq, nz, nz), c),
+            np.zeros((n_freq, nh, nh), c),
+            np.zeros((n_freq, nz, outputs), c),
+            np.zeros((n_freq, nh, outputs), c),
+            np.zeros((n_freq, outputs, outputs), c),
+            np.zeros(n_freq, np.int64),
+            np.zeros(n_freq, np.int64),
+            np.zeros(n_freq, np.int64),
+            np.full(n_freq, np.inf),
+            np.full(n_freq, -np.inf),
+            np.zeros(n_freq),
+        )
 
     @property
     def inputs(self) -> int:
@@ -311,7 +349,9 @@ def band_bins(w_bins: np.ndarray, w: float, band_fraction: float, min_bins: int,
     return np.sort(cand[np.argsort(dist, kind="stable")[:min_bins]])
 
 
-def band_excited(power: np.ndarray, r: np.ndarray, reference: float, floor: float, alias: float = 0.0) -> bool:
+def band_excited(
+    power: np.ndarray, r: np.ndarray, reference: float, floor: float, alias: float = 0.0
+) -> bool:
     """Whether a record excites its input at a band's centre.
 
     Parameters
@@ -323,18 +363,19 @@ def band_excited(power: np.ndarray, r: np.ndarray, reference: float, floor: floa
     reference : float
         The record's in-band level of ``|X|^2`` (:func:`record_bands`).
     floor : float
-        ``|X|^2`` of what is not the manoeuvre at this frequency: the trim motion measured between the manoeuvres,
-        else the input's noise (its variance per sample); 0 when unknown.
+        ``|X|^2`` of what is not the manoeuvre at this frequency: the trim motion measured between the
+        manoeuvres, else the input's noise (its variance per sample); 0 when unknown.
     alias : float
-        The record's mean ``|X|^2`` near the top of what its excitation's stream resolves (:data:`ALIAS_BAND`).
+        The record's mean ``|X|^2`` near the top of what its excitation's stream resolves
+        (:data:`ALIAS_BAND`).
 
     Returns
     -------
     bool
         The mean power of the central bins (``|r| <= 0.25`` of the band, at least the nearest bin) is within
-        20 dB of ``reference``, 20 dB above ``floor`` and 20 dB above ``alias`` (:data:`ALIAS_MARGIN`), and the
-        band's power is not all on one side (power-weighted mean of ``r`` within half the band's extent): no
-        extrapolation past the end of a sweep.
+        20 dB of ``reference``, 20 dB above ``floor`` and 20 dB above ``alias`` (:data:`ALIAS_MARGIN`), and
+        the band's power is not all on one side (power-weighted mean of ``r`` within half the band's extent):
+        no extrapolation past the end of a sweep.
     """
     extent = max(float(np.max(np.abs(r))), 1e-12)
     central = np.abs(r) <= 0.25 * extent
@@ -349,8 +390,8 @@ def band_excited(power: np.ndarray, r: np.ndarray, reference: float, floor: floa
 
 
 def _alias_level(power: np.ndarray, w_bins: np.ndarray, dt: float, rates_hz: Sequence[float]) -> float:
-    """Mean excitation power over :data:`ALIAS_BAND` of the lowest Nyquist frequency among the excitation's streams
-    (their own rates, and the grid's); 0 when that band holds no bin."""
+    """Mean excitation power over :data:`ALIAS_BAND` of the lowest Nyquist frequency among the excitation's
+    streams (their own rates, and the grid's); 0 when that band holds no bin."""
     nyquist = math.pi / dt
     for rate in rates_hz:
         if math.isfinite(rate) and rate > 0:
@@ -362,8 +403,10 @@ def _alias_level(power: np.ndarray, w_bins: np.ndarray, dt: float, rates_hz: Seq
 def _kernel_gain_table(cubic: bool) -> tuple[np.ndarray, np.ndarray]:
     t = np.linspace(-2.0, 2.0, 4001)
     a = np.abs(t)
-    if cubic:        # Keys' cubic convolution with a = -1/2 (Catmull-Rom on uniform samples)
-        h = np.where(a < 1, 1.5 * a ** 3 - 2.5 * a ** 2 + 1, np.where(a < 2, -0.5 * a ** 3 + 2.5 * a ** 2 - 4 * a + 2, 0))
+    if cubic:  # Keys' cubic convolution with a = -1/2 (Catmull-Rom on uniform samples)
+        h = np.where(
+            a < 1, 1.5 * a**3 - 2.5 * a**2 + 1, np.where(a < 2, -0.5 * a**3 + 2.5 * a**2 - 4 * a + 2, 0)
+        )
     else:            # linear interpolation: the triangle
         h = np.clip(1.0 - a, 0.0, None)
     nu = np.linspace(0.0, 0.5, 501)
@@ -399,9 +442,10 @@ def interpolation_gain(w_rad_s: np.ndarray, rate_hz: float, cubic: bool = True) 
 
 
 def stream_limit_hz(rate_hz: float, grid_hz: float, witness_hz: float) -> float:
-    """Highest frequency a band may reach with a stream sampled at ``rate_hz`` [Hz]: ``max(RESOLVED_FRACTION rate,
-    min(rate, SLOW_GRID_FRACTION grid_hz, RESOLVED_FRACTION witness_hz) / 2)`` (:data:`SLOW_GRID_FRACTION`); above
-    ``RESOLVED_FRACTION rate`` the stream is *folded* (:data:`MIRROR_MARGIN`).
+    """Highest frequency a band may reach with a stream sampled at ``rate_hz`` [Hz]: ``max(RESOLVED_FRACTION
+    rate, min(rate, SLOW_GRID_FRACTION grid_hz, RESOLVED_FRACTION witness_hz) / 2)``
+    (:data:`SLOW_GRID_FRACTION`); above ``RESOLVED_FRACTION rate`` the stream is *folded*
+    (:data:`MIRROR_MARGIN`).
 
     Parameters
     ----------
@@ -421,10 +465,11 @@ def resolved_hz(rates_hz: Sequence[float], inputs: int, outputs: int,
     """Highest frequency a band may reach with streams at these rates, and the slow streams read up to their
     Nyquist frequency.
 
-    Each stream resolves up to :func:`stream_limit_hz` of its rate, its witness the slowest stream of the other side:
-    the outputs for an input or an excitation, the excitation (else the inputs) for an output. A stream whose limit is
-    above ``RESOLVED_FRACTION fs`` is *folded*: its bands are checked against what its sampling folds back
-    (:data:`MIRROR_MARGIN`). Streams of unknown rate (not finite) limit nothing, nor witness anything.
+    Each stream resolves up to :func:`stream_limit_hz` of its rate, its witness the slowest stream of the
+    other side: the outputs for an input or an excitation, the excitation (else the inputs) for an output. A
+    stream whose limit is above ``RESOLVED_FRACTION fs`` is *folded*: its bands are checked against what its
+    sampling folds back (:data:`MIRROR_MARGIN`). Streams of unknown rate (not finite) limit nothing, nor
+    witness anything.
 
     Parameters
     ----------
@@ -461,10 +506,11 @@ def resolved_hz(rates_hz: Sequence[float], inputs: int, outputs: int,
 
 def _mirror_excess(power: np.ndarray, floor: float, sel: np.ndarray, w_bins: np.ndarray, rate_hz: float,
                    sigmas: float = -3.0) -> float:
-    """What a stream sampled at ``rate_hz`` folds onto a band, seen by its witnesses: their power (``power`` per bin)
-    at the mirror frequencies ``rate - f`` of the band's bins beyond their noise (``floor`` per bin; plus ``sigmas``
-    standard deviations of its sum over the bins: -3 what is surely there, +3 what may be there), relative to their
-    power in the band; inf where a mirror bin lies beyond the spectrum or the band holds no power."""
+    """What a stream sampled at ``rate_hz`` folds onto a band, seen by its witnesses: their power (``power``
+    per bin) at the mirror frequencies ``rate - f`` of the band's bins beyond their noise (``floor`` per bin;
+    plus ``sigmas`` standard deviations of its sum over the bins: -3 what is surely there, +3 what may be
+    there), relative to their power in the band; inf where a mirror bin lies beyond the spectrum or the band
+    holds no power."""
     spacing = w_bins[1] - w_bins[0]
     mirror = np.rint((2.0 * math.pi * rate_hz - w_bins[sel]) / spacing).astype(np.int64)
     if mirror.min() < 0 or mirror.max() >= w_bins.size:
@@ -475,12 +521,12 @@ def _mirror_excess(power: np.ndarray, floor: float, sel: np.ndarray, w_bins: np.
 
 
 def _fold_bound(own: np.ndarray, seen: np.ndarray, floor: float, w_bins: np.ndarray, rate_hz: float) -> float:
-    """Bound of the power per bin a stream sampled at ``rate_hz`` folds onto frequencies below :data:`FOLD_NEAR` of
-    its rate: what lies above ``(1 - FOLD_NEAR) rate`` falls off from there on (a sweep's tail, steps, noise), so it
-    is at most what folds onto each sub-band of ``[FOLD_NEAR, 1/2] rate``: the stream's ``own`` power there times
-    the share of it its witnesses may show folded (their mirror power beyond their noise, three standard deviations
-    included, over their power there: the response barely changes between f and rate - f; at most all of it,
-    where they see nothing). The least of those."""
+    """Bound of the power per bin a stream sampled at ``rate_hz`` folds onto frequencies below
+    :data:`FOLD_NEAR` of its rate: what lies above ``(1 - FOLD_NEAR) rate`` falls off from there on (a sweep's
+    tail, steps, noise), so it is at most what folds onto each sub-band of ``[FOLD_NEAR, 1/2] rate``: the
+    stream's ``own`` power there times the share of it its witnesses may show folded (their mirror power
+    beyond their noise, three standard deviations included, over their power there: the response barely
+    changes between f and rate - f; at most all of it, where they see nothing). The least of those."""
     spacing = w_bins[1] - w_bins[0]
     edges = 2.0 * math.pi * rate_hz * np.linspace(FOLD_NEAR, 0.5, 6)
     bound = math.inf
@@ -494,8 +540,8 @@ def _fold_bound(own: np.ndarray, seen: np.ndarray, floor: float, w_bins: np.ndar
 
 
 def _noise_floor(power: np.ndarray, w_bins: np.ndarray, rate_hz: float, top_rad_s: float) -> float:
-    """Median power per bin of the witnesses between the slow stream's rate and twice it (at most ``top_rad_s``):
-    above both the manoeuvre and its mirror, their noise; 0 when that holds no bin."""
+    """Median power per bin of the witnesses between the slow stream's rate and twice it (at most
+    ``top_rad_s``): above both the manoeuvre and its mirror, their noise; 0 when that holds no bin."""
     lo = 2.0 * math.pi * rate_hz
     band = (w_bins >= lo) & (w_bins <= min(2.0 * lo, top_rad_s))
     return float(np.median(power[band])) if band.any() else 0.0
@@ -505,11 +551,21 @@ def _vander(r: np.ndarray, degree: int) -> np.ndarray:
     return np.vander(r, degree + 1, increasing=True)
 
 
-def record_bands(inputs: np.ndarray, outputs: np.ndarray, dt: float, w_rad_s: np.ndarray, *,
-                 instruments: np.ndarray | None = None, noise_floor: float = 0.0,
-                 background: np.ndarray | None = None, stepped: bool = False,
-                 options: dict | None = None, max_rad_s: float = math.inf, rates_hz: Sequence[float] | None = None,
-                 cubic: bool = True) -> tuple[BandSums, np.ndarray]:
+def record_bands(
+    inputs: np.ndarray,
+    outputs: np.ndarray,
+    dt: float,
+    w_rad_s: np.ndarray,
+    *,
+    instruments: np.ndarray | None = None,
+    noise_floor: float = 0.0,
+    background: np.ndarray | None = None,
+    stepped: bool = False,
+    options: dict | None = None,
+    max_rad_s: float = math.inf,
+    rates_hz: Sequence[float] | None = None,
+    cubic: bool = True,
+) -> tuple[BandSums, np.ndarray]:
     """Local polynomial sums of one record at every analysis frequency, and where the record is excited.
 
     Parameters
@@ -528,25 +584,26 @@ def record_bands(inputs: np.ndarray, outputs: np.ndarray, dt: float, w_rad_s: np
         Variance per sample of the excitation's noise (0: unknown); see :func:`band_excited`.
     background : ndarray, (F,), optional
         The excitation's trim motion between manoeuvres per analysis frequency, in the same units as the
-        record's normalised ``|X|^2`` (:meth:`gap_validation.core.background.TrimSpectrum.power`); NaN where it was
-        not measured (``noise_floor`` stands in there).
+        record's normalised ``|X|^2`` (:meth:`gap_validation.core.background.TrimSpectrum.power`); NaN where
+        it was not measured (``noise_floor`` stands in there).
     options : dict, optional
         :data:`SPECTRA_DEFAULTS` entries.
     max_rad_s : float
-        Highest frequency the measured streams resolve [rad/s] (their sample rates, :func:`resolved_hz`): bands
-        reaching above it do not count.
+        Highest frequency the measured streams resolve [rad/s] (their sample rates, :func:`resolved_hz`):
+        bands reaching above it do not count.
     rates_hz : sequence of float, optional
         Mean sample rate of each signal (inputs, outputs, instruments) [Hz]: each spectrum is divided by its
         :func:`interpolation_gain`, so streams sampled at different rates do not bias the response; and a slow
-        stream read up to its Nyquist frequency (:func:`resolved_hz`) counts only where its witnesses show that
-        little folds back onto the band (:data:`MIRROR_MARGIN`, :data:`FOLD_NEAR`; status 1 otherwise), instead of
+        stream read up to its Nyquist frequency (:func:`resolved_hz`) counts only where its witnesses show
+        that little folds back onto the band (:data:`MIRROR_MARGIN`, :data:`FOLD_NEAR`; status 1 otherwise),
+        instead of
         :data:`ALIAS_BAND`.
     cubic : bool
         The interpolation onto the grid was cubic (else linear).
     stepped : bool
-        The manoeuvre is made of steps (a doublet, a pulse, a multistep): not band-limited, its power near the top of
-        what its stream carries continues above it (:data:`ALIAS_MARGIN`); a sweep or a multisine is held to that
-        only when its own power reaches the band (flown past what the stream carries).
+        The manoeuvre is made of steps (a doublet, a pulse, a multistep): not band-limited, its power near the
+        top of what its stream carries continues above it (:data:`ALIAS_MARGIN`); a sweep or a multisine is
+        held to that only when its own power reaches the band (flown past what the stream carries).
 
     Returns
     -------
@@ -589,17 +646,19 @@ def record_bands(inputs: np.ndarray, outputs: np.ndarray, dt: float, w_rad_s: np
                 fz[j] /= interpolation_gain(w_bins, rates[m + p + j], cubic)
     usable = w_bins <= min(_NYQUIST_FRACTION * math.pi / dt, max_rad_s)
     power = np.sum(np.abs(fz) ** 2, axis=0)
-    bands = [band_bins(w_bins, wi, opts["band_fraction"], int(opts["min_bins"]), opts["max_band_fraction"], power)
-             for wi in w]
+    bands = [
+        band_bins(w_bins, wi, opts["band_fraction"], int(opts["min_bins"]), opts["max_band_fraction"], power)
+        for wi in w
+    ]
     status[:] = [STATUS_TOO_SHORT if b.size == 0 else STATUS_ABOVE_GRID if not usable[b].all() else 0
                  for b in bands]
     bands = [b if status[i] == 0 else b[:0] for i, b in enumerate(bands)]
     folded: tuple = ()
     if rates_hz is not None:
         folded = resolved_hz(rates, m, p, 1.0 / dt)[1]
-    # slow streams read up to their Nyquist frequency: what they fold back is judged from their witnesses' mirror
-    # power per band (below), not from their own power near the top (ALIAS_BAND), unless the manoeuvre is made of
-    # steps (not band-limited: both)
+    # slow streams read up to their Nyquist frequency: what they fold back is judged from their witnesses'
+    # mirror power per band (below), not from their own power near the top (ALIAS_BAND), unless the manoeuvre
+    # is made of steps (not band-limited: both)
     excitation = [j for j in (range(m + p, m + p + q) if instruments is not None else range(m))
                   if stepped or j not in {f[0] for f in folded}]
     alias = _alias_level(power, w_bins, dt, [rates[j] for j in excitation] if rates_hz is not None else [])
@@ -616,7 +675,8 @@ def record_bands(inputs: np.ndarray, outputs: np.ndarray, dt: float, w_rad_s: np
     centre = [float(np.mean(power[b])) for b in bands if b.size]
     reference = float(np.median([c for c in centre if c >= 1e-3 * max(centre)])) if centre else 0.0
     if rates_hz is None or not (stepped or alias >= _RELATIVE_EXCITATION * reference):
-        alias = 0.0          # samples of the grid itself, or a band-limited manoeuvre that stays below the band
+        # samples of the grid itself, or a band-limited manoeuvre that stays below the band
+        alias = 0.0
     for i, (wi, sel) in enumerate(zip(w, bands)):
         if sel.size == 0:
             continue
@@ -628,9 +688,13 @@ def record_bands(inputs: np.ndarray, outputs: np.ndarray, dt: float, w_rad_s: np
                 not band_excited(power[sel], r, reference, float(background[i]), alias):
             status[i] = STATUS_BELOW_TRIM
             continue
-        if any(_mirror_excess(seen, floor, sel, w_bins, rate) * MIRROR_MARGIN > 1.0 or
-               (wi < 2.0 * math.pi * FOLD_NEAR * rate and not float(np.mean(own[sel])) >= ALIAS_MARGIN * bound)
-               for rate, seen, floor, own, bound in mirrors):
+        if any(
+            _mirror_excess(seen, floor, sel, w_bins, rate) * MIRROR_MARGIN > 1.0
+            or (
+                wi < 2.0 * math.pi * FOLD_NEAR * rate and not float(np.mean(own[sel])) >= ALIAS_MARGIN * bound
+            )
+            for rate, seen, floor, own, bound in mirrors
+        ):
             status[i] = STATUS_NOT_EXCITED
             continue
         dof = sel.size - (t_order + 1)
@@ -638,9 +702,10 @@ def record_bands(inputs: np.ndarray, outputs: np.ndarray, dt: float, w_rad_s: np
         # coefficients by one and a half: a few strong lines among weak bins (a sparse multisine in a widened
         # band) fix the response with nothing left to check it against
         carried = float(np.sum(power[sel]) ** 2 / max(np.sum(power[sel] ** 2), 1e-300))
-        # several inputs: only those this record excites here carry coefficients it must determine (single-axis
-        # sweeps flown in turn, MIMO or other_inputs: each record usually one input; the pooled sums determine
-        # them all); with instruments every input's coefficients are solved from this record's instruments
+        # several inputs: only those this record excites here carry coefficients it must determine
+        # (single-axis sweeps flown in turn, MIMO or other_inputs: each record usually one input; the pooled
+        # sums determine them all); with instruments every input's coefficients are solved from this record's
+        # instruments
         m_here = m if m == 1 or instruments is not None else 1
         if dof < 1 + m_here * (order + 1) or carried < 1.5 + m_here * (order + 1):
             status[i] = STATUS_TOO_FEW_BINS
@@ -652,8 +717,13 @@ def record_bands(inputs: np.ndarray, outputs: np.ndarray, dt: float, w_rad_s: np
 
         v_ext = _vander(r, order + EXTRA_ORDER)
         phi_ext = project(np.concatenate([v_ext * fu[j, sel][:, None] for j in range(m)], axis=1))
-        phi = np.concatenate([phi_ext[:, j * (order + EXTRA_ORDER + 1):j * (order + EXTRA_ORDER + 1) + order + 1]
-                              for j in range(m)], axis=1)
+        phi = np.concatenate(
+            [
+                phi_ext[:, j * (order + EXTRA_ORDER + 1) : j * (order + EXTRA_ORDER + 1) + order + 1]
+                for j in range(m)
+            ],
+            axis=1,
+        )
         zeta = phi if instruments is None else project(
             np.concatenate([_vander(r, order) * fz[j, sel][:, None] for j in range(q)], axis=1))
         yp = project(fy[:, sel].T)
@@ -682,8 +752,8 @@ class LocalEstimate:
     coherence : ndarray, (F,)
         Multiple coherence ``1 - RSS / |Y|^2`` of the fit (0 where nothing was estimated).
     noise : ndarray, (F,)
-        Noise variance per bin (residual sum of squares over the degrees of freedom), never below its neighbours'
-        pooled estimate (:func:`neighbour_noise_floor`).
+        Noise variance per bin (residual sum of squares over the degrees of freedom), never below its
+        neighbours' pooled estimate (:func:`neighbour_noise_floor`).
     """
 
     response: np.ndarray
@@ -742,7 +812,8 @@ def solve_bands(sums: BandSums) -> LocalEstimate:
 
 
 def _noise_raise(noise: np.ndarray, dof: np.ndarray) -> np.ndarray:
-    """Factor per frequency that lifts a noise variance to :func:`neighbour_noise_floor` (1 where it is not below)."""
+    """Factor per frequency that lifts a noise variance to :func:`neighbour_noise_floor` (1 where it is not
+    below)."""
     floor = neighbour_noise_floor(noise, dof)
     low = np.isfinite(floor) & (noise > 0) & (floor > noise)
     factor = np.ones(noise.shape)
@@ -754,11 +825,11 @@ def neighbour_noise_floor(noise: np.ndarray, dof: np.ndarray) -> np.ndarray:
     """The noise variance per bin pooled over each analysis frequency and its two neighbours on the grid.
 
     The noise spectrum of a flight (sensor noise, gusts) is smooth in frequency, and neighbouring bands share
-    bins; an estimate on few degrees of freedom, though, scatters (``chi^2(2 d) / 2 d``: on 3 degrees of freedom
-    one in 25 is below a quarter of the truth, one in 100 below a seventh). Taken alone, such a chance low estimate turns an ordinary
-    error into "well outside the random error" (seen at the lowest lines of multisines, where the band widens over
-    few lines: ``benchmarks/false_alarms.py``). A frequency's noise is therefore never taken below the
-    degrees-of-freedom-weighted mean of its own and its neighbours' estimates.
+    bins; an estimate on few degrees of freedom, though, scatters (``chi^2(2 d) / 2 d``: on 3 degrees of
+    freedom one in 25 is below a quarter of the truth, one in 100 below a seventh). Taken alone, such a chance
+    low estimate turns an ordinary error into "well outside the random error" (seen at the lowest lines of
+    multisines, where the band widens over few lines: ``benchmarks/false_alarms.py``). A frequency's noise is
+    therefore never taken below the degrees-of-freedom-weighted mean of its own and its neighbours' estimates.
 
     Parameters
     ----------
@@ -791,9 +862,9 @@ def expected_estimate(sums: BandSums, w_rad_s: np.ndarray, band_fraction: float,
         tuple[np.ndarray, np.ndarray]:
     """The estimate a model would give through this estimator, and how well the expansion holds.
 
-    Under ``Y = P X + T + V`` the pooled estimate's mean is ``(Z^H Phi)^-1 Z^H (P X)``; with ``P`` expanded as a
-    polynomial of degree ``order + EXTRA_ORDER`` over the bands used (``r`` in ``[r_lo, r_hi]``) this is exact up
-    to the expansion error, which is returned too.
+    Under ``Y = P X + T + V`` the pooled estimate's mean is ``(Z^H Phi)^-1 Z^H (P X)``; with ``P`` expanded as
+    a polynomial of degree ``order + EXTRA_ORDER`` over the bands used (``r`` in ``[r_lo, r_hi]``) this is
+    exact up to the expansion error, which is returned too.
 
     Parameters
     ----------
@@ -873,8 +944,8 @@ class MatrixEstimate:
     dof : ndarray, (F,) int
         Degrees of freedom of the noise covariance (bins minus every fitted coefficient).
     multiple_coherence : ndarray, (F, p)
-        Per output: ``1 - RSS_i / |Y_i|^2``, the fraction of output i explained by all inputs together (after the
-        transient); the SISO coherence for m = p = 1.
+        Per output: ``1 - RSS_i / |Y_i|^2``, the fraction of output i explained by all inputs together (after
+        the transient); the SISO coherence for m = p = 1.
     partial_coherence : ndarray, (F, p, m)
         Per element: the fraction of what the *other* inputs leave unexplained in output i that input j
         explains, ``(RSS_i without j - RSS_i) / RSS_i without j`` (partial coherence of output i with input j
@@ -909,9 +980,9 @@ def solve_matrix(sums: BandSums) -> MatrixEstimate:
     """Solve the pooled local polynomial fits of :class:`BandSums` for the whole p x m response matrix.
 
     The same normal equations as :func:`solve_bands` (least squares, or instrumental variables with an
-    excitation signal), read for every input and output: ``H = G_yu G_uu^-1`` pooled over the records (as CIFER
-    does for single-axis sweeps flown in turn: each record excites one input, together they determine the
-    matrix). The covariance of the coefficients is ``Sigma_v (x) (Z^H Phi)^-1 Z^H Z (Z^H Phi)^-H``; the
+    excitation signal), read for every input and output: ``H = G_yu G_uu^-1`` pooled over the records (as
+    CIFER does for single-axis sweeps flown in turn: each record excites one input, together they determine
+    the matrix). The covariance of the coefficients is ``Sigma_v (x) (Z^H Phi)^-1 Z^H Z (Z^H Phi)^-H``; the
     variance of ``H_ij`` is ``Sigma_v[i, i]`` times the diagonal entry of input j's constant coefficient.
 
     Parameters
@@ -922,8 +993,8 @@ def solve_matrix(sums: BandSums) -> MatrixEstimate:
     -------
     MatrixEstimate
         NaN / inf / 0 at a frequency with fewer than one degree of freedom or a singular system. Each output's
-        noise is raised to :func:`neighbour_noise_floor` as in :func:`solve_bands`. For m = p = 1 ``response``,
-        ``variance``, ``dof`` and ``multiple_coherence`` equal :func:`solve_bands`' to the bit.
+        noise is raised to :func:`neighbour_noise_floor` as in :func:`solve_bands`. For m = p = 1
+        ``response``, ``variance``, ``dof`` and ``multiple_coherence`` equal :func:`solve_bands`' to the bit.
     """
     n_freq = sums.bins.size
     nh = sums.ff.shape[1]
@@ -1059,8 +1130,8 @@ def excitation_coherence(sums: BandSums) -> tuple[np.ndarray, np.ndarray]:
 
 def partial_coherence(sums: BandSums) -> np.ndarray:
     """Partial coherence of the first output with the first input, conditioned on the other inputs (least
-    squares): the share of the output power left unexplained by the other inputs that the first input explains,
-    ``(RSS_others - RSS_all) / RSS_others`` (Bendat and Piersol, ch. 7).
+    squares): the share of the output power left unexplained by the other inputs that the first input
+    explains, ``(RSS_others - RSS_all) / RSS_others`` (Bendat and Piersol, ch. 7).
 
     Parameters
     ----------
@@ -1095,10 +1166,10 @@ def partial_coherence(sums: BandSums) -> np.ndarray:
 
 
 def sweep_points(sweep: Any, average_confident: np.ndarray, coherence_threshold: float) -> np.ndarray:
-    """Frequencies of one sweep's (raw) estimate that count for the raw epsilon: those confident in the average
-    (the validation's frequency set) where the sweep itself is coherent. A single sweep has fewer degrees of
-    freedom than the pool, so the minimum rule applies to the average only; raw epsilon is then the sup over
-    the same frequencies as the averaged one, and not smaller for want of points (paper, Table 1).
+    """Frequencies of one sweep's (raw) estimate that count for the raw epsilon: those confident in the
+    average (the validation's frequency set) where the sweep itself is coherent. A single sweep has fewer
+    degrees of freedom than the pool, so the minimum rule applies to the average only; raw epsilon is then the
+    sup over the same frequencies as the averaged one, and not smaller for want of points (paper, Table 1).
 
     Parameters
     ----------

@@ -7,12 +7,12 @@ live flight nobody marks the sweeps, so they are found in the control-surface (i
   (default 2 s) *after removing a least-squares straight line*. Removing the line makes a trim offset, a slow
   trim ramp and the slow part of a sweep invisible, so only oscillation counts; a step (trim change) shows up
   for about one window only.
-* **Quiet level** ``q``: the 10th percentile (:data:`QUIET_QUANTILE`) of the one-second means of ``e`` over the last
-  ``quiet_window_s`` (default 300 s) of trim: blocks whose mean stays below the on-threshold (blocks loud for
-  ``quiet_window_s`` become the new trim). It adapts to units and sensor noise, so thresholds are ratios; a low
-  quantile rather than the minimum, because trim motion is random and its quietest second is several times below
-  its ordinary ones; quiet blocks only, because a manoeuvre that fills most of the first minutes would otherwise
-  raise the level above itself.
+* **Quiet level** ``q``: the 10th percentile (:data:`QUIET_QUANTILE`) of the one-second means of ``e`` over
+  the last ``quiet_window_s`` (default 300 s) of trim: blocks whose mean stays below the on-threshold (blocks
+  loud for ``quiet_window_s`` become the new trim). It adapts to units and sensor noise, so thresholds are
+  ratios; a low quantile rather than the minimum, because trim motion is random and its quietest second is
+  several times below its ordinary ones; quiet blocks only, because a manoeuvre that fills most of the first
+  minutes would otherwise raise the level above itself.
 * **Hysteresis**: a sweep starts when ``e > on_ratio * q`` (default 4) and ends when ``e < off_ratio * q``
   (default 2) has held for ``hold_s`` (default 2 s); short dips (zero crossings of the slow start of a sweep)
   do not end it. ``min_excitation`` (input units, default 1e-6) is an absolute floor for noise-free inputs.
@@ -56,10 +56,10 @@ DETECTOR_DEFAULTS = {
 
 #: The quiet level is this quantile of the one-second block energies of the last ``quiet_window_s``, not their
 #: minimum: trim motion (a pilot's corrections, turbulence answered by the surfaces) is a random process whose
-#: energy over a 2 s window fluctuates by a factor of several (a chi-square on few degrees of freedom), so its own
-#: quietest second, taken as the floor, lets its ordinary seconds cross ``on_ratio`` times it (seen on the second
-#: simulator: 20 "sweeps" of trim on a channel flown 3). A low quantile keeps the floor below any manoeuvre as long
-#: as trim fills a tenth of the window.
+#: energy over a 2 s window fluctuates by a factor of several (a chi-square on few degrees of freedom), so its
+#: own quietest second, taken as the floor, lets its ordinary seconds cross ``on_ratio`` times it (seen on the
+#: second simulator: 20 "sweeps" of trim on a channel flown 3). A low quantile keeps the floor below any
+#: manoeuvre as long as trim fills a tenth of the window.
 QUIET_QUANTILE = 0.1
 _QUIET_BLOCK_S = 1.0        # the quiet level is tracked on one-second means of the excitation energy
 _CHUNK = 8192               # windowed sums are formed over at most this many samples (float64 precision)
@@ -67,7 +67,9 @@ _CHUNK = 8192               # windowed sums are formed over at most this many sa
 
 def _positive(name: str, value: Any) -> float:
     """A detector option's number, > 0 (numeric strings accepted)."""
-    return check_number(value, f"estimator option {name}", POSITIVE, strings=True, expected="a positive finite number")
+    return check_number(
+        value, f"estimator option {name}", POSITIVE, strings=True, expected="a positive finite number"
+    )
 
 
 def detrended_std(x: np.ndarray, window_n: int) -> np.ndarray:
@@ -181,7 +183,9 @@ class SweepDetector:
         self.on_ratio = _positive("on_ratio", on_ratio)
         self.off_ratio = _positive("off_ratio", off_ratio)
         if self.off_ratio > self.on_ratio:
-            raise ConfigError(f"estimator option off_ratio: {off_ratio!r} must not exceed on_ratio {on_ratio!r}")
+            raise ConfigError(
+                f"estimator option off_ratio: {off_ratio!r} must not exceed on_ratio {on_ratio!r}"
+            )
         self.min_excitation = _positive("min_excitation", min_excitation)
         self.window_n = max(3, int(round(_positive("energy_window_s", energy_window_s) * fs)))
         self.hold_n = max(1, int(round(_positive("hold_s", hold_s) * fs)))
@@ -204,7 +208,8 @@ class SweepDetector:
 
     @property
     def lookahead_samples(self) -> int:
-        """Every edge at grid index ``k`` is reported once samples up to ``k + lookahead_samples`` were fed."""
+        """Every edge at grid index ``k`` is reported once samples up to ``k + lookahead_samples`` were
+        fed."""
         return max(self.window_n // 2, self.hold_n) + 1
 
     @property
@@ -284,7 +289,8 @@ class SweepDetector:
         self._hist_n = keep
         # the quiet level changes only when a one-second block completes: each block's level, in turn
         bn = self.block_n
-        block = (self._blk_len + np.arange(n)) // bn                 # 0: the block in progress at the chunk start
+        # 0: the block in progress at the chunk start
+        block = (self._blk_len + np.arange(n)) // bn
         n_done = int((self._blk_len + n) // bn)
         defined = np.isfinite(energy)
         sums = np.bincount(block, weights=np.where(defined, energy, 0.0), minlength=n_done + 1)
@@ -305,11 +311,11 @@ class SweepDetector:
         return self._hysteresis(int(k0), defined & (energy > on_thr), ~defined | (energy < off_thr))
 
     def _end_block(self, total: float, count: int) -> None:
-        """A one-second block completed (``total`` of its ``count`` defined energies): its mean joins the quiet ring
-        if it stays below the on-threshold in force during it -- the quiet level is the trim motion's, not the
-        manoeuvres' (a manoeuvre filling most of the first minutes would otherwise raise it above itself), while trim
-        that a chance-low level let start an excitation still raises it back -- or once blocks have been loud for
-        ``quiet_window_s`` (the new trim)."""
+        """A one-second block completed (``total`` of its ``count`` defined energies): its mean joins the
+        quiet ring if it stays below the on-threshold in force during it -- the quiet level is the trim
+        motion's, not the manoeuvres' (a manoeuvre filling most of the first minutes would otherwise raise it
+        above itself), while trim that a chance-low level let start an excitation still raises it back -- or
+        once blocks have been loud for ``quiet_window_s`` (the new trim)."""
         mean = total / count if count else math.nan
         loud = not mean < max(self.on_ratio * self._level, self.min_excitation)
         self._loud_blocks = self._loud_blocks + 1 if loud else 0
@@ -421,7 +427,9 @@ class SweepDetector:
         self._run_start_k = int(state["run_start_k"])
         self._last_edge_k = int(state["last_edge_k"])
         self._loud_blocks = int(state.get("loud_blocks", 0))
-        self._level = float(quiet_quantile(self._quiet[None, : self._quiet_n])[0]) if self._quiet_n else math.inf
+        self._level = (
+            float(quiet_quantile(self._quiet[None, : self._quiet_n])[0]) if self._quiet_n else math.inf
+        )
 
 
 class TriggerTracker:

@@ -4,11 +4,11 @@ numpy/scipy only, like the rest of the core: the statistics behind the words of 
 (:mod:`gap_validation.campaign.findings`).
 
 Per aircraft, channel and quantity the values of the flights are regressed on their date, ``y = a + b t``
-(ordinary least squares, or weighted with ``1/sigma^2`` when per-flight standard errors are given). The flights'
-random error is what the line leaves: the residual scatter ``s^2 = sum w r^2 / (n - 2)`` (so a known sigma
-that understates the scatter does not make a trend look more certain than the flights agree). The slope's
-standard error is ``s / sqrt(sum w (t - t_w)^2)`` and ``T = b / se`` follows Student's t with ``n - 2``
-degrees of freedom under "no drift" (Draper & Smith, *Applied Regression Analysis*, 3rd ed., ch. 1 and 9).
+(ordinary least squares, or weighted with ``1/sigma^2`` when per-flight standard errors are given). The
+flights' random error is what the line leaves: the residual scatter ``s^2 = sum w r^2 / (n - 2)`` (so a known
+sigma that understates the scatter does not make a trend look more certain than the flights agree). The
+slope's standard error is ``s / sqrt(sum w (t - t_w)^2)`` and ``T = b / se`` follows Student's t with ``n -
+2`` degrees of freedom under "no drift" (Draper & Smith, *Applied Regression Analysis*, 3rd ed., ch. 1 and 9).
 A trend needs :data:`MIN_FLIGHTS` flights (two degrees of freedom for the scatter).
 
 A campaign tests many trends (aircraft x channels x quantities); :func:`holm_significant` keeps the chance of
@@ -75,10 +75,16 @@ class Trend:
 
     def to_json_dict(self) -> dict:
         """The trend as ``campaign.json`` holds it (per week; a non-finite ``t_statistic`` as None)."""
-        return {"flights": self.n, "slope_per_week": self.slope_per_week,
-                "slope_error_per_week": self.slope_error_per_day * DAYS_PER_WEEK, "scatter": self.scatter,
-                "t_statistic": _finite(self.t_statistic), "p_value": self.p_value, "start_value": self.start_value,
-                "end_value": self.end_value}
+        return {
+            "flights": self.n,
+            "slope_per_week": self.slope_per_week,
+            "slope_error_per_week": self.slope_error_per_day * DAYS_PER_WEEK,
+            "scatter": self.scatter,
+            "t_statistic": _finite(self.t_statistic),
+            "p_value": self.p_value,
+            "start_value": self.start_value,
+            "end_value": self.end_value,
+        }
 
 
 def _finite(value: float) -> float | None:
@@ -136,7 +142,8 @@ def linear_trend(days: Sequence[float], values: Sequence[float],
 def holm_significant(p_values: Sequence[float], alpha: float = FAMILY_ALPHA) -> list[bool]:
     """Which of several tests reject "no drift" with a family-wise error rate of ``alpha`` (Holm, 1979).
 
-    The smallest p-value is compared with ``alpha/m``, the next with ``alpha/(m-1)``, and so on until one fails.
+    The smallest p-value is compared with ``alpha/m``, the next with ``alpha/(m-1)``, and so on until one
+    fails.
 
     Parameters
     ----------

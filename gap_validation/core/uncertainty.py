@@ -35,8 +35,14 @@ if TYPE_CHECKING:  # pragma: no cover
     from gap_validation.core.manoeuvres import Manoeuvre
     from gap_validation.core.models import LinearModel
 
-__all__ = ["AllPassPerturbation", "sample_perturbations", "MonteCarloTube", "monte_carlo_tube", "TimeDomainCheck",
-           "time_domain_check"]
+__all__ = [
+    "AllPassPerturbation",
+    "sample_perturbations",
+    "MonteCarloTube",
+    "monte_carlo_tube",
+    "TimeDomainCheck",
+    "time_domain_check",
+]
 
 
 @dataclass(frozen=True)
@@ -180,7 +186,7 @@ def filter_uniform(num: ArrayLike, den: ArrayLike, dt_s: float, x: ArrayLike) ->
     x : array_like
         Input samples.
     """
-    from scipy import signal   # here: scipy.signal is slow to import and most runs never come here
+    from scipy import signal  # here: scipy.signal is slow to import and most runs never come here
 
     bd, ad, _ = signal.cont2discrete((np.atleast_1d(num), np.atleast_1d(den)), dt_s, method="foh")
     return signal.lfilter(np.ravel(bd), np.ravel(ad), x)
@@ -224,7 +230,14 @@ def monte_carlo_tube(model: LinearModel, epsilon: float, t_s: ArrayLike, u: Arra
     runs = np.empty((len(samples), t.size))
     for i, p in enumerate(samples):
         runs[i] = filter_uniform(p.num, p.den, dt, nominal)
-    return MonteCarloTube(np.asarray(t_s, dtype=float).ravel(), nominal, runs, runs.min(axis=0), runs.max(axis=0), float(epsilon))
+    return MonteCarloTube(
+        np.asarray(t_s, dtype=float).ravel(),
+        nominal,
+        runs,
+        runs.min(axis=0),
+        runs.max(axis=0),
+        float(epsilon),
+    )
 
 
 @dataclass(frozen=True)

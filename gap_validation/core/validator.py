@@ -17,14 +17,27 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from gap_validation.core import metrics, robust
-from gap_validation.core.closed_loop import (CouplingMonitor, SurfaceHistory, feedback_bias, feedback_evidence,
-                                             near_minus_inverse, rate_leads, with_bias_allowance)
-from gap_validation.core.config import (AIRSPEED_STREAM, EXCITATION_STREAM, OTHER_INPUT_STREAM, STREAMS, ChannelConfig,
-                                        SignalSpec, ValidationConfig)
-from gap_validation.core.errors import ConfigError, DataError
+from gap_validation.core.closed_loop import (
+    CouplingMonitor,
+    SurfaceHistory,
+    feedback_bias,
+    feedback_evidence,
+    near_minus_inverse,
+    rate_leads,
+    with_bias_allowance,
+)
+from gap_validation.core.config import (
+    AIRSPEED_STREAM,
+    EXCITATION_STREAM,
+    OTHER_INPUT_STREAM,
+    STREAMS,
+    ChannelConfig,
+    SignalSpec,
+    ValidationConfig,
+)
 from gap_validation.core.diagnosis import confident_points
-from gap_validation.core.estimator import (ESTIMATOR_DEFAULTS, FrequencyResponseEstimator,
-                                          SpectralEstimate)
+from gap_validation.core.errors import ConfigError, DataError
+from gap_validation.core.estimator import ESTIMATOR_DEFAULTS, FrequencyResponseEstimator, SpectralEstimate
 from gap_validation.core.margins import margins_from_epsilon
 from gap_validation.core.records import SATURATED_SHARE
 from gap_validation.core.results import ChannelResult, SweepResult, ValidationResult
@@ -38,7 +51,8 @@ STATE_VERSION = 1
 
 def _sup(metric, w: np.ndarray, p_model: np.ndarray, p_meas: np.ndarray,
          mask: np.ndarray) -> tuple[float | None, float | None]:
-    """``metric`` (a sup over frequency points from :mod:`metrics`) over the masked points, or (None, None)."""
+    """``metric`` (a sup over frequency points from :mod:`metrics`) over the masked points, or (None,
+    None)."""
     if not np.any(mask):
         return None, None
     value, w_peak = metric(w[mask], p_model[mask], p_meas[mask])
@@ -50,15 +64,26 @@ def _estimator_for(channel: ChannelConfig) -> FrequencyResponseEstimator:
     airspeed = [AIRSPEED_STREAM] if channel.airspeed is not None else []
     trim = channel.trim_airspeed_m_s if channel.airspeed is not None else None
     if channel.is_mimo:   # streams inputs[j], outputs[i]: the whole matrix from the pooled sums
-        return FrequencyResponseEstimator(channel.frequencies.values(),
-                                          channel.input_streams + channel.output_streams + tuple(airspeed),
-                                          len(channel.inputs), len(channel.outputs), trim, **channel.estimator)
+        return FrequencyResponseEstimator(
+            channel.frequencies.values(),
+            channel.input_streams + channel.output_streams + tuple(airspeed),
+            len(channel.inputs),
+            len(channel.outputs),
+            trim,
+            **channel.estimator,
+        )
     # other_inputs are more inputs (the channel's response is the first input's column); the excitation is the
     # instrument (instrumental variables) and the detection signal
     others = [OTHER_INPUT_STREAM.format(j) for j in range(len(channel.other_inputs))]
     streams = ["input", *others, "output"] + ([EXCITATION_STREAM] if channel.excitation is not None else [])
-    return FrequencyResponseEstimator(channel.frequencies.values(), streams + airspeed, inputs=1 + len(others),
-                                      outputs=1, trim_airspeed=trim, **channel.estimator)
+    return FrequencyResponseEstimator(
+        channel.frequencies.values(),
+        streams + airspeed,
+        inputs=1 + len(others),
+        outputs=1,
+        trim_airspeed=trim,
+        **channel.estimator,
+    )
 
 
 def _same_measurement(a: ChannelConfig, b: ChannelConfig) -> bool:
@@ -87,7 +112,8 @@ class OnlineValidator:
         self._previous: dict[str, float | None] = {}
         self._versions: dict[str, int] = {name: 0 for name in config.channels}
         self._diagnosis_cache: dict[str, tuple[Any, dict]] = {}
-        self._key_memo: dict[str, tuple] = {}      # channel -> (identity of its estimates, them, _estimate_key)
+        # channel -> (identity of its estimates, them, _estimate_key)
+        self._key_memo: dict[str, tuple] = {}
         self._time_domain_cache: dict[str, tuple] = {}
         self._margin_cache: dict[str, tuple] = {}   # channel -> (model and controller specs, b(P1, C))
         self.sources: list[str] = []
@@ -130,7 +156,9 @@ class OnlineValidator:
         elif stream == "trigger":
             values = np.asarray(values)
             if values.dtype.kind not in "biuf":  # "false" would be True as a string
-                raise DataError(f"channel {channel}: trigger values must be booleans or numbers, got {values.dtype}")
+                raise DataError(
+                    f"channel {channel}: trigger values must be booleans or numbers, got {values.dtype}"
+                )
             est.add_trigger(t_s, values.astype(bool))
         elif stream in est.streams:                     # other_input<j>, excitation
             est.add_samples(stream, t_s, np.asarray(values, dtype=float))
@@ -172,8 +200,8 @@ class OnlineValidator:
         channel : str
             Channel name from the config.
         histories : dict
-            Stream name (``input``, ``output``, ``excitation``, ``other_input0`` ...) -> ``(t_s, values)`` in SI
-            units.
+            Stream name (``input``, ``output``, ``excitation``, ``other_input0`` ...) -> ``(t_s, values)`` in
+            SI units.
         """
         est = self._estimators.get(channel)
         if est is None:
@@ -218,7 +246,9 @@ class OnlineValidator:
     def _trim_motion(self, channel: str) -> float:
         """The channel's surface trim motion between manoeuvres (its estimator's; 0 before any)."""
         est = self._estimators.get(channel)
-        return float(est.input_trim_motion()) if est is not None and hasattr(est, "input_trim_motion") else 0.0
+        return (
+            float(est.input_trim_motion()) if est is not None and hasattr(est, "input_trim_motion") else 0.0
+        )
 
     def _watch(self) -> None:
         """Hook the coupling monitors to the channels' estimators (after any estimator was made)."""
@@ -293,7 +323,8 @@ class OnlineValidator:
         self._previous = {name: old.channels[name].epsilon for name in config.channels if name in old.channels
                           and name not in restarted}
         monitors = _monitors_for(config)
-        for name in config.channels:          # kept where the channel's measurement and the surfaces are unchanged
+        # kept where the channel's measurement and the surfaces are unchanged
+        for name in config.channels:
             if name not in restarted and name in self._monitors and \
                     set(self._monitors[name].coupling) == set(monitors[name].coupling):
                 monitors[name] = self._monitors[name]
@@ -336,11 +367,15 @@ class OnlineValidator:
         """
         diagnose = self._diagnose if diagnose is None else diagnose
         self._found_conventions: dict = {}
-        channels = {name: self._channel_result(name, ch, diagnose) for name, ch in self._config.channels.items()}
+        channels = {
+            name: self._channel_result(name, ch, diagnose) for name, ch in self._config.channels.items()
+        }
         _name_conventions(self._config, channels, self._found_conventions)
         for name, channel in self._config.channels.items():
             self._check_controller(channel, channels[name])
-        return ValidationResult(channels=channels, config_source=self._config.source, sources=list(self.sources))
+        return ValidationResult(
+            channels=channels, config_source=self._config.source, sources=list(self.sources)
+        )
 
     def _channel_result(self, name: str, channel: ChannelConfig, diagnose: bool) -> ChannelResult:
         if channel.is_mimo:
@@ -358,8 +393,17 @@ class OnlineValidator:
         result.manoeuvres_by_kind = est.counted_kinds
         result.manoeuvres_flown = dict(getattr(est, "flown_kinds", {}))
         lead = est.surface_led()
-        result.rate_leads_surface = None if lead is None else {
-            "share": lead.share, "f": lead.f, "p_value": lead.p_value, "rows": lead.rows, "lags_s": lead.lags_s}
+        result.rate_leads_surface = (
+            None
+            if lead is None
+            else {
+                "share": lead.share,
+                "f": lead.f,
+                "p_value": lead.p_value,
+                "rows": lead.rows,
+                "lags_s": lead.lags_s,
+            }
+        )
         self._time_domain(name, channel, est, result)
         avg = est.averaged()
         if avg is None:
@@ -390,8 +434,9 @@ class OnlineValidator:
         result.points_excluded = int(w.size - np.count_nonzero(confident))
         result.nu_gap, result.nu_gap_frequency_rad_s = _sup(metrics.nugap_frequency_data, w, p_model, p_meas,
                                                             confident)
-        result.epsilon, result.worst_frequency_rad_s = _sup(metrics.epsilon_frequency_data, w, p_model, p_meas,
-                                                            confident)
+        result.epsilon, result.worst_frequency_rad_s = _sup(
+            metrics.epsilon_frequency_data, w, p_model, p_meas, confident
+        )
         result.margins = margins_from_epsilon(result.epsilon if result.epsilon is not None else float("nan"))
         result.sweep_results = [self._sweep_result(channel, s, p_model, confident) for s in sweeps]
         result.sweep_measured = [np.asarray(s.response, dtype=complex) for s in sweeps]
@@ -399,8 +444,9 @@ class OnlineValidator:
         if raw:
             result.epsilon_raw, result.epsilon_raw_frequency_rad_s = max(raw, key=lambda r: r[0])
             result.margins_raw = margins_from_epsilon(result.epsilon_raw)
-        suspect, warnings = _closed_loop_checks(channel, self._monitors[name], self._config, est, full, w, p_meas,
-                                                p_model, confident)
+        suspect, warnings = _closed_loop_checks(
+            channel, self._monitors[name], self._config, est, full, w, p_meas, p_model, confident
+        )
         result.warnings.extend(warnings)
         if suspect.any():
             result.frequency_reasons = [BIASED if s else r for s, r in zip(suspect, result.frequency_reasons)]
@@ -411,16 +457,22 @@ class OnlineValidator:
 
     def _mimo_result(self, name: str, channel: ChannelConfig, diagnose: bool) -> ChannelResult:
         """A MIMO channel: the whole response matrix pooled over the manoeuvres against the MIMO model
-        (:mod:`gap_validation.core.mimo`). ``kappa``, ``nu_gap``, ``limited_by``, ``bands`` and ``diagnosis`` as
-        for SISO; ``coherence`` is the worst output's multiple coherence; epsilon and its margins are SISO
+        (:mod:`gap_validation.core.mimo`). ``kappa``, ``nu_gap``, ``limited_by``, ``bands`` and ``diagnosis``
+        as for SISO; ``coherence`` is the worst output's multiple coherence; epsilon and its margins are SISO
         notions (null); the per-element responses are in ``mimo``."""
         from gap_validation.core import mimo
         from gap_validation.core.spectra import expected_matrix
 
         est = self._estimators[name]
-        result = ChannelResult(name=name, sweeps=int(est.n_sweeps), coherence_threshold=channel.coherence_threshold,
-                               bad_samples=dict(self._bad[name]), epsilon_previous=None,
-                               model_description=_describe_model(channel), model_spec=channel.model_spec)
+        result = ChannelResult(
+            name=name,
+            sweeps=int(est.n_sweeps),
+            coherence_threshold=channel.coherence_threshold,
+            bad_samples=dict(self._bad[name]),
+            epsilon_previous=None,
+            model_description=_describe_model(channel),
+            model_spec=channel.model_spec,
+        )
         result.excitation = est.excitation
         result.dynamic_pressure_ratio = est.dynamic_pressure_ratio
         result.warnings.extend(_condition_warnings(result.dynamic_pressure_ratio))
@@ -447,11 +499,17 @@ class OnlineValidator:
             found = cached[1]
         else:
             found = mimo.analyse_mimo(
-                channel.model, matrix, w, channel.coherence_threshold,
-                [f"{s.topic} {s.field}" for s in channel.inputs], [f"{s.topic} {s.field}" for s in channel.outputs],
+                channel.model,
+                matrix,
+                w,
+                channel.coherence_threshold,
+                [f"{s.topic} {s.field}" for s in channel.inputs],
+                [f"{s.topic} {s.field}" for s in channel.outputs],
                 coefficients=len(channel.inputs) * (est.options["order"] + 1),
                 expected=lambda response: expected_matrix(sums, w, band_fraction, response),
-                excited=excited[index], diagnose=diagnose)
+                excited=excited[index],
+                diagnose=diagnose,
+            )
             self._diagnosis_cache[name] = (key, found)
         result.frequency_rad_s, result.coherence, result.kappa = w, found.coherence, found.kappa
         result.degrees_of_freedom, result.confident = found.dof, found.confident
@@ -506,10 +564,10 @@ class OnlineValidator:
 
     def _memo_estimate_key(self, name: str, full: SpectralEstimate, full_sweeps: list[SpectralEstimate],
                            avg: SpectralEstimate, sweeps: list[SpectralEstimate]) -> bytes:
-        """:func:`_estimate_key` of ``avg`` and ``sweeps`` (``full`` and ``full_sweeps`` as the estimator gave them,
-        before the flown band was selected), digested again only when the estimator gave new estimates: it keeps
-        its pooled arrays and its sweeps until a manoeuvre changes them, and they are never written in place (the
-        memo holds them, so their ids are not reused)."""
+        """:func:`_estimate_key` of ``avg`` and ``sweeps`` (``full`` and ``full_sweeps`` as the estimator gave
+        them, before the flown band was selected), digested again only when the estimator gave new estimates:
+        it keeps its pooled arrays and its sweeps until a manoeuvre changes them, and they are never written
+        in place (the memo holds them, so their ids are not reused)."""
         ident = (id(full.response), tuple(id(s) for s in full_sweeps), np.asarray(avg.w_rad_s).tobytes())
         memo = self._key_memo.get(name)
         if memo is not None and memo[0] == ident:
@@ -523,15 +581,22 @@ class OnlineValidator:
                          estimate_key: bytes | None = None) -> None:
         from gap_validation.core import diagnosis
 
-        # keyed on what the analysis reads, not on the samples fed: between two manoeuvres the samples change the
-        # version every batch but not the estimate, and the analysis (the convention fits of a model-limited channel
-        # among them) would run again at each of the node's diagnostics ticks (0.5-1.3 s each, measured)
-        key = (estimate_key if estimate_key is not None else _estimate_key(avg, sweeps), repr(channel.model_spec), fit)
+        # keyed on what the analysis reads, not on the samples fed: between two manoeuvres the samples change
+        # the version every batch but not the estimate, and the analysis (the convention fits of a
+        # model-limited channel among them) would run again at each of the node's diagnostics ticks (0.5-1.3 s
+        # each, measured)
+        key = (
+            estimate_key if estimate_key is not None else _estimate_key(avg, sweeps),
+            repr(channel.model_spec),
+            fit,
+        )
         cached = self._diagnosis_cache.get(name)
         if cached is not None and cached[0] == key:
             found = cached[1]
         else:
-            found = diagnosis.analyse_channel(channel.model, avg, sweeps, channel.coherence_threshold, fit=fit)
+            found = diagnosis.analyse_channel(
+                channel.model, avg, sweeps, channel.coherence_threshold, fit=fit
+            )
             self._diagnosis_cache[name] = (key, found)
         result.limited_by = found.limited_by
         if found.convention is not None:
@@ -548,17 +613,22 @@ class OnlineValidator:
             result.message = found.message
         if result.nonlinearity and any(_COUPLED in w for w in result.warnings):
             # sweeps that mix another surface differ for that reason, not for their amplitude: no verdict
-            result.message = result.message.replace(f"; {result.nonlinearity}: {result.nonlinearity_evidence}", "")
+            result.message = result.message.replace(
+                f"; {result.nonlinearity}: {result.nonlinearity_evidence}", ""
+            )
             result.nonlinearity = None
-            result.nonlinearity_evidence = (f"not judged: another surface moved with this input in some manoeuvres "
-                                            f"({result.nonlinearity_evidence})")
+            result.nonlinearity_evidence = (
+                f"not judged: another surface moved with this input in some manoeuvres "
+                f"({result.nonlinearity_evidence})"
+            )
 
     # ------------------------------------------------------------------ checkpoint
     def analysis_cache(self) -> dict:
-        """What the analyses computed, each keyed on what it read (a digest of the estimates, the kept manoeuvres,
-        the model): for a validator of the same config resumed from a later state (:meth:`adopt_analysis_cache`),
-        so a channel whose estimates did not change is not analysed again (the node's diagnosis worker).
-        Entries keyed on this validator's own update counters (MIMO channels) are left out."""
+        """What the analyses computed, each keyed on what it read (a digest of the estimates, the kept
+        manoeuvres, the model): for a validator of the same config resumed from a later state
+        (:meth:`adopt_analysis_cache`), so a channel whose estimates did not change is not analysed again (the
+        node's diagnosis worker). Entries keyed on this validator's own update counters (MIMO channels) are
+        left out."""
         return {"diagnosis": {name: entry for name, entry in self._diagnosis_cache.items()
                               if isinstance(entry[0][0], bytes)},
                 "time_domain": dict(self._time_domain_cache), "margin": dict(self._margin_cache)}
@@ -581,7 +651,8 @@ class OnlineValidator:
             self._margin_cache.setdefault(name, entry)
 
     def state_dict(self) -> dict:
-        """Everything gathered so far, as plain numbers and numpy arrays (size independent of flight length)."""
+        """Everything gathered so far, as plain numbers and numpy arrays (size independent of flight
+        length)."""
         return {
             "version": STATE_VERSION,
             "channels": {name: est.state_dict() for name, est in self._estimators.items()},
@@ -605,8 +676,11 @@ class OnlineValidator:
             Passed to the constructor (``diagnose``).
         """
         if not isinstance(state, dict) or state.get("version") != STATE_VERSION:
-            raise ConfigError(f"checkpoint state has version {state.get('version') if isinstance(state, dict) else None!r}, "
-                              f"expected {STATE_VERSION}")
+            raise ConfigError(
+                "checkpoint state has version "
+                f"{state.get('version') if isinstance(state, dict) else None!r}, "
+                f"expected {STATE_VERSION}"
+            )
         self = cls(config, **kwargs)
         try:
             resumed = []
@@ -638,12 +712,14 @@ REASON_WORDS = {
 
 
 def _estimate_key(avg: SpectralEstimate, sweeps: list[SpectralEstimate]) -> bytes:
-    """A digest of everything in the pooled and per-sweep estimates (their arrays byte for byte): equal when the
-    analysis would see the same estimates."""
+    """A digest of everything in the pooled and per-sweep estimates (their arrays byte for byte): equal when
+    the analysis would see the same estimates."""
     import hashlib
     import pickle
 
-    return hashlib.blake2b(pickle.dumps((avg, sweeps), protocol=pickle.HIGHEST_PROTOCOL), digest_size=20).digest()
+    return hashlib.blake2b(
+        pickle.dumps((avg, sweeps), protocol=pickle.HIGHEST_PROTOCOL), digest_size=20
+    ).digest()
 
 
 def _flown_model(channel: ChannelConfig, avg: SpectralEstimate, sweeps: list[SpectralEstimate]):
@@ -689,13 +765,18 @@ CONDITION_RANGE = (0.9, 1.1)
 
 
 def _condition_warnings(ratio: dict | None) -> list[str]:
-    """A warning when the flight's mean dynamic pressure is off the model's by more than :data:`CONDITION_RANGE`."""
+    """A warning when the flight's mean dynamic pressure is off the model's by more than
+    :data:`CONDITION_RANGE`."""
     if not ratio or CONDITION_RANGE[0] <= ratio["mean"] <= CONDITION_RANGE[1]:
         return []
-    return [f"flown at {ratio['mean']:.2f} of the model's dynamic pressure on average (airspeed "
-            f"{ratio['mean'] ** 0.5:.2f} of its trim_m_s): the airspeed scaling corrects the control power, not the "
-            f"modes, which move with speed (about {100 * abs(ratio['mean'] ** 0.5 - 1):.0f} %); this is not the model's "
-            f"flight condition: validate a model of the flown one"]
+    return [
+        f"flown at {ratio['mean']:.2f} of the model's dynamic pressure on average (airspeed "
+        f"{ratio['mean'] ** 0.5:.2f} of its trim_m_s): the airspeed scaling corrects the control power, not "
+        "the "
+        f"modes, which move with speed (about {100 * abs(ratio['mean'] ** 0.5 - 1):.0f} %); this is not the "
+        "model's "
+        f"flight condition: validate a model of the flown one"
+    ]
 
 
 def _why_nothing(est: FrequencyResponseEstimator, channel: ChannelConfig) -> str:
@@ -703,8 +784,11 @@ def _why_nothing(est: FrequencyResponseEstimator, channel: ChannelConfig) -> str
     counts = est.bad_sample_counts
     for stream, extra in channel.extra_streams():
         if not counts.get(stream, {}).get("accepted"):
-            return (f"no samples of the {stream.replace('_', ' ')} {extra.topic} {extra.field!r} (the estimate needs "
-                    f"every stream of the channel)")
+            return (
+                f"no samples of the {stream.replace('_', ' ')} {extra.topic} {extra.field!r} (the estimate "
+                "needs "
+                f"every stream of the channel)"
+            )
     spec = channel.input if channel.input is not None else channel.inputs[0]
     where = (f"input {spec.topic} {spec.field!r}" if channel.input is not None else
              "inputs " + ", ".join(f"{s.topic} {s.field!r}" for s in channel.inputs))
@@ -712,11 +796,14 @@ def _why_nothing(est: FrequencyResponseEstimator, channel: ChannelConfig) -> str
     if not kinds:
         return f"the {where} never left trim (no manoeuvre)"
     if set(kinds) == {"step"}:
-        return f"the {where} only changed trim ({kinds['step']} steps; a trim change gives no frequency response)"
+        return (f"the {where} only changed trim ({kinds['step']} steps; a trim change gives no frequency "
+                "response)")
     flown = ", ".join(f"{n} {k}" for k, n in sorted(kinds.items()))
     if est.saturated and not est.n_manoeuvres:
-        return (f"{flown} flown, {est.saturated} of them with the {where} saturated (pinned at its limits for "
-                f"{100 * SATURATED_SHARE:.0f} % of the manoeuvre or more); fly smaller amplitudes")
+        return (
+            f"{flown} flown, {est.saturated} of them with the {where} saturated (pinned at its limits for "
+            f"{100 * SATURATED_SHARE:.0f} % of the manoeuvre or more); fly smaller amplitudes"
+        )
     w = channel.frequencies.values()
     reasons = est.not_estimable
     worst = max(reasons, key=reasons.get)
@@ -724,16 +811,22 @@ def _why_nothing(est: FrequencyResponseEstimator, channel: ChannelConfig) -> str
         return (f"{flown} flown, none long enough to resolve {w.min():.3g}-{w.max():.3g} rad/s (the longest "
                 f"record lasts {est.longest_record_s:.1f} s); fly longer manoeuvres")
     if worst == "above_grid" and reasons[worst]:
-        return (f"{flown} flown, but the streams' sample rates resolve only up to {est.resolved_rad_s:.3g} rad/s")
+        return (
+            f"{flown} flown, but the streams' sample rates resolve only up to {est.resolved_rad_s:.3g} rad/s"
+        )
     if worst == "too_few_bins" and reasons[worst]:
         return (f"{flown} flown, too few degrees of freedom at {w.min():.3g}-{w.max():.3g} rad/s (too few "
                 f"excited spectral lines per band); fly longer or more manoeuvres")
     if reasons.get("below_trim"):
-        return (f"{flown} flown, none stands 20 dB above the surface's own motion between the manoeuvres at "
-                f"{w.min():.3g}-{w.max():.3g} rad/s (trim corrections, or a loop answering turbulence: the "
-                f"manoeuvres do not dominate the surface there); fly larger manoeuvres, or log the injected signal "
-                f"and add channels.{channel.name}.excitation")
-    return f"{flown} flown, none excites {w.min():.3g}-{w.max():.3g} rad/s enough (relative and to the input noise)"
+        return (
+            f"{flown} flown, none stands 20 dB above the surface's own motion between the manoeuvres at "
+            f"{w.min():.3g}-{w.max():.3g} rad/s (trim corrections, or a loop answering turbulence: the "
+            "manoeuvres do not dominate the surface there); fly larger manoeuvres, or log the injected "
+            "signal "
+            f"and add channels.{channel.name}.excitation"
+        )
+    return (f"{flown} flown, none excites {w.min():.3g}-{w.max():.3g} rad/s enough (relative and to the "
+            "input noise)")
 
 
 def _measurement_key(channel: ChannelConfig) -> str:
@@ -754,16 +847,16 @@ def _measurement_key(channel: ChannelConfig) -> str:
 
 @dataclass
 class _Monitors:
-    """The latest samples of a channel's surface (other channels' coupling monitors read them) and its coupling
-    monitors (other channel -> monitor of that channel's surface)."""
+    """The latest samples of a channel's surface (other channels' coupling monitors read them) and its
+    coupling monitors (other channel -> monitor of that channel's surface)."""
 
     history: SurfaceHistory
     coupling: dict = field(default_factory=dict)
 
 
 def _monitors_for(config: ValidationConfig) -> dict[str, _Monitors]:
-    """Per SISO channel: a trim monitor (without ``excitation``) and a coupling monitor of every other channel's
-    surface that is not among its ``other_inputs`` nor its own input."""
+    """Per SISO channel: a trim monitor (without ``excitation``) and a coupling monitor of every other
+    channel's surface that is not among its ``other_inputs`` nor its own input."""
     out = {}
     surfaces = {name: (ch.input.topic, ch.input.field) for name, ch in config.channels.items()
                 if ch.input is not None}
@@ -779,9 +872,9 @@ def _monitors_for(config: ValidationConfig) -> dict[str, _Monitors]:
     return out
 
 
-#: Manoeuvres in which another surface follows the input that make the light coupling warning: an interconnect moves
-#: the other surface in every manoeuvre of the axis that drives it; one chance alignment (two re-trims at once)
-#: is no interconnect.
+#: Manoeuvres in which another surface follows the input that make the light coupling warning: an interconnect
+#: moves the other surface in every manoeuvre of the axis that drives it; one chance alignment (two re-trims
+#: at once) is no interconnect.
 COUPLED_RECORDS = 2
 #: Words every coupling warning holds (:func:`_closed_loop_checks`).
 _COUPLED = "with this channel's input"
@@ -789,12 +882,20 @@ _COUPLED = "with this channel's input"
 BIASED = "biased"
 
 
-def _closed_loop_checks(channel: ChannelConfig, monitors: _Monitors, config: ValidationConfig,
-                        est: FrequencyResponseEstimator, full: SpectralEstimate, w: np.ndarray, p_meas: np.ndarray,
-                        p_model: np.ndarray, confident: np.ndarray) -> tuple[np.ndarray, list[str]]:
+def _closed_loop_checks(
+    channel: ChannelConfig,
+    monitors: _Monitors,
+    config: ValidationConfig,
+    est: FrequencyResponseEstimator,
+    full: SpectralEstimate,
+    w: np.ndarray,
+    p_meas: np.ndarray,
+    p_model: np.ndarray,
+    confident: np.ndarray,
+) -> tuple[np.ndarray, list[str]]:
     """Warnings instead of guesses (:mod:`gap_validation.core.closed_loop`): the points whose response may be
-    biased by another surface or by feedback, and one line per cause naming what to add to the config. ``full`` is
-    the pooled estimate on the estimator's whole grid; ``w`` the validated frequencies."""
+    biased by another surface or by feedback, and one line per cause naming what to add to the config.
+    ``full`` is the pooled estimate on the estimator's whole grid; ``w`` the validated frequencies."""
     suspect = np.zeros(w.size, bool)
     warnings = []
     where = f"channels.{channel.name}"
@@ -803,24 +904,30 @@ def _closed_loop_checks(channel: ChannelConfig, monitors: _Monitors, config: Val
         spec = config.channels[other].input
         if coupled:
             suspect |= np.isfinite(p_meas)
-            warnings.append(f"the {other} surface ({spec.topic} {spec.field}) moves with this channel's input during "
-                            f"its manoeuvres (coherence {coherence:.2f}, {gain:.2g} x the input): the measured "
-                            f"response mixes both surfaces and is not validated; add it to {where}.other_inputs (and "
-                            f"fly its own sweeps)")
+            warnings.append(
+                f"the {other} surface ({spec.topic} {spec.field}) moves with this channel's input during "
+                f"its manoeuvres (coherence {coherence:.2f}, {gain:.2g} x the input): the measured "
+                f"response mixes both surfaces and is not validated; add it to {where}.other_inputs (and "
+                f"fly its own sweeps)"
+            )
         followed, f_coherence, f_gain = monitor.followed()
         if followed:
-            warnings.append(f"for {monitor.followed_s:.0f} s ({followed} stretch{'es' if followed > 1 else ''} the "
-                            f"detector found) the {other} surface ({spec.topic} {spec.field}) moved and this "
-                            f"channel's input followed it (coherence {f_coherence:.2f}, "
-                            f"the {other} surface {f_gain:.2g} x the input; each against its own trim motion the "
-                            f"{other} surface moved more): an interconnect's manoeuvres, not this channel's, left out "
-                            f"of its estimate and its sweeps; add it to {where}.other_inputs to use them")
+            warnings.append(
+                f"for {monitor.followed_s:.0f} s ({followed} stretch{'es' if followed > 1 else ''} the "
+                f"detector found) the {other} surface ({spec.topic} {spec.field}) moved and this "
+                f"channel's input followed it (coherence {f_coherence:.2f}, "
+                f"the {other} surface {f_gain:.2g} x the input; each against its own trim motion the "
+                f"{other} surface moved more): an interconnect's manoeuvres, not this channel's, left out "
+                f"of its estimate and its sweeps; add it to {where}.other_inputs to use them"
+            )
         if not coupled and monitor.coupled_records >= COUPLED_RECORDS:
-            warnings.append(f"the {other} surface ({spec.topic} {spec.field}) moved with this channel's input in "
-                            f"{monitor.coupled_records} of its {monitor.records} manoeuvres (an interconnect, or this "
-                            f"surface flown through another axis' manoeuvres): those mix both surfaces, though too "
-                            f"little of the input's energy to bias the pooled response beyond its errors; add it to "
-                            f"{where}.other_inputs to separate them")
+            warnings.append(
+                f"the {other} surface ({spec.topic} {spec.field}) moved with this channel's input in "
+                f"{monitor.coupled_records} of its {monitor.records} manoeuvres (an interconnect, or this "
+                f"surface flown through another axis' manoeuvres): those mix both surfaces, though too "
+                f"little of the input's energy to bias the pooled response beyond its errors; add it to "
+                f"{where}.other_inputs to separate them"
+            )
     if channel.excitation is None:
         found, biased = _feedback_warnings(channel, est, full, w, p_meas)
         suspect |= biased
@@ -838,8 +945,8 @@ def _closed_loop_checks(channel: ChannelConfig, monitors: _Monitors, config: Val
 
 def _name_conventions(config: ValidationConfig, channels: dict[str, ChannelResult], found: dict) -> None:
     """The convention errors the channels' data showed (a sign, units, a clock: issue 23), looked at together
-    (:func:`gap_validation.core.conventions.resolve`: pitch and yaw reversed with roll right is the body frame), into
-    each channel's ``conventions``, its message, and no margins until fixed."""
+    (:func:`gap_validation.core.conventions.resolve`: pitch and yaw reversed with roll right is the body
+    frame), into each channel's ``conventions``, its message, and no margins until fixed."""
     if not found:
         return
     from gap_validation.core.conventions import resolve
@@ -851,16 +958,19 @@ def _name_conventions(config: ValidationConfig, channels: dict[str, ChannelResul
         ch.conventions = conventions
         ch.message = (ch.message + "; " if ch.message else "") + "not physics: " + conventions[0].sentence
         ch.margins = ch.margins_raw = margins_from_epsilon(float("nan"))
-        ch.margins_caveat = f"a {conventions[0].kind.replace('_', ' ')} error in the config: not given until it is fixed"
+        ch.margins_caveat = (
+            f"a {conventions[0].kind.replace('_', ' ')} error in the config: not given until it is fixed"
+        )
 
 
 def _feedback_warnings(channel: ChannelConfig, est: FrequencyResponseEstimator, full: SpectralEstimate | None,
                        w: np.ndarray | None, p_meas: np.ndarray | None) -> tuple[list[str], np.ndarray]:
-    """The feedback test (:func:`~gap_validation.core.closed_loop.feedback_evidence`) on the estimator's whole grid:
-    the response between the manoeuvres against the pooled response of the manoeuvres, and the model where they give
-    none (or nothing at all): the warning (none or one line) and, on the validated grid ``w`` with response
-    ``p_meas``, the points the loop may bias (:func:`~gap_validation.core.closed_loop.feedback_bias`). ``full``
-    is the estimator's pooled estimate on its whole grid (None before any manoeuvre)."""
+    """The feedback test (:func:`~gap_validation.core.closed_loop.feedback_evidence`) on the estimator's whole
+    grid: the response between the manoeuvres against the pooled response of the manoeuvres, and the model
+    where they give none (or nothing at all): the warning (none or one line) and, on the validated grid ``w``
+    with response ``p_meas``, the points the loop may bias
+    (:func:`~gap_validation.core.closed_loop.feedback_bias`). ``full`` is the estimator's pooled estimate on
+    its whole grid (None before any manoeuvre)."""
     biased = np.zeros(0 if w is None else np.size(w), bool)
     trim = est.between_manoeuvres()
     grid = est.w_rad_s
@@ -887,17 +997,23 @@ def _feedback_warnings(channel: ChannelConfig, est: FrequencyResponseEstimator, 
         biased = feedback_bias(picked, p_meas, np.asarray(full.variance, float)[index], power)
     surface = f"the surface ({channel.input.topic} {channel.input.field})"
     if led:
-        return [f"between the manoeuvres the rate leads {surface}: its last {lead.lags_s:.2g} s explain "
-                f"{100 * lead.share:.0f} % of the surface's motion that the surface's own past does not (F test: "
-                f"chance {max(lead.p_value, 1e-300):.1g}): a feedback loop (damper, autopilot, a pilot holding an "
-                f"attitude) drives it, and that motion drowns the manoeuvres, so the measured response is biased "
-                f"towards -1/C where they do not dominate it (those points are not validated); log the injected "
-                f"signal and add channels.{channel.name}.excitation"], biased
-    return [f"between the manoeuvres {surface} moves against the "
-            f"rate, opposite to the airframe's response, at {_span(grid[evidence.opposite])}: a feedback loop (damper, "
-            f"autopilot) drives it, so the measured response is biased towards -1/C where the manoeuvres do not "
-            f"dominate the surface's motion (those points are not validated); log the injected signal and add "
-            f"channels.{channel.name}.excitation"], biased
+        return [
+            f"between the manoeuvres the rate leads {surface}: its last {lead.lags_s:.2g} s explain "
+            f"{100 * lead.share:.0f} % of the surface's motion that the surface's own past does not (F test: "
+            f"chance {max(lead.p_value, 1e-300):.1g}): a feedback loop (damper, autopilot, a pilot holding "
+            "an "
+            f"attitude) drives it, and that motion drowns the manoeuvres, so the measured response is biased "
+            f"towards -1/C where they do not dominate it (those points are not validated); log the injected "
+            f"signal and add channels.{channel.name}.excitation"
+        ], biased
+    return [
+        f"between the manoeuvres {surface} moves against the "
+        f"rate, opposite to the airframe's response, at {_span(grid[evidence.opposite])}: a feedback loop "
+        "(damper, "
+        f"autopilot) drives it, so the measured response is biased towards -1/C where the manoeuvres do not "
+        f"dominate the surface's motion (those points are not validated); log the injected signal and add "
+        f"channels.{channel.name}.excitation"
+    ], biased
 
 
 def _grid_index(w_all: np.ndarray, w: np.ndarray) -> np.ndarray:

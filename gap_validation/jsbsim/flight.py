@@ -3,42 +3,43 @@
 
 The aircraft is trimmed as :mod:`gap_validation.jsbsim.linearize` does (true airspeed, straight and level) and
 flown at JSBSim's own rate (``fdm.get_delta_t()``, 120 Hz by default) through the same card as the synthetic
-flight (:mod:`gap_validation.core.simulation`'s card: sweeps per axis then a doublet, rounds, gaps, pilot re-trims,
-topic rates, jitter, drops, surface and gyro noise and quantisation). What differs:
+flight (:mod:`gap_validation.core.simulation`'s card: sweeps per axis then a doublet, rounds, gaps, pilot
+re-trims, topic rates, jitter, drops, surface and gyro noise and quantisation). What differs:
 
 - **Surfaces**: each channel's input field names a surface, the joint (``position[aileron]``) or a Float64
   topic's last name (``/elevator``): ``aileron`` (``(left - right) / 2``), ``elevator`` or ``rudder`` [rad]
-  (:data:`~gap_validation.jsbsim.linearize.SURFACES`). The logged surface is the trim deflection plus the card's
-  deviation, the pilot's corrections and re-trims; the airframe sees the trim plus the card's deviation and the
-  pilot's corrections **through the hidden effects** (``--hidden``, applied step by step by
+  (:data:`~gap_validation.jsbsim.linearize.SURFACES`). The logged surface is the trim deflection plus the
+  card's deviation, the pilot's corrections and re-trims; the airframe sees the trim plus the card's deviation
+  and the pilot's corrections **through the hidden effects** (``--hidden``, applied step by step by
   :class:`HiddenEffects` exactly as :meth:`LinearModel.simulate` applies them: ``rate_limit`` and ``backlash``
-  first, the delay interpolated, the linear factors). A hidden effect of a channel acts on its surface, so every
-  channel flying that surface sees it (the roll channel's aileron is the lateral channel's aileron).
-- The surface positions are **set directly** (the FCS's actuators, with their lags, rate limits and free play, are
-  bypassed: :meth:`Trimmed.hold_surfaces`), the ailerons in the ratio the FCS moves them at trim. This is the input
-  the linearisation's converted B matrix describes; the c172x's elevator actuator alone (60 rad/s lag, 0.05 rad of
-  hysteresis) would otherwise swallow a 2 deg sweep.
-- JSBSim holds a surface for a whole step: the airframe gets the card at the middle of each step, so the staircase
-  has no mean delay against the smooth logged surface (without it the measured phase lags by half a step,
-  ``w dt / 2``: 7 deg at 30 rad/s).
-- **Airspeed** logged where a channel has an ``airspeed`` stream (the configs of :func:`config_mapping` have one on
-  ``/airspeed``): JSBSim's true airspeed [m/s] with :data:`AIRSPEED_NOISE_M_S` of noise.
+  first, the delay interpolated, the linear factors). A hidden effect of a channel acts on its surface, so
+  every channel flying that surface sees it (the roll channel's aileron is the lateral channel's aileron).
+- The surface positions are **set directly** (the FCS's actuators, with their lags, rate limits and free play,
+  are bypassed: :meth:`Trimmed.hold_surfaces`), the ailerons in the ratio the FCS moves them at trim. This is
+  the input the linearisation's converted B matrix describes; the c172x's elevator actuator alone (60 rad/s
+  lag, 0.05 rad of hysteresis) would otherwise swallow a 2 deg sweep.
+- JSBSim holds a surface for a whole step: the airframe gets the card at the middle of each step, so the
+  staircase has no mean delay against the smooth logged surface (without it the measured phase lags by half a
+  step, ``w dt / 2``: 7 deg at 30 rad/s).
+- **Airspeed** logged where a channel has an ``airspeed`` stream (the configs of :func:`config_mapping` have
+  one on ``/airspeed``): JSBSim's true airspeed [m/s] with :data:`AIRSPEED_NOISE_M_S` of noise.
 - **Rates** logged: the body rates p, q, r of JSBSim (``velocities/p-rad_sec`` ...) with the gyro noise and
   quantisation of :class:`FlightOptions`. No synthetic gusts (``gust_rms_rad_s``): the only disturbances are
   JSBSim's own turbulence (``--turbulence``, seeded through ``atmosphere/randomseed``) and the band noise.
-- **Pilot re-trims** (:func:`~gap_validation.core.simulation.pilot_trim`, without its random constant: the trim
-  is JSBSim's) appear in the logged surface only, as in the synthetic flight: they stand for the trim changes that
-  keep the aircraft at its condition, so the airframe does not see them. A **pilot** (:class:`Pilot`) holds the
-  flight condition the model was linearised at: he flies wings level and the trimmed pitch attitude (the altitude
-  through it) back when they have wandered, on every axis no manoeuvre is sweeping, recovers a swept axis only when
-  the aircraft departs, and holds the airspeed on the throttle throughout (the nonlinear aircraft is not held at
-  trim by anything else: without him a c172x at 60 kt spirals into the ground within minutes of the card, and in
-  light turbulence a c172x at 100 kt flies its sweeps 25-31 % above the trim's dynamic pressure).
-- Amplitudes: 2 deg sweeps and doublets by default (:data:`SWEEP_AMPLITUDE_RAD`). Small enough that the aircraft
-  stays near trim and its response near the linearisation (c172x, 100 kt: within about 0.5 dB and 4 deg from
-  1 to 30 rad/s, noise-free), large enough that the gyro and surface noise of :class:`FlightOptions` (sized for
-  the 3.4 deg sweeps of a small UAV) leave the coherence high down to the grid's 1 rad/s; at 1 deg the lowest
-  grid frequencies of the yaw and roll channels become data-limited.
+- **Pilot re-trims** (:func:`~gap_validation.core.simulation.pilot_trim`, without its random constant: the
+  trim is JSBSim's) appear in the logged surface only, as in the synthetic flight: they stand for the trim
+  changes that keep the aircraft at its condition, so the airframe does not see them. A **pilot**
+  (:class:`Pilot`) holds the flight condition the model was linearised at: he flies wings level and the
+  trimmed pitch attitude (the altitude through it) back when they have wandered, on every axis no manoeuvre is
+  sweeping, recovers a swept axis only when the aircraft departs, and holds the airspeed on the throttle
+  throughout (the nonlinear aircraft is not held at trim by anything else: without him a c172x at 60 kt
+  spirals into the ground within minutes of the card, and in light turbulence a c172x at 100 kt flies its
+  sweeps 25-31 % above the trim's dynamic pressure).
+- Amplitudes: 2 deg sweeps and doublets by default (:data:`SWEEP_AMPLITUDE_RAD`). Small enough that the
+  aircraft stays near trim and its response near the linearisation (c172x, 100 kt: within about 0.5 dB and 4
+  deg from 1 to 30 rad/s, noise-free), large enough that the gyro and surface noise of :class:`FlightOptions`
+  (sized for the 3.4 deg sweeps of a small UAV) leave the coherence high down to the grid's 1 rad/s; at 1 deg
+  the lowest grid frequencies of the yaw and roll channels become data-limited.
 """
 from __future__ import annotations
 
@@ -52,18 +53,52 @@ from gap_validation.core.config import AIRSPEED_STREAM, FrequencyGrid, Validatio
 from gap_validation.core.effects import is_nonlinear, validate_effect
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.fields import FieldPath
-from gap_validation.core.simulation import (band_noises, card_segments, card_units, channel_deviation, pilot_trim,
-                                            sample_topics)
 from gap_validation.core.models import LinearModel
-from gap_validation.core.simulation import (SWEEP_SEGMENTS, FlightOptions, SimulatedFlight, plan_topics,
-                                            truth_models, with_options)
-from gap_validation.jsbsim.linearize import (DEFAULT_GRID, KT_TO_M_S, POSITIONS, RATES, SURFACES, Linearization,
-                                             TrimPoint, Trimmed, config_mapping, drift_warnings, linearize,
-                                             quiet_jsbsim)
+from gap_validation.core.simulation import (
+    SWEEP_SEGMENTS,
+    FlightOptions,
+    SimulatedFlight,
+    band_noises,
+    card_segments,
+    card_units,
+    channel_deviation,
+    pilot_trim,
+    plan_topics,
+    sample_topics,
+    truth_models,
+    with_options,
+)
+from gap_validation.jsbsim.linearize import (
+    DEFAULT_GRID,
+    KT_TO_M_S,
+    POSITIONS,
+    RATES,
+    SURFACES,
+    Linearization,
+    Trimmed,
+    TrimPoint,
+    config_mapping,
+    drift_warnings,
+    linearize,
+    quiet_jsbsim,
+)
 
-__all__ = ["Turbulence", "TURBULENCE_LEVELS", "parse_turbulence", "jsbsim_options", "JSBSimFlight",
-           "simulate_jsbsim_flight", "fly", "Flown", "HiddenEffects", "Pilot", "pilot_for", "channel_surfaces",
-           "SWEEP_AMPLITUDE_RAD", "PILOT_BANDWIDTH_RAD_S"]
+__all__ = [
+    "Turbulence",
+    "TURBULENCE_LEVELS",
+    "parse_turbulence",
+    "jsbsim_options",
+    "JSBSimFlight",
+    "simulate_jsbsim_flight",
+    "fly",
+    "Flown",
+    "HiddenEffects",
+    "Pilot",
+    "pilot_for",
+    "channel_surfaces",
+    "SWEEP_AMPLITUDE_RAD",
+    "PILOT_BANDWIDTH_RAD_S",
+]
 
 #: Default sweep and doublet amplitude [rad] (2 deg; module docstring).
 SWEEP_AMPLITUDE_RAD = math.radians(2.0)
@@ -74,10 +109,15 @@ TURBULENCE_LEVELS = {"light": (3, 15.0), "moderate": (4, 30.0), "severe": (6, 45
 #: Noise of the logged airspeed [m/s] (a pitot-static sensor's, about 0.3 kt).
 AIRSPEED_NOISE_M_S = 0.15
 #: IMU fields of the body rates.
-_RATE_FIELDS = {("angular_velocity", "x"): "p", ("angular_velocity", "y"): "q", ("angular_velocity", "z"): "r"}
+_RATE_FIELDS = {
+    ("angular_velocity", "x"): "p",
+    ("angular_velocity", "y"): "q",
+    ("angular_velocity", "z"): "r",
+}
 #: Spawn key of the turbulence seed (a stream of the flight's seed of its own).
 _TURBULENCE_STREAM = 11
-#: Envelope a flight must stay in (else the amplitudes or the turbulence are too large for a linear validation).
+#: Envelope a flight must stay in (else the amplitudes or the turbulence are too large for a linear
+#: validation).
 _MAX_BANK_DEG, _MAX_PITCH_DEG, _MIN_HEIGHT_FT = 75.0, 45.0, 50.0
 _KT_TO_FPS = 1.6878098571011957
 
@@ -91,8 +131,8 @@ class Turbulence:
     model : str
         ``milspec`` or ``tustin`` (two discretisations of the Dryden spectra).
     severity : int
-        Probability-of-exceedence index, 1 to 7 (``atmosphere/turbulence/milspec/severity``; 3 light, 4 moderate,
-        6 severe). Above 2000 ft it alone sets the intensity.
+        Probability-of-exceedence index, 1 to 7 (``atmosphere/turbulence/milspec/severity``; 3 light, 4
+        moderate, 6 severe). Above 2000 ft it alone sets the intensity.
     wind_kt : float
         Wind speed at 20 ft [kt] (``windspeed_at_20ft_AGL-fps``): the intensity below 1000 ft.
     """
@@ -110,7 +150,8 @@ class Turbulence:
 
 def parse_turbulence(text: str | None) -> Turbulence | None:
     """Parse ``--turbulence`` of a JSBSim flight: ``light``, ``moderate``, ``severe``, or
-    ``SEVERITY[:WIND_KT]``, each optionally followed by ``:milspec`` (default) or ``:tustin``; ``0``/``none``: off.
+    ``SEVERITY[:WIND_KT]``, each optionally followed by ``:milspec`` (default) or ``:tustin``; ``0``/``none``:
+    off.
 
     Parameters
     ----------
@@ -159,8 +200,8 @@ def parse_turbulence(text: str | None) -> Turbulence | None:
 
 
 def jsbsim_options(options: FlightOptions | None = None, **changes) -> FlightOptions:
-    """:class:`FlightOptions` for a JSBSim flight: 1 deg sweeps and doublets (:data:`SWEEP_AMPLITUDE_RAD`) unless
-    ``changes`` say otherwise; every other default as the synthetic flight's.
+    """:class:`FlightOptions` for a JSBSim flight: 1 deg sweeps and doublets (:data:`SWEEP_AMPLITUDE_RAD`)
+    unless ``changes`` say otherwise; every other default as the synthetic flight's.
 
     Parameters
     ----------
@@ -169,7 +210,9 @@ def jsbsim_options(options: FlightOptions | None = None, **changes) -> FlightOpt
     **changes
         Option name -> value (None values ignored).
     """
-    base = options or FlightOptions(sweep_amplitude_rad=SWEEP_AMPLITUDE_RAD, doublet_amplitude_rad=SWEEP_AMPLITUDE_RAD)
+    base = options or FlightOptions(
+        sweep_amplitude_rad=SWEEP_AMPLITUDE_RAD, doublet_amplitude_rad=SWEEP_AMPLITUDE_RAD
+    )
     return with_options(base, **changes)
 
 
@@ -178,8 +221,10 @@ def _surface_of(spec, where: str) -> str:
     path = FieldPath.parse(spec.field)
     name = path.key if path.key is not None else spec.topic.rstrip("/").rsplit("/", 1)[-1]
     if name not in SURFACES:
-        raise ConfigError(f"{where}: {spec.topic} {spec.field!r} is no JSBSim surface (the joint, or a Float64 "
-                          f"topic's last name, must be one of {', '.join(SURFACES)})")
+        raise ConfigError(
+            f"{where}: {spec.topic} {spec.field!r} is no JSBSim surface (the joint, or a Float64 "
+            f"topic's last name, must be one of {', '.join(SURFACES)})"
+        )
     return name
 
 
@@ -216,7 +261,8 @@ def channel_surfaces(config: ValidationConfig) -> dict[str, tuple[tuple[str, ...
 
 
 def _surface_effects(config: ValidationConfig, hidden: dict, surfaces: dict) -> dict[str, list[dict]]:
-    """Surface -> the hidden effects acting on it (those of every channel that flies it, in the order given)."""
+    """Surface -> the hidden effects acting on it (those of every channel that flies it, in the order
+    given)."""
     truth_models(config, hidden)          # the core's checks: known channels, no effects on a MIMO model yet
     out: dict[str, list[dict]] = {s: [] for s in SURFACES}
     for name, effects in hidden.items():
@@ -301,29 +347,31 @@ class Pilot:
     """The pilot: wings level on the ailerons, the trimmed pitch attitude (and altitude) on the elevator, the
     airspeed on the throttle.
 
-    As test pilots fly a card: hands off the swept control during a manoeuvre (the stick held where it was on that
-    axis) unless the aircraft departs (bank beyond ``recover_bank_rad``, or pitch attitude ``recover_pitch_rad``
-    from trim); the other axis, and both in the gaps between manoeuvres, are flown back once they have wandered
-    (``wander_*``: bank, pitch attitude, or altitude ``wander_altitude_ft`` from trim), until back within
-    ``level_*``. The pitch attitude flown to is the trim's plus ``k_altitude`` per foot below the trimmed altitude
-    (at most ``altitude_pitch_rad``): the altitude is flown back at the pilot's pace. The throttle holds the true
-    airspeed all the time (``k_speed``, integral time ``speed_ti_s``): the flight condition the model was
-    linearised at is the one flown, as a test pilot keeps it (measured, c172x at 100 kt in light turbulence, a
-    6-minute card: without the off-axis, altitude and speed holds the aircraft sinks 2300 ft and flies its roll and
-    yaw sweeps 11-14 kt fast, dynamic pressure +25-31 %, and the response follows).
+    As test pilots fly a card: hands off the swept control during a manoeuvre (the stick held where it was on
+    that axis) unless the aircraft departs (bank beyond ``recover_bank_rad``, or pitch attitude
+    ``recover_pitch_rad`` from trim); the other axis, and both in the gaps between manoeuvres, are flown back
+    once they have wandered (``wander_*``: bank, pitch attitude, or altitude ``wander_altitude_ft`` from
+    trim), until back within ``level_*``. The pitch attitude flown to is the trim's plus ``k_altitude`` per
+    foot below the trimmed altitude (at most ``altitude_pitch_rad``): the altitude is flown back at the
+    pilot's pace. The throttle holds the true airspeed all the time (``k_speed``, integral time
+    ``speed_ti_s``): the flight condition the model was linearised at is the one flown, as a test pilot keeps
+    it (measured, c172x at 100 kt in light turbulence, a 6-minute card: without the off-axis, altitude and
+    speed holds the aircraft sinks 2300 ft and flies its roll and yaw sweeps 11-14 kt fast, dynamic pressure
+    +25-31 %, and the response follows).
 
-    Why: nothing else holds the nonlinear aircraft at its trim. Without a pilot a c172x at 60 kt spirals into the
-    ground 4 minutes into the default card, and light turbulence does the same to a c172x at 100 kt. An attitude
-    hold flown all the time reacts to the sweeps' own low-frequency motion and puts pilot inputs into the validated
-    band and into the estimator's records (measured, noise-free c172x at 100 kt: pitch epsilon 0.054 -> 0.13), and
-    so does a recovery at 30 deg of bank or 10 deg of pitch, which 2 deg sweeps reach at their start (0.5 rad/s).
-    The swept axis alone is hands off: the other is held as a test pilot holds it (a roll sweep flown with the pitch
-    attitude let go pumps the phugoid and dives the aircraft).
+    Why: nothing else holds the nonlinear aircraft at its trim. Without a pilot a c172x at 60 kt spirals into
+    the ground 4 minutes into the default card, and light turbulence does the same to a c172x at 100 kt. An
+    attitude hold flown all the time reacts to the sweeps' own low-frequency motion and puts pilot inputs into
+    the validated band and into the estimator's records (measured, noise-free c172x at 100 kt: pitch epsilon
+    0.054 -> 0.13), and so does a recovery at 30 deg of bank or 10 deg of pitch, which 2 deg sweeps reach at
+    their start (0.5 rad/s). The swept axis alone is hands off: the other is held as a test pilot holds it (a
+    roll sweep flown with the pitch attitude let go pumps the phugoid and dives the aircraft).
 
     ``aileron = -k_phi phi``, ``elevator = -k_theta (theta - theta_ref)``, each through a first-order lag of
-    ``lag_s`` (the pilot's hand) and limited to ``limit_rad``. The gains give the attitude loops a crossover of
-    ``bandwidth_rad_s`` from the aircraft's short-term rate response to the surface (:func:`pilot_for`). The
-    corrections are logged with the surface and reach the airframe through the hidden effects like the card.
+    ``lag_s`` (the pilot's hand) and limited to ``limit_rad``. The gains give the attitude loops a crossover
+    of ``bandwidth_rad_s`` from the aircraft's short-term rate response to the surface (:func:`pilot_for`).
+    The corrections are logged with the surface and reach the airframe through the hidden effects like the
+    card.
 
     Attributes
     ----------
@@ -382,11 +430,16 @@ PILOT_BANDWIDTH_RAD_S = 0.2
 ALTITUDE_BANDWIDTH_SHARE, SPEED_BANDWIDTH_SHARE = 0.25, 0.5
 
 
-def pilot_for(aircraft: str, speed_kt: float, altitude_ft: float, bandwidth_rad_s: float = PILOT_BANDWIDTH_RAD_S,
-              split: np.ndarray | None = None) -> Pilot | None:
-    """A :class:`Pilot` sized on the aircraft: the roll and pitch rate 1.5 s after a 0.5 deg aileron and elevator
-    step (flown on trimmed twins) give ``d phi/dt`` and ``d theta/dt`` per rad of surface; the gains are the
-    bandwidth over them. None when ``bandwidth_rad_s`` is 0 (hands off).
+def pilot_for(
+    aircraft: str,
+    speed_kt: float,
+    altitude_ft: float,
+    bandwidth_rad_s: float = PILOT_BANDWIDTH_RAD_S,
+    split: np.ndarray | None = None,
+) -> Pilot | None:
+    """A :class:`Pilot` sized on the aircraft: the roll and pitch rate 1.5 s after a 0.5 deg aileron and
+    elevator step (flown on trimmed twins) give ``d phi/dt`` and ``d theta/dt`` per rad of surface; the gains
+    are the bandwidth over them. None when ``bandwidth_rad_s`` is 0 (hands off).
 
     Parameters
     ----------
@@ -420,8 +473,13 @@ def pilot_for(aircraft: str, speed_kt: float, altitude_ft: float, bandwidth_rad_
     # the airspeed's relative rate of change 3 s after a throttle step of 0.1, surfaces at trim (1/s per unit)
     step_th, seconds = 0.1, 3.0
     throttle = [min(1.0, t + step_th) for t in point.throttle]
-    flown = fly(twin, np.zeros((int(round(seconds / point.dt_s)), len(SURFACES))), split, check_envelope=False,
-                throttle=throttle)
+    flown = fly(
+        twin,
+        np.zeros((int(round(seconds / point.dt_s)), len(SURFACES))),
+        split,
+        check_envelope=False,
+        throttle=throttle,
+    )
     accel = (flown.airspeed_kt[-1] * _KT_TO_FPS - v0) / seconds / v0 / step_th
     k_speed = SPEED_BANDWIDTH_SHARE * bandwidth_rad_s / accel if accel > 1e-6 else 0.0
     return Pilot(k_phi=k_phi, k_theta=k_theta, theta_trim_rad=math.radians(point.theta_deg),
@@ -460,9 +518,9 @@ def fly(trimmed: Trimmed, deviations: np.ndarray, split: np.ndarray, *, effects:
     Step k sets the surfaces to trim + ``H(deviations[k] + pilot_k)`` (``H``: the surface's hidden effects),
     held for the step (the FCS bypassed: :meth:`Trimmed.hold_surfaces`), runs JSBSim once and reads p, q, r.
     JSBSim's step first integrates the state (with the accelerations of the step before), then evaluates the
-    forces with the new surfaces: so ``rates[k]`` is the state at ``t_k``, when the surface of step k starts to
-    act, and that surface holds until ``t_k + dt`` (a zero-order hold; fly a smooth signal at the steps' middles,
-    ``t_k + dt / 2``, and it has no mean delay).
+    forces with the new surfaces: so ``rates[k]`` is the state at ``t_k``, when the surface of step k starts
+    to act, and that surface holds until ``t_k + dt`` (a zero-order hold; fly a smooth signal at the steps'
+    middles, ``t_k + dt / 2``, and it has no mean delay).
 
     Parameters
     ----------
@@ -477,9 +535,9 @@ def fly(trimmed: Trimmed, deviations: np.ndarray, split: np.ndarray, *, effects:
     pilot : Pilot, optional
         The pilot (default: none, hands off throughout).
     pilot_flies : ndarray, optional
-        n x 2 booleans (or n, for both): where the pilot flies the roll (ailerons) and the pitch (elevator) axis
-        back once it has wandered, i.e. where no manoeuvre sweeps that axis (default: all steps); elsewhere he
-        holds that stick still unless the aircraft departs (:class:`Pilot`).
+        n x 2 booleans (or n, for both): where the pilot flies the roll (ailerons) and the pitch (elevator)
+        axis back once it has wandered, i.e. where no manoeuvre sweeps that axis (default: all steps);
+        elsewhere he holds that stick still unless the aircraft departs (:class:`Pilot`).
     throttle : list of float, optional
         Throttle commands held throughout, one per engine (default: the trim's, or the pilot's airspeed hold).
     check_envelope : bool
@@ -511,7 +569,9 @@ def fly(trimmed: Trimmed, deviations: np.ndarray, split: np.ndarray, *, effects:
         flies = np.repeat(flies[:, None], 2, axis=1)
     held = [0.0, 0.0, 0.0]
     wandered, departed = [False, False], False
-    throttle_nodes = [manager.get_node(f"fcs/throttle-cmd-norm[{i}]") for i in range(len(trimmed.point.throttle))]
+    throttle_nodes = [
+        manager.get_node(f"fcs/throttle-cmd-norm[{i}]") for i in range(len(trimmed.point.throttle))
+    ]
     throttle_trim = list(trimmed.point.throttle)
     if throttle is not None:
         for node, value in zip(throttle_nodes, throttle):
@@ -527,8 +587,9 @@ def fly(trimmed: Trimmed, deviations: np.ndarray, split: np.ndarray, *, effects:
             if pilot is not None:
                 phi, theta = phi_node.get_double_value(), theta_node.get_double_value()
                 below = h_trim - h_node.get_double_value()
-                theta_ref = pilot.theta_trim_rad + min(max(pilot.k_altitude * below, -pilot.altitude_pitch_rad),
-                                                       pilot.altitude_pitch_rad)
+                theta_ref = pilot.theta_trim_rad + min(
+                    max(pilot.k_altitude * below, -pilot.altitude_pitch_rad), pilot.altitude_pitch_rad
+                )
                 bank, pitch = abs(phi), abs(theta - theta_ref)
                 off = (bank > pilot.wander_bank_rad,
                        pitch > pilot.wander_pitch_rad or abs(below) > pilot.wander_altitude_ft)
@@ -541,7 +602,10 @@ def fly(trimmed: Trimmed, deviations: np.ndarray, split: np.ndarray, *, effects:
                         wandered[j] = True
                     elif level[j]:
                         wandered[j] = False
-                if bank > pilot.recover_bank_rad or abs(theta - pilot.theta_trim_rad) > pilot.recover_pitch_rad:
+                if (
+                    bank > pilot.recover_bank_rad
+                    or abs(theta - pilot.theta_trim_rad) > pilot.recover_pitch_rad
+                ):
                     departed = True
                 elif level[0] and pitch < pilot.level_pitch_rad:
                     departed = False
@@ -586,10 +650,13 @@ def fly(trimmed: Trimmed, deviations: np.ndarray, split: np.ndarray, *, effects:
                 if not (abs(phi_deg) <= _MAX_BANK_DEG and abs(theta_deg) <= _MAX_PITCH_DEG
                         and height >= _MIN_HEIGHT_FT):
                     raise ConfigError(
-                        f"JSBSim {trimmed.aircraft}: the aircraft left the envelope of a linear validation at "
+                        f"JSBSim {trimmed.aircraft}: the aircraft left the envelope of a linear validation "
+                        "at "
                         f"{k * dt:.1f} s (bank {phi_deg:.0f} deg, pitch {theta_deg:.0f} deg, height "
-                        f"{height:.0f} ft): fly smaller amplitudes (--amplitude-deg), fewer rounds (--sweeps), less "
-                        "turbulence, or trim higher")
+                        f"{height:.0f} ft): fly smaller amplitudes (--amplitude-deg), fewer rounds "
+                        "(--sweeps), less "
+                        "turbulence, or trim higher"
+                    )
     if not np.all(np.isfinite(rates)):
         raise ConfigError(f"JSBSim {trimmed.aircraft}: the simulation diverged (non-finite rates)")
     return Flown(rates=rates, pilot=corrections, airframe=airframe, airspeed_kt=airspeed / _KT_TO_FPS,
@@ -600,7 +667,9 @@ def _set_turbulence(trimmed: Trimmed, turbulence: Turbulence | None, seed: int) 
     if turbulence is None:
         return None
     fdm = trimmed.fdm
-    turb_seed = int(np.random.SeedSequence(seed, spawn_key=(_TURBULENCE_STREAM,)).generate_state(1)[0] % 2 ** 31)
+    turb_seed = int(
+        np.random.SeedSequence(seed, spawn_key=(_TURBULENCE_STREAM,)).generate_state(1)[0] % 2**31
+    )
     with quiet_jsbsim():
         fdm["atmosphere/randomseed"] = turb_seed
         fdm["atmosphere/turb-type"] = TURBULENCE_TYPES[turbulence.model]
@@ -616,9 +685,9 @@ class JSBSimFlight:
     Attributes
     ----------
     flight : SimulatedFlight
-        What :func:`gap_validation.bag.writer.write_flight` writes (``truth``: the config's models with the hidden
-        effects, the linear approximation of the truth; ``inputs``: the logged surface deviations from trim,
-        ``outputs``: JSBSim's rates less their trim values).
+        What :func:`gap_validation.bag.writer.write_flight` writes (``truth``: the config's models with the
+        hidden effects, the linear approximation of the truth; ``inputs``: the logged surface deviations from
+        trim, ``outputs``: JSBSim's rates less their trim values).
     config : ValidationConfig
         The config flown (the linearisation's when none was given).
     point : TrimPoint
@@ -660,11 +729,18 @@ class JSBSimFlight:
     warnings: list = field(default_factory=list)
 
 
-def simulate_jsbsim_flight(aircraft: str, speed_kt: float, altitude_ft: float, config: ValidationConfig | None = None,
-                           hidden: dict[str, list[dict]] | None = None, options: FlightOptions | None = None,
-                           seed: int = 0, turbulence: Turbulence | None = None,
-                           grid: FrequencyGrid = DEFAULT_GRID,
-                           attitude_hold_rad_s: float = PILOT_BANDWIDTH_RAD_S) -> JSBSimFlight:
+def simulate_jsbsim_flight(
+    aircraft: str,
+    speed_kt: float,
+    altitude_ft: float,
+    config: ValidationConfig | None = None,
+    hidden: dict[str, list[dict]] | None = None,
+    options: FlightOptions | None = None,
+    seed: int = 0,
+    turbulence: Turbulence | None = None,
+    grid: FrequencyGrid = DEFAULT_GRID,
+    attitude_hold_rad_s: float = PILOT_BANDWIDTH_RAD_S,
+) -> JSBSimFlight:
     """Fly the test card in JSBSim (see the module's conventions).
 
     Parameters
@@ -681,8 +757,8 @@ def simulate_jsbsim_flight(aircraft: str, speed_kt: float, altitude_ft: float, c
     hidden : dict, optional
         Channel -> effects between the logged surface and the airframe.
     options : FlightOptions, optional
-        The card, rates and noise (default :func:`jsbsim_options`). ``sim_rate_hz``, the gusts and the closed-loop
-        options do not apply (JSBSim's rate; its own turbulence).
+        The card, rates and noise (default :func:`jsbsim_options`). ``sim_rate_hz``, the gusts and the
+        closed-loop options do not apply (JSBSim's rate; its own turbulence).
     seed : int
         The same seed gives the same flight (turbulence included).
     turbulence : Turbulence, optional
@@ -690,7 +766,8 @@ def simulate_jsbsim_flight(aircraft: str, speed_kt: float, altitude_ft: float, c
     grid : FrequencyGrid
         Grid of the config linearised when none is given.
     attitude_hold_rad_s : float
-        Crossover of the pilot's attitude hold (:class:`Pilot`; 0: hands off, the aircraft flies the card alone).
+        Crossover of the pilot's attitude hold (:class:`Pilot`; 0: hands off, the aircraft flies the card
+        alone).
 
     Raises
     ------
@@ -749,8 +826,14 @@ def simulate_jsbsim_flight(aircraft: str, speed_kt: float, altitude_ft: float, c
         retrims[s] = trim_series - trim_series[0]          # the constant is JSBSim's trim
 
     start, cpu = time.perf_counter(), time.process_time()
-    done = fly(trimmed, flown, split, effects={s: HiddenEffects(effects[s], dt) for s in SURFACES}, pilot=pilot,
-               pilot_flies=pilot_flies)
+    done = fly(
+        trimmed,
+        flown,
+        split,
+        effects={s: HiddenEffects(effects[s], dt) for s in SURFACES},
+        pilot=pilot,
+        pilot_flies=pilot_flies,
+    )
     jsbsim_s, jsbsim_cpu_s = time.perf_counter() - start, time.process_time() - cpu
     rates = done.rates
     rate_series = {r: rates[:, i] for i, r in enumerate(RATES)}
@@ -793,9 +876,19 @@ def simulate_jsbsim_flight(aircraft: str, speed_kt: float, altitude_ft: float, c
             inputs[name] = logged[ins[0]]
             outputs[name] = rate_series[outs[0]] - trims[outs[0]]
     topics = sample_topics(plan_topics(config), measured, t_s, duration_s, opt, rng)
-    flight = SimulatedFlight(topics=topics, segments=segments, truth=truth_models(config, hidden), hidden=hidden,
-                             t_s=t_s, inputs=inputs, outputs=outputs, duration_s=duration_s,
-                             start_time_s=opt.start_time_s, seed=seed, options=opt)
+    flight = SimulatedFlight(
+        topics=topics,
+        segments=segments,
+        truth=truth_models(config, hidden),
+        hidden=hidden,
+        t_s=t_s,
+        inputs=inputs,
+        outputs=outputs,
+        duration_s=duration_s,
+        start_time_s=opt.start_time_s,
+        seed=seed,
+        options=opt,
+    )
     return JSBSimFlight(flight=flight, config=config, point=point, linearization=lin, surfaces=surfaces,
                         surface_effects={s: e for s, e in effects.items() if e}, turbulence=turbulence,
                         turbulence_seed=turb_seed, steps=n, jsbsim_s=jsbsim_s, jsbsim_cpu_s=jsbsim_cpu_s,
@@ -810,8 +903,12 @@ def _refuse_loop_options(opt: FlightOptions) -> None:
                               ("coupling", opt.coupling, "--coupling"),
                               ("cross_responses", opt.cross_responses, "--cross-response")):
         if value:
-            raise ConfigError(f"{flag}: not available with --jsbsim (JSBSim flies the card open loop; simulation "
-                              f"option {name})")
+            raise ConfigError(
+                f"{flag}: not available with --jsbsim (JSBSim flies the card open loop; simulation "
+                f"option {name})"
+            )
     if opt.turbulence_rms_rad_s:
-        raise ConfigError("simulation option turbulence_rms_rad_s: with --jsbsim, --turbulence is JSBSim's own "
-                          "(light, moderate, severe or SEVERITY[:WIND_KT])")
+        raise ConfigError(
+            "simulation option turbulence_rms_rad_s: with --jsbsim, --turbulence is JSBSim's own "
+            "(light, moderate, severe or SEVERITY[:WIND_KT])"
+        )

@@ -1,26 +1,28 @@
-"""A JSBSim aircraft trimmed straight and level and linearised by JSBSim itself, written as a validation config.
+"""A JSBSim aircraft trimmed straight and level and linearised by JSBSim itself, written as a validation
+config.
 
 Conventions (``gap-validate linearize --jsbsim AIRCRAFT --speed-kt V --altitude-ft H``):
 
-- **Trim**: the aircraft shipped with the ``jsbsim`` wheel (``jsbsim.FGFDMExec(None)``), initial conditions at V
-  knots *true* airspeed (``ic/vt-kts``) and H ft above sea level (``ic/h-sl-ft``; JSBSim's terrain is at sea
+- **Trim**: the aircraft shipped with the ``jsbsim`` wheel (``jsbsim.FGFDMExec(None)``), initial conditions at
+  V knots *true* airspeed (``ic/vt-kts``) and H ft above sea level (``ic/h-sl-ft``; JSBSim's terrain is at sea
   level), flight path angle 0, wings level, heading north, every engine running; JSBSim's full trim
   (``do_trim(1)``: throttle, pitch, roll and yaw controls, attitude). A failed trim is a :class:`ConfigError`.
 - **Linearisation**: ``jsbsim.FGLinearization`` about that trim. Its inputs are the normalised *commands*
-  (``fcs/aileron-cmd-norm`` ...) and it runs the flight control system in trim mode, where actuators pass their
-  input through; so its input matrix is converted to surface radians with the FCS's own static gains at trim,
-  ``d(position rad) / d(command norm)``, measured the way FGLinearization perturbs the commands.
-- **Inputs** (the config's surfaces, in rad): ``aileron = (left - right) / 2`` of ``fcs/left-aileron-pos-rad`` and
-  ``fcs/right-aileron-pos-rad``, ``elevator = fcs/elevator-pos-rad``, ``rudder = fcs/rudder-pos-rad``. A simulated
-  flight (:mod:`gap_validation.jsbsim.flight`) sets exactly these positions (the two ailerons in the ratio the FCS
-  moves them) and logs them. **Outputs**: body rates ``p, q, r`` [rad/s] (``velocities/p-rad_sec`` ...).
+  (``fcs/aileron-cmd-norm`` ...) and it runs the flight control system in trim mode, where actuators pass
+  their input through; so its input matrix is converted to surface radians with the FCS's own static gains at
+  trim, ``d(position rad) / d(command norm)``, measured the way FGLinearization perturbs the commands.
+- **Inputs** (the config's surfaces, in rad): ``aileron = (left - right) / 2`` of ``fcs/left-aileron-pos-rad``
+  and ``fcs/right-aileron-pos-rad``, ``elevator = fcs/elevator-pos-rad``, ``rudder = fcs/rudder-pos-rad``. A
+  simulated flight (:mod:`gap_validation.jsbsim.flight`) sets exactly these positions (the two ailerons in the
+  ratio the FCS moves them) and logs them. **Outputs**: body rates ``p, q, r`` [rad/s]
+  (``velocities/p-rad_sec`` ...).
 - **States** kept: FGLinearization's states but heading and position (``Psi``, ``Latitude``, ``Longitude``,
   ``Alt``), which do not feed back into the rates (altitude only through the air density, a mode of > 1000 s):
-  ``Vt`` [ft/s], ``Alpha``, ``Theta`` [rad], ``Q`` [rad/s], ``Rpm0`` ... (propeller engines), ``Beta``, ``Phi``
-  [rad], ``P``, ``R`` [rad/s].
+  ``Vt`` [ft/s], ``Alpha``, ``Theta`` [rad], ``Q`` [rad/s], ``Rpm0`` ... (propeller engines), ``Beta``,
+  ``Phi`` [rad], ``P``, ``R`` [rad/s].
 - **Check**: the control derivatives of the rate rows are measured again by setting the surface positions
-  directly (:func:`surface_derivatives`); they must agree with the converted FGLinearization input matrix, or the
-  aircraft's aerodynamics read other properties than the surfaces a flight sets (a ConfigError).
+  directly (:func:`surface_derivatives`); they must agree with the converted FGLinearization input matrix, or
+  the aircraft's aerodynamics read other properties than the surfaces a flight sets (a ConfigError).
 """
 from __future__ import annotations
 
@@ -40,19 +42,46 @@ import numpy as np
 from gap_validation.core.config import FrequencyGrid
 from gap_validation.core.errors import ConfigError, DataError
 
-__all__ = ["SURFACES", "RATES", "POSITIONS", "CHECKED", "DEFAULT_GRID", "TrimPoint", "Trimmed", "Linearization",
-           "available_aircraft", "jsbsim_version", "quiet_jsbsim", "trim", "linearize", "surface_derivatives",
-           "surface_values", "drift_warnings", "config_mapping", "config_text", "write_config"]
+__all__ = [
+    "SURFACES",
+    "RATES",
+    "POSITIONS",
+    "CHECKED",
+    "DEFAULT_GRID",
+    "TrimPoint",
+    "Trimmed",
+    "Linearization",
+    "available_aircraft",
+    "jsbsim_version",
+    "quiet_jsbsim",
+    "trim",
+    "linearize",
+    "surface_derivatives",
+    "surface_values",
+    "drift_warnings",
+    "config_mapping",
+    "config_text",
+    "write_config",
+]
 
 #: The config's surfaces (inputs, in rad) and rates (outputs, in rad/s), in matrix order.
 SURFACES = ("aileron", "elevator", "rudder")
 RATES = ("p", "q", "r")
 #: FGFCS surface positions a flight sets [rad]: left and right aileron, elevator, rudder.
-POSITIONS = ("fcs/left-aileron-pos-rad", "fcs/right-aileron-pos-rad", "fcs/elevator-pos-rad", "fcs/rudder-pos-rad")
+POSITIONS = (
+    "fcs/left-aileron-pos-rad",
+    "fcs/right-aileron-pos-rad",
+    "fcs/elevator-pos-rad",
+    "fcs/rudder-pos-rad",
+)
 #: Properties tied to the same FGFCS members in degrees (an FCS writing them must be blocked too).
 POSITIONS_DEG = tuple(p.replace("-rad", "-deg") for p in POSITIONS)
 #: Normalised commands of FGLinearization's inputs DaCmd, DeCmd, DrCmd.
-COMMANDS = {"aileron": "fcs/aileron-cmd-norm", "elevator": "fcs/elevator-cmd-norm", "rudder": "fcs/rudder-cmd-norm"}
+COMMANDS = {
+    "aileron": "fcs/aileron-cmd-norm",
+    "elevator": "fcs/elevator-cmd-norm",
+    "rudder": "fcs/rudder-cmd-norm",
+}
 _LINEAR_INPUTS = {"aileron": "DaCmd", "elevator": "DeCmd", "rudder": "DrCmd"}
 _LINEAR_RATES = {"p": "P", "q": "Q", "r": "R"}
 RATE_PROPERTIES = ("velocities/p-rad_sec", "velocities/q-rad_sec", "velocities/r-rad_sec")
@@ -63,19 +92,21 @@ DROPPED_STATES = ("Psi", "Latitude", "Longitude", "Alt")
 #: airspeeds [kt] at 3000 ft where they trim (the DHC6 trims at 100-140 kt but does not hold its trim:
 #: :meth:`Trimmed.drift`).
 CHECKED = {"c172x": (60, 120), "J3Cub": (40, 90), "pa28": (80, 100)}
-#: Frequency grid of the written config: a light aircraft's dutch roll, roll and short-period modes (1-10 rad/s)
-#: with an octave below and a decade above. Not lower: the card's sweeps start at half the lowest frequency, and
-#: from 0.25 rad/s they pump the phugoid (about 0.2 rad/s) and bank the aircraft beyond the linear range (a
-#: c172x at 100 kt: 20 deg of bank, 15 kt of speed, measured 4 dB and 20 deg off the linearisation at 0.5 rad/s).
+#: Frequency grid of the written config: a light aircraft's dutch roll, roll and short-period modes (1-10
+#: rad/s) with an octave below and a decade above. Not lower: the card's sweeps start at half the lowest
+#: frequency, and from 0.25 rad/s they pump the phugoid (about 0.2 rad/s) and bank the aircraft beyond the
+#: linear range (a c172x at 100 kt: 20 deg of bank, 15 kt of speed, measured 4 dB and 20 deg off the
+#: linearisation at 0.5 rad/s).
 DEFAULT_GRID = FrequencyGrid(1.0, 30.0, 40)
 #: Step of the FCS gain measurement, as FGLinearization perturbs the commands (FGStateSpace::linearize).
 _COMMAND_STEP = 1e-4
-#: Largest relative disagreement of the surface-set control derivatives with the converted FGLinearization ones.
+#: Largest relative disagreement of the surface-set control derivatives with the converted FGLinearization
+#: ones.
 CONSISTENCY_LIMIT = 0.05
 #: Lowest altitude accepted [ft]: above the ground effect and the gear of the shipped light aircraft.
 MIN_ALTITUDE_FT = 100.0
-#: Largest body rate [rad/s] a trimmed aircraft may reach in 2 s with its surfaces held (:meth:`Trimmed.drift`);
-#: above it the trim is not steady in the nonlinear model and a warning says so.
+#: Largest body rate [rad/s] a trimmed aircraft may reach in 2 s with its surfaces held
+#: (:meth:`Trimmed.drift`); above it the trim is not steady in the nonlinear model and a warning says so.
 DRIFT_LIMIT_RAD_S = 1e-3
 
 
@@ -84,7 +115,9 @@ def _jsbsim():
     try:
         import jsbsim
     except ImportError:
-        raise ConfigError("JSBSim is not installed: pip install jsbsim (the Python wheel ships the aircraft)") from None
+        raise ConfigError(
+            "JSBSim is not installed: pip install jsbsim (the Python wheel ships the aircraft)"
+        ) from None
     return jsbsim
 
 
@@ -95,7 +128,8 @@ def jsbsim_version() -> str:
 
 @contextlib.contextmanager
 def quiet_jsbsim() -> Iterator[list[str]]:
-    """JSBSim's console messages collected instead of printed, while the block runs (JSBSim's logger is per thread).
+    """JSBSim's console messages collected instead of printed, while the block runs (JSBSim's logger is per
+    thread).
 
     Yields
     ------
@@ -159,12 +193,16 @@ def _check_condition(speed_kt: float, altitude_ft: float) -> tuple[float, float]
     try:
         speed_kt, altitude_ft = float(speed_kt), float(altitude_ft)
     except (TypeError, ValueError):
-        raise ConfigError(f"speed {speed_kt!r} kt and altitude {altitude_ft!r} ft: expected numbers") from None
+        raise ConfigError(
+            f"speed {speed_kt!r} kt and altitude {altitude_ft!r} ft: expected numbers"
+        ) from None
     if not (math.isfinite(speed_kt) and 0.0 < speed_kt <= 2000.0):
         raise ConfigError(f"--speed-kt {speed_kt:g}: expected a true airspeed above 0 and at most 2000 kt")
     if not (math.isfinite(altitude_ft) and MIN_ALTITUDE_FT <= altitude_ft <= 100_000.0):
-        raise ConfigError(f"--altitude-ft {altitude_ft:g}: expected {MIN_ALTITUDE_FT:g} to 100000 ft above sea level "
-                          "(JSBSim's terrain is at sea level; near it the gear and ground effect spoil the trim)")
+        raise ConfigError(
+            f"--altitude-ft {altitude_ft:g}: expected {MIN_ALTITUDE_FT:g} to 100000 ft above sea level "
+            "(JSBSim's terrain is at sea level; near it the gear and ground effect spoil the trim)"
+        )
     return speed_kt, altitude_ft
 
 
@@ -191,7 +229,8 @@ class TrimPoint:
     commands : dict
         Normalised commands at trim (``aileron``, ``elevator``, ``rudder``; pitch trim etc. are in the FCS).
     residuals : dict
-        Accelerations left by the trim (``udot``, ``vdot``, ``wdot`` [ft/s^2], ``pdot``, ``qdot``, ``rdot`` [rad/s^2]).
+        Accelerations left by the trim (``udot``, ``vdot``, ``wdot`` [ft/s^2], ``pdot``, ``qdot``, ``rdot``
+        [rad/s^2]).
     dt_s : float
         JSBSim's integration step [s] (1/120 s by default).
     version : str
@@ -249,7 +288,8 @@ class Trimmed:
         _check_aircraft(aircraft)
         self.aircraft = aircraft
         where = f"{aircraft} at {speed_kt:g} kt true airspeed, {altitude_ft:g} ft"
-        # the aircraft's own <output> elements (c172x: a CSV file) write into a directory of ours, removed with us
+        # the aircraft's own <output> elements (c172x: a CSV file) write into a directory of ours, removed
+        # with us
         self._output_dir = tempfile.mkdtemp(prefix="gap_validation_jsbsim_")
         weakref.finalize(self, shutil.rmtree, self._output_dir, True)
         with quiet_jsbsim() as messages:
@@ -260,8 +300,10 @@ class Trimmed:
                 raise ConfigError(f"JSBSim cannot load aircraft {aircraft!r}" + _reason(messages))
             fdm.disable_output()
             if fdm.get_propulsion().get_num_engines() < 1:
-                raise ConfigError(f"JSBSim aircraft {aircraft!r} has no engine: it cannot trim in level flight "
-                                  f"(known ones include {', '.join(CHECKED)})")
+                raise ConfigError(
+                    f"JSBSim aircraft {aircraft!r} has no engine: it cannot trim in level flight "
+                    f"(known ones include {', '.join(CHECKED)})"
+                )
             fdm["ic/h-sl-ft"] = altitude_ft
             fdm["ic/vt-kts"] = speed_kt
             fdm["ic/gamma-deg"] = 0.0
@@ -273,10 +315,14 @@ class Trimmed:
             try:
                 fdm.do_trim(1)
             except jsbsim.TrimFailureError:
-                raise ConfigError(f"JSBSim cannot trim {where} (straight and level{_reason(messages, ': ')}); "
-                                  "try another speed") from None
+                raise ConfigError(
+                    f"JSBSim cannot trim {where} (straight and level{_reason(messages, ': ')}); "
+                    "try another speed"
+                ) from None
             except jsbsim.BaseError as err:
-                raise ConfigError(f"JSBSim cannot trim {where}: {str(err).strip() or type(err).__name__}") from None
+                raise ConfigError(
+                    f"JSBSim cannot trim {where}: {str(err).strip() or type(err).__name__}"
+                ) from None
         self.fdm = fdm
         self.point = self._point(speed_kt, altitude_ft)
         self._nodes = None
@@ -299,10 +345,11 @@ class Trimmed:
                 ("qdot", "accelerations/qdot-rad_sec2"), ("rdot", "accelerations/rdot-rad_sec2"))},
             dt_s=float(fdm.get_delta_t()), version=jsbsim_version())
 
-    # -- the FCS ----------------------------------------------------------------------------------------------
+    # -- the FCS
+    # ----------------------------------------------------------------------------------------------
     def fcs_gains(self) -> np.ndarray:
-        """``G[j, k] = d position_k / d command_j`` at trim [rad per normalised command]: rows aileron, elevator,
-        rudder commands; columns :data:`POSITIONS`.
+        """``G[j, k] = d position_k / d command_j`` at trim [rad per normalised command]: rows aileron,
+        elevator, rudder commands; columns :data:`POSITIONS`.
 
         Measured as FGLinearization perturbs its inputs: the FCS run in trim mode (actuators pass their input
         through) with integration suspended, commands moved by +-1e-4 and +-2e-4, the 5-point difference. The
@@ -344,8 +391,8 @@ class Trimmed:
         Raises
         ------
         ConfigError
-            A command that does not move its surface at trim (saturated, or not wired), or an FCS that moves one
-            surface with another's command (interconnect): not supported.
+            A command that does not move its surface at trim (saturated, or not wired), or an FCS that moves
+            one surface with another's command (interconnect): not supported.
         """
         gains = self.fcs_gains()
         quantity = np.array([[0.5, -0.5, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
@@ -354,25 +401,31 @@ class Trimmed:
         scale = np.max(np.abs(gains))
         for j, surface in enumerate(SURFACES):
             if abs(command_gains[j]) < 1e-6:
-                raise ConfigError(f"JSBSim aircraft {self.aircraft!r}: the {surface} command does not move the "
-                                  f"{surface} at trim ({COMMANDS[surface]} -> d position = 0; saturated or not "
-                                  "wired to the FCS surface positions)")
+                raise ConfigError(
+                    f"JSBSim aircraft {self.aircraft!r}: the {surface} command does not move the "
+                    f"{surface} at trim ({COMMANDS[surface]} -> d position = 0; saturated or not "
+                    "wired to the FCS surface positions)"
+                )
             cross = np.abs(gains[j][~own[j]])
             if cross.size and np.max(cross) > 1e-3 * scale:
                 other = [POSITIONS[k] for k in range(len(POSITIONS))
                          if not own[j, k] and abs(gains[j, k]) > 1e-3 * scale]
-                raise ConfigError(f"JSBSim aircraft {self.aircraft!r}: its FCS moves {', '.join(other)} with the "
-                                  f"{surface} command (an interconnect): not supported")
+                raise ConfigError(
+                    f"JSBSim aircraft {self.aircraft!r}: its FCS moves {', '.join(other)} with the "
+                    f"{surface} command (an interconnect): not supported"
+                )
         split = gains / command_gains[:, None]
         split[~own] = 0.0
         return command_gains, split
 
-    # -- setting the surfaces directly ------------------------------------------------------------------------
+    # -- setting the surfaces directly
+    # ------------------------------------------------------------------------
     def hold_surfaces(self) -> None:
         """Take the surface positions away from the FCS: from now on only :meth:`set_positions` moves them.
 
         The FGFCS position properties (rad and deg) lose their WRITE attribute, so the FCS's actuators (with
-        their lags, rate limits, free play) write into nothing; :meth:`set_positions` lifts it for its own write.
+        their lags, rate limits, free play) write into nothing; :meth:`set_positions` lifts it for its own
+        write.
         """
         jsbsim = _jsbsim()
         manager = self.fdm.get_property_manager()
@@ -397,16 +450,17 @@ class Trimmed:
 
     def position_nodes(self) -> tuple[list, object]:
         """The :data:`POSITIONS` property nodes and the WRITE attribute to lift around a write (after
-        :meth:`hold_surfaces`), for a loop that writes only the surfaces that move (:meth:`set_positions` writes
-        all four)."""
+        :meth:`hold_surfaces`), for a loop that writes only the surfaces that move (:meth:`set_positions`
+        writes all four)."""
         return self._nodes, self._write
 
     def drift(self, seconds: float = 2.0) -> float:
-        """Largest body rate [rad/s] the aircraft reaches when flown ``seconds`` with its surfaces held at trim.
+        """Largest body rate [rad/s] the aircraft reaches when flown ``seconds`` with its surfaces held at
+        trim.
 
-        A steady trim stays below 1e-4 rad/s (c172x, J3Cub, pa28: about 1e-6); the DHC6's turboprops in JSBSim 1.3.3
-        lose half their trimmed thrust within a second and the aircraft rolls away (0.015 rad/s in 2 s). Flies this
-        instance: call it on a twin, not on the aircraft to be flown.
+        A steady trim stays below 1e-4 rad/s (c172x, J3Cub, pa28: about 1e-6); the DHC6's turboprops in JSBSim
+        1.3.3 lose half their trimmed thrust within a second and the aircraft rolls away (0.015 rad/s in 2 s).
+        Flies this instance: call it on a twin, not on the aircraft to be flown.
 
         Parameters
         ----------
@@ -431,7 +485,9 @@ class Trimmed:
 
 
 def _reason(messages: list[str], prefix: str = " (JSBSim: ") -> str:
-    useful = [m for m in messages if not m.startswith(("JSBSim Flight Dynamics", "[JSBSim-ML", "JSBSim startup"))]
+    useful = [
+        m for m in messages if not m.startswith(("JSBSim Flight Dynamics", "[JSBSim-ML", "JSBSim startup"))
+    ]
     if not useful:
         return ""
     text = useful[-1].rstrip(".")
@@ -489,7 +545,8 @@ class Linearization:
     drift_rad_s : float
         Largest body rate reached in 2 s flown from the trim with the surfaces held (:meth:`Trimmed.drift`).
     full : dict
-        FGLinearization's own result: ``A``, ``B``, ``C``, ``D``, ``x_names``, ``u_names``, ``y_names``, ``x_units``.
+        FGLinearization's own result: ``A``, ``B``, ``C``, ``D``, ``x_names``, ``u_names``, ``y_names``,
+        ``x_units``.
     """
 
     point: TrimPoint
@@ -528,15 +585,20 @@ def drift_warnings(point: TrimPoint, drift_rad_s: float) -> list[str]:
     """
     if drift_rad_s <= DRIFT_LIMIT_RAD_S:
         return []
-    return [f"JSBSim {point.aircraft} does not stay in its trim at {point.speed_kt:g} kt, {point.altitude_ft:g} ft: "
-            f"flown with the surfaces held it reaches {drift_rad_s:.2g} rad/s of body rate within 2 s (its engine or "
-            "another state leaves the trimmed condition); the linearisation describes a point the nonlinear model "
-            "does not hold"]
+    return [
+        f"JSBSim {point.aircraft} does not stay in its trim at {point.speed_kt:g} kt, {point.altitude_ft:g} "
+        "ft: "
+        f"flown with the surfaces held it reaches {drift_rad_s:.2g} rad/s of body rate within 2 s (its "
+        "engine or "
+        "another state leaves the trimmed condition); the linearisation describes a point the nonlinear "
+        "model "
+        "does not hold"
+    ]
 
 
 def surface_derivatives(trimmed: Trimmed, split: np.ndarray, step_rad: float = 1e-3) -> np.ndarray:
-    """Control derivatives of the body rates, ``d (p', q', r') / d surface`` [1/s^2], measured by setting the surface
-    positions directly (central difference of ``step_rad``, integration suspended).
+    """Control derivatives of the body rates, ``d (p', q', r') / d surface`` [1/s^2], measured by setting the
+    surface positions directly (central difference of ``step_rad``, integration suspended).
 
     Parameters
     ----------
@@ -575,7 +637,8 @@ def surface_derivatives(trimmed: Trimmed, split: np.ndarray, step_rad: float = 1
 
 
 def linearize(aircraft: str, speed_kt: float, altitude_ft: float) -> Linearization:
-    """Trim the aircraft and linearise it with ``jsbsim.FGLinearization``; inputs converted to surface radians.
+    """Trim the aircraft and linearise it with ``jsbsim.FGLinearization``; inputs converted to surface
+    radians.
 
     Parameters
     ----------
@@ -595,20 +658,25 @@ def linearize(aircraft: str, speed_kt: float, altitude_ft: float) -> Linearizati
     trimmed = trim(aircraft, speed_kt, altitude_ft)
     command_gains, split = trimmed.surface_split()
     with quiet_jsbsim():
-        lin = jsbsim.FGLinearization(trimmed.fdm)   # leaves the FDM re-initialised with dt 0: not flown afterwards
+        # leaves the FDM re-initialised with dt 0: not flown afterwards
+        lin = jsbsim.FGLinearization(trimmed.fdm)
         full = {"A": np.array(lin.system_matrix, float), "B": np.array(lin.input_matrix, float),
                 "C": np.array(lin.output_matrix, float), "D": np.array(lin.feedforward_matrix, float),
                 "x_names": tuple(lin.x_names), "u_names": tuple(lin.u_names), "y_names": tuple(lin.y_names),
                 "x_units": tuple(lin.x_units)}
     names = list(full["x_names"])
     if not np.all(np.isfinite(full["A"])) or not np.all(np.isfinite(full["B"])):
-        raise ConfigError(f"JSBSim's linearisation of {aircraft} at {speed_kt:g} kt, {altitude_ft:g} ft is not finite")
+        raise ConfigError(
+            f"JSBSim's linearisation of {aircraft} at {speed_kt:g} kt, {altitude_ft:g} ft is not finite"
+        )
     keep = [i for i, n in enumerate(names) if n not in DROPPED_STATES]
     try:
         inputs = [list(full["u_names"]).index(_LINEAR_INPUTS[s]) for s in SURFACES]
         rows = [list(full["y_names"]).index(_LINEAR_RATES[r]) for r in RATES]
     except ValueError as err:
-        raise ConfigError(f"JSBSim's linearisation of {aircraft}: unexpected inputs or outputs ({err})") from None
+        raise ConfigError(
+            f"JSBSim's linearisation of {aircraft}: unexpected inputs or outputs ({err})"
+        ) from None
     a = full["A"][np.ix_(keep, keep)]
     b = full["B"][np.ix_(keep, inputs)] / command_gains
     c = full["C"][np.ix_(rows, keep)]
@@ -622,9 +690,11 @@ def linearize(aircraft: str, speed_kt: float, altitude_ft: float) -> Linearizati
     scale = np.max(np.abs(converted), axis=0)
     consistency = float(np.max(np.abs(measured - converted) / np.where(scale > 0, scale, 1.0)))
     if not consistency <= CONSISTENCY_LIMIT:
-        raise ConfigError(f"JSBSim aircraft {aircraft!r}: setting the surface positions ({', '.join(POSITIONS)}) does "
-                          f"not reproduce FGLinearization's control derivatives ({100 * consistency:.0f} % apart): its "
-                          "aerodynamics read other properties; not supported")
+        raise ConfigError(
+            f"JSBSim aircraft {aircraft!r}: setting the surface positions ({', '.join(POSITIONS)}) does "
+            f"not reproduce FGLinearization's control derivatives ({100 * consistency:.0f} % apart): its "
+            "aerodynamics read other properties; not supported"
+        )
     return Linearization(point=trimmed.point, a=a, b=b, c=c, d=d, states=tuple(names[i] for i in keep),
                          state_units=tuple(full["x_units"][i] for i in keep), command_gains=command_gains,
                          split=split, consistency=consistency, drift_rad_s=drift, full=full)
@@ -636,7 +706,11 @@ def linearize(aircraft: str, speed_kt: float, altitude_ft: float) -> Linearizati
 AIRSPEED_TOPIC = "/airspeed"
 #: Knots to metres per second.
 KT_TO_M_S = 0.514444
-INPUT_FIELDS = {"aileron": "position[aileron]", "elevator": "position[elevator]", "rudder": "position[rudder]"}
+INPUT_FIELDS = {
+    "aileron": "position[aileron]",
+    "elevator": "position[elevator]",
+    "rudder": "position[rudder]",
+}
 OUTPUT_FIELDS = {"p": "angular_velocity.x", "q": "angular_velocity.y", "r": "angular_velocity.z"}
 #: SISO channels: name -> (surface, rate).
 CHANNELS = {"roll": ("aileron", "p"), "pitch": ("elevator", "q"), "yaw": ("rudder", "r")}
@@ -648,10 +722,16 @@ def _signal(topic: str, field_text: str) -> dict:
     return {"topic": topic, "field": field_text}
 
 
-def config_mapping(lin: Linearization, grid: FrequencyGrid = DEFAULT_GRID, *, surface_topic: str = "/control_surfaces",
-                   imu_topic: str = "/imu", airspeed_topic: str | None = None) -> dict:
-    """The validation config (DESIGN.md) of the linearisation, as a mapping: SISO ``roll``, ``pitch``, ``yaw`` and
-    the MIMO ``lateral`` (aileron and rudder to p and r).
+def config_mapping(
+    lin: Linearization,
+    grid: FrequencyGrid = DEFAULT_GRID,
+    *,
+    surface_topic: str = "/control_surfaces",
+    imu_topic: str = "/imu",
+    airspeed_topic: str | None = None,
+) -> dict:
+    """The validation config (DESIGN.md) of the linearisation, as a mapping: SISO ``roll``, ``pitch``, ``yaw``
+    and the MIMO ``lateral`` (aileron and rudder to p and r).
 
     Parameters
     ----------
@@ -662,11 +742,15 @@ def config_mapping(lin: Linearization, grid: FrequencyGrid = DEFAULT_GRID, *, su
     surface_topic, imu_topic : str
         JointState topic of the surfaces, Imu topic of the rates.
     airspeed_topic : str or None
-        Float64 topic of the true airspeed [m/s], each channel's ``airspeed`` with the trim's as ``trim_m_s`` (the
-        inputs' deviations scaled by the dynamic pressure ratio); None (default): no ``airspeed`` key.
+        Float64 topic of the true airspeed [m/s], each channel's ``airspeed`` with the trim's as ``trim_m_s``
+        (the inputs' deviations scaled by the dynamic pressure ratio); None (default): no ``airspeed`` key.
     """
     a, b, c = (_rounded(m) for m in (lin.a, lin.b, lin.c))
-    frequencies = {"min_rad_s": float(grid.min_rad_s), "max_rad_s": float(grid.max_rad_s), "count": int(grid.count)}
+    frequencies = {
+        "min_rad_s": float(grid.min_rad_s),
+        "max_rad_s": float(grid.max_rad_s),
+        "count": int(grid.count),
+    }
     channels: dict = {}
     airspeed = None if airspeed_topic is None else {
         "topic": airspeed_topic, "field": "data",
@@ -694,11 +778,15 @@ def config_mapping(lin: Linearization, grid: FrequencyGrid = DEFAULT_GRID, *, su
     if airspeed is not None:
         channels[name]["airspeed"] = dict(airspeed)
     point = lin.point
-    return {"aircraft": f"JSBSim {point.aircraft}",
-            "description": (f"FGLinearization of {point.aircraft} at {point.speed_kt:g} kt true airspeed, "
-                            f"{point.altitude_ft:g} ft (JSBSim {point.version}); surfaces [rad] to body rates "
-                            "[rad/s]"),
-            "channels": channels}
+    return {
+        "aircraft": f"JSBSim {point.aircraft}",
+        "description": (
+            f"FGLinearization of {point.aircraft} at {point.speed_kt:g} kt true airspeed, "
+            f"{point.altitude_ft:g} ft (JSBSim {point.version}); surfaces [rad] to body rates "
+            "[rad/s]"
+        ),
+        "channels": channels,
+    }
 
 
 def _rounded(matrix: np.ndarray) -> list[list[float]]:
@@ -723,7 +811,9 @@ def _matrix_block(name: str, rows: list, indent: str, anchor: str | None = None)
     return [head] + [f"{indent}  - {_flow(row)}" for row in rows]
 
 
-def config_text(lin: Linearization, grid: FrequencyGrid = DEFAULT_GRID, airspeed_topic: str | None = None) -> str:
+def config_text(
+    lin: Linearization, grid: FrequencyGrid = DEFAULT_GRID, airspeed_topic: str | None = None
+) -> str:
     """The config of :func:`config_mapping` as YAML text with a header comment (aircraft, condition, trim,
     conventions, JSBSim version); the SISO channels share one A, B, C through YAML anchors.
 
@@ -742,28 +832,47 @@ def config_text(lin: Linearization, grid: FrequencyGrid = DEFAULT_GRID, airspeed
     residual = max(abs(v) for v in p.residuals.values())
     gains = ", ".join(f"{s} {math.degrees(g):.4g} deg" for s, g in zip(SURFACES, lin.command_gains))
     header = [
-        f"# JSBSim {p.aircraft}, linearised by JSBSim {p.version} (jsbsim.FGLinearization) with gap-validate linearize",
-        f"#   condition: {p.speed_kt:g} kt TRUE airspeed ({p.calibrated_kt:.1f} kt calibrated, Mach {p.mach:.3f}), "
+        f"# JSBSim {p.aircraft}, linearised by JSBSim {p.version} (jsbsim.FGLinearization) with gap-validate "
+        "linearize",
+        f"#   condition: {p.speed_kt:g} kt TRUE airspeed ({p.calibrated_kt:.1f} kt calibrated, Mach "
+        f"{p.mach:.3f}), "
         f"{p.altitude_ft:g} ft above sea level,",
         "#              straight and level (flight path 0, wings level, heading north), engines running",
         f"#   trim (do_trim full): alpha {p.alpha_deg:.3f} deg, theta {p.theta_deg:.3f} deg, "
         f"beta {p.beta_deg:.3f} deg, throttle {'/'.join(f'{t:.4f}' for t in p.throttle)},",
-        "#     surfaces " + ", ".join(f"{k} {v:+.5f} rad" for k, v in p.surfaces_rad.items())
+        "#     surfaces "
+        + ", ".join(f"{k} {v:+.5f} rad" for k, v in p.surfaces_rad.items())
         + f"; largest residual acceleration {residual:.2g}",
-        "#   inputs: surface deflections [rad]: aileron = (fcs/left-aileron-pos-rad - fcs/right-aileron-pos-rad)/2,",
-        "#     elevator = fcs/elevator-pos-rad, rudder = fcs/rudder-pos-rad (deviations from trim in the model; the",
-        "#     logged JointState positions are absolute). FGLinearization's inputs are normalised commands: its B was",
+        "#   inputs: surface deflections [rad]: aileron = (fcs/left-aileron-pos-rad - "
+        "fcs/right-aileron-pos-rad)/2,",
+        "#     elevator = fcs/elevator-pos-rad, rudder = fcs/rudder-pos-rad (deviations from trim in the "
+        "model; the",
+        "#     logged JointState positions are absolute). FGLinearization's inputs are normalised commands: "
+        "its B was",
         f"#     divided by the FCS gains at trim (d surface / d command: {gains}). FCS actuator dynamics",
-        "#     (lags, rate limits, free play) are NOT in the model (FGLinearization runs the FCS in trim mode);",
-        "#     gap-validate simulate --jsbsim sets the surfaces directly, so they are not in its flights either.",
-        "#   outputs: body rates p, q, r [rad/s] (velocities/p-rad_sec ...), IMU angular_velocity.x/y/z (FRD).",
-        *([f"#   airspeed: true airspeed [m/s] on {airspeed_topic} (std_msgs/Float64); the inputs' deviations from",
-           f"#     trim are scaled by (airspeed / {p.speed_kt * KT_TO_M_S:.6g})^2, the dynamic pressure relative to the",
-           "#     trim's (the control power; the modes move with speed too)."] if airspeed_topic else []),
+        "#     (lags, rate limits, free play) are NOT in the model (FGLinearization runs the FCS in trim "
+        "mode);",
+        "#     gap-validate simulate --jsbsim sets the surfaces directly, so they are not in its flights "
+        "either.",
+        "#   outputs: body rates p, q, r [rad/s] (velocities/p-rad_sec ...), IMU angular_velocity.x/y/z "
+        "(FRD).",
+        *(
+            [
+                f"#   airspeed: true airspeed [m/s] on {airspeed_topic} (std_msgs/Float64); the inputs' "
+                "deviations from",
+                f"#     trim are scaled by (airspeed / {p.speed_kt * KT_TO_M_S:.6g})^2, the dynamic pressure "
+                "relative to the",
+                "#     trim's (the control power; the modes move with speed too).",
+            ]
+            if airspeed_topic
+            else []
+        ),
         f"#   states: {', '.join(f'{s} [{u}]' for s, u in zip(lin.states, lin.state_units))}",
-        "#     (FGLinearization's Psi, Latitude, Longitude, Alt left out: they do not feed back into the rates)",
+        "#     (FGLinearization's Psi, Latitude, Longitude, Alt left out: they do not feed back into the "
+        "rates)",
         f"#   poles [rad/s]: {poles}",
-        f"#   check: rate rows of B vs surface-set control derivatives agree to {100 * lin.consistency:.2g} %",
+        f"#   check: rate rows of B vs surface-set control derivatives agree to "
+        f"{100 * lin.consistency:.2g} %",
         f"#   grid {grid.min_rad_s:g}-{grid.max_rad_s:g} rad/s: surfaces and IMU at >= 20 Hz resolve it "
         "(the estimator uses up to a quarter of a stream's rate).",
     ] + [f"#   WARNING: {w}" for w in lin.warnings]

@@ -2,15 +2,15 @@
 
 * :mod:`~gap_validation.logs.base`: what every format gives (:class:`LogFile`, :class:`LogTopic`,
   :class:`WriteTopic`);
-* :mod:`~gap_validation.logs.formats`: :func:`~gap_validation.logs.formats.open_log`, which picks the format from
-  the suffix;
+* :mod:`~gap_validation.logs.formats`: :func:`~gap_validation.logs.formats.open_log`, which picks the format
+  from the suffix;
 * :mod:`~gap_validation.logs.ulog`: PX4 ULog, read and written;
 * :mod:`~gap_validation.logs.dataflash`: ArduPilot DataFlash, read and written;
 * :mod:`~gap_validation.logs.csvlog`: one CSV file per topic, read and written;
 * :mod:`~gap_validation.logs.checks`: the logging checks (a topic logged too slowly for the band, irregular
   stamps), each with the fix in the autopilot's words;
-* :mod:`~gap_validation.logs.merge`: the blocks of a log's topics merged in time order as they come (replay holds a
-  block or two, not the flight);
+* :mod:`~gap_validation.logs.merge`: the blocks of a log's topics merged in time order as they come (replay
+  holds a block or two, not the flight);
 * :mod:`~gap_validation.logs.flight`: a simulated flight written as an autopilot's log, with the config that
   reads it (``gap-validate simulate --format``).
 

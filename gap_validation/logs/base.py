@@ -1,15 +1,16 @@
 """What every flight-log format gives replay: topics, their fields, and per topic the samples of some fields.
 
 A *topic* is named as the format names it: a ULog message name (``vehicle_angular_velocity``; a multi-instance
-one as ``sensor_gyro:1``), a DataFlash message name (``RATE``; an instance as ``IMU[1]``), a CSV file's stem. A
+one as ``sensor_gyro:1``), a DataFlash message name (``RATE``; an instance as ``IMU[1]``), a CSV file's stem.
+A
 *field* too: ``xyz[0]``, ``control[3]``, ``ROut``, a CSV column. Times are seconds (float64) on the log's own
-clock: ULog ``timestamp_sample`` where the message has one, else ``timestamp``; DataFlash ``TimeUS``; CSV the time
-column.
+clock: ULog ``timestamp_sample`` where the message has one, else ``timestamp``; DataFlash ``TimeUS``; CSV the
+time column.
 
 Two ways to read: :meth:`LogFile.read` returns each wanted series whole; :meth:`LogFile.blocks` gives them in
-blocks in the log's order (:class:`LogBlocks`: a dict of series chunks per block -- ULog per block of the file,
-DataFlash per window of the memory-mapped file, CSV per chunk of rows), so that replay keeps a block in memory, not
-the flight.
+blocks in the log's order (:class:`LogBlocks`: a dict of series chunks per block -- ULog per block of the
+file, DataFlash per window of the memory-mapped file, CSV per chunk of rows), so that replay keeps a block in
+memory, not the flight.
 
 A damaged file is read up to the damage: :meth:`LogFile.read` returns what came before it and
 :attr:`LogFile.damage` says where the file stopped (one line naming the file), never a traceback.
@@ -62,9 +63,9 @@ class LogSeries:
 
 class LogBlocks:
     """The wanted series of a log in blocks, in the log's order: iterating gives, per block, a dict topic ->
-    :class:`LogSeries` holding the block's samples of that topic (only the topics that have samples in it); each
-    topic's chunks, one after the other, are its series as :meth:`LogFile.read` gives it. It can be iterated more
-    than once (each time reading the file again); the log must stay open meanwhile.
+    :class:`LogSeries` holding the block's samples of that topic (only the topics that have samples in it);
+    each topic's chunks, one after the other, are its series as :meth:`LogFile.read` gives it. It can be
+    iterated more than once (each time reading the file again); the log must stay open meanwhile.
 
     Parameters
     ----------
@@ -81,7 +82,9 @@ class LogBlocks:
         As given.
     """
 
-    def __init__(self, path: Path, fields: dict[str, tuple[str, ...]], counts: dict[str, int | None] | None = None):
+    def __init__(
+        self, path: Path, fields: dict[str, tuple[str, ...]], counts: dict[str, int | None] | None = None
+    ):
         self.path = Path(path)
         self.fields = dict(fields)
         self.counts = {topic: (counts or {}).get(topic) for topic in self.fields}
@@ -96,8 +99,8 @@ class LogBlocks:
     @property
     def start_time_s(self) -> float:
         """The earliest finite sample time [s] (inf when there is none). Here: that of the first block with
-        samples (read once, kept for the next iteration; a log in time order starts there); the ULog reader knows it
-        of the whole log (from the pass that lists its topics)."""
+        samples (read once, kept for the next iteration; a log in time order starts there); the ULog reader
+        knows it of the whole log (from the pass that lists its topics)."""
         if self._start_s is None:
             blocks = self._blocks()
             first = next(blocks, None)
@@ -176,7 +179,8 @@ class LogFile:
         self.path = Path(path)
         if not self.path.is_file():
             raise DataError(f"{self.path}: no such log file")
-        #: Where and why the file stopped early (one line naming the file), once the damage was met; else None.
+        #: Where and why the file stopped early (one line naming the file), once the damage was met; else
+        #: None.
         self.damage: str | None = None
         self._topic_cache: dict[str, LogTopic] | None = None
 
@@ -201,8 +205,8 @@ class LogFile:
         return self._read({topic: tuple(fields) for topic, fields in wanted.items() if topic in self.topics})
 
     def blocks(self, wanted: dict[str, Sequence[str]], *, block_bytes: int | None = None) -> LogBlocks:
-        """The samples of the ``wanted`` fields of each wanted topic (topic -> fields) in blocks, in the log's order
-        (:class:`LogBlocks`); joined, they are what :meth:`read` returns.
+        """The samples of the ``wanted`` fields of each wanted topic (topic -> fields) in blocks, in the log's
+        order (:class:`LogBlocks`); joined, they are what :meth:`read` returns.
 
         Topics the log does not have are left out; a field a topic does not have raises :class:`DataError` (as
         :meth:`read`), here, before any block is read.
@@ -212,15 +216,18 @@ class LogFile:
         wanted : dict
             Topic -> field names.
         block_bytes : int, optional
-            Bytes of the file per block (default: the reader's; ULog 1 MiB, DataFlash 1 MiB, CSV 1 MiB of text).
+            Bytes of the file per block (default: the reader's; ULog 1 MiB, DataFlash 1 MiB, CSV 1 MiB of
+            text).
         """
-        return self._blocks({topic: tuple(fields) for topic, fields in wanted.items() if topic in self.topics},
-                            block_bytes)
+        return self._blocks(
+            {topic: tuple(fields) for topic, fields in wanted.items() if topic in self.topics}, block_bytes
+        )
 
     def _topics(self) -> dict[str, LogTopic]:   # pragma: no cover - abstract
         raise NotImplementedError
 
-    def _blocks(self, wanted: dict[str, tuple[str, ...]], block_bytes: int | None) -> LogBlocks:   # pragma: no cover
+    def _blocks(self, wanted: dict[str, tuple[str, ...]],  # pragma: no cover
+                block_bytes: int | None) -> LogBlocks:
         raise NotImplementedError
 
     def _read(self, wanted: dict[str, tuple[str, ...]]) -> dict[str, LogSeries]:
@@ -273,7 +280,8 @@ class WriteTopic:
 
 
 def is_log(path: str | Path) -> bool:
-    """Whether ``path`` is a file of a log format :func:`~gap_validation.logs.formats.open_log` reads (by its suffix).
+    """Whether ``path`` is a file of a log format :func:`~gap_validation.logs.formats.open_log` reads (by its
+    suffix).
 
     Parameters
     ----------

@@ -1,17 +1,18 @@
 """Logging checks of a flight log, each with its fix in words: a stream logged too slowly for the band the
 channel asks for, stamps that repeat, go back or leave gaps, values that are not numbers.
 
-The rate check states the limits the estimator applies (:func:`~gap_validation.core.spectra.stream_limit_hz`), so
-the warning and the validated band agree: each frequency is estimated from the spectrum within ``band_fraction``
-(10 %) of it, and all of that must lie below what the slowest stream resolves -- a quarter of its rate, or for a
-slow stream whose channel logs its other streams at least four times faster (they show what its sampling folds
-back), up to its Nyquist frequency but at most a tenth of the estimator's grid rate (PX4's servos at 10 Hz: their
-Nyquist frequency, 31.4 rad/s; ArduPlane's RCOU at 25 Hz: 62.8 rad/s on the 100 Hz grid). Nothing above that is
-validated, the per-frequency reason there is ``above_resolution``; and a frequency onto which a manoeuvre flown past
-the Nyquist frequency folds back does not count (a slow stream: where the faster streams show it,
+The rate check states the limits the estimator applies (:func:`~gap_validation.core.spectra.stream_limit_hz`),
+so the warning and the validated band agree: each frequency is estimated from the spectrum within
+``band_fraction`` (10 %) of it, and all of that must lie below what the slowest stream resolves -- a quarter
+of its rate, or for a slow stream whose channel logs its other streams at least four times faster (they show
+what its sampling folds back), up to its Nyquist frequency but at most a tenth of the estimator's grid rate
+(PX4's servos at 10 Hz: their Nyquist frequency, 31.4 rad/s; ArduPlane's RCOU at 25 Hz: 62.8 rad/s on the 100
+Hz grid). Nothing above that is validated, the per-frequency reason there is ``above_resolution``; and a
+frequency onto which a manoeuvre flown past the Nyquist frequency folds back does not count (a slow stream:
+where the faster streams show it,
 :data:`~gap_validation.core.spectra.MIRROR_MARGIN`; else a manoeuvre whose power reaches
-:data:`~gap_validation.core.spectra.ALIAS_BAND` of the stream's Nyquist frequency counts nowhere unless it stands
-20 dB above that power).
+:data:`~gap_validation.core.spectra.ALIAS_BAND` of the stream's Nyquist frequency counts nowhere unless it
+stands 20 dB above that power).
 """
 from __future__ import annotations
 
@@ -21,16 +22,23 @@ from dataclasses import dataclass
 import numpy as np
 
 from gap_validation.core.estimator import ESTIMATOR_DEFAULTS
-from gap_validation.core.spectra import (ALIAS_BAND, MIRROR_MARGIN, RESOLVED_FRACTION, SLOW_GRID_FRACTION,
-                                         SPECTRA_DEFAULTS, stream_limit_hz)
+from gap_validation.core.spectra import (
+    ALIAS_BAND,
+    MIRROR_MARGIN,
+    RESOLVED_FRACTION,
+    SLOW_GRID_FRACTION,
+    SPECTRA_DEFAULTS,
+    stream_limit_hz,
+)
 
 __all__ = ["StampCheck", "StampStats", "check_stamps", "rate_limit_rad_s", "rate_warning", "needed_rate_hz",
            "RATE_FIXES"]
 
 #: A spacing longer than this many median sample intervals is a gap.
 GAP_INTERVALS = 5.0
-#: The spacings' histogram (:class:`StampStats`): each spacing is rounded to this many significant bits (a relative
-#: 2**-33 at most), and to 4 fewer each time the histogram would hold more than :data:`SPACING_BINS` values.
+#: The spacings' histogram (:class:`StampStats`): each spacing is rounded to this many significant bits (a
+#: relative 2**-33 at most), and to 4 fewer each time the histogram would hold more than :data:`SPACING_BINS`
+#: values.
 SPACING_BITS = 32
 SPACING_BINS = 1 << 16
 #: Finite stamps :class:`StampStats` gathers before counting them (512 KB).
@@ -38,15 +46,20 @@ STAMP_BATCH = 1 << 16
 
 #: Per log format: how to log a topic faster, ``{topic}`` and ``{need_hz}`` filled in.
 RATE_FIXES = {
-    "ulog": ("raise its rate (PX4: SDLOG_PROFILE with the high-rate bit, bit 4 (+16), logs actuator_servos and "
-             "vehicle_angular_velocity at full rate; the system-identification bit, bit 3 (+8), raises "
-             "vehicle_angular_velocity and actuator_motors but not actuator_servos; or add the line '{topic} 0' "
-             "(full rate) to etc/logging/logger_topics.txt on the SD card); it needs at least {need_hz:.3g} Hz"),
-    "dataflash": ("raise its rate (ArduPilot: ArduPlane writes RCOU at 25 Hz with LOG_BITMASK's RC bit; log the "
-                  "attitude and rate loops faster instead (LOG_BITMASK ATTITUDE_FAST, ATTITUDE_FULLRATE: RATE "
-                  "ROut/POut/YOut), or fly the SystemID mode, whose SIDD comes at up to the loop rate with those bits; "
-                  "and check that LOG_FILE_RATEMAX does not cap {topic}); it needs at least {need_hz:.3g} Hz"),
-    "csv": "record {topic} faster (at least {need_hz:.3g} Hz), or resample it no coarser, before exporting the CSV",
+    "ulog": (
+        "raise its rate (PX4: SDLOG_PROFILE with the high-rate bit, bit 4 (+16), logs actuator_servos and "
+        "vehicle_angular_velocity at full rate; the system-identification bit, bit 3 (+8), raises "
+        "vehicle_angular_velocity and actuator_motors but not actuator_servos; or add the line '{topic} 0' "
+        "(full rate) to etc/logging/logger_topics.txt on the SD card); it needs at least {need_hz:.3g} Hz"
+    ),
+    "dataflash": (
+        "raise its rate (ArduPilot: ArduPlane writes RCOU at 25 Hz with LOG_BITMASK's RC bit; log the "
+        "attitude and rate loops faster instead (LOG_BITMASK ATTITUDE_FAST, ATTITUDE_FULLRATE: RATE "
+        "ROut/POut/YOut), or fly the SystemID mode, whose SIDD comes at up to the loop rate with those bits; "
+        "and check that LOG_FILE_RATEMAX does not cap {topic}); it needs at least {need_hz:.3g} Hz"
+    ),
+    "csv": "record {topic} faster (at least {need_hz:.3g} Hz), or resample it no coarser, before exporting "
+           "the CSV",
 }
 
 
@@ -55,9 +68,10 @@ _BAND = float(SPECTRA_DEFAULTS["band_fraction"])
 
 
 def rate_limit_rad_s(rate_hz: float, grid_hz: float = _GRID_HZ, witness_hz: float = math.inf) -> float:
-    """Highest frequency a stream sampled at ``rate_hz`` resolves for the estimator [rad/s]: no band of a validated
-    frequency reaches above it (:func:`~gap_validation.core.spectra.stream_limit_hz`: its Nyquist frequency for a slow
-    stream, else a quarter of its rate); a sweep is validated up to this over ``1 + band_fraction``.
+    """Highest frequency a stream sampled at ``rate_hz`` resolves for the estimator [rad/s]: no band of a
+    validated frequency reaches above it (:func:`~gap_validation.core.spectra.stream_limit_hz`: its Nyquist
+    frequency for a slow stream, else a quarter of its rate); a sweep is validated up to this over ``1 +
+    band_fraction``.
 
     Parameters
     ----------
@@ -72,8 +86,9 @@ def rate_limit_rad_s(rate_hz: float, grid_hz: float = _GRID_HZ, witness_hz: floa
 
 
 def needed_rate_hz(top_rad_s: float, grid_hz: float = _GRID_HZ) -> float:
-    """Sample rate [Hz] a stream needs for the estimator to validate a sweep up to ``top_rad_s`` (its band within
-    ``band_fraction`` of it included), with the channel's other streams logged at least four times faster.
+    """Sample rate [Hz] a stream needs for the estimator to validate a sweep up to ``top_rad_s`` (its band
+    within ``band_fraction`` of it included), with the channel's other streams logged at least four times
+    faster.
 
     Parameters
     ----------
@@ -86,10 +101,17 @@ def needed_rate_hz(top_rad_s: float, grid_hz: float = _GRID_HZ) -> float:
     return 2.0 * limit_hz if limit_hz <= 0.5 * SLOW_GRID_FRACTION * grid_hz else limit_hz / RESOLVED_FRACTION
 
 
-def rate_warning(fmt: str, topic: str, rate_hz: float, top_rad_s: float, feeds: str, grid_hz: float = _GRID_HZ,
-                 witness_hz: float = math.inf) -> str | None:
-    """The warning for ``topic`` logged at ``rate_hz`` when that cannot carry the band up to ``top_rad_s``, with the
-    fix for the log format ``fmt``; None when it can.
+def rate_warning(
+    fmt: str,
+    topic: str,
+    rate_hz: float,
+    top_rad_s: float,
+    feeds: str,
+    grid_hz: float = _GRID_HZ,
+    witness_hz: float = math.inf,
+) -> str | None:
+    """The warning for ``topic`` logged at ``rate_hz`` when that cannot carry the band up to ``top_rad_s``,
+    with the fix for the log format ``fmt``; None when it can.
 
     Parameters
     ----------
@@ -106,8 +128,8 @@ def rate_warning(fmt: str, topic: str, rate_hz: float, top_rad_s: float, feeds: 
     grid_hz : float
         The estimator's grid rate [Hz].
     witness_hz : float
-        The rate of the channel's streams of the other side [Hz]; inf (unknown here): assumed fast enough, and the
-        warning says what they need.
+        The rate of the channel's streams of the other side [Hz]; inf (unknown here): assumed fast enough, and
+        the warning says what they need.
     """
     if not (math.isfinite(rate_hz) and rate_hz > 0):
         return None
@@ -115,25 +137,43 @@ def rate_warning(fmt: str, topic: str, rate_hz: float, top_rad_s: float, feeds: 
     top = limit / (1.0 + _BAND)
     if top >= top_rad_s:
         return None
-    fix = RATE_FIXES.get(fmt, RATE_FIXES["csv"]).format(topic=topic, need_hz=needed_rate_hz(top_rad_s, grid_hz))
+    fix = RATE_FIXES.get(fmt, RATE_FIXES["csv"]).format(
+        topic=topic, need_hz=needed_rate_hz(top_rad_s, grid_hz)
+    )
     nyquist = math.pi * rate_hz
     quarter = 2.0 * math.pi * RESOLVED_FRACTION * rate_hz
-    head = (f"{topic} ({feeds}) is logged at {rate_hz:.3g} Hz: frequencies above {top:.3g} rad/s cannot be validated "
-            f"(each is estimated from the spectrum within {100 * _BAND:.0f} % of it, and that must lie below ")
+    head = (
+        f"{topic} ({feeds}) is logged at {rate_hz:.3g} Hz: frequencies above {top:.3g} rad/s cannot be "
+        "validated "
+        f"(each is estimated from the spectrum within {100 * _BAND:.0f} % of it, and that must lie below "
+    )
     if limit <= quarter * (1.0 + 1e-12):
-        return (f"{head}{limit:.3g} rad/s, a quarter of its rate: four samples per period, half its Nyquist frequency "
-                f"of {nyquist:.3g} rad/s; the channel asks up to {top_rad_s:.3g} rad/s), and a manoeuvre flown above "
-                f"{ALIAS_BAND[0] * nyquist:.3g} rad/s folds back into what lies below (then none of it counts); {fix}")
+        return (
+            f"{head}{limit:.3g} rad/s, a quarter of its rate: four samples per period, half its Nyquist "
+            "frequency "
+            f"of {nyquist:.3g} rad/s; the channel asks up to {top_rad_s:.3g} rad/s), and a manoeuvre flown "
+            "above "
+            f"{ALIAS_BAND[0] * nyquist:.3g} rad/s folds back into what lies below (then none of it counts); "
+            f"{fix}"
+        )
     grid = 2.0 / SLOW_GRID_FRACTION
-    reach = (f"its Nyquist frequency, {limit:.3g} rad/s, above which its sampling folds everything back"
-             if limit >= nyquist * (1.0 - 1e-12) else
-             f"{limit:.3g} rad/s, 1/{grid:.0f} of the estimator's {grid_hz:.3g} Hz grid rate (above it the images of "
-             f"its sampling fold back through the grid's own sampling)")
-    return (f"{head}{reach}; the channel asks up to {top_rad_s:.3g} rad/s); that needs the channel's other streams "
-            f"logged at {limit / (math.pi * RESOLVED_FRACTION):.3g} Hz or faster: they show what folds back, and a "
-            f"frequency onto which more than {100 * MIRROR_MARGIN ** -0.5:.1f} % (in amplitude) folds back, from a "
-            f"manoeuvre flown past {nyquist:.3g} rad/s, does not count (with slower ones it is read up to a quarter of "
-            f"its rate: {quarter / (1.0 + _BAND):.3g} rad/s); {fix}")
+    reach = (
+        f"its Nyquist frequency, {limit:.3g} rad/s, above which its sampling folds everything back"
+        if limit >= nyquist * (1.0 - 1e-12)
+        else f"{limit:.3g} rad/s, 1/{grid:.0f} of the estimator's {grid_hz:.3g} Hz grid rate (above it the "
+             "images of "
+        f"its sampling fold back through the grid's own sampling)"
+    )
+    return (
+        f"{head}{reach}; the channel asks up to {top_rad_s:.3g} rad/s); that needs the channel's other "
+        "streams "
+        f"logged at {limit / (math.pi * RESOLVED_FRACTION):.3g} Hz or faster: they show what folds back, and "
+        "a "
+        f"frequency onto which more than {100 * MIRROR_MARGIN**-0.5:.1f} % (in amplitude) folds back, from a "
+        f"manoeuvre flown past {nyquist:.3g} rad/s, does not count (with slower ones it is read up to a "
+        "quarter of "
+        f"its rate: {quarter / (1.0 + _BAND):.3g} rad/s); {fix}"
+    )
 
 
 @dataclass(frozen=True)
@@ -188,7 +228,11 @@ class StampCheck:
             return None
         dropped = " (repeated and earlier stamps are dropped and counted as bad samples)" if self.duplicates \
             or self.back else ""
-        gaps = " (a gap longer than the estimator's max_gap_s ends the manoeuvre in progress)" if self.gaps else ""
+        gaps = (
+            " (a gap longer than the estimator's max_gap_s ends the manoeuvre in progress)"
+            if self.gaps
+            else ""
+        )
         return f"{where}: irregular stamps: {', '.join(parts)} in {self.samples} samples{dropped}{gaps}"
 
 
@@ -198,9 +242,10 @@ class StampStats:
 
     Counts (samples, repeated and earlier stamps, non-numbers) and the longest spacing are exact; the median
     spacing (the rate, and the threshold of a gap) comes from a histogram of the spacings, each rounded to
-    :data:`SPACING_BITS` significant bits (coarser by 4 bits whenever more than :data:`SPACING_BINS` distinct values
-    would be kept), so it agrees with the median of the exact spacings to a relative 2**-33 (a few 1e-10) on any
-    log whose spacings take fewer values than that. The same pieces in any split give the same result.
+    :data:`SPACING_BITS` significant bits (coarser by 4 bits whenever more than :data:`SPACING_BINS` distinct
+    values would be kept), so it agrees with the median of the exact spacings to a relative 2**-33 (a few
+    1e-10) on any log whose spacings take fewer values than that. The same pieces in any split give the same
+    result.
     """
 
     def __init__(self) -> None:
@@ -212,14 +257,16 @@ class StampStats:
         self._latest = math.nan            # the latest finite stamp so far
         self._max_step = 0.0
         self._bits = SPACING_BITS
-        self._values = np.zeros(0, np.uint64)   # the rounded positive spacings (bit patterns), sorted, and how
+        # the rounded positive spacings (bit patterns), sorted, and how
+        self._values = np.zeros(0, np.uint64)
         self._counts = np.zeros(0, np.int64)    # often each came
-        self._pending: list[np.ndarray] = []    # finite stamps not counted yet (at most STAMP_BATCH and a piece)
+        # finite stamps not counted yet (at most STAMP_BATCH and a piece)
+        self._pending: list[np.ndarray] = []
         self._held = 0
 
     def add(self, t_s: np.ndarray) -> None:
-        """Take the next stamps of the topic (the finite ones are gathered up to :data:`STAMP_BATCH` before they
-        are counted, for speed: the result is the same in any split).
+        """Take the next stamps of the topic (the finite ones are gathered up to :data:`STAMP_BATCH` before
+        they are counted, for speed: the result is the same in any split).
 
         Parameters
         ----------
@@ -258,8 +305,8 @@ class StampStats:
             self._count(self._round(positive))
 
     def _round(self, step: np.ndarray) -> np.ndarray:
-        """Positive finite spacings rounded to ``_bits`` significant bits (half up), as their IEEE bit patterns
-        (which sort as the values do)."""
+        """Positive finite spacings rounded to ``_bits`` significant bits (half up), as their IEEE bit
+        patterns (which sort as the values do)."""
         drop = 53 - self._bits                          # of the 53 significant bits of a float64
         raw = np.ascontiguousarray(step, dtype=np.float64).view(np.uint64)
         return (raw + np.uint64(1 << (drop - 1))) & ~np.uint64((1 << drop) - 1)
@@ -294,16 +341,20 @@ class StampStats:
 
     def result(self) -> StampCheck:
         """What the stamps given so far say (:class:`StampCheck`)."""
-        median = self.median_step()         # counts what was gathered
-        gaps = int(self._counts[self._values.view(np.float64) > GAP_INTERVALS * median].sum()) if median > 0 else 0
+        median = self.median_step()  # counts what was gathered
+        gaps = (
+            int(self._counts[self._values.view(np.float64) > GAP_INTERVALS * median].sum())
+            if median > 0
+            else 0
+        )
         return StampCheck(samples=self.samples, rate_hz=1.0 / median if median > 0 else math.nan,
                           duplicates=self.duplicates, back=self.back, gaps=gaps,
                           longest_gap_s=self._max_step if gaps else 0.0, not_finite=self.not_finite)
 
 
 def check_stamps(t_s: np.ndarray) -> StampCheck:
-    """Rate, repeated and earlier stamps, gaps and non-numbers of one topic's stamps (:class:`StampStats` of all of
-    them at once).
+    """Rate, repeated and earlier stamps, gaps and non-numbers of one topic's stamps (:class:`StampStats` of
+    all of them at once).
 
     Parameters
     ----------

@@ -1,22 +1,22 @@
 """CSV flight logs: one file per topic, the topic named by the file's stem, one column per field.
 
 A file ``imu.csv`` is the topic ``imu``; its header names the fields; one column is the time:
-``time_column`` when given (the config's stream key, :class:`~gap_validation.core.config.SignalSpec`), else the
-first of :data:`TIME_COLUMNS` the header has. Its unit follows from its name (:func:`time_scale`): ``TimeUS``,
-``timestamp`` and names ending in ``_us`` are microseconds, names ending in ``_ms`` milliseconds, ``_ns``
-nanoseconds, every other name seconds. Lines starting with ``#`` are comments (:func:`write_csv` puts the units
-there); the delimiter is a comma, or a semicolon or tab when the header has no comma.
+``time_column`` when given (the config's stream key, :class:`~gap_validation.core.config.SignalSpec`), else
+the first of :data:`TIME_COLUMNS` the header has. Its unit follows from its name (:func:`time_scale`):
+``TimeUS``, ``timestamp`` and names ending in ``_us`` are microseconds, names ending in ``_ms`` milliseconds,
+``_ns`` nanoseconds, every other name seconds. Lines starting with ``#`` are comments (:func:`write_csv` puts
+the units there); the delimiter is a comma, or a semicolon or tab when the header has no comma.
 
 A cell that is not a number is read as NaN: replay counts it as a bad sample of the streams it feeds (never a
-traceback). A file that does not end with a line break may have been cut inside its last row (a logger that lost
-power, a copy broken off): that row is left out and is the damage (:attr:`LogFile.damage`), the rows before it
-are read (a number cut short would otherwise be read as a wrong number).
+traceback). A file that does not end with a line break may have been cut inside its last row (a logger that
+lost power, a copy broken off): that row is left out and is the damage (:attr:`LogFile.damage`), the rows
+before it are read (a number cut short would otherwise be read as a wrong number).
 
 Speed (500 000 rows, 4 columns, two read; ``np.loadtxt`` 0.61 s, the ``csv`` module with column lists 1.0 s,
-``np.genfromtxt`` 2.3 s): the numbers are parsed by ``np.loadtxt`` (its C parser), a chunk of rows at a time (1 MiB
-of text, :meth:`CsvFile.blocks`: replay holds a chunk, not the file), and a chunk it refuses (a cell that is not a
-number, a short row) is read again with the ``csv`` module, cell by cell. A file that does not end with a line break
-is read cell by cell throughout (its last row is the damage).
+``np.genfromtxt`` 2.3 s): the numbers are parsed by ``np.loadtxt`` (its C parser), a chunk of rows at a time
+(1 MiB of text, :meth:`CsvFile.blocks`: replay holds a chunk, not the file), and a chunk it refuses (a cell
+that is not a number, a short row) is read again with the ``csv`` module, cell by cell. A file that does not
+end with a line break is read cell by cell throughout (its last row is the damage).
 """
 from __future__ import annotations
 
@@ -86,7 +86,9 @@ class CsvFile(LogFile):
         self._lines, self._delimiter, self._columns = self._header()
         if time_column is not None:
             if time_column not in self._columns:
-                raise DataError(f"{self.path}: no time column {time_column!r} (it has: {', '.join(self._columns)})")
+                raise DataError(
+                    f"{self.path}: no time column {time_column!r} (it has: {', '.join(self._columns)})"
+                )
             self.time_column = time_column
         else:
             found = next((c for c in TIME_COLUMNS if c in self._columns), None)
@@ -109,7 +111,9 @@ class CsvFile(LogFile):
                 else:
                     raise DataError(f"{self.path}: no header line (an empty CSV file)")
         except UnicodeDecodeError as err:
-            raise DataError(f"{self.path}: not a text CSV file (byte {err.start} of a line is not UTF-8)") from None
+            raise DataError(
+                f"{self.path}: not a text CSV file (byte {err.start} of a line is not UTF-8)"
+            ) from None
         except OSError as err:
             raise DataError(f"{self.path}: cannot read ({err.strerror})") from None
         delimiter = "," if "," in line else ";" if ";" in line else "\t" if "\t" in line else ","
@@ -157,8 +161,8 @@ class CsvFile(LogFile):
         return LogSeries(t_s, np.ascontiguousarray(data[:, 1:]), fields)
 
     def _chunks(self, columns: list[int], chars: int) -> Iterator[np.ndarray]:
-        """The columns, a chunk of rows (about ``chars`` characters of text) at a time: numpy's C parser, a chunk it
-        refuses cell by cell; a file that does not end with a line break cell by cell throughout."""
+        """The columns, a chunk of rows (about ``chars`` characters of text) at a time: numpy's C parser, a
+        chunk it refuses cell by cell; a file that does not end with a line break cell by cell throughout."""
         if not self._ends_with_newline():          # the last row may be cut inside a number
             yield from self._load_cells(columns)
             return
@@ -177,19 +181,20 @@ class CsvFile(LogFile):
                     yield data
 
     def _load_fast(self, columns: list[int], lines: list[str]) -> np.ndarray | None:
-        """The columns of ``lines`` with numpy's C parser, or None when a row has a cell that is not a number or too
-        few cells (then :meth:`_cells` reads them)."""
+        """The columns of ``lines`` with numpy's C parser, or None when a row has a cell that is not a number
+        or too few cells (then :meth:`_cells` reads them)."""
         try:
             with warnings.catch_warnings():
-                warnings.simplefilter("ignore", UserWarning)          # "input contained no data": a header only
+                # "input contained no data": a header only
+                warnings.simplefilter("ignore", UserWarning)
                 return np.loadtxt(lines, delimiter=self._delimiter, usecols=columns, ndmin=2, comments="#",
                                   dtype=np.float64, quotechar='"')
         except (ValueError, IndexError):
             return None
 
     def _load_cells(self, columns: list[int]) -> Iterator[np.ndarray]:
-        """The columns of the whole file cell by cell (``csv`` module), in blocks of rows: a cell that is not a
-        number is NaN; a last row cut short is the damage."""
+        """The columns of the whole file cell by cell (``csv`` module), in blocks of rows: a cell that is not
+        a number is NaN; a last row cut short is the damage."""
         with open(self.path, encoding="utf-8-sig", newline="") as f:
             for _ in range(self._lines):
                 f.readline()
@@ -197,8 +202,8 @@ class CsvFile(LogFile):
 
     def _cells(self, lines: Iterable[str], columns: list[int], width: int, cut: "CsvFile | None"
                ) -> Iterator[np.ndarray]:
-        """Rows of ``lines`` cell by cell, :data:`_CELL_ROWS` at a time; with ``cut``, the last row is held back and
-        left out as the damage when the file does not end with a line break."""
+        """Rows of ``lines`` cell by cell, :data:`_CELL_ROWS` at a time; with ``cut``, the last row is held
+        back and left out as the damage when the file does not end with a line break."""
         out: list[list[float]] = []
         rows_before = 0             # rows given out before ``out``
         lo, hi = math.inf, -math.inf        # the finite times given out
@@ -226,8 +231,10 @@ class CsvFile(LogFile):
                 lo, hi = _span(block, lo, hi)
                 what = "inside row" if short_last else "without a line break after row"
                 span = f"{(hi - lo) * self.time_scale_s:.1f}" if hi >= lo else "0.0"
-                self.damage = (f"{self.path}: the file ends {what} {rows_before + len(out) + 1} (cut short?); that row "
-                               f"is left out, {span} s read before it")
+                self.damage = (
+                    f"{self.path}: the file ends {what} {rows_before + len(out) + 1} (cut short?); that row "
+                    f"is left out, {span} s read before it"
+                )
             else:
                 out.append(pending)
         if out:
@@ -261,8 +268,8 @@ def _span(block: np.ndarray, lo: float, hi: float) -> tuple[float, float]:
 
 
 class _CsvBlocks(LogBlocks):
-    """A CSV file's topic in blocks of rows (:meth:`CsvFile.blocks`); the damage is known once the last block was
-    read."""
+    """A CSV file's topic in blocks of rows (:meth:`CsvFile.blocks`); the damage is known once the last block
+    was read."""
 
     def __init__(self, log: CsvFile, fields: tuple[str, ...], columns: list[int], block_bytes: int | None):
         super().__init__(log.path, {log.topic: fields} if columns else {})
@@ -299,8 +306,8 @@ def write_csv(directory_or_path: str | Path, topics: Sequence[WriteTopic]) -> li
     Raises
     ------
     DataError
-        Several topics for one ``.csv`` path, a topic whose fields and times differ in length, or times that go
-        back.
+        Several topics for one ``.csv`` path, a topic whose fields and times differ in length, or times that
+        go back.
     """
     target = Path(directory_or_path)
     single = target.suffix.lower() == ".csv"

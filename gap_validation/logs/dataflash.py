@@ -1,11 +1,11 @@
 """ArduPilot DataFlash logs (``.bin``): :class:`DataFlashFile` reads one, :func:`write_dataflash` writes one.
 
-The format (ArduPilot's ``libraries/AP_Logger/LogStructure.h``; pymavlink's ``DFReader``): a log is a sequence of
-messages, each ``0xA3 0x95``, a type byte and a payload of the length the type's ``FMT`` message gives. ``FMT`` is
-type 128, 89 bytes, columns ``Type,Length,Name,Format,Columns`` (``BBnNZ``); a message type has a name of at most
-4 characters, up to 16 columns and one format character per column (:data:`FORMATS`). ``FMTU`` gives each type's
-unit and multiplier characters (``UNIT``, ``MULT`` define them); a ``#`` unit marks the *instance* column (IMU's
-``I``).
+The format (ArduPilot's ``libraries/AP_Logger/LogStructure.h``; pymavlink's ``DFReader``): a log is a sequence
+of messages, each ``0xA3 0x95``, a type byte and a payload of the length the type's ``FMT`` message gives.
+``FMT`` is type 128, 89 bytes, columns ``Type,Length,Name,Format,Columns`` (``BBnNZ``); a message type has a
+name of at most 4 characters, up to 16 columns and one format character per column (:data:`FORMATS`). ``FMTU``
+gives each type's unit and multiplier characters (``UNIT``, ``MULT`` define them); a ``#`` unit marks the
+*instance* column (IMU's ``I``).
 
 Names and numbers are what pymavlink gives (so what MAVExplorer shows):
 
@@ -42,23 +42,23 @@ some 10 us each):
    ``FMT`` messages the walk itself went through; where they differ (an ``FMT`` pattern inside a payload
    before a type's real ``FMT``) the walk is redone with the checked table, and where a type is redefined with
    another length by a plain sequential walk (the reference, checked against the fast one by the tests).
-2. **The decoding** gathers the wanted types' messages from the memory-mapped file a window of the file (1 MiB)
-   at a time (:meth:`DataFlashFile.blocks`; :meth:`DataFlashFile.read` joins the windows): a numpy structured
-   dtype per ``FMT`` over the file with a stride of one byte, indexed by the messages' offsets; only the wanted
-   columns become float64.
+2. **The decoding** gathers the wanted types' messages from the memory-mapped file a window of the file (1
+   MiB) at a time (:meth:`DataFlashFile.blocks`; :meth:`DataFlashFile.read` joins the windows): a numpy
+   structured dtype per ``FMT`` over the file with a stride of one byte, indexed by the messages' offsets;
+   only the wanted columns become float64.
 
 Memory: the file is memory-mapped, and the pages of each block of the walk and each window of the decoding are
 given back to the kernel once done with (``madvise(MADV_DONTNEED)``: a mapped page counts in the process's
 resident memory until then). :attr:`DataFlashFile.topics` walks once and keeps the counts, instances and
 definitions, and the offsets of the messages (4 bytes each, 8 for a file over 4 GiB) until the first
-:meth:`DataFlashFile.blocks` or :meth:`DataFlashFile.read`, which keeps those of the wanted types only and decodes
-from them (a later one walks again, keeping the offsets of the wanted types only). What stays is those offsets:
-4 bytes per wanted message.
+:meth:`DataFlashFile.blocks` or :meth:`DataFlashFile.read`, which keeps those of the wanted types only and
+decodes from them (a later one walks again, keeping the offsets of the wanted types only). What stays is those
+offsets: 4 bytes per wanted message.
 
-Damage: a message broken off by the end of the file ends the read there: :meth:`DataFlashFile.read` returns the
-messages before it and :attr:`DataFlashFile.damage` is one line (``FLIGHT.bin: cut short at byte 123456 of
-123500 (a RATE message broken off); read 0.0-61.2 s``). A file that is not a DataFlash log (no ``FMT`` message in
-its first 64 KiB) raises :class:`~gap_validation.core.errors.DataError` at open.
+Damage: a message broken off by the end of the file ends the read there: :meth:`DataFlashFile.read` returns
+the messages before it and :attr:`DataFlashFile.damage` is one line (``FLIGHT.bin: cut short at byte 123456 of
+123500 (a RATE message broken off); read 0.0-61.2 s``). A file that is not a DataFlash log (no ``FMT`` message
+in its first 64 KiB) raises :class:`~gap_validation.core.errors.DataError` at open.
 """
 from __future__ import annotations
 
@@ -104,9 +104,9 @@ _DONTNEED = getattr(mmap, "MADV_DONTNEED", None)
 
 
 def _release(mm, lo: int, hi: int) -> None:
-    """Give the mapped pages wholly inside file bytes ``[lo, hi)`` back to the kernel (read again from the page cache
-    when touched later): without it every page of the file the walk or the decoding touched stays in the process's
-    resident memory until the file is closed."""
+    """Give the mapped pages wholly inside file bytes ``[lo, hi)`` back to the kernel (read again from the
+    page cache when touched later): without it every page of the file the walk or the decoding touched stays
+    in the process's resident memory until the file is closed."""
     lo = max(lo, 0) // mmap.PAGESIZE * mmap.PAGESIZE
     hi = hi // mmap.PAGESIZE * mmap.PAGESIZE
     if _DONTNEED is None or hi <= lo:
@@ -175,7 +175,8 @@ class _Format:
         v = raw[f"c{col}"].astype(np.float64)
         mult = FORMATS[self.format[col]][1]
         if mult is not None:
-            # DFReader divides by 1/mult (more accurate for 0.01 and 1e-7): the same operation, the same numbers
+            # DFReader divides by 1/mult (more accurate for 0.01 and 1e-7): the same operation, the same
+            # numbers
             v = v / (1.0 / mult) if 0.0 < mult < 1.0 else v * mult
         return v
 
@@ -192,7 +193,7 @@ class _Format:
         return str(int(value))
 
 
-# ---------------------------------------------------------------------------------------------------------------
+# ------------------------------------------------------------------------------------------------------------
 # The walk
 
 
@@ -206,7 +207,8 @@ class _Table:
 
     @classmethod
     def from_fmts(cls, fmts: Sequence[tuple[int, int, int]]) -> "_Table":
-        """From ``(offset, type, length)`` of FMT messages in file order (the first definition of a type wins)."""
+        """From ``(offset, type, length)`` of FMT messages in file order (the first definition of a type
+        wins)."""
         table = cls.empty()
         lengths, known = table.lengths, table.known_from
         conflict = False
@@ -242,8 +244,8 @@ class _Walk:
 
 
 def _grow(table: _Table, data: np.ndarray, fmts: np.ndarray) -> None:
-    """Add the types the FMT byte patterns at ``fmts`` (sorted, length byte >= 3) define, the first one of a type
-    winning (some may lie inside a payload: the walk's own FMT messages check them afterwards)."""
+    """Add the types the FMT byte patterns at ``fmts`` (sorted, length byte >= 3) define, the first one of a
+    type winning (some may lie inside a payload: the walk's own FMT messages check them afterwards)."""
     tids, lens = data[fmts + 3], data[fmts + 4]
     new = (table.lengths[tids] == 0) & (tids != FMT_TYPE)
     tids, first = np.unique(tids[new], return_index=True)
@@ -268,7 +270,8 @@ def _tail(mm, size: int, pos: int) -> tuple[int | None, int]:
 
 
 def _finish(walk: _Walk, mm, size: int, pos: int, last: tuple[int, int, int] | None) -> _Walk:
-    """Close a walk at ``pos`` (after the last message ``last = (offset, type, length)``): the cut or the tail."""
+    """Close a walk at ``pos`` (after the last message ``last = (offset, type, length)``): the cut or the
+    tail."""
     if last is not None and last[0] + last[2] > size:
         walk.cut, walk.cut_type = last[0], last[1]
         walk.counts[last[1]] -= 1
@@ -287,8 +290,8 @@ def _finish(walk: _Walk, mm, size: int, pos: int, last: tuple[int, int, int] | N
 
 
 def _walk_sequential(mm, size: int, keep: set[int] | None) -> tuple[_Walk, list[int]]:
-    """The walk one message at a time (pymavlink's ``dfindexer`` rules, with a table that FMT messages update as
-    they come). Returns the walk and the offsets of the FMT messages it went through."""
+    """The walk one message at a time (pymavlink's ``dfindexer`` rules, with a table that FMT messages update
+    as they come). Returns the walk and the offsets of the FMT messages it went through."""
     lengths = [0] * 256
     lengths[FMT_TYPE] = FMT_LENGTH
     counts = [0] * 256
@@ -424,8 +427,8 @@ def _offset_type(size: int) -> np.dtype:
 
 
 def _gather_windows(mm, size: int, offsets: np.ndarray, dtype: np.dtype, shift: int = 3) -> np.ndarray:
-    """:func:`_gather` of ``offsets`` (ascending) a window of :data:`_WINDOW` bytes at a time, each window's pages
-    given back once gathered."""
+    """:func:`_gather` of ``offsets`` (ascending) a window of :data:`_WINDOW` bytes at a time, each window's
+    pages given back once gathered."""
     out = np.empty(len(offsets), dtype)
     if not len(offsets):
         return out
@@ -446,8 +449,8 @@ def _fmt_records(mm, size: int, offsets: Sequence[int]) -> np.ndarray:
 
 
 def _gather(mm, size: int, offsets: np.ndarray, dtype: np.dtype, shift: int = 3) -> np.ndarray:
-    """``dtype`` items at ``offsets + shift`` (by default the payloads of the messages at ``offsets``), copied out
-    of the memory map through a view with a stride of one byte."""
+    """``dtype`` items at ``offsets + shift`` (by default the payloads of the messages at ``offsets``), copied
+    out of the memory map through a view with a stride of one byte."""
     if len(offsets) == 0:
         return np.zeros(0, dtype)
     view = np.ndarray((size - dtype.itemsize + 1,), dtype, buffer=mm, strides=(1,))
@@ -486,7 +489,7 @@ def _index(mm, data: np.ndarray, size: int, keep: set[int] | None,
     return walk, np.asarray(fmts, np.int64), None
 
 
-# ---------------------------------------------------------------------------------------------------------------
+# ------------------------------------------------------------------------------------------------------------
 # The reader
 
 
@@ -497,8 +500,8 @@ class _Topic:
 
 
 class DataFlashFile(LogFile):
-    """An ArduPilot DataFlash log (``.bin``), read as pymavlink's ``DFReader`` reads it (see the module docstring
-    for the names, the scaling, the walk and the damage rules).
+    """An ArduPilot DataFlash log (``.bin``), read as pymavlink's ``DFReader`` reads it (see the module
+    docstring for the names, the scaling, the walk and the damage rules).
 
     Parameters
     ----------
@@ -542,7 +545,8 @@ class DataFlashFile(LogFile):
         self._names: dict[str, _Topic] = {}
         self._table: _Table | None = None
         self._sequential = False
-        self._index: dict[int, np.ndarray] | None = None      # the topics walk's offsets, until the first read
+        # the topics walk's offsets, until the first read
+        self._index: dict[int, np.ndarray] | None = None
 
     def _check_start(self) -> None:
         """An FMT message that looks like one near the start, else :class:`DataError`."""
@@ -550,18 +554,23 @@ class DataFlashFile(LogFile):
         pos = self._mm.find(b"\xa3\x95\x80", 0, window)
         while pos >= 0:
             if pos + FMT_LENGTH > self._size:
-                raise DataError(f"{self.path}: cut short at byte {self._size} of {self._size} inside the first "
-                                "FMT message: no message type is defined")
+                raise DataError(
+                    f"{self.path}: cut short at byte {self._size} of {self._size} inside the first "
+                    "FMT message: no message type is defined"
+                )
             rec = _fmt_records(self._mm, self._size, [pos])[0]
             fmt = _Format.parse(int(rec["type"]), int(rec["length"]), rec["name"], rec["format"],
                                 rec["columns"])
             if fmt.problem is None and fmt.name.isprintable() and fmt.name:
                 return
             pos = self._mm.find(b"\xa3\x95\x80", pos + 1, window)
-        raise DataError(f"{self.path}: not an ArduPilot DataFlash log (no FMT message, bytes A3 95 80, in its "
-                        f"first {window} bytes)")
+        raise DataError(
+            f"{self.path}: not an ArduPilot DataFlash log (no FMT message, bytes A3 95 80, in its "
+            f"first {window} bytes)"
+        )
 
-    # -- the walk's results --------------------------------------------------------------------------------------
+    # -- the walk's results
+    # --------------------------------------------------------------------------------------
 
     def _walk(self, keep: set[int] | None) -> _Walk:
         if self._sequential:
@@ -580,8 +589,13 @@ class DataFlashFile(LogFile):
         formats: dict[int, _Format] = {}
         names: dict[str, int] = {}
         for rec in recs:
-            new = _Format.parse(int(rec["type"]), int(rec["length"]), bytes(rec["name"]), bytes(rec["format"]),
-                                bytes(rec["columns"]))
+            new = _Format.parse(
+                int(rec["type"]),
+                int(rec["length"]),
+                bytes(rec["name"]),
+                bytes(rec["format"]),
+                bytes(rec["columns"]),
+            )
             old = formats.get(new.type_id)
             if old is not None and not old.same_layout(new):
                 new.redefined = True
@@ -599,8 +613,13 @@ class DataFlashFile(LogFile):
             self._names[name] = _Topic(tid)
             if fmt.instance is None or fmt.problem is not None or tid not in walk.offsets:
                 continue
-            raw = _gather_windows(self._mm, self._size, walk.offsets[tid], FORMATS[fmt.format[fmt.instance]][0],
-                                  3 + fmt.offsets[fmt.instance])
+            raw = _gather_windows(
+                self._mm,
+                self._size,
+                walk.offsets[tid],
+                FORMATS[fmt.format[fmt.instance]][0],
+                3 + fmt.offsets[fmt.instance],
+            )
             values, counts = np.unique(raw, return_counts=True)
             groups: dict[str, tuple[list, int]] = {}
             for value, count in zip(values, counts):
@@ -616,7 +635,8 @@ class DataFlashFile(LogFile):
         return out
 
     def _units(self, walk: _Walk, names: dict[str, int]) -> None:
-        """The instance columns, from the FMTU messages (a ``#`` in ``UnitIds``), as ``DFReader`` sets them."""
+        """The instance columns, from the FMTU messages (a ``#`` in ``UnitIds``), as ``DFReader`` sets
+        them."""
         tid = names.get("FMTU")
         fmtu = self._formats.get(tid) if tid is not None else None
         if fmtu is None or fmtu.problem is not None or tid not in walk.offsets:
@@ -637,8 +657,10 @@ class DataFlashFile(LogFile):
         self.bad_bytes = walk.bad_bytes
         self.skipped = None
         if walk.bad_bytes:
-            self.skipped = (f"{self.path}: skipped {walk.bad_bytes} bytes that are not messages (the first at byte "
-                            f"{walk.first_bad})")
+            self.skipped = (
+                f"{self.path}: skipped {walk.bad_bytes} bytes that are not messages (the first at byte "
+                f"{walk.first_bad})"
+            )
 
     def _damage_line(self, walk: _Walk) -> str:
         what = "a message broken off in its header"
@@ -665,11 +687,14 @@ class DataFlashFile(LogFile):
         out = []
         for pos, fmt in (first, last):
             col = fmt.columns.index("TimeUS")
-            out.append(float(fmt.values(_gather(self._mm, self._size, np.array([pos]), fmt.dtype([col])), col)[0])
-                       / 1e6)
+            out.append(
+                float(fmt.values(_gather(self._mm, self._size, np.array([pos]), fmt.dtype([col])), col)[0])
+                / 1e6
+            )
         return out[0], out[1]
 
-    # -- reading ---------------------------------------------------------------------------------------------------
+    # -- reading
+    # ---------------------------------------------------------------------------------------------------
 
     def _blocks(self, wanted: dict[str, tuple[str, ...]], block_bytes: int | None) -> LogBlocks:
         plans = {topic: self._plan(topic, fields) for topic, fields in wanted.items()}
@@ -733,8 +758,8 @@ class DataFlashFile(LogFile):
 
 
 class _DataFlashBlocks(LogBlocks):
-    """The wanted series of a DataFlash log per window of the file (:meth:`DataFlashFile.blocks`): each window's
-    messages of the wanted types decoded from the memory map, its pages given back after."""
+    """The wanted series of a DataFlash log per window of the file (:meth:`DataFlashFile.blocks`): each
+    window's messages of the wanted types decoded from the memory map, its pages given back after."""
 
     def __init__(self, log: DataFlashFile, plans: dict, offsets: dict[int, np.ndarray],
                  wanted: dict[str, tuple[str, ...]], window: int):
@@ -758,8 +783,14 @@ class _DataFlashBlocks(LogBlocks):
                 tid = log._names[topic].type_id
                 lo, hi = int(bounds[tid][i]), int(bounds[tid][i + 1])
                 if hi > lo:
-                    series = log._decode(fmt, self.offsets[tid][lo:hi], cols, time_col, log._names[topic].raws,
-                                         self.fields[topic])
+                    series = log._decode(
+                        fmt,
+                        self.offsets[tid][lo:hi],
+                        cols,
+                        time_col,
+                        log._names[topic].raws,
+                        self.fields[topic],
+                    )
                     if series.t_s.size:
                         out[topic] = series
             _release(log._mm, w0, w1)
@@ -767,7 +798,7 @@ class _DataFlashBlocks(LogBlocks):
                 yield out
 
 
-# ---------------------------------------------------------------------------------------------------------------
+# ------------------------------------------------------------------------------------------------------------
 # The writer
 
 #: ArduPilot's unit characters (``log_Units``) for the unit texts it knows.
@@ -846,13 +877,17 @@ def _plan_types(path: Path, topics: Sequence[WriteTopic]) -> list[_Out]:
         for col in fields:
             if (col == "TimeUS" or (col == "I" and inst is not None) or not col or "," in col
                     or not col.isascii() or not col.isprintable()):
-                raise ConfigError(f"{where}: field name {col!r} cannot be a column (TimeUS, and I of an instance, "
-                                  "are written by the writer; no commas)")
+                raise ConfigError(
+                    f"{where}: field name {col!r} cannot be a column (TimeUS, and I of an instance, "
+                    "are written by the writer; no commas)"
+                )
         out = types.get(name)
         if out is None:
             out = types[name] = _Out(name, 0, fields)
         elif out.fields != fields or out.instanced != (inst is not None):
-            raise ConfigError(f"{where}: its instances must have the same fields, and all or none an instance")
+            raise ConfigError(
+                f"{where}: its instances must have the same fields, and all or none an instance"
+            )
         if any(i == inst for _, i in out.topics):
             raise ConfigError(f"{where}: written twice")
         out.topics.append((topic, inst))
@@ -866,8 +901,10 @@ def _plan_types(path: Path, topics: Sequence[WriteTopic]) -> list[_Out]:
             values = np.concatenate([np.asarray(t.fields[col]).ravel() for t, _ in out.topics])
             out.chars.append(_char_for(f"{path}: topic {out.name}", col, values, pwm))
         if len(out.columns) > 16:
-            raise ConfigError(f"{path}: topic {out.name} has {len(out.columns)} columns with TimeUS (a DataFlash "
-                              "message has at most 16)")
+            raise ConfigError(
+                f"{path}: topic {out.name} has {len(out.columns)} columns with TimeUS (a DataFlash "
+                "message has at most 16)"
+            )
         if len(",".join(out.columns)) > 64:
             raise ConfigError(f"{path}: topic {out.name}: the column names take more than 64 characters")
     return list(types.values())
@@ -952,7 +989,9 @@ def _records(path: Path, out: _Out, topic: WriteTopic, inst: int | None, start_u
                 if not np.all(np.isfinite(values)):
                     raise DataError(f"{where}: field {col} has values that are not finite (format {char!r})")
             if len(values) and (values.min() < info.min or values.max() > info.max):
-                raise DataError(f"{where}: field {col} does not fit format {char!r} ({info.min} to {info.max})")
+                raise DataError(
+                    f"{where}: field {col} does not fit format {char!r} ({info.min} to {info.max})"
+                )
         rec[f"c{first + k}"] = values
     return t_us, rec.view(f"V{dtype.itemsize}")
 
@@ -960,15 +999,15 @@ def _records(path: Path, out: _Out, topic: WriteTopic, inst: int | None, start_u
 def write_dataflash(path: str | Path, topics: Sequence[WriteTopic], *, start_us: int = 0) -> Path:
     """Write ``topics`` as an ArduPilot DataFlash log, laid out as ArduPilot writes one.
 
-    The file starts with the ``FMT`` of ``FMT`` itself, then ``FMT`` of ``UNIT``, ``FMTU``, ``MULT`` and of every
-    message type, then the ``UNIT`` and ``MULT`` messages and one ``FMTU`` per type (units from
+    The file starts with the ``FMT`` of ``FMT`` itself, then ``FMT`` of ``UNIT``, ``FMTU``, ``MULT`` and of
+    every message type, then the ``UNIT`` and ``MULT`` messages and one ``FMTU`` per type (units from
     :attr:`WriteTopic.units`, ``s`` for ``TimeUS``, ``#`` for the instance column); then the messages of all
     topics interleaved in time order (ties in the order of ``topics``). Type ids are 132 and up (129-131 are
     ``UNIT``, ``FMTU``, ``MULT``). Each type's columns are ``TimeUS`` (format ``Q``), an instance column ``I``
     (``B``, marked ``#`` in ``FMTU``, as ArduPilot's ``IMU``) for topics named ``NAME[K]``, then the fields in
-    the order given. A field's format follows its dtype: float64 ``d``, float32 ``f``, integers the smallest of
-    ``B h H i I q Q`` that holds them; ``C1``, ``C2``... of ``RCOU`` are PWM ``H`` as in ArduPilot (float values
-    rounded to whole microseconds). Written atomically (a temporary file renamed over ``path``).
+    the order given. A field's format follows its dtype: float64 ``d``, float32 ``f``, integers the smallest
+    of ``B h H i I q Q`` that holds them; ``C1``, ``C2``... of ``RCOU`` are PWM ``H`` as in ArduPilot (float
+    values rounded to whole microseconds). Written atomically (a temporary file renamed over ``path``).
 
     Parameters
     ----------

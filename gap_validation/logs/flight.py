@@ -1,10 +1,10 @@
 """A simulated flight written as an autopilot's flight log, and the config that reads it back.
 
 :func:`~gap_validation.core.simulation.simulate_flight` flies the test card for a config whose streams are ROS
-topics (an IMU, the control surfaces); :func:`write_flight_log` puts every stream under the autopilot's own name,
-unit and frame (:func:`log_layout`) and writes the matching config (the same channels and models, the streams
-renamed, with the ``offset`` and ``scale`` that turn the logged values back into radians), so a replay of the log
-sees the same samples as a replay of the bag, up to the format's precision:
+topics (an IMU, the control surfaces); :func:`write_flight_log` puts every stream under the autopilot's own
+name, unit and frame (:func:`log_layout`) and writes the matching config (the same channels and models, the
+streams renamed, with the ``offset`` and ``scale`` that turn the logged values back into radians), so a replay
+of the log sees the same samples as a replay of the bag, up to the format's precision:
 
 ============  ==========================================  ==================================================
 format        rates (output, rad/s, FRD body axes)        surfaces (input)
@@ -21,9 +21,9 @@ format        rates (output, rad/s, FRD body axes)        surfaces (input)
               with ``p``, ``q``, ``r``
 ============  ==========================================  ==================================================
 
-Times are microseconds on the autopilot's clock: the flight starts :data:`BOOT_S` after boot (a log's clock counts
-from power-on), each sample at its stamp. ``k`` of ``control[k]`` is the servo's index in the airframe's control
-allocation (PX4 ``CA_SV_CS<k>_TYPE``); here aileron 0, elevator 1, rudder 2.
+Times are microseconds on the autopilot's clock: the flight starts :data:`BOOT_S` after boot (a log's clock
+counts from power-on), each sample at its stamp. ``k`` of ``control[k]`` is the servo's index in the
+airframe's control allocation (PX4 ``CA_SV_CS<k>_TYPE``); here aileron 0, elevator 1, rudder 2.
 """
 from __future__ import annotations
 
@@ -40,8 +40,21 @@ from gap_validation.core.fields import FieldPath
 from gap_validation.core.simulation import SimulatedFlight, with_logged_excitation
 from gap_validation.logs.base import WriteTopic
 
-__all__ = ["FORMATS", "SURFACE_RATE_HZ", "SERVO_RANGE_RAD", "BOOT_S", "LogSignal", "log_layout", "flight_topics",
-           "as_autopilot_logs", "log_config", "config_text", "write_flight_log", "log_path", "with_logged_excitation"]
+__all__ = [
+    "FORMATS",
+    "SURFACE_RATE_HZ",
+    "SERVO_RANGE_RAD",
+    "BOOT_S",
+    "LogSignal",
+    "log_layout",
+    "flight_topics",
+    "as_autopilot_logs",
+    "log_config",
+    "config_text",
+    "write_flight_log",
+    "log_path",
+    "with_logged_excitation",
+]
 
 #: Log formats a simulated flight can be written in (besides a bag).
 FORMATS = ("ulog", "dataflash", "csv")
@@ -101,8 +114,8 @@ class LogSignal:
 
 
 def _streams(config: ValidationConfig):
-    """``(channel, stream, spec, kind)`` of every stream; kind ``surface``, ``rate``, ``excitation``, ``trigger``
-    or ``airspeed``."""
+    """``(channel, stream, spec, kind)`` of every stream; kind ``surface``, ``rate``, ``excitation``,
+    ``trigger`` or ``airspeed``."""
     for name, ch in config.channels.items():
         for stream in ch.input_streams:
             yield name, stream, ch.signal(stream), "surface"
@@ -111,7 +124,13 @@ def _streams(config: ValidationConfig):
         if ch.trigger is not None:
             yield name, "trigger", ch.trigger, "trigger"
         for stream, spec in ch.extra_streams():
-            kind = "excitation" if stream == EXCITATION_STREAM else "airspeed" if stream == "airspeed" else "surface"
+            kind = (
+                "excitation"
+                if stream == EXCITATION_STREAM
+                else "airspeed"
+                if stream == "airspeed"
+                else "surface"
+            )
             yield name, stream, spec, kind
 
 
@@ -121,8 +140,10 @@ def _rate_axis(channel: str, spec: SignalSpec) -> int:
         return "xyz".index(last)
     if channel in _AXES:
         return _AXES.index(channel)
-    raise ConfigError(f"channel {channel}: cannot tell which body axis {spec.topic} {spec.field!r} is (expected a "
-                      f"field ending in .x, .y or .z, or a channel named roll, pitch or yaw)")
+    raise ConfigError(
+        f"channel {channel}: cannot tell which body axis {spec.topic} {spec.field!r} is (expected a "
+        f"field ending in .x, .y or .z, or a channel named roll, pitch or yaw)"
+    )
 
 
 def _surface_axis(config: ValidationConfig, channel: str, stream: str, spec: SignalSpec) -> int:
@@ -160,8 +181,8 @@ def log_layout(config: ValidationConfig, fmt: str) -> tuple[dict[tuple[str, str]
     Raises
     ------
     ConfigError
-        A stream the format has no place for (a trigger in an autopilot's log), a rate without a body axis, two
-        different signals on one log field, a log topic from config topics of different stamps, several
+        A stream the format has no place for (a trigger in an autopilot's log), a rate without a body axis,
+        two different signals on one log field, a log topic from config topics of different stamps, several
         excitations in an ArduPilot SystemID log.
     """
     if fmt not in FORMATS:
@@ -169,10 +190,12 @@ def log_layout(config: ValidationConfig, fmt: str) -> tuple[dict[tuple[str, str]
     excited = [name for name, ch in config.channels.items() if ch.excitation is not None]
     sysid = fmt == "dataflash" and bool(excited)
     if sysid and len(excited) > 1:
-        raise ConfigError(f"simulate --format dataflash: channels {', '.join(excited)} each have an injected "
-                          f"excitation, but ArduPilot's SystemID mode excites one axis per run (SID_AXIS) and logs "
-                          f"it in one SIDD.Targ: simulate one channel (a config with only that channel), or write "
-                          f"ulog, csv or a bag")
+        raise ConfigError(
+            f"simulate --format dataflash: channels {', '.join(excited)} each have an injected "
+            f"excitation, but ArduPilot's SystemID mode excites one axis per run (SID_AXIS) and logs "
+            f"it in one SIDD.Targ: simulate one channel (a config with only that channel), or write "
+            f"ulog, csv or a bag"
+        )
     name = {"ulog": "PX4", "csv": "CSV"}.get(fmt, "ArduCopter SystemID" if sysid else "ArduPlane")
     layout: dict[tuple[str, str], LogSignal] = {}
     taken: dict[tuple[str, str], tuple[str, str]] = {}          # log (topic, field) -> source (topic, field)
@@ -185,18 +208,24 @@ def log_layout(config: ValidationConfig, fmt: str) -> tuple[dict[tuple[str, str]
             signal = _next_free(signal, taken, fmt, source)
             key = (signal.topic, signal.field)
         if key in taken and taken[key] != source and kind != "excitation":
-            raise ConfigError(f"simulate --format {fmt}: {channel}.{stream} ({spec.topic} {spec.field!r}) and "
-                              f"{taken[key][0]} {taken[key][1]!r} both go to {signal.topic} {signal.field}")
+            raise ConfigError(
+                f"simulate --format {fmt}: {channel}.{stream} ({spec.topic} {spec.field!r}) and "
+                f"{taken[key][0]} {taken[key][1]!r} both go to {signal.topic} {signal.field}"
+            )
         taken.setdefault(key, source)
         if clocks.setdefault(signal.topic, spec.topic) != spec.topic:
-            raise ConfigError(f"simulate --format {fmt}: log topic {signal.topic} would take {spec.topic} and "
-                              f"{clocks[signal.topic]}, whose stamps differ (a log topic has one clock); put those "
-                              f"signals on one topic in the config")
+            raise ConfigError(
+                f"simulate --format {fmt}: log topic {signal.topic} would take {spec.topic} and "
+                f"{clocks[signal.topic]}, whose stamps differ (a log topic has one clock); put those "
+                f"signals on one topic in the config"
+            )
         layout[(channel, stream)] = signal
     return layout, name
 
 
-def _place(config, fmt: str, sysid: bool, channel: str, stream: str, spec: SignalSpec, kind: str) -> LogSignal:
+def _place(
+    config, fmt: str, sysid: bool, channel: str, stream: str, spec: SignalSpec, kind: str
+) -> LogSignal:
     """The :class:`LogSignal` of one stream (before clashes are resolved)."""
     src = spec.topic
     if fmt == "csv":
@@ -208,27 +237,40 @@ def _place(config, fmt: str, sysid: bool, channel: str, stream: str, spec: Signa
         field = {"excitation": channel, "trigger": channel, "airspeed": "airspeed"}[kind]
         return LogSignal(topic, field, unit={"airspeed": "m/s", "trigger": "1"}.get(kind, "rad"), source=src)
     if kind == "trigger":
-        raise ConfigError(f"simulate --format {fmt}: channel {channel} has a trigger, which an autopilot does not log; "
-                          f"drop channels.{channel}.trigger (manoeuvres are detected), or write csv or a bag")
+        raise ConfigError(
+            f"simulate --format {fmt}: channel {channel} has a trigger, which an autopilot does not log; "
+            f"drop channels.{channel}.trigger (manoeuvres are detected), or write csv or a bag"
+        )
     if kind == "airspeed":
-        return (LogSignal("airspeed_validated", "true_airspeed_m_s", unit="m/s", source=src) if fmt == "ulog" else
-                LogSignal("ARSP", "Airspeed", unit="m/s", source=src))
+        return (
+            LogSignal("airspeed_validated", "true_airspeed_m_s", unit="m/s", source=src)
+            if fmt == "ulog"
+            else LogSignal("ARSP", "Airspeed", unit="m/s", source=src)
+        )
     if kind == "rate":
         axis = _rate_axis(channel, spec)
-        return (LogSignal("vehicle_angular_velocity", f"xyz[{axis}]", unit="rad/s", source=src) if fmt == "ulog"
-                else LogSignal("IMU", _GYRO[axis], unit="rad/s", source=src))
+        return (
+            LogSignal("vehicle_angular_velocity", f"xyz[{axis}]", unit="rad/s", source=src)
+            if fmt == "ulog"
+            else LogSignal("IMU", _GYRO[axis], unit="rad/s", source=src)
+        )
     axis = _surface_axis(config, channel, stream, spec) if kind == "surface" else _rate_axis(
         channel, config.channels[channel].signal(config.channels[channel].output_streams[0]))
     if kind == "excitation":
         if fmt == "ulog":
-            return LogSignal("autotune_attitude_control_status", f"rate_sp[{axis}]", SERVO_RANGE_RAD, unit="1",
-                             source=src)
+            return LogSignal(
+                "autotune_attitude_control_status", f"rate_sp[{axis}]", SERVO_RANGE_RAD, unit="1", source=src
+            )
         return LogSignal("SIDD", "Targ", SERVO_RANGE_RAD, unit="1", source=src)
     if fmt == "ulog":
-        return LogSignal("actuator_servos", f"control[{_PX4_SERVO[axis]}]", SERVO_RANGE_RAD, unit="1", source=src)
+        return LogSignal(
+            "actuator_servos", f"control[{_PX4_SERVO[axis]}]", SERVO_RANGE_RAD, unit="1", source=src
+        )
     if sysid:
         return LogSignal("RATE", _RATE_OUT[axis], SERVO_RANGE_RAD, unit="1", source=src)
-    return LogSignal("RCOU", _RCOU[axis], SERVO_RANGE_RAD / PWM_HALF_RANGE_US, -PWM_CENTRE_US, unit="us", source=src)
+    return LogSignal(
+        "RCOU", _RCOU[axis], SERVO_RANGE_RAD / PWM_HALF_RANGE_US, -PWM_CENTRE_US, unit="us", source=src
+    )
 
 
 def _next_free(signal: LogSignal, taken: dict, fmt: str, source: tuple[str, str]) -> LogSignal:
@@ -248,8 +290,8 @@ def _next_free(signal: LogSignal, taken: dict, fmt: str, source: tuple[str, str]
 def flight_topics(flight: SimulatedFlight, config: ValidationConfig, layout: dict[tuple[str, str], LogSignal]
                   ) -> list[WriteTopic]:
     """The flight's samples as log topics: each at its stamps on the log's clock (:data:`BOOT_S` after boot at
-    the flight's start, microseconds), each value converted to SI by its config stream and to the log's unit by
-    its :class:`LogSignal` (signals sharing a field, the SystemID excitation of every axis, are summed).
+    the flight's start, microseconds), each value converted to SI by its config stream and to the log's unit
+    by its :class:`LogSignal` (signals sharing a field, the SystemID excitation of every axis, are summed).
 
     Parameters
     ----------
@@ -272,9 +314,11 @@ def flight_topics(flight: SimulatedFlight, config: ValidationConfig, layout: dic
         signal = layout[(channel, stream)]
         series = flight.topics[spec.topic]
         if sources.setdefault(signal.topic, spec.topic) != spec.topic:
-            raise ConfigError(f"simulate: log topic {signal.topic} would take {spec.topic} and "
-                              f"{sources[signal.topic]}, whose stamps differ (a log topic has one clock); put those "
-                              f"signals on one topic in the config")
+            raise ConfigError(
+                f"simulate: log topic {signal.topic} would take {spec.topic} and "
+                f"{sources[signal.topic]}, whose stamps differ (a log topic has one clock); put those "
+                f"signals on one topic in the config"
+            )
         if signal.topic not in topics:
             t_us = np.round((series.stamp_s - flight.start_time_s + BOOT_S) * 1e6).astype(np.int64)
             topics[signal.topic] = WriteTopic(signal.topic, t_us)
@@ -294,8 +338,8 @@ def flight_topics(flight: SimulatedFlight, config: ValidationConfig, layout: dic
     return [topics[name] for name in sorted(topics)]
 
 
-#: The fields of each autopilot topic the simulator writes, in the autopilot's order: a field the flight has no
-#: signal for is NaN (a float: "no value", as PX4 marks an unused servo), or 0 for a PWM output.
+#: The fields of each autopilot topic the simulator writes, in the autopilot's order: a field the flight has
+#: no signal for is NaN (a float: "no value", as PX4 marks an unused servo), or 0 for a PWM output.
 _FULL_TOPICS = {
     "ulog": {"vehicle_angular_velocity": [f"xyz[{k}]" for k in range(3)],
              "actuator_servos": [f"control[{k}]" for k in range(8)],
@@ -307,9 +351,9 @@ _SAMPLED = ("vehicle_angular_velocity", "actuator_servos")
 
 
 def as_autopilot_logs(topics: list[WriteTopic], fmt: str) -> list[WriteTopic]:
-    """The topics with the autopilot's types and whole field sets: float32 values (PX4 and ArduPilot log floats as
-    ``float``), every element of an array (``xyz[0..2]``, ``control[0..7]``) and PX4's ``timestamp_sample``; CSV
-    as it is (float64).
+    """The topics with the autopilot's types and whole field sets: float32 values (PX4 and ArduPilot log
+    floats as ``float``), every element of an array (``xyz[0..2]``, ``control[0..7]``) and PX4's
+    ``timestamp_sample``; CSV as it is (float64).
 
     Parameters
     ----------
@@ -330,7 +374,9 @@ def as_autopilot_logs(topics: list[WriteTopic], fmt: str) -> list[WriteTopic]:
             fields["timestamp_sample"] = topic.t_us.astype(np.uint64)
         for name in names:
             if name in topic.fields:
-                fields[name] = np.asarray(topic.fields[name], np.float64 if topic.name == "RCOU" else np.float32)
+                fields[name] = np.asarray(
+                    topic.fields[name], np.float64 if topic.name == "RCOU" else np.float32
+                )
             else:
                 fields[name] = np.zeros(n) if topic.name == "RCOU" else np.full(n, np.nan, np.float32)
         out.append(WriteTopic(topic.name, topic.t_us, fields, dict(topic.units)))
@@ -350,8 +396,8 @@ def _signal_mapping(signal: LogSignal, spec: SignalSpec, extra: dict | None = No
 
 
 def log_config(config: ValidationConfig, layout: dict[tuple[str, str], LogSignal], source: str = "") -> dict:
-    """The config (as a mapping) that reads the log: ``config``'s channels, models and settings with every stream
-    renamed to its :class:`LogSignal` (no ``type`` or ``frame``: the log's rates are FRD already).
+    """The config (as a mapping) that reads the log: ``config``'s channels, models and settings with every
+    stream renamed to its :class:`LogSignal` (no ``type`` or ``frame``: the log's rates are FRD already).
 
     Parameters
     ----------
@@ -389,34 +435,48 @@ def log_config(config: ValidationConfig, layout: dict[tuple[str, str], LogSignal
 
 
 _HEADERS = {
-    "PX4": ["PX4 ULog streams (gap-validate simulate --format ulog).",
-            "vehicle_angular_velocity xyz[0], xyz[1], xyz[2]: body rates p, q, r [rad/s], FRD body axes (x forward,",
-            "  y right, z down); time: timestamp_sample [us].",
-            "actuator_servos control[k]: normalised servo command, -1..1; scale {range:g} rad per unit (+-1 is +-{deg:.0f}",
-            "  deg of deflection: put your servos' range here); k as the airframe's CA_SV_CS<k>_TYPE orders them",
-            "  (here 0 aileron, 1 elevator, 2 rudder). PX4 logs it every 100 ms (10 Hz) by default: its Nyquist",
-            "  frequency bounds the band (sweeps validated up to 28.6 rad/s, with the gyro at 40 Hz or faster);",
-            "  SDLOG_PROFILE's high-rate bit (+16) logs it at full rate."],
-    "ArduPlane": ["ArduPilot (ArduPlane) DataFlash streams (gap-validate simulate --format dataflash).",
-                  "IMU GyrX, GyrY, GyrZ: body rates p, q, r [rad/s], FRD body axes (x forward, y right, z down);",
-                  "  time: TimeUS [us]. IMU[1] is the second IMU.",
-                  "RCOU C1, C2, C4: servo PWM [us] of RC1 (aileron), RC2 (elevator), RC4 (rudder); 1500 +- 500 us is",
-                  "  +-{range:g} rad: offset -1500 us, scale {pwm:g} rad/us (put your servos' centre and range here).",
-                  "  ArduPlane writes RCOU at 25 Hz (LOG_BITMASK RC): the band ends at 62.8 rad/s (sweeps validated up",
-                  "  to 57 rad/s, with IMU at 80 Hz or faster; else 35.7 rad/s)."],
+    "PX4": [
+        "PX4 ULog streams (gap-validate simulate --format ulog).",
+        "vehicle_angular_velocity xyz[0], xyz[1], xyz[2]: body rates p, q, r [rad/s], FRD body axes (x "
+        "forward,",
+        "  y right, z down); time: timestamp_sample [us].",
+        "actuator_servos control[k]: normalised servo command, -1..1; scale {range:g} rad per unit (+-1 is "
+        "+-{deg:.0f}",
+        "  deg of deflection: put your servos' range here); k as the airframe's CA_SV_CS<k>_TYPE orders them",
+        "  (here 0 aileron, 1 elevator, 2 rudder). PX4 logs it every 100 ms (10 Hz) by default: its Nyquist",
+        "  frequency bounds the band (sweeps validated up to 28.6 rad/s, with the gyro at 40 Hz or faster);",
+        "  SDLOG_PROFILE's high-rate bit (+16) logs it at full rate.",
+    ],
+    "ArduPlane": [
+        "ArduPilot (ArduPlane) DataFlash streams (gap-validate simulate --format dataflash).",
+        "IMU GyrX, GyrY, GyrZ: body rates p, q, r [rad/s], FRD body axes (x forward, y right, z down);",
+        "  time: TimeUS [us]. IMU[1] is the second IMU.",
+        "RCOU C1, C2, C4: servo PWM [us] of RC1 (aileron), RC2 (elevator), RC4 (rudder); 1500 +- 500 us is",
+        "  +-{range:g} rad: offset -1500 us, scale {pwm:g} rad/us (put your servos' centre and range here).",
+        "  ArduPlane writes RCOU at 25 Hz (LOG_BITMASK RC): the band ends at 62.8 rad/s (sweeps validated up",
+        "  to 57 rad/s, with IMU at 80 Hz or faster; else 35.7 rad/s).",
+    ],
     "ArduCopter SystemID": [
-        "ArduPilot (ArduCopter SystemID mode) DataFlash streams (gap-validate simulate --format dataflash with an",
+        "ArduPilot (ArduCopter SystemID mode) DataFlash streams (gap-validate simulate --format dataflash "
+        "with an",
         "injected excitation).",
-        "IMU GyrX, GyrY, GyrZ: body rates p, q, r [rad/s], FRD body axes (x forward, y right, z down); time TimeUS",
+        "IMU GyrX, GyrY, GyrZ: body rates p, q, r [rad/s], FRD body axes (x forward, y right, z down); time "
+        "TimeUS",
         "  [us]. (SIDD Gx, Gy, Gz carry the same rates in deg/s: scale 0.0174533.)",
-        "RATE ROut, POut, YOut: the rate controllers' outputs to the mixer, -1..1 (the plant's input, with the",
+        "RATE ROut, POut, YOut: the rate controllers' outputs to the mixer, -1..1 (the plant's input, with "
+        "the",
         "  injected signal of a mixer axis); scale {range:g} rad per unit here.",
-        "SIDD Targ: the SystemID mode's injected signal (SID_AXIS 10-12: mixer roll, pitch, yaw), the estimator's",
-        "  instrument: the plant is measured inside the closed rate loop without feedback bias. SystemID excites",
-        "  one axis per run (SIDS Ax says which): one channel per config and log."],
-    "CSV": ["CSV streams (gap-validate simulate --format csv): one file per topic, TimeUS [us] first.",
-            "imu.csv p, q, r: body rates [rad/s], FRD body axes (x forward, y right, z down).",
-            "control_surfaces.csv: one column per surface [rad]."],
+        "SIDD Targ: the SystemID mode's injected signal (SID_AXIS 10-12: mixer roll, pitch, yaw), the "
+        "estimator's",
+        "  instrument: the plant is measured inside the closed rate loop without feedback bias. SystemID "
+        "excites",
+        "  one axis per run (SIDS Ax says which): one channel per config and log.",
+    ],
+    "CSV": [
+        "CSV streams (gap-validate simulate --format csv): one file per topic, TimeUS [us] first.",
+        "imu.csv p, q, r: body rates [rad/s], FRD body axes (x forward, y right, z down).",
+        "control_surfaces.csv: one column per surface [rad].",
+    ],
 }
 
 
@@ -489,7 +549,9 @@ def write_flight_log(flight: SimulatedFlight, config: ValidationConfig, out: str
     if fmt == "ulog":
         from gap_validation.logs.ulog import write_ulog
 
-        write_ulog(out, topics, start_us=start_us, info={"sys_name": "PX4", "ver_hw": "gap-validate simulate"})
+        write_ulog(
+            out, topics, start_us=start_us, info={"sys_name": "PX4", "ver_hw": "gap-validate simulate"}
+        )
     elif fmt == "dataflash":
         from gap_validation.logs.dataflash import write_dataflash
 

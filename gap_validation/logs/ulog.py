@@ -1,8 +1,8 @@
 """PX4 ULog (``.ulg``): read (:class:`ULogFile`) and written (:func:`write_ulog`).
 
-The format is PX4's published spec (https://docs.px4.io/main/en/dev_log/ulog_file_format.html): a 16-byte header
-(magic ``ULog\\x01\\x12\\x35``, version, start time [us]), then messages, each ``uint16 size, uint8 type,
-payload``: the *definitions* (``B`` flag bits first, ``F`` formats, ``I``/``M`` information, ``P``/``Q``
+The format is PX4's published spec (https://docs.px4.io/main/en/dev_log/ulog_file_format.html): a 16-byte
+header (magic ``ULog\\x01\\x12\\x35``, version, start time [us]), then messages, each ``uint16 size, uint8
+type, payload``: the *definitions* (``B`` flag bits first, ``F`` formats, ``I``/``M`` information, ``P``/``Q``
 parameters) up to the first ``A``, ``L`` or ``C`` message, then the *data* (``A`` subscriptions ``multi_id,
 msg_id, name``; ``D`` data ``msg_id, payload``; ``L``/``C`` log text, ``S`` sync, ``O`` dropouts, ``R``
 unsubscriptions, ``I``/``M``/``P``/``Q`` again). Names follow pyulog, PX4's own reader: a topic is the message
@@ -14,22 +14,23 @@ Why a reader of our own and not pyulog (measured, ``benchmarks/bench_ulog.py``: 
 million data messages in 12 topics at PX4 rates, 15 % of its bytes in the two wanted topics): ``pyulog.ULog``
 spends ~1.6 us of Python on every message (1.7-1.9 s), and ``message_name_filter_list`` saves only the final
 copy of the unwanted topics, not the per-message work: 1.2-1.4 s, 0.7 times the full read, not the several
-times faster a replay wants. This reader walks the message headers in one tight Python loop (``uint16 size`` ->
-next message, ~0.2 us per message), over the file in 1 MiB blocks, and does everything else per block with
+times faster a replay wants. This reader walks the message headers in one tight Python loop (``uint16 size``
+-> next message, ~0.2 us per message), over the file in 1 MiB blocks, and does everything else per block with
 numpy: types and ids are gathered at the found offsets, and each wanted field of each wanted topic is gathered
 from all its ``D`` messages of the block at once (a strided view of the block as that field's type, indexed by
-``message offset + field offset``: what ``np.frombuffer`` of the gathered payloads with the format's structured
-dtype gives, without copying the payloads first). Measured on that log: :meth:`ULogFile.read` 0.20-0.24 s (0.11-
-0.14 times ``pyulog.ULog``), :attr:`ULogFile.topics` then ``read`` (two passes) 0.47-0.53 s (0.25-0.29 times);
-peak memory 10.7 MB (the wanted fields as float64 are 6 MB of it) against pyulog's 56 MB (8 MB filtered). The
-tests check this reader against pyulog value for value. ``topics`` needs a pass over the file (the samples are
-counted); :meth:`ULogFile.read` before ``topics`` does both in that one pass.
+``message offset + field offset``: what ``np.frombuffer`` of the gathered payloads with the format's
+structured dtype gives, without copying the payloads first). Measured on that log: :meth:`ULogFile.read`
+0.20-0.24 s (0.11- 0.14 times ``pyulog.ULog``), :attr:`ULogFile.topics` then ``read`` (two passes) 0.47-0.53 s
+(0.25-0.29 times); peak memory 10.7 MB (the wanted fields as float64 are 6 MB of it) against pyulog's 56 MB (8
+MB filtered). The tests check this reader against pyulog value for value. ``topics`` needs a pass over the
+file (the samples are counted); :meth:`ULogFile.read` before ``topics`` does both in that one pass.
 
-Replay streams instead (:meth:`ULogFile.blocks`): one pass gives the topics and notes where the wanted messages are
-in each 1 MiB block (4 bytes per message: the only memory that grows with the log), then each block is read again
-and its messages gathered as above, a block at a time. On the same log, in the same run: blocks 0.29 s (0.17 times
-``pyulog.ULog``; the topics come with it), the whole read 0.23 s (0.13 times), ``topics`` then ``read`` 0.46 s;
-peak 6.1 MB against 10.7 MB (``benchmarks/bench_ulog.py``, variant *ours, blocks*).
+Replay streams instead (:meth:`ULogFile.blocks`): one pass gives the topics and notes where the wanted
+messages are in each 1 MiB block (4 bytes per message: the only memory that grows with the log), then each
+block is read again and its messages gathered as above, a block at a time. On the same log, in the same run:
+blocks 0.29 s (0.17 times ``pyulog.ULog``; the topics come with it), the whole read 0.23 s (0.13 times),
+``topics`` then ``read`` 0.46 s; peak 6.1 MB against 10.7 MB (``benchmarks/bench_ulog.py``, variant *ours,
+blocks*).
 
 What is skipped as the spec says: information, parameters, log text, dropouts, sync and unsubscription
 messages, and message types this reader does not know (skipped by their size). Appended data (flag bit
@@ -40,18 +41,19 @@ flag bit this reader does not know is refused.
 Damage: a file cut in the middle of a message, or a message that cannot be right (type 0, size 0, an unknown
 type larger than 10000 bytes as pyulog judges it, a data message of an unsubscribed id or of the wrong size, a
 subscription that cannot be resolved), stops the read there: what came before is returned and
-:attr:`ULogFile.damage` says where (one line). The sync messages would allow skipping to the next good message;
-this reader does not (the house rule: a damaged file is read up to the damage). Not a ULog (bad magic), or a file
-that ends within the header or the definitions, is a :class:`DataError` at open.
+:attr:`ULogFile.damage` says where (one line). The sync messages would allow skipping to the next good
+message; this reader does not (the house rule: a damaged file is read up to the damage). Not a ULog (bad
+magic), or a file that ends within the header or the definitions, is a :class:`DataError` at open.
 
 Where it differs from pyulog 1.3 (both by the spec): a message that still logs its trailing padding is read
 (pyulog drops it as the wrong size); the subscriptions hold in appended data (pyulog forgets them at an
-appended offset); and a damaged message ends the read where pyulog skips it and goes on. On pyulog's own sample
-logs from PX4 (its ``test/*.ulg``, appended data included) both read the same topics, fields, times and values.
+appended offset); and a damaged message ends the read where pyulog skips it and goes on. On pyulog's own
+sample logs from PX4 (its ``test/*.ulg``, appended data included) both read the same topics, fields, times and
+values.
 
-:func:`write_ulog` writes version-1 logs in PX4's layout (``uint64_t timestamp`` first, ``timestamp_sample`` as
-``uint64_t``, ``xyz[0..2]`` as ``float xyz[3]`` when the arrays are float32): the simulator's flights, checked
-by reading them back with pyulog.
+:func:`write_ulog` writes version-1 logs in PX4's layout (``uint64_t timestamp`` first, ``timestamp_sample``
+as ``uint64_t``, ``xyz[0..2]`` as ``float xyz[3]`` when the arrays are float32): the simulator's flights,
+checked by reading them back with pyulog.
 """
 from __future__ import annotations
 
@@ -75,9 +77,17 @@ ULOG_MAGIC = b"ULog\x01\x12\x35"
 
 #: ULog basic type -> numpy dtype (little endian). bool and char as int8, as pyulog reads them.
 _BASIC = {
-    "int8_t": np.dtype("i1"), "uint8_t": np.dtype("u1"), "int16_t": np.dtype("<i2"), "uint16_t": np.dtype("<u2"),
-    "int32_t": np.dtype("<i4"), "uint32_t": np.dtype("<u4"), "int64_t": np.dtype("<i8"),
-    "uint64_t": np.dtype("<u8"), "float": np.dtype("<f4"), "double": np.dtype("<f8"), "bool": np.dtype("i1"),
+    "int8_t": np.dtype("i1"),
+    "uint8_t": np.dtype("u1"),
+    "int16_t": np.dtype("<i2"),
+    "uint16_t": np.dtype("<u2"),
+    "int32_t": np.dtype("<i4"),
+    "uint32_t": np.dtype("<u4"),
+    "int64_t": np.dtype("<i8"),
+    "uint64_t": np.dtype("<u8"),
+    "float": np.dtype("<f4"),
+    "double": np.dtype("<f8"),
+    "bool": np.dtype("i1"),
     "char": np.dtype("i1"),
 }
 
@@ -127,7 +137,8 @@ def _is_padding(name: str) -> bool:
 
 
 def _parse_format(text: str) -> tuple[str, list[tuple[str, int, str]]]:
-    """``name:type field;type[n] field;`` -> (name, [(type, array size or 0, field)]); ValueError when malformed."""
+    """``name:type field;type[n] field;`` -> (name, [(type, array size or 0, field)]); ValueError when
+    malformed."""
     name, sep, body = text.partition(":")
     if not sep or not name:
         raise ValueError("no message name")
@@ -167,7 +178,9 @@ def _layout(name: str, formats: Mapping[str, list[tuple[str, int, str]]]) -> _La
             if type_str in _BASIC:
                 width = _BASIC[type_str].itemsize
                 for i in range(size) if size else (None,):
-                    out.append(_Field(prefix + field_name + ("" if i is None else f"[{i}]"), type_str, offset))
+                    out.append(
+                        _Field(prefix + field_name + ("" if i is None else f"[{i}]"), type_str, offset)
+                    )
                     offset += width
             else:
                 for i in range(size) if size else (None,):
@@ -202,8 +215,8 @@ class _Stop(Exception):
 
 class _Pass:
     """The state of one pass over the data section: subscriptions, counts, time span, and either the gathered
-    fields or (``index``) where the wanted topics' messages are: per block of the pass (``blocks``: file offset and
-    length), each topic's message offsets in it, and each topic's earliest finite time."""
+    fields or (``index``) where the wanted topics' messages are: per block of the pass (``blocks``: file
+    offset and length), each topic's message offsets in it, and each topic's earliest finite time."""
 
     def __init__(self, formats: Mapping[str, list], wanted: Mapping[str, Sequence[str]], index: bool = False,
                  block: int = 0):
@@ -226,7 +239,8 @@ class _Pass:
         self.chunks: dict[str, dict[str, list[np.ndarray]]] = {t: {} for t in wanted}
 
     def subscribe(self, payload: bytes) -> int | None:
-        """Parse an ``A`` message; returns its msg_id (None: a repeat). ValueError when it cannot be resolved."""
+        """Parse an ``A`` message; returns its msg_id (None: a repeat). ValueError when it cannot be
+        resolved."""
         multi_id, msg_id = struct.unpack_from("<BH", payload, 0)
         name = payload[3:].decode("utf-8")
         topic = name if multi_id == 0 else f"{name}:{multi_id}"
@@ -282,8 +296,8 @@ class ULogFile(LogFile):
     Raises
     ------
     DataError
-        The file is missing, is not a ULog (bad magic), has an incompatible flag bit this reader does not know,
-        or ends within the header or the definitions (one line naming the file).
+        The file is missing, is not a ULog (bad magic), has an incompatible flag bit this reader does not
+        know, or ends within the header or the definitions (one line naming the file).
 
     Attributes
     ----------
@@ -325,8 +339,10 @@ class ULogFile(LogFile):
             head = fh.read(3)
             if len(head) < 3:
                 where = "at the end of" if not head else "inside"
-                raise DataError(f"{self.path}: cut short at byte {pos + len(head)} of {self.size} {where} the "
-                                "definitions (no data section)")
+                raise DataError(
+                    f"{self.path}: cut short at byte {pos + len(head)} of {self.size} {where} the "
+                    "definitions (no data section)"
+                )
             size, kind = _MSG.unpack(head)
             if kind in (_A, ord("L"), ord("C")):
                 return pos
@@ -337,8 +353,9 @@ class ULogFile(LogFile):
             try:
                 self._definition(kind, size, payload, pos)
             except (ValueError, UnicodeDecodeError, struct.error) as err:
-                raise DataError(f"{self.path}: corrupt {chr(kind)!r} message at byte {pos} of the definitions "
-                                f"({err})") from None
+                raise DataError(
+                    f"{self.path}: corrupt {chr(kind)!r} message at byte {pos} of the definitions ({err})"
+                ) from None
             pos += 3 + size
 
     def _definition(self, kind: int, size: int, payload: bytes, pos: int) -> None:
@@ -374,9 +391,12 @@ class ULogFile(LogFile):
         ends = bounds[1:] + [self.size]
         return [(a, min(b, self.size)) for a, b in zip(bounds, ends) if a < self.size]
 
-    def _pass(self, wanted: Mapping[str, Sequence[str]], index: bool = False, block: int | None = None) -> _Pass:
-        """One pass over the data in blocks of ``block`` bytes (default :data:`_BLOCK`): counts every topic, gathers
-        the wanted fields (or, with ``index``, notes where their messages are); sets :attr:`damage`."""
+    def _pass(
+        self, wanted: Mapping[str, Sequence[str]], index: bool = False, block: int | None = None
+    ) -> _Pass:
+        """One pass over the data in blocks of ``block`` bytes (default :data:`_BLOCK`): counts every topic,
+        gathers the wanted fields (or, with ``index``, notes where their messages are); sets
+        :attr:`damage`."""
         state = _Pass(self._formats, wanted, index, int(block or _BLOCK))
         stop = None
         with self.path.open("rb") as fh:
@@ -389,8 +409,11 @@ class ULogFile(LogFile):
             else:
                 missing = [o for o in self._appended if o > self.size]
                 if missing:
-                    stop = _Stop(self.size, f"cut short at byte {self.size} of {self.size} (the appended data at "
-                                           f"byte {missing[0]} is missing)")
+                    stop = _Stop(
+                        self.size,
+                        f"cut short at byte {self.size} of {self.size} (the appended data at "
+                        f"byte {missing[0]} is missing)",
+                    )
         self.damage = None if stop is None else self._damage_line(stop, state)
         return state
 
@@ -538,11 +561,16 @@ class ULogFile(LogFile):
             f = state.layouts[msg_ids[0]].time
             if f is not None:
                 raw = _view(data, _BASIC[f.type])[mine + 5 + f.offset]
-                t = float(raw.min()) if raw.dtype.kind in "iu" else float(np.fmin.reduce(raw.astype(np.float64)))
+                t = (
+                    float(raw.min())
+                    if raw.dtype.kind in "iu"
+                    else float(np.fmin.reduce(raw.astype(np.float64)))
+                )
                 if not np.isnan(t):
                     state.first_s[topic] = min(state.first_s.get(topic, np.inf), t / 1e6)
 
-    # -- the LogFile interface --------------------------------------------------------------------------------
+    # -- the LogFile interface
+    # --------------------------------------------------------------------------------
 
     def _topics(self) -> dict[str, LogTopic]:
         return self._table(self._pass({}))
@@ -607,12 +635,12 @@ class ULogFile(LogFile):
         return self.read(wanted)
 
     def blocks(self, wanted: Mapping[str, Sequence[str]], *, block_bytes: int | None = None) -> LogBlocks:
-        """The samples of the ``wanted`` fields of each wanted topic (topic -> fields) per block of the file, in
-        the file's order: joined, what :meth:`read` returns.
+        """The samples of the ``wanted`` fields of each wanted topic (topic -> fields) per block of the file,
+        in the file's order: joined, what :meth:`read` returns.
 
-        A pass over the file (:attr:`topics` and :attr:`damage` are known after it) notes where the wanted topics'
-        messages are in each block of ``block_bytes`` (4 bytes per message); iterating reads each block again and
-        gathers them. Topics the log does not have are left out; ``name:0`` is ``name``.
+        A pass over the file (:attr:`topics` and :attr:`damage` are known after it) notes where the wanted
+        topics' messages are in each block of ``block_bytes`` (4 bytes per message); iterating reads each
+        block again and gathers them. Topics the log does not have are left out; ``name:0`` is ``name``.
 
         Parameters
         ----------
@@ -688,9 +716,11 @@ class _ULogBlocks(LogBlocks):
                 fh.seek(base)
                 data = memoryview(buffer)[:length]
                 got = fh.readinto(data)
-                if got != length:           # the file changed since the index pass
-                    raise DataError(f"{self.path}: {length - got} bytes fewer than when it was opened (at byte "
-                                    f"{base + got}); it changed while being read")
+                if got != length:  # the file changed since the index pass
+                    raise DataError(
+                        f"{self.path}: {length - got} bytes fewer than when it was opened (at byte "
+                        f"{base + got}); it changed while being read"
+                    )
                 views: dict[str, np.ndarray] = {}
 
                 def column(f: _Field, payload: np.ndarray, out: np.ndarray) -> None:
@@ -788,7 +818,9 @@ class _Topic:
 def _topic(wt: WriteTopic) -> _Topic:
     name, _, instance = wt.name.partition(":")
     if not _TOPIC_NAME.match(name) or (instance and not instance.isdigit()) or int(instance or 0) > 255:
-        raise ValueError(f"ULog topic {wt.name!r}: a message name [A-Za-z0-9_-/], with ':K' (0-255) for an instance")
+        raise ValueError(
+            f"ULog topic {wt.name!r}: a message name [A-Za-z0-9_-/], with ':K' (0-255) for an instance"
+        )
     t_us = np.asarray(wt.t_us)
     if t_us.ndim != 1 or t_us.dtype.kind not in "iu" or (len(t_us) and t_us.min() < 0):
         raise ValueError(f"ULog topic {wt.name}: t_us must be non-negative integers [us]")
@@ -799,8 +831,9 @@ def _topic(wt: WriteTopic) -> _Topic:
     for field_name, values in wt.fields.items():
         arr = np.asarray(values)
         if arr.shape != t_us.shape:
-            raise ValueError(f"ULog topic {wt.name}: field {field_name} has {arr.shape} values for {t_us.shape} "
-                             "times")
+            raise ValueError(
+                f"ULog topic {wt.name}: field {field_name} has {arr.shape} values for {t_us.shape} times"
+            )
         match = _ARRAY_ELEMENT.match(field_name)
         base, index = (match.group(1), int(match.group(2))) if match else (field_name, -1)
         if not _FIELD_NAME.match(base) or base == "timestamp":
@@ -845,12 +878,12 @@ def write_ulog(path: str | Path, topics: Sequence[WriteTopic], *, start_us: int 
 
     The file holds the header, a flag-bits message (no flags), the information messages, one format per
     message name, one subscription per topic (``msg_id`` 0, 1, ... in the order given, ``multi_id`` from the
-    ``:K`` suffix), then the data messages of all topics in time order (ties in the order of ``topics``). Every
-    message starts with ``uint64_t timestamp`` (``t_us``); a field ``timestamp_sample`` is ``uint64_t`` (rounded
-    if given as floats); a field's ULog type follows its array's dtype (float64 ``double``, float32 ``float``,
-    intN/uintN ``[u]intN_t``, bool ``bool``); fields ``xyz[0]``, ``xyz[1]``, ``xyz[2]`` are one array field
-    ``float xyz[3]`` (their dtypes must agree). The instances of a topic (``name``, ``name:1``) share its format,
-    so they must have the same fields.
+    ``:K`` suffix), then the data messages of all topics in time order (ties in the order of ``topics``).
+    Every message starts with ``uint64_t timestamp`` (``t_us``); a field ``timestamp_sample`` is ``uint64_t``
+    (rounded if given as floats); a field's ULog type follows its array's dtype (float64 ``double``, float32
+    ``float``, intN/uintN ``[u]intN_t``, bool ``bool``); fields ``xyz[0]``, ``xyz[1]``, ``xyz[2]`` are one
+    array field ``float xyz[3]`` (their dtypes must agree). The instances of a topic (``name``, ``name:1``)
+    share its format, so they must have the same fields.
 
     Parameters
     ----------
@@ -881,8 +914,9 @@ def write_ulog(path: str | Path, topics: Sequence[WriteTopic], *, start_us: int 
     for t in built:
         text = t.format_text()
         if formats.setdefault(t.name, text) != text:
-            raise ValueError(f"ULog topic {t.name}: its instances have different fields ({formats[t.name]!r} vs "
-                             f"{text!r})")
+            raise ValueError(
+                f"ULog topic {t.name}: its instances have different fields ({formats[t.name]!r} vs {text!r})"
+            )
     seen = set()
     for t in built:
         if (t.name, t.multi_id) in seen:
@@ -891,7 +925,9 @@ def write_ulog(path: str | Path, topics: Sequence[WriteTopic], *, start_us: int 
     head = [_HEADER.pack(ULOG_MAGIC, 1, int(start_us)), _message("B", bytes(40))]
     head += [_info(k, v) for k, v in {"sys_name": "gap_validation", **dict(info or {})}.items()]
     head += [_message("F", text.encode("utf-8")) for text in formats.values()]
-    head += [_message("A", struct.pack("<BH", t.multi_id, i) + t.name.encode("utf-8")) for i, t in enumerate(built)]
+    head += [
+        _message("A", struct.pack("<BH", t.multi_id, i) + t.name.encode("utf-8")) for i, t in enumerate(built)
+    ]
     data = _interleave([t.records(i) for i, t in enumerate(built)], [t.t_us for t in built])
     with atomic_open(path, "wb") as fh:
         fh.write(b"".join(head))
@@ -900,7 +936,8 @@ def write_ulog(path: str | Path, topics: Sequence[WriteTopic], *, start_us: int 
 
 
 def _interleave(records: list[np.ndarray], times: list[np.ndarray]) -> memoryview:
-    """The rows of every topic's records in time order (stable: ties keep the topics' order), as one buffer."""
+    """The rows of every topic's records in time order (stable: ties keep the topics' order), as one
+    buffer."""
     if not records:
         return memoryview(b"")
     t_all = np.concatenate(times)

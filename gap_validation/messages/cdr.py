@@ -3,9 +3,10 @@
 Decoding dominates replay time (and, live, rclpy's deserialisation dominates the node's), while a validation
 needs only a few numbers per message. For ``sensor_msgs/msg/Imu``, ``sensor_msgs/msg/JointState`` and
 ``std_msgs/msg/Float64|Float32|Bool`` (:mod:`gap_validation.core.layouts`) in little-endian CDR,
-:func:`fast_decoder` reads exactly the configured fields at their CDR offsets with ``struct`` (XCDR1 alignment:
-relative to the end of the 4-byte encapsulation header, primitives aligned to their size). Anything unexpected
-(big-endian data, short buffers, a missing joint) raises :class:`FastDecodeError`: decode that record fully.
+:func:`fast_decoder` reads exactly the configured fields at their CDR offsets with ``struct`` (XCDR1
+alignment: relative to the end of the 4-byte encapsulation header, primitives aligned to their size). Anything
+unexpected (big-endian data, short buffers, a missing joint) raises :class:`FastDecodeError`: decode that
+record fully.
 :class:`gap_validation.messages.decoding.TopicDecoder` checks the first messages of every topic against full
 deserialisation before trusting a decoder. Bytes in, numbers out: no rclpy, no rosbags.
 
@@ -14,8 +15,9 @@ laid out in one buffer, e.g. a decompressed mcap chunk). A record's *layout* (wh
 by the per-record decoder's own walk over one record, the template; every record equal to the template in the
 bytes that decide the layout (encapsulation, ``frame_id`` length, JointState names and array lengths) and long
 enough has its fields at the same offsets, so they are gathered for all of them with one numpy fancy index and
-read through a structured view (:class:`_Layout`). The values are the per-record decoder's to the bit (the same
-bytes read as the same little-endian types); records unlike every template are left to the per-record path.
+read through a structured view (:class:`_Layout`). The values are the per-record decoder's to the bit (the
+same bytes read as the same little-endian types); records unlike every template are left to the per-record
+path.
 """
 from __future__ import annotations
 
@@ -32,8 +34,8 @@ __all__ = ["fast_decoder", "batch_decoder", "FastDecodeError", "Decoder", "Batch
 
 #: ``decoder(raw_cdr) -> (header stamp [s] or None, [raw value per field path])``.
 Decoder = Callable[[Any], tuple]
-#: ``decoder(records) -> (stamp_s, values, ok)``: per record the header stamp [s] (NaN: none), one raw value per
-#: field path (rows), and whether it was read (the others: decode them one by one).
+#: ``decoder(records) -> (stamp_s, values, ok)``: per record the header stamp [s] (NaN: none), one raw value
+#: per field path (rows), and whether it was read (the others: decode them one by one).
 BatchDecoder = Callable[["Records"], tuple]
 
 
@@ -113,10 +115,16 @@ class _JointStateDecoder:
     def __init__(self, paths: Sequence[FieldPath]):
         self.wants = []
         for path in paths:
-            if len(path.steps) != 2 or path.steps[0].kind != "attr" or path.steps[0].value not in self.ARRAYS \
-                    or path.steps[1].kind not in ("key", "index"):
+            if (
+                len(path.steps) != 2
+                or path.steps[0].kind != "attr"
+                or path.steps[0].value not in self.ARRAYS
+                or path.steps[1].kind not in ("key", "index")
+            ):
                 raise FastDecodeError("unsupported JointState path")
-            self.wants.append((self.ARRAYS.index(path.steps[0].value), path.steps[1].kind, path.steps[1].value))
+            self.wants.append(
+                (self.ARRAYS.index(path.steps[0].value), path.steps[1].kind, path.steps[1].value)
+            )
         self.last_arrays = max(a for a, _, _ in self.wants)
         self.cached_block = b""
         self.cached_names: dict[str, int] = {}
@@ -254,12 +262,12 @@ class Records:
 
 
 class _Layout:
-    """Where the fields of a template record lie; valid for every record at least ``size`` bytes long that equals
-    the template in the byte ranges ``same`` (those that decide the layout).
+    """Where the fields of a template record lie; valid for every record at least ``size`` bytes long that
+    equals the template in the byte ranges ``same`` (those that decide the layout).
 
-    Reading copies the bytes of each record up to the last one it reads or compares into one row (a fancy index
-    over a sliding-window view of the buffer) and reads the rows through a structured dtype with the stamp
-    (``sec`` int32 and ``nanosec`` uint32 at 4) and the fields at their offsets.
+    Reading copies the bytes of each record up to the last one it reads or compares into one row (a fancy
+    index over a sliding-window view of the buffer) and reads the rows through a structured dtype with the
+    stamp (``sec`` int32 and ``nanosec`` uint32 at 4) and the fields at their offsets.
     """
 
     __slots__ = ("size", "width", "stamped", "dtype", "kinds", "same", "template")
@@ -277,7 +285,9 @@ class _Layout:
         #: Bytes copied per record: up to the last one read or compared (records are at least ``size`` long).
         self.width = max([int(self.same.max()) + 1, 12 * stamped]
                          + [offset + np.dtype(kind).itemsize for offset, kind in fields])
-        self.dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": self.width})
+        self.dtype = np.dtype(
+            {"names": names, "formats": formats, "offsets": offsets, "itemsize": self.width}
+        )
         self.kinds = [kind for _, kind in fields]
         self.template = np.frombuffer(bytes(raw), dtype=np.uint8)[self.same]
 
@@ -286,7 +296,9 @@ class _Layout:
         reads, and their stamps (NaN: unset) and values (one column per field)."""
         index = index[records.lengths[index] >= self.size]
         if index.size:
-            rows = np.lib.stride_tricks.sliding_window_view(records.buffer, self.width)[records.offsets[index]]
+            rows = np.lib.stride_tricks.sliding_window_view(records.buffer, self.width)[
+                records.offsets[index]
+            ]
         else:
             rows = np.zeros((0, self.width), dtype=np.uint8)
         hit = (rows[:, self.same] == self.template).all(axis=1)
@@ -313,7 +325,8 @@ _NEW_LAYOUTS_PER_CALL = 2
 
 
 class _BatchDecoder:
-    """Reads a topic's fields from :class:`Records` with the layouts of templates (see the module docstring)."""
+    """Reads a topic's fields from :class:`Records` with the layouts of templates (see the module
+    docstring)."""
 
     def __init__(self, layout_of: Callable[[bytes], _Layout], width: int):
         self.layout_of = layout_of

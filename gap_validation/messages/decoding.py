@@ -1,7 +1,8 @@
 """The decoding step, written once for replay and the node: serialized message in, samples or message out.
 
-Replay (:mod:`gap_validation.bag.replay`, records of a bag) and the ROS 2 node (:mod:`gap_validation.ros.node`,
-raw subscriptions) both hand each serialized message of a topic to its :class:`TopicDecoder`:
+Replay (:mod:`gap_validation.bag.replay`, records of a bag) and the ROS 2 node
+(:mod:`gap_validation.ros.node`, raw subscriptions) both hand each serialized message of a topic to its
+:class:`TopicDecoder`:
 
 1. the fast field decoder of :mod:`gap_validation.messages.cdr` reads the configured fields (when the topic's
    type and fields are covered);
@@ -53,9 +54,12 @@ class Undecodable(DataError):
         self.error = error
 
 
-def fast_values_agree(routes: Sequence[Route], msg: Any, stamp: float | None, values: Sequence[float]) -> bool:
-    """Whether a fast decoder's ``(stamp, values)`` equal what ``routes`` extract from the fully decoded ``msg``
-    (NaN equals NaN); replay and the node stop using the fast decoder of a topic on the first difference.
+def fast_values_agree(
+    routes: Sequence[Route], msg: Any, stamp: float | None, values: Sequence[float]
+) -> bool:
+    """Whether a fast decoder's ``(stamp, values)`` equal what ``routes`` extract from the fully decoded
+    ``msg`` (NaN equals NaN); replay and the node stop using the fast decoder of a topic on the first
+    difference.
 
     Parameters
     ----------
@@ -97,8 +101,18 @@ class TopicDecoder:
         ``on_disagree(topic)`` when the fast decoder disagrees with full deserialisation (it is dropped).
     """
 
-    __slots__ = ("router", "topic", "routes", "decoder", "verify_left", "deserialize", "errors", "on_disagree",
-                 "batch", "batch_verify_left")
+    __slots__ = (
+        "router",
+        "topic",
+        "routes",
+        "decoder",
+        "verify_left",
+        "deserialize",
+        "errors",
+        "on_disagree",
+        "batch",
+        "batch_verify_left",
+    )
 
     def __init__(self, router: MessageRouter, topic: str, msgtype: str, deserialize: Callable[[Any], Any], *,
                  fast: bool = True, errors: tuple[type[BaseException], ...] = (Exception,),
@@ -127,8 +141,8 @@ class TopicDecoder:
         Returns
         -------
         stamp_s, values, message
-            ``(stamp or None, raw values, None)`` from the trusted fast decoder, else ``(None, None, message)``
-            fully deserialised (verified against the fast values while :attr:`verify_left` > 0).
+            ``(stamp or None, raw values, None)`` from the trusted fast decoder, else ``(None, None,
+            message)`` fully deserialised (verified against the fast values while :attr:`verify_left` > 0).
 
         Raises
         ------

@@ -3,10 +3,10 @@
 One data path (docs/ARCHITECTURE.md): bag replay (rosbags message objects) and the ROS 2 node (rclpy message
 objects) both hand their messages to :class:`MessageRouter` (after the one decoding step of
 :mod:`gap_validation.messages.decoding`), which extracts every configured signal with
-:class:`~gap_validation.core.fields.FieldPath`, applies the signal's ``scale``, stamps it with ``header.stamp``
-(or the receive time) and pushes time-ordered batches to the validator. Nothing here imports rclpy or
-rosbags: messages are only read through attributes, indexing and ``len``, which both kinds of message objects
-support (rclpy arrays may be ``array.array`` or numpy arrays, rosbags arrays are numpy arrays).
+:class:`~gap_validation.core.fields.FieldPath`, applies the signal's ``scale``, stamps it with
+``header.stamp`` (or the receive time) and pushes time-ordered batches to the validator. Nothing here imports
+rclpy or rosbags: messages are only read through attributes, indexing and ``len``, which both kinds of message
+objects support (rclpy arrays may be ``array.array`` or numpy arrays, rosbags arrays are numpy arrays).
 
 Field path syntax (DESIGN.md, "Validation config"):
 
@@ -56,8 +56,9 @@ def stamp_seconds(msg: Any) -> float | None:
 
 @dataclass(frozen=True)
 class Route:
-    """One configured signal a topic feeds: channel, stream, parsed path, the gain to SI units and the models' body
-    frame (``SignalSpec.gain``), the raw ``offset`` added before it and the ``time_offset_s`` added to the stamps."""
+    """One configured signal a topic feeds: channel, stream, parsed path, the gain to SI units and the models'
+    body frame (``SignalSpec.gain``), the raw ``offset`` added before it and the ``time_offset_s`` added to
+    the stamps."""
 
     channel: str
     stream: str
@@ -69,8 +70,9 @@ class Route:
 
 
 class _TopicBuffer:
-    """Pending messages of one topic: times and one raw value per route (NaN where extraction failed), queued one
-    by one (``t``, ``rows``) or as arrays (``chunks``, in arrival order before the ones queued one by one)."""
+    """Pending messages of one topic: times and one raw value per route (NaN where extraction failed), queued
+    one by one (``t``, ``rows``) or as arrays (``chunks``, in arrival order before the ones queued one by
+    one)."""
 
     __slots__ = ("t", "rows", "chunks", "chunked")
 
@@ -86,7 +88,9 @@ class _TopicBuffer:
     def _seal(self) -> None:
         """Turn the messages queued one by one into a chunk (keeps the arrival order before a new chunk)."""
         n = len(self.t)
-        self.chunks.append((np.asarray(self.t, dtype=float), np.asarray(self.rows, dtype=float).reshape(n, -1)))
+        self.chunks.append(
+            (np.asarray(self.t, dtype=float), np.asarray(self.rows, dtype=float).reshape(n, -1))
+        )
         self.chunked += n
         self.t, self.rows = [], []
 
@@ -186,8 +190,8 @@ class MessageRouter:
     -----
     Time [s] is ``header.stamp`` when the message has a nonzero one, else ``receive_time_s``, plus
     :attr:`time_offset_s` (replay of several bags whose clocks overlap). Samples that are not finite, lack
-    their joint, or do not advance in time are dropped and counted with ``validator.count_bad`` (a step back of
-    more than ``max(JUMP_BACK_S, max_gap_s)`` is a new time base instead: passed on, counted). A field the
+    their joint, or do not advance in time are dropped and counted with ``validator.count_bad`` (a step back
+    of more than ``max(JUMP_BACK_S, max_gap_s)`` is a new time base instead: passed on, counted). A field the
     *message type* does not have raises :class:`FieldError` (``structural``) once, after the message's other
     signals were queued; that signal is skipped from then on (:attr:`broken`), the others go on.
     Per message only the raw values are queued; scaling and the checks run vectorised when a batch is pushed.
@@ -207,7 +211,9 @@ class MessageRouter:
             for topic, entries in config.topics().items()
         }
         self._pending = {topic: _TopicBuffer() for topic in self.routes}
-        self._flush_order = sorted(self.routes, key=lambda t: not any(r.stream == "trigger" for r in self.routes[t]))
+        self._flush_order = sorted(
+            self.routes, key=lambda t: not any(r.stream == "trigger" for r in self.routes[t])
+        )
         self._streams = {(r.channel, r.stream): _StreamState(self._jump_s(r.channel))
                          for routes in self.routes.values() for r in routes}
         self._flush_t: float | None = None
@@ -278,8 +284,8 @@ class MessageRouter:
     def on_values(self, topic: str, t_s: float, values: Any) -> None:
         """Queue already extracted raw values (one per route of ``topic``, in :attr:`routes` order).
 
-        The fast decoders of :mod:`gap_validation.messages.cdr` use this entry; ``t_s`` is the message time (stamp
-        or receive time) before :attr:`time_offset_s`, values are before ``scale``.
+        The fast decoders of :mod:`gap_validation.messages.cdr` use this entry; ``t_s`` is the message time
+        (stamp or receive time) before :attr:`time_offset_s`, values are before ``scale``.
 
         Parameters
         ----------
@@ -295,8 +301,8 @@ class MessageRouter:
 
     def on_values_batch(self, topics: Sequence[str], which: np.ndarray, t_s: np.ndarray,
                         values: Sequence[np.ndarray]) -> None:
-        """Queue a run of fast-decoded messages of several topics, in arrival order, as :meth:`on_values` would
-        one by one: the same batches reach the validator, pushed at the same messages.
+        """Queue a run of fast-decoded messages of several topics, in arrival order, as :meth:`on_values`
+        would one by one: the same batches reach the validator, pushed at the same messages.
 
         Parameters
         ----------
@@ -363,8 +369,8 @@ class MessageRouter:
             self._flush_t = t_s
 
     def count_bad_message(self, topic: str, reason: str) -> None:
-        """Count one message of ``topic`` that could not be read at all (e.g. a damaged record) as a bad sample
-        of every signal the topic feeds.
+        """Count one message of ``topic`` that could not be read at all (e.g. a damaged record) as a bad
+        sample of every signal the topic feeds.
 
         Parameters
         ----------

@@ -1,10 +1,11 @@
-"""What to fly next, in the report and on the terminal (issue 25): per channel, the bands still without a verdict
-and the manoeuvres of the test card (:func:`gap_validation.core.plan.plan_card`) that would close them.
+"""What to fly next, in the report and on the terminal (issue 25): per channel, the bands still without a
+verdict and the manoeuvres of the test card (:func:`gap_validation.core.plan.plan_card`) that would close
+them.
 
-* :func:`open_bands`: the runs of grid frequencies without a verdict (data-limited, not excited, too few degrees of
-  freedom, low coherence, ...), from a channel's results;
-* :func:`plan_for`: the card of a replay's results, or one line saying why it is unavailable (planning never costs
-  a replay its outputs);
+* :func:`open_bands`: the runs of grid frequencies without a verdict (data-limited, not excited, too few
+  degrees of freedom, low coherence, ...), from a channel's results;
+* :func:`plan_for`: the card of a replay's results, or one line saying why it is unavailable (planning never
+  costs a replay its outputs);
 * :func:`plan_lines`: one terminal line per channel with such bands, pointing at ``gap-validate plan``;
 * :func:`summary_html`, :func:`channel_html`: the report's sections;
 * :func:`planned_spans`: the bands a channel's manoeuvres close (shaded on the Bode figure).
@@ -42,7 +43,8 @@ class OpenBand:
     points : int
         Grid frequencies in it.
     reasons : tuple of str
-        Why they have no verdict (keys of :data:`~gap_validation.core.plan.REASON_WORDS`), most frequent first.
+        Why they have no verdict (keys of :data:`~gap_validation.core.plan.REASON_WORDS`), most frequent
+        first.
     """
 
     low_rad_s: float
@@ -111,7 +113,9 @@ def plan_for(config, result: ValidationResult, results: dict | None = None,
         return plan_card(config, result.to_json_dict() if results is None else results, source=source)
     except Exception as err:  # noqa: BLE001 - planning never costs a replay its table, JSON or report
         log.debug("plan_card failed", exc_info=True)
-        return one_line(err) if isinstance(err, GapValidationError) else f"{type(err).__name__}: {one_line(err)}"
+        return (
+            one_line(err) if isinstance(err, GapValidationError) else f"{type(err).__name__}: {one_line(err)}"
+        )
 
 
 def _span(low: float, high: float) -> str:
@@ -148,7 +152,9 @@ def _plan_words(name: str, plan: TestCard | str | None, command: str, it: str) -
     return f"`gap-validate plan`: {note}"
 
 
-def plan_lines(result: ValidationResult, plan: TestCard | str | None = None, command: str | None = None) -> list[str]:
+def plan_lines(
+    result: ValidationResult, plan: TestCard | str | None = None, command: str | None = None
+) -> list[str]:
     """One terminal line per channel with bands that flying could close (or a card for it), pointing at
     ``gap-validate plan``: where, why, and what the card flies when it was planned.
 
@@ -157,10 +163,11 @@ def plan_lines(result: ValidationResult, plan: TestCard | str | None = None, com
     result : ValidationResult
         The replay's results.
     plan : TestCard or str, optional
-        Their card (:func:`plan_for`), the line saying why it is unavailable, or None (not planned: the line says
-        how to plan it).
+        Their card (:func:`plan_for`), the line saying why it is unavailable, or None (not planned: the line
+        says how to plan it).
     command : str, optional
-        The ``gap-validate plan`` command line to point at (default: with ``RESULTS.json`` and the results' config).
+        The ``gap-validate plan`` command line to point at (default: with ``RESULTS.json`` and the results'
+        config).
     """
     command = command or f"gap-validate plan RESULTS.json --config {result.config_source or 'CFG'}"
     lines = []
@@ -199,8 +206,8 @@ def planned_spans(plan: TestCard | str | None, name: str) -> list[tuple[float, f
 
 
 def summary_html(result: ValidationResult, plan: TestCard | str | None) -> str:
-    """The card in one paragraph for the report's summary (empty when every frequency has a verdict and nothing
-    was planned).
+    """The card in one paragraph for the report's summary (empty when every frequency has a verdict and
+    nothing was planned).
 
     Parameters
     ----------
@@ -222,8 +229,10 @@ def summary_html(result: ValidationResult, plan: TestCard | str | None) -> str:
                 f"<p class='note'>target: {html.escape(plan.target_rule)}.</p>")
     if any(b.by_flying for ch in result.channels.values() for b in open_bands(ch)):
         command = f"gap-validate plan RESULTS.json --config {result.config_source or 'CFG'}"
-        return (f"<h3>What to fly next</h3><p class='note'>the test card that would close the bands without a "
-                f"verdict: <code>{html.escape(command)}</code> (docs/PLAN.md).</p>")
+        return (
+            f"<h3>What to fly next</h3><p class='note'>the test card that would close the bands without a "
+            f"verdict: <code>{html.escape(command)}</code> (docs/PLAN.md).</p>"
+        )
     return ""
 
 
@@ -232,33 +241,73 @@ def _cells(values) -> str:
 
 
 def _bands_table(bands: list[OpenBand]) -> str:
-    rows = "".join("<tr>" + _cells((_span(b.low_rad_s, b.high_rad_s),
-                                    _span(b.low_rad_s / (2 * math.pi), b.high_rad_s / (2 * math.pi)), b.points,
-                                    b.words)) + "</tr>" for b in bands)
-    return ("<table class='open-bands'><tr><th>no verdict, rad/s</th><th>Hz</th><th>points</th><th>why</th></tr>"
-            f"{rows}</table>")
+    rows = "".join(
+        "<tr>"
+        + _cells(
+            (
+                _span(b.low_rad_s, b.high_rad_s),
+                _span(b.low_rad_s / (2 * math.pi), b.high_rad_s / (2 * math.pi)),
+                b.points,
+                b.words,
+            )
+        )
+        + "</tr>"
+        for b in bands
+    )
+    return (
+        "<table class='open-bands'><tr><th>no verdict, rad/s</th><th>Hz</th><th>points</th><th>why</th></tr>"
+        f"{rows}</table>"
+    )
 
 
 def _manoeuvres_table(cp: ChannelPlan) -> str:
-    head = ("#", "kind", "closes rad/s", "sweep rad/s", "sweep Hz", "amplitude deg (rad)", "sweep s", "repeats",
-            "flight time", "random error now", "predicted", "target", "why")
+    head = (
+        "#",
+        "kind",
+        "closes rad/s",
+        "sweep rad/s",
+        "sweep Hz",
+        "amplitude deg (rad)",
+        "sweep s",
+        "repeats",
+        "flight time",
+        "random error now",
+        "predicted",
+        "target",
+        "why",
+    )
     rows = []
     for m in cp.manoeuvres:
         now = [e for e in m.error_now if e is not None]
-        rows.append("<tr>" + _cells((
-            m.index, m.kind, _span(*m.closes_rad_s), f"{m.band_rad_s[0]:.3g}-{m.band_rad_s[1]:.3g}",
-            f"{m.f_start_hz:.3g}-{m.f_stop_hz:.3g}", f"{math.degrees(m.amplitude_rad):.2f} ({m.amplitude_rad:.3g})",
-            f"{m.duration_s:.0f}", m.repeats, duration_text(m.flight_time_s), f"{max(now):.3f}" if now else "-",
-            f"{m.worst_predicted_error:.3f}", f"{min(m.target_error):.3f}" if m.target_error else "-",
-            ", ".join(m.reasons))) + "</tr>")
+        rows.append(
+            "<tr>"
+            + _cells(
+                (
+                    m.index,
+                    m.kind,
+                    _span(*m.closes_rad_s),
+                    f"{m.band_rad_s[0]:.3g}-{m.band_rad_s[1]:.3g}",
+                    f"{m.f_start_hz:.3g}-{m.f_stop_hz:.3g}",
+                    f"{math.degrees(m.amplitude_rad):.2f} ({m.amplitude_rad:.3g})",
+                    f"{m.duration_s:.0f}",
+                    m.repeats,
+                    duration_text(m.flight_time_s),
+                    f"{max(now):.3f}" if now else "-",
+                    f"{m.worst_predicted_error:.3f}",
+                    f"{min(m.target_error):.3f}" if m.target_error else "-",
+                    ", ".join(m.reasons),
+                )
+            )
+            + "</tr>"
+        )
     return ("<table class='card'><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>"
             + "".join(rows) + "</table>")
 
 
 def channel_html(name: str, ch: ChannelResult, plan: TestCard | str | None) -> str:
-    """A channel's "what to fly next": its bands without a verdict, the card's manoeuvres that would close them
-    (kind, band in rad/s and Hz, amplitude, length, repeats, flight time, random error now, predicted and needed),
-    the bands out of reach with the reason; or why the card is unavailable, or how to plan it.
+    """A channel's "what to fly next": its bands without a verdict, the card's manoeuvres that would close
+    them (kind, band in rad/s and Hz, amplitude, length, repeats, flight time, random error now, predicted and
+    needed), the bands out of reach with the reason; or why the card is unavailable, or how to plan it.
 
     Parameters
     ----------
@@ -284,20 +333,26 @@ def channel_html(name: str, ch: ChannelResult, plan: TestCard | str | None) -> s
         if cp.manoeuvres:
             what = (f"the card that would close {'it' if len(bands) == 1 else 'them'}" if bands
                     else "nothing estimated yet: the card of a first flight")
-            parts.append(f"<p>{what} "
-                         f"({html.escape(duration_text(sum(m.flight_time_s for m in cp.manoeuvres)))} of flight; "
-                         "random error: the worst over the frequencies closed, now, predicted for the card flown "
-                         "on its own, and what a verdict needs):</p>")
+            parts.append(
+                f"<p>{what} "
+                f"({html.escape(duration_text(sum(m.flight_time_s for m in cp.manoeuvres)))} of flight; "
+                "random error: the worst over the frequencies closed, now, predicted for the card flown "
+                "on its own, and what a verdict needs):</p>"
+            )
             parts.append(_manoeuvres_table(cp))
         parts += [f"<p class='warn'>out of reach at {html.escape(_span(*u.band_rad_s))} rad/s: "
                   f"{html.escape(u.reason)}</p>" for u in cp.unreachable]
         if cp.amplitude_cap_rad is not None and cp.manoeuvres:
-            parts.append(f"<p class='note'>amplitude cap {cp.amplitude_cap_rad:.3g} rad "
-                         f"({math.degrees(cp.amplitude_cap_rad):.2f} deg): {html.escape(cp.amplitude_cap_reason)}; "
-                         "the card as YAML and in ArduPilot's and PX4's parameters: <code>gap-validate plan</code> "
-                         "(docs/PLAN.md).</p>")
+            parts.append(
+                f"<p class='note'>amplitude cap {cp.amplitude_cap_rad:.3g} rad "
+                f"({math.degrees(cp.amplitude_cap_rad):.2f} deg): {html.escape(cp.amplitude_cap_reason)}; "
+                "the card as YAML and in ArduPilot's and PX4's parameters: <code>gap-validate plan</code> "
+                "(docs/PLAN.md).</p>"
+            )
         parts += [f"<p class='note'>{html.escape(n)}</p>" for n in cp.notes if "MIMO" in n]
     else:
-        parts.append("<p class='note'>not planned here: <code>gap-validate plan RESULTS.json --config CFG</code> "
-                     "plans the card that would close them (docs/PLAN.md).</p>")
+        parts.append(
+            "<p class='note'>not planned here: <code>gap-validate plan RESULTS.json --config CFG</code> "
+            "plans the card that would close them (docs/PLAN.md).</p>"
+        )
     return "\n".join(parts)

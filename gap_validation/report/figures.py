@@ -31,7 +31,13 @@ from gap_validation.core.margins import STANDARD_EPSILON, STANDARD_MARGINS, WARN
 from gap_validation.core.results import Candidate, ChannelResult, phase_deg
 from gap_validation.core.uncertainty import monte_carlo_tube, time_domain_check
 
-_FLAG_COLOURS = {"ok": "tab:green", "model": "tab:red", "data": "tab:orange", "excluded": "0.7", "not_excited": "0.88"}
+_FLAG_COLOURS = {
+    "ok": "tab:green",
+    "model": "tab:red",
+    "data": "tab:orange",
+    "excluded": "0.7",
+    "not_excited": "0.88",
+}
 _BAND_COLOURS = {"model": "tab:red", "data": "tab:orange"}
 
 
@@ -119,8 +125,8 @@ def _usable(eps) -> bool:
 
 # ------------------------------------------------------------------------------------------ Fig. 4
 def _span_edges(w: np.ndarray, low: float, high: float) -> tuple[float, float]:
-    """A band of grid frequencies widened to the geometric midpoints with its neighbours (a band of one frequency
-    stays visible), within the grid."""
+    """A band of grid frequencies widened to the geometric midpoints with its neighbours (a band of one
+    frequency stays visible), within the grid."""
     w = np.asarray(w, float)
     i, j = int(np.argmin(np.abs(w - low))), int(np.argmin(np.abs(w - high)))
     left = math.sqrt(w[i - 1] * w[i]) if i > 0 else w[i]
@@ -129,8 +135,8 @@ def _span_edges(w: np.ndarray, low: float, high: float) -> tuple[float, float]:
 
 
 def bode_figure(ch: ChannelResult, path: Path, model=None, planned=()) -> None:
-    """Model vs measurement with coherence (paper Fig. 4); excluded (not confident) points marked; the bands the
-    test card's manoeuvres would close (``planned``: (low, high) grid frequencies [rad/s]) shaded.
+    """Model vs measurement with coherence (paper Fig. 4); excluded (not confident) points marked; the bands
+    the test card's manoeuvres would close (``planned``: (low, high) grid frequencies [rad/s]) shaded.
 
     Parameters
     ----------
@@ -210,8 +216,12 @@ def disk_figure(ch: ChannelResult, path: Path) -> None:
     """
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(8.4, 5.2))
-    _fill_disk(ax, ch.epsilon_raw, color="tab:blue", alpha=0.12, label=f"raw epsilon disk ({_fmt(ch.epsilon_raw)})")
-    _fill_disk(ax, ch.epsilon, color="tab:blue", alpha=0.35, label=f"averaged epsilon disk ({_fmt(ch.epsilon)})")
+    _fill_disk(
+        ax, ch.epsilon_raw, color="tab:blue", alpha=0.12, label=f"raw epsilon disk ({_fmt(ch.epsilon_raw)})"
+    )
+    _fill_disk(
+        ax, ch.epsilon, color="tab:blue", alpha=0.35, label=f"averaged epsilon disk ({_fmt(ch.epsilon)})"
+    )
     ok = _confident(ch)
     for i, raw in enumerate(ch.sweep_measured):
         ratio = raw / ch.model
@@ -229,7 +239,9 @@ def disk_figure(ch: ChannelResult, path: Path) -> None:
                       f"(+-{m.gain_margin_db:.2f} dB)")
         theta = 2.0 * math.atan(ch.epsilon)        # tangent points from the origin lie on the unit circle
         for sign in (1, -1):
-            ax.plot([0, 1.15 * math.cos(theta)], [0, sign * 1.15 * math.sin(theta)], color="k", lw=0.8, ls="--")
+            ax.plot(
+                [0, 1.15 * math.cos(theta)], [0, sign * 1.15 * math.sin(theta)], color="k", lw=0.8, ls="--"
+            )
             ax.plot(math.cos(theta), sign * math.sin(theta), "kD", ms=5)
         ax.plot([], [], "k--", lw=0.8, label=f"phase tangents +-{math.degrees(theta):.1f} deg\n"
                                              f"(eq. 16 asks {m.phase_margin_deg:.1f} deg)")
@@ -273,13 +285,20 @@ def failure_figure(ch: ChannelResult, path: Path) -> None:
             ax.scatter(w[sel], ch.epsilon_per_frequency[sel], color=colour, s=18, zorder=3, label=flag)
     ax.axhline(STANDARD_EPSILON, color="tab:red", ls=":", lw=1,
                label=f"{STANDARD_EPSILON:g}: standard margins (6 dB, 45 deg)")
-    ax.axhline(WARN_EPSILON, color="tab:orange", ls=":", lw=1, label=f"{WARN_EPSILON:g}: warning (4.4 dB, 29 deg)")
+    ax.axhline(
+        WARN_EPSILON, color="tab:orange", ls=":", lw=1, label=f"{WARN_EPSILON:g}: warning (4.4 dB, 29 deg)"
+    )
     if ch.worst_frequency_rad_s is not None and ch.epsilon is not None:
         ax.axvline(ch.worst_frequency_rad_s, color="k", lw=0.8, ls="--")
         right = ch.worst_frequency_rad_s > math.sqrt(float(np.min(w)) * float(np.max(w)))
-        ax.annotate(f"worst {ch.worst_frequency_rad_s:.3g} rad/s\nepsilon {ch.epsilon:.3f}",
-                    (ch.worst_frequency_rad_s, min(ch.epsilon, 1.0)), fontsize=7, xytext=(-5 if right else 5, -25),
-                    textcoords="offset points", ha="right" if right else "left")
+        ax.annotate(
+            f"worst {ch.worst_frequency_rad_s:.3g} rad/s\nepsilon {ch.epsilon:.3f}",
+            (ch.worst_frequency_rad_s, min(ch.epsilon, 1.0)),
+            fontsize=7,
+            xytext=(-5 if right else 5, -25),
+            textcoords="offset points",
+            ha="right" if right else "left",
+        )
     top = float(np.nanmax(ch.epsilon_per_frequency)) if np.any(np.isfinite(ch.epsilon_per_frequency)) else 1.0
     ax.set_ylim(0, min(1.05, max(0.45, top * 1.15)))
     ax.set_xlabel("frequency [rad/s]")
@@ -293,7 +312,8 @@ def failure_figure(ch: ChannelResult, path: Path) -> None:
 
 # ------------------------------------------------------------------------------------------ Fig. 2
 def nichols_coordinates(ratio) -> tuple[np.ndarray, np.ndarray]:
-    """Phase [deg] and gain [dB] of the loop perturbation ``-ratio`` (the critical point -1 maps to -180, 0)."""
+    """Phase [deg] and gain [dB] of the loop perturbation ``-ratio`` (the critical point -1 maps to -180,
+    0)."""
     ratio = np.asarray(ratio, dtype=complex)
     return -180.0 + np.degrees(np.angle(ratio)), _db(ratio)
 
@@ -346,8 +366,15 @@ def nyquist_figure(ch: ChannelResult, path: Path, model=None) -> None:
                 color="tab:red")
     ax.plot(p1.real, p1.imag, "k--", lw=1.5, label="model", zorder=3)
     ok = _confident(ch)
-    ax.plot(ch.measured.real[ok], ch.measured.imag[ok], "o", color="tab:blue", ms=3, label="flight data (average)",
-            zorder=4)
+    ax.plot(
+        ch.measured.real[ok],
+        ch.measured.imag[ok],
+        "o",
+        color="tab:blue",
+        ms=3,
+        label="flight data (average)",
+        zorder=4,
+    )
     if ch.worst_frequency_rad_s is not None:
         k = _worst_index(ch)
         for point in (ch.measured[k], ch.model[k]):
@@ -374,9 +401,18 @@ def time_figure(ch: ChannelResult, path: Path, model, runs: int = 500, seed: int
         t = check.t_s - check.t_s[0]
         inside = None
         if _usable(ch.epsilon):
-            tube = monte_carlo_tube(model, ch.epsilon, check.t_s, check.u, count=runs, band_rad_s=band, rng=seed)
-            ax.fill_between(t, np.degrees(tube.lower), np.degrees(tube.upper), color="tab:blue", alpha=0.2, lw=0,
-                            label=f"{runs} Monte Carlo runs (epsilon {ch.epsilon:.3f})")
+            tube = monte_carlo_tube(
+                model, ch.epsilon, check.t_s, check.u, count=runs, band_rad_s=band, rng=seed
+            )
+            ax.fill_between(
+                t,
+                np.degrees(tube.lower),
+                np.degrees(tube.upper),
+                color="tab:blue",
+                alpha=0.2,
+                lw=0,
+                label=f"{runs} Monte Carlo runs (epsilon {ch.epsilon:.3f})",
+            )
             inside = tube.fraction_inside(check.y_flight)
         ax.plot(t, 5 * np.degrees(check.u), color="tab:green", lw=1, label="surface x5 [deg]")
         ax.plot(t, np.degrees(check.y_flight), color="tab:blue", lw=2, label="flight")
@@ -393,7 +429,8 @@ def time_figure(ch: ChannelResult, path: Path, model, runs: int = 500, seed: int
     _save(fig, path)
 
 
-# ------------------------------------------------------------------------------------------ diagnosis, history
+# ------------------------------------------------------------------------------------------ diagnosis,
+# history
 def candidate_model(model, candidate: Candidate):
     """The model with a diagnosis candidate applied (its effects appended, or its refitted model)."""
     from gap_validation.core.models import LinearModel
@@ -404,8 +441,9 @@ def candidate_model(model, candidate: Candidate):
 
 
 def at_flown_amplitude(model, ch: ChannelResult):
-    """A model with an amplitude-dependent effect (``rate_limit``, ``backlash``) at the mean input amplitude of
-    the channel's sweeps (JSON ``input_amplitudes``; unknown: the effect drawn as absent); others as they are."""
+    """A model with an amplitude-dependent effect (``rate_limit``, ``backlash``) at the mean input amplitude
+    of the channel's sweeps (JSON ``input_amplitudes``; unknown: the effect drawn as absent); others as they
+    are."""
     if not getattr(model, "nonlinear", False):
         return model
     amplitudes = [a for a in ch.input_amplitudes if np.isfinite(a) and a > 0]
@@ -446,12 +484,16 @@ def history_figure(name: str, versions: list[dict], path: Path) -> None:
     fig, ax = plt.subplots(figsize=(7, 3.6))
     x = np.arange(len(versions))
     eps = [v.get("epsilon") for v in versions]
-    ax.plot(x, [np.nan if e is None else e for e in eps], "o-", color="tab:blue", lw=2, label="epsilon (average)")
+    ax.plot(
+        x, [np.nan if e is None else e for e in eps], "o-", color="tab:blue", lw=2, label="epsilon (average)"
+    )
     raw = [v.get("epsilon_raw") for v in versions]
     if any(r is not None for r in raw):
         ax.plot(x, [np.nan if r is None else r for r in raw], "s:", color="tab:blue", alpha=0.5,
                 label="epsilon (raw)")
-    ax.axhline(STANDARD_EPSILON, color="tab:red", ls=":", lw=1, label=f"{STANDARD_EPSILON:g}: standard margins")
+    ax.axhline(
+        STANDARD_EPSILON, color="tab:red", ls=":", lw=1, label=f"{STANDARD_EPSILON:g}: standard margins"
+    )
     ax.set_yscale("log")
     ax.set_xticks(x)
     ax.set_xticklabels([_short(v.get("model_description") or f"v{i + 1}") for i, v in enumerate(versions)],
@@ -552,7 +594,9 @@ def mimo_kappa_figure(ch: ChannelResult, path: Path) -> None:
             ax.scatter(w[sel], kappa[sel], color=colour, s=18, zorder=3, label=flag)
     from gap_validation.core.mimo import KAPPA_THRESHOLD
 
-    ax.axhline(KAPPA_THRESHOLD, color="tab:orange", ls=":", lw=1, label=f"{KAPPA_THRESHOLD:g}: band threshold")
+    ax.axhline(
+        KAPPA_THRESHOLD, color="tab:orange", ls=":", lw=1, label=f"{KAPPA_THRESHOLD:g}: band threshold"
+    )
     if ch.nu_gap is not None:
         ax.axvline(ch.nu_gap_frequency_rad_s, color="k", lw=0.8, ls="--")
         text = f"nu-gap {ch.nu_gap:.3f} at {ch.nu_gap_frequency_rad_s:.3g} rad/s"

@@ -3,11 +3,12 @@
 ``write_report(result, directory)`` writes ``directory/index.html`` (opens offline: plain HTML and PNG files
 beside it) with, at the top, the summary in the form of the paper's Table 1 (raw and averaged epsilon, gain,
 phase and disk margins per channel) and the verdict per channel in words; then per channel the figures of
-:mod:`gap_validation.report.figures` (Figs. 1, 2, 4, 5 and 6 of the paper, where the model fails, the diagnosis
-candidates before and after, and epsilon over model versions), and what to fly next: the bands without a verdict
-and the test card's manoeuvres that would close them (:mod:`gap_validation.report.card`). Every name that comes
-from a bag or a config is HTML-escaped. A figure that cannot be drawn is replaced by a one-line note: the rest of the
-report is still written. Files are written atomically (temporary file, then rename).
+:mod:`gap_validation.report.figures` (Figs. 1, 2, 4, 5 and 6 of the paper, where the model fails, the
+diagnosis candidates before and after, and epsilon over model versions), and what to fly next: the bands
+without a verdict and the test card's manoeuvres that would close them (:mod:`gap_validation.report.card`).
+Every name that comes from a bag or a config is HTML-escaped. A figure that cannot be drawn is replaced by a
+one-line note: the rest of the report is still written. Files are written atomically (temporary file, then
+rename).
 """
 from __future__ import annotations
 
@@ -19,12 +20,12 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable
 
-from gap_validation.report import card, figures
 from gap_validation.core.atomic import atomic_write_text
 from gap_validation.core.errors import DataError, one_line
 from gap_validation.core.margins import STANDARD_EPSILON, WARN_EPSILON, margins_from_epsilon
 from gap_validation.core.plan import TestCard
 from gap_validation.core.results import NUGAP_DATA_NOTE, ChannelResult, ValidationResult
+from gap_validation.report import card, figures
 from gap_validation.report.terminal import fmt
 
 log = logging.getLogger(__name__)
@@ -32,27 +33,32 @@ log = logging.getLogger(__name__)
 #: Figure kinds in report order, with their captions.
 FIGURES = {
     "bode": "Model and flight data: each sweep light, their average dark; coherence below, excluded points "
-            "marked (paper Fig. 4).",
+    "marked (paper Fig. 4).",
     "disk": "Perturbations P2/P1 per frequency with the epsilon disks of the raw and averaged data, the "
-            "gain-margin markers on the real axis and the phase tangents (Figs. 1 and 5).",
-    "failure": "Where the model fails: kappa(w) and epsilon(w) (eqs. 13, 14), thresholds, the worst frequency "
-               "and the model-limited (red) / data-limited (orange) bands.",
+    "gain-margin markers on the real axis and the phase tangents (Figs. 1 and 5).",
+    "failure": "Where the model fails: kappa(w) and epsilon(w) (eqs. 13, 14), thresholds, the worst "
+    "frequency "
+    "and the model-limited (red) / data-limited (orange) bands.",
     "nichols": "Nichols plane: the epsilon disk as an ellipse around the critical point, inside the standard "
-               "exclusion region (Fig. 2 left).",
-    "nyquist": "Robust Nyquist diagram: the tube of epsilon disks around the model contains the data; it must "
-               "not cover the critical point -1 (Fig. 2 right).",
+    "exclusion region (Fig. 2 left).",
+    "nyquist": "Robust Nyquist diagram: the tube of epsilon disks around the model contains the data; it "
+    "must "
+    "not cover the critical point -1 (Fig. 2 right).",
     "time": "Time domain: doublets from the flight against the model and the tube of Monte Carlo runs of the "
-            "uncertain model (all-pass perturbations on the epsilon-disk boundary; Fig. 6), with the TIC "
-            "(eq. 1) and input-augmented TIC (eq. 3).",
-    "diagnosis": "Diagnosis: the model with each top candidate effect against the data, with the epsilon each "
-                 "leaves.",
+    "uncertain model (all-pass perturbations on the epsilon-disk boundary; Fig. 6), with the TIC "
+    "(eq. 1) and input-augmented TIC (eq. 3).",
+    "diagnosis": "Diagnosis: the model with each top candidate effect against the data, with the epsilon "
+    "each "
+    "leaves.",
     "history": "Epsilon over model versions (validation history): watch it fall.",
-    "mimo_bode": "MIMO channel: Bode matrix, model against flight per element (rows: outputs, columns: inputs), "
-                 "with the element's partial coherence (what its input explains once the other inputs are "
-                 "accounted for) and the output's multiple coherence below.",
-    "mimo_kappa": "MIMO channel: kappa(w), the MIMO chordal distance of model and measured matrices, its noise "
-                  "scale from the random error of H, the model-limited (red) / data-limited (orange) bands and "
-                  "the element that fails most.",
+    "mimo_bode": "MIMO channel: Bode matrix, model against flight per element (rows: outputs, columns: "
+    "inputs), "
+    "with the element's partial coherence (what its input explains once the other inputs are "
+    "accounted for) and the output's multiple coherence below.",
+    "mimo_kappa": "MIMO channel: kappa(w), the MIMO chordal distance of model and measured matrices, its "
+                  "noise "
+    "scale from the random error of H, the model-limited (red) / data-limited (orange) bands and "
+    "the element that fails most.",
     "mimo_sv": "MIMO channel: singular values of the model's and the measured response matrices.",
 }
 
@@ -72,22 +78,44 @@ def verdict(ch: ChannelResult) -> tuple[str, str]:
         return f"not validated yet: {ch.message or 'no sweep'}.", "warn"
     m = margins_from_epsilon(eps)
     if not m.guaranteed:
-        text, cls = (f"not validated: epsilon {eps:.3g} >= 1, the data lie outside every disk that guarantees "
-                     f"margins; no controller designed on this model is guaranteed stable on the aircraft."), "bad"
+        text, cls = (
+            (
+                f"not validated: epsilon {eps:.3g} >= 1, the data lie outside every disk that guarantees "
+                f"margins; no controller designed on this model is guaranteed stable on the aircraft."
+            ),
+            "bad",
+        )
     elif ch.margins_caveat:
-        text, cls = (f"not validated beyond the measured band (epsilon {eps:.3f} over it): {ch.margins_caveat}; a "
-                     f"controller with {m.gain_margin_db:.2f} dB gain margin and {m.phase_margin_deg:.1f} deg phase "
-                     f"margin on the model is NOT guaranteed stable on the aircraft."), "bad"
+        text, cls = (
+            (
+                f"not validated beyond the measured band (epsilon {eps:.3f} over it): {ch.margins_caveat}; a "
+                f"controller with {m.gain_margin_db:.2f} dB gain margin and {m.phase_margin_deg:.1f} deg "
+                "phase "
+                f"margin on the model is NOT guaranteed stable on the aircraft."
+            ),
+            "bad",
+        )
     else:
-        need = (f"a controller with at least {m.gain_margin_db:.2f} dB gain margin and {m.phase_margin_deg:.1f} deg "
-                f"phase margin on the model is guaranteed stable on the aircraft")
+        need = (
+            f"a controller with at least {m.gain_margin_db:.2f} dB gain margin and {m.phase_margin_deg:.1f} "
+            "deg "
+            f"phase margin on the model is guaranteed stable on the aircraft"
+        )
         if eps < WARN_EPSILON:
             text, cls = f"validated (epsilon {eps:.3f}): {need}; well within standard margins.", "ok"
         elif eps < STANDARD_EPSILON:
-            text, cls = f"validated (epsilon {eps:.3f}): {need}; within standard margins (6 dB, 45 deg).", "ok"
+            text, cls = (
+                f"validated (epsilon {eps:.3f}): {need}; within standard margins (6 dB, 45 deg).",
+                "ok",
+            )
         else:
-            text, cls = (f"validated with large margins only (epsilon {eps:.3f}): {need}, more than the standard "
-                         f"6 dB / 45 deg."), "warn"
+            text, cls = (
+                (
+                    f"validated with large margins only (epsilon {eps:.3f}): {need}, more than the standard "
+                    f"6 dB / 45 deg."
+                ),
+                "warn",
+            )
     if ch.limited_by == "model" and ch.diagnosis:
         top = ch.diagnosis[0]
         text += f" Model-limited; the likeliest missing effect: {top.sentence or top.effect}."
@@ -103,8 +131,10 @@ def _mimo_verdict(ch: ChannelResult) -> tuple[str, str]:
     nu = ch.nu_gap
     shape = "x".join(str(n) for n in ch.mimo.shape)
     cls = "ok" if nu < WARN_EPSILON else "warn" if nu < STANDARD_EPSILON else "bad"
-    text = (f"{shape} MIMO nu-gap {nu:.3f} over the confident frequencies: a controller whose stability margin "
-            f"b(P, C) exceeds it on the model is guaranteed to stabilise the aircraft (Vinnicombe).")
+    text = (
+        f"{shape} MIMO nu-gap {nu:.3f} over the confident frequencies: a controller whose stability margin "
+        f"b(P, C) exceeds it on the model is guaranteed to stabilise the aircraft (Vinnicombe)."
+    )
     if ch.limited_by == "model":
         text += (f" Model-limited; {ch.diagnosis[0].sentence}." if ch.diagnosis else
                  " Model-limited: confident data disagree with the model.")
@@ -136,11 +166,16 @@ def table1_html(result: ValidationResult) -> str:
                 cells.append(_cell(cell(ch, margins, eps)))
         out.append(f"<tr><th>{html.escape(label)}</th>{''.join(cells)}</tr>")
     out.append("</table>")
-    out.append("<p class='note'>nu-gap and epsilon over the measured band (the winding-number condition assumed, as "
-               "in the paper); the margins hold if the mismatch outside the band is no larger.</p>")
+    out.append(
+        "<p class='note'>nu-gap and epsilon over the measured band (the winding-number condition assumed, as "
+        "in the paper); the margins hold if the mismatch outside the band is no larger.</p>"
+    )
     doubtful = [ch for ch in channels if ch.margins.guaranteed and ch.margins_caveat]
-    out += [f"<p class='warn'>{html.escape(ch.name)}: margins NOT guaranteed: {html.escape(ch.margins_caveat)}</p>"
-            for ch in doubtful]
+    out += [
+        f"<p class='warn'>{html.escape(ch.name)}: margins NOT guaranteed: "
+        f"{html.escape(ch.margins_caveat)}</p>"
+        for ch in doubtful
+    ]
     return "\n".join(out)
 
 
@@ -177,8 +212,16 @@ def _slug(name: str, index: int) -> str:
 class _Channel:
     """Draws one channel's figures, collecting the HTML and the problems."""
 
-    def __init__(self, ch: ChannelResult, stem: str, directory: Path, versions: list[dict], runs: int, seed: int,
-                 planned: list[tuple[float, float]] | None = None):
+    def __init__(
+        self,
+        ch: ChannelResult,
+        stem: str,
+        directory: Path,
+        versions: list[dict],
+        runs: int,
+        seed: int,
+        planned: list[tuple[float, float]] | None = None,
+    ):
         self.ch, self.stem, self.directory, self.versions = ch, stem, directory, versions
         self.runs, self.seed, self.planned = runs, seed, list(planned or [])
         self.parts: list[str] = []
@@ -186,7 +229,8 @@ class _Channel:
         self.model = self._model()
 
     def _model(self):
-        if not self.ch.model_spec or self.ch.mimo is not None:   # MIMO figures read the matrices of the result
+        # MIMO figures read the matrices of the result
+        if not self.ch.model_spec or self.ch.mimo is not None:
             return None
         from gap_validation.core.models import LinearModel
 
@@ -218,7 +262,9 @@ class _Channel:
         if ch.mimo is not None:
             self.draw_mimo()
             return
-        has_frequency = ch.frequency_rad_s is not None and len(ch.frequency_rad_s) > 0 and ch.measured is not None
+        has_frequency = (
+            ch.frequency_rad_s is not None and len(ch.frequency_rad_s) > 0 and ch.measured is not None
+        )
         if has_frequency:
             shaded = " Shaded: the bands the test card's manoeuvres would close." if self.planned else ""
             self.figure("bode", lambda p: figures.bode_figure(ch, p, model, self.planned), shaded)
@@ -270,9 +316,9 @@ def write_report(result: ValidationResult, directory: str | os.PathLike, *, runs
     warn : callable, optional
         Called with a one-line message for each figure that could not be drawn.
     plan : TestCard or str, optional
-        The test card of these results (:func:`gap_validation.report.card.plan_for`): per channel its manoeuvres
-        beside the bands without a verdict, shaded on the Bode figure; a str: one line saying why it is unavailable;
-        None: not planned (the report says how to plan it).
+        The test card of these results (:func:`gap_validation.report.card.plan_for`): per channel its
+        manoeuvres beside the bands without a verdict, shaded on the Bode figure; a str: one line saying why
+        it is unavailable; None: not planned (the report says how to plan it).
     """
     directory = Path(directory)
     try:

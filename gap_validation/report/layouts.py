@@ -1,21 +1,22 @@
 """Plot layouts for the node's topics: a Foxglove layout (JSON) and a PlotJuggler layout (XML) for a config.
 
 Both draw, per SISO channel, the Bode magnitude and phase (measured against the model), the coherence and
-epsilon(w) from ``<node>/<channel>/frequency_response`` (:mod:`gap_validation.core.plottable`, docs/NODE_TOPICS.md),
-the channel's verdict from ``<node>/<channel>/verdict``, and ``/diagnostics``.
+epsilon(w) from ``<node>/<channel>/frequency_response`` (:mod:`gap_validation.core.plottable`,
+docs/NODE_TOPICS.md), the channel's verdict from ``<node>/<channel>/verdict``, and ``/diagnostics``.
 
-- **Foxglove**: Plot panels with the x axis "Path (current)" (``xAxisVal: currentCustom``): the latest message's
-  log10-frequency row against its curve rows, as message-path slices ``.data[a:b]`` (inclusive). The verdict in a
-  Raw Messages panel; ``/diagnostics`` in the Diagnostics summary and detail panels. One tab per channel.
+- **Foxglove**: Plot panels with the x axis "Path (current)" (``xAxisVal: currentCustom``): the latest
+  message's log10-frequency row against its curve rows, as message-path slices ``.data[a:b]`` (inclusive). The
+  verdict in a Raw Messages panel; ``/diagnostics`` in the Diagnostics summary and detail panels. One tab per
+  channel.
 - **PlotJuggler**: PlotJuggler flattens an array into one time series per element (``.../data[12]``), so a
   Reactive Script (Lua, run at the time cursor) gathers the elements of each row at the cursor into XY series
   ``<channel>/bode/<curve>`` (x: log10 frequency), which XY plots draw. Its streamer's *maximum array size*
   must be at least the table's size (11 rows x the grid).
 
-The indices come from :data:`~gap_validation.core.plottable.CURVES` and the channel's grid size, so a layout made
-for a config stays valid all flight long (the grid is fixed for a config). ``gap-validate layouts --config CFG``
-writes both for any config; ``config/foxglove_layout.json`` and ``config/plotjuggler_layout.xml`` are those of the
-bundled config.
+The indices come from :data:`~gap_validation.core.plottable.CURVES` and the channel's grid size, so a layout
+made for a config stays valid all flight long (the grid is fixed for a config). ``gap-validate layouts
+--config CFG`` writes both for any config; ``config/foxglove_layout.json`` and
+``config/plotjuggler_layout.xml`` are those of the bundled config.
 """
 from __future__ import annotations
 
@@ -42,10 +43,22 @@ BODE_PLOTS = {
     "coherence and epsilon": (("coherence", "epsilon"), "-"),
 }
 _X = "log10_frequency_rad_s"
-_COLORS = {"measured_magnitude_db": "#1f77b4", "measured_phase_deg": "#1f77b4", "model_magnitude_db": "#d62728",
-           "model_phase_deg": "#d62728", "coherence": "#2ca02c", "epsilon": "#ff7f0e"}
-_LABELS = {"measured_magnitude_db": "measured", "measured_phase_deg": "measured", "model_magnitude_db": "model",
-           "model_phase_deg": "model", "coherence": "coherence", "epsilon": "epsilon(w)"}
+_COLORS = {
+    "measured_magnitude_db": "#1f77b4",
+    "measured_phase_deg": "#1f77b4",
+    "model_magnitude_db": "#d62728",
+    "model_phase_deg": "#d62728",
+    "coherence": "#2ca02c",
+    "epsilon": "#ff7f0e",
+}
+_LABELS = {
+    "measured_magnitude_db": "measured",
+    "measured_phase_deg": "measured",
+    "model_magnitude_db": "model",
+    "model_phase_deg": "model",
+    "coherence": "coherence",
+    "epsilon": "epsilon(w)",
+}
 
 
 def row_slice(curve: str, n: int) -> tuple[int, int]:
@@ -119,26 +132,50 @@ def foxglove_layout(config, node: str = DEFAULT_NODE) -> dict:
             pid = _id("Plot", node, token, title)
             panels[pid] = {
                 "foxglovePanelTitle": f"{name}: {title}",
-                "paths": [{"value": f"{topic}.data[{a}:{b}]", "enabled": True, "timestampMethod": "receiveTime",
-                           "label": _LABELS[c], "color": _COLORS[c], "showLine": True}
-                          for c in curves for a, b in [row_slice(c, n)]],
+                "paths": [
+                    {
+                        "value": f"{topic}.data[{a}:{b}]",
+                        "enabled": True,
+                        "timestampMethod": "receiveTime",
+                        "label": _LABELS[c],
+                        "color": _COLORS[c],
+                        "showLine": True,
+                    }
+                    for c in curves
+                    for a, b in [row_slice(c, n)]
+                ],
                 "xAxisVal": "currentCustom",
                 "xAxisPath": {"value": f"{topic}.data[{x0}:{x1}]", "enabled": True},
                 "xAxisName": "log10 frequency [rad/s]",
                 "yAxisName": unit,
-                "showLegend": True, "legendDisplay": "top", "showPlotValuesInLegend": False,
-                "showXAxisLabels": True, "showYAxisLabels": True, "isSynced": False, "sidebarDimension": 240,
+                "showLegend": True,
+                "legendDisplay": "top",
+                "showPlotValuesInLegend": False,
+                "showXAxisLabels": True,
+                "showYAxisLabels": True,
+                "isSynced": False,
+                "sidebarDimension": 240,
             }
             plots.append(pid)
         verdict = _id("RawMessages", node, token)
-        panels[verdict] = {"foxglovePanelTitle": f"{name}: verdict", "topicPath": f"{node}/{token}/verdict.data",
-                           "diffEnabled": False, "diffMethod": "custom", "diffTopicPath": "",
-                           "showFullMessageForDiff": False}
+        panels[verdict] = {
+            "foxglovePanelTitle": f"{name}: verdict",
+            "topicPath": f"{node}/{token}/verdict.data",
+            "diffEnabled": False,
+            "diffMethod": "custom",
+            "diffTopicPath": "",
+            "showFullMessageForDiff": False,
+        }
         tabs.append({"title": name, "layout": {"first": _split(plots, "column"), "second": verdict,
                                                "direction": "row", "splitPercentage": 70}})
     summary, detail = _id("DiagnosticSummary", node), _id("DiagnosticStatusPanel", node)
-    panels[summary] = {"topicToRender": "/diagnostics", "minLevel": 0, "pinnedIds": [], "hardwareIdFilter": "",
-                       "sortByLevel": True}
+    panels[summary] = {
+        "topicToRender": "/diagnostics",
+        "minLevel": 0,
+        "pinnedIds": [],
+        "hardwareIdFilter": "",
+        "sortByLevel": True,
+    }
     panels[detail] = {"topicToRender": "/diagnostics", "collapsedSections": [], "selectedHardwareId": "",
                       "splitFraction": 0.5}
     tabs.append({"title": "diagnostics", "layout": {"first": summary, "second": detail, "direction": "row",
@@ -258,7 +295,8 @@ def foxglove_json(config, node: str = DEFAULT_NODE) -> str:
     return json.dumps(foxglove_layout(config, node), indent=2) + "\n"
 
 
-# -- what a layout draws, evaluated on published messages (tests and the previews in docs/node.md) --------------
+# -- what a layout draws, evaluated on published messages (tests and the previews in docs/node.md)
+# --------------
 
 _SLICE = re.compile(r"^(?P<topic>/[^.]+)\.data\[(?P<a>\d+):(?P<b>\d+)\]$")
 
@@ -272,7 +310,8 @@ def _slice(path: str, messages: Mapping[str, Sequence[float]]) -> np.ndarray:
 
 
 def foxglove_plots(layout: Mapping[str, Any], messages: Mapping[str, Sequence[float]]) -> dict[str, list]:
-    """What each Plot panel of a Foxglove layout draws from the latest messages (its ``currentCustom`` x axis).
+    """What each Plot panel of a Foxglove layout draws from the latest messages (its ``currentCustom`` x
+    axis).
 
     Parameters
     ----------

@@ -96,8 +96,10 @@ def channel_sentences(ch: ChannelResult) -> list[str]:
     q = ch.dynamic_pressure_ratio
     if q:
         clipped = f"; {q['clipped']} samples beyond 0.25-4 clipped" if q.get("clipped") else ""
-        out.append(f"flown at {q['min']:.2f}-{q['max']:.2f} of the model's dynamic pressure (mean {q['mean']:.2f}, "
-                   f"from the airspeed): the surfaces scaled to the model's{clipped}")
+        out.append(
+            f"flown at {q['min']:.2f}-{q['max']:.2f} of the model's dynamic pressure (mean {q['mean']:.2f}, "
+            f"from the airspeed): the surfaces scaled to the model's{clipped}"
+        )
     bad = sum(ch.bad_samples.values())
     if bad:
         reasons = ", ".join(f"{k} x{v}" for k, v in sorted(ch.bad_samples.items()))
@@ -116,26 +118,44 @@ def format_table(result: ValidationResult) -> str:
         worst = ch.nu_gap_frequency_rad_s if ch.mimo is not None else ch.worst_frequency_rad_s
         label = f"{name} ({ch.mimo.shape[0]}x{ch.mimo.shape[1]})" if ch.mimo is not None else name
         mark = "*" if ch.margins.guaranteed and ch.margins_caveat else ""
-        rows.append([label, fmt(ch.nu_gap), _epsilon_cell(ch), fmt(ch.epsilon_raw),
-                     fmt(ch.margins.gain_margin_db, ".2f") + mark, fmt(ch.margins.phase_margin_deg, ".1f") + mark,
-                     fmt(ch.margins.disk_margin, ".3f") + mark, fmt(worst, ".2f"), str(ch.sweeps),
-                     _band_cell(ch), f"{ch.points_excluded}/{n_points}", ch.limited_by])
+        rows.append(
+            [
+                label,
+                fmt(ch.nu_gap),
+                _epsilon_cell(ch),
+                fmt(ch.epsilon_raw),
+                fmt(ch.margins.gain_margin_db, ".2f") + mark,
+                fmt(ch.margins.phase_margin_deg, ".1f") + mark,
+                fmt(ch.margins.disk_margin, ".3f") + mark,
+                fmt(worst, ".2f"),
+                str(ch.sweeps),
+                _band_cell(ch),
+                f"{ch.points_excluded}/{n_points}",
+                ch.limited_by,
+            ]
+        )
     lines = [table(headers, rows)]
     if any(ch.nu_gap is not None for ch in result.channels.values()):
-        lines.append("  nu-gap and epsilon over the measured band (the winding-number condition assumed, as in "
-                     "the paper); excited rad/s: where the flight excited the input")
+        lines.append(
+            "  nu-gap and epsilon over the measured band (the winding-number condition assumed, as in "
+            "the paper); excited rad/s: where the flight excited the input"
+        )
     for name, ch in result.channels.items():
         for sentence in channel_sentences(ch):
             lines.append(f"  {name}: {sentence}")
     if any(ch.epsilon is not None and ch.epsilon >= 1 for ch in result.channels.values()):
         lines.append("  epsilon >= 1: no stability guarantee, margins not given")
     held = [name for name, ch in result.channels.items() if ch.margins_guaranteed]
-    doubtful = [(name, ch) for name, ch in result.channels.items() if ch.margins.guaranteed and ch.margins_caveat]
+    doubtful = [
+        (name, ch) for name, ch in result.channels.items() if ch.margins.guaranteed and ch.margins_caveat
+    ]
     if held:
         which = "" if len(held) == len(result.channels) else f" ({', '.join(held)})"
-        lines.append(f"  margins from epsilon (eqs. 15-17){which}: a controller with these gain/phase/disk margins "
-                     "on the model is guaranteed stable on the aircraft, if the mismatch outside the measured band "
-                     "is no larger")
+        lines.append(
+            f"  margins from epsilon (eqs. 15-17){which}: a controller with these gain/phase/disk margins "
+            "on the model is guaranteed stable on the aircraft, if the mismatch outside the measured band "
+            "is no larger"
+        )
     for name, ch in doubtful:
         lines.append(f"  * {name}: margins NOT guaranteed: {ch.margins_caveat}")
     return "\n".join(lines)

@@ -32,7 +32,7 @@ FORBIDDEN_LIBRARIES = [
     (["gap_validation.messages." + p.stem for p in sorted((PACKAGE / "messages").glob("*.py"))],
      ("rclpy", "rosbags", "matplotlib", "yaml")),
     (["gap_validation.ros.status", "gap_validation.ros.stamp_gaps", "gap_validation.ros.parameters",
-      "gap_validation.ros.diagnosis_worker"], ("rclpy", "rosbags", "matplotlib")),
+      "gap_validation.ros.diagnosis_worker", "gap_validation.ros.collaborators"], ("rclpy", "rosbags", "matplotlib")),
     (["gap_validation.bag." + p.stem for p in sorted((PACKAGE / "bag").glob("*.py"))], ("rclpy", "matplotlib")),
     (["gap_validation.logs." + p.stem for p in sorted((PACKAGE / "logs").glob("*.py"))],
      ("rclpy", "rosbags", "matplotlib")),

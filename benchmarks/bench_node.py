@@ -135,8 +135,8 @@ def run(minutes: float, imu_rate_hz: float, surface_rate_hz: float) -> dict:
     other = ValidatorNode(context=context, cli_args=["--ros-args", "-r", "__node:=gap_validator_messages"],
                           parameter_overrides=[Parameter("config_file", value=config),
                                                Parameter("raw_decoding", value=False)])
-    assert node._raw and not other._raw
-    classes = {topic: message_class(node._intakes[topic].type_name) for topic in node._raw}
+    assert node.topics.raw and not other.topics.raw
+    classes = {topic: message_class(node.topics.intakes[topic].type_name) for topic in node.topics.raw}
     slice_period = node.get_parameter("intake_period").value
     message_path_s = 0.0
     diag_period = node.get_parameter("diagnostic_period").value
@@ -173,7 +173,7 @@ def run(minutes: float, imu_rate_hz: float, surface_rate_hz: float) -> dict:
                 node.publish_diagnostics()
                 cpu["diagnostics"] += time.process_time() - start
                 counts["diagnostics"] += 1
-                if node._diagnosis.job is not None:
+                if node.diagnosis_worker.job is not None:
                     start = time.process_time()
                     node.wait_for_diagnosis(timeout_s=600.0)
                     cpu["diagnosis"] += time.process_time() - start
@@ -182,9 +182,9 @@ def run(minutes: float, imu_rate_hz: float, surface_rate_hz: float) -> dict:
             while next_ckpt <= now:
                 start = time.process_time()
                 # the checkpoint timer: snapshot here, write in the thread
-                node._checkpoint_in_background()
-                node._background.wait(60.0)
-                node._harvest_background()
+                node.jobs.checkpoint_in_background()
+                node.jobs.background.wait(60.0)
+                node.jobs.harvest()
                 cpu["checkpoints"] += time.process_time() - start
                 counts["checkpoints"] += 1
                 next_ckpt += ckpt_period

@@ -145,7 +145,7 @@ def flood(seconds: float = 60.0, imu_rate_hz: float = 10_000.0, surface_rate_hz:
         surf_pub = publisher.create_publisher(JointState, "/control_surfaces", qos)
         deadline = time.monotonic() + 20.0
         while (imu_pub.get_subscription_count() < 1 or surf_pub.get_subscription_count() < 1
-               or any(i.changing or i.reliability != "reliable" for i in node._intakes.values())) \
+               or any(i.changing or i.reliability != "reliable" for i in node.topics.intakes.values())) \
                 and time.monotonic() < deadline:
             time.sleep(0.05)   # matched, and the node has followed the publishers to RELIABLE
         n_imu = int(round(seconds * imu_rate_hz))
@@ -188,7 +188,7 @@ def flood(seconds: float = 60.0, imu_rate_hz: float = 10_000.0, surface_rate_hz:
         truth, tail, head, per_topic = 0, 0, 0, {}
         for topic, count, rate in (("/imu", n_imu, imu_rate_hz), ("/control_surfaces", -(-n_imu // every),
                                                                    imu_rate_hz / every)):
-            gaps_seen = node._gaps.get(topic)
+            gaps_seen = node.topics.gaps.get(topic)
             if gaps_seen is None or gaps_seen.first_s is None:
                 per_topic[topic] = (0, node.samples_dropped(topic))
                 continue

@@ -41,6 +41,7 @@ FORBIDDEN_LIBRARIES = [
             "gap_validation.ros.stamp_gaps",
             "gap_validation.ros.parameters",
             "gap_validation.ros.diagnosis_worker",
+            "gap_validation.ros.collaborators",
         ],
         ("rclpy", "rosbags", "matplotlib"),
     ),

@@ -199,7 +199,7 @@ class Flight:
 
     def feed_raw(self, node: ValidatorNode, start: int = 0, stop: int | None = None) -> None:
         """Hand the serialized records to the node's raw subscription callback (its default path)."""
-        assert set(node._raw) == set(self.types), "the node must have raw subscriptions"
+        assert set(node.topics.raw) == set(self.types), "the node must have raw subscriptions"
         for topic, raw in self.records[start:stop]:
             node.on_raw(topic, raw)
 
@@ -247,7 +247,7 @@ def fed(flight, typed, tmp_path_factory):
         state = tmp_path_factory.mktemp("fed") / "fed.npz"
         node = session.validator(typed, state_file=str(state), end_of_data_timeout=0.5)
         flight.feed_raw(node)
-        assert all(raw.decoder is not None for raw in node._raw.values())  # fast decoding verified and used
+        assert all(raw.decoder is not None for raw in node.topics.raw.values())  # fast decoding verified and used
         node.router.flush()
         # the flight's last manoeuvre ends a few seconds before the data: its record closes when the inputs
         # have been silent for end_of_data_timeout (the end of the run), as replay closes it at the end of the bag
@@ -335,7 +335,7 @@ def test_best_effort_publisher_with_default_parameters_gives_the_epsilon_of_repl
     participant, the node runs with its default parameters and the shipped config (no ``type:``). It subscribes
     at once (types implied by the fields), best effort, receives every message and gives replay's epsilon."""
     node = ros.validator(CONFIG, spin=True, diagnostic_period=1000.0)
-    for intake in node._intakes.values():   # no publisher known yet: reliable and best effort, drained as one
+    for intake in node.topics.intakes.values():   # no publisher known yet: reliable and best effort, drained as one
         assert set(intake.subscriptions) == {"reliable", "best_effort"} and intake.reliability is None
     stack = OtherParticipant(BEST_EFFORT_QOS, flight.types)
     try:
@@ -351,7 +351,8 @@ def test_best_effort_publisher_with_default_parameters_gives_the_epsilon_of_repl
         stack.close()
     expected = {topic: sum(1 for t, _ in flight.records if t == topic) for topic in flight.types}
     assert node.router.messages == expected                       # none lost, none twice
-    assert {t: list(i.subscriptions) for t, i in node._intakes.items()} == {t: ["best_effort"] for t in flight.types}
+    assert ({t: list(i.subscriptions) for t, i in node.topics.intakes.items()}
+            == {t: ["best_effort"] for t in flight.types})
     end_of_data(node)
     mine = node.validator.results(diagnose=False)
     for name, ch in flight.replayed.channels.items():
@@ -366,8 +367,8 @@ def test_flight_over_dds_arrives_complete_and_gives_the_same_state(flight, typed
     raw path over DDS gives the same spectra as rclpy messages handed to the message callback."""
     over_dds = ros.validator(typed, spin=True, diagnostic_period=1000.0, discovery_period=0.2)
     direct = ros.validator(typed, name="gap_validator_direct", diagnostic_period=1000.0, raw_decoding=False)
-    assert set(over_dds._raw) == set(over_dds._intakes) == set(flight.types)  # typed: subscribed at once
-    assert not direct._raw
+    assert set(over_dds.topics.raw) == set(over_dds.topics.intakes) == set(flight.types)  # typed: subscribed at once
+    assert not direct.topics.raw
     publisher = ros.plain("gap_test_publisher")
     qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE)
     pubs = {topic: publisher.create_publisher(cls, topic, qos) for topic, cls in flight.classes.items()}
@@ -383,7 +384,7 @@ def test_flight_over_dds_arrives_complete_and_gives_the_same_state(flight, typed
             ros.wait(lambda: sum(over_dds.router.messages.values()) >= sent, timeout_s=30.0)
     flight.feed(direct, 0, count)
     assert over_dds.router.messages == direct.router.messages
-    assert {t: i.reliability for t, i in over_dds._intakes.items()} == {t: "reliable" for t in flight.types}
+    assert {t: i.reliability for t, i in over_dds.topics.intakes.items()} == {t: "reliable" for t in flight.types}
     end_of_data(over_dds, direct)
     for name in flight.config.channels:
         for stream in ("input", "output"):
@@ -469,9 +470,9 @@ def test_plot_topics_redraw_the_replayed_curves_are_latched_and_sent_only_on_cha
         assert verdict["epsilon"] == pytest.approx(ch.epsilon, abs=1e-9)
         assert verdict["nu_gap"] == pytest.approx(ch.nu_gap, abs=1e-9)
         assert verdict["limited_by"] == ch.limited_by and isinstance(verdict["warnings"], list)
-    sent = node._plots.published
+    sent = node.plots.published
     node.publish_diagnostics()
-    assert node._plots.published == sent      # nothing changed: nothing sent
+    assert node.plots.published == sent      # nothing changed: nothing sent
 
 
 def test_restart_from_checkpoint_reproduces_the_estimates(flight, typed, fed, ros, tmp_path):
@@ -689,7 +690,7 @@ def test_no_message_is_lost_from_the_first_one(ros, case):
     try:
         node = ros.validator(CONFIG, spin=True, diagnostic_period=1000.0, discovery_period=0.1,
                              use_sim_time=case.endswith("use_sim_time"))
-        assert set(node._intakes) == set(TYPES) and not node.pending           # before any publisher
+        assert set(node.topics.intakes) == set(TYPES) and not node.pending           # before any publisher
         if stack is None:
             ros.wait(lambda: True)
             stack = OtherParticipant(qos, TYPES)
@@ -709,7 +710,7 @@ def test_no_message_is_lost_from_the_first_one(ros, case):
             if k % 100 == 99:
                 ros.wait(lambda: sum(node.router.messages.values()) >= sum(sent.values()) - 300, timeout_s=30.0)
         ros.wait(lambda: node.router.messages == sent, timeout_s=30.0)
-        ros.wait(lambda: all(i.reliability == "reliable" and not i.changing for i in node._intakes.values()),
+        ros.wait(lambda: all(i.reliability == "reliable" and not i.changing for i in node.topics.intakes.values()),
                  timeout_s=30.0)
         assert node.router.messages == sent
         node.router.flush()
@@ -727,7 +728,7 @@ def test_a_publisher_the_fixed_qos_cannot_match_is_named_in_the_status(ros):
                          qos_reliability="reliable")
     stack = OtherParticipant(BEST_EFFORT_QOS, TYPES)
     try:
-        ros.wait(lambda: all(i.note for i in node._intakes.values()))
+        ros.wait(lambda: all(i.note for i in node.topics.intakes.values()))
     finally:
         stack.close()
     for name, (status, values) in statuses(node.publish_diagnostics()).items():
@@ -742,7 +743,7 @@ def test_a_publisher_the_fixed_qos_cannot_match_is_named_in_the_status(ros):
 def test_bad_messages_are_counted_and_survived(ros, typed, path):
     """NaN rate, JointState without the joint, position array too short: counted per reason, never fatal."""
     node = ros.validator(typed, diagnostic_period=1000.0, raw_decoding=(path == "raw"))
-    assert bool(node._raw) == (path == "raw")
+    assert bool(node.topics.raw) == (path == "raw")
 
     def send(topic, msg):
         if path == "raw":
@@ -927,7 +928,7 @@ def test_full_diagnosis_runs_in_the_background_and_fills_the_message(typed, fed,
     assert found >= 1
     # unchanged results: no new diagnosis is started
     node.publish_diagnostics()
-    assert node._diagnosis.job is None
+    assert node.diagnosis_worker.job is None
 
 
 # ------------------------------------------------------------------------------------------------ discovery
@@ -944,15 +945,15 @@ def test_types_the_fields_do_not_imply_are_discovered_and_wrong_guesses_followed
     config = tmp_path / "scalar.yaml"
     config.write_text(yaml.safe_dump({"channels": {"pitch": pitch}}, sort_keys=False))
     node = ros.validator(config, spin=True, discovery_period=0.05, diagnostic_period=1000.0)
-    assert node.pending == ["/rates"] and node._intakes["/elevator"].type_name == "std_msgs/msg/Float64"
+    assert node.pending == ["/rates"] and node.topics.intakes["/elevator"].type_name == "std_msgs/msg/Float64"
     waiting = statuses(node.publish_diagnostics())["pitch"][0]
     assert waiting.level == DiagnosticStatus.STALE and "/rates (output; type not known yet)" in waiting.message
     qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE)
     stack = OtherParticipant(qos, {"/rates": TwistStamped, "/elevator": Float32})
     try:
-        ros.wait(lambda: not node.pending and node._intakes["/elevator"].type_name == "std_msgs/msg/Float32"
+        ros.wait(lambda: not node.pending and node.topics.intakes["/elevator"].type_name == "std_msgs/msg/Float32"
                  and stack.matched())
-        assert {t: (i.type_name, i.type_source) for t, i in node._intakes.items()} == {
+        assert {t: (i.type_name, i.type_source) for t, i in node.topics.intakes.items()} == {
             "/elevator": ("std_msgs/msg/Float32", "graph"), "/rates": ("geometry_msgs/msg/TwistStamped", "graph")}
         for k in range(3):
             twist = TwistStamped()

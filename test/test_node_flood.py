@@ -98,8 +98,8 @@ def test_messages_taken_publish_diagnostics_when_the_timer_is_late(bench, tmp_pa
             clock[0] += 0.001
             bench._stamp(msg, k, 1000.0)
             if path == "drained":
-                node.take_messages("/imu", [(serialize_message(msg), {})])
-                node._diagnostics_overdue(node._now_s())   # what the intake timer does after each drain
+                node.take_messages("/imu", [(serialize_message(msg), {})], clock[0])   # drained at node time
+                node._diagnostics_overdue(clock[0])   # what the intake timer does after each drain
             else:
                 node.on_message("/imu", msg)
         assert len(published) == 6                 # at 0.15, 0.30, ... 0.90 s

@@ -57,7 +57,7 @@ def test_node_save_results_equals_replay_field_by_field(name, ros_env, tmp_path_
     node = ValidatorNode(context=context, parameter_overrides=[
         Parameter("config_file", value=str(where / "nominal.yaml")), Parameter("results_dir", value=str(results))])
     try:
-        assert set(node._raw) == set(config.topics())      # the node's default path: serialized messages
+        assert set(node.topics.raw) == set(config.topics())      # the node's default path: serialized messages
         for topic, raw in records:
             node.on_raw(topic, raw)
         node.router.flush()

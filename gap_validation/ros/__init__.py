@@ -8,6 +8,8 @@
 * :mod:`~gap_validation.ros.injection`: where each channel's offset goes, and the samples (no rclpy);
 * :mod:`~gap_validation.ros.jobs`: the node's files: resume from a checkpoint, checkpoints and ``~/save_results``
   written off the executor and answered when done (rclpy);
+* :mod:`~gap_validation.ros.collaborators`: what the node lends those three components (parameters, log-once,
+  clock, flush, the executor's wait set), so none of them reads the node's private names;
 * :mod:`~gap_validation.ros.intake`: queues drained in one wake-up, QoS matched to the publishers;
 * :mod:`~gap_validation.ros.background`: the slow writes on snapshots, in a thread or a child process;
 * :mod:`~gap_validation.ros.main`: the console script ``validator_node``;

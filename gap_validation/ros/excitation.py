@@ -1,7 +1,9 @@
 """The node's test card and its injection (issue 25): ``~/plan``, ``~/excite`` and ``~/abort`` (rclpy).
 
 :class:`Excitation` is the part of :class:`gap_validation.ros.node.ValidatorNode` that holds the card and flies it,
-as a component holding a reference to the node (its parameters, config, validator, clock, logging and jobs):
+as a component holding a reference to the node (its public rclpy API, clock and logger, and its ``config``,
+``validator``, ``router`` and ``generation``), the services the node lends it (parameters, log-once, flush, the
+executor's wait set: :class:`~gap_validation.ros.collaborators.NodeServices`) and the node's background jobs:
 
 * ``~/plan`` (std_srvs/Trigger, always there): the current card as YAML in ``message``, the document
   ``gap-validate plan --out`` writes (:func:`gap_validation.cards.card_yaml`). With the parameter ``plan_card`` the
@@ -21,13 +23,15 @@ Importing it imports rclpy (when available), never rosbags.
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from gap_validation.cards import card_yaml, read_card
 from gap_validation.core.config import ValidationConfig
 from gap_validation.core.errors import ConfigError, one_line
 from gap_validation.core.plan import TestCard
 from gap_validation.ros import background
+from gap_validation.ros.background import Background
+from gap_validation.ros.collaborators import NodeServices
 from gap_validation.ros.injection import (JOINT_STATE, InjectionPoint, Player, Sample, injection_points,
                                           select_manoeuvre, with_injection)
 from gap_validation.ros.message_types import message_class
@@ -37,9 +41,6 @@ try:  # rclpy is only needed to run the node
     from std_srvs.srv import Trigger
 except ImportError:  # pragma: no cover - exercised only without ROS 2
     pass
-
-if TYPE_CHECKING:  # pragma: no cover
-    from gap_validation.ros.node import ValidatorNode
 
 __all__ = ["Excitation", "PUBLISHER_DEPTH"]
 
@@ -52,8 +53,15 @@ class Excitation:
 
     Parameters
     ----------
-    node : ValidatorNode
-        The node (parameters, config, validator, router, clock, logging, jobs).
+    node : rclpy.node.Node
+        The node: its publishers, timer, services, clock and logger, and its ``config``, ``validator``, ``router``
+        and ``generation`` (read when needed: they change on reload and reset).
+    services : NodeServices
+        The node's parameters (``excitation_*``, ``excite_*``, ``plan_card``, ``config_file``), log-once, flush, and
+        the executor's wait set (``~/plan`` is kept out of it, :attr:`NodeServices.poll`).
+    runner : Background
+        The node's jobs off the executor (a ``~/plan`` without ``plan_card`` is planned there; the node's
+        :class:`~gap_validation.ros.jobs.Jobs` harvests it and calls :meth:`finish`).
 
     Attributes
     ----------
@@ -76,10 +84,13 @@ class Excitation:
         A bad ``plan_card`` file or ``excitation_topic`` (one line; the node does not start).
     """
 
-    def __init__(self, node: "ValidatorNode"):
+    def __init__(self, node: Any, services: NodeServices, runner: Background):
         self.node = node
-        self.enabled = bool(node._param("excitation_enabled"))
-        self.type_name = str(node._param("excitation_type"))
+        self.services = services
+        self.runner = runner
+        param = services.param
+        self.enabled = bool(param("excitation_enabled"))
+        self.type_name = str(param("excitation_type"))
         self.card: TestCard | None = None
         self._origin: tuple[str | None, str | None] = (None, None)
         self.flown: set[int] = set()
@@ -89,13 +100,13 @@ class Excitation:
         self._pubs: dict[str, Any] = {}
         self._joints: list[str] = []
         self._noted: Any = None
-        if node._param("plan_card"):
-            self.load_card(node._param("plan_card"))
+        if param("plan_card"):
+            self.load_card(param("plan_card"))
         if self.enabled:
-            self.topic = self._resolve(node._param("excitation_topic"), "excitation_topic")
-            self.player = Player(float(node._param("excitation_rate_hz")))
+            self.topic = self._resolve(param("excitation_topic"), "excitation_topic")
+            self.player = Player(float(param("excitation_rate_hz")))
         self._plan_srv = node.create_service(Trigger, "~/plan", self._srv_plan)
-        node._polled.add(self._plan_srv)
+        services.poll(self._plan_srv)
 
     # ---------------------------------------------------------------- the card
     def load_card(self, path: str) -> TestCard:
@@ -181,10 +192,12 @@ class Excitation:
         node.create_service(Trigger, "~/abort", self._srv_abort)
         flown = ", ".join(f"{p.channel} ({p.spec.field})" if p.joint else p.channel for p in self.points.values())
         own = [p.channel for p in self.points.values() if not p.estimated]
+        cap = self.services.param("excitation_max_amplitude_rad")
         node.get_logger().info(
             f"excitation enabled: {self.type_name} on {self.topic}"
-            f"{'/<channel>' if self.type_name != JOINT_STATE else ''} at {self.player.rate_hz:g} Hz, cap {node._param('excitation_max_amplitude_rad'):g} rad; flyable: "
-            f"{flown or 'none'}; these estimate against what the node injects (their excitation)"
+            f"{'/<channel>' if self.type_name != JOINT_STATE else ''} at {self.player.rate_hz:g} Hz, "
+            f"cap {cap:g} rad; flyable: {flown or 'none'}; these estimate against what the node injects "
+            "(their excitation)"
             + (f", except {', '.join(own)} (the config's own excitation)" if own else ""))
 
     # ---------------------------------------------------------------- the samples
@@ -194,11 +207,11 @@ class Excitation:
             now_ns = self.node.get_clock().now().nanoseconds
             if now_ns <= 0:        # use_sim_time before the first /clock: no time yet
                 return
-            for sample in self.player.due(now_ns, float(self.node._param("excitation_max_amplitude_rad"))):
+            for sample in self.player.due(now_ns, float(self.services.param("excitation_max_amplitude_rad"))):
                 self._publish(sample)
             self._note_end()
         except Exception as err:  # noqa: BLE001 - the injection must never stop the node
-            self.node._log_once(f"excite:{type(err).__name__}", "error", f"excitation failed: {one_line(err)}")
+            self.services.log_once(f"excite:{type(err).__name__}", "error", f"excitation failed: {one_line(err)}")
 
     def _publish(self, sample: Sample) -> None:
         point = self.points.get(sample.channel) if sample.channel is not None else None
@@ -252,14 +265,14 @@ class Excitation:
 
     # ---------------------------------------------------------------- services
     def _srv_excite(self, request, response):
-        node = self.node
+        node, param = self.node, self.services.param
         try:
             flying = self.player.flying
             if flying is not None:
                 raise ConfigError(f"already flying {flying.text()}: call ~/abort first")
-            m = select_manoeuvre(self.card, str(node._param("excite_channel")), int(node._param("excite_index")),
+            m = select_manoeuvre(self.card, str(param("excite_channel")), int(param("excite_index")),
                                  self.flown, self.points)
-            cap = float(node._param("excitation_max_amplitude_rad"))
+            cap = float(param("excitation_max_amplitude_rad"))
             if m.amplitude_rad > cap:
                 raise ConfigError(f"manoeuvre {m.index} ({m.channel}): amplitude {m.amplitude_rad:.4g} rad is above "
                                   f"excitation_max_amplitude_rad {cap:g} (plan with --max-amplitude-rad {cap:g}, or "
@@ -302,8 +315,7 @@ class Excitation:
 
     def _plan(self, header: Any) -> None:
         """Answer a ``~/plan`` request: the ``plan_card`` file now, else plan from the results in the background."""
-        node = self.node
-        path = node._param("plan_card")
+        path = self.services.param("plan_card")
         if path:
             try:
                 self.load_card(path)
@@ -311,10 +323,17 @@ class Excitation:
             except ConfigError as err:
                 self._respond(header, False, f"plan failed: {err}")
             return
-        node._flush()
-        snap = background.snapshot(node.config, node.validator, node.router, node._generation)
-        node.jobs.background.submit("plan", header, background.plan_from_results, snap, self._results_name(),
-                                    node._param("config_file") or node.config.source, process=True)
+        self.runner.submit("plan", header, background.plan_from_results, self._snapshot(), self._results_name(),
+                           self._config_name(), process=True)
+
+    def _snapshot(self) -> background.Snapshot:
+        """The node's state now (pending samples flushed first), for planning off the executor."""
+        node = self.node
+        self.services.flush()
+        return background.snapshot(node.config, node.validator, node.router, node.generation)
+
+    def _config_name(self) -> str:
+        return self.services.param("config_file") or self.node.config.source
 
     def _results_name(self) -> str:
         return f"{self.node.get_fully_qualified_name()} (live results)"
@@ -333,7 +352,7 @@ class Excitation:
             self._respond(tag, False, f"plan failed: {one_line(outcome)}")
             return
         text, card = outcome
-        self._take_card(card, self._results_name(), self.node._param("config_file") or self.node.config.source)
+        self._take_card(card, self._results_name(), self._config_name())
         self._respond(tag, True, text)
 
     def _respond(self, header: Any, success: bool, message: str) -> None:
@@ -346,23 +365,20 @@ class Excitation:
         try:
             self._plan_srv.send_response(response, header)
         except Exception as err:  # noqa: BLE001 - the client left
-            self.node._log_once(f"respond:{type(err).__name__}", "warning",
-                                f"~/plan: could not answer ({one_line(err)})")
+            self.services.log_once(f"respond:{type(err).__name__}", "warning",
+                                   f"~/plan: could not answer ({one_line(err)})")
 
     def _srv_plan(self, request, response):
         """Callback of ``~/plan`` should an executor serve it (the intake timer normally takes the requests): the
         file's card, or planned here and now."""
-        node = self.node
         try:
-            if node._param("plan_card"):
-                self.load_card(node._param("plan_card"))
+            if self.services.param("plan_card"):
+                self.load_card(self.services.param("plan_card"))
                 text = self.card_text()
             else:
-                node._flush()
-                snap = background.snapshot(node.config, node.validator, node.router, node._generation)
-                text, card = background.plan_from_results(snap, self._results_name(),
-                                                          node._param("config_file") or node.config.source)
-                self._take_card(card, self._results_name(), node._param("config_file") or node.config.source)
+                text, card = background.plan_from_results(self._snapshot(), self._results_name(),
+                                                          self._config_name())
+                self._take_card(card, self._results_name(), self._config_name())
             response.success, response.message = True, text
         except Exception as err:  # noqa: BLE001
             response.success, response.message = False, f"plan failed: {one_line(err)}"

@@ -83,17 +83,15 @@ from typing import Any
 from gap_validation.core.config import load_config
 from gap_validation.core.errors import ConfigError, GapValidationError, one_line
 from gap_validation.core.results import ValidationResult
-from gap_validation.messages.decoding import TopicDecoder
 from gap_validation.messages.router import MessageRouter, note_saturation
 from gap_validation.ros.background import Background
+from gap_validation.ros.collaborators import NodeServices
 from gap_validation.ros.diagnosis_worker import DiagnosisWorker
 from gap_validation.ros.excitation import Excitation
-from gap_validation.ros.intake import Intake
 from gap_validation.ros.jobs import Jobs
 from gap_validation.ros.message_types import topic_types
 from gap_validation.ros.parameters import PARAMETERS, check_parameters, unknown_parameters
 from gap_validation.ros.plots import PlotTopics
-from gap_validation.ros.stamp_gaps import StampGaps
 from gap_validation.ros.status import ChannelStatus, ChannelTask
 from gap_validation.ros.topics import Topics
 
@@ -125,6 +123,16 @@ class ValidatorNode(Node):
     **kwargs
         Passed to :class:`rclpy.node.Node` (``context``, ``parameter_overrides``, ``cli_args`` ...).
 
+    Attributes
+    ----------
+    config, validator, router : ValidationConfig, OnlineValidator, MessageRouter
+        The running config, its validator and the router feeding it (reload and reset replace them).
+    topics, jobs, excitation : Topics, Jobs, Excitation
+        The components owning the subscriptions, the files and the card; they get what they need of the node
+        besides its public API as :class:`~gap_validation.ros.collaborators.NodeServices`.
+    plots, diagnosis_worker : PlotTopics, DiagnosisWorker
+        The plottable topics and the full diagnoses' thread.
+
     Raises
     ------
     ConfigError
@@ -133,9 +141,6 @@ class ValidatorNode(Node):
 
     #: Diagnostics periods after the last publication when the intake timer publishes in the timer's stead.
     DIAGNOSTICS_LATE = 1.5
-
-    #: Longest a QoS change keeps the previous subscription while the new one matches [s].
-    CHANGE_TIMEOUT_S = 5.0
 
     #: Subscriptions and services the node drains itself (kept out of the executor's wait set).
     _polled: frozenset | set = frozenset()
@@ -174,27 +179,30 @@ class ValidatorNode(Node):
         if not config_file:
             raise ConfigError("parameter config_file is not set (ros2 run gap_validation validator_node "
                               "--ros-args -p config_file:=/path/cfg.yaml)")
-        self.excitation = Excitation(self)
+        # what the components (topics, jobs, excitation) need of the node besides its public API
+        services = NodeServices(param=self._param, log_once=self._log_once, now_s=self._now_s, flush=self._flush,
+                                poll=self._poll, unpoll=self._polled.discard)
+        runner = Background()   # the jobs off the executor: checkpoints, saves (Jobs) and plans (Excitation)
+        self.excitation = Excitation(self, services, runner)
         self.config, points = self.excitation.injection(load_config(config_file))
         self.excitation.adopt(points)
-        self.topics = Topics(self, topic_types(self.config))
+        self.topics = Topics(self, topic_types(self.config), services)
         self._hardware_id = self._default_hardware_id()
-        self.jobs = Jobs(self)
+        self.jobs = Jobs(self, services, runner, self._take_saved_diagnoses, self.excitation.finish)
         self.validator = self.jobs.initial_validator()
         self.router = MessageRouter(self.config, self.validator)
         self.last_result: ValidationResult | None = None
         self._tasks: dict[str, ChannelTask] = {}     # channel -> its diagnostic task
         self._sync_tasks()
         self._generation = 0
-        self._diagnosis = DiagnosisWorker()
+        self.diagnosis_worker = DiagnosisWorker()
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.topics.subscribe_all()
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self._plots = PlotTopics(self)
+        self.plots = PlotTopics(self)
         self.create_service(Trigger, "~/reload", self._srv_reload)
         self.create_service(Trigger, "~/reset", self._srv_reset)
-        self._save_srv = self.create_service(Trigger, "~/save_results", self._srv_save_results)
-        self._polled.add(self._save_srv)
+        self.jobs.open_service()   # ~/save_results, taken by the intake timer
         self._diag_due_s = self._now_s() + self.DIAGNOSTICS_LATE * self._param("diagnostic_period")
         self._diag_timer = self.create_timer(self._param("diagnostic_period"), self._diagnostics_tick)
         self._intake_timer = self.create_timer(self._param("intake_period"), self._intake_tick, clock=self._steady)
@@ -236,6 +244,13 @@ class ValidatorNode(Node):
     def _param(self, name: str) -> Any:
         return self.get_parameter(name).value
 
+    def _poll(self, entity: Any) -> None:
+        """Keep a subscription or service out of the executor's wait set (drained by the intake timer) and wake the
+        executor, so it waits on its new set."""
+        self._polled.add(entity)
+        if self.executor is not None:
+            self.executor.wake()
+
     def _log_once(self, key: str, level: str, text: str) -> None:
         if key in self._logged:
             return
@@ -257,43 +272,26 @@ class ValidatorNode(Node):
         """The ``hardware_id`` parameter, else the startup config's ``aircraft``, else the node's full name."""
         return self._param("hardware_id") or self._hardware_id
 
-    # ---------------------------------------------------------------- files (gap_validation.ros.jobs)
     @property
-    def _background(self) -> Background:
-        return self.jobs.background
+    def generation(self) -> int:
+        """Reloads and resets so far: a diagnosis or save of an older generation is not shown."""
+        return self._generation
 
+    # ---------------------------------------------------------------- files (gap_validation.ros.jobs)
     def checkpoint(self) -> str | None:
         """Write the validator state to ``state_file`` now, in this thread (atomically); the path or None
         (:meth:`Jobs.checkpoint <gap_validation.ros.jobs.Jobs.checkpoint>`)."""
         return self.jobs.checkpoint()
 
-    def _checkpoint_in_background(self, force: bool = False) -> None:
-        self.jobs.checkpoint_in_background(force)
-
     def wait_for_background(self, timeout_s: float = 60.0) -> bool:
         """Block until the background jobs (checkpoints, saves) are written and answered (tests, tools)."""
         return self.jobs.wait(timeout_s)
-
-    def _harvest_background(self) -> None:
-        self.jobs.harvest()
 
     # ---------------------------------------------------------------- topics (gap_validation.ros.topics)
     @property
     def pending(self) -> list[str]:
         """Topics whose type is still to be discovered on the graph."""
         return self.topics.pending
-
-    @property
-    def _intakes(self) -> dict[str, Intake]:
-        return self.topics.intakes
-
-    @property
-    def _raw(self) -> dict[str, TopicDecoder]:
-        return self.topics.raw
-
-    @property
-    def _gaps(self) -> dict[str, StampGaps]:
-        return self.topics.gaps
 
     def _now_s(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
@@ -405,8 +403,8 @@ class ValidatorNode(Node):
             result = self.validator.results(diagnose=False)
             self._note_saturation(result)
             self.last_result = result
-            self._diagnosis.schedule(result, self.validator, self.config, self._generation,
-                                     self._param("diagnosis_period"), self._param("diagnosis_cpu_share"))
+            self.diagnosis_worker.schedule(result, self.validator, self.config, self._generation,
+                                           self._param("diagnosis_period"), self._param("diagnosis_cpu_share"))
             statuses = self.statuses(result, now_s)
             array = self.diagnostic_array(statuses)
         except Exception as err:  # noqa: BLE001 - keep publishing next time
@@ -414,7 +412,7 @@ class ValidatorNode(Node):
             return None
         self._diag_pub.publish(array)
         try:
-            self._plots.publish(result, statuses)
+            self.plots.publish(result, statuses)
         except Exception as err:  # noqa: BLE001 - the plots never stop the diagnostics
             self._log_once(f"plots:{type(err).__name__}", "error", f"plot topics failed: {one_line(err)}")
         return array
@@ -429,12 +427,18 @@ class ValidatorNode(Node):
     # ---------------------------------------------------------------- full diagnosis (worker thread)
     def _harvest_diagnosis(self) -> None:
         try:
-            result = self._diagnosis.harvest(self._generation)
+            result = self.diagnosis_worker.harvest(self._generation)
         except Exception as err:  # noqa: BLE001
             self._log_once(f"diagnosis:{type(err).__name__}", "error", f"diagnosis failed: {one_line(err)}")
             return
         if result is not None:
             self._take_diagnosis(result)
+
+    def _take_saved_diagnoses(self, top: dict[str, Any]) -> None:
+        """The channels' top candidates of a save (:class:`~gap_validation.ros.jobs.Jobs`) to their tasks."""
+        for name, candidate in top.items():
+            if name in self._tasks:
+                self._tasks[name].take_diagnosis(candidate)
 
     def _take_diagnosis(self, result: ValidationResult) -> None:
         for name, ch in result.channels.items():
@@ -444,7 +448,7 @@ class ValidatorNode(Node):
 
     def wait_for_diagnosis(self, timeout_s: float = 60.0) -> bool:
         """Block until the running full diagnosis (if any) is done and take its result (tests, tools)."""
-        done = self._diagnosis.wait(timeout_s)
+        done = self.diagnosis_worker.wait(timeout_s)
         self._harvest_diagnosis()
         return done
 
@@ -476,12 +480,12 @@ class ValidatorNode(Node):
         self.config = config
         self.excitation.adopt(points)
         self._sync_tasks()
-        self._plots.sync(self.config.channels)
+        self.plots.sync(self.config.channels)
         self._new_router()
         self.topics.subscribe_all()
         self._generation += 1
         self._forget_diagnoses()
-        self._diagnosis.force = True
+        self.diagnosis_worker.force = True
         text = f"loaded {path}"
         if restarted:
             text += f"; spectra restarted for {', '.join(restarted)} (topics, fields or analysis settings changed)"
@@ -506,7 +510,7 @@ class ValidatorNode(Node):
         self._new_router()
         self._generation += 1
         self._forget_diagnoses()
-        self._diagnosis.forget()
+        self.diagnosis_worker.forget()
         self.jobs.checkpoint_in_background(force=True)
         return "spectra cleared"
 
@@ -514,11 +518,6 @@ class ValidatorNode(Node):
         """A swept surface pinned at an extreme: in the channel's message and bad counts; logged once."""
         for line in note_saturation(self.config, self.router, result):
             self._log_once(f"saturation:{line.split(':')[0]}", "warning", line)
-
-    def save_results_in_background(self, tag: Any = None) -> None:
-        """Snapshot now; the full diagnosis, JSON and report are written in the background (the answer to
-        ``~/save_results`` is sent when they are)."""
-        self.jobs.save_results_in_background(tag)
 
     def save_results(self) -> Path:
         """Write the JSON (and report, when available) of what was gathered so far, and wait for it; the JSON path.
@@ -534,17 +533,6 @@ class ValidatorNode(Node):
     def _srv_reset(self, request, response):
         response.success, response.message = True, self.reset()
         self.get_logger().info("spectra cleared (~/reset)")
-        return response
-
-    def _srv_save_results(self, request, response):
-        """Callback of ``~/save_results`` should an executor serve it (the intake timer normally takes the
-        requests): waits for the files."""
-        try:
-            response.message = str(self.save_results())
-            response.success = True
-        except Exception as err:  # noqa: BLE001
-            response.success, response.message = False, f"save_results failed: {one_line(err)}"
-            self.get_logger().error(response.message)
         return response
 
     def _on_set_parameters(self, params) -> "SetParametersResult":
@@ -567,7 +555,7 @@ class ValidatorNode(Node):
 
     # ---------------------------------------------------------------- shutdown
     def _close_workers(self) -> None:
-        worker = getattr(self, "_diagnosis", None)
+        worker = getattr(self, "diagnosis_worker", None)
         if worker is not None:  # a running diagnosis works on its own copy: let it finish unawaited
             worker.close()
 

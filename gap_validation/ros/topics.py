@@ -1,7 +1,9 @@
 """The node's topics: subscriptions that follow the graph, and the taking of their messages (rclpy).
 
 :class:`Topics` is the part of :class:`gap_validation.ros.node.ValidatorNode` that owns its topics, as a component
-holding a reference to the node (for ``create_subscription``, the graph, its parameters, logging and clock):
+holding a reference to the node (its public rclpy API: ``create_subscription``, the graph, logging; its ``router``,
+``validator`` and ``config``) and the services the node lends it (parameters, log-once, clock, the executor's wait
+set: :class:`~gap_validation.ros.collaborators.NodeServices`):
 
 * subscribing: every topic is subscribed at start-up (type from the config, else implied by its field paths,
   :func:`~gap_validation.ros.message_types.topic_types`; only topics whose fields imply nothing wait for the graph),
@@ -21,12 +23,13 @@ from __future__ import annotations
 
 import time
 from functools import partial
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from gap_validation.core.errors import one_line
 from gap_validation.core.fields import FieldError
 from gap_validation.messages.decoding import TopicDecoder, Undecodable
 from gap_validation.messages.router import stamp_seconds
+from gap_validation.ros.collaborators import NodeServices
 from gap_validation.ros.intake import BEST_EFFORT, RELIABLE, Intake, choose_reliability, publisher_note
 from gap_validation.ros.message_types import TopicType, fields_fit, message_class
 from gap_validation.ros.stamp_gaps import StampGaps
@@ -38,9 +41,6 @@ try:  # rclpy is only needed to run the node
 except ImportError:  # pragma: no cover - exercised only without ROS 2
     pass
 
-if TYPE_CHECKING:  # pragma: no cover
-    from gap_validation.ros.node import ValidatorNode
-
 __all__ = ["Topics"]
 
 _SOURCES = {"config": "the config's type", "fields": "implied by its fields", "graph": "its publishers' type"}
@@ -51,11 +51,14 @@ class Topics:
 
     Parameters
     ----------
-    node : ValidatorNode
-        The node: its subscriptions, graph queries, parameters (``qos_*``, ``raw_decoding``, ``stale_timeout``),
-        ``router``, ``validator``, logging and clock are used through it (they change on reload and reset).
+    node : rclpy.node.Node
+        The node: its subscriptions, graph queries and logger, and its ``router``, ``validator`` and ``config``
+        (read when needed: they change on reload and reset).
     types : dict of str to TopicType
         Topic -> type wanted (:func:`~gap_validation.ros.message_types.topic_types`); updated by the graph.
+    services : NodeServices
+        The node's parameters (``qos_*``, ``raw_decoding``, ``stale_timeout``), log-once, clock, and the executor's
+        wait set (the subscriptions are kept out of it, :attr:`NodeServices.poll`).
 
     Attributes
     ----------
@@ -77,8 +80,12 @@ class Topics:
         Whether the next intake wake-up checks the graph (after (re)subscribing).
     """
 
-    def __init__(self, node: "ValidatorNode", types: dict[str, TopicType]):
+    #: Longest a QoS change keeps the previous subscription while the new one matches [s].
+    CHANGE_TIMEOUT_S = 5.0
+
+    def __init__(self, node: Any, types: dict[str, TopicType], services: NodeServices):
         self.node = node
+        self.services = services
         self.types = types
         self.intakes: dict[str, Intake] = {}
         self.raw: dict[str, TopicDecoder] = {}
@@ -114,8 +121,8 @@ class Topics:
             if topic in self.intakes:
                 continue
             if wanted.name is None:
-                self.node._log_once(f"discover:{topic}", "info", f"topic {topic}: type neither in the config nor "
-                                                                 "implied by its fields, waiting for it on the graph")
+                self.services.log_once(f"discover:{topic}", "info", f"topic {topic}: type neither in the config "
+                                       "nor implied by its fields, waiting for it on the graph")
                 continue
             self._subscribe(topic, wanted)
         self.graph_due = True
@@ -140,13 +147,13 @@ class Topics:
     def _create(self, topic: str, type_name: str, reliability: str) -> Any:
         """A subscription drained by the intake timer (not in the executor's wait set)."""
         node = self.node
-        decoding = self._decoding(topic, type_name) if node._param("raw_decoding") else None
+        decoding = self._decoding(topic, type_name) if self.services.param("raw_decoding") else None
         raw = decoding is not None and decoding.decoder is not None
         if raw:
             self.raw[topic] = decoding
         else:
             self.raw.pop(topic, None)
-        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=int(node._param("qos_depth")),
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=int(self.services.param("qos_depth")),
                          reliability=ReliabilityPolicy.RELIABLE if reliability == RELIABLE
                          else ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
         # no QoS event handlers: they are waitables the executor would wait on, and rmw wakes those with every
@@ -155,14 +162,13 @@ class Topics:
         events = SubscriptionEventCallbacks(use_default_callbacks=False)
         sub = node.create_subscription(message_class(type_name), topic, partial(self._on_executor_message, topic),
                                        qos, event_callbacks=events, raw=raw)
-        node._polled.add(sub)
-        node._wake_executor()
+        self.services.poll(sub)
         return sub
 
     def _subscribe(self, topic: str, wanted: TopicType) -> None:
         """Subscribe now; with ``qos_reliability: auto`` and no publisher known yet, both reliable and best effort
         (:class:`~gap_validation.ros.intake.Intake`: nothing missed from the first message, nothing twice)."""
-        mode = self.node._param("qos_reliability")
+        mode = self.services.param("qos_reliability")
         offered = [r for t, r in self._publishers_on(topic) if t == wanted.name]
         reliability = choose_reliability(mode, offered) if offered or mode != "auto" else None
         kinds = [reliability] if reliability else [RELIABLE, BEST_EFFORT]
@@ -173,7 +179,7 @@ class Topics:
             f"{(reliability or 'reliable and best_effort until the publishers are known').upper()}")
 
     def _destroy(self, sub: Any) -> None:
-        self.node._polled.discard(sub)
+        self.services.unpoll(sub)
         self.node.destroy_subscription(sub)
 
     def _unsubscribe(self, topic: str) -> None:
@@ -189,19 +195,19 @@ class Topics:
                             on_disagree=self._disagree)
 
     def _disagree(self, topic: str) -> None:
-        self.node._log_once(f"fast:{topic}", "info", f"topic {topic}: fast decoding disagrees with rclpy; "
-                                                     "deserialising instead")
+        self.services.log_once(f"fast:{topic}", "info", f"topic {topic}: fast decoding disagrees with rclpy; "
+                                                        "deserialising instead")
 
     def check_graph(self) -> None:
         """Graph check: discover pending types, follow the publishers' type and reliability, note mismatches."""
         self.graph_due = False
-        mode = self.node._param("qos_reliability")
+        mode = self.services.param("qos_reliability")
         for topic, wanted in self.types.items():
             try:
                 publishers = self._publishers_on(topic)
             except Exception as err:  # noqa: BLE001 - the graph is best effort; try again next time
-                self.node._log_once(f"graph:{type(err).__name__}", "warning",
-                                    f"graph query failed: {one_line(err)}")
+                self.services.log_once(f"graph:{type(err).__name__}", "warning",
+                                       f"graph query failed: {one_line(err)}")
                 return
             intake = self.intakes.get(topic)
             if intake is None or intake.type_source != "config":
@@ -216,7 +222,7 @@ class Topics:
             note = publisher_note(topic, mode, intake.reliability, intake.type_name, intake.type_source,
                                   publishers) if intake.reliability else None
             if note and note != intake.note:
-                self.node._log_once(f"note:{topic}:{note}", "warning", note)
+                self.services.log_once(f"note:{topic}:{note}", "warning", note)
             intake.note = note
 
     def _follow_type(self, topic: str, intake: Intake | None, publishers: list[tuple[str, str]]) -> None:
@@ -226,12 +232,13 @@ class Topics:
             return
         type_name = types[0]
         if len(types) > 1:
-            self.node._log_once(f"types:{topic}", "warning",
-                                f"topic {topic}: several types on the graph ({', '.join(types)}), using {type_name}")
+            self.services.log_once(f"types:{topic}", "warning",
+                                   f"topic {topic}: several types on the graph ({', '.join(types)}), "
+                                   f"using {type_name}")
         if not fields_fit(topic, type_name, self.node.config.topics()[topic]):
-            self.node._log_once(f"badtype:{topic}:{type_name}", "error",
-                                f"topic {topic}: its publishers' type {type_name} is not installed or lacks a "
-                                "configured field; not subscribed with it")
+            self.services.log_once(f"badtype:{topic}:{type_name}", "error",
+                                   f"topic {topic}: its publishers' type {type_name} is not installed or lacks a "
+                                   "configured field; not subscribed with it")
             return
         if intake is not None:   # the guessed type has no publisher: nothing arrives on it, replace it
             self._unsubscribe(topic)
@@ -243,23 +250,23 @@ class Topics:
         the others until it has matched the publishers (:meth:`Intake.settle`)."""
         new = None if reliability in intake.subscriptions else self._create(intake.topic, intake.type_name,
                                                                             reliability)
-        intake.settle(reliability, publishers, time.monotonic() + self.node.CHANGE_TIMEOUT_S, subscription=new)
+        intake.settle(reliability, publishers, time.monotonic() + self.CHANGE_TIMEOUT_S, subscription=new)
         self.node.get_logger().info(f"topic {intake.topic}: publishers offer {reliability.upper()}"
                                     f"{', re-subscribing' if new is not None else ''}")
 
     # ---------------------------------------------------------------- taking messages
     def take_all(self) -> None:
         """Drain every queue, retire replaced subscriptions, check the graph when due (the intake timer)."""
-        node = self.node
-        limit = int(node._param("qos_depth"))
-        now_s = node._now_s()
+        services = self.services
+        limit = int(services.param("qos_depth"))
+        now_s = services.now_s()
         offset_s = now_s - time.time_ns() * 1e-9   # DDS reception stamps (system clock) -> node clock
         for topic, intake in list(self.intakes.items()):
             retire = intake.retire_due(time.monotonic())
             try:
                 got = intake.drain(limit)
             except Exception as err:  # noqa: BLE001 - a subscription destroyed under us: next time
-                node._log_once(f"take:{topic}:{type(err).__name__}", "error", f"topic {topic}: {one_line(err)}")
+                services.log_once(f"take:{topic}:{type(err).__name__}", "error", f"topic {topic}: {one_line(err)}")
                 continue
             if retire:
                 for sub in intake.retired():
@@ -290,7 +297,7 @@ class Topics:
         offset_s : float, optional
             Node time minus system time [s] (default: now).
         """
-        now_s = self.node._now_s() if now_s is None else now_s
+        now_s = self.services.now_s() if now_s is None else now_s
         offset_s = now_s - time.time_ns() * 1e-9 if offset_s is None else offset_s
         decoding = self.raw.get(topic)
         t_rx = now_s
@@ -307,8 +314,8 @@ class Topics:
                 try:
                     stamp, values, msg = decode(data)
                 except Undecodable as err:  # a damaged message: counted as replay counts it
-                    self.node._log_once(f"raw:{topic}:{type(err.error).__name__}", "error",
-                                        f"topic {topic}: message skipped ({one_line(err.error)})")
+                    self.services.log_once(f"raw:{topic}:{type(err.error).__name__}", "error",
+                                           f"topic {topic}: message skipped ({one_line(err.error)})")
                     continue
                 if msg is not None:
                     self.route(topic, msg, t_rx)
@@ -318,8 +325,8 @@ class Topics:
                 try:
                     on_values(topic, t_rx if stamp is None else stamp, values)
                 except Exception as err:  # noqa: BLE001 - a message must never stop the node
-                    self.node._log_once(f"raw:{topic}:{type(err).__name__}", "error",
-                                        f"topic {topic}: message skipped ({one_line(err)})")
+                    self.services.log_once(f"raw:{topic}:{type(err).__name__}", "error",
+                                           f"topic {topic}: message skipped ({one_line(err)})")
         self.last_arrival[topic] = t_rx
         self.last_taken[topic] = now_s
 
@@ -331,7 +338,7 @@ class Topics:
     def _gaps_of(self, topic: str) -> StampGaps:
         gaps = self.gaps.get(topic)
         if gaps is None:
-            gaps = self.gaps[topic] = StampGaps(self.node._param("stale_timeout"))
+            gaps = self.gaps[topic] = StampGaps(self.services.param("stale_timeout"))
         return gaps
 
     def samples_dropped(self, topic: str) -> int:
@@ -365,7 +372,7 @@ class Topics:
         except FieldError as err:  # the message type lacks a configured field: every message will fail
             for route in self.node.router.routes.get(topic, ()):
                 self.node.validator.count_bad(route.channel, route.stream, err.reason)
-            self.node._log_once(f"field:{topic}", "error", f"{one_line(err)} (check the config; counted as bad)")
+            self.services.log_once(f"field:{topic}", "error", f"{one_line(err)} (check the config; counted as bad)")
         except Exception as err:  # noqa: BLE001 - a message must never stop the node
-            self.node._log_once(f"msg:{topic}:{type(err).__name__}", "error",
-                                f"topic {topic}: message skipped ({one_line(err)})")
+            self.services.log_once(f"msg:{topic}:{type(err).__name__}", "error",
+                                   f"topic {topic}: message skipped ({one_line(err)})")

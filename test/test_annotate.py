@@ -1,6 +1,6 @@
-"""``gap-validate replay BAG --config CFG --annotate OUT.mcap`` (issue 26): one MCAP file with the flight and, on the
-same timeline, what the node would have published (``/diagnostics`` every second of bag time, the plottable topics
-when they change; docs/NODE_TOPICS.md). Read back with the ``mcap`` package's reader."""
+"""``gap-validate replay BAG --config CFG --annotate OUT.mcap`` (issue 26): one MCAP file with the flight and,
+on the same timeline, what the node would have published (``/diagnostics`` every second of bag time, the
+plottable topics when they change; docs/NODE_TOPICS.md). Read back with the ``mcap`` package's reader."""
 from __future__ import annotations
 
 import json
@@ -34,8 +34,10 @@ def annotated(tmp_path_factory):
 
 def _messages(path: Path) -> list:
     with open(path, "rb") as f:
-        return [(channel.topic, schema.name, message.log_time, bytes(message.data))
-                for schema, channel, message in mcap_reader.make_reader(f).iter_messages(log_time_order=False)]
+        return [
+            (channel.topic, schema.name, message.log_time, bytes(message.data))
+            for schema, channel, message in mcap_reader.make_reader(f).iter_messages(log_time_order=False)
+        ]
 
 
 def test_the_flight_is_all_there_and_everything_in_time_order(annotated):

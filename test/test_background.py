@@ -1,15 +1,22 @@
-"""Tests of gap_validation.core.background (the trim motion between manoeuvres) and of the judgements built on it:
-the excitation floor (spectra.record_bands' ``background``), the feedback test and its bias bound
+"""Tests of gap_validation.core.background (the trim motion between manoeuvres) and of the judgements built on
+it: the excitation floor (spectra.record_bands' ``background``), the feedback test and its bias bound
 (closed_loop.feedback_evidence, feedback_bias) and the detector's quiet level (sweeps.quiet_quantile).
 
-Each judgement is a test with a stated null distribution; these tests check the statistic against an independent
-estimator (scipy's Welch estimates) and measure the false-positive rate on seeded draws under the null."""
+Each judgement is a test with a stated null distribution; these tests check the statistic against an
+independent estimator (scipy's Welch estimates) and measure the false-positive rate on seeded draws under the
+null."""
 import numpy as np
 import pytest
 from scipy import signal
 
-from gap_validation.core.background import (MIN_TRIM_AVERAGES, LeadTest, TrimResponse, TrimSpectrum)
-from gap_validation.core.closed_loop import FEEDBACK_FALSE_ALARM, LEAD_SHARE, feedback_bias, feedback_evidence, rate_leads
+from gap_validation.core.background import MIN_TRIM_AVERAGES, LeadTest, TrimResponse, TrimSpectrum
+from gap_validation.core.closed_loop import (
+    FEEDBACK_FALSE_ALARM,
+    LEAD_SHARE,
+    feedback_bias,
+    feedback_evidence,
+    rate_leads,
+)
 from gap_validation.core.spectra import STATUS_BELOW_TRIM, record_bands
 from gap_validation.core.sweeps import SweepDetector, quiet_quantile
 
@@ -28,8 +35,8 @@ def test_white_noise_gives_its_variance_per_bin_in_the_records_units():
     rng = np.random.default_rng(1)
     x = 0.3 * rng.standard_normal((1, 400_000))
     spec = _trim(x)
-    # the sums' means are Welch's estimate; the floor is the median over the kept segments (bias-corrected): both
-    # the variance per bin, the median within its scatter (64 segments of a few bins: about 15 %)
+    # the sums' means are Welch's estimate; the floor is the median over the kept segments (bias-corrected):
+    # both the variance per bin, the median within its scatter (64 segments of a few bins: about 15 %)
     np.testing.assert_allclose(spec.sums[:, 0, 0].real / spec.bins, 0.09, rtol=0.08)
     np.testing.assert_allclose(spec.power([0]), 0.09, rtol=0.35)
     assert np.median(spec.power([0])) == pytest.approx(0.09, rel=0.1)
@@ -64,7 +71,8 @@ def test_the_response_between_manoeuvres_is_scipys_welch_estimate():
 def test_trim_held_back_by_the_guard_is_given_to_the_record_that_reaches_back():
     spec = TrimSpectrum(W, 1, DT, guard_s=10.0)
     rng = np.random.default_rng(3)
-    spec.feed(0, rng.standard_normal((1, 2500)))       # 25 s: nothing released yet (20 s segment + 10 s guard)
+    # 25 s: nothing released yet (20 s segment + 10 s guard)
+    spec.feed(0, rng.standard_normal((1, 2500)))
     assert spec.segments == 0
     spec.cut(2000)                                     # a record starting at 20 s takes the last 5 s
     assert spec.samples == 2000
@@ -118,7 +126,9 @@ def test_open_loop_is_called_closed_loop_at_most_at_the_stated_rate():
         noise_t = np.sqrt(v_trim / 2) * (rng.standard_normal(W.size) + 1j * rng.standard_normal(W.size))
         noise_m = np.sqrt(v_man / 2) * (rng.standard_normal(W.size) + 1j * rng.standard_normal(W.size))
         trim = _trim_response(p * (1 + noise_t), n_avg, coherence)
-        calls += feedback_evidence(trim, p * (1 + noise_m), v_man * np.abs(p) ** 2, np.ones(W.size, bool)).detected
+        calls += feedback_evidence(
+            trim, p * (1 + noise_m), v_man * np.abs(p) ** 2, np.ones(W.size, bool)
+        ).detected
     assert calls / draws <= FEEDBACK_FALSE_ALARM + 3 * np.sqrt(FEEDBACK_FALSE_ALARM / draws)
 
 
@@ -134,7 +144,8 @@ def test_a_loop_answering_turbulence_is_found_and_a_rate_limit_is_not_a_loop():
 
 def test_without_a_manoeuvre_response_the_model_is_the_reference_scaled_where_the_manoeuvres_measured():
     p = 8.0 / (1.0 + 1j * W / 5.0)
-    trim = _trim_response(-p * 1.05)                         # open loop, the airframe -P: the model's sign is wrong
+    # open loop, the airframe -P: the model's sign is wrong
+    trim = _trim_response(-p * 1.05)
     measured = np.where(W > 20, -p, np.nan)                  # the manoeuvres measured only above 20 rad/s
     variance = np.where(W > 20, (0.02 * np.abs(p)) ** 2, np.inf)
     assert not feedback_evidence(trim, measured, variance, W > 20, model=p).detected
@@ -158,9 +169,9 @@ def test_a_manoeuvre_20_db_above_the_trim_motion_is_not_biased():
 
 
 def _airframe_trim(rng, n, loop_gain=0.0, pilot=0.003, gust=0.02, noise=0.002):
-    """Trim at 100 Hz: a roll-rate airframe 50 / (s + 10) (discretised), a pilot's slow corrections (white noise
-    through 1 s knots, as the second simulator's), gusts at the surface, sensor noise on both logged signals; with
-    ``loop_gain`` a damper u = -K y_measured one step late adds to the pilot's input."""
+    """Trim at 100 Hz: a roll-rate airframe 50 / (s + 10) (discretised), a pilot's slow corrections (white
+    noise through 1 s knots, as the second simulator's), gusts at the surface, sensor noise on both logged
+    signals; with ``loop_gain`` a damper u = -K y_measured one step late adds to the pilot's input."""
     knots = rng.standard_normal(n // 100 + 2)
     command = pilot * np.interp(np.arange(n) / 100, np.arange(knots.size), knots)
     b, a = signal.butter(1, 2.0 / (np.pi * 100))
@@ -178,9 +189,9 @@ def _airframe_trim(rng, n, loop_gain=0.0, pilot=0.003, gust=0.02, noise=0.002):
 
 
 def test_the_lead_test_is_the_nested_least_squares_f_test_and_regresses_each_sample_once():
-    """One segment: the share and F equal two least-squares fits of the surface on the lags (numpy's lstsq on the
-    detrended data, built here independently). A long stretch fed through the half-overlapping spectra: every sample
-    after the first lags regressed once."""
+    """One segment: the share and F equal two least-squares fits of the surface on the lags (numpy's lstsq on
+    the detrended data, built here independently). A long stretch fed through the half-overlapping spectra:
+    every sample after the first lags regressed once."""
     rng = np.random.default_rng(11)
     x = _airframe_trim(rng, 3500, loop_gain=0.05)      # 35 s: more than LEAD_MIN_S
     lead = LeadTest(DT, 0, 1)
@@ -189,7 +200,8 @@ def test_the_lead_test_is_the_nested_least_squares_f_test_and_regresses_each_sam
     detrended -= np.outer(detrended @ t / (t @ t), t)
     lead.add(detrended)
     p, step = lead.lags, lead.step
-    assert (p, step) == (12, 2)                        # 0.25 s at 100 Hz in at most 16 lags: 1, 3, 5, ... 23 steps
+    # 0.25 s at 100 Hz in at most 16 lags: 1, 3, 5, ... 23 steps
+    assert (p, step) == (12, 2)
     rows = np.arange(1 + (p - 1) * step, x.shape[1])
     own = np.stack([detrended[0, rows - 1 - j * step] for j in range(p)], axis=1)
     rate = np.stack([detrended[1, rows - 1 - j * step] for j in range(p)], axis=1)
@@ -208,9 +220,9 @@ def test_the_lead_test_is_the_nested_least_squares_f_test_and_regresses_each_sam
 
 
 def test_a_pilots_corrections_do_not_lead_and_a_damper_does():
-    """Open loop the rate's past adds nothing once the surface's own past is known: over 100 seeded minutes of a
-    pilot's corrections with gusts, the share stays below LEAD_SHARE and rate_leads never fires; a damper answering
-    the same gusts leads, whatever the pilot does beside it."""
+    """Open loop the rate's past adds nothing once the surface's own past is known: over 100 seeded minutes of
+    a pilot's corrections with gusts, the share stays below LEAD_SHARE and rate_leads never fires; a damper
+    answering the same gusts leads, whatever the pilot does beside it."""
     rng = np.random.default_rng(12)
     shares = []
     for _ in range(100):
@@ -247,7 +259,9 @@ def test_random_trim_motion_makes_no_manoeuvre():
     det.start_run(0)
     edges = det.process(0, u) + det.end_run(u.size)
     assert not [e for e in edges if e[1]]
-    chirp = u + np.where((t > 600) & (t < 625), 0.012 * np.sin(2 * np.pi * (0.5 + 0.1 * (t - 600)) * (t - 600)), 0)
+    chirp = u + np.where(
+        (t > 600) & (t < 625), 0.012 * np.sin(2 * np.pi * (0.5 + 0.1 * (t - 600)) * (t - 600)), 0
+    )
     det = SweepDetector(1 / DT)
     det.start_run(0)
     edges = det.process(0, chirp) + det.end_run(u.size)
@@ -256,9 +270,9 @@ def test_random_trim_motion_makes_no_manoeuvre():
 
 
 def test_an_error_wider_than_the_coherence_allows_is_not_called_random():
-    """Issue 22: a channel whose response is the model's with the opposite sign, at coherence 0.98 on 60 degrees of
-    freedom, cannot be "explained by the random error"; where a bias allowance widened its errors (a feedback or
-    coupling warning), the band says so instead."""
+    """Issue 22: a channel whose response is the model's with the opposite sign, at coherence 0.98 on 60
+    degrees of freedom, cannot be "explained by the random error"; where a bias allowance widened its errors
+    (a feedback or coupling warning), the band says so instead."""
     from types import SimpleNamespace
 
     from gap_validation.core.closed_loop import BIAS_ALLOWANCE
@@ -272,10 +286,19 @@ def test_an_error_wider_than_the_coherence_allows_is_not_called_random():
     honest = bendat_piersol_random_error(coherence, dof)
 
     def estimate(error):
-        return SimpleNamespace(w_rad_s=W, response=measured, coherence=coherence, n_averages=dof, random_error=error,
-                               coefficients=3, variance=2 * (error * np.abs(measured)) ** 2)
+        return SimpleNamespace(
+            w_rad_s=W,
+            response=measured,
+            coherence=coherence,
+            n_averages=dof,
+            random_error=error,
+            coefficients=3,
+            variance=2 * (error * np.abs(measured)) ** 2,
+        )
 
     assert analyse_channel(model, estimate(honest), [], 0.6, fit=False).limited_by == "model"
     allowed = analyse_channel(model, estimate(np.full(W.size, BIAS_ALLOWANCE)), [], 0.6, fit=False)
     assert allowed.limited_by == "data"
-    assert all("bias allowance" in b.reason and "random error explains" not in b.reason for b in allowed.bands)
+    assert all(
+        "bias allowance" in b.reason and "random error explains" not in b.reason for b in allowed.bands
+    )

@@ -34,7 +34,9 @@ def assert_same(a, b, path="root"):
         for i, (x, y) in enumerate(zip(a, b)):
             assert_same(x, y, f"{path}[{i}]")
     elif isinstance(a, float):
-        assert (math.isnan(a) and math.isnan(b)) or a == b and math.copysign(1, a) == math.copysign(1, b), path
+        assert (math.isnan(a) and math.isnan(b)) or a == b and math.copysign(1, a) == math.copysign(1, b), (
+            path
+        )
     elif isinstance(a, complex):
         assert_same(a.real, b.real, path)
         assert_same(a.imag, b.imag, path)
@@ -176,7 +178,8 @@ def test_unwritable_directory_is_one_line_error(tmp_path):
         save_state({"a": 1}, tmp_path / "no_such_dir" / "state.npz")
 
 
-# ---------------------------------------------------------------- property: any state tree round-trips exactly
+# ---------------------------------------------------------------- property: any state tree round-trips
+# exactly
 _keys = st.one_of(st.text(max_size=8), st.integers(-5, 5))
 _floats = st.floats(allow_nan=True, allow_infinity=True)
 _arrays = hnp.arrays(

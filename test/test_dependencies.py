@@ -126,14 +126,16 @@ def test_importing_the_node_imports_no_rosbags():
     assert done.stdout.split() == ["False", "True"]
 
 
-#: The node module holds only rclpy wiring (issue 18): what needs no node lives in its own module.
-NODE_MAX_LINES = 600
+#: The node module holds only rclpy wiring (issue 18): what needs no node lives in its own module. Counted in
+#: statements, which no reformatting changes (600 lines before the formatter; 352 statements at issue 27).
+NODE_MAX_STATEMENTS = 380
 
 
 def test_the_node_module_stays_thin():
-    """node.py at most NODE_MAX_LINES lines; its topics and files are components (ros.topics, ros.jobs)."""
-    lines = len((PACKAGE / "ros" / "node.py").read_text().splitlines())
-    assert lines <= NODE_MAX_LINES, (
-        f"gap_validation/ros/node.py has {lines} lines (at most {NODE_MAX_LINES}): "
+    """node.py at most NODE_MAX_STATEMENTS statements; its topics and files are components (ros.topics, ros.jobs)."""
+    tree = ast.parse((PACKAGE / "ros" / "node.py").read_text())
+    statements = sum(isinstance(node, ast.stmt) for node in ast.walk(tree))
+    assert statements <= NODE_MAX_STATEMENTS, (
+        f"gap_validation/ros/node.py has {statements} statements (at most {NODE_MAX_STATEMENTS}): "
         "move what is not rclpy wiring of the node into its own module"
     )

@@ -1,18 +1,18 @@
-"""The node's diagnosis worker (gap_validation.ros.diagnosis_worker) keeps the last run's analyses: a channel whose
-estimates did not change is not fitted again (issue 26: work only when new data changes a result), and what it
-gives equals a diagnosis from scratch."""
+"""The node's diagnosis worker (gap_validation.ros.diagnosis_worker) keeps the last run's analyses: a channel
+whose estimates did not change is not fitted again (issue 26: work only when new data changes a result), and
+what it gives equals a diagnosis from scratch."""
 from __future__ import annotations
 
 import json
 
 import pytest
-
 from _flights import TINY, ultrastick
+
 from gap_validation.bag.replay import replay
 from gap_validation.bag.writer import write_flight
+from gap_validation.cli.arguments import hidden_effects
 from gap_validation.core import diagnosis
 from gap_validation.core.simulation import simulate_flight
-from gap_validation.cli.arguments import hidden_effects
 from gap_validation.ros.diagnosis_worker import DiagnosisWorker, _diagnose_snapshot
 
 
@@ -20,8 +20,14 @@ from gap_validation.ros.diagnosis_worker import DiagnosisWorker, _diagnose_snaps
 def states(tmp_path_factory):
     """Validator states of two flights (a lag and a delay hidden on every axis, seeds 1 and 2)."""
     config = ultrastick()
-    hidden = hidden_effects([f"{c}:{e}" for c in config.channels
-                             for e in ("first_order_lag:bandwidth_rad_s=20", "time_delay:seconds=0.04")], config)
+    hidden = hidden_effects(
+        [
+            f"{c}:{e}"
+            for c in config.channels
+            for e in ("first_order_lag:bandwidth_rad_s=20", "time_delay:seconds=0.04")
+        ],
+        config,
+    )
     out = []
     for seed in (1, 2):
         path = tmp_path_factory.mktemp("flights") / f"f{seed}"
@@ -34,7 +40,9 @@ def _json(result):
     return json.dumps(result.to_json_dict(), sort_keys=True, default=str)
 
 
-def test_only_the_channel_with_new_estimates_is_fitted_again_and_the_result_is_as_from_scratch(states, monkeypatch):
+def test_only_the_channel_with_new_estimates_is_fitted_again_and_the_result_is_as_from_scratch(
+    states, monkeypatch
+):
     config, (first, second) = states
     calls = []
     real = diagnosis.analyse_channel
@@ -57,8 +65,8 @@ def test_only_the_channel_with_new_estimates_is_fitted_again_and_the_result_is_a
 
 
 def test_the_worker_hands_the_analyses_on_within_a_generation_only(states, monkeypatch):
-    """Through the node's scheduling: the second diagnosis of a generation reuses the first one's analyses; a new
-    generation (a model reload) or a reset (``forget``) starts from scratch."""
+    """Through the node's scheduling: the second diagnosis of a generation reuses the first one's analyses; a
+    new generation (a model reload) or a reset (``forget``) starts from scratch."""
     import dataclasses
 
     from gap_validation.core.validator import OnlineValidator
@@ -70,16 +78,25 @@ def test_the_worker_hands_the_analyses_on_within_a_generation_only(states, monke
             return first
 
     cheap = OnlineValidator.from_state(config, first).results(diagnose=False)
-    moved = dataclasses.replace(cheap, channels=dict(
-        cheap.channels, roll=dataclasses.replace(cheap.channels["roll"], epsilon=cheap.channels["roll"].epsilon + 1)))
+    moved = dataclasses.replace(
+        cheap,
+        channels=dict(
+            cheap.channels,
+            roll=dataclasses.replace(cheap.channels["roll"], epsilon=cheap.channels["roll"].epsilon + 1),
+        ),
+    )
     calls = []
     real = diagnosis.analyse_channel
     monkeypatch.setattr(diagnosis, "analyse_channel", lambda *a, **k: calls.append(1) or real(*a, **k))
     worker = DiagnosisWorker()
     n = len(config.channels)
     try:
-        for results, generation, forget, fitted in ((cheap, 0, False, n), (moved, 0, False, 0), (cheap, 1, False, n),
-                                                    (moved, 1, True, n)):
+        for results, generation, forget, fitted in (
+            (cheap, 0, False, n),
+            (moved, 0, False, 0),
+            (cheap, 1, False, n),
+            (moved, 1, True, n),
+        ):
             calls.clear()
             if forget:
                 worker.forget()
@@ -92,8 +109,9 @@ def test_the_worker_hands_the_analyses_on_within_a_generation_only(states, monke
 
 
 def test_a_paced_diagnosis_keeps_to_its_share_of_a_core_and_gives_the_same_result(states):
-    """``diagnosis_cpu_share``: the worker sleeps between candidate fits so that its thread's CPU stays within the
-    share of the wall time; the result is the same as unpaced. A closed worker's diagnosis stops at its next pause."""
+    """``diagnosis_cpu_share``: the worker sleeps between candidate fits so that its thread's CPU stays within
+    the share of the wall time; the result is the same as unpaced. A closed worker's diagnosis stops at its
+    next pause."""
     import threading
     import time
 
@@ -106,8 +124,9 @@ def test_a_paced_diagnosis_keeps_to_its_share_of_a_core_and_gives_the_same_resul
     _, slow, _ = _diagnose_snapshot(config, first, 0, {}, pace)
     wall, cpu = time.perf_counter() - start, time.thread_time() - cpu0
     assert _json(slow) == _json(fast)
-    # kept to its share (thread CPU: a loaded machine's waits count as rest, not work), up to the work after the
-    # last pause (the results' assembly): at 0.25 the wall time is 4 x the CPU, at least 3 x here; unpaced, 1 x
+    # kept to its share (thread CPU: a loaded machine's waits count as rest, not work), up to the work after
+    # the last pause (the results' assembly): at 0.25 the wall time is 4 x the CPU, at least 3 x here;
+    # unpaced, 1 x
     assert wall >= 3.0 * cpu and pace.slept_s > 0.0
     stop = threading.Event()
     stop.set()

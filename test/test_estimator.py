@@ -2,18 +2,34 @@
 checkpoints, bad data.
 
 The known system is the paper's pitch-rate model with a 20 ms delay (``_pitch_flights``); the local polynomial
-estimate itself is tested in ``test_spectra.py``, the splitting into manoeuvres in ``test_records.py``, the time
-alignment (time bases, jumps back, stray stamps) in ``test_alignment.py``.
+estimate itself is tested in ``test_spectra.py``, the splitting into manoeuvres in ``test_records.py``, the
+time alignment (time bases, jumps back, stray stamps) in ``test_alignment.py``.
 """
 import copy
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from _pitch_flights import (
+    FINE_HZ,
+    PITCH_DEN,
+    PITCH_NUM,
+    SWEEPS,
+    W_RAD_S,
+    _chunks,
+    _feed,
+    _nbytes,
+    estimate,
+    flight,
+    fraction_within,
+    log_sweep,
+    measure,
+    simulate,
+    true_response,
+)
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy import signal
 
-from _pitch_flights import (FINE_HZ, PITCH_DEN, PITCH_NUM, SWEEPS, W_RAD_S, _chunks, _feed, _nbytes, doublet,
-                            estimate, flight, fraction_within, log_sweep, measure, simulate, true_response)
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.estimator import RETIRED_OPTIONS, FrequencyResponseEstimator, SpectralEstimate
 from gap_validation.core.simulation import multisine, multistep
@@ -49,9 +65,9 @@ def test_batching_does_not_change_the_estimate(in_steps_s, out_steps_s):
     assert got.n_sweeps == ref.n_sweeps == 1
     for name in ("gxx", "gyy", "gxy"):
         np.testing.assert_allclose(getattr(got.averaged(), name), getattr(ref.averaged(), name), rtol=1e-9)
-    # the trim between the manoeuvres too (its floors, the feedback tests): the samples after a record's end that
-    # came in blocks before the one that closed it are trim whatever the blocks were (node and replay batch
-    # differently)
+    # the trim between the manoeuvres too (its floors, the feedback tests): the samples after a record's end
+    # that came in blocks before the one that closed it are trim whatever the blocks were (node and replay
+    # batch differently)
     assert got._trim.samples == ref._trim.samples and got._trim.lead.rows == ref._trim.lead.rows
     np.testing.assert_allclose(got._trim.sums, ref._trim.sums, rtol=1e-9, atol=1e-15)
     np.testing.assert_allclose(got._trim.lead.gram, ref._trim.lead.gram, rtol=1e-9, atol=1e-15)
@@ -101,7 +117,8 @@ def test_sweeps_counted_and_dated_between_doublets_and_trim(nominal):
     for (start, end), (t0, length) in zip(spans, SWEEPS):      # dated by the sweep itself (tapered ends)
         assert t0 - 0.5 <= start <= t0 + 1.0
         assert t0 + length - 1.0 <= end <= t0 + length + 0.5
-    # the doublets count for the pooled estimate (not sweeps); the trim step and the trim ramp count for nothing
+    # the doublets count for the pooled estimate (not sweeps); the trim step and the trim ramp count for
+    # nothing
     assert est.counted_kinds == {"chirp": 3, "doublet": 2}
     assert est.n_sweeps == 3 and est.n_manoeuvres == 5 and est.excitation == "chirp"
     avg = est.averaged()
@@ -309,7 +326,8 @@ def test_odd_calls_never_crash():
 
 def test_whole_arrays_with_a_stray_timestamp_are_fed_in_few_chunks(monkeypatch):
     """Regression: add_time_histories made one chunk per chunk_s over the whole time span, so one zero stamp
-    among epoch times (span 1.7e9 s) meant 1.7e8 chunks: gigabytes and minutes. Chunks now follow the samples."""
+    among epoch times (span 1.7e9 s) meant 1.7e8 chunks: gigabytes and minutes. Chunks now follow the
+    samples."""
     t = 1.0e6 + np.arange(0.0, 1.0, 0.01)
     t_in = t.copy()
     t_in[0] = 0.0                                             # unset header stamp
@@ -331,9 +349,19 @@ def test_unknown_option_is_a_config_error_naming_it():
         FrequencyResponseEstimator(W_RAD_S, window_cylces=5)
 
 
-@pytest.mark.parametrize("key, value", [("sample_rate_hz", 15.0), ("max_raw_sweeps", 0), ("band_fraction", -1.0),
-                                        ("min_bins", 3), ("order", 7), ("cubic_interpolation", "yes"),
-                                        ("max_record_s", 5.0), ("on_ratio", 1.0)])
+@pytest.mark.parametrize(
+    "key, value",
+    [
+        ("sample_rate_hz", 15.0),
+        ("max_raw_sweeps", 0),
+        ("band_fraction", -1.0),
+        ("min_bins", 3),
+        ("order", 7),
+        ("cubic_interpolation", "yes"),
+        ("max_record_s", 5.0),
+        ("on_ratio", 1.0),
+    ],
+)
 def test_bad_option_values_name_the_key(key, value):
     with pytest.raises(ConfigError, match=key if key != "on_ratio" else "off_ratio"):
         FrequencyResponseEstimator(W_RAD_S, **{key: value})
@@ -352,7 +380,8 @@ def test_options_listed_for_the_config():
 
 # ---------------------------------------------------------------------------------------------- formulas
 def test_random_error_is_half_the_complex_variance_per_component():
-    # each component of the complex error has variance var / 2: the relative error of |H| is sqrt(var / 2) / |H|
+    # each component of the complex error has variance var / 2: the relative error of |H| is sqrt(var / 2) /
+    # |H|
     rows = np.array([[0.6, 0.6], [0.8, 0.8], [0.02, np.inf], [12, 0], [0.9, 0.0], [1.0, 1.0], [1.0, 1.0]])
     est = SpectralEstimate.from_rows([1.0, 2.0], rows, 0.0, 10.0, "chirp", 0.1, 3)
     assert est.response[0] == pytest.approx(0.6 + 0.8j)
@@ -400,11 +429,20 @@ def test_above_the_end_of_a_sweep_nothing_is_estimated():
     assert avg.reasons["not_excited"][W_RAD_S > 55.0].sum() >= 1
 
 
-@pytest.mark.parametrize("name, u", [
-    ("multisine", lambda t: 0.04 * multisine(t - 5.0, 20.0, 4, 1.0, 55.0)),
-    ("multistep", lambda t: sum(0.05 * multistep(t - s, 0.4, (3, 2, 1, 1), 0.04) for s in (5.0, 20.0, 35.0, 50.0))),
-    ("doublet", lambda t: sum(0.05 * multistep(t - s, 0.3, (1, 1), 0.04) for s in np.arange(5.0, 65.0, 6.0))),
-])
+@pytest.mark.parametrize(
+    "name, u",
+    [
+        ("multisine", lambda t: 0.04 * multisine(t - 5.0, 20.0, 4, 1.0, 55.0)),
+        (
+            "multistep",
+            lambda t: sum(0.05 * multistep(t - s, 0.4, (3, 2, 1, 1), 0.04) for s in (5.0, 20.0, 35.0, 50.0)),
+        ),
+        (
+            "doublet",
+            lambda t: sum(0.05 * multistep(t - s, 0.3, (1, 1), 0.04) for s in np.arange(5.0, 65.0, 6.0)),
+        ),
+    ],
+)
 def test_any_manoeuvre_gives_a_response_within_its_error_bounds(name, u):
     t = np.arange(0.0, 100.0, 0.01)
     est = estimate(*_grid_flight(u(t)))
@@ -422,13 +460,16 @@ def test_any_manoeuvre_gives_a_response_within_its_error_bounds(name, u):
 def _slow_sweeps(f1_hz):
     """Three log sweeps 0.1 Hz to ``f1_hz`` (the pitch flight's timing), noise-free at 1 kHz."""
     t = np.arange(0.0, 330.0, 1.0 / FINE_HZ)
-    u = np.full(t.size, -0.02) + sum(log_sweep(t - start, 0.1, f1_hz, length, 0.05) for start, length in SWEEPS)
+    u = np.full(t.size, -0.02) + sum(
+        log_sweep(t - start, 0.1, f1_hz, length, 0.05) for start, length in SWEEPS
+    )
     return t, u, simulate(u)
 
 
 def test_a_slow_stream_limits_the_band():
-    """Surfaces at 10 Hz, the rate at 200 Hz: the surfaces are read up to their Nyquist frequency (31.4 rad/s; the
-    rate shows what their sampling folds back), every band below it (test_slow_streams.py has the accuracy)."""
+    """Surfaces at 10 Hz, the rate at 200 Hz: the surfaces are read up to their Nyquist frequency (31.4 rad/s;
+    the rate shows what their sampling folds back), every band below it (test_slow_streams.py has the
+    accuracy)."""
     t, u, y = _slow_sweeps(4.6)                                       # up to 0.46 of the surfaces' rate
     ti, ui, to, yo = measure(t, u, y, 10.0, 200.0, seed=2, noise_out=0.02)   # surfaces at 10 Hz
     est = estimate(ti, ui, to, yo)
@@ -436,15 +477,16 @@ def test_a_slow_stream_limits_the_band():
     avg = est.averaged()
     assert not np.any(avg.excited[W_RAD_S > 10 * np.pi / 1.1])        # a band of +-10 % below 31.4 rad/s
     assert np.all(avg.excited[(W_RAD_S > 2.0) & (W_RAD_S < 25.0)])
-    # the same flight with the rate at 20 Hz: nothing shows what the surfaces fold back: a quarter of their rate
+    # the same flight with the rate at 20 Hz: nothing shows what the surfaces fold back: a quarter of their
+    # rate
     slow = estimate(*measure(t, u, y, 10.0, 20.0, seed=2))
     assert slow.resolved_rad_s == pytest.approx(2 * np.pi * 2.5, rel=0.01)
 
 
 def test_a_sweep_past_the_slow_streams_nyquist_frequency_is_not_used_where_it_folds_back():
-    """Sweeps to 12 Hz logged at 10 Hz: their power above 5 Hz folds onto 0-5 Hz unseen (aliasing); the rate, logged
-    at 200 Hz, shows it past the Nyquist frequency (the sweep goes on there), and the frequencies it would corrupt
-    are not estimated."""
+    """Sweeps to 12 Hz logged at 10 Hz: their power above 5 Hz folds onto 0-5 Hz unseen (aliasing); the rate,
+    logged at 200 Hz, shows it past the Nyquist frequency (the sweep goes on there), and the frequencies it
+    would corrupt are not estimated."""
     t, u, y = _slow_sweeps(12.0)
     est = estimate(*measure(t, u, y, 10.0, 200.0, seed=2))
     avg = est.averaged()
@@ -466,8 +508,8 @@ def test_a_full_record_buffer_keeps_the_manoeuvre_in_progress():
 
 # ------------------------------------------------------------------------------------- the flight condition
 def _off_condition_flight(speed_ratio, seed=11, trim=-0.02):
-    """Three sweeps flown with the airspeed ``speed_ratio(t)`` times the model's: the control power, and so the
-    response to the surface's deviation from its trim (``trim`` rad), scales with the dynamic pressure
+    """Three sweeps flown with the airspeed ``speed_ratio(t)`` times the model's: the control power, and so
+    the response to the surface's deviation from its trim (``trim`` rad), scales with the dynamic pressure
     ``speed_ratio^2``. The airspeed is logged at 20 Hz with 0.1 m/s of noise about a 30 m/s trim."""
     t = np.arange(0.0, 300.0, 1.0 / FINE_HZ)
     u = np.full(t.size, trim)
@@ -477,8 +519,11 @@ def _off_condition_flight(speed_ratio, seed=11, trim=-0.02):
     ti, ui, to, yo = measure(t, u, simulate(trim + (u - trim) * q), 50.0, 200.0, seed=seed, noise_out=0.05)
     rng = np.random.default_rng(seed + 1)
     ta = np.arange(0.0, 300.0, 0.05)
-    return {"input": (ti, ui), "output": (to, yo), "airspeed": (ta, 30.0 * speed_ratio(ta) + rng.normal(0, 0.1,
-                                                                                                        ta.size))}
+    return {
+        "input": (ti, ui),
+        "output": (to, yo),
+        "airspeed": (ta, 30.0 * speed_ratio(ta) + rng.normal(0, 0.1, ta.size)),
+    }
 
 
 @pytest.mark.parametrize("constant, speed_ratio, trim", [
@@ -487,11 +532,12 @@ def _off_condition_flight(speed_ratio, seed=11, trim=-0.02):
     (False, lambda t: 1.0 + 0.15 * np.sin(2 * np.pi * t / 5.0), -0.1)],
     ids=["20 % fast throughout", "+-15 % slowly", "+-15 % at 1.3 rad/s, 0.1 rad of trim"])
 def test_an_airspeed_stream_brings_the_response_to_the_model_condition(constant, speed_ratio, trim):
-    """Principle: control power scales with the dynamic pressure, so the surface scaled by (V / V_trim)^2 is the
-    input the model at V_trim sees. Flown 20 % fast the plain estimate is 1.44 times the model's response (far
-    outside its error); with the airspeed logged the flights agree with the model within their errors. Only the
-    deviation from trim is scaled (at trim the surface's moment balances the rest, all scaling together): scaling
-    the whole deflection would add 0.1 rad of trim times the gusts' 15 % at 1.3 rad/s as a false input."""
+    """Principle: control power scales with the dynamic pressure, so the surface scaled by (V / V_trim)^2 is
+    the input the model at V_trim sees. Flown 20 % fast the plain estimate is 1.44 times the model's response
+    (far outside its error); with the airspeed logged the flights agree with the model within their errors.
+    Only the deviation from trim is scaled (at trim the surface's moment balances the rest, all scaling
+    together): scaling the whole deflection would add 0.1 rad of trim times the gusts' 15 % at 1.3 rad/s as a
+    false input."""
     streams = _off_condition_flight(speed_ratio, trim=trim)
     plain = FrequencyResponseEstimator(W_RAD_S)
     plain.add_histories({k: v for k, v in streams.items() if k != "airspeed"})
@@ -540,9 +586,9 @@ def test_a_bad_trim_airspeed_is_a_config_error():
 
 
 def test_manoeuvres_flown_count_a_triggered_sweep_that_gives_nothing_and_not_detected_wander():
-    """``flown_kinds``: a manoeuvre the trigger marks is flown whatever it gives (here saturated: pinned at its
-    limits, no response); without a trigger only what gave a response counts (a detected stretch that gives
-    nothing cannot be told from trim wander)."""
+    """``flown_kinds``: a manoeuvre the trigger marks is flown whatever it gives (here saturated: pinned at
+    its limits, no response); without a trigger only what gave a response counts (a detected stretch that
+    gives nothing cannot be told from trim wander)."""
     t, u, y = flight()
     trim = -0.02
     clipped = np.clip(u, trim - 0.02, trim + 0.02)                       # the 0.05 rad sweeps pinned at 0.02

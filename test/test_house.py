@@ -1,8 +1,8 @@
 """The house's two structural rules (issue 27), checked on the source:
 
-- **No private name crosses a module boundary.** A module neither imports another's ``_name`` nor reads or calls
-  ``something._name`` unless ``_name`` is defined in that same module (a function, class, attribute or variable
-  it assigns): what one module needs of another is public, with a docstring. namedtuple's own API
+- **No private name crosses a module boundary.** A module neither imports another's ``_name`` nor reads or
+  calls ``something._name`` unless ``_name`` is defined in that same module (a function, class, attribute or
+  variable it assigns): what one module needs of another is public, with a docstring. namedtuple's own API
   (``_replace``, ``_asdict``, ``_fields``, ``_make``) is public despite its underscore.
 - **No import cycle** among the package's modules, counting imports inside functions and under
   ``TYPE_CHECKING`` (a cycle hidden in a function is still a cycle: the two modules cannot be read apart).
@@ -26,8 +26,8 @@ def _private(name: str) -> bool:
 
 
 def private_crossings(source: str, where: str) -> list[str]:
-    """Every private name one module takes from another: ``from m import _x`` and ``obj._x`` where ``_x`` is not
-    defined in the module itself."""
+    """Every private name one module takes from another: ``from m import _x`` and ``obj._x`` where ``_x`` is
+    not defined in the module itself."""
     tree = ast.parse(source)
     own = set()
     for node in ast.walk(tree):
@@ -56,7 +56,8 @@ def _module_name(path: Path) -> str:
 
 
 def import_graph(files: dict[str, str]) -> dict[str, set[str]]:
-    """Module -> the package's modules it imports anywhere in its source (``files``: module name -> source)."""
+    """Module -> the package's modules it imports anywhere in its source (``files``: module name ->
+    source)."""
     graph: dict[str, set[str]] = {}
     for module, source in files.items():
         package = module if module + ".__init__" in files else module.rsplit(".", 1)[0]
@@ -156,12 +157,15 @@ def test_the_cycle_check_finds_a_planted_cycle_inside_a_function():
     assert cycles(import_graph(files)) == [["p.a", "p.b", "p.c"]]
 
 
-PACKAGES = ["gap_validation"] + sorted(f"gap_validation.{p.parent.name}" for p in PACKAGE.glob("*/__init__.py"))
+PACKAGES = ["gap_validation"] + sorted(
+    f"gap_validation.{p.parent.name}" for p in PACKAGE.glob("*/__init__.py")
+)
 
 
 def test_every_package_names_its_public_face_and_imports_it_only_when_used():
-    """``__all__`` in each ``__init__``: every name resolves to what its module defines, and importing the package
-    alone imports none of its modules (so ``gap_validation.ros`` stays free of rclpy until the node is used)."""
+    """``__all__`` in each ``__init__``: every name resolves to what its module defines, and importing the
+    package alone imports none of its modules (so ``gap_validation.ros`` stays free of rclpy until the node is
+    used)."""
     import importlib
     import subprocess
     import sys
@@ -172,12 +176,15 @@ def test_every_package_names_its_public_face_and_imports_it_only_when_used():
         for public in package.__all__:
             assert getattr(package, public) is not None, f"{name}.{public}"
         assert set(package.__all__) <= set(dir(package)), name
-    code = ("import sys, importlib\n"
-            f"for name in {PACKAGES!r}:\n"
-            "    before = set(sys.modules)\n"
-            "    importlib.import_module(name)\n"
-            "    new = {m for m in set(sys.modules) - before if m.startswith('gap_validation.')}\n"
-            "    print(name, sorted(new - {name, 'gap_validation', 'gap_validation.core', 'gap_validation.core.exports'}))\n")
+    code = (
+        "import sys, importlib\n"
+        f"for name in {PACKAGES!r}:\n"
+        "    before = set(sys.modules)\n"
+        "    importlib.import_module(name)\n"
+        "    new = {m for m in set(sys.modules) - before if m.startswith('gap_validation.')}\n"
+        "    print(name, sorted(new - "
+        "{name, 'gap_validation', 'gap_validation.core', 'gap_validation.core.exports'}))\n"
+    )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert done.returncode == 0, done.stderr
     assert all(line.endswith(" []") for line in done.stdout.splitlines()), done.stdout

@@ -7,8 +7,15 @@ import random
 
 import pytest
 
-from gap_validation.ros.intake import (BEST_EFFORT, RELIABLE, Intake, choose_reliability, message_key,
-                                       publisher_note, take_all)
+from gap_validation.ros.intake import (
+    BEST_EFFORT,
+    RELIABLE,
+    Intake,
+    choose_reliability,
+    message_key,
+    publisher_note,
+    take_all,
+)
 
 
 class _Handle:
@@ -36,8 +43,16 @@ class FakeSubscription:
         self.matched = matched
 
     def deliver(self, seq: int) -> None:
-        self.queue.append((f"m{seq}".encode(), {"source_timestamp": 1_000 + seq, "publication_sequence_number": seq,
-                                                 "received_timestamp": 2_000 + seq}))
+        self.queue.append(
+            (
+                f"m{seq}".encode(),
+                {
+                    "source_timestamp": 1_000 + seq,
+                    "publication_sequence_number": seq,
+                    "received_timestamp": 2_000 + seq,
+                },
+            )
+        )
 
     def get_publisher_count(self) -> int:
         return self.matched
@@ -60,7 +75,9 @@ def test_publisher_note_names_the_topic_the_offer_and_the_setting():
                           [("sensor_msgs/msg/Imu", RELIABLE), ("sensor_msgs/msg/Imu", BEST_EFFORT)]) is None
     typed = publisher_note("/imu", "auto", BEST_EFFORT, "sensor_msgs/msg/Imu", "config",
                            [("std_msgs/msg/Float64", RELIABLE)])
-    assert typed.startswith("publisher on /imu offers std_msgs/msg/Float64; the config says sensor_msgs/msg/Imu")
+    assert typed.startswith(
+        "publisher on /imu offers std_msgs/msg/Float64; the config says sensor_msgs/msg/Imu"
+    )
     assert "\n" not in note + typed
 
 
@@ -74,8 +91,8 @@ def test_take_all_takes_what_waits_up_to_the_limit():
 
 
 def _run_change(rng, intake: Intake, old: FakeSubscription, new: FakeSubscription, settle) -> list:
-    """Messages arriving (to the subscriptions matched so far) while ``intake`` changes from ``old`` to ``new``,
-    drained at random moments; ``settle()`` is called after a while. Returns every message taken."""
+    """Messages arriving (to the subscriptions matched so far) while ``intake`` changes from ``old`` to
+    ``new``, drained at random moments; ``settle()`` is called after a while. Returns every message taken."""
     taken, seq, now = [], [0], 0.0
 
     def arrive(subs, n):
@@ -106,25 +123,28 @@ def _run_change(rng, intake: Intake, old: FakeSubscription, new: FakeSubscriptio
         assert now < 1000
     arrive([new], rng.randint(0, 20))
     taken += intake.drain(1000)
-    assert [info["publication_sequence_number"] for _, info in taken] == list(range(seq[0]))  # each once, in order
+    # each once, in order
+    assert [info["publication_sequence_number"] for _, info in taken] == list(range(seq[0]))
     return taken
 
 
 @pytest.mark.parametrize("seed", range(20))
 def test_a_reliability_change_neither_loses_nor_repeats_a_message(seed):
-    """The old subscription is drained with the new one until the new one has matched; a message both deliver is
-    taken once; none is lost, whatever the interleaving of arrivals and drains."""
+    """The old subscription is drained with the new one until the new one has matched; a message both deliver
+    is taken once; none is lost, whatever the interleaving of arrivals and drains."""
     old, new = FakeSubscription(matched=1), FakeSubscription(matched=0)
     intake = Intake("/imu", "sensor_msgs/msg/Imu", "fields", {BEST_EFFORT: old}, BEST_EFFORT)
     _run_change(random.Random(seed), intake, old, new,
                 lambda: intake.settle(RELIABLE, publishers=1, deadline=100.0, subscription=new))
-    assert intake.current is new and intake.subscriptions == {RELIABLE: new} and intake.reliability == RELIABLE
+    assert (
+        intake.current is new and intake.subscriptions == {RELIABLE: new} and intake.reliability == RELIABLE
+    )
 
 
 @pytest.mark.parametrize("seed", range(10))
 def test_before_the_publishers_are_known_both_subscriptions_are_drained_once(seed):
-    """Unknown publishers: a best-effort and a reliable subscription from the start; the reliable one (here the
-    late matcher) is kept once the publishers are known reliable; every message once."""
+    """Unknown publishers: a best-effort and a reliable subscription from the start; the reliable one (here
+    the late matcher) is kept once the publishers are known reliable; every message once."""
     best, reliable = FakeSubscription(matched=1), FakeSubscription(matched=0)
     intake = Intake("/imu", "sensor_msgs/msg/Imu", "fields", {RELIABLE: reliable, BEST_EFFORT: best}, None)
     assert intake.changing and intake.current is None and not intake.retire_due(0.0)
@@ -145,16 +165,17 @@ def test_a_change_ends_at_its_deadline_when_a_publisher_never_matches():
 
 @pytest.mark.parametrize("seed", range(10))
 def test_messages_one_subscription_dropped_come_in_publication_order(seed):
-    """Both subscriptions drained (publishers not known yet): the best-effort one drops messages under load that
-    the reliable one delivers. Taken once each and in the order they were published: the reliable queue's fill-ins
-    after the best-effort queue's later messages would be a time jump back (a new segment: a manoeuvre cut in
-    two, seen on a node under load)."""
+    """Both subscriptions drained (publishers not known yet): the best-effort one drops messages under load
+    that the reliable one delivers. Taken once each and in the order they were published: the reliable queue's
+    fill-ins after the best-effort queue's later messages would be a time jump back (a new segment: a
+    manoeuvre cut in two, seen on a node under load)."""
     rng = random.Random(seed)
     best, reliable = FakeSubscription(matched=1), FakeSubscription(matched=0)
     intake = Intake("/imu", "sensor_msgs/msg/Imu", "fields", {RELIABLE: reliable, BEST_EFFORT: best}, None)
     taken, seq = [], 0
     for round_ in range(30):
-        if round_ == 10:       # the publishers are known reliable: both drained until the reliable one matched
+        # the publishers are known reliable: both drained until the reliable one matched
+        if round_ == 10:
             intake.settle(RELIABLE, publishers=1, deadline=100.0)
         if round_ == 20:
             reliable.matched = 1
@@ -174,10 +195,10 @@ def test_messages_one_subscription_dropped_come_in_publication_order(seed):
 @pytest.mark.parametrize("seed", range(10))
 def test_messages_the_reliable_queue_delivers_late_do_not_come_after_later_ones(seed):
     """Both subscriptions drained (publishers not known yet, then a reliable publisher known): the best-effort
-    queue loses a message, the reliable queue holds back every later one until the lost one is resent (it delivers
-    in order), so for a while the best-effort queue is ahead. Its later messages wait until the reliable queue
-    passes them (or :attr:`Intake.HOLD_S`): taken once each and in publication order (seen on a restarted node
-    under load: one time jump back per topic, a manoeuvre cut in two)."""
+    queue loses a message, the reliable queue holds back every later one until the lost one is resent (it
+    delivers in order), so for a while the best-effort queue is ahead. Its later messages wait until the
+    reliable queue passes them (or :attr:`Intake.HOLD_S`): taken once each and in publication order (seen on a
+    restarted node under load: one time jump back per topic, a manoeuvre cut in two)."""
     rng = random.Random(seed)
     best, reliable = FakeSubscription(matched=1), FakeSubscription(matched=1)
     intake = Intake("/imu", "sensor_msgs/msg/Imu", "fields", {RELIABLE: reliable, BEST_EFFORT: best}, None)
@@ -186,7 +207,8 @@ def test_messages_the_reliable_queue_delivers_late_do_not_come_after_later_ones(
         if round_ == 10:
             intake.settle(RELIABLE, publishers=1, deadline=100.0)
         for _ in range(rng.randint(1, 60)):
-            if rng.random() > 0.9 or lagging:          # lost on the wire: the reliable queue waits for the resend
+            # lost on the wire: the reliable queue waits for the resend
+            if rng.random() > 0.9 or lagging:
                 lagging.append(seq)
             else:
                 reliable.deliver(seq)
@@ -223,7 +245,8 @@ def test_a_best_effort_publisher_is_not_held_back_by_a_reliable_queue_nothing_re
 
 
 def test_a_message_held_for_the_reliable_queue_goes_after_hold_s():
-    """The reliable queue never delivers a message the best-effort one has (its publisher left): released after
+    """The reliable queue never delivers a message the best-effort one has (its publisher left): released
+    after
     :attr:`Intake.HOLD_S`, not kept for ever."""
     best, reliable = FakeSubscription(matched=1), FakeSubscription(matched=1)
     intake = Intake("/imu", "sensor_msgs/msg/Imu", "fields", {RELIABLE: reliable, BEST_EFFORT: best}, None)

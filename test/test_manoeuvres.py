@@ -16,7 +16,9 @@ def flight(events, duration=120.0, noise=1e-4, seed=0):
     u = 0.01 + noise * rng.standard_normal(t.size)
     for kind, start in events:
         if kind == "doublet":
-            u += 0.05 * (((t >= start) & (t < start + 0.5)).astype(float) - ((t >= start + 0.5) & (t < start + 1.0)))
+            u += 0.05 * (
+                ((t >= start) & (t < start + 0.5)).astype(float) - ((t >= start + 0.5) & (t < start + 1.0))
+            )
         elif kind == "pulse":
             u += 0.05 * ((t >= start) & (t < start + 0.6))
         elif kind == "step":
@@ -84,7 +86,9 @@ def test_recorder_state_is_bounded():
     sizes = []
     rng = np.random.default_rng(2)
     for k in range(0, 200_000, 500):
-        u = np.concatenate([np.zeros(100), 0.05 * rng.uniform(0.5, 1.0) * np.sign(np.arange(100) - 50), np.zeros(300)])
+        u = np.concatenate(
+            [np.zeros(100), 0.05 * rng.uniform(0.5, 1.0) * np.sign(np.arange(100) - 50), np.zeros(300)]
+        )
         rec.offer(k, u, u, k + 100, k + 200, "doublet")
         sizes.append(sum(np.asarray(v).nbytes for v in rec.state_dict().values()))
     assert len(set(sizes)) == 1 and len(rec.manoeuvres(0.0, 1 / FS)) == 3

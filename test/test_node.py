@@ -1,12 +1,13 @@
 """Tests of the ROS 2 node ``gap_validator`` (in-process rclpy with an explicit context).
 
 Data path: the bundled flight (``bags/``; a simulated flight with the same hidden effects when none is
-bundled) is read with :mod:`gap_validation.bag.reader`, and its raw CDR records are handed to the node's decoding
-step (``ValidatorNode.on_raw``, what the intake timer does with every message it drains) or deserialised into
-rclpy messages (``ValidatorNode.on_message``). That is the quick route for the full flight; other tests send the
-flight through real DDS publishers: the whole flight from a BEST_EFFORT publisher in another participant with the
-node's default parameters (the epsilon of replay), and the first part from RELIABLE publishers (the node
-starts best effort, re-subscribes reliable when it sees them, and neither loses nor repeats a message).
+bundled) is read with :mod:`gap_validation.bag.reader`, and its raw CDR records are handed to the node's
+decoding step (``ValidatorNode.on_raw``, what the intake timer does with every message it drains) or
+deserialised into rclpy messages (``ValidatorNode.on_message``). That is the quick route for the full flight;
+other tests send the flight through real DDS publishers: the whole flight from a BEST_EFFORT publisher in
+another participant with the node's default parameters (the epsilon of replay), and the first part from
+RELIABLE publishers (the node starts best effort, re-subscribes reliable when it sees them, and neither loses
+nor repeats a message).
 """
 from __future__ import annotations
 
@@ -22,9 +23,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from _parity import json_differences
 from _ros import isolated_ros
-import yaml
 
 rclpy = pytest.importorskip("rclpy")
 
@@ -40,14 +41,14 @@ from std_msgs.msg import Float64  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
 from gap_validation.bag.reader import open_bag  # noqa: E402
-from gap_validation.core.config import load_config  # noqa: E402
+from gap_validation.bag.replay import replay  # noqa: E402
 from gap_validation.core.checkpoint import load_state  # noqa: E402
+from gap_validation.core.config import load_config  # noqa: E402
+from gap_validation.core.validator import OnlineValidator  # noqa: E402
 from gap_validation.messages.router import stamp_seconds  # noqa: E402
 from gap_validation.ros.message_types import message_class  # noqa: E402
 from gap_validation.ros.node import ValidatorNode  # noqa: E402
 from gap_validation.ros.parameters import PARAMETERS  # noqa: E402
-from gap_validation.bag.replay import replay  # noqa: E402
-from gap_validation.core.validator import OnlineValidator  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "config" / "ultrastick25e.yaml"
@@ -82,11 +83,19 @@ class Ros:
         self.nodes.append(node)
         return node
 
-    def validator(self, config=CONFIG, spin: bool = False, name: str | None = None, namespace: str | None = None,
-                  **params) -> ValidatorNode:
+    def validator(
+        self,
+        config=CONFIG,
+        spin: bool = False,
+        name: str | None = None,
+        namespace: str | None = None,
+        **params,
+    ) -> ValidatorNode:
         overrides = [Parameter("config_file", value=str(config))]
         overrides += [Parameter(k, value=v) for k, v in params.items()]
-        remap = (["-r", f"__node:={name}"] if name else []) + (["-r", f"__ns:={namespace}"] if namespace else [])
+        remap = (["-r", f"__node:={name}"] if name else []) + (
+            ["-r", f"__ns:={namespace}"] if namespace else []
+        )
         remap = ["--ros-args", *remap] if remap else None
         node = ValidatorNode(context=self.context, parameter_overrides=overrides, cli_args=remap)
         self.nodes.append(node)
@@ -173,7 +182,9 @@ class Flight:
         self.topics = {}
         with open_bag(bag) as opened:
             info = opened.topics
-            self.records = [(topic, bytes(raw)) for topic, _, _, raw in opened.records(list(self.config.topics()))]
+            self.records = [
+                (topic, bytes(raw)) for topic, _, _, raw in opened.records(list(self.config.topics()))
+            ]
         self.types = {topic: info[topic].msgtype for topic in self.config.topics()}
         assert self.types == TYPES
         self.classes = {topic: message_class(t) for topic, t in self.types.items()}
@@ -206,7 +217,8 @@ class Flight:
 
 
 def write_typed(path: Path, effects: dict | None = None, aircraft: str | None = "ultrastick25e") -> Path:
-    """The Ultra Stick config with the message types set, its ``aircraft`` and, optionally, effects per channel."""
+    """The Ultra Stick config with the message types set, its ``aircraft`` and, optionally, effects per
+    channel."""
     data = yaml.safe_load(CONFIG.read_text())
     if aircraft is not None:
         data = {"aircraft": aircraft, **data}
@@ -247,15 +259,19 @@ def fed(flight, typed, tmp_path_factory):
         state = tmp_path_factory.mktemp("fed") / "fed.npz"
         node = session.validator(typed, state_file=str(state), end_of_data_timeout=0.5)
         flight.feed_raw(node)
-        assert all(raw.decoder is not None for raw in node.topics.raw.values())  # fast decoding verified and used
+        # fast decoding verified and used
+        assert all(raw.decoder is not None for raw in node.topics.raw.values())
         node.router.flush()
         # the flight's last manoeuvre ends a few seconds before the data: its record closes when the inputs
-        # have been silent for end_of_data_timeout (the end of the run), as replay closes it at the end of the bag
+        # have been silent for end_of_data_timeout (the end of the run), as replay closes it at the end of the
+        # bag
         before = node.validator.results(diagnose=False)
         time.sleep(0.6)
         array = node.publish_diagnostics()
         result = node.validator.results(diagnose=False)
-        assert sum(ch.sweeps for ch in result.channels.values()) > sum(ch.sweeps for ch in before.channels.values())
+        assert sum(ch.sweeps for ch in result.channels.values()) > sum(
+            ch.sweeps for ch in before.channels.values()
+        )
         assert node.checkpoint() == str(state)
     finally:
         session.close()
@@ -263,7 +279,8 @@ def fed(flight, typed, tmp_path_factory):
 
 
 def statuses(array: DiagnosticArray, node_name: str = "gap_validator") -> dict:
-    """Channel -> (status, values dict) of a DiagnosticArray whose statuses are named ``<node_name>: <channel>``."""
+    """Channel -> (status, values dict) of a DiagnosticArray whose statuses are named ``<node_name>:
+    <channel>``."""
     out = {}
     for status in array.status:
         assert status.name.startswith(f"{node_name}: "), status.name
@@ -272,8 +289,9 @@ def statuses(array: DiagnosticArray, node_name: str = "gap_validator") -> dict:
 
 
 def end_of_data(*nodes: ValidatorNode) -> None:
-    """The flight is over: the router's pending samples to the validator, and the last manoeuvre closed -- what the
-    node does once its inputs have been silent for ``end_of_data_timeout`` (the ``fed`` fixture goes that way)."""
+    """The flight is over: the router's pending samples to the validator, and the last manoeuvre closed --
+    what the node does once its inputs have been silent for ``end_of_data_timeout`` (the ``fed`` fixture goes
+    that way)."""
     for node in nodes:
         node.router.flush()
         node.validator.finish()
@@ -289,7 +307,8 @@ def resume(ros: Ros, fed: dict, tmp_path: Path, config: Path, **params) -> Valid
     return ros.validator(config, state_file=str(state), **params)
 
 
-# ------------------------------------------------------------------------------------------------ one data path
+# ------------------------------------------------------------------------------------------------ one data
+# path
 def test_flight_through_the_node_equals_replay(flight, fed):
     """Same samples, same validator: the node's epsilon per channel equals the replay module's."""
     ours, theirs = fed["result"], flight.replayed
@@ -316,8 +335,10 @@ class OtherParticipant:
         self.context = Context()
         rclpy.init(context=self.context)
         self.node = rclpy.create_node(name, context=self.context)
-        self.pubs = {topic: self.node.create_publisher(message_class(t) if isinstance(t, str) else t, topic, qos)
-                     for topic, t in types.items()}
+        self.pubs = {
+            topic: self.node.create_publisher(message_class(t) if isinstance(t, str) else t, topic, qos)
+            for topic, t in types.items()
+        }
 
     def matched(self) -> bool:
         return all(p.get_subscription_count() >= 1 for p in self.pubs.values())
@@ -327,15 +348,19 @@ class OtherParticipant:
         rclpy.shutdown(context=self.context)
 
 
-BEST_EFFORT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT)
+BEST_EFFORT_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT
+)
 
 
 def test_best_effort_publisher_with_default_parameters_gives_the_epsilon_of_replay(flight, ros):
     """The issue's case: the flight stack publishes BEST_EFFORT (IMU drivers, PX4's bridge) from another
-    participant, the node runs with its default parameters and the shipped config (no ``type:``). It subscribes
-    at once (types implied by the fields), best effort, receives every message and gives replay's epsilon."""
+    participant, the node runs with its default parameters and the shipped config (no ``type:``). It
+    subscribes at once (types implied by the fields), best effort, receives every message and gives replay's
+    epsilon."""
     node = ros.validator(CONFIG, spin=True, diagnostic_period=1000.0)
-    for intake in node.topics.intakes.values():   # no publisher known yet: reliable and best effort, drained as one
+    # no publisher known yet: reliable and best effort, drained as one
+    for intake in node.topics.intakes.values():
         assert set(intake.subscriptions) == {"reliable", "best_effort"} and intake.reliability is None
     stack = OtherParticipant(BEST_EFFORT_QOS, flight.types)
     try:
@@ -362,12 +387,13 @@ def test_best_effort_publisher_with_default_parameters_gives_the_epsilon_of_repl
 
 
 def test_flight_over_dds_arrives_complete_and_gives_the_same_state(flight, typed, ros):
-    """RELIABLE publishers, deep queue, paced publishing: the node (``qos_reliability: auto``) starts best effort,
-    sees the publishers and re-subscribes reliable while the flight flows; every message arrives once, and the
-    raw path over DDS gives the same spectra as rclpy messages handed to the message callback."""
+    """RELIABLE publishers, deep queue, paced publishing: the node (``qos_reliability: auto``) starts best
+    effort, sees the publishers and re-subscribes reliable while the flight flows; every message arrives once,
+    and the raw path over DDS gives the same spectra as rclpy messages handed to the message callback."""
     over_dds = ros.validator(typed, spin=True, diagnostic_period=1000.0, discovery_period=0.2)
     direct = ros.validator(typed, name="gap_validator_direct", diagnostic_period=1000.0, raw_decoding=False)
-    assert set(over_dds.topics.raw) == set(over_dds.topics.intakes) == set(flight.types)  # typed: subscribed at once
+    # typed: subscribed at once
+    assert set(over_dds.topics.raw) == set(over_dds.topics.intakes) == set(flight.types)
     assert not direct.topics.raw
     publisher = ros.plain("gap_test_publisher")
     qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE)
@@ -375,7 +401,9 @@ def test_flight_over_dds_arrives_complete_and_gives_the_same_state(flight, typed
     ros.wait(lambda: all(p.get_subscription_count() >= 1 for p in pubs.values()))
     # up to a few seconds after the end of the first sweep (so that there is an estimate to compare)
     first_end = min(s.end_s for ch in flight.replayed.channels.values() for s in ch.sweep_results)
-    count = next(i for i, (_, msg) in enumerate(flight.messages()) if (stamp_seconds(msg) or 0) > first_end + 5.0)
+    count = next(
+        i for i, (_, msg) in enumerate(flight.messages()) if (stamp_seconds(msg) or 0) > first_end + 5.0
+    )
     sent, chunk = 0, 400
     for topic, msg in flight.messages(0, count):
         pubs[topic].publish(msg)
@@ -384,7 +412,9 @@ def test_flight_over_dds_arrives_complete_and_gives_the_same_state(flight, typed
             ros.wait(lambda: sum(over_dds.router.messages.values()) >= sent, timeout_s=30.0)
     flight.feed(direct, 0, count)
     assert over_dds.router.messages == direct.router.messages
-    assert {t: i.reliability for t, i in over_dds.topics.intakes.items()} == {t: "reliable" for t in flight.types}
+    assert {t: i.reliability for t, i in over_dds.topics.intakes.items()} == {
+        t: "reliable" for t in flight.types
+    }
     end_of_data(over_dds, direct)
     for name in flight.config.channels:
         for stream in ("input", "output"):
@@ -405,11 +435,11 @@ def test_flight_over_dds_arrives_complete_and_gives_the_same_state(flight, typed
 
 # ------------------------------------------------------------------------------------------------ checkpoint
 def test_node_and_replay_give_the_same_json_field_by_field_and_the_same_trim(flight, fed, typed):
-    """Parity (one data path): after the flight the node (messages as they come, pushed every 2048 samples or 2 s)
-    and replay (its own batches) give the same JSON, every number, warning and verdict (1e-9), and the same
-    spectra of the trim between the manoeuvres, which the JSON shows only through its judgements and which once
-    depended on where a batch ended (the samples after a record's end that came before the block that closed it
-    were lost)."""
+    """Parity (one data path): after the flight the node (messages as they come, pushed every 2048 samples or
+    2 s) and replay (its own batches) give the same JSON, every number, warning and verdict (1e-9), and the
+    same spectra of the trim between the manoeuvres, which the JSON shows only through its judgements and
+    which once depended on where a batch ended (the samples after a record's end that came before the block
+    that closed it were lost)."""
     node = OnlineValidator.from_state(load_config(typed), load_state(fed["state"]), diagnose=False)
     mine = node.results(diagnose=False).to_json_dict()
     theirs = flight.replayed.to_json_dict()
@@ -425,10 +455,10 @@ def test_node_and_replay_give_the_same_json_field_by_field_and_the_same_trim(fli
 
 def test_plot_topics_redraw_the_replayed_curves_are_latched_and_sent_only_on_change(flight, typed, fed, ros,
                                                                                    tmp_path):
-    """``~/<channel>/frequency_response`` and ``~/<channel>/verdict`` (docs/NODE_TOPICS.md): a subscriber that comes
-    after the node published gets them (transient local); read back, the curves equal replay's JSON of the same
-    flight point for point, NaN elsewhere on the grid; the verdict's numbers equal replay's; publishing again
-    without new data sends nothing."""
+    """``~/<channel>/frequency_response`` and ``~/<channel>/verdict`` (docs/NODE_TOPICS.md): a subscriber that
+    comes after the node published gets them (transient local); read back, the curves equal replay's JSON of
+    the same flight point for point, NaN elsewhere on the grid; the verdict's numbers equal replay's;
+    publishing again without new data sends nothing."""
     from std_msgs.msg import Float64MultiArray, String
 
     from gap_validation.core.plottable import CURVES, flags_from_codes, read_table
@@ -454,15 +484,22 @@ def test_plot_topics_redraw_the_replayed_curves_are_latched_and_sent_only_on_cha
         data = ch.to_json_dict(samples=False)
         cols = [int(np.argmin(np.abs(grid - w))) for w in data["frequency_rad_s"]]
         np.testing.assert_allclose(grid[cols], data["frequency_rad_s"], rtol=1e-12)
-        expect = {"measured_magnitude_db": data["measured"]["magnitude_db"],
-                  "measured_phase_deg": data["measured"]["phase_deg"],
-                  "model_magnitude_db": data["model"]["magnitude_db"], "model_phase_deg": data["model"]["phase_deg"],
-                  "coherence": data["coherence"], "epsilon": data["epsilon_per_frequency"], "kappa": data["kappa"],
-                  "random_error": data["random_error"]}
+        expect = {
+            "measured_magnitude_db": data["measured"]["magnitude_db"],
+            "measured_phase_deg": data["measured"]["phase_deg"],
+            "model_magnitude_db": data["model"]["magnitude_db"],
+            "model_phase_deg": data["model"]["phase_deg"],
+            "coherence": data["coherence"],
+            "epsilon": data["epsilon_per_frequency"],
+            "kappa": data["kappa"],
+            "random_error": data["random_error"],
+        }
         others = np.setdiff1d(np.arange(grid.size), cols)
         for curve, values in expect.items():
             want = np.array([np.nan if v is None else v for v in values], dtype=float)
-            np.testing.assert_allclose(curves[curve][cols], want, rtol=1e-9, atol=1e-12, err_msg=f"{name} {curve}")
+            np.testing.assert_allclose(
+                curves[curve][cols], want, rtol=1e-9, atol=1e-12, err_msg=f"{name} {curve}"
+            )
             assert np.isnan(curves[curve][others]).all(), f"{name} {curve}"
         assert flags_from_codes(curves["flag"][cols]) == data["frequency_flags"]
         verdict = json.loads(verdicts[name][-1].data)
@@ -524,7 +561,8 @@ def test_corrupt_checkpoint_is_set_aside_and_the_node_starts_fresh(ros, tmp_path
     assert node.checkpoint() == str(state) and load_state(state)["channels"]
 
 
-# ------------------------------------------------------------------------------------------------ model update
+# ------------------------------------------------------------------------------------------------ model
+# update
 def _model_update(node: ValidatorNode, flight: Flight, fed: dict, tmp_path: Path, via: str):
     before = statuses(node.publish_diagnostics())
     for name, ch in fed["result"].channels.items():
@@ -573,7 +611,8 @@ def test_bad_config_on_parameter_set_is_refused_and_the_old_model_kept(typed, fe
     assert after["pitch"][1]["epsilon_previous"] == "null"
 
 
-# ------------------------------------------------------------------------------------------------ levels, STALE
+# ------------------------------------------------------------------------------------------------ levels,
+# STALE
 def _fresh_messages(start_s: float, count: int, rate_hz: float = 100.0):
     """Imu and JointState messages after ``start_s`` (stamped), alternating."""
     out = []
@@ -624,8 +663,13 @@ def test_levels_are_byte_constants_and_inputs_stopping_make_stale(flight, typed,
         node.on_message(topic, msg)
     relaxed = statuses(node.publish_diagnostics())
     for name, ch in node.last_result.channels.items():
-        assert relaxed[name][0].level == (DiagnosticStatus.OK if ch.epsilon < 0.9 else
-                                          DiagnosticStatus.WARN if ch.epsilon < 0.95 else DiagnosticStatus.ERROR)
+        assert relaxed[name][0].level == (
+            DiagnosticStatus.OK
+            if ch.epsilon < 0.9
+            else DiagnosticStatus.WARN
+            if ch.epsilon < 0.95
+            else DiagnosticStatus.ERROR
+        )
     refused = node.set_parameters([Parameter("warn_epsilon", value=0.99)])[0]
     assert not refused.successful and "error_epsilon" in refused.reason
 
@@ -650,8 +694,8 @@ def test_diagnostics_published_on_the_topic_before_any_data(ros):
 
 
 def test_the_shipped_aggregator_config_expects_the_statuses_the_node_publishes(ros):
-    """``config/diagnostic_aggregator.yaml`` groups the bundled config's channels: its ``expected`` names and its
-    ``startswith`` are those of the node's statuses (a name off by a character reads STALE for ever)."""
+    """``config/diagnostic_aggregator.yaml`` groups the bundled config's channels: its ``expected`` names and
+    its ``startswith`` are those of the node's statuses (a name off by a character reads STALE for ever)."""
     data = yaml.safe_load((ROOT / "config" / "diagnostic_aggregator.yaml").read_text())
     analyzer = data["analyzers"]["ros__parameters"]["model_validation"]
     node = ros.validator(CONFIG)
@@ -661,9 +705,9 @@ def test_the_shipped_aggregator_config_expects_the_statuses_the_node_publishes(r
 
 
 def test_statuses_carry_the_node_name_and_are_ok_while_waiting_for_a_sweep(ros):
-    """Remapped (``-r __node:=gv2 -r __ns:=/uav1``): statuses ``gv2: <channel>`` (diagnostic_updater's naming),
-    hardware_id the node's fully qualified name (the config has no ``aircraft``); receiving data without a sweep
-    yet is OK with no epsilon (STALE only when the inputs are silent)."""
+    """Remapped (``-r __node:=gv2 -r __ns:=/uav1``): statuses ``gv2: <channel>`` (diagnostic_updater's
+    naming), hardware_id the node's fully qualified name (the config has no ``aircraft``); receiving data
+    without a sweep yet is OK with no epsilon (STALE only when the inputs are silent)."""
     node = ros.validator(CONFIG, name="gv2", namespace="/uav1", diagnostic_period=1000.0)
     assert node.get_fully_qualified_name() == "/uav1/gv2"
     before = statuses(node.publish_diagnostics(), node_name="gv2")
@@ -681,8 +725,8 @@ def test_statuses_carry_the_node_name_and_are_ok_while_waiting_for_a_sweep(ros):
 
 @pytest.mark.parametrize("case", ["publisher_first", "node_first", "node_first_use_sim_time"])
 def test_no_message_is_lost_from_the_first_one(ros, case):
-    """The shipped config (no ``type:``) is subscribed at once; a RELIABLE flight stack started before or after
-    the node gets every message it publishes once matched, through the node's switch from best effort to
+    """The shipped config (no ``type:``) is subscribed at once; a RELIABLE flight stack started before or
+    after the node gets every message it publishes once matched, through the node's switch from best effort to
     reliable while they flow; with ``use_sim_time`` and no /clock at all, too (the intake timer runs on the
     steady clock)."""
     qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE)
@@ -708,10 +752,14 @@ def test_no_message_is_lost_from_the_first_one(ros, case):
                 stack.pubs["/control_surfaces"].publish(joints)
                 sent["/control_surfaces"] += 1
             if k % 100 == 99:
-                ros.wait(lambda: sum(node.router.messages.values()) >= sum(sent.values()) - 300, timeout_s=30.0)
+                ros.wait(
+                    lambda: sum(node.router.messages.values()) >= sum(sent.values()) - 300, timeout_s=30.0
+                )
         ros.wait(lambda: node.router.messages == sent, timeout_s=30.0)
-        ros.wait(lambda: all(i.reliability == "reliable" and not i.changing for i in node.topics.intakes.values()),
-                 timeout_s=30.0)
+        ros.wait(
+            lambda: all(i.reliability == "reliable" and not i.changing for i in node.topics.intakes.values()),
+            timeout_s=30.0,
+        )
         assert node.router.messages == sent
         node.router.flush()
         assert node.router.samples("pitch", "output") == 3000 and node.router.samples("pitch", "input") == 300
@@ -722,8 +770,8 @@ def test_no_message_is_lost_from_the_first_one(ros, case):
 
 
 def test_a_publisher_the_fixed_qos_cannot_match_is_named_in_the_status(ros):
-    """``qos_reliability: reliable`` and a BEST_EFFORT flight stack: nothing can arrive; the channel's status says
-    why and what to set (ERROR), instead of a warning line in the log and a STALE status."""
+    """``qos_reliability: reliable`` and a BEST_EFFORT flight stack: nothing can arrive; the channel's status
+    says why and what to set (ERROR), instead of a warning line in the log and a STALE status."""
     node = ros.validator(CONFIG, spin=True, diagnostic_period=1000.0, discovery_period=0.1,
                          qos_reliability="reliable")
     stack = OtherParticipant(BEST_EFFORT_QOS, TYPES)
@@ -733,12 +781,16 @@ def test_a_publisher_the_fixed_qos_cannot_match_is_named_in_the_status(ros):
         stack.close()
     for name, (status, values) in statuses(node.publish_diagnostics()).items():
         assert status.level == DiagnosticStatus.ERROR, status.message
-        assert ("publisher on /imu offers BEST_EFFORT; set qos_reliability to auto or best_effort (the subscription "
-                "is RELIABLE)") in status.message
+        assert (
+            "publisher on /imu offers BEST_EFFORT; set qos_reliability to auto or best_effort (the "
+            "subscription "
+            "is RELIABLE)"
+        ) in status.message
         assert status.message.endswith("waiting for data on /control_surfaces (input) and /imu (output)")
 
 
-# ------------------------------------------------------------------------------------------------ bad messages
+# ------------------------------------------------------------------------------------------------ bad
+# messages
 @pytest.mark.parametrize("path", ["raw", "message"])
 def test_bad_messages_are_counted_and_survived(ros, typed, path):
     """NaN rate, JointState without the joint, position array too short: counted per reason, never fatal."""
@@ -780,7 +832,9 @@ def test_bad_messages_are_counted_and_survived(ros, typed, path):
     else:  # a damaged record is counted as replay counts it
         assert all(counts.get("output: undecodable") == 1 for counts in (roll, pitch, yaw))
     for name in ("roll", "pitch", "yaw"):
-        assert int(values[name]["bad_samples"]) == sum(json.loads(values[name]["bad_samples_by_reason"]).values())
+        assert int(values[name]["bad_samples"]) == sum(
+            json.loads(values[name]["bad_samples_by_reason"]).values()
+        )
     # still alive and still counting good samples
     before = node.router.samples("pitch", "output")
     for topic, msg in _fresh_messages(1_700_000_020.0, 2):
@@ -796,9 +850,9 @@ def _umask() -> int:
 
 
 def test_save_results_runs_in_the_background_and_diagnostics_keep_their_period(typed, fed, ros, tmp_path):
-    """``~/save_results`` (full diagnosis, JSON, the report's figures: seconds of work) runs on a snapshot in a
-    child process: /diagnostics keeps being published meanwhile and, with data flowing, no channel goes STALE;
-    the answer comes when the files are written, with the usual permissions.
+    """``~/save_results`` (full diagnosis, JSON, the report's figures: seconds of work) runs on a snapshot in
+    a child process: /diagnostics keeps being published meanwhile and, with data flowing, no channel goes
+    STALE; the answer comes when the files are written, with the usual permissions.
 
     A blocked executor shows as one gap the length of the save (over 4 periods) and no publication during it.
     How regular the period stays depends on the machine's load (two test workers on two cores stretched one
@@ -811,8 +865,8 @@ def test_save_results_runs_in_the_background_and_diagnostics_keep_their_period(t
     config.write_text(yaml.safe_dump(pitch_only, sort_keys=False))
     node = resume(ros, fed, tmp_path, config, spin=True, results_dir=str(results), diagnostic_period=period,
                   stale_timeout=5 * period)
-    # validator_node freezes its start-up objects out of the garbage collector's way (ros/main.py); this process
-    # also holds the whole flight, whose full collections would otherwise be what stalls the executor
+    # validator_node freezes its start-up objects out of the garbage collector's way (ros/main.py); this
+    # process also holds the whole flight, whose full collections would otherwise be what stalls the executor
     gc.freeze()
     published = []
     real = node.publish_diagnostics
@@ -834,7 +888,8 @@ def test_save_results_runs_in_the_background_and_diagnostics_keep_their_period(t
     save = ros.plain("gap_test_client").create_client(Trigger, "/gap_validator/save_results")
     ros.wait(lambda: len(published) >= 2)
     started = time.monotonic()
-    answer = ros.call(save, Trigger.Request(), timeout_s=240.0)   # a spawned interpreter drawing figures: slow on a loaded machine
+    # a spawned interpreter drawing figures: slow on a loaded machine
+    answer = ros.call(save, Trigger.Request(), timeout_s=240.0)
     finished = time.monotonic()
     ros.helper.destroy_timer(feeder)
     assert answer.success, answer.message
@@ -854,7 +909,9 @@ def test_save_results_runs_in_the_background_and_diagnostics_keep_their_period(t
     assert path.stat().st_mode & 0o777 == 0o666 & ~_umask()          # not the temporary file's 0600
     saved = json.loads(path.read_text())
     assert list(saved["channels"]) == ["pitch"]
-    assert saved["channels"]["pitch"]["epsilon"] == pytest.approx(fed["result"].channels["pitch"].epsilon, abs=1e-3)
+    assert saved["channels"]["pitch"]["epsilon"] == pytest.approx(
+        fed["result"].channels["pitch"].epsilon, abs=1e-3
+    )
     assert isinstance(saved["channels"]["pitch"]["diagnosis"], list)
     report = path.with_suffix("") / "index.html"
     try:
@@ -947,14 +1004,23 @@ def test_types_the_fields_do_not_imply_are_discovered_and_wrong_guesses_followed
     node = ros.validator(config, spin=True, discovery_period=0.05, diagnostic_period=1000.0)
     assert node.pending == ["/rates"] and node.topics.intakes["/elevator"].type_name == "std_msgs/msg/Float64"
     waiting = statuses(node.publish_diagnostics())["pitch"][0]
-    assert waiting.level == DiagnosticStatus.STALE and "/rates (output; type not known yet)" in waiting.message
+    assert (
+        waiting.level == DiagnosticStatus.STALE and "/rates (output; type not known yet)" in waiting.message
+    )
     qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE)
     stack = OtherParticipant(qos, {"/rates": TwistStamped, "/elevator": Float32})
     try:
-        ros.wait(lambda: not node.pending and node.topics.intakes["/elevator"].type_name == "std_msgs/msg/Float32"
-                 and stack.matched())
+        ros.wait(
+            lambda: (
+                not node.pending
+                and node.topics.intakes["/elevator"].type_name == "std_msgs/msg/Float32"
+                and stack.matched()
+            )
+        )
         assert {t: (i.type_name, i.type_source) for t, i in node.topics.intakes.items()} == {
-            "/elevator": ("std_msgs/msg/Float32", "graph"), "/rates": ("geometry_msgs/msg/TwistStamped", "graph")}
+            "/elevator": ("std_msgs/msg/Float32", "graph"),
+            "/rates": ("geometry_msgs/msg/TwistStamped", "graph"),
+        }
         for k in range(3):
             twist = TwistStamped()
             twist.header.stamp.sec = 1_700_000_000 + k
@@ -965,7 +1031,8 @@ def test_types_the_fields_do_not_imply_are_discovered_and_wrong_guesses_followed
         stack.close()
 
 
-# ------------------------------------------------------------------------------------------------ params file, main
+# ------------------------------------------------------------------------------------------------ params
+# file, main
 def test_params_file_matches_the_declared_parameters(ros):
     params = ROOT / "config" / "validator.params.yaml"
     data = yaml.safe_load(params.read_text())
@@ -991,8 +1058,14 @@ def test_parameters_have_descriptions_ranges_and_read_only_flags(ros):
             assert (descriptor.floating_point_range[0].from_value,
                     descriptor.floating_point_range[0].to_value) == param.range, name
         elif param.range is not None:
-            assert (descriptor.integer_range[0].from_value, descriptor.integer_range[0].to_value) == param.range
-    assert node.describe_parameter("qos_depth").read_only and not node.describe_parameter("warn_epsilon").read_only
+            assert (
+                descriptor.integer_range[0].from_value,
+                descriptor.integer_range[0].to_value,
+            ) == param.range
+    assert (
+        node.describe_parameter("qos_depth").read_only
+        and not node.describe_parameter("warn_epsilon").read_only
+    )
     refused = node.set_parameters([Parameter("stale_timeout", value=-1.0)])[0]
     assert not refused.successful
     assert node.set_parameters([Parameter("stale_timeout", value=2.0)])[0].successful
@@ -1016,16 +1089,20 @@ def test_bad_startup_config_exits_2_with_one_line(tmp_path, capfd, case):
     lines = [line for line in err.splitlines() if line.strip()]
     assert len(lines) == 1 and lines[0].startswith("validator_node: error: "), err
     assert "Traceback" not in err
-    expected = {"missing": "config file not found", "invalid": "bad.yaml", "unset": "config_file is not set",
-                "qos": "parameter qos_reliability: expected one of auto, reliable, best_effort, got 'sometimes'",
-                "range": "parameter diagnostic_period: expected a number in [0.01, 3600], got 0.0"}[case]
+    expected = {
+        "missing": "config file not found",
+        "invalid": "bad.yaml",
+        "unset": "config_file is not set",
+        "qos": "parameter qos_reliability: expected one of auto, reliable, best_effort, got 'sometimes'",
+        "range": "parameter diagnostic_period: expected a number in [0.01, 3600], got 0.0",
+    }[case]
     assert expected in lines[0]
 
 
 @pytest.mark.parametrize("executor", ["events", "single_threaded"])
 def test_console_script_runs_publishes_answers_and_checkpoints_on_sigint(ros, typed, tmp_path, executor):
-    """``main`` end to end in a child process: /diagnostics, parameters, a service answered from the background,
-    a misspelt parameter warned about by name, clean SIGINT."""
+    """``main`` end to end in a child process: /diagnostics, parameters, a service answered from the
+    background, a misspelt parameter warned about by name, clean SIGINT."""
     import signal
 
     from rcl_interfaces.srv import SetParameters
@@ -1044,11 +1121,14 @@ def test_console_script_runs_publishes_answers_and_checkpoints_on_sigint(ros, ty
         assert set(statuses(got[-1])) == {"roll", "pitch", "yaw"}
         if executor == "events":   # served by the intake timer whatever the executor: once is enough
             save = ros.helper.create_client(Trigger, "/gap_validator/save_results")
-            answer = ros.call(save, Trigger.Request(), timeout_s=240.0)   # a spawned interpreter drawing figures: slow on a loaded machine
+            # a spawned interpreter drawing figures: slow on a loaded machine
+            answer = ros.call(save, Trigger.Request(), timeout_s=240.0)
             assert answer.success and Path(answer.message).is_file(), answer.message
             assert Path(answer.message).stat().st_mode & 0o777 == 0o666 & ~_umask()
         setter = ros.helper.create_client(SetParameters, "/gap_validator/set_parameters")
-        request = SetParameters.Request(parameters=[Parameter("hardware_id", value="uav-3").to_parameter_msg()])
+        request = SetParameters.Request(
+            parameters=[Parameter("hardware_id", value="uav-3").to_parameter_msg()]
+        )
         assert ros.call(setter, request).results[0].successful
         ros.wait(lambda: statuses(got[-1])["pitch"][0].hardware_id == "uav-3", timeout_s=30.0)
         child.send_signal(signal.SIGINT)
@@ -1066,7 +1146,7 @@ def test_console_script_runs_publishes_answers_and_checkpoints_on_sigint(ros, ty
 def test_a_mimo_channel_through_the_node_equals_replay(ros, tmp_path):
     """Issue 14: a MIMO lateral channel (aileron, rudder -> p, r) from its raw records through the node: the
     same MIMO nu-gap as replay, and a status whose level follows the nu-gap (epsilon is a SISO notion)."""
-    from _flights import make_bag, SHORT
+    from _flights import SHORT, make_bag
     from test_mimo import LATERAL
 
     channel = copy.deepcopy(LATERAL)

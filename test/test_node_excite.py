@@ -1,13 +1,14 @@
-"""The node flies the card (issue 25, item 3): ``~/plan``, ``~/excite``, ``~/abort`` and the injected excitation.
+"""The node flies the card (issue 25, item 3): ``~/plan``, ``~/excite``, ``~/abort`` and the injected
+excitation.
 
-In-process rclpy with simulated time: the test publishes ``/clock`` and the node's excitation timer (node clock)
-publishes the samples due; the test reads them on the excitation topic. The closed-loop flight is the pitch
-short-period model with a hidden 40 ms actuator delay, discretised at the excitation's 50 Hz, inside a washed-out
-rate damper (6 dB gain margin), driven by the damper's output plus the node's injected samples, with gusts and
-gyro noise; the test publishes the surface and the gyro as JointState and Imu messages and the node estimates
-against its own injection. The reference is independent of the validator: a pure delay ``T`` puts
-``epsilon(w) = |P e^(-jwT) - P| / |P e^(-jwT) + P| = tan(wT / 2)`` at every frequency (the zero-order hold adds half
-a sample to ``T``).
+In-process rclpy with simulated time: the test publishes ``/clock`` and the node's excitation timer (node
+clock) publishes the samples due; the test reads them on the excitation topic. The closed-loop flight is the
+pitch short-period model with a hidden 40 ms actuator delay, discretised at the excitation's 50 Hz, inside a
+washed-out rate damper (6 dB gain margin), driven by the damper's output plus the node's injected samples,
+with gusts and gyro noise; the test publishes the surface and the gyro as JointState and Imu messages and the
+node estimates against its own injection. The reference is independent of the validator: a pure delay ``T``
+puts ``epsilon(w) = |P e^(-jwT) - P| / |P e^(-jwT) + P| = tan(wT / 2)`` at every frequency (the zero-order
+hold adds half a sample to ``T``).
 """
 from __future__ import annotations
 
@@ -18,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from _ros import isolated_ros
 from scipy import signal
-import yaml
 
 rclpy = pytest.importorskip("rclpy")
 
@@ -34,8 +35,7 @@ from test_node import Ros  # noqa: E402
 from gap_validation.cards import card_yaml, read_card  # noqa: E402
 from gap_validation.core.errors import ConfigError  # noqa: E402
 from gap_validation.core.models import LinearModel  # noqa: E402
-from gap_validation.core.plan import (ChannelPlan, PlannedManoeuvre, TestCard, manoeuvre_signal,  # noqa: E402
-                                      plan_card)
+from gap_validation.core.plan import ChannelPlan, PlannedManoeuvre, TestCard, manoeuvre_signal, plan_card  # noqa: E402
 from gap_validation.core.simulation import WASHOUT_RAD_S, damper_gain  # noqa: E402
 from gap_validation.core.validator import OnlineValidator  # noqa: E402
 from gap_validation.ros.injection import Player, select_manoeuvre  # noqa: E402
@@ -63,20 +63,47 @@ def ros():
 
 def write_config(path: Path) -> Path:
     """A pitch-only config with typed topics (no discovery) and a 2-20 rad/s grid."""
-    data = {"channels": {"pitch": {
-        "input": {"topic": "/control_surfaces", "field": "position[elevator]", "type": "sensor_msgs/msg/JointState"},
-        "output": {"topic": "/imu", "field": "angular_velocity.y", "type": "sensor_msgs/msg/Imu"},
-        "frequencies": {"min_rad_s": 2.0, "max_rad_s": 20.0, "count": 15},
-        "model": {"state_space": PITCH}}}}
+    data = {
+        "channels": {
+            "pitch": {
+                "input": {
+                    "topic": "/control_surfaces",
+                    "field": "position[elevator]",
+                    "type": "sensor_msgs/msg/JointState",
+                },
+                "output": {"topic": "/imu", "field": "angular_velocity.y", "type": "sensor_msgs/msg/Imu"},
+                "frequencies": {"min_rad_s": 2.0, "max_rad_s": 20.0, "count": 15},
+                "model": {"state_space": PITCH},
+            }
+        }
+    }
     path.write_text(yaml.safe_dump(data, sort_keys=False))
     return path
 
 
 def manoeuvre(index: int, duration_s: float, amplitude_rad: float, trim_before_s: float = 3.0,
               trim_between_s: float = 6.0, band=(1.43, 26.0)) -> PlannedManoeuvre:
-    return PlannedManoeuvre("pitch", index, (2.0, 20.0), ("data-limited",), band, amplitude_rad, duration_s, 1,
-                            1.0, 1.0, trim_before_s, trim_between_s, "random error", (2.0, 20.0), (None, None),
-                            (0.05, 0.05), (0.9, 0.9), (20, 20), (0.06, 0.06))
+    return PlannedManoeuvre(
+        "pitch",
+        index,
+        (2.0, 20.0),
+        ("data-limited",),
+        band,
+        amplitude_rad,
+        duration_s,
+        1,
+        1.0,
+        1.0,
+        trim_before_s,
+        trim_between_s,
+        "random error",
+        (2.0, 20.0),
+        (None, None),
+        (0.05, 0.05),
+        (0.9, 0.9),
+        (20, 20),
+        (0.06, 0.06),
+    )
 
 
 def write_card(path: Path, *manoeuvres: PlannedManoeuvre) -> Path:
@@ -87,10 +114,13 @@ def write_card(path: Path, *manoeuvres: PlannedManoeuvre) -> Path:
 
 
 class SimTime:
-    """``/clock`` from the test, and the samples the node injects as its excitation topic carries them: ``(stamp
-    [ns], the elevator's offset)`` from the JointState topic, ``(arrival, offset)`` from a Float64 topic."""
+    """``/clock`` from the test, and the samples the node injects as its excitation topic carries them:
+    ``(stamp [ns], the elevator's offset)`` from the JointState topic, ``(arrival, offset)`` from a Float64
+    topic."""
 
-    def __init__(self, ros: Ros, node: ValidatorNode, topic: str = "/gap_validator/excitation", float64: bool = False):
+    def __init__(
+        self, ros: Ros, node: ValidatorNode, topic: str = "/gap_validator/excitation", float64: bool = False
+    ):
         self.ros, self.node = ros, node
         self.clock = ros.helper.create_publisher(Clock, "/clock", 10)
         self.samples: list[tuple[int, float]] = []
@@ -105,8 +135,8 @@ class SimTime:
         self.samples.append((stamp, float(msg.position[list(msg.name).index("elevator")])))
 
     def advance(self, seconds: float) -> None:
-        """Step ``/clock`` by ``seconds`` and wait until the node has published every sample due and the test has
-        received them."""
+        """Step ``/clock`` by ``seconds`` and wait until the node has published every sample due and the test
+        has received them."""
         self.now_s += seconds
         msg = Clock()
         msg.clock.sec, msg.clock.nanosec = divmod(int(round(self.now_s * 1e9)), 1_000_000_000)
@@ -153,8 +183,9 @@ def status_values(node: ValidatorNode) -> dict:
 
 # ------------------------------------------------------------------------------------------------ the signal
 def test_injected_signal_equals_the_card_and_plan_answers_it(ros, tmp_path):
-    """~/plan answers the card file as ``plan --out`` writes it; ~/excite flies exactly the card's samples (fades
-    included), stamped on an even grid, zero before and after; they come back as the channel's excitation."""
+    """~/plan answers the card file as ``plan --out`` writes it; ~/excite flies exactly the card's samples
+    (fades included), stamped on an even grid, zero before and after; they come back as the channel's
+    excitation."""
     m = manoeuvre(0, 6.0, 0.04, trim_before_s=1.0, trim_between_s=1.0)
     card_path = write_card(tmp_path / "card.yaml", m)
     node = excitation_node(ros, write_config(tmp_path / "cfg.yaml"), card_path)
@@ -195,18 +226,23 @@ def test_injected_signal_equals_the_card_and_plan_answers_it(ros, tmp_path):
     assert np.array_equal(values[k0:k0 + expected.size], expected)          # exactly the card's samples
     assert not values[:k0].any() and not values[k0 + expected.size:].any()  # zero before and after
     assert np.count_nonzero(expected) > 250
-    # the node's own publication is the channel's excitation stream: every sample came back through its subscription
+    # the node's own publication is the channel's excitation stream: every sample came back through its
+    # subscription
     ros.wait(lambda: node.router.samples("pitch", "excitation") == stamps.size)
     call_again = call(ros, node, "excite")                   # the card's only manoeuvre has been flown
     assert not call_again.success and "has been flown" in call_again.message
 
 
 def test_abort_stops_the_manoeuvre_and_the_cap_holds(ros, tmp_path):
-    """A manoeuvre above the cap is refused; a cap lowered in flight clips every later sample; ~/abort makes the
-    next sample zero, and the injection stays zero after it."""
+    """A manoeuvre above the cap is refused; a cap lowered in flight clips every later sample; ~/abort makes
+    the next sample zero, and the injection stays zero after it."""
     small, large = manoeuvre(0, 10.0, 0.04), manoeuvre(1, 10.0, 0.08)
-    node = excitation_node(ros, write_config(tmp_path / "cfg.yaml"),
-                           write_card(tmp_path / "card.yaml", small, large), excitation_max_amplitude_rad=0.05)
+    node = excitation_node(
+        ros,
+        write_config(tmp_path / "cfg.yaml"),
+        write_card(tmp_path / "card.yaml", small, large),
+        excitation_max_amplitude_rad=0.05,
+    )
     sim = SimTime(ros, node)
     sim.start()
     assert node.set_parameters([Parameter("excite_index", value=1)])[0].successful
@@ -240,7 +276,8 @@ def test_abort_stops_the_manoeuvre_and_the_cap_holds(ros, tmp_path):
     after_cap = stamps[k0:] > capped_at
     after_abort = stamps[k0:] > aborted_at
     flown = ~after_abort
-    assert np.all((mine[flown] == reference[flown]) | (mine[flown] == clipped[flown]))   # the card's, or capped
+    # the card's, or capped
+    assert np.all((mine[flown] == reference[flown]) | (mine[flown] == clipped[flown]))
     assert np.array_equal(mine[after_cap & ~after_abort], clipped[after_cap & ~after_abort])
     assert np.count_nonzero(np.abs(reference[after_cap & ~after_abort]) > 0.02) > 20   # the cap did clip
     assert np.max(np.abs(mine[after_cap])) <= 0.02
@@ -251,11 +288,12 @@ def test_abort_stops_the_manoeuvre_and_the_cap_holds(ros, tmp_path):
 
 # ------------------------------------------------------------------------------------------------ closed loop
 class ClosedLoop:
-    """The pitch short period with a hidden delay in a rate damper's loop, stepped at the excitation's samples.
+    """The pitch short period with a hidden delay in a rate damper's loop, stepped at the excitation's
+    samples.
 
-    ``u = r - C(z) y_m`` (``C = K s / (s + a)``, bilinear), one sample of computation delay, the actuator delay
-    ``delay_s`` before the airframe (zero-order hold at 50 Hz), gusts at the rate and gyro noise on the measured rate
-    (which the damper reads), a little surface sensor noise.
+    ``u = r - C(z) y_m`` (``C = K s / (s + a)``, bilinear), one sample of computation delay, the actuator
+    delay ``delay_s`` before the airframe (zero-order hold at 50 Hz), gusts at the rate and gyro noise on the
+    measured rate (which the damper reads), a little surface sensor noise.
     """
 
     def __init__(self, delay_s: float, seed: int = 3):
@@ -293,8 +331,9 @@ class ClosedLoop:
 
 
 def test_a_manoeuvre_flown_in_a_closed_loop_gives_a_verdict(ros, tmp_path):
-    """The issue's done-when: the node flies one manoeuvre of its card into a closed loop simulated here, estimates
-    against what it injected, and returns a verdict: model-limited, with the epsilon a 40 ms delay gives."""
+    """The issue's done-when: the node flies one manoeuvre of its card into a closed loop simulated here,
+    estimates against what it injected, and returns a verdict: model-limited, with the epsilon a 40 ms delay
+    gives."""
     delay_s = 0.04
     m = manoeuvre(0, 20.0, 0.04)                               # 3 s trim, a 20 s sweep, 6 s trim
     node = excitation_node(ros, write_config(tmp_path / "cfg.yaml"), write_card(tmp_path / "card.yaml", m))
@@ -305,7 +344,8 @@ def test_a_manoeuvre_flown_in_a_closed_loop_gives_a_verdict(ros, tmp_path):
     fed = [0]
 
     def fly(seconds: float) -> None:
-        """Simulated time passes: the loop runs on every sample the node injected, its surface and rate go out."""
+        """Simulated time passes: the loop runs on every sample the node injected, its surface and rate go
+        out."""
         for _ in range(int(round(seconds / STEP_S))):
             sim.advance(STEP_S)
             for stamp, r in sim.samples[fed[0]:]:
@@ -326,12 +366,15 @@ def test_a_manoeuvre_flown_in_a_closed_loop_gives_a_verdict(ros, tmp_path):
     while node.excitation.player.flying is not None:
         fly(STEP_S)
     ended_s = sim.now_s
-    # trim after it, until the verdict: the record closes after pre_s + post_s of quiet and is judged once 20 s of
-    # trim beyond the estimator's 10 s look-back are known (TRIM_KNOWN_S; measured: 34 s after the card's 6 s)
+    # trim after it, until the verdict: the record closes after pre_s + post_s of quiet and is judged once 20
+    # s of trim beyond the estimator's 10 s look-back are known (TRIM_KNOWN_S; measured: 34 s after the card's
+    # 6 s)
     while node.last_result is None or not node.last_result.channels["pitch"].sweeps:
         assert sim.now_s - ended_s < 60.0, "no verdict 60 s after the manoeuvre"
         fly(1.0)
-    ros.wait(lambda: min(node.router.samples("pitch", s) for s in ("input", "output", "excitation")) == fed[0])
+    ros.wait(
+        lambda: min(node.router.samples("pitch", s) for s in ("input", "output", "excitation")) == fed[0]
+    )
     values = status_values(node)
     result = node.last_result.channels["pitch"]
     assert result.sweeps == 1 and result.excitation == "chirp"
@@ -343,7 +386,8 @@ def test_a_manoeuvre_flown_in_a_closed_loop_gives_a_verdict(ros, tmp_path):
     assert float(values["epsilon"]) == result.epsilon and values["limited_by"] == "model"
     assert values["excitation_manoeuvre"] == "pitch #0 done (29.0 s)"
 
-    # ~/plan without a card file: planned from the node's results, as gap-validate plan plans the JSON it writes
+    # ~/plan without a card file: planned from the node's results, as gap-validate plan plans the JSON it
+    # writes
     assert node.set_parameters([Parameter("plan_card", value="")])[0].successful
     answer = call(ros, node, "plan")
     assert answer.success, answer.message
@@ -356,10 +400,11 @@ def test_a_manoeuvre_flown_in_a_closed_loop_gives_a_verdict(ros, tmp_path):
     assert node.excitation.card.to_dict() == expected_card.to_dict()     # the card ~/excite flies next
 
 
-# ------------------------------------------------------------------------------------------------ off, Float64, reload
+# ------------------------------------------------------------------------------------------------ off,
+# Float64, reload
 def test_excitation_is_off_by_default(ros, tmp_path):
-    """Off: the config runs as written, nothing is published, no ~/excite or ~/abort, no status keys; ~/plan is
-    there (planning needs no injection)."""
+    """Off: the config runs as written, nothing is published, no ~/excite or ~/abort, no status keys; ~/plan
+    is there (planning needs no injection)."""
     node = ros.validator(write_config(tmp_path / "cfg.yaml"), spin=True)
     assert node.config.channels["pitch"].excitation is None
     assert "/gap_validator/excitation" not in node.router.topics
@@ -373,8 +418,8 @@ def test_excitation_is_off_by_default(ros, tmp_path):
 
 
 def test_float64_one_topic_per_channel_and_reload(ros, tmp_path):
-    """Float64: ``<excitation_topic>/<channel>`` per channel (zero on the channel not flying), the card's samples on
-    the flying one; a model reload keeps the injection and the manoeuvre in flight."""
+    """Float64: ``<excitation_topic>/<channel>`` per channel (zero on the channel not flying), the card's
+    samples on the flying one; a model reload keeps the injection and the manoeuvre in flight."""
     root = Path(__file__).resolve().parents[1]
     config = root / "config" / "ultrastick25e.yaml"
     m = manoeuvre(0, 4.0, 0.03, trim_before_s=0.5, trim_between_s=0.5)
@@ -404,10 +449,11 @@ def test_float64_one_topic_per_channel_and_reload(ros, tmp_path):
     assert not values[:start].any() and not values[start + expected.size:].any() and not any(roll)
 
 
-# ------------------------------------------------------------------------------------------------ pieces, bad input
+# ------------------------------------------------------------------------------------------------ pieces, bad
+# input
 def test_player_catches_up_late_ticks_and_restarts_after_a_jump():
-    """A late tick publishes every sample due, on the grid; more than 0.5 s due at once (a stall, a /clock jump)
-    aborts the manoeuvre and restarts the grid; so does time going back."""
+    """A late tick publishes every sample due, on the grid; more than 0.5 s due at once (a stall, a /clock
+    jump) aborts the manoeuvre and restarts the grid; so does time going back."""
     m = manoeuvre(0, 4.0, 0.03, trim_before_s=0.0, trim_between_s=0.0)
     player = Player(50.0)
     assert len(player.due(10_000_000_000, 0.1)) == 1
@@ -425,7 +471,9 @@ def test_player_catches_up_late_ticks_and_restarts_after_a_jump():
 
 
 def test_select_manoeuvre_says_why_not(tmp_path):
-    card, _, _ = read_card(write_card(tmp_path / "card.yaml", manoeuvre(0, 10.0, 0.04), manoeuvre(1, 10.0, 0.04)))
+    card, _, _ = read_card(
+        write_card(tmp_path / "card.yaml", manoeuvre(0, 10.0, 0.04), manoeuvre(1, 10.0, 0.04))
+    )
     points = {"pitch": object()}
     with pytest.raises(ConfigError, match="no card yet: call ~/plan"):
         select_manoeuvre(None, "", -1, set(), points)

@@ -2,12 +2,12 @@
 (the counter itself, :class:`~gap_validation.ros.stamp_gaps.StampGaps`, in ``test_stamp_gaps.py``).
 
 In-process, explicit rclpy Contexts (the publisher is another DDS participant): 10 kHz IMU for 6 s of message
-time, in real time and as fast as the test can (so that the node's KEEP_LAST queue overflows), diagnostics every
-0.5 s. Checked, all by construction rather than by timing: ``samples_dropped`` equals the messages really missing
-(known from the published stamps; losses are counted wherever they begin, ``test_stamp_gaps.py``), memory is
-bounded, and no interval between two /diagnostics publications of the node, from the flood's start to its end,
-exceeds two periods (the intake timer publishes when the diagnostics timer is 1.5 periods late; no count of
-messages, which the other jobs on a 2-core machine make vary by one).
+time, in real time and as fast as the test can (so that the node's KEEP_LAST queue overflows), diagnostics
+every 0.5 s. Checked, all by construction rather than by timing: ``samples_dropped`` equals the messages
+really missing (known from the published stamps; losses are counted wherever they begin,
+``test_stamp_gaps.py``), memory is bounded, and no interval between two /diagnostics publications of the node,
+from the flood's start to its end, exceeds two periods (the intake timer publishes when the diagnostics timer
+is 1.5 periods late; no count of messages, which the other jobs on a 2-core machine make vary by one).
 """
 from __future__ import annotations
 
@@ -30,7 +30,9 @@ def bench():
     saved = {k: os.environ.get(k) for k in keys}
     os.environ.update({"ROS_PYTHON_CHECK_FIELDS": "1", "ROS_DOMAIN_ID": domain_id(),
                        "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"})
-    spec = importlib.util.spec_from_file_location("bench_node_flood", ROOT / "benchmarks" / "bench_node_flood.py")
+    spec = importlib.util.spec_from_file_location(
+        "bench_node_flood", ROOT / "benchmarks" / "bench_node_flood.py"
+    )
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module  # dataclasses look their module up
     spec.loader.exec_module(module)
@@ -72,8 +74,8 @@ def test_flood_faster_than_the_node_counts_every_drop(bench, tmp_path):
 
 @pytest.mark.parametrize("path", ["drained", "handed_over"])
 def test_messages_taken_publish_diagnostics_when_the_timer_is_late(bench, tmp_path, path):
-    """No executor runs the diagnostics timer here (as when it is held up): taking messages publishes every 1.5
-    periods. Node time is driven by the test (1 ms per message), so the count is exact."""
+    """No executor runs the diagnostics timer here (as when it is held up): taking messages publishes every
+    1.5 periods. Node time is driven by the test (1 ms per message), so the count is exact."""
     import rclpy
     from rclpy.context import Context
     from rclpy.parameter import Parameter

@@ -1,13 +1,13 @@
 """``kill -9`` of the node: it restarts from its checkpoint with identical spectra and carries on.
 
-The console script runs as a child process (``python -m gap_validation.ros.main``, checkpoint every 0.3 s); the test
-publishes the bundled flight over DDS from its own rclpy Context: the first 60 s (in the middle of the first
-sweep), waits until /diagnostics show every sample arrived and a checkpoint was written after that, SIGKILLs the
-node, restarts it on the same ``state_file`` and checks that its state equals the checkpoint (bit for bit) and its
-/diagnostics the numbers of that state; then the flight goes on to 120 s (the sweep completes) and, once the node
-has closed the run (its inputs silent for ``end_of_data_timeout`` since it took their last message), the state
-matches an uninterrupted in-process run of the same messages (checkpoints are polled until then: under load the
-node takes messages late).
+The console script runs as a child process (``python -m gap_validation.ros.main``, checkpoint every 0.3 s);
+the test publishes the bundled flight over DDS from its own rclpy Context: the first 60 s (in the middle of
+the first sweep), waits until /diagnostics show every sample arrived and a checkpoint was written after that,
+SIGKILLs the node, restarts it on the same ``state_file`` and checks that its state equals the checkpoint (bit
+for bit) and its /diagnostics the numbers of that state; then the flight goes on to 120 s (the sweep
+completes) and, once the node has closed the run (its inputs silent for ``end_of_data_timeout`` since it took
+their last message), the state matches an uninterrupted in-process run of the same messages (checkpoints are
+polled until then: under load the node takes messages late).
 """
 from __future__ import annotations
 
@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _ros import domain_id
 import yaml
+from _ros import domain_id
 
 rclpy = pytest.importorskip("rclpy")
 
@@ -33,8 +33,8 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from rclpy.serialization import deserialize_message  # noqa: E402
 
 from gap_validation.bag.reader import open_bag  # noqa: E402
-from gap_validation.core.config import load_config  # noqa: E402
 from gap_validation.core.checkpoint import load_state  # noqa: E402
+from gap_validation.core.config import load_config  # noqa: E402
 from gap_validation.core.validator import OnlineValidator  # noqa: E402
 from gap_validation.messages.router import MessageRouter, stamp_seconds  # noqa: E402
 from gap_validation.ros.message_types import message_class  # noqa: E402
@@ -92,11 +92,29 @@ def _messages(until_s: float):
 
 
 def _start(config: Path, state: Path) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "gap_validation.ros.main", "--ros-args", "-p",
-                             f"config_file:={config}", "-p", f"state_file:={state}", "-p", "checkpoint_period:=0.3",
-                             "-p", "diagnostic_period:=0.2", "-p", "diagnosis_period:=0.0"],
-                            env=dict(os.environ), cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                            text=True)
+    return subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "gap_validation.ros.main",
+            "--ros-args",
+            "-p",
+            f"config_file:={config}",
+            "-p",
+            f"state_file:={state}",
+            "-p",
+            "checkpoint_period:=0.3",
+            "-p",
+            "diagnostic_period:=0.2",
+            "-p",
+            "diagnosis_period:=0.0",
+        ],
+        env=dict(os.environ),
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
 
 
 class Peer:
@@ -109,7 +127,8 @@ class Peer:
         self.node = rclpy.create_node("kill_test_peer", context=self.context)
         self.executor.add_node(self.node)
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE)
-        self.matches = {topic: 0 for topic in TYPES}     # subscriptions matched so far (the killed node's too)
+        # subscriptions matched so far (the killed node's too)
+        self.matches = {topic: 0 for topic in TYPES}
         self.pubs = {topic: self.node.create_publisher(message_class(t), topic, qos,
                                                        event_callbacks=self._matched_callbacks(topic))
                      for topic, t in TYPES.items()}
@@ -125,7 +144,9 @@ class Peer:
     def wait_new_subscriber(self, before: dict[str, int]) -> None:
         """Until every publisher matched one more subscription than ``before``: a restarted node's (the killed
         node's stays counted until its DDS lease expires, so the subscription count alone cannot tell)."""
-        self.wait(lambda: all(self.matches[t] > before[t] for t in TYPES), what="the restarted node's subscriptions")
+        self.wait(
+            lambda: all(self.matches[t] > before[t] for t in TYPES), what="the restarted node's subscriptions"
+        )
 
     def _on_diagnostics(self, array) -> None:
         for status in array.status:
@@ -134,7 +155,10 @@ class Peer:
     def wait(self, predicate, timeout_s: float = 30.0, what: str = "") -> None:
         deadline = time.monotonic() + timeout_s
         while not predicate():
-            assert time.monotonic() < deadline, f"timed out waiting for {what} ({self.last.get('pitch', {}).get('samples_output')}, {self.last.get('pitch', {}).get('samples_input')})"
+            assert time.monotonic() < deadline, (
+                f"timed out waiting for {what} ({self.last.get('pitch', {}).get('samples_output')}, "
+                f"{self.last.get('pitch', {}).get('samples_input')})"
+            )
             self.executor.spin_once(timeout_sec=0.02)
 
     def publish(self, messages) -> None:
@@ -164,8 +188,13 @@ def _same_spectra(config: Path, state: dict, whole: OnlineValidator) -> bool:
     a = OnlineValidator.from_state(load_config(config), state, diagnose=False)
     for name in whole.config.channels:
         est_a, est_b = a.estimate(name), whole.estimate(name)
-        if (est_a is None) != (est_b is None) or (est_a is not None and not all(
-                np.allclose(getattr(est_a, k), getattr(est_b, k), rtol=1e-9, atol=0) for k in ("gxx", "gyy", "gxy"))):
+        if (est_a is None) != (est_b is None) or (
+            est_a is not None
+            and not all(
+                np.allclose(getattr(est_a, k), getattr(est_b, k), rtol=1e-9, atol=0)
+                for k in ("gxx", "gyy", "gxy")
+            )
+        ):
             return False
     return True
 
@@ -179,7 +208,9 @@ def _checkpoint_after(peer: Peer, state: Path, t: float) -> dict:
 def test_kill_9_restart_resumes_identical_spectra_and_continues(env, tmp_path):
     config, state = env, tmp_path / "state.npz"
     messages = _messages(120.0)
-    split = next(i for i, (_, msg) in enumerate(messages) if stamp_seconds(msg) - stamp_seconds(messages[0][1]) > 60)
+    split = next(
+        i for i, (_, msg) in enumerate(messages) if stamp_seconds(msg) - stamp_seconds(messages[0][1]) > 60
+    )
     first, second = messages[:split], messages[split:]
     whole = OnlineValidator(load_config(config), diagnose=False)     # one pass over the flight, in process
     router = MessageRouter(load_config(config), whole)
@@ -202,16 +233,18 @@ def test_kill_9_restart_resumes_identical_spectra_and_continues(env, tmp_path):
         peer.last.clear()
         peer.wait(lambda: "pitch" in peer.last, what="diagnostics of the restarted node")
         resumed = _checkpoint_after(peer, state, restarted)
-        assert_same_tree(resumed, saved)                     # identical spectra after the restart
-        expected = OnlineValidator.from_state(load_config(config), saved, diagnose=False).results(diagnose=False)
+        assert_same_tree(resumed, saved)  # identical spectra after the restart
+        expected = OnlineValidator.from_state(load_config(config), saved, diagnose=False).results(
+            diagnose=False
+        )
         for name, ch in expected.channels.items():
             assert peer.last[name]["sweeps"] == str(ch.sweeps)
             assert peer.last[name]["epsilon"] == ("null" if ch.epsilon is None else repr(ch.epsilon))
 
         peer.publish(second)
-        # the flight's last manoeuvre closes once the inputs have been silent for end_of_data_timeout (10 s since
-        # the node took the last message, later than this side saw it under load): the end of the run, as replay
-        # closes it at the end of the bag. Checkpoints until then hold the manoeuvre still open.
+        # the flight's last manoeuvre closes once the inputs have been silent for end_of_data_timeout (10 s
+        # since the node took the last message, later than this side saw it under load): the end of the run,
+        # as replay closes it at the end of the bag. Checkpoints until then hold the manoeuvre still open.
         deadline = time.monotonic() + 45.0
         while True:
             final = _checkpoint_after(peer, state, time.time())

@@ -1,7 +1,7 @@
-"""Parity of node and replay on flights the project did not shape (issue 26: ``../shared/flights``, other topics and
-rates, a pitch damper): the node's data path (serialized messages as they come, its own batches) and its
-``~/save_results`` JSON -- full diagnosis included -- equal ``gap-validate replay``'s on the same bag field by field
-(values, warnings, diagnosis; numbers to 1e-9). The bundled flight: ``test_node.py``."""
+"""Parity of node and replay on flights the project did not shape (issue 26: ``../shared/flights``, other
+topics and rates, a pitch damper): the node's data path (serialized messages as they come, its own batches)
+and its ``~/save_results`` JSON -- full diagnosis included -- equal ``gap-validate replay``'s on the same bag
+field by field (values, warnings, diagnosis; numbers to 1e-9). The bundled flight: ``test_node.py``."""
 from __future__ import annotations
 
 import json
@@ -29,8 +29,8 @@ import second_simulator as bench  # noqa: E402
 pytestmark = pytest.mark.skipif(not (bench.FLIGHTS / "flightgen.py").exists(),
                                 reason="../shared/flights is not beside the checkout")
 
-#: Other topics and rates (200 Hz IMU, 100 Hz surfaces) with a lag to name; a rate damper on pitch (the feedback
-#: warnings and the trim between the manoeuvres they read).
+#: Other topics and rates (200 Hz IMU, 100 Hz surfaces) with a lag to name; a rate damper on pitch (the
+#: feedback warnings and the trim between the manoeuvres they read).
 CASES = ("lag_roll", "closed_loop_pitch")
 
 
@@ -54,10 +54,16 @@ def test_node_save_results_equals_replay_field_by_field(name, ros_env, tmp_path_
     results = tmp_path_factory.mktemp("results")
     context = Context()
     rclpy.init(context=context)
-    node = ValidatorNode(context=context, parameter_overrides=[
-        Parameter("config_file", value=str(where / "nominal.yaml")), Parameter("results_dir", value=str(results))])
+    node = ValidatorNode(
+        context=context,
+        parameter_overrides=[
+            Parameter("config_file", value=str(where / "nominal.yaml")),
+            Parameter("results_dir", value=str(results)),
+        ],
+    )
     try:
-        assert set(node.topics.raw) == set(config.topics())      # the node's default path: serialized messages
+        # the node's default path: serialized messages
+        assert set(node.topics.raw) == set(config.topics())
         for topic, raw in records:
             node.on_raw(topic, raw)
         node.router.flush()

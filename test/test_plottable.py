@@ -8,9 +8,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gap_validation.core.config import load_config
-from gap_validation.core.config import FrequencyGrid
-from gap_validation.core.plottable import CURVES, FLAG_CODES, flags_from_codes, frequency_response_table, read_table
+from gap_validation.core.config import FrequencyGrid, load_config
+from gap_validation.core.plottable import (
+    CURVES,
+    FLAG_CODES,
+    flags_from_codes,
+    frequency_response_table,
+    read_table,
+)
 from gap_validation.core.results import ChannelResult
 
 CONFIG = Path(__file__).resolve().parents[1] / "config" / "ultrastick25e.yaml"
@@ -26,10 +31,12 @@ def _result(w: np.ndarray, model) -> ChannelResult:
 
 
 def test_a_grid_that_follows_the_flight_keeps_its_columns_and_leaves_nan_outside_the_band():
-    """A channel without ``frequencies`` cuts its result to the excited band, which grows during the flight: the
-    table stays on the whole grid (a layout's indices hold), the band's columns filled, the rest NaN."""
+    """A channel without ``frequencies`` cuts its result to the excited band, which grows during the flight:
+    the table stays on the whole grid (a layout's indices hold), the band's columns filled, the rest NaN."""
     config = load_config(CONFIG)
-    channel = dataclasses.replace(config.channels["pitch"], frequencies=FrequencyGrid(0.3, 100.0, 50, configured=False))
+    channel = dataclasses.replace(
+        config.channels["pitch"], frequencies=FrequencyGrid(0.3, 100.0, 50, configured=False)
+    )
     grid = channel.frequencies.values()
     for lo, hi in ((10, 20), (5, 35)):
         table = frequency_response_table(_result(grid[lo:hi], channel.model), channel)
@@ -56,7 +63,9 @@ def test_no_estimate_yet_gives_the_grid_alone_and_a_mimo_channel_no_table():
     table = frequency_response_table(ChannelResult(name="roll"), channel)
     np.testing.assert_allclose(table[0], channel.frequencies.values())
     assert np.isnan(table[2:]).all()
-    mimo = dataclasses.replace(channel, input=None, output=None, inputs=(channel.input,), outputs=(channel.output,))
+    mimo = dataclasses.replace(
+        channel, input=None, output=None, inputs=(channel.input,), outputs=(channel.output,)
+    )
     assert mimo.is_mimo and frequency_response_table(ChannelResult(name="roll"), mimo) is None
 
 

@@ -1,4 +1,5 @@
-"""Tests of gap_validation.core.records: where one manoeuvre ends and the next begins, and what kind each is."""
+"""Tests of gap_validation.core.records: where one manoeuvre ends and the next begins, and what kind each
+is."""
 import numpy as np
 import pytest
 
@@ -36,8 +37,8 @@ def test_three_chirps_a_few_seconds_apart_are_three_sweeps():
     u = card(chirp(60.0), 3.0, chirp(60.0), 3.0, chirp(60.0))
     pieces = pieces_of(u)
     assert kinds_of(u) == ["chirp"] * 3
-    # each keeps the trim before it from half of each 3 s pause on, and after it up to the next manoeuvre's start
-    # (its response settles there): never a sample of another manoeuvre
+    # each keeps the trim before it from half of each 3 s pause on, and after it up to the next manoeuvre's
+    # start (its response settles there): never a sample of another manoeuvre
     assert all(a.end <= b.active_start and a.active_end <= b.start for a, b in zip(pieces, pieces[1:]))
     assert all(p.active_start - p.start >= int(1.0 / DT) for p in pieces)
     assert all(a.end - a.active_end >= int(2.9 / DT) for a in pieces[:-1])
@@ -56,16 +57,17 @@ def test_a_restart_of_the_swept_frequency_separates_different_sweeps():
 
 
 def test_crossings_lost_near_the_top_of_a_sweep_do_not_start_a_new_one():
-    """A low-SNR sweep: for half a second near its top the surface stays within the trim band (its crossings are
-    lost); one long half-period among short ones is no restart: a new sweep stays at its low start frequency for
-    several half-periods (seen on the second simulator's lowsnr flight: a 25 s chirp split at 22.4 s)."""
+    """A low-SNR sweep: for half a second near its top the surface stays within the trim band (its crossings
+    are lost); one long half-period among short ones is no restart: a new sweep stays at its low start
+    frequency for several half-periods (seen on the second simulator's lowsnr flight: a 25 s chirp split at
+    22.4 s)."""
     sweep = chirp(40.0)
     t = np.arange(sweep.size) * DT
     sweep[(t > 36.0) & (t < 36.5)] *= 0.02
     u = card(sweep)
     assert kinds_of(u) == ["chirp"] and len(pieces_of(u)) == 1
-    # a real restart right after it still splits, and so does a doublet half a second after it (two half-periods
-    # left in the group: the lasting test takes those there are)
+    # a real restart right after it still splits, and so does a doublet half a second after it (two
+    # half-periods left in the group: the lasting test takes those there are)
     assert kinds_of(card(sweep, chirp(50.0, 0.7, 30.0))) == ["chirp", "chirp"]
     doublet = 0.05 * multistep(np.arange(0.0, 2.0, DT), 0.5, (1, 1), 0.04)
     assert kinds_of(card(sweep, 0.5, doublet)) == ["chirp", "doublet"]
@@ -138,8 +140,10 @@ def test_a_clipped_chirp_is_saturated_and_a_noisy_one_or_a_3211_is_not():
     [piece] = pieces_of(clipped_exact)
     assert saturated_share(clipped_exact, piece) >= SATURATED_SHARE
     [piece] = pieces_of(card(raw, seed=1))
-    assert saturated_share(card(raw, seed=1), piece) == 0.0           # noise never repeats its extreme value
-    steps = TRIM + np.concatenate([np.zeros(200), 0.05 * multistep(np.arange(0, 3.5, DT), 0.5), np.zeros(300)])
+    assert saturated_share(card(raw, seed=1), piece) == 0.0  # noise never repeats its extreme value
+    steps = TRIM + np.concatenate(
+        [np.zeros(200), 0.05 * multistep(np.arange(0, 3.5, DT), 0.5), np.zeros(300)]
+    )
     [piece] = pieces_of(steps)
     assert classify(steps, DT, piece, NOISE) == "multistep"        # plateaus by design: the estimator asks
     assert saturated_share(steps, piece) > SATURATED_SHARE         # only smooth kinds about saturation
@@ -161,8 +165,8 @@ def test_an_estimator_says_a_clipped_chirp_is_saturated_and_does_not_use_it():
 
 @pytest.mark.parametrize("period_s", [3.4, 5.0, 10.0])
 def test_two_periods_of_a_short_multisine_are_one_periodic_record(period_s):
-    """Its fades lie partly at trim, so the excited span is a little under two periods: still periodic, one record
-    (a restart of its sweep inside each period does not split it)."""
+    """Its fades lie partly at trim, so the excited span is a little under two periods: still periodic, one
+    record (a restart of its sweep inside each period does not split it)."""
     t = np.arange(0.0, 2 * period_s, DT)
     u = card(0.05 * multisine(t, period_s, 2, 0.5, 52.0))
     assert kinds_of(u) == ["multisine"]

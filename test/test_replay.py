@@ -1,4 +1,5 @@
-"""Replay (gap_validation.bag.replay and ``gap-validate replay|simulate``): simulate -> bag -> replay round trips."""
+"""Replay (gap_validation.bag.replay and ``gap-validate replay|simulate``): simulate -> bag -> replay round
+trips."""
 import contextlib
 import io
 import json
@@ -6,19 +7,19 @@ import math
 
 import numpy as np
 import pytest
+from _flights import CONFIG_PATH, SHORT, config_from, make_bag, single_channel, ultrastick, write_config
 from scipy import interpolate, signal
 
-from _flights import CONFIG_PATH, SHORT, config_from, make_bag, single_channel, ultrastick, write_config
 from gap_validation.bag.reader import open_bag
+from gap_validation.bag.replay import replay
 from gap_validation.cli.main import main
 from gap_validation.core.errors import DataError
-from gap_validation.core.estimator import FrequencyResponseEstimator
-from gap_validation.core.simulation import FlightOptions, with_options
 from gap_validation.core.fields import FieldPath
+from gap_validation.core.simulation import FlightOptions, with_options
 from gap_validation.messages.router import stamp_seconds
-from gap_validation.bag.replay import replay
 
-#: The full test card (3 sweeps of 120 s per axis, about 20 minutes) with the IMU at 50 Hz like the paper's lab.
+#: The full test card (3 sweeps of 120 s per axis, about 20 minutes) with the IMU at 50 Hz like the paper's
+#: lab.
 FULL = FlightOptions(imu_rate_hz=50.0)
 #: Pitch-only flights for the many variant tests: short, and pitch is well conditioned.
 PITCH = with_options(SHORT, sweeps_per_channel=2, sweep_duration_s=60.0, quiet_s=8.0)
@@ -94,8 +95,9 @@ def test_replay_agrees_with_a_scipy_batch_estimate_on_the_same_samples(bags, cle
     """Independent batch estimate: the bag's samples, cubic-spline aligned on a 100 Hz grid, cut to the sweeps
     the replay detected, each sweep's whole-record cross and auto spectra from ``scipy.signal.csd``/``welch``
     (one rectangular segment, the record's own resolution), summed over the bins within 10 % of each analysis
-    frequency and over sweeps (H1 = Gxy/Gxx, the smoothed ETFE). The replay's local polynomial estimate removes
-    the transients this reference keeps, so the two agree within the replay's random error plus a few percent."""
+    frequency and over sweeps (H1 = Gxy/Gxx, the smoothed ETFE). The replay's local polynomial estimate
+    removes the transients this reference keeps, so the two agree within the replay's random error plus a few
+    percent."""
     config = ultrastick()
     channel = config.channels["pitch"]
     result = clean_outcome.result.channels["pitch"]
@@ -124,7 +126,8 @@ def test_replay_agrees_with_a_scipy_batch_estimate_on_the_same_samples(bags, cle
     assert np.median(rel) < 0.03
 
 
-# ------------------------------------------------------------------------------------------- storages, variants
+# ------------------------------------------------------------------------------------------- storages,
+# variants
 def test_mcap_sqlite3_bare_files_and_full_decode_agree(tmp_path, pitch_config, pitch_bag):
     path, flight = pitch_bag
     from gap_validation.bag.writer import write_flight
@@ -143,15 +146,21 @@ def test_mcap_sqlite3_bare_files_and_full_decode_agree(tmp_path, pitch_config, p
 
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
 def test_batched_replay_gives_the_record_by_record_result(tmp_path, monkeypatch, storage):
-    """Replay reads records in batches and decodes them at once (TopicDecoder.decode_batch): the JSON is the one
-    of the record-by-record replay (every record through TopicDecoder.decode and MessageRouter.on_values, as
-    before batching) and of full deserialisation, to the bit, on a 1 kHz flight of three channels."""
+    """Replay reads records in batches and decodes them at once (TopicDecoder.decode_batch): the JSON is the
+    one of the record-by-record replay (every record through TopicDecoder.decode and MessageRouter.on_values,
+    as before batching) and of full deserialisation, to the bit, on a 1 kHz flight of three channels."""
     from gap_validation.messages.decoding import TopicDecoder
     from gap_validation.messages.router import MessageRouter
 
     bag = tmp_path / "flight"
-    make_bag(bag, seed=3, storage=storage, options=with_options(SHORT, sweeps_per_channel=1, sweep_duration_s=30.0,
-                                                               imu_rate_hz=1000.0, surface_rate_hz=100.0))
+    make_bag(
+        bag,
+        seed=3,
+        storage=storage,
+        options=with_options(
+            SHORT, sweeps_per_channel=1, sweep_duration_s=30.0, imu_rate_hz=1000.0, surface_rate_hz=100.0
+        ),
+    )
     config = ultrastick()
     batched_messages = []
     run = MessageRouter.on_values_batch
@@ -178,7 +187,9 @@ def test_custom_topics_joint_names_and_rates(tmp_path):
     data["channels"]["pitch"]["input"] = {"topic": "/fmu/servo_feedback", "field": "position[elev_servo]"}
     data["channels"]["pitch"]["output"] = {"topic": "/vn300/imu", "field": "angular_velocity.y"}
     config = config_from(data)
-    make_bag(tmp_path / "custom", config=config, seed=3, options=PITCH, imu_rate_hz=200.0, surface_rate_hz=25.0)
+    make_bag(
+        tmp_path / "custom", config=config, seed=3, options=PITCH, imu_rate_hz=200.0, surface_rate_hz=25.0
+    )
     with open_bag(tmp_path / "custom") as bag:
         topics = bag.topics
     assert set(topics) == {"/fmu/servo_feedback", "/vn300/imu"}
@@ -204,10 +215,10 @@ def test_float64_topics_with_scale(tmp_path):
 
 
 def test_an_airspeed_topic_is_read_and_its_ratio_reported(tmp_path):
-    """The ``airspeed`` stream through the one data path (bag -> router -> estimator): the simulator's airframe
-    flies at the model's condition, so the dynamic pressure ratio is 1 and the estimate that of the plain channel;
-    a trim airspeed 20 % above the flown one reads the flight as 0.69 of it and scales the surface by that: the
-    response comes out 1.44 times too small and the verdict says so."""
+    """The ``airspeed`` stream through the one data path (bag -> router -> estimator): the simulator's
+    airframe flies at the model's condition, so the dynamic pressure ratio is 1 and the estimate that of the
+    plain channel; a trim airspeed 20 % above the flown one reads the flight as 0.69 of it and scales the
+    surface by that: the response comes out 1.44 times too small and the verdict says so."""
     airspeed = {"topic": "/air_data/airspeed", "field": "data", "trim_m_s": 19.0}
     data = single_channel("pitch", airspeed=airspeed)
     config = config_from(data)
@@ -216,7 +227,9 @@ def test_an_airspeed_topic_is_read_and_its_ratio_reported(tmp_path):
         assert bag.topics["/air_data/airspeed"].msgtype == "std_msgs/msg/Float64"
     held = replay([tmp_path / "air"], config).result.channels["pitch"]
     ratio = held.to_json_dict()["dynamic_pressure_ratio"]
-    assert ratio["clipped"] == 0 and all(ratio[k] == pytest.approx(1.0, abs=1e-12) for k in ("mean", "min", "max"))
+    assert ratio["clipped"] == 0 and all(
+        ratio[k] == pytest.approx(1.0, abs=1e-12) for k in ("mean", "min", "max")
+    )
     plain = replay([tmp_path / "air"], config_from(single_channel("pitch"))).result.channels["pitch"]
     assert plain.to_json_dict()["dynamic_pressure_ratio"] is None
     assert held.epsilon == pytest.approx(plain.epsilon, rel=1e-6, abs=1e-9) and held.epsilon < 0.15
@@ -232,7 +245,10 @@ def main_lines(tmp_path, data: dict) -> list[str]:
     path = write_config(data, tmp_path / "air.yaml")
     out = io.StringIO()
     with contextlib.redirect_stdout(out):
-        assert main(["replay", str(tmp_path / "air"), "--config", str(path), "--no-history", "--no-progress"]) == 0
+        assert (
+            main(["replay", str(tmp_path / "air"), "--config", str(path), "--no-history", "--no-progress"])
+            == 0
+        )
     return out.getvalue().splitlines()
 
 
@@ -275,7 +291,8 @@ def test_one_unreadable_bag_among_several_keeps_the_rest(tmp_path, pitch_bag, pi
 
 
 def _copy_with_damaged_records(src, dst, damage):
-    """Copy bag ``src`` to ``dst`` with the records whose 1-based numbers are in ``damage`` cut to 20 bytes."""
+    """Copy bag ``src`` to ``dst`` with the records whose 1-based numbers are in ``damage`` cut to 20
+    bytes."""
     from rosbags.rosbag2 import Reader, Writer
     from rosbags.typesys import Stores, get_typestore
 
@@ -347,7 +364,15 @@ def test_cli_replay_table_and_json(tmp_path, pitch_bag, capsys):
     assert captured.out.splitlines()[0].split()[:3] == ["channel", "nu-gap", "epsilon"]
     data = json.loads(out.read_text())
     pitch = data["channels"]["pitch"]
-    for key in ("nu_gap", "epsilon", "epsilon_raw", "worst_frequency_rad_s", "sweeps", "coherence", "measured"):
+    for key in (
+        "nu_gap",
+        "epsilon",
+        "epsilon_raw",
+        "worst_frequency_rad_s",
+        "sweeps",
+        "coherence",
+        "measured",
+    ):
         assert key in pitch
     assert pitch["sweeps"] == PITCH.sweeps_per_channel and data["sources"] == [str(path)]
 
@@ -378,7 +403,9 @@ def test_cli_unwritable_output_is_refused_before_the_replay(tmp_path, pitch_bag,
     path, _ = pitch_bag
     config = write_config(single_channel("pitch"), tmp_path / "pitch.yaml")
     (tmp_path / "file.txt").write_text("")
-    monkeypatch.setattr(command, "replay", lambda *a, **k: pytest.fail("replayed before checking the outputs"))
+    monkeypatch.setattr(
+        command, "replay", lambda *a, **k: pytest.fail("replayed before checking the outputs")
+    )
     assert main(["replay", str(path), "--config", str(config), "--no-history", option,
                  str(tmp_path / target)]) == 2
     err = capsys.readouterr().err.strip()
@@ -453,8 +480,8 @@ def test_cli_simulate_and_errors(tmp_path, capsys):
 
 
 def test_cli_simulates_a_nasa_style_3211_run_and_replay_says_what_was_flown(tmp_path, capsys):
-    """`simulate --excitation 3211 --trim-s 1 --duration-s 8` at 50 Hz: one short multistep; replay of the model
-    that generated it finds a multistep, its band, and no model-limited point."""
+    """`simulate --excitation 3211 --trim-s 1 --duration-s 8` at 50 Hz: one short multistep; replay of the
+    model that generated it finds a multistep, its band, and no model-limited point."""
     out = tmp_path / "nasa"
     assert main(["simulate", "--config", str(CONFIG_PATH), "--out", str(out), "--excitation", "3211",
                  "--sweeps", "1", "--trim-s", "1", "--duration-s", "8", "--multistep-unit-s", "0.5",
@@ -473,35 +500,56 @@ def test_cli_simulates_a_nasa_style_3211_run_and_replay_says_what_was_flown(tmp_
     assert exit_.value.code == 2 and "invalid choice" in capsys.readouterr().err
 
 
-# ------------------------------------------------------------------------------------------------ --apply-diagnosis
+# ------------------------------------------------------------------------------------------------
+# --apply-diagnosis
 def _apply(tmp_path, capsys, channels: dict, force: bool = False):
-    """Run the CLI's --apply-diagnosis step on hand-made results for the Ultra Stick config; returns the written
-    config (or None), stdout and stderr."""
+    """Run the CLI's --apply-diagnosis step on hand-made results for the Ultra Stick config; returns the
+    written config (or None), stdout and stderr."""
     import yaml
 
     from gap_validation.cli.replay import _apply_diagnosis
     from gap_validation.core.results import ChannelResult, ValidationResult
 
     config = ultrastick()
-    result = ValidationResult(channels={name: ChannelResult(name=name, **fields) for name, fields in channels.items()})
+    result = ValidationResult(
+        channels={name: ChannelResult(name=name, **fields) for name, fields in channels.items()}
+    )
     out = tmp_path / "fixed.yaml"
     _apply_diagnosis(config, result, str(out), None, force=force)
     captured = capsys.readouterr()
     return (yaml.safe_load(out.read_text()) if out.exists() else None), captured.out, captured.err
 
 
-_DELAY = {"effect": "time_delay", "effects": [{"type": "time_delay", "seconds": 0.05}], "epsilon": 0.05,
-          "sentence": "missing: time delay of 50 ms; adding it brings epsilon from 0.62 to 0.05, which explains the "
-                      "mismatch (the rest is within the data's errors)", "explains": True}
-_MODE = {"effect": "structural_mode", "effects": [{"type": "structural_mode", "frequency_rad_s": 2.9, "damping": 0.48,
-                                                   "zero_frequency_rad_s": 3.5, "zero_damping": 0.5}],
-         "epsilon": 0.09, "sentence": "missing: structural mode ...; but does not explain the mismatch", "explains": False}
+_DELAY = {
+    "effect": "time_delay",
+    "effects": [{"type": "time_delay", "seconds": 0.05}],
+    "epsilon": 0.05,
+    "sentence": "missing: time delay of 50 ms; adding it brings epsilon from 0.62 to 0.05, which explains "
+                "the "
+    "mismatch (the rest is within the data's errors)",
+    "explains": True,
+}
+_MODE = {
+    "effect": "structural_mode",
+    "effects": [
+        {
+            "type": "structural_mode",
+            "frequency_rad_s": 2.9,
+            "damping": 0.48,
+            "zero_frequency_rad_s": 3.5,
+            "zero_damping": 0.5,
+        }
+    ],
+    "epsilon": 0.09,
+    "sentence": "missing: structural mode ...; but does not explain the mismatch",
+    "explains": False,
+}
 
 
 def test_apply_diagnosis_writes_only_fixes_that_explain_a_model_limited_channel(tmp_path, capsys):
-    """issue 15: a channel that fits (the backlash case: a candidate but the verdict 'model fits'), a data-limited
-    one and one whose best candidate does not explain the mismatch are left as they are, each with a line saying
-    why; the model-limited channel with an explaining candidate gets it."""
+    """issue 15: a channel that fits (the backlash case: a candidate but the verdict 'model fits'), a
+    data-limited one and one whose best candidate does not explain the mismatch are left as they are, each
+    with a line saying why; the model-limited channel with an explaining candidate gets it."""
     written, out, err = _apply(tmp_path, capsys, {
         "roll": {"limited_by": "none", "epsilon": 0.125, "diagnosis": [_MODE]},
         "pitch": {"limited_by": "model", "epsilon": 0.62, "diagnosis": [_DELAY]},
@@ -514,8 +562,10 @@ def test_apply_diagnosis_writes_only_fixes_that_explain_a_model_limited_channel(
     assert channels["yaw"]["model"] == original["yaw"]["model"]
     assert "  pitch: missing: time delay of 50 ms" in out
     assert "  roll: left as it is: the channel is not model-limited (limited by none); --force writes" in out
-    assert ("  yaw: left as it is: no candidate explains the mismatch (none leaves the data within their errors; "
-            "the best leaves epsilon 0.09); --force writes the top candidate anyway") in out
+    assert (
+        "  yaw: left as it is: no candidate explains the mismatch (none leaves the data within their errors; "
+        "the best leaves epsilon 0.09); --force writes the top candidate anyway"
+    ) in out
 
 
 def test_apply_diagnosis_without_an_explaining_fix_writes_nothing_and_says_why(tmp_path, capsys):
@@ -539,7 +589,8 @@ def test_apply_diagnosis_force_writes_the_top_candidate_and_says_what_it_does_no
     }, force=True)
     channels = written["channels"]
     assert channels["roll"]["model"]["effects"][-1]["type"] == "structural_mode"
-    assert channels["pitch"]["model"]["effects"][-1]["type"] == "time_delay"   # the explaining one, even forced
+    # the explaining one, even forced
+    assert channels["pitch"]["model"]["effects"][-1]["type"] == "time_delay"
     assert "(forced: the channel is not model-limited (limited by none))" in out
     assert "  yaw: left as it is: the model fits" in out
 
@@ -551,12 +602,26 @@ def raw_config_channels() -> dict:
 
 
 def test_clean_flight_gets_no_fix_written_even_forced(bags, tmp_path, capsys):
-    """End to end: the truth is the model, so no channel is model-limited and nothing is written; --force has no
-    candidate to write either."""
+    """End to end: the truth is the model, so no channel is model-limited and nothing is written; --force has
+    no candidate to write either."""
     fixed = tmp_path / "fixed.yaml"
     for extra in ([], ["--force"]):
-        assert main(["replay", str(bags["clean"]), "--config", str(CONFIG_PATH), "--apply-diagnosis", str(fixed),
-                     "--no-history", "--no-progress", *extra]) == 0
+        assert (
+            main(
+                [
+                    "replay",
+                    str(bags["clean"]),
+                    "--config",
+                    str(CONFIG_PATH),
+                    "--apply-diagnosis",
+                    str(fixed),
+                    "--no-history",
+                    "--no-progress",
+                    *extra,
+                ]
+            )
+            == 0
+        )
         err = capsys.readouterr().err
         assert not fixed.exists() and "not written" in err
         for name in ("roll", "pitch", "yaw"):

@@ -16,12 +16,12 @@ import sqlite3
 
 import numpy as np
 import pytest
-
 from _flights import SHORT, config_from, single_channel, ultrastick, write_config
+
+from gap_validation.bag.replay import replay
 from gap_validation.bag.writer import write_flight
 from gap_validation.cli.main import main
 from gap_validation.core.simulation import simulate_flight, with_options
-from gap_validation.bag.replay import replay
 
 PITCH = with_options(SHORT, sweeps_per_channel=2, sweep_duration_s=40.0, quiet_s=5.0)
 #: The three channels, one sweep each: short enough for the many variants below.
@@ -234,7 +234,9 @@ def test_unknown_message_type_is_named(pitch, tmp_path, capsys):
         con.execute("UPDATE topics SET type = 'acme_msgs/msg/Gyro' WHERE name = '/imu'")
     assert replay_cli(bad, pitch["path"]) == 1
     err = capsys.readouterr().err
-    assert "Traceback" not in err and "unknown message type acme_msgs/msg/Gyro" in err and "topic skipped" in err
+    assert (
+        "Traceback" not in err and "unknown message type acme_msgs/msg/Gyro" in err and "topic skipped" in err
+    )
     assert "damaged record" not in err
 
 
@@ -342,7 +344,9 @@ def test_epsilon_at_least_one_gives_null_margins_with_the_reason(pitch, tmp_path
     data = copy.deepcopy(pitch["data"])
     data["channels"]["pitch"]["model"]["effects"] = [{"type": "time_delay", "seconds": 0.2}]
     out = tmp_path / "out.json"
-    assert replay_cli(pitch["root"] / "bag", write_config(data, tmp_path / "late.yaml"), "--json", str(out)) == 0
+    assert (
+        replay_cli(pitch["root"] / "bag", write_config(data, tmp_path / "late.yaml"), "--json", str(out)) == 0
+    )
     ch = json.loads(out.read_text())["channels"]["pitch"]
     assert ch["epsilon"] >= 1
     assert ch["gain_margin_db"] is None and ch["phase_margin_deg"] is None and ch["disk_margin"] is None

@@ -8,22 +8,34 @@ from gap_validation.ros.status import channel_status
 
 
 def test_channel_status_levels_and_messages():
-    from gap_validation.core.results import ChannelResult
     from gap_validation.core.margins import margins_from_epsilon
+    from gap_validation.core.results import ChannelResult
 
-    ch = ChannelResult(name="pitch", sweeps=3, epsilon=0.62, epsilon_previous=0.71, nu_gap=0.4,
-                       worst_frequency_rad_s=25.0, limited_by="model",
-                       bands=[{"min_rad_s": 20.0, "max_rad_s": 40.0, "limited_by": "model"}],
-                       margins=margins_from_epsilon(0.62), bad_samples={"input: not finite": 2},
-                       rate_leads_surface={"share": 0.004, "f": 1.2, "p_value": 0.3, "rows": 9000, "lags_s": 0.23})
+    ch = ChannelResult(
+        name="pitch",
+        sweeps=3,
+        epsilon=0.62,
+        epsilon_previous=0.71,
+        nu_gap=0.4,
+        worst_frequency_rad_s=25.0,
+        limited_by="model",
+        bands=[{"min_rad_s": 20.0, "max_rad_s": 40.0, "limited_by": "model"}],
+        margins=margins_from_epsilon(0.62),
+        bad_samples={"input: not finite": 2},
+        rate_leads_surface={"share": 0.004, "f": 1.2, "p_value": 0.3, "rows": 9000, "lags_s": 0.23},
+    )
     top = {"effect": "time_delay", "effects": [{"type": "time_delay", "seconds": 0.045}], "epsilon": 0.06,
            "sentence": "missing: time delay of 45 ms; adding it brings epsilon from 0.62 to 0.06"}
     status = channel_status(ch, candidate=top, diagnosis_state="done")
     assert status.level == "ERROR"
-    assert status.message == ("epsilon 0.62 (was 0.71): ERROR, model-limited at 20-40 rad/s; missing: time delay "
-                              "of 45 ms; adding it brings epsilon from 0.62 to 0.06")
+    assert status.message == (
+        "epsilon 0.62 (was 0.71): ERROR, model-limited at 20-40 rad/s; missing: time delay "
+        "of 45 ms; adding it brings epsilon from 0.62 to 0.06"
+    )
     values = dict(status.values)
-    assert values["bad_samples"] == "2" and json.loads(values["bad_samples_by_reason"]) == {"input: not finite": 2}
+    assert values["bad_samples"] == "2" and json.loads(values["bad_samples_by_reason"]) == {
+        "input: not finite": 2
+    }
     assert json.loads(values["diagnosis_effects"]) == [{"type": "time_delay", "seconds": 0.045}]
     assert float(values["phase_margin_deg"]) == pytest.approx(2 * math.degrees(math.asin(0.62)))
     assert json.loads(values["rate_leads_surface"])["rows"] == 9000      # the lead test, as in the JSON
@@ -36,7 +48,8 @@ def test_channel_status_levels_and_messages():
     ch.margins = margins_from_epsilon(1.2)
     values = dict(channel_status(ch).values)
     assert values["gain_margin_db"] == "null" and values["phase_margin_deg"] == "null"
-    empty = ChannelResult(name="roll")      # data flow, no sweep yet: nothing wrong, nothing to judge (not STALE)
+    # data flow, no sweep yet: nothing wrong, nothing to judge (not STALE)
+    empty = ChannelResult(name="roll")
     assert channel_status(empty).level == "OK"
     assert channel_status(empty).message == "receiving data, waiting for a sweep (no estimate yet)"
     assert dict(channel_status(empty).values)["diagnosis"] == "pending"
@@ -48,8 +61,8 @@ def test_channel_status_levels_and_messages():
 
 
 def test_a_publisher_that_cannot_be_matched_is_named_first_and_raises_the_level():
-    from gap_validation.core.results import ChannelResult
     from gap_validation.core.margins import margins_from_epsilon
+    from gap_validation.core.results import ChannelResult
 
     note = "publisher on /imu offers BEST_EFFORT; set qos_reliability to auto or best_effort"
     empty = ChannelResult(name="pitch")
@@ -64,13 +77,14 @@ def test_a_publisher_that_cannot_be_matched_is_named_first_and_raises_the_level(
 def test_the_last_diagnosis_nonlinearity_verdict_is_a_value():
     """issue 15's left item: the node shows the full diagnosis' amplitude-dependence verdict (value
     ``nonlinearity``, the JSON key's name), empty before a diagnosis and after the model or spectra change."""
+    from pathlib import Path
+
     from gap_validation.core.config import load_config
     from gap_validation.core.margins import margins_from_epsilon
     from gap_validation.core.results import ChannelResult
-    from gap_validation.messages.router import MessageRouter
     from gap_validation.core.validator import OnlineValidator
+    from gap_validation.messages.router import MessageRouter
     from gap_validation.ros.status import ChannelTask
-    from pathlib import Path
 
     config = load_config(Path(__file__).resolve().parents[1] / "config" / "ultrastick25e.yaml")
     ch = ChannelResult(name="pitch", sweeps=2, epsilon=0.5, nu_gap=0.4, limited_by="model",
@@ -90,7 +104,8 @@ def test_the_last_diagnosis_nonlinearity_verdict_is_a_value():
     task.forget_diagnosis()
     assert status()["nonlinearity"] == ""
 
-    # the full diagnosis' constant factor within the tolerance rides along the same way (value ``within_tolerance``)
+    # the full diagnosis' constant factor within the tolerance rides along the same way (value
+    # ``within_tolerance``)
     from gap_validation.core.results import ConstantFactor
     from gap_validation.ros.status import verdict_mapping
 
@@ -107,16 +122,17 @@ def test_the_last_diagnosis_nonlinearity_verdict_is_a_value():
 
 def test_the_run_ends_on_silence_the_node_heard_not_on_old_reception_stamps():
     """A node stalled (start-up under load, a long computation) takes messages whose transport reception times
-    are already older than ``end_of_data_timeout``: the data did not stop, so the run does not end; it ends once
-    the node has counted nothing new for the timeout (seen flaking under CI load: a run cut after the first
-    500 messages of a flight)."""
+    are already older than ``end_of_data_timeout``: the data did not stop, so the run does not end; it ends
+    once the node has counted nothing new for the timeout (seen flaking under CI load: a run cut after the
+    first 500 messages of a flight)."""
+    from pathlib import Path
+
     import numpy as np
 
     from gap_validation.core.config import load_config
     from gap_validation.core.validator import OnlineValidator
     from gap_validation.messages.router import MessageRouter
     from gap_validation.ros.status import ChannelTask
-    from pathlib import Path
 
     config = load_config(Path(__file__).resolve().parents[1] / "config" / "ultrastick25e.yaml")
     task = ChannelTask("pitch", config.channels["pitch"])
@@ -128,7 +144,8 @@ def test_the_run_ends_on_silence_the_node_heard_not_on_old_reception_stamps():
     router.samples = lambda channel, stream: counts[stream]
     arrivals = {config.channels["pitch"].signal(s).topic: 100.0 for s in ("input", "output")}
     taken = {topic: 112.0 for topic in arrivals}
-    task.update_seen(router, arrivals, 112.5, taken)     # received at 100 s, taken at 112 s (the node was stalled)
+    # received at 100 s, taken at 112 s (the node was stalled)
+    task.update_seen(router, arrivals, 112.5, taken)
     assert task.last_seen == {"input": 100.0, "output": 100.0}      # the age is the reception's
     assert not task.run_ended(112.5, 10.0)
     task.update_seen(router, arrivals, 121.0, taken)
@@ -138,14 +155,14 @@ def test_the_run_ends_on_silence_the_node_heard_not_on_old_reception_stamps():
 
 
 def test_what_the_full_diagnosis_adds_joins_the_status_as_in_replay():
-    """Parity with replay (issue 26): the node's status comes from the cheap result, the diagnosis from a worker;
-    the warnings and the margins caveat the diagnosis adds (the diagnosed model failing the winding-number
-    condition) must reach the status, once, and go when the diagnosis is forgotten."""
+    """Parity with replay (issue 26): the node's status comes from the cheap result, the diagnosis from a
+    worker; the warnings and the margins caveat the diagnosis adds (the diagnosed model failing the
+    winding-number condition) must reach the status, once, and go when the diagnosis is forgotten."""
+    from gap_validation.core.config import parse_config
     from gap_validation.core.margins import margins_from_epsilon
     from gap_validation.core.results import ChannelResult
-    from gap_validation.messages.router import MessageRouter
-    from gap_validation.core.config import parse_config
     from gap_validation.core.validator import OnlineValidator
+    from gap_validation.messages.router import MessageRouter
     from gap_validation.ros.status import ChannelTask
 
     config = parse_config({"channels": {"pitch": {
@@ -155,19 +172,27 @@ def test_what_the_full_diagnosis_adds_joins_the_status_as_in_replay():
     router = MessageRouter(config, OnlineValidator(config, diagnose=False))
     cheap = ChannelResult(name="pitch", sweeps=3, epsilon=0.3, nu_gap=0.25, limited_by="model",
                           margins=margins_from_epsilon(0.3), warnings=["the manoeuvres' edge warning"])
-    winding = ("the model and the diagnosed model (time_delay) fail the winding-number condition (...): if the "
-               "diagnosis is right, the nu-gap between the model and the aircraft is 1")
+    winding = (
+        "the model and the diagnosed model (time_delay) fail the winding-number condition (...): if the "
+        "diagnosis is right, the nu-gap between the model and the aircraft is 1"
+    )
 
     def values():
         status = task.run(cheap, 0.0, router, lambda topic: 0, stale_timeout_s=1e9)
         return dict(status.values)
 
     before = values()
-    assert json.loads(before["warnings"]) == ["the manoeuvres' edge warning"] and before["margins_guaranteed"] == "true"
-    task.take_diagnosis(None, None, ["the manoeuvres' edge warning", winding], "the diagnosed model fails ...")
+    assert (
+        json.loads(before["warnings"]) == ["the manoeuvres' edge warning"]
+        and before["margins_guaranteed"] == "true"
+    )
+    task.take_diagnosis(
+        None, None, ["the manoeuvres' edge warning", winding], "the diagnosed model fails ..."
+    )
     after = values()
     assert json.loads(after["warnings"]) == ["the manoeuvres' edge warning", winding]
     assert after["margins_guaranteed"] == "false" and "the diagnosed model fails" in after["margins_note"]
-    assert cheap.warnings == ["the manoeuvres' edge warning"] and not cheap.margins_caveat   # not changed in place
+    # not changed in place
+    assert cheap.warnings == ["the manoeuvres' edge warning"] and not cheap.margins_caveat
     task.forget_diagnosis()
     assert values() == before

@@ -1,7 +1,8 @@
 """Tests of gap_validation.core.sweeps: excitation energy, hysteresis, minimum length, trigger."""
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.sweeps import SweepDetector, TriggerTracker, detect_sweeps, detrended_std

@@ -3,14 +3,13 @@ import copy
 
 import numpy as np
 import pytest
+from _flights import raw_config, ultrastick
 
+from gap_validation.cli.arguments import hidden_effects
 from gap_validation.core.config import parse_config
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.simulation import FlightOptions, simulate_flight
-from gap_validation.cli.arguments import hidden_effects
 from gap_validation.core.validator import OnlineValidator
-
-from _flights import raw_config, ultrastick
 
 OPTIONS = FlightOptions(sweeps_per_channel=2, sweep_duration_s=40.0, quiet_s=3.0)
 
@@ -18,7 +17,9 @@ OPTIONS = FlightOptions(sweeps_per_channel=2, sweep_duration_s=40.0, quiet_s=3.0
 @pytest.fixture(scope="module")
 def flight():
     config = ultrastick()
-    return simulate_flight(config, hidden_effects(["pitch:time_delay:seconds=0.04"], config), OPTIONS, seed=11)
+    return simulate_flight(
+        config, hidden_effects(["pitch:time_delay:seconds=0.04"], config), OPTIONS, seed=11
+    )
 
 
 def fed(config, flight, channels=None):
@@ -79,7 +80,8 @@ def test_state_round_trip_reproduces_results(flight):
 
 
 def test_restore_with_a_changed_grid_drops_that_channels_previous_epsilon(flight):
-    """Regression: from_state kept epsilon_previous of a channel whose spectra restarted (set_config drops it)."""
+    """Regression: from_state kept epsilon_previous of a channel whose spectra restarted (set_config drops
+    it)."""
     validator = fed(ultrastick(), flight)
     validator.set_config(with_pitch_effects([{"type": "time_delay", "seconds": 0.04}]))
     state = copy.deepcopy(validator.state_dict())
@@ -104,7 +106,12 @@ def test_estimator_state_of_another_shape_is_a_one_line_data_error(flight):
 def test_results_before_data_and_bad_input():
     validator = OnlineValidator(ultrastick(), diagnose=False)
     pitch = validator.results().channels["pitch"]
-    assert pitch.sweeps == 0 and pitch.epsilon is None and pitch.message.startswith("no sweep found: ") and "never left trim" in pitch.message
+    assert (
+        pitch.sweeps == 0
+        and pitch.epsilon is None
+        and pitch.message.startswith("no sweep found: ")
+        and "never left trim" in pitch.message
+    )
     assert pitch.to_json_dict()["gain_margin_db"] is None
     validator.count_bad("pitch", "output", "NaN", 3)
     assert validator.results().channels["pitch"].bad_samples == {"output: NaN": 3}
@@ -127,8 +134,9 @@ def test_excluded_points_are_counted(flight):
 
 
 def test_raw_epsilon_covers_the_averaged_one(flight):
-    """The pooled (H1) estimate is a convex combination of the sweeps' estimates and the epsilon disk is convex
-    for epsilon < 1, so on the same frequencies the raw epsilon (sup over sweeps) is at least the averaged one."""
+    """The pooled (H1) estimate is a convex combination of the sweeps' estimates and the epsilon disk is
+    convex for epsilon < 1, so on the same frequencies the raw epsilon (sup over sweeps) is at least the
+    averaged one."""
     result = fed(ultrastick(), flight).results()
     for name in ("roll", "yaw"):
         ch = result.channels[name]
@@ -159,7 +167,10 @@ def test_controller_check_from_the_measured_nu_gap_and_its_json(flight):
     assert pitch.stability_note.endswith("(nu-gap over the measured band, winding-number condition assumed)")
     assert f"b = {b:.2f}" in pitch.stability_note
     data = pitch.to_json_dict(samples=False)
-    assert data["stability_margin_b"] == pytest.approx(b) and data["guaranteed_stable"] is pitch.guaranteed_stable
+    assert (
+        data["stability_margin_b"] == pytest.approx(b)
+        and data["guaranteed_stable"] is pitch.guaranteed_stable
+    )
     again = ChannelResult.from_json_dict("pitch", data)
     assert (again.stability_margin_b, again.guaranteed_stable, again.stability_note) == \
         (pitch.stability_margin_b, pitch.guaranteed_stable, pitch.stability_note)
@@ -168,10 +179,10 @@ def test_controller_check_from_the_measured_nu_gap_and_its_json(flight):
 
 
 def test_mismatch_peaking_at_the_band_edge_warns_and_its_margins_are_not_guaranteed(flight):
-    """issue 15: a 10 ms delay left out of the model (truth 40 ms, model 30 ms): epsilon grows with frequency and
-    peaks at the highest confident frequency, beyond the errors; a warning says the mismatch may continue outside
-    the band, and the margins (epsilon < 1) are given but not presented as guaranteed (JSON, table). The model that
-    is the truth gets neither."""
+    """issue 15: a 10 ms delay left out of the model (truth 40 ms, model 30 ms): epsilon grows with frequency
+    and peaks at the highest confident frequency, beyond the errors; a warning says the mismatch may continue
+    outside the band, and the margins (epsilon < 1) are given but not presented as guaranteed (JSON, table).
+    The model that is the truth gets neither."""
     from gap_validation.report.terminal import format_table
 
     validator = fed(with_pitch_effects([{"type": "time_delay", "seconds": 0.03}]), flight, ["pitch"])
@@ -179,12 +190,15 @@ def test_mismatch_peaking_at_the_band_edge_warns_and_its_margins_are_not_guarant
     top = float(pitch.frequency_rad_s[pitch.confident][-1])
     assert pitch.worst_frequency_rad_s == top and 0.1 < pitch.epsilon < 1.0
     edge = [w for w in pitch.warnings if "at the highest confident frequency" in w]
-    assert len(edge) == 1 and edge[0].endswith("the mismatch may continue outside the band; the margins then do "
-                                               "not hold"), pitch.warnings
+    assert len(edge) == 1 and edge[0].endswith(
+        "the mismatch may continue outside the band; the margins then do not hold"
+    ), pitch.warnings
     assert pitch.margins.guaranteed and not pitch.margins_guaranteed
     data = pitch.to_json_dict()
     assert data["gain_margin_db"] is not None and data["margins_guaranteed"] is False
-    assert data["margins_note"].startswith("margins not guaranteed: the mismatch peaks at the edge of the measured band")
+    assert data["margins_note"].startswith(
+        "margins not guaranteed: the mismatch peaks at the edge of the measured band"
+    )
     table = format_table(validator.results())
     assert f"{pitch.margins.gain_margin_db:.2f}*" in table and "* pitch: margins NOT guaranteed" in table
     assert "is guaranteed stable on the aircraft" not in table
@@ -193,4 +207,6 @@ def test_mismatch_peaking_at_the_band_edge_warns_and_its_margins_are_not_guarant
     exact = validator.results().channels["pitch"]
     assert exact.margins_guaranteed and not exact.warnings and exact.to_json_dict()["margins_note"] is None
     table = format_table(validator.results())
-    assert "(pitch): a controller with these gain/phase/disk margins on the model is guaranteed stable" in table
+    assert (
+        "(pitch): a controller with these gain/phase/disk margins on the model is guaranteed stable" in table
+    )

@@ -56,8 +56,17 @@ class RecordAccumulator:
         ``rates_hz()``: the data streams' sample rates [Hz] (what the records resolve).
     """
 
-    def __init__(self, w_rad_s: np.ndarray, inputs: int, outputs: int, data_streams: int, dt: float, options: dict,
-                 trim: TrimSpectrum, rates_hz: Callable[[], np.ndarray]) -> None:
+    def __init__(
+        self,
+        w_rad_s: np.ndarray,
+        inputs: int,
+        outputs: int,
+        data_streams: int,
+        dt: float,
+        options: dict,
+        trim: TrimSpectrum,
+        rates_hz: Callable[[], np.ndarray],
+    ) -> None:
         self._w = w_rad_s
         self._m, self._p, self._S = int(inputs), int(outputs), int(data_streams)
         self._dt = dt
@@ -159,12 +168,20 @@ class RecordAccumulator:
         instruments = seg[m + p:] if seg.shape[0] > m + p else None
         rates = self._rates_hz()
         limit_hz, _ = resolved_hz(rates, m, p, self._opts["sample_rate_hz"])
-        sums, status = record_bands(seg[:m], seg[m:m + p], self._dt, self._w, instruments=instruments,
-                                    noise_floor=noise ** 2, background=self._background(instruments is not None),
-                                    stepped=kind in STEPPED_KINDS,
-                                    options=self._spectra_opts,
-                                    max_rad_s=float(2.0 * math.pi * limit_hz), rates_hz=rates,
-                                    cubic=self._opts["cubic_interpolation"])
+        sums, status = record_bands(
+            seg[:m],
+            seg[m : m + p],
+            self._dt,
+            self._w,
+            instruments=instruments,
+            noise_floor=noise**2,
+            background=self._background(instruments is not None),
+            stepped=kind in STEPPED_KINDS,
+            options=self._spectra_opts,
+            max_rad_s=float(2.0 * math.pi * limit_hz),
+            rates_hz=rates,
+            cubic=self._opts["cubic_interpolation"],
+        )
         counted = status == 0
         for i in range(len(NOT_ESTIMABLE_REASONS)):
             self._reasons[i] += status == i + 1
@@ -214,11 +231,18 @@ class RecordAccumulator:
             rows[i], meta[i], kinds[i] = r, (k0, k1), kind
         amplitude = np.full(slots, np.nan)
         amplitude[:len(self._raw_amplitude)] = self._raw_amplitude[:slots]
-        st: dict = {"n_sweeps": self._n_sweeps, "span": np.array(self._span, np.int64),
-                    "reasons": self._reasons.copy(), "n_raw": len(self._raw), "raw_rows": rows, "raw_meta": meta,
-                    "raw_kind": kinds, "raw_amplitude": amplitude,
-                    "counted_counts": np.array([self._counted[k] for k in KINDS], np.int64),
-                    "longest_n": self._longest_n}
+        st: dict = {
+            "n_sweeps": self._n_sweeps,
+            "span": np.array(self._span, np.int64),
+            "reasons": self._reasons.copy(),
+            "n_raw": len(self._raw),
+            "raw_rows": rows,
+            "raw_meta": meta,
+            "raw_kind": kinds,
+            "raw_amplitude": amplitude,
+            "counted_counts": np.array([self._counted[k] for k in KINDS], np.int64),
+            "longest_n": self._longest_n,
+        }
         if self._other_records:
             st["other_records"] = self._other_records
         st.update(self._tot.state_dict("tot."))
@@ -244,7 +268,9 @@ class RecordAccumulator:
         meta = np.asarray(st["raw_meta"], np.int64).reshape(-1, 2)
         kinds = [str(k) for k in np.atleast_1d(st["raw_kind"])]
         rows = np.asarray(st["raw_rows"], float)
-        self._raw = [(rows[i].copy(), int(meta[i, 0]), int(meta[i, 1]), kinds[i]) for i in range(int(st["n_raw"]))]
+        self._raw = [
+            (rows[i].copy(), int(meta[i, 0]), int(meta[i, 1]), kinds[i]) for i in range(int(st["n_raw"]))
+        ]
         self._raw_changes += 1
         amplitude = np.asarray(st.get("raw_amplitude", np.full(int(st["n_raw"]), np.nan)), float).ravel()
         self._raw_amplitude = [float(amplitude[i]) if i < amplitude.size else float("nan")

@@ -99,7 +99,11 @@ class DynamicPressureScaling:
 
     def state_dict(self) -> dict:
         """``trim_airspeed``, ``q_stats`` and ``u_trim`` (the estimator's checkpoint keys)."""
-        return {"trim_airspeed": self.trim_airspeed, "q_stats": self.stats.copy(), "u_trim": self.u_trim.copy()}
+        return {
+            "trim_airspeed": self.trim_airspeed,
+            "q_stats": self.stats.copy(),
+            "u_trim": self.u_trim.copy(),
+        }
 
     def load_state(self, st: dict) -> None:
         """Inverse of :meth:`state_dict`.

@@ -88,9 +88,18 @@ class SpectralEstimate:
     amplitude: float = float("nan")
 
     @classmethod
-    def from_sums(cls, w_rad_s: ArrayLike, sums: BandSums, dt: float, band_fraction: float, start_s: float = float("nan"),
-                  end_s: float = float("nan"), n_sweeps: int = 1, kind: str = "",
-                  reasons: dict | None = None) -> "SpectralEstimate":
+    def from_sums(
+        cls,
+        w_rad_s: ArrayLike,
+        sums: BandSums,
+        dt: float,
+        band_fraction: float,
+        start_s: float = float("nan"),
+        end_s: float = float("nan"),
+        n_sweeps: int = 1,
+        kind: str = "",
+        reasons: dict | None = None,
+    ) -> "SpectralEstimate":
         """Solve :class:`~gap_validation.core.spectra.BandSums` into an estimate.
 
         Parameters
@@ -134,8 +143,17 @@ class SpectralEstimate:
                          self.coherence, self.gxx, self.gyy]).astype(float)
 
     @classmethod
-    def from_rows(cls, w_rad_s: ArrayLike, rows: np.ndarray, start_s: float, end_s: float, kind: str,
-                  band_fraction: float, coefficients: int, amplitude: float = float("nan")) -> "SpectralEstimate":
+    def from_rows(
+        cls,
+        w_rad_s: ArrayLike,
+        rows: np.ndarray,
+        start_s: float,
+        end_s: float,
+        kind: str,
+        band_fraction: float,
+        coefficients: int,
+        amplitude: float = float("nan"),
+    ) -> "SpectralEstimate":
         """Inverse of :meth:`rows` (a raw estimate).
 
         Parameters
@@ -160,9 +178,26 @@ class SpectralEstimate:
         ok = np.isfinite(response)
         with np.errstate(divide="ignore", invalid="ignore"):
             err = np.where(ok, np.sqrt(variance / 2.0) / np.abs(response), np.inf)
-        return cls(np.asarray(w_rad_s, float).copy(), gxx, gyy, np.where(ok, response * gxx, 0.0), n, response,
-                   coherence, np.where(np.isfinite(err), err, np.inf), float(start_s), float(end_s), 1, variance,
-                   kind, {}, None, float(band_fraction), int(coefficients), float(amplitude))
+        return cls(
+            np.asarray(w_rad_s, float).copy(),
+            gxx,
+            gyy,
+            np.where(ok, response * gxx, 0.0),
+            n,
+            response,
+            coherence,
+            np.where(np.isfinite(err), err, np.inf),
+            float(start_s),
+            float(end_s),
+            1,
+            variance,
+            kind,
+            {},
+            None,
+            float(band_fraction),
+            int(coefficients),
+            float(amplitude),
+        )
 
     @property
     def excited(self) -> np.ndarray:

@@ -126,8 +126,10 @@ ESTIMATOR_DEFAULTS = {
     "max_lag_s": 30.0,            # how far one stream may run ahead of another before data are dropped
     "batch_s": 0.1,               # samples arriving in small calls are processed in batches of this span
     "detect_sweeps": True,        # False: only an explicit trigger defines manoeuvres
-    **DETECTOR_DEFAULTS,          # energy_window_s, hold_s, on_ratio, off_ratio, min_excitation, quiet_window_s
-    "min_sweep_s": 0.0,           # excitations shorter than this give no frequency response (time domain only)
+    # energy_window_s, hold_s, on_ratio, off_ratio, min_excitation, quiet_window_s
+    **DETECTOR_DEFAULTS,
+    # excitations shorter than this give no frequency response (time domain only)
+    "min_sweep_s": 0.0,
     "max_raw_sweeps": 50,         # per-record estimates kept (most recent); the average pools all records
     "pre_s": 2.0,                 # trim kept before each manoeuvre [s]
     "post_s": 4.0,                # kept after it (the response settles) [s]
@@ -139,15 +141,62 @@ ESTIMATOR_DEFAULTS = {
 RETIRED_OPTIONS = ("window_cycles", "min_window_s", "max_window_s", "overlap", "block_s", "detrend")
 _BOOL_OPTIONS = ("cubic_interpolation", "detect_sweeps")
 _INT_OPTIONS = ("max_raw_sweeps", "min_bins", "order", "transient_order")
-_STATE_VERSION = 3               # 3: records and local polynomial sums (1, 2: windowed spectra, not resumable)
+# 3: records and local polynomial sums (1, 2: windowed spectra, not resumable)
+_STATE_VERSION = 3
 #: The checkpoint's keys in the order :meth:`FrequencyResponseEstimator.state_dict` lists them (by name, or
 #: the name of their part before the dot without its number: ``pending3.data``, ``s0.k_next``, ``det1.on``).
-_STATE_ORDER = ("version", "w_rad_s", "streams", "inputs", "outputs", "trim_airspeed", "q_stats", "u_trim", "opt",
-                "t0", "last_k", "trigger_mode", "epoch", "epoch_offset", "events", "n_events", "events_dropped",
-                "det_on", "dl", "dl_n", "dl_k0", "buf", "buf_n", "spacing", "rate_steps", "n_sweeps", "span",
-                "reasons", "n_raw", "raw_rows", "raw_meta", "raw_kind", "raw_amplitude", "kind_counts",
-                "counted_counts", "flown_counts", "longest_n", "saturated", "other_records", "pending_n", "pending",
-                "tot", "align", "trig", "tbase", "man", "rec", "trim", "s", "det")
+_STATE_ORDER = (
+    "version",
+    "w_rad_s",
+    "streams",
+    "inputs",
+    "outputs",
+    "trim_airspeed",
+    "q_stats",
+    "u_trim",
+    "opt",
+    "t0",
+    "last_k",
+    "trigger_mode",
+    "epoch",
+    "epoch_offset",
+    "events",
+    "n_events",
+    "events_dropped",
+    "det_on",
+    "dl",
+    "dl_n",
+    "dl_k0",
+    "buf",
+    "buf_n",
+    "spacing",
+    "rate_steps",
+    "n_sweeps",
+    "span",
+    "reasons",
+    "n_raw",
+    "raw_rows",
+    "raw_meta",
+    "raw_kind",
+    "raw_amplitude",
+    "kind_counts",
+    "counted_counts",
+    "flown_counts",
+    "longest_n",
+    "saturated",
+    "other_records",
+    "pending_n",
+    "pending",
+    "tot",
+    "align",
+    "trig",
+    "tbase",
+    "man",
+    "rec",
+    "trim",
+    "s",
+    "det",
+)
 _STATE_RANK = {name: i for i, name in enumerate(_STATE_ORDER)}
 
 
@@ -160,8 +209,13 @@ def _state_rank(key: str) -> int:
 # ---------------------------------------------------------------------------------------------- options
 def _number(name: str, value, positive: bool = True) -> float:
     """An estimator option's number (numeric strings accepted), > 0 or (``positive=False``) >= 0."""
-    return check_number(value, f"estimator option {name}", POSITIVE if positive else NON_NEGATIVE, strings=True,
-                        expected=f"a {'positive' if positive else 'non-negative'} finite number")
+    return check_number(
+        value,
+        f"estimator option {name}",
+        POSITIVE if positive else NON_NEGATIVE,
+        strings=True,
+        expected=f"a {'positive' if positive else 'non-negative'} finite number",
+    )
 
 
 def _validate_options(w_rad_s: np.ndarray, options: dict) -> dict:
@@ -249,15 +303,21 @@ class FrequencyResponseEstimator:
                  outputs: int = 1, trim_airspeed: float | None = None, **options: Any) -> None:
         w = np.atleast_1d(np.asarray(w_rad_s, dtype=float))
         if w.ndim != 1 or w.size == 0 or not np.all(np.isfinite(w)) or np.any(w <= 0):
-            raise ConfigError(f"estimator frequencies: expected positive finite rad/s values, got {w_rad_s!r}")
+            raise ConfigError(
+                f"estimator frequencies: expected positive finite rad/s values, got {w_rad_s!r}"
+            )
         names = tuple(str(s) for s in streams)
         scheduled = trim_airspeed is not None
         if len(set(names)) != len(names) or inputs < 1 or outputs < 1 or \
                 inputs + outputs + int(scheduled) > len(names):
-            raise ConfigError(f"estimator streams {names!r}: need distinct names, at least one input and one "
-                              f"output ({inputs} inputs, {outputs} outputs{', the airspeed' if scheduled else ''})")
+            raise ConfigError(
+                f"estimator streams {names!r}: need distinct names, at least one input and one "
+                f"output ({inputs} inputs, {outputs} outputs{', the airspeed' if scheduled else ''})"
+            )
         if scheduled and not (math.isfinite(trim_airspeed) and trim_airspeed > 0):
-            raise ConfigError(f"estimator trim_airspeed: expected a positive airspeed [m/s], got {trim_airspeed!r}")
+            raise ConfigError(
+                f"estimator trim_airspeed: expected a positive airspeed [m/s], got {trim_airspeed!r}"
+            )
         opts = _validate_options(w, options)
         self._w = w.copy()
         self._opts = opts
@@ -270,8 +330,15 @@ class FrequencyResponseEstimator:
         # the trim motion between the records, per frequency (:mod:`gap_validation.core.background`)
         self._trim = TrimSpectrum(w, S, dt, opts["band_fraction"], opts["max_band_fraction"], LOOKBACK_S,
                                   lead=(0, self._m))
-        self._intake = StreamIntake(S_all, dt, opts["max_gap_s"], opts["cubic_interpolation"], opts["max_lag_s"],
-                                    opts["batch_s"], self._grid_samples)
+        self._intake = StreamIntake(
+            S_all,
+            dt,
+            opts["max_gap_s"],
+            opts["cubic_interpolation"],
+            opts["max_lag_s"],
+            opts["batch_s"],
+            self._grid_samples,
+        )
         self._records = RecordAccumulator(self._w, self._m, self._p, S, dt, opts, self._trim,
                                           lambda: self._intake.rates_hz(S))
         # other_inputs (issue 13): the channel's own input first, the others conditioned on and split on their
@@ -279,7 +346,8 @@ class FrequencyResponseEstimator:
         conditioned = any(n.startswith("other_input") for n in names)
         self._tracker = ManoeuvreTracker(dt, self._m, self._p, S, S_all, opts, conditioned, self._trim,
                                          self._records, self._intake.time_s, self._scaling)
-        self._averaged: tuple | None = None                         # (key, estimate) of the last :meth:`averaged`
+        # (key, estimate) of the last :meth:`averaged`
+        self._averaged: tuple | None = None
         self._sweeps_built: tuple | None = None                     # (key, sweeps) of the last :attr:`sweeps`
 
     def _grid_samples(self, idx: np.ndarray, vals: np.ndarray) -> None:
@@ -352,7 +420,9 @@ class FrequencyResponseEstimator:
         """The kind of excitation flown (JSON ``excitation``): the most frequent kind among the manoeuvres
         that
         gave a response (sweep kinds first on a tie), else among all seen; None before any."""
-        counts = self._records.counted or Counter({k: v for k, v in self._tracker.kinds.items() if k != "step"})
+        counts = self._records.counted or Counter(
+            {k: v for k, v in self._tracker.kinds.items() if k != "step"}
+        )
         if not counts:
             return None
         order = ("chirp", "multisine", "multistep", "broadband", "doublet", "pulse")
@@ -462,7 +532,9 @@ class FrequencyResponseEstimator:
         try:
             s = self._names.index(stream)
         except ValueError:
-            raise ConfigError(f"unknown stream {stream!r} (expected one of {', '.join(self._names)})") from None
+            raise ConfigError(
+                f"unknown stream {stream!r} (expected one of {', '.join(self._names)})"
+            ) from None
         self._add_stream(s, t_s, values, stream)
 
     def add_time_histories(self, t_input_s: ArrayLike, u: ArrayLike, t_output_s: ArrayLike, y: ArrayLike,
@@ -568,10 +640,22 @@ class FrequencyResponseEstimator:
             raw = self._records.raw
             raw = [r for r in raw if r[3] in SWEEP_KINDS] or raw
             time_s = self._intake.time_s
-            self._sweeps_built = (key, [SpectralEstimate.from_rows(self._w, rows, time_s(k0), time_s(k1), kind,
-                                                                   self._opts["band_fraction"],
-                                                                   self._opts["order"] + 1, amplitude)
-                                        for rows, k0, k1, kind, amplitude in raw])
+            self._sweeps_built = (
+                key,
+                [
+                    SpectralEstimate.from_rows(
+                        self._w,
+                        rows,
+                        time_s(k0),
+                        time_s(k1),
+                        kind,
+                        self._opts["band_fraction"],
+                        self._opts["order"] + 1,
+                        amplitude,
+                    )
+                    for rows, k0, k1, kind, amplitude in raw
+                ],
+            )
         return list(self._sweeps_built[1])
 
     @property
@@ -699,8 +783,14 @@ class FrequencyResponseEstimator:
                               int(value) if name in _INT_OPTIONS else float(value))
             names = [str(s) for s in np.atleast_1d(state["streams"])]
             trim_airspeed = float(state["trim_airspeed"]) if "trim_airspeed" in state else None
-            self = cls(np.asarray(state["w_rad_s"], float), names, int(state["inputs"]), int(state["outputs"]),
-                       trim_airspeed, **opts)
+            self = cls(
+                np.asarray(state["w_rad_s"], float),
+                names,
+                int(state["inputs"]),
+                int(state["outputs"]),
+                trim_airspeed,
+                **opts,
+            )
             self._load(state)
         except KeyError as err:
             raise DataError(f"estimator state: missing key {err.args[0]!r}") from None

@@ -45,8 +45,16 @@ class StreamIntake:
         ``sink(idx, vals)``: grid indices (increasing) and values (streams x n) every stream has reached.
     """
 
-    def __init__(self, n_streams: int, dt: float, max_gap_s: float, cubic: bool, max_lag_s: float, batch_s: float,
-                 sink: Callable[[np.ndarray, np.ndarray], None]) -> None:
+    def __init__(
+        self,
+        n_streams: int,
+        dt: float,
+        max_gap_s: float,
+        cubic: bool,
+        max_lag_s: float,
+        batch_s: float,
+        sink: Callable[[np.ndarray, np.ndarray], None],
+    ) -> None:
         self.dt = dt
         self.max_gap_s = max_gap_s
         self.batch_s = batch_s

@@ -148,7 +148,8 @@ class _RecordBuffer:
     def feed(self, k_a: int, block: np.ndarray) -> list:
         """Contiguous released samples (streams x n) from grid index ``k_a``; returns the records closed."""
         closed = []
-        if self.open and k_a != self.next_k:               # not contiguous (never expected): close what there is
+        # not contiguous (never expected): close what there is
+        if self.open and k_a != self.next_k:
             closed.append(self._close(self.next_k))
         pos, n = 0, block.shape[1]
         while pos < n:
@@ -165,8 +166,10 @@ class _RecordBuffer:
                 pos += limit
             if self.off_k != NO_INDEX and self.next_k >= self.off_k + self.post_n + self.pre_n:
                 closed.append(self._close(self.off_k + self.post_n))
-            elif self.buf_n >= self.cap:                  # full (max_record_s): the owner takes what it can
-                self._drop(self.on_full(self.k0, self.buf[:, : self.buf_n], self.src, max(0, self.on_k - self.k0)))
+            elif self.buf_n >= self.cap:  # full (max_record_s): the owner takes what it can
+                self._drop(
+                    self.on_full(self.k0, self.buf[:, : self.buf_n], self.src, max(0, self.on_k - self.k0))
+                )
         self._remember(k_a, block)
         return closed
 
@@ -214,9 +217,17 @@ class _RecordBuffer:
 
     def state_dict(self) -> dict:
         """State with the record's filled samples only (bounded by ``cap``)."""
-        return {"ring": self.ring.copy(), "ring_k": self.ring_k, "buf": self.buf[:, : self.buf_n].copy(),
-                "k0": self.k0, "open": int(self.open), "src": self.src, "on_k": self.on_k, "off_k": self.off_k,
-                "last_end_k": self.last_end_k}
+        return {
+            "ring": self.ring.copy(),
+            "ring_k": self.ring_k,
+            "buf": self.buf[:, : self.buf_n].copy(),
+            "k0": self.k0,
+            "open": int(self.open),
+            "src": self.src,
+            "on_k": self.on_k,
+            "off_k": self.off_k,
+            "last_end_k": self.last_end_k,
+        }
 
     def load_state(self, st: dict) -> None:
         """Inverse of :meth:`state_dict`."""
@@ -264,9 +275,20 @@ class ManoeuvreTracker:
         Brings the inputs to the model's dynamic pressure (with an airspeed stream, the last grid row).
     """
 
-    def __init__(self, dt: float, inputs: int, outputs: int, data_streams: int, grid_streams: int, options: dict,
-                 conditioned: bool, trim: TrimSpectrum, accumulator: RecordAccumulator,
-                 clock: Callable[[int], float], scaling: DynamicPressureScaling | None = None) -> None:
+    def __init__(
+        self,
+        dt: float,
+        inputs: int,
+        outputs: int,
+        data_streams: int,
+        grid_streams: int,
+        options: dict,
+        conditioned: bool,
+        trim: TrimSpectrum,
+        accumulator: RecordAccumulator,
+        clock: Callable[[int], float],
+        scaling: DynamicPressureScaling | None = None,
+    ) -> None:
         fs = options["sample_rate_hz"]
         self._dt = dt
         self._m, self._p, self._S = int(inputs), int(outputs), int(data_streams)
@@ -276,7 +298,9 @@ class ManoeuvreTracker:
         self._conditioned = conditioned
         self._trim, self._records, self._clock, self._scaling = trim, accumulator, clock, scaling
         self._det_streams = list(range(self._m + self._p, self._S)) or list(range(self._m))
-        self._dets = [SweepDetector(fs, **{k: options[k] for k in DETECTOR_DEFAULTS}) for _ in self._det_streams]
+        self._dets = [
+            SweepDetector(fs, **{k: options[k] for k in DETECTOR_DEFAULTS}) for _ in self._det_streams
+        ]
         self._det_on = [False] * len(self._dets)
         self._man = ManoeuvreRecorder(fs)
         self._trig = TriggerTracker()
@@ -288,15 +312,24 @@ class ManoeuvreTracker:
         self._trigger_mode = not options["detect_sweeps"]
         self._events: list[tuple[int, bool, int]] = []
         self._events_dropped = 0
-        self._rec = _RecordBuffer(self._S, int(round(options["pre_s"] * fs)), int(round(options["post_s"] * fs)),
-                                  max(16, int(round(options["max_record_s"] * fs))), self._record_full,
-                                  int(round(LOOKBACK_S * fs)))
+        self._rec = _RecordBuffer(
+            self._S,
+            int(round(options["pre_s"] * fs)),
+            int(round(options["post_s"] * fs)),
+            max(16, int(round(options["max_record_s"] * fs))),
+            self._record_full,
+            int(round(LOOKBACK_S * fs)),
+        )
         self._kinds: Counter = Counter()
-        self._flown: Counter = Counter()       # manoeuvres long enough to estimate, per kind, whatever they gave
+        # manoeuvres long enough to estimate, per kind, whatever they gave
+        self._flown: Counter = Counter()
         self._saturated = 0
-        self._piece_stream: dict = {}                        # other_inputs: manoeuvre -> the input it belongs to
-        self._spans: deque = deque(maxlen=SPANS_KEPT)     # grid spans of the latest manoeuvres (not checkpointed)
-        self._pending: list[tuple[int, np.ndarray, int, int, int]] = []   # records waiting for the trim motion
+        # other_inputs: manoeuvre -> the input it belongs to
+        self._piece_stream: dict = {}
+        # grid spans of the latest manoeuvres (not checkpointed)
+        self._spans: deque = deque(maxlen=SPANS_KEPT)
+        # records waiting for the trim motion
+        self._pending: list[tuple[int, np.ndarray, int, int, int]] = []
         #: Called as ``record_observer(samples, kind, t0_s, dt_s)`` with the grid samples (streams x n) of the
         #: excited span of every manoeuvre of this channel that gives a response, its kind, the time of its
         #: first sample and the grid step; None: nobody. It returns False for a manoeuvre that is another
@@ -605,7 +638,9 @@ class ManoeuvreTracker:
         known (:data:`TRIM_KNOWN_S`) or when ``force``-d (a break or the end of the data, a record too long to
         wait),
         else only the oldest beyond :data:`PENDING_RECORDS`."""
-        while self._pending and (force or self._trim.seconds >= TRIM_KNOWN_S or len(self._pending) > PENDING_RECORDS):
+        while self._pending and (
+            force or self._trim.seconds >= TRIM_KNOWN_S or len(self._pending) > PENDING_RECORDS
+        ):
             k0, data, src, act0, act1 = self._pending.pop(0)
             if data.shape[1] >= 4:
                 self._estimate_pieces(k0, data, self._pieces(data, src, act0, act1), src == _TRIGGER)
@@ -630,8 +665,12 @@ class ManoeuvreTracker:
         for _, n, piece in sorted(found, key=lambda item: -item[0]):
             gaps = [(piece.active_start, piece.active_end)]
             for k in kept:
-                gaps = [part for lo, hi in gaps
-                        for part in ((lo, min(hi, k.active_start)), (max(lo, k.active_end), hi)) if part[1] > part[0]]
+                gaps = [
+                    part
+                    for lo, hi in gaps
+                    for part in ((lo, min(hi, k.active_start)), (max(lo, k.active_end), hi))
+                    if part[1] > part[0]
+                ]
             if gaps == [(piece.active_start, piece.active_end)]:
                 kept.append(piece)
                 continue
@@ -657,10 +696,14 @@ class ManoeuvreTracker:
         inputs, flown one at a time) the one that varies most during the manoeuvre."""
         if len(self._det_streams) == 1:
             return self._det_streams[0]
-        candidates = data[self._det_streams][:, piece.active_start:max(piece.active_end, piece.active_start + 1)]
+        candidates = data[self._det_streams][
+            :, piece.active_start : max(piece.active_end, piece.active_start + 1)
+        ]
         return self._det_streams[int(np.argmax(np.var(candidates, axis=1)))]
 
-    def _estimate_pieces(self, k0: int, data: np.ndarray, pieces: list[Piece], declared: bool = False) -> None:
+    def _estimate_pieces(
+        self, k0: int, data: np.ndarray, pieces: list[Piece], declared: bool = False
+    ) -> None:
         """Classify and estimate a record's manoeuvres; ``declared``: the record is a trigger's (its manoeuvre
         counts as flown even where it gives no response)."""
         single = len(self._det_streams) == 1
@@ -700,7 +743,8 @@ class ManoeuvreTracker:
             if kind in ("chirp", "multisine", "broadband") and saturated_share(det, piece) >= SATURATED_SHARE:
                 self._saturated += 1
                 continue
-            if kind == "multisine":          # whole periods only: its lines do not leak (nor another axis' lines)
+            # whole periods only: its lines do not leak (nor another axis' lines)
+            if kind == "multisine":
                 n_p = period(det[piece.active_start:piece.active_end], self._dt)
                 # whole periods within the excited span (a fade is not periodic: the lines would leak)
                 whole = (piece.active_end - piece.active_start) // n_p * n_p if n_p else 0

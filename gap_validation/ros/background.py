@@ -1,16 +1,19 @@
-"""The node's slow work off the executor, on snapshots: checkpoints, ``~/save_results`` and ``~/plan`` (no rclpy).
+"""The node's slow work off the executor, on snapshots: checkpoints, ``~/save_results`` and ``~/plan`` (no
+rclpy).
 
-Writing a checkpoint (a zip of arrays, ``fsync``-ed) takes about 20 ms, ``~/save_results`` 5-20 s (full diagnosis,
-the report's figures). Run in the executor they stalled ``/diagnostics`` and, with data flowing, made channels
-look STALE. The node therefore copies what a job needs in the executor (:func:`snapshot`: the validator state,
-a few milliseconds) and hands the copy to :class:`Background`:
+Writing a checkpoint (a zip of arrays, ``fsync``-ed) takes about 20 ms, ``~/save_results`` 5-20 s (full
+diagnosis, the report's figures). Run in the executor they stalled ``/diagnostics`` and, with data flowing,
+made channels look STALE. The node therefore copies what a job needs in the executor (:func:`snapshot`: the
+validator state, a few milliseconds) and hands the copy to :class:`Background`:
 
-* checkpoints run in one worker thread, in submission order (a checkpoint is never overwritten by an older one);
-* ``~/save_results`` and ``~/plan`` from the live results (the full diagnosis, then the planner: seconds) run in a
-  child process (spawned for the job, gone when it is done): the report's
-  matplotlib figures make the cyclic garbage collector run full collections of 0.15-0.3 s in a small process and
-  seconds in a large one, and a collection holds the interpreter lock, which in a thread would stall the
-  executor for as long (measured: ``/diagnostics`` 2.9 s late). In its own process nothing of it reaches the node.
+* checkpoints run in one worker thread, in submission order (a checkpoint is never overwritten by an older
+  one);
+* ``~/save_results`` and ``~/plan`` from the live results (the full diagnosis, then the planner: seconds) run
+  in a child process (spawned for the job, gone when it is done): the report's
+  matplotlib figures make the cyclic garbage collector run full collections of 0.15-0.3 s in a small process
+  and seconds in a large one, and a collection holds the interpreter lock, which in a thread would stall the
+  executor for as long (measured: ``/diagnostics`` 2.9 s late). In its own process nothing of it reaches the
+  node.
 
 The node harvests finished jobs from its intake timer and answers ``~/save_results`` and ``~/plan`` then (the
 requests are taken by the node itself, so the executor never waits).
@@ -40,8 +43,19 @@ from gap_validation.messages.router import MessageRouter, note_saturation
 from gap_validation.report.terminal import write_json
 from gap_validation.ros.diagnosis_worker import copy_tree
 
-__all__ = ["Background", "Snapshot", "SaveOutcome", "snapshot", "save_results", "full_result", "plan_from_results",
-           "write_checkpoint", "fix_modes", "umask", "file_stem"]
+__all__ = [
+    "Background",
+    "Snapshot",
+    "SaveOutcome",
+    "snapshot",
+    "save_results",
+    "full_result",
+    "plan_from_results",
+    "write_checkpoint",
+    "fix_modes",
+    "umask",
+    "file_stem",
+]
 
 
 def umask() -> int:
@@ -127,8 +141,8 @@ def snapshot(config: ValidationConfig, validator: OnlineValidator, router: Messa
 
 
 def write_checkpoint(snap: Snapshot, path: str, mask: int) -> str:
-    """Job: the snapshot's state written atomically to ``path`` (:func:`gap_validation.core.checkpoint.save_state`),
-    with the usual mode.
+    """Job: the snapshot's state written atomically to ``path``
+    (:func:`gap_validation.core.checkpoint.save_state`), with the usual mode.
 
     Parameters
     ----------
@@ -187,8 +201,15 @@ def save_results(snap: Snapshot, out_dir: Path, stem: str, mask: int) -> SaveOut
         n += 1
         path = out_dir / f"{base}_{n}.json"
     write_json(result.to_json_dict(), path)
-    outcome = SaveOutcome(path, snap.generation, {name: (ch.diagnosis[0] if ch.diagnosis else None)
-                                                  for name, ch in result.channels.items() if ch.epsilon is not None})
+    outcome = SaveOutcome(
+        path,
+        snap.generation,
+        {
+            name: (ch.diagnosis[0] if ch.diagnosis else None)
+            for name, ch in result.channels.items()
+            if ch.epsilon is not None
+        },
+    )
     written = [path]
     report = _write_report(result, path.with_suffix(""), outcome.warnings)
     if report is not None:
@@ -213,9 +234,9 @@ def full_result(snap: Snapshot) -> ValidationResult:
 def plan_from_results(snap: Snapshot, results_name: str, config_name: str) -> tuple[str, TestCard]:
     """Job (in a child process): the test card of the snapshot's results, as ``~/plan`` answers it.
 
-    The results are exactly the JSON ``~/save_results`` would write (:func:`full_result`, through ``json``), planned
-    by :func:`gap_validation.core.plan.plan_card` as ``gap-validate plan RESULTS.json`` plans that file, and written
-    as ``plan --out`` writes the card (:func:`gap_validation.cards.card_yaml`).
+    The results are exactly the JSON ``~/save_results`` would write (:func:`full_result`, through ``json``),
+    planned by :func:`gap_validation.core.plan.plan_card` as ``gap-validate plan RESULTS.json`` plans that
+    file, and written as ``plan --out`` writes the card (:func:`gap_validation.cards.card_yaml`).
 
     Parameters
     ----------
@@ -250,9 +271,9 @@ def _write_report(result: ValidationResult, target: Path, warnings: list) -> Pat
 
 
 class Background:
-    """The node's jobs off the executor: a worker thread (jobs in submission order), or a child process for jobs
-    submitted with ``process=True`` (spawned on demand, shut down when it has nothing left to do); finished jobs
-    are harvested.
+    """The node's jobs off the executor: a worker thread (jobs in submission order), or a child process for
+    jobs submitted with ``process=True`` (spawned on demand, shut down when it has nothing left to do);
+    finished jobs are harvested.
 
     Attributes
     ----------

@@ -28,9 +28,10 @@ class DiagnosisAbandoned(Exception):
 
 
 class CpuShare:
-    """Holds the thread that calls it to ``share`` of one core: each call sleeps until the thread's CPU time since
-    the first call is at most ``share`` of the wall time since then (``diagnosis.paced`` calls it between two
-    candidate fits). A diagnosis costing 1.6 s of CPU takes 16 s at 0.1, and a 10 s window holds at most 1 s of it.
+    """Holds the thread that calls it to ``share`` of one core: each call sleeps until the thread's CPU time
+    since the first call is at most ``share`` of the wall time since then (``diagnosis.paced`` calls it
+    between two candidate fits). A diagnosis costing 1.6 s of CPU takes 16 s at 0.1, and a 10 s window holds
+    at most 1 s of it.
 
     Parameters
     ----------
@@ -88,8 +89,8 @@ def copy_tree(value: Any) -> Any:
 def _diagnose_snapshot(config: ValidationConfig, state: dict, generation: int, cache: dict,
                        pace: CpuShare | None = None) -> tuple[int, ValidationResult, dict]:
     """Worker: full results (effect fitting) on a private copy of the validator, reusing the previous run's
-    analyses where what they read did not change (a channel without a new manoeuvre is not fitted again), paced
-    by ``pace`` between candidate fits."""
+    analyses where what they read did not change (a channel without a new manoeuvre is not fitted again),
+    paced by ``pace`` between candidate fits."""
     validator = OnlineValidator.from_state(config, state)
     validator.adopt_analysis_cache(cache)
     with diagnosis.paced(pace or (lambda: None)):
@@ -163,13 +164,16 @@ class DiagnosisWorker:
         self._started = time.monotonic()
         state = copy_tree(validator.state_dict())
         if self._pool is None:
-            self._pool = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="gap_diagnosis")
+            self._pool = concurrent.futures.ThreadPoolExecutor(
+                max_workers=1, thread_name_prefix="gap_diagnosis"
+            )
         cache = self._cache[1] if self._cache[0] == generation else {}
         self.job = self._pool.submit(_diagnose_snapshot, config, state, generation, cache,
                                      CpuShare(cpu_share, self._stop))
 
     def harvest(self, generation: int) -> ValidationResult | None:
-        """The finished diagnosis's results if they belong to ``generation`` (None otherwise, or still running).
+        """The finished diagnosis's results if they belong to ``generation`` (None otherwise, or still
+        running).
 
         Parameters
         ----------

@@ -1,23 +1,24 @@
 """The node's test card and its injection (issue 25): ``~/plan``, ``~/excite`` and ``~/abort`` (rclpy).
 
-:class:`Excitation` is the part of :class:`gap_validation.ros.node.ValidatorNode` that holds the card and flies it,
-as a component holding a reference to the node (its public rclpy API, clock and logger, and its ``config``,
-``validator``, ``router`` and ``generation``), the services the node lends it (parameters, log-once, flush, the
-executor's wait set: :class:`~gap_validation.ros.collaborators.NodeServices`) and the node's background jobs:
+:class:`Excitation` is the part of :class:`gap_validation.ros.node.ValidatorNode` that holds the card and
+flies it, as a component holding a reference to the node (its public rclpy API, clock and logger, and its
+``config``, ``validator``, ``router`` and ``generation``), the services the node lends it (parameters,
+log-once, flush, the executor's wait set: :class:`~gap_validation.ros.collaborators.NodeServices`) and the
+node's background jobs:
 
 * ``~/plan`` (std_srvs/Trigger, always there): the current card as YAML in ``message``, the document
-  ``gap-validate plan --out`` writes (:func:`gap_validation.cards.card_yaml`). With the parameter ``plan_card`` the
-  card of that file (re-read); without, the card planned from the node's current results: the JSON
-  ``~/save_results`` would write, planned as ``gap-validate plan`` plans that file, in a child process
-  (:func:`gap_validation.ros.background.plan_from_results`; taken and answered by the intake timer, like
-  ``~/save_results``, so the executor never waits). The card answered is the one ``~/excite`` flies.
-* With ``excitation_enabled``: a timer at ``excitation_rate_hz`` on the node clock publishes the surface offsets
-  (:class:`~gap_validation.ros.injection.Player`: zeros, or the manoeuvre's samples, each clipped to
-  ``excitation_max_amplitude_rad``), ``~/excite`` (Trigger) starts the manoeuvre the parameters ``excite_channel``
-  and ``excite_index`` select (:func:`~gap_validation.ros.injection.select_manoeuvre`) and ``~/abort`` (Trigger)
-  stops it at once. The config the node runs has each flyable channel's ``excitation`` on the node's own topic
-  (:func:`~gap_validation.ros.injection.with_injection`): the samples come back through the subscription like any
-  stream.
+  ``gap-validate plan --out`` writes (:func:`gap_validation.cards.card_yaml`). With the parameter
+  ``plan_card`` the card of that file (re-read); without, the card planned from the node's current results:
+  the JSON ``~/save_results`` would write, planned as ``gap-validate plan`` plans that file, in a child
+  process (:func:`gap_validation.ros.background.plan_from_results`; taken and answered by the intake timer,
+  like ``~/save_results``, so the executor never waits). The card answered is the one ``~/excite`` flies.
+* With ``excitation_enabled``: a timer at ``excitation_rate_hz`` on the node clock publishes the surface
+  offsets (:class:`~gap_validation.ros.injection.Player`: zeros, or the manoeuvre's samples, each clipped to
+  ``excitation_max_amplitude_rad``), ``~/excite`` (Trigger) starts the manoeuvre the parameters
+  ``excite_channel`` and ``excite_index`` select (:func:`~gap_validation.ros.injection.select_manoeuvre`) and
+  ``~/abort`` (Trigger) stops it at once. The config the node runs has each flyable channel's ``excitation``
+  on the node's own topic (:func:`~gap_validation.ros.injection.with_injection`): the samples come back
+  through the subscription like any stream.
 
 Importing it imports rclpy (when available), never rosbags.
 """
@@ -32,8 +33,15 @@ from gap_validation.core.plan import TestCard
 from gap_validation.ros import background
 from gap_validation.ros.background import Background
 from gap_validation.ros.collaborators import NodeServices
-from gap_validation.ros.injection import (JOINT_STATE, InjectionPoint, Player, Sample, injection_points,
-                                          select_manoeuvre, with_injection)
+from gap_validation.ros.injection import (
+    JOINT_STATE,
+    InjectionPoint,
+    Player,
+    Sample,
+    injection_points,
+    select_manoeuvre,
+    with_injection,
+)
 from gap_validation.ros.message_types import message_class
 
 try:  # rclpy is only needed to run the node
@@ -54,11 +62,11 @@ class Excitation:
     Parameters
     ----------
     node : rclpy.node.Node
-        The node: its publishers, timer, services, clock and logger, and its ``config``, ``validator``, ``router``
-        and ``generation`` (read when needed: they change on reload and reset).
+        The node: its publishers, timer, services, clock and logger, and its ``config``, ``validator``,
+        ``router`` and ``generation`` (read when needed: they change on reload and reset).
     services : NodeServices
-        The node's parameters (``excitation_*``, ``excite_*``, ``plan_card``, ``config_file``), log-once, flush, and
-        the executor's wait set (``~/plan`` is kept out of it, :attr:`NodeServices.poll`).
+        The node's parameters (``excitation_*``, ``excite_*``, ``plan_card``, ``config_file``), log-once,
+        flush, and the executor's wait set (``~/plan`` is kept out of it, :attr:`NodeServices.poll`).
     runner : Background
         The node's jobs off the executor (a ``~/plan`` without ``plan_card`` is planned there; the node's
         :class:`~gap_validation.ros.jobs.Jobs` harvests it and calls :meth:`finish`).
@@ -110,7 +118,8 @@ class Excitation:
 
     # ---------------------------------------------------------------- the card
     def load_card(self, path: str) -> TestCard:
-        """Read the card of ``path`` (``plan_card``) and make it the current card; ConfigError (one line) when bad.
+        """Read the card of ``path`` (``plan_card``) and make it the current card; ConfigError (one line) when
+        bad.
 
         Parameters
         ----------
@@ -135,11 +144,13 @@ class Excitation:
         try:
             return self.node.resolve_topic_name(topic)
         except Exception as err:  # noqa: BLE001 - rclpy's name errors: one line
-            raise ConfigError(f"parameter {what}: {topic!r} is not a valid topic name ({one_line(err)})") from None
+            raise ConfigError(
+                f"parameter {what}: {topic!r} is not a valid topic name ({one_line(err)})"
+            ) from None
 
     def injection(self, config: ValidationConfig) -> tuple[ValidationConfig, dict[str, InjectionPoint]]:
-        """The config the node runs (each flyable channel's ``excitation`` on the node's topic) and the injection
-        points; ``config`` itself when excitation is off. Nothing changes until :meth:`adopt`.
+        """The config the node runs (each flyable channel's ``excitation`` on the node's topic) and the
+        injection points; ``config`` itself when excitation is off. Nothing changes until :meth:`adopt`.
 
         Parameters
         ----------
@@ -159,8 +170,8 @@ class Excitation:
         return with_injection(config, points), points
 
     def adopt(self, points: dict[str, InjectionPoint]) -> None:
-        """Publish to ``points`` from now on (publishers made or dropped; a manoeuvre of a channel that left the
-        config is aborted).
+        """Publish to ``points`` from now on (publishers made or dropped; a manoeuvre of a channel that left
+        the config is aborted).
 
         Parameters
         ----------
@@ -187,10 +198,13 @@ class Excitation:
         if not self.enabled:
             return
         node = self.node
-        self._timer = node.create_timer(1.0 / self.player.rate_hz, self.tick)      # node clock: follows /clock
+        # node clock: follows /clock
+        self._timer = node.create_timer(1.0 / self.player.rate_hz, self.tick)
         node.create_service(Trigger, "~/excite", self._srv_excite)
         node.create_service(Trigger, "~/abort", self._srv_abort)
-        flown = ", ".join(f"{p.channel} ({p.spec.field})" if p.joint else p.channel for p in self.points.values())
+        flown = ", ".join(
+            f"{p.channel} ({p.spec.field})" if p.joint else p.channel for p in self.points.values()
+        )
         own = [p.channel for p in self.points.values() if not p.estimated]
         cap = self.services.param("excitation_max_amplitude_rad")
         node.get_logger().info(
@@ -211,7 +225,9 @@ class Excitation:
                 self._publish(sample)
             self._note_end()
         except Exception as err:  # noqa: BLE001 - the injection must never stop the node
-            self.services.log_once(f"excite:{type(err).__name__}", "error", f"excitation failed: {one_line(err)}")
+            self.services.log_once(
+                f"excite:{type(err).__name__}", "error", f"excitation failed: {one_line(err)}"
+            )
 
     def _publish(self, sample: Sample) -> None:
         point = self.points.get(sample.channel) if sample.channel is not None else None
@@ -251,8 +267,9 @@ class Excitation:
         self._note_end()
 
     def status_values(self, channel: str) -> list[tuple[str, str]]:
-        """The values the node adds to ``channel``'s status: ``excitation_enabled`` and ``excitation_manoeuvre``
-        (``pitch #0 12.3/60.0 s`` while it flies, then ``done`` or ``aborted``; ``none``); none when off.
+        """The values the node adds to ``channel``'s status: ``excitation_enabled`` and
+        ``excitation_manoeuvre`` (``pitch #0 12.3/60.0 s`` while it flies, then ``done`` or ``aborted``;
+        ``none``); none when off.
 
         Parameters
         ----------
@@ -274,9 +291,11 @@ class Excitation:
                                  self.flown, self.points)
             cap = float(param("excitation_max_amplitude_rad"))
             if m.amplitude_rad > cap:
-                raise ConfigError(f"manoeuvre {m.index} ({m.channel}): amplitude {m.amplitude_rad:.4g} rad is above "
-                                  f"excitation_max_amplitude_rad {cap:g} (plan with --max-amplitude-rad {cap:g}, or "
-                                  f"raise the cap)")
+                raise ConfigError(
+                    f"manoeuvre {m.index} ({m.channel}): amplitude {m.amplitude_rad:.4g} rad is above "
+                    f"excitation_max_amplitude_rad {cap:g} (plan with --max-amplitude-rad {cap:g}, or "
+                    f"raise the cap)"
+                )
             now_ns = node.get_clock().now().nanoseconds
             if now_ns <= 0:
                 raise ConfigError("the node clock has not started (use_sim_time and no /clock yet)")
@@ -286,9 +305,11 @@ class Excitation:
             node.get_logger().warning(response.message)
             return response
         response.success = True
-        response.message = (f"flying {m.channel} #{m.index}: {m.f_start_hz:.4g}-{m.f_stop_hz:.4g} Hz, "
-                            f"{m.amplitude_rad:.4g} rad, {m.repeats} x {m.duration_s:g} s; {flight.duration_s:.1f} s "
-                            f"from stamp {flight.start_stamp_ns * 1e-9:.3f} s")
+        response.message = (
+            f"flying {m.channel} #{m.index}: {m.f_start_hz:.4g}-{m.f_stop_hz:.4g} Hz, "
+            f"{m.amplitude_rad:.4g} rad, {m.repeats} x {m.duration_s:g} s; {flight.duration_s:.1f} s "
+            f"from stamp {flight.start_stamp_ns * 1e-9:.3f} s"
+        )
         node.get_logger().info(response.message)
         return response
 
@@ -314,7 +335,8 @@ class Excitation:
             self._plan(header)
 
     def _plan(self, header: Any) -> None:
-        """Answer a ``~/plan`` request: the ``plan_card`` file now, else plan from the results in the background."""
+        """Answer a ``~/plan`` request: the ``plan_card`` file now, else plan from the results in the
+        background."""
         path = self.services.param("plan_card")
         if path:
             try:
@@ -323,8 +345,15 @@ class Excitation:
             except ConfigError as err:
                 self._respond(header, False, f"plan failed: {err}")
             return
-        self.runner.submit("plan", header, background.plan_from_results, self._snapshot(), self._results_name(),
-                           self._config_name(), process=True)
+        self.runner.submit(
+            "plan",
+            header,
+            background.plan_from_results,
+            self._snapshot(),
+            self._results_name(),
+            self._config_name(),
+            process=True,
+        )
 
     def _snapshot(self) -> background.Snapshot:
         """The node's state now (pending samples flushed first), for planning off the executor."""
@@ -369,8 +398,8 @@ class Excitation:
                                    f"~/plan: could not answer ({one_line(err)})")
 
     def _srv_plan(self, request, response):
-        """Callback of ``~/plan`` should an executor serve it (the intake timer normally takes the requests): the
-        file's card, or planned here and now."""
+        """Callback of ``~/plan`` should an executor serve it (the intake timer normally takes the requests):
+        the file's card, or planned here and now."""
         try:
             if self.services.param("plan_card"):
                 self.load_card(self.services.param("plan_card"))

@@ -8,23 +8,26 @@ Every SISO channel with an input can be flown (:func:`injection_points`). With `
 ``sensor_msgs/msg/JointState`` all channels share ``excitation_topic``: one message per sample, one joint per
 surface, named after the joint of the channel's input field (``position[elevator]`` -> ``elevator``; an input
 without a joint name: the channel's name), the flying surface's offset and zero for the others. With
-``std_msgs/msg/Float64`` each channel has ``<excitation_topic>/<channel>`` (a Float64 carries one number). Values are
-surface offsets from trim in rad (the card's unit), for the flight stack to add to its surface commands.
+``std_msgs/msg/Float64`` each channel has ``<excitation_topic>/<channel>`` (a Float64 carries one number).
+Values are surface offsets from trim in rad (the card's unit), for the flight stack to add to its surface
+commands.
 
-The node's own publication is each channel's ``excitation`` (closed-loop estimation): :func:`with_injection` adds
-``channels.<channel>.excitation`` on that topic and field to the config the node runs, so the samples arrive through
-the node's subscription, the decoding step and the router like any configured stream (docs/PLAN.md says why). A
-channel whose config already has an ``excitation`` keeps it (the flight stack logs what it injected).
+The node's own publication is each channel's ``excitation`` (closed-loop estimation): :func:`with_injection`
+adds ``channels.<channel>.excitation`` on that topic and field to the config the node runs, so the samples
+arrive through the node's subscription, the decoding step and the router like any configured stream
+(docs/PLAN.md says why). A channel whose config already has an ``excitation`` keeps it (the flight stack logs
+what it injected).
 
 Samples
 -------
 :class:`Player`: a sample grid at ``excitation_rate_hz`` on the node clock, from the first tick on, published
-whether a manoeuvre flies or not (zeros between manoeuvres: the estimator's excitation stream stays continuous, and
-the flight stack can watch it). Sample ``n`` is stamped ``t0 + n / rate``; a tick publishes every sample due (a
-late tick catches up, so the stream holds exactly the card's samples at their times), unless more than
-:data:`MAX_CATCH_UP_S` are due (a stalled node or a jump of ``/clock``): then it starts the grid afresh and a running
-manoeuvre is aborted. A manoeuvre flies :func:`~gap_validation.core.plan.manoeuvre_signal` sample by sample from
-the next sample of the grid, every sample clipped to the amplitude cap; after it, zeros.
+whether a manoeuvre flies or not (zeros between manoeuvres: the estimator's excitation stream stays
+continuous, and the flight stack can watch it). Sample ``n`` is stamped ``t0 + n / rate``; a tick publishes
+every sample due (a late tick catches up, so the stream holds exactly the card's samples at their times),
+unless more than
+:data:`MAX_CATCH_UP_S` are due (a stalled node or a jump of ``/clock``): then it starts the grid afresh and a
+running manoeuvre is aborted. A manoeuvre flies :func:`~gap_validation.core.plan.manoeuvre_signal` sample by
+sample from the next sample of the grid, every sample clipped to the amplitude cap; after it, zeros.
 """
 from __future__ import annotations
 
@@ -39,11 +42,22 @@ from gap_validation.core.fields import FieldPath
 from gap_validation.core.plan import PlannedManoeuvre, TestCard, manoeuvre_signal
 from gap_validation.ros.parameters import EXCITATION_TYPES, FLOAT64, JOINT_STATE
 
-__all__ = ["InjectionPoint", "injection_points", "with_injection", "Player", "Flight", "Sample", "select_manoeuvre",
-           "JOINT_STATE", "FLOAT64", "EXCITATION_TYPES", "MAX_CATCH_UP_S"]
+__all__ = [
+    "InjectionPoint",
+    "injection_points",
+    "with_injection",
+    "Player",
+    "Flight",
+    "Sample",
+    "select_manoeuvre",
+    "JOINT_STATE",
+    "FLOAT64",
+    "EXCITATION_TYPES",
+    "MAX_CATCH_UP_S",
+]
 
-#: Most samples' worth of time a tick publishes at once [s]: the estimator's ``max_gap_s`` (a longer silence breaks
-#: its data anyway); beyond, the grid starts afresh and a running manoeuvre is aborted.
+#: Most samples' worth of time a tick publishes at once [s]: the estimator's ``max_gap_s`` (a longer silence
+#: breaks its data anyway); beyond, the grid starts afresh and a running manoeuvre is aborted.
 MAX_CATCH_UP_S = 0.5
 
 
@@ -128,8 +142,8 @@ def select_manoeuvre(card: TestCard | None, channel: str, index: int, flown: set
     channel : str
         ``excite_channel`` ("" = any).
     index : int
-        ``excite_index``: the card's manoeuvre of that index; -1: the first in flying order not flown to its end
-        yet (of ``channel`` when given).
+        ``excite_index``: the card's manoeuvre of that index; -1: the first in flying order not flown to its
+        end yet (of ``channel`` when given).
     flown : set of int
         Indices flown to their end on this card.
     points : dict
@@ -154,17 +168,23 @@ def select_manoeuvre(card: TestCard | None, channel: str, index: int, flown: set
         chosen = next((m for m in mine if m.index not in flown), None)
         if chosen is None:
             whose = f"{channel}'s manoeuvres" if channel else "the card's manoeuvres"
-            raise ConfigError(f"every one of {whose} has been flown ({len(mine)}); set excite_index to fly one again"
-                              if mine else f"the card has no manoeuvre{' for ' + channel if channel else ''}")
+            raise ConfigError(
+                f"every one of {whose} has been flown ({len(mine)}); set excite_index to fly one again"
+                if mine
+                else f"the card has no manoeuvre{' for ' + channel if channel else ''}"
+            )
     if chosen.channel not in points:
-        raise ConfigError(f"manoeuvre {chosen.index}: channel {chosen.channel!r} cannot be flown by the node (not a "
-                          f"SISO channel with an input in the config)")
+        raise ConfigError(
+            f"manoeuvre {chosen.index}: channel {chosen.channel!r} cannot be flown by the node (not a "
+            f"SISO channel with an input in the config)"
+        )
     return chosen
 
 
 @dataclass(frozen=True)
 class Sample:
-    """One published sample: its stamp [ns, node clock] and the offset [rad] of the flying channel (0: none)."""
+    """One published sample: its stamp [ns, node clock] and the offset [rad] of the flying channel (0:
+    none)."""
 
     stamp_ns: int
     channel: str | None
@@ -262,7 +282,8 @@ class Player:
         return int(self.t0_ns) + int(round(n * 1e9 / self.rate_hz))
 
     def start(self, manoeuvre: PlannedManoeuvre, now_ns: int) -> Flight:
-        """Fly ``manoeuvre`` from the next sample of the grid (the grid starts at ``now_ns`` when it has not yet).
+        """Fly ``manoeuvre`` from the next sample of the grid (the grid starts at ``now_ns`` when it has not
+        yet).
 
         Parameters
         ----------
@@ -278,7 +299,8 @@ class Player:
         return self.flight
 
     def abort(self, why: str = "") -> Flight | None:
-        """Stop the manoeuvre in flight at once (the next sample is zero); the flight, or None when none flies.
+        """Stop the manoeuvre in flight at once (the next sample is zero); the flight, or None when none
+        flies.
 
         Parameters
         ----------
@@ -291,7 +313,8 @@ class Player:
         return flight
 
     def due(self, now_ns: int, cap_rad: float) -> list[Sample]:
-        """The samples due at ``now_ns`` (stamp at or before it), each clipped to ``+-cap_rad``; advances the grid.
+        """The samples due at ``now_ns`` (stamp at or before it), each clipped to ``+-cap_rad``; advances the
+        grid.
 
         Parameters
         ----------
@@ -303,11 +326,13 @@ class Player:
         now_ns = int(now_ns)
         if self.t0_ns is None:
             self.t0_ns, self.next_n = now_ns, 0
-        elif self.next_n > 0 and now_ns < self.stamp_ns(self.next_n - 1):       # time went back (/clock restarted)
+        # time went back (/clock restarted)
+        elif self.next_n > 0 and now_ns < self.stamp_ns(self.next_n - 1):
             self.abort("the node clock went back")
             self.t0_ns, self.next_n = now_ns, 0
         last = int(math.floor((now_ns - self.t0_ns) * self.rate_hz / 1e9 + 1e-9))
-        if last - self.next_n + 1 > MAX_CATCH_UP_S * self.rate_hz:              # stalled or /clock jumped ahead
+        # stalled or /clock jumped ahead
+        if last - self.next_n + 1 > MAX_CATCH_UP_S * self.rate_hz:
             self.abort(f"more than {MAX_CATCH_UP_S:g} s of samples were late")
             self.t0_ns, self.next_n, last = now_ns, 0, 0
         out = []
@@ -317,7 +342,10 @@ class Player:
             if flight is not None and flight.state == "flying":
                 k = n - flight.start_n
                 if 0 <= k < flight.samples.size:
-                    value, channel = float(np.clip(flight.samples[k], -cap_rad, cap_rad)), flight.manoeuvre.channel
+                    value, channel = (
+                        float(np.clip(flight.samples[k], -cap_rad, cap_rad)),
+                        flight.manoeuvre.channel,
+                    )
                     flight.sent = k + 1
                 if flight.sent >= flight.samples.size:
                     flight.state = "done"
@@ -326,7 +354,8 @@ class Player:
         return out
 
     def status(self, channel: str) -> str:
-        """``excitation_manoeuvre`` of ``channel``'s status: its flight (flying, done, aborted), else ``none``.
+        """``excitation_manoeuvre`` of ``channel``'s status: its flight (flying, done, aborted), else
+        ``none``.
 
         Parameters
         ----------

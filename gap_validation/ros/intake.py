@@ -1,7 +1,7 @@
 """How the node takes messages: each topic's queue drained in one wake-up, QoS matched to the publishers.
 
-No rclpy import: the node creates the subscriptions and hands them to an :class:`Intake`, which only calls their
-``handle.take_message``, ``get_publisher_count`` and ``msg_type`` / ``raw`` attributes.
+No rclpy import: the node creates the subscriptions and hands them to an :class:`Intake`, which only calls
+their ``handle.take_message``, ``get_publisher_count`` and ``msg_type`` / ``raw`` attributes.
 
 Draining
 --------
@@ -14,16 +14,16 @@ KEEP_LAST queue (``qos_depth``) holds what arrives in between.
 
 QoS that works by default
 -------------------------
-:func:`choose_reliability`: with ``qos_reliability: auto`` a topic is subscribed RELIABLE when every publisher on
-it offers RELIABLE, and BEST_EFFORT when any offers BEST_EFFORT or none is known yet (a best-effort
-subscription matches every publisher). The choice is re-checked when publishers appear (the node's graph check, every ``discovery_period``); a change
-re-subscribes
-*make before break* (:meth:`Intake.settle`): the new subscription is created, both are drained until the new one
-has matched the publishers, and a message taken from one is skipped when it comes again from the other (same
-source timestamp and publication sequence number), so the switch neither loses nor repeats a message. While no
-publisher is known the topic has both a reliable and a best-effort subscription, drained the same way: a
-reliable publisher that appears is received reliably from its first message (a best-effort subscription alone
-loses messages of a burst when the machine is busy), a best-effort one is received at all.
+:func:`choose_reliability`: with ``qos_reliability: auto`` a topic is subscribed RELIABLE when every publisher
+on it offers RELIABLE, and BEST_EFFORT when any offers BEST_EFFORT or none is known yet (a best-effort
+subscription matches every publisher). The choice is re-checked when publishers appear (the node's graph
+check, every ``discovery_period``); a change re-subscribes
+*make before break* (:meth:`Intake.settle`): the new subscription is created, both are drained until the new
+one has matched the publishers, and a message taken from one is skipped when it comes again from the other
+(same source timestamp and publication sequence number), so the switch neither loses nor repeats a message.
+While no publisher is known the topic has both a reliable and a best-effort subscription, drained the same
+way: a reliable publisher that appears is received reliably from its first message (a best-effort subscription
+alone loses messages of a burst when the machine is busy), a best-effort one is received at all.
 :func:`publisher_note` says in the channel's status why a publisher cannot be matched.
 """
 from __future__ import annotations
@@ -31,7 +31,15 @@ from __future__ import annotations
 import time
 from typing import Any, Iterable, Sequence
 
-__all__ = ["Intake", "take_all", "choose_reliability", "publisher_note", "message_key", "RELIABLE", "BEST_EFFORT"]
+__all__ = [
+    "Intake",
+    "take_all",
+    "choose_reliability",
+    "publisher_note",
+    "message_key",
+    "RELIABLE",
+    "BEST_EFFORT",
+]
 
 RELIABLE = "reliable"
 BEST_EFFORT = "best_effort"
@@ -87,8 +95,10 @@ def publisher_note(topic: str, mode: str, reliability: str, type_name: str | Non
     other = sorted({t for t, _ in publishers if type_name is not None and t != type_name})
     if other:
         whose = "the config says" if type_source == "config" else "subscribed as"
-        return (f"publisher on {topic} offers {', '.join(other)}; {whose} {type_name} (set the topic's `type:` "
-                "in the config)")
+        return (
+            f"publisher on {topic} offers {', '.join(other)}; {whose} {type_name} (set the topic's `type:` "
+            "in the config)"
+        )
     if reliability == RELIABLE and any(r == BEST_EFFORT for _, r in publishers):
         n = sum(1 for _, r in publishers if r == BEST_EFFORT)
         who = "publisher" if n == 1 else f"{n} publishers"
@@ -104,7 +114,8 @@ def take_all(subscription: Any, limit: int) -> list:
     Parameters
     ----------
     subscription : rclpy.subscription.Subscription
-        Its ``handle.take_message(msg_type, raw)`` returns ``(message, info)`` or None when the queue is empty.
+        Its ``handle.take_message(msg_type, raw)`` returns ``(message, info)`` or None when the queue is
+        empty.
     limit : int
         Most messages taken (a flood cannot keep the wake-up going).
     """
@@ -177,7 +188,8 @@ class Intake:
         self._deadline = float("inf")
         self._keys: set | None = set() if len(self.subscriptions) > 1 else None
         self._linger = 0
-        self._held: list = []                   # (monotonic time taken, message) waiting for the reliable queue
+        # (monotonic time taken, message) waiting for the reliable queue
+        self._held: list = []
         self._reliable_last: tuple = (0, 0)     # publication order of the reliable queue's latest message
 
     @property
@@ -186,8 +198,8 @@ class Intake:
         return self.subscriptions.get(self.reliability) if self.reliability else None
 
     def settle(self, reliability: str, publishers: int, deadline: float, subscription: Any = None) -> None:
-        """Keep ``reliability`` from now on: its subscription (``subscription`` when it is new: make before break)
-        is drained with the others until it has matched ``publishers`` publishers or the monotonic time
+        """Keep ``reliability`` from now on: its subscription (``subscription`` when it is new: make before
+        break) is drained with the others until it has matched ``publishers`` publishers or the monotonic time
         ``deadline`` [s] passes (:meth:`retire_due`); then the others go (:meth:`retired`).
 
         Parameters
@@ -223,7 +235,8 @@ class Intake:
         return self.current.get_publisher_count() >= self._expect or now >= self._deadline
 
     def retired(self) -> list:
-        """The subscriptions that go, to destroy now (after a last :meth:`drain`); duplicates are looked for in
+        """The subscriptions that go, to destroy now (after a last :meth:`drain`); duplicates are looked for
+        in
         :attr:`LINGER` more drains."""
         gone = [sub for reliability, sub in self.subscriptions.items() if reliability != self.reliability]
         self.subscriptions = {self.reliability: self.current}
@@ -236,14 +249,14 @@ class Intake:
         return self._keys is not None
 
     def drain(self, limit: int, now: float | None = None) -> list:
-        """Every waiting message, ``[(message or bytes, info), ...]``, each once, in the order they were published
-        (with several subscriptions: their source timestamps).
+        """Every waiting message, ``[(message or bytes, info), ...]``, each once, in the order they were
+        published (with several subscriptions: their source timestamps).
 
         While a reliable subscription with a publisher is drained beside another, a message only the other one
-        delivered and published after the reliable queue's latest waits (at most :attr:`HOLD_S`): a reliable queue
-        delivers in order, so after a loss on the wire it holds every later message back until the lost one is
-        resent, and the best-effort queue runs ahead. Handed out at once, the resent message would come after
-        later ones: a time jump back to the router (a manoeuvre cut in two).
+        delivered and published after the reliable queue's latest waits (at most :attr:`HOLD_S`): a reliable
+        queue delivers in order, so after a loss on the wire it holds every later message back until the lost
+        one is resent, and the best-effort queue runs ahead. Handed out at once, the resent message would come
+        after later ones: a time jump back to the router (a manoeuvre cut in two).
 
         Parameters
         ----------
@@ -257,7 +270,9 @@ class Intake:
             return take_all(only, limit)
         now = time.monotonic() if now is None else now
         got = []
-        order = [r for r in self.subscriptions if r != self.reliability] + ([self.reliability] if self.current else [])
+        order = [r for r in self.subscriptions if r != self.reliability] + (
+            [self.reliability] if self.current else []
+        )
         for reliability in order:   # the one that stays last
             taken = take_all(self.subscriptions[reliability], limit)
             if reliability == RELIABLE and taken:

@@ -1,12 +1,14 @@
-"""The node's files: resume from a checkpoint, checkpoints and ``~/save_results``, written off the executor (rclpy).
+"""The node's files: resume from a checkpoint, checkpoints and ``~/save_results``, written off the executor
+(rclpy).
 
-:class:`Jobs` is the part of :class:`gap_validation.ros.node.ValidatorNode` that reads and writes its files, as a
-component holding a reference to the node (its public rclpy API and its ``config``, ``validator``, ``router``,
-``generation`` and ``hardware_id``) and the services the node lends it (the parameters ``state_file`` /
-``results_dir``, log-once, flush: :class:`~gap_validation.ros.collaborators.NodeServices`). It owns the
-``~/save_results`` service. The slow writes run on snapshots in :class:`gap_validation.ros.background.Background`
-(no rclpy there; why: :mod:`gap_validation.ros.background`); this module takes the ``~/save_results`` requests and
-answers them when their files are written, so the executor never waits.
+:class:`Jobs` is the part of :class:`gap_validation.ros.node.ValidatorNode` that reads and writes its files,
+as a component holding a reference to the node (its public rclpy API and its ``config``, ``validator``,
+``router``, ``generation`` and ``hardware_id``) and the services the node lends it (the parameters
+``state_file`` / ``results_dir``, log-once, flush: :class:`~gap_validation.ros.collaborators.NodeServices`).
+It owns the ``~/save_results`` service. The slow writes run on snapshots
+in :class:`gap_validation.ros.background.Background` (no rclpy there;
+why: :mod:`gap_validation.ros.background`); this module takes the ``~/save_results`` requests and answers them
+when their files are written, so the executor never waits.
 
 Importing it imports rclpy (when available), never rosbags.
 """
@@ -46,8 +48,8 @@ class Jobs:
         The jobs off the executor (:attr:`background`; shared with
         :class:`~gap_validation.ros.excitation.Excitation`, whose ``~/plan`` jobs are finished here too).
     take_diagnoses : callable (dict of str to Candidate) -> None
-        Hands the channels' top candidates of a save, diagnosed on a snapshot of the current generation, to the
-        channels' statuses.
+        Hands the channels' top candidates of a save, diagnosed on a snapshot of the current generation, to
+        the channels' statuses.
     finish_plan : callable (object, object) -> None
         Finishes a ``~/plan`` job: ``finish_plan(outcome, tag)``
         (:meth:`Excitation.finish <gap_validation.ros.excitation.Excitation.finish>`).
@@ -74,8 +76,8 @@ class Jobs:
 
     # ---------------------------------------------------------------- checkpoint and resume
     def initial_validator(self) -> OnlineValidator:
-        """The validator to start with: resumed from ``state_file`` when it holds a usable checkpoint (an unusable
-        one is set aside as ``<state_file>.corrupt``), else a fresh one."""
+        """The validator to start with: resumed from ``state_file`` when it holds a usable checkpoint (an
+        unusable one is set aside as ``<state_file>.corrupt``), else a fresh one."""
         node = self.node
         path = self.services.param("state_file")
         if not path or not os.path.exists(path):
@@ -100,8 +102,8 @@ class Jobs:
     def checkpoint(self) -> str | None:
         """Write the validator state to ``state_file`` now, in this thread (atomically); the path or None.
 
-        The checkpoint timer writes in the background instead (:meth:`checkpoint_in_background`); this waits for
-        those.
+        The checkpoint timer writes in the background instead (:meth:`checkpoint_in_background`); this waits
+        for those.
         """
         path = self.services.param("state_file")
         if not path:
@@ -118,8 +120,8 @@ class Jobs:
         return path
 
     def checkpoint_in_background(self, force: bool = False) -> None:
-        """Snapshot now, write in the background thread (after the writes before it); skipped while the previous
-        checkpoint is still being written, unless ``force`` (a reset must reach the file).
+        """Snapshot now, write in the background thread (after the writes before it); skipped while the
+        previous checkpoint is still being written, unless ``force`` (a reset must reach the file).
 
         Parameters
         ----------
@@ -131,7 +133,9 @@ class Jobs:
         if not path or (self.background.busy("checkpoint") and not force):
             return
         self.services.flush()
-        snap = background.snapshot(node.config, node.validator, None, node.generation, self._checkpoint_meta())
+        snap = background.snapshot(
+            node.config, node.validator, None, node.generation, self._checkpoint_meta()
+        )
         self.background.submit("checkpoint", path, background.write_checkpoint, snap, path, self.umask)
 
     def wait(self, timeout_s: float = 60.0) -> bool:
@@ -148,8 +152,8 @@ class Jobs:
 
     # ---------------------------------------------------------------- ~/save_results
     def save_results_in_background(self, tag: Any = None) -> None:
-        """Snapshot now; the full diagnosis, JSON and report are written by the background process (the answer to
-        ``~/save_results`` is sent when they are, :meth:`harvest`).
+        """Snapshot now; the full diagnosis, JSON and report are written by the background process (the answer
+        to ``~/save_results`` is sent when they are, :meth:`harvest`).
 
         Parameters
         ----------
@@ -164,7 +168,8 @@ class Jobs:
                                background.file_stem(node.hardware_id), self.umask, process=True)
 
     def save_results(self) -> Path:
-        """Write the JSON (and report, when available) of what was gathered so far, and wait for it; the JSON path."""
+        """Write the JSON (and report, when available) of what was gathered so far, and wait for it; the JSON
+        path."""
         self.save_results_in_background(tag=None)
         self.background.wait(600.0)
         path = None
@@ -213,8 +218,9 @@ class Jobs:
             self._finish(kind, future, tag)
 
     def open_service(self) -> None:
-        """Offer ``~/save_results`` (std_srvs/Trigger), kept out of the executor's wait set: its requests are taken
-        by :meth:`serve_requests` (the node's intake timer) and answered when their files are written."""
+        """Offer ``~/save_results`` (std_srvs/Trigger), kept out of the executor's wait set: its requests are
+        taken by :meth:`serve_requests` (the node's intake timer) and answered when their files are
+        written."""
         self.service = self.node.create_service(Trigger, "~/save_results", self._srv_save_results)
         self.services.poll(self.service)
 

@@ -80,8 +80,8 @@ def main(args: list[str] | None = None) -> int:
         return 2
     executor = _executor(node)
     executor.add_node(node)
-    # what start-up built (modules, config, models, restored spectra) lives as long as the node: out of the cyclic
-    # garbage collector's full collections, which hold the interpreter lock for as long as they take
+    # what start-up built (modules, config, models, restored spectra) lives as long as the node: out of the
+    # cyclic garbage collector's full collections, which hold the interpreter lock for as long as they take
     gc.freeze()
     try:
         while rclpy.ok():  # spin_once loop: EventsExecutor.spin() of Jazzy neither runs timers nor stops

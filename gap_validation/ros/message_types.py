@@ -1,14 +1,15 @@
-"""Message types of the node's topics: rclpy message classes by name, and the configured fields checked on them.
+"""Message types of the node's topics: rclpy message classes by name, and the configured fields checked on
+them.
 
 The node subscribes to every topic at start-up, so that no message is lost from the first one on
 (:func:`topic_types`): with the type the config names (``type:``), else the type the field paths imply
 (:func:`gap_validation.core.layouts.infer_type`: ``angular_velocity.*`` -> ``sensor_msgs/msg/Imu``,
 ``position[...]`` -> ``sensor_msgs/msg/JointState``, ``data`` -> ``std_msgs/msg/Float64``); only a topic whose
-fields imply nothing waits for its type to appear on the graph. An implied type is a guess: when the graph shows
-publishers of another type, the node re-subscribes with theirs. A type must be installed (its Python message
-package importable) and carry every configured field; both are checked before anything is subscribed, so a wrong
-type or field is one line at startup or reload. Imports the message packages by name (``sensor_msgs.msg`` ...),
-not rclpy.
+fields imply nothing waits for its type to appear on the graph. An implied type is a guess: when the graph
+shows publishers of another type, the node re-subscribes with theirs. A type must be installed (its Python
+message package importable) and carry every configured field; both are checked before anything is subscribed,
+so a wrong type or field is one line at startup or reload. Imports the message packages by name
+(``sensor_msgs.msg`` ...), not rclpy.
 """
 from __future__ import annotations
 
@@ -83,12 +84,14 @@ def check_fields(topic: str, cls: type, entries: Iterable[tuple[str, str, Signal
             FieldPath.parse(spec.field).extract(sample)
         except FieldError as err:
             if err.structural:
-                raise ConfigError(f"channels.{channel}.{stream}: topic {topic} ({cls.__name__}): {err}") from None
+                raise ConfigError(
+                    f"channels.{channel}.{stream}: topic {topic} ({cls.__name__}): {err}"
+                ) from None
 
 
 def resolve_types(config: ValidationConfig) -> dict[str, str | None]:
-    """Topic -> type from the config's ``type`` keys (None: discover it from the graph), each type installed and
-    carrying the configured fields.
+    """Topic -> type from the config's ``type`` keys (None: discover it from the graph), each type installed
+    and carrying the configured fields.
 
     Parameters
     ----------

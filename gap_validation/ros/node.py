@@ -20,12 +20,12 @@ Parameters, with the reasons for the QoS and intake defaults and the node's CPU 
 
 Taking messages
 ---------------
-:class:`~gap_validation.ros.topics.Topics` subscribes every topic at start-up (type from the config, else implied
-by its field paths, else its publishers'), with the reliability the publishers offer (re-checked every
-``discovery_period``), and keeps the subscriptions out of the executor's wait set: one timer (``intake_period``,
-steady clock, so it runs before ``/clock`` does with ``use_sim_time``) drains every queue in one wake-up
-(:mod:`gap_validation.ros.intake`), which costs a fraction of one executor callback per message. A sample's time
-is its ``header.stamp``, else its reception time (DDS's, on the node clock).
+:class:`~gap_validation.ros.topics.Topics` subscribes every topic at start-up (type from the config, else
+implied by its field paths, else its publishers'), with the reliability the publishers offer (re-checked every
+``discovery_period``), and keeps the subscriptions out of the executor's wait set: one timer
+(``intake_period``, steady clock, so it runs before ``/clock`` does with ``use_sim_time``) drains every queue
+in one wake-up (:mod:`gap_validation.ros.intake`), which costs a fraction of one executor callback per
+message. A sample's time is its ``header.stamp``, else its reception time (DDS's, on the node clock).
 
 Time
 ----
@@ -41,27 +41,29 @@ Published every ``diagnostic_period`` by a timer; when the timer is 1.5 periods 
 direct message callback) publishes instead, so ``/diagnostics`` stays on time under load. One status per
 channel, named ``<node name>: <channel>`` with the node's actual name (remapped with ``-r __node:=gv2``:
 ``gv2: pitch``, as diagnostic_updater names its tasks), ``hardware_id`` from the parameter, else the config's
-``aircraft`` key, else the node's fully qualified name (fixed at start-up: a model update keeps it), filled by the
-channel's :class:`~gap_validation.ros.status.ChannelTask` (levels and values: :mod:`gap_validation.ros.status`).
+``aircraft`` key, else the node's fully qualified name (fixed at start-up: a model update keeps it), filled by
+the channel's :class:`~gap_validation.ros.status.ChannelTask` (levels and
+values: :mod:`gap_validation.ros.status`).
 
 Never blocking the executor
 ---------------------------
 The cheap results are computed every tick. Full diagnoses (effect fitting) run in a worker thread on a copy of
-the state (:mod:`gap_validation.ros.diagnosis_worker`); checkpoints and ``~/save_results`` (full diagnosis, JSON,
-HTML report) run in another, on a snapshot (:mod:`gap_validation.ros.jobs`, :mod:`gap_validation.ros.background`).
-``~/save_results`` requests are taken by the intake timer and answered when the files are written, so
-``/diagnostics`` keeps its period.
+the state (:mod:`gap_validation.ros.diagnosis_worker`); checkpoints and ``~/save_results`` (full diagnosis,
+JSON, HTML report) run in another, on a snapshot
+(:mod:`gap_validation.ros.jobs`, :mod:`gap_validation.ros.background`). ``~/save_results`` requests are taken
+by the intake timer and answered when the files are written, so ``/diagnostics`` keeps its period.
 
 Flying the card (issue 25)
 --------------------------
-``~/plan`` (std_srvs/Trigger, always) answers the test card as YAML: the ``plan_card`` file's, else the card planned
-from the node's current results (in a child process, answered by the intake timer like ``~/save_results``). With
-``excitation_enabled`` (off by default) the node publishes surface offsets on ``excitation_topic`` at
-``excitation_rate_hz`` (zeros between manoeuvres), ``~/excite`` flies the card's manoeuvre that ``excite_channel`` /
-``excite_index`` select, ``~/abort`` stops it at once, every sample is capped at ``excitation_max_amplitude_rad``,
-and each flyable channel's ``excitation`` is the node's own topic, so what it injected comes back through its
-subscription into the estimator (closed-loop estimation); the statuses gain ``excitation_enabled`` and
-``excitation_manoeuvre`` (``pitch #0 12.3/60.0 s``). :mod:`gap_validation.ros.excitation`,
+``~/plan`` (std_srvs/Trigger, always) answers the test card as YAML: the ``plan_card`` file's, else the card
+planned from the node's current results (in a child process, answered by the intake timer like
+``~/save_results``). With ``excitation_enabled`` (off by default) the node publishes surface offsets on
+``excitation_topic`` at ``excitation_rate_hz`` (zeros between manoeuvres), ``~/excite`` flies the card's
+manoeuvre that ``excite_channel`` / ``excite_index`` select, ``~/abort`` stops it at once, every sample is
+capped at ``excitation_max_amplitude_rad``, and each flyable channel's ``excitation`` is the node's own topic,
+so what it injected comes back through its subscription into the estimator (closed-loop estimation); the
+statuses gain ``excitation_enabled`` and ``excitation_manoeuvre`` (``pitch #0 12.3/60.0 s``).
+:mod:`gap_validation.ros.excitation`,
 :mod:`gap_validation.ros.injection`, docs/PLAN.md.
 
 Live model update
@@ -71,8 +73,8 @@ Setting ``config_file`` or calling ``~/reload`` (std_srvs/Trigger) re-reads the 
 epsilon with the previous one (``epsilon_previous``, "epsilon 0.12 (was 0.62)"). A bad file is refused (the
 old model stays; the service answers success=False, the parameter set fails, with the one-line error).
 ``~/reset`` forgets the spectra; ``~/save_results`` writes the JSON (and the HTML report when
-:mod:`gap_validation.report.html` is available) of what was gathered so far to ``results_dir`` and answers with
-the path. Bad messages (NaN, missing joint, short arrays) are counted by the router and shown in
+:mod:`gap_validation.report.html` is available) of what was gathered so far to ``results_dir`` and answers
+with the path. Bad messages (NaN, missing joint, short arrays) are counted by the router and shown in
 ``bad_samples``; nothing in a message can stop the node.
 """
 from __future__ import annotations
@@ -180,8 +182,14 @@ class ValidatorNode(Node):
             raise ConfigError("parameter config_file is not set (ros2 run gap_validation validator_node "
                               "--ros-args -p config_file:=/path/cfg.yaml)")
         # what the components (topics, jobs, excitation) need of the node besides its public API
-        services = NodeServices(param=self._param, log_once=self._log_once, now_s=self._now_s, flush=self._flush,
-                                poll=self._poll, unpoll=self._polled.discard)
+        services = NodeServices(
+            param=self._param,
+            log_once=self._log_once,
+            now_s=self._now_s,
+            flush=self._flush,
+            poll=self._poll,
+            unpoll=self._polled.discard,
+        )
         runner = Background()   # the jobs off the executor: checkpoints, saves (Jobs) and plans (Excitation)
         self.excitation = Excitation(self, services, runner)
         self.config, points = self.excitation.injection(load_config(config_file))
@@ -205,7 +213,9 @@ class ValidatorNode(Node):
         self.jobs.open_service()   # ~/save_results, taken by the intake timer
         self._diag_due_s = self._now_s() + self.DIAGNOSTICS_LATE * self._param("diagnostic_period")
         self._diag_timer = self.create_timer(self._param("diagnostic_period"), self._diagnostics_tick)
-        self._intake_timer = self.create_timer(self._param("intake_period"), self._intake_tick, clock=self._steady)
+        self._intake_timer = self.create_timer(
+            self._param("intake_period"), self._intake_tick, clock=self._steady
+        )
         self._graph_timer = self.create_timer(self._param("discovery_period"), self.topics.check_graph,
                                               clock=self._steady)
         self._ckpt_timer = None
@@ -215,9 +225,11 @@ class ValidatorNode(Node):
         self.excitation.start()
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.get_logger().info(
-            f"validating {', '.join(self.config.channels)} from {config_file} on {', '.join(self.router.topics)} "
+            f"validating {', '.join(self.config.channels)} from {config_file} on "
+            f"{', '.join(self.router.topics)} "
             f"(QoS {self._param('qos_reliability')}, depth {self._param('qos_depth')}; statuses "
-            f"'{self.get_name()}: <channel>', hardware_id {self.hardware_id})")
+            f"'{self.get_name()}: <channel>', hardware_id {self.hardware_id})"
+        )
 
     def _declare_parameters(self) -> None:
         for name, param in PARAMETERS.items():
@@ -235,18 +247,23 @@ class ValidatorNode(Node):
             except InvalidParameterValueException:   # outside the descriptor's range
                 got = getattr(getattr(self, "_parameter_overrides", {}).get(name), "value", None)
                 low, high = param.range if param.range is not None else (None, None)
-                raise ConfigError(f"parameter {name}: expected a number in [{low:g}, {high:g}], got {got!r}") \
-                    from None
+                raise ConfigError(
+                    f"parameter {name}: expected a number in [{low:g}, {high:g}], got {got!r}"
+                ) from None
             except ParameterException as err:
-                kind = type(param.default).__name__.replace("str", "string").replace("float", "double (e.g. 1.0)")
+                kind = (
+                    type(param.default)
+                    .__name__.replace("str", "string")
+                    .replace("float", "double (e.g. 1.0)")
+                )
                 raise ConfigError(f"parameter {name}: expected a {kind} ({one_line(err)})") from None
 
     def _param(self, name: str) -> Any:
         return self.get_parameter(name).value
 
     def _poll(self, entity: Any) -> None:
-        """Keep a subscription or service out of the executor's wait set (drained by the intake timer) and wake the
-        executor, so it waits on its new set."""
+        """Keep a subscription or service out of the executor's wait set (drained by the intake timer) and
+        wake the executor, so it waits on its new set."""
         self._polled.add(entity)
         if self.executor is not None:
             self.executor.wake()
@@ -269,7 +286,8 @@ class ValidatorNode(Node):
 
     @property
     def hardware_id(self) -> str:
-        """The ``hardware_id`` parameter, else the startup config's ``aircraft``, else the node's full name."""
+        """The ``hardware_id`` parameter, else the startup config's ``aircraft``, else the node's full
+        name."""
         return self._param("hardware_id") or self._hardware_id
 
     @property
@@ -284,7 +302,13 @@ class ValidatorNode(Node):
         return self.jobs.checkpoint()
 
     def wait_for_background(self, timeout_s: float = 60.0) -> bool:
-        """Block until the background jobs (checkpoints, saves) are written and answered (tests, tools)."""
+        """Block until the background jobs (checkpoints, saves) are written and answered (tests, tools).
+
+        Parameters
+        ----------
+        timeout_s : float
+            Longest wait [s].
+        """
         return self.jobs.wait(timeout_s)
 
     # ---------------------------------------------------------------- topics (gap_validation.ros.topics)
@@ -308,12 +332,32 @@ class ValidatorNode(Node):
     def take_messages(self, topic: str, items: list, now_s: float | None = None, offset_s: float | None = None
                       ) -> None:
         """Hand messages drained from ``topic``'s queue to the decoding step and the router (never raises);
-        :meth:`Topics.take_messages <gap_validation.ros.topics.Topics.take_messages>`."""
+        :meth:`Topics.take_messages <gap_validation.ros.topics.Topics.take_messages>`.
+
+        Parameters
+        ----------
+        topic : str
+            The topic.
+        items : list of (bytes or message, dict)
+            ``take_message`` results, oldest first (see Topics.take_messages).
+        now_s : float, optional
+            Node time [s] of the drain (default: now).
+        offset_s : float, optional
+            Node time minus system time [s] (default: now).
+        """
         self.topics.take_messages(topic, items, now_s, offset_s)
 
     def on_raw(self, topic: str, data: bytes) -> None:
         """One serialized message of ``topic``, as a raw subscription delivers it (tests, benchmarks): the
-        decoding step replay uses, then the router (never raises); publishes overdue diagnostics."""
+        decoding step replay uses, then the router (never raises); publishes overdue diagnostics.
+
+        Parameters
+        ----------
+        topic : str
+            The topic.
+        data : bytes
+            The serialized (CDR) message.
+        """
         if topic not in self.topics.raw:
             return
         now_s = self._now_s()
@@ -322,14 +366,28 @@ class ValidatorNode(Node):
 
     def on_message(self, topic: str, msg: Any) -> None:
         """One deserialised message of ``topic`` (tests, tools): to the router (never raises); publishes
-        overdue diagnostics."""
+        overdue diagnostics.
+
+        Parameters
+        ----------
+        topic : str
+            The topic.
+        msg : object
+            The deserialised message.
+        """
         now_s = self._now_s()
         self.topics.last_arrival[topic] = self.topics.last_taken[topic] = now_s
         self.topics.route(topic, msg, now_s)
         self._diagnostics_overdue(now_s)
 
     def samples_dropped(self, topic: str) -> int:
-        """Messages of ``topic`` missing from its header stamps so far (:class:`StampGaps`)."""
+        """Messages of ``topic`` missing from its header stamps so far (:class:`StampGaps`).
+
+        Parameters
+        ----------
+        topic : str
+            The topic.
+        """
         return self.topics.samples_dropped(topic)
 
     # ---------------------------------------------------------------- diagnostics
@@ -350,7 +408,15 @@ class ValidatorNode(Node):
             self._tasks[name].channel = channel
 
     def statuses(self, result: ValidationResult, now_s: float | None = None) -> list[ChannelStatus]:
-        """Per-channel :class:`ChannelStatus` for ``result`` at node time ``now_s``."""
+        """Per-channel :class:`ChannelStatus` for ``result`` at node time ``now_s``.
+
+        Parameters
+        ----------
+        result : ValidationResult
+            The results.
+        now_s : float, optional
+            Node time [s] (default: now).
+        """
         now_s = self._now_s() if now_s is None else now_s
         notes = self.topics.notes()
         statuses = [self._tasks[name].run(ch, now_s, self.router, self.samples_dropped,
@@ -364,11 +430,24 @@ class ValidatorNode(Node):
         return statuses
 
     def status_name(self, channel: str) -> str:
-        """``<node name>: <channel>``, with the node's actual (remapped) name, as diagnostic_updater names tasks."""
+        """``<node name>: <channel>``, with the node's actual (remapped) name, as diagnostic_updater names
+        tasks.
+
+        Parameters
+        ----------
+        channel : str
+            The channel.
+        """
         return f"{self.get_name()}: {channel}"
 
     def diagnostic_array(self, statuses: list[ChannelStatus]) -> "DiagnosticArray":
-        """The ``DiagnosticArray`` message of ``statuses`` (levels are the DiagnosticStatus byte constants)."""
+        """The ``DiagnosticArray`` message of ``statuses`` (levels are the DiagnosticStatus byte constants).
+
+        Parameters
+        ----------
+        statuses : list of ChannelStatus
+            From :meth:`statuses`.
+        """
         levels = {"OK": DiagnosticStatus.OK, "WARN": DiagnosticStatus.WARN, "ERROR": DiagnosticStatus.ERROR,
                   "STALE": DiagnosticStatus.STALE}
         array = DiagnosticArray()
@@ -392,8 +471,8 @@ class ValidatorNode(Node):
             self.publish_diagnostics()
 
     def publish_diagnostics(self) -> "DiagnosticArray":
-        """Flush, compute the cheap results, schedule a diagnosis, publish /diagnostics (timer callback, or the
-        intake timer when the timer is :attr:`DIAGNOSTICS_LATE` periods late)."""
+        """Flush, compute the cheap results, schedule a diagnosis, publish /diagnostics (timer callback, or
+        the intake timer when the timer is :attr:`DIAGNOSTICS_LATE` periods late)."""
         now_s = self._now_s()
         self._diag_due_s = now_s + self.DIAGNOSTICS_LATE * self._param("diagnostic_period")
         self._flush()
@@ -403,12 +482,20 @@ class ValidatorNode(Node):
             result = self.validator.results(diagnose=False)
             self._note_saturation(result)
             self.last_result = result
-            self.diagnosis_worker.schedule(result, self.validator, self.config, self._generation,
-                                           self._param("diagnosis_period"), self._param("diagnosis_cpu_share"))
+            self.diagnosis_worker.schedule(
+                result,
+                self.validator,
+                self.config,
+                self._generation,
+                self._param("diagnosis_period"),
+                self._param("diagnosis_cpu_share"),
+            )
             statuses = self.statuses(result, now_s)
             array = self.diagnostic_array(statuses)
         except Exception as err:  # noqa: BLE001 - keep publishing next time
-            self._log_once(f"diagnostics:{type(err).__name__}", "error", f"diagnostics failed: {one_line(err)}")
+            self._log_once(
+                f"diagnostics:{type(err).__name__}", "error", f"diagnostics failed: {one_line(err)}"
+            )
             return None
         self._diag_pub.publish(array)
         try:
@@ -442,12 +529,20 @@ class ValidatorNode(Node):
 
     def _take_diagnosis(self, result: ValidationResult) -> None:
         for name, ch in result.channels.items():
-            if (ch.epsilon is not None or (ch.mimo is not None and ch.nu_gap is not None)) and name in self._tasks:
+            if (
+                ch.epsilon is not None or (ch.mimo is not None and ch.nu_gap is not None)
+            ) and name in self._tasks:
                 self._tasks[name].take_diagnosis(ch.diagnosis[0] if ch.diagnosis else None, ch.nonlinearity,
                                                  ch.warnings, ch.margins_caveat, ch.within_tolerance)
 
     def wait_for_diagnosis(self, timeout_s: float = 60.0) -> bool:
-        """Block until the running full diagnosis (if any) is done and take its result (tests, tools)."""
+        """Block until the running full diagnosis (if any) is done and take its result (tests, tools).
+
+        Parameters
+        ----------
+        timeout_s : float
+            Longest wait [s].
+        """
         done = self.diagnosis_worker.wait(timeout_s)
         self._harvest_diagnosis()
         return done
@@ -455,6 +550,11 @@ class ValidatorNode(Node):
     # ---------------------------------------------------------------- model update, reset, save
     def reload(self, path: str | None = None) -> tuple[bool, str]:
         """Re-read the config (``path`` or the ``config_file`` parameter) and swap the models in.
+
+        Parameters
+        ----------
+        path : str, optional
+            The config file (default: the ``config_file`` parameter).
 
         Returns
         -------
@@ -488,7 +588,8 @@ class ValidatorNode(Node):
         self.diagnosis_worker.force = True
         text = f"loaded {path}"
         if restarted:
-            text += f"; spectra restarted for {', '.join(restarted)} (topics, fields or analysis settings changed)"
+            text += (f"; spectra restarted for {', '.join(restarted)} (topics, fields or analysis settings "
+                     "changed)")
         self.get_logger().info(text)
         return True, text
 
@@ -520,7 +621,8 @@ class ValidatorNode(Node):
             self._log_once(f"saturation:{line.split(':')[0]}", "warning", line)
 
     def save_results(self) -> Path:
-        """Write the JSON (and report, when available) of what was gathered so far, and wait for it; the JSON path.
+        """Write the JSON (and report, when available) of what was gathered so far, and wait for it; the JSON
+        path.
 
         The service ``~/save_results`` does the same without waiting (the executor goes on meanwhile).
         """

@@ -1,12 +1,12 @@
 """The node's plottable topics (docs/NODE_TOPICS.md): per channel, latched, republished only when they change.
 
 * ``~/<channel>/frequency_response`` (``std_msgs/msg/Float64MultiArray``): the table of
-  :func:`gap_validation.core.plottable.frequency_response_table`, row after row. ``layout.dim[0]`` names the rows
-  (its label is the curve names joined by commas, its size their number), ``layout.dim[1]`` the frequencies
-  (label ``frequency``, size the channel's grid). The grid is fixed for a config, so a plot layout's indices
-  hold all flight long; frequencies without an estimate are NaN (plotters leave a gap).
-* ``~/<channel>/verdict`` (``std_msgs/msg/String``): one JSON object, what the channel's ``/diagnostics`` status
-  says (:func:`gap_validation.ros.status.verdict_mapping`): level, message, epsilon, nu-gap, margins,
+  :func:`gap_validation.core.plottable.frequency_response_table`, row after row. ``layout.dim[0]`` names the
+  rows (its label is the curve names joined by commas, its size their number), ``layout.dim[1]`` the
+  frequencies (label ``frequency``, size the channel's grid). The grid is fixed for a config, so a plot
+  layout's indices hold all flight long; frequencies without an estimate are NaN (plotters leave a gap).
+* ``~/<channel>/verdict`` (``std_msgs/msg/String``): one JSON object, what the channel's ``/diagnostics``
+  status says (:func:`gap_validation.ros.status.verdict_mapping`): level, message, epsilon, nu-gap, margins,
   limited_by, the top diagnosis sentence, warnings.
 
 Both use a reliable, transient-local QoS of depth 1: a plotter that starts late gets the latest at once.

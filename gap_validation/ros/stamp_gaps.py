@@ -16,11 +16,11 @@ class StampGaps:
     The node cannot see losses inside DDS (a KEEP_LAST queue that overflows drops the oldest samples silently,
     a BEST_EFFORT link loses some), so it counts them from the stamps: the nominal period is learnt from the
     first :attr:`LEARN` intervals (their median) and then refined as the mean of every interval below 1.5
-    periods (stamps of 1.7e9 s carry float rounding of 0.24 us, which the mean averages out), and an interval of
-    ``dt`` with ``1.5 period < dt <= max_gap_s`` counts ``round(dt / period) - 1`` missing messages -- those among
-    the first intervals too, once the period is learnt, so the count does not depend on when losses begin. Longer
-    silences are pauses (STALE), not drops; after one the period is learnt again. A rate change in flight would
-    count as drops; stamps going backwards are ignored.
+    periods (stamps of 1.7e9 s carry float rounding of 0.24 us, which the mean averages out), and an interval
+    of ``dt`` with ``1.5 period < dt <= max_gap_s`` counts ``round(dt / period) - 1`` missing messages --
+    those among the first intervals too, once the period is learnt, so the count does not depend on when
+    losses begin. Longer silences are pauses (STALE), not drops; after one the period is learnt again. A rate
+    change in flight would count as drops; stamps going backwards are ignored.
     """
 
     LEARN = 16

@@ -1,9 +1,9 @@
 """What each channel's ``DiagnosticStatus`` says, without ROS types: levels, wording, values.
 
-diagnostic_updater style: one :class:`ChannelTask` per channel owns what the node saw of that channel (when its
-input and output last brought a sample, the top candidate of the last full diagnosis) and :meth:`ChannelTask.run`
-fills its :class:`ChannelStatus`; the node names it ``<node name>: <channel>`` and turns those into a
-``DiagnosticArray``. No rclpy import.
+diagnostic_updater style: one :class:`ChannelTask` per channel owns what the node saw of that channel (when
+its input and output last brought a sample, the top candidate of the last full diagnosis)
+and :meth:`ChannelTask.run` fills its :class:`ChannelStatus`; the node names it ``<node name>: <channel>`` and
+turns those into a ``DiagnosticArray``. No rclpy import.
 
 Level (STALE means "the inputs are silent", as diagnostic_aggregator reads it; nothing else is STALE):
 
@@ -16,19 +16,20 @@ Level (STALE means "the inputs are silent", as diagnostic_aggregator reads it; n
   sweeps), or when ``warn_epsilon <= epsilon < error_epsilon``.
 * ERROR when ``epsilon >= error_epsilon``; OK below ``warn_epsilon`` (thresholds of
   :mod:`gap_validation.core.margins`, eq. 16).
-* A publisher that cannot reach the subscription (QoS or type, :func:`gap_validation.ros.intake.publisher_note`)
-  is named first in the message: ERROR while its topic brings no data (the channel cannot be validated until the
-  setting is fixed), at least WARN otherwise.
+* A publisher that cannot reach the subscription (QoS or
+  type, :func:`gap_validation.ros.intake.publisher_note`) is named first in the message: ERROR while its topic
+  brings no data (the channel cannot be validated until the setting is fixed), at least WARN otherwise.
 
 Values are strings under the JSON key names (``nu_gap``, ``epsilon``, ``epsilon_raw``, ``epsilon_previous``,
-``gain_margin_db``, ``phase_margin_deg``, ``disk_margin``, ``worst_frequency_rad_s``, ``sweeps``, ``limited_by``,
-``points_excluded``, ``bad_samples`` (total; ``bad_samples_by_reason`` has the JSON dict), ``diagnosis`` (top
-candidate sentence; ``pending`` before the first fit, ``none`` when no effect helps, ``off`` when disabled),
-``diagnosis_effects`` (the JSON list to append to the model's effects), ``samples_input``/``samples_output``,
-``samples_dropped`` ...). ``samples_dropped`` counts the messages missing from the channel's topics, inferred from
-gaps in their ``header.stamp`` (:class:`~gap_validation.ros.stamp_gaps.StampGaps`; DDS does not tell the node
-when a queue overflows; topics without a header are not counted). Numbers are Python ``repr`` (round-trip
-exact); missing numbers are ``null`` (margins for epsilon >= 1: no guarantee).
+``gain_margin_db``, ``phase_margin_deg``, ``disk_margin``, ``worst_frequency_rad_s``, ``sweeps``,
+``limited_by``, ``points_excluded``, ``bad_samples`` (total; ``bad_samples_by_reason`` has the JSON dict),
+``diagnosis`` (top candidate sentence; ``pending`` before the first fit, ``none`` when no effect helps,
+``off`` when disabled), ``diagnosis_effects`` (the JSON list to append to the model's effects),
+``samples_input``/``samples_output``, ``samples_dropped`` ...). ``samples_dropped`` counts the messages
+missing from the channel's topics, inferred from gaps in their ``header.stamp``
+(:class:`~gap_validation.ros.stamp_gaps.StampGaps`; DDS does not tell the node when a queue overflows; topics
+without a header are not counted). Numbers are Python ``repr`` (round-trip exact); missing numbers are
+``null`` (margins for epsilon >= 1: no guarantee).
 """
 from __future__ import annotations
 
@@ -45,8 +46,16 @@ from gap_validation.core.plottable import frequency_response_table
 from gap_validation.core.results import Candidate, ChannelResult
 from gap_validation.messages.router import MessageRouter
 
-__all__ = ["ChannelStatus", "ChannelTask", "channel_status", "candidate_sentence", "verdict_mapping", "STREAMS",
-           "VERDICT_KEYS", "PlotChanges"]
+__all__ = [
+    "ChannelStatus",
+    "ChannelTask",
+    "channel_status",
+    "candidate_sentence",
+    "verdict_mapping",
+    "STREAMS",
+    "VERDICT_KEYS",
+    "PlotChanges",
+]
 
 _JSON_VALUES = ("nu_gap", "epsilon", "epsilon_raw", "epsilon_previous", "gain_margin_db", "phase_margin_deg",
                 "disk_margin", "worst_frequency_rad_s", "sweeps", "limited_by", "points_excluded")
@@ -162,8 +171,9 @@ def channel_status(result: ChannelResult, *, warn_epsilon: float = WARN_EPSILON,
     extra_values : dict, optional
         More values appended (e.g. sample ages).
     notes : sequence of str
-        Publishers that cannot reach the channel's subscriptions (``publisher on /imu offers BEST_EFFORT; ...``):
-        first in the message; ERROR with ``waiting_reason`` or ``stale_reason``, else at least WARN.
+        Publishers that cannot reach the channel's subscriptions (``publisher on /imu offers
+        BEST_EFFORT; ...``): first in the message; ERROR with ``waiting_reason`` or ``stale_reason``, else at
+        least WARN.
     nonlinearity : str, optional
         The last full diagnosis' amplitude-dependence verdict (JSON ``nonlinearity``; value ``nonlinearity``,
         empty when none was found or no diagnosis ran).
@@ -221,7 +231,8 @@ def channel_status(result: ChannelResult, *, warn_epsilon: float = WARN_EPSILON,
             ": WARN, data-limited (fly better sweeps)"
     else:
         level, summary = "OK", "receiving data, waiting for a sweep (no estimate yet)"
-    if result.conventions:       # a sign, units, the body frame or a clock (issue 23): WARN at once, the fix first
+    # a sign, units, the body frame or a clock (issue 23): WARN at once, the fix first
+    if result.conventions:
         level = max(level, "WARN", key=_ORDER.index)
         summary = f"{result.conventions[0].sentence}: {level}"
     noted = "; ".join(notes)
@@ -240,11 +251,20 @@ def channel_status(result: ChannelResult, *, warn_epsilon: float = WARN_EPSILON,
     return ChannelStatus(result.name, level, summary, values)
 
 
-#: The status values a channel's ``~/<channel>/verdict`` carries (numbers as numbers, lists as lists): what the
-#: model is worth, not the ages and counts that change with every message.
-VERDICT_KEYS = _JSON_VALUES + ("nu_gap_frequency_rad_s", "diagnosis", "diagnosis_effects", "diagnosis_epsilon",
-                               "margins_guaranteed", "margins_note", "warnings", "nonlinearity", "conventions",
-                               "within_tolerance")
+#: The status values a channel's ``~/<channel>/verdict`` carries (numbers as numbers, lists as lists): what
+#: the model is worth, not the ages and counts that change with every message.
+VERDICT_KEYS = _JSON_VALUES + (
+    "nu_gap_frequency_rad_s",
+    "diagnosis",
+    "diagnosis_effects",
+    "diagnosis_epsilon",
+    "margins_guaranteed",
+    "margins_note",
+    "warnings",
+    "nonlinearity",
+    "conventions",
+    "within_tolerance",
+)
 
 
 def verdict_mapping(status: ChannelStatus) -> dict:
@@ -265,13 +285,16 @@ def verdict_mapping(status: ChannelStatus) -> dict:
 
 
 class PlotChanges:
-    """What a channel's plottable topics must send (docs/NODE_TOPICS.md): its curves table and its verdict, each
-    only when it differs from the last sent (the node's ``~/<channel>/...`` and ``replay --annotate``)."""
+    """What a channel's plottable topics must send (docs/NODE_TOPICS.md): its curves table and its verdict,
+    each only when it differs from the last sent (the node's ``~/<channel>/...`` and
+    ``replay --annotate``)."""
 
     def __init__(self) -> None:
         self._last: dict[str, tuple[Any, str | None]] = {}
 
-    def changed(self, result: ChannelResult, channel: ChannelConfig, status: ChannelStatus) -> tuple[Any, str | None]:
+    def changed(
+        self, result: ChannelResult, channel: ChannelConfig, status: ChannelStatus
+    ) -> tuple[Any, str | None]:
         """``(table or None, verdict JSON or None)``: what changed since the last call for this channel.
 
         Parameters
@@ -310,12 +333,12 @@ class ChannelTask:
     Attributes
     ----------
     last_seen : dict
-        Stream -> node time [s] of the arrival that last brought the stream a sample (the transport's reception
-        time: the age of the data).
+        Stream -> node time [s] of the arrival that last brought the stream a sample (the transport's
+        reception time: the age of the data).
     noticed : dict
-        Stream -> node time [s] at which the node took the message that last brought the stream a sample (the end
-        of the run is silence the node heard: a node stalled while messages waited in its queues takes them
-        late, their reception times are old, yet the data never stopped).
+        Stream -> node time [s] at which the node took the message that last brought the stream a sample (the
+        end of the run is silence the node heard: a node stalled while messages waited in its queues takes
+        them late, their reception times are old, yet the data never stopped).
     top : Candidate or None
         Top candidate of the last full diagnosis taken for the current model.
     diagnosed : bool
@@ -345,10 +368,10 @@ class ChannelTask:
         self._run_open = False
 
     def run_ended(self, now_s: float, timeout_s: float) -> bool:
-        """True once when every stream of the channel has been silent for ``timeout_s`` since the node counted its
-        last sample (:attr:`noticed`, not the reception time of a message taken late): the run of data ended
-        (landing, a stopped bag), so the manoeuvre in progress can be closed, as the estimator would when the next
-        sample came after the gap.
+        """True once when every stream of the channel has been silent for ``timeout_s`` since the node counted
+        its last sample (:attr:`noticed`, not the reception time of a message taken late): the run of data
+        ended (landing, a stopped bag), so the manoeuvre in progress can be closed, as the estimator would
+        when the next sample came after the gap.
 
         Parameters
         ----------
@@ -410,8 +433,8 @@ class ChannelTask:
 
     def update_seen(self, router: MessageRouter, arrivals: Mapping[str, float], now_s: float,
                     taken: Mapping[str, float] | None = None) -> None:
-        """Note which streams got new samples since the last call, stamped with their topic's last arrival (and
-        the time the node took it).
+        """Note which streams got new samples since the last call, stamped with their topic's last arrival
+        (and the time the node took it).
 
         Parameters
         ----------
@@ -466,10 +489,20 @@ class ChannelTask:
             stale_reason = f"no data for {age:.1f} s on {' and '.join(t for _, t in stale)}"
         return waiting_reason, stale_reason, ages
 
-    def run(self, result: ChannelResult, now_s: float, router: MessageRouter, dropped: Callable[[str], int], *,
-            stale_timeout_s: float, warn_epsilon: float = WARN_EPSILON, error_epsilon: float = STANDARD_EPSILON,
-            pending: Collection[str] = (), diagnosis_off: bool = False,
-            notes: Mapping[str, str] | None = None) -> ChannelStatus:
+    def run(
+        self,
+        result: ChannelResult,
+        now_s: float,
+        router: MessageRouter,
+        dropped: Callable[[str], int],
+        *,
+        stale_timeout_s: float,
+        warn_epsilon: float = WARN_EPSILON,
+        error_epsilon: float = STANDARD_EPSILON,
+        pending: Collection[str] = (),
+        diagnosis_off: bool = False,
+        notes: Mapping[str, str] | None = None,
+    ) -> ChannelStatus:
         """Fill the channel's status from its (cheap) result.
 
         Parameters
@@ -504,12 +537,26 @@ class ChannelTask:
         if self.within_tolerance is not None and result.within_tolerance is None:
             result = dataclasses.replace(result, within_tolerance=self.within_tolerance)
         mimo = getattr(self.channel, "is_mimo", False)
-        extra = {**ages, "samples_input": sum(router.samples(self.name, s) for s in self.channel.input_streams)
-                 if mimo else router.samples(self.name, "input"),
-                 "samples_output": sum(router.samples(self.name, s) for s in self.channel.output_streams)
-                 if mimo else router.samples(self.name, "output"),
-                 "samples_dropped": sum(dropped(topic) for topic in self.topics)}
+        extra = {
+            **ages,
+            "samples_input": sum(router.samples(self.name, s) for s in self.channel.input_streams)
+            if mimo
+            else router.samples(self.name, "input"),
+            "samples_output": sum(router.samples(self.name, s) for s in self.channel.output_streams)
+            if mimo
+            else router.samples(self.name, "output"),
+            "samples_dropped": sum(dropped(topic) for topic in self.topics),
+        }
         mine = [notes[topic] for topic in self.topics if notes and notes.get(topic)]
-        return channel_status(result, warn_epsilon=warn_epsilon, error_epsilon=error_epsilon, stale_reason=stale,
-                              waiting_reason=waiting, candidate=self.top, diagnosis_state=state, extra_values=extra,
-                              notes=mine, nonlinearity=self.nonlinearity)
+        return channel_status(
+            result,
+            warn_epsilon=warn_epsilon,
+            error_epsilon=error_epsilon,
+            stale_reason=stale,
+            waiting_reason=waiting,
+            candidate=self.top,
+            diagnosis_state=state,
+            extra_values=extra,
+            notes=mine,
+            nonlinearity=self.nonlinearity,
+        )

@@ -1,21 +1,21 @@
 """The node's topics: subscriptions that follow the graph, and the taking of their messages (rclpy).
 
-:class:`Topics` is the part of :class:`gap_validation.ros.node.ValidatorNode` that owns its topics, as a component
-holding a reference to the node (its public rclpy API: ``create_subscription``, the graph, logging; its ``router``,
-``validator`` and ``config``) and the services the node lends it (parameters, log-once, clock, the executor's wait
-set: :class:`~gap_validation.ros.collaborators.NodeServices`):
+:class:`Topics` is the part of :class:`gap_validation.ros.node.ValidatorNode` that owns its topics, as a
+component holding a reference to the node (its public rclpy API: ``create_subscription``, the graph, logging;
+its ``router``, ``validator`` and ``config``) and the services the node lends it (parameters, log-once, clock,
+the executor's wait set: :class:`~gap_validation.ros.collaborators.NodeServices`):
 
 * subscribing: every topic is subscribed at start-up (type from the config, else implied by its field paths,
-  :func:`~gap_validation.ros.message_types.topic_types`; only topics whose fields imply nothing wait for the graph),
-  with the reliability the publishers offer (``qos_reliability: auto``: both reliable and best effort until they
-  are known, then theirs; re-checked by :meth:`Topics.check_graph` every ``discovery_period``,
+  :func:`~gap_validation.ros.message_types.topic_types`; only topics whose fields imply nothing wait for the
+  graph), with the reliability the publishers offer (``qos_reliability: auto``: both reliable and best effort
+  until they are known, then theirs; re-checked by :meth:`Topics.check_graph` every ``discovery_period``,
   :mod:`gap_validation.ros.intake`);
 * taking messages: the subscriptions are kept out of the executor's wait set and drained in one wake-up
   (:meth:`Topics.take_all`, from the node's intake timer); serialized messages go through the decoding step
-  replay uses (:class:`gap_validation.messages.decoding.TopicDecoder`, with rclpy's ``deserialize_message`` as the
-  full deserialisation), other messages to the router; a sample's time is its ``header.stamp``, else its
-  reception time (DDS's, on the node clock). What each topic has seen (last arrival, :class:`StampGaps`) is kept
-  here for the channels' statuses.
+  replay uses (:class:`gap_validation.messages.decoding.TopicDecoder`, with rclpy's ``deserialize_message`` as
+  the full deserialisation), other messages to the router; a sample's time is its ``header.stamp``, else its
+  reception time (DDS's, on the node clock). What each topic has seen (last arrival, :class:`StampGaps`) is
+  kept here for the channels' statuses.
 
 Importing it imports rclpy, never rosbags.
 """
@@ -52,13 +52,13 @@ class Topics:
     Parameters
     ----------
     node : rclpy.node.Node
-        The node: its subscriptions, graph queries and logger, and its ``router``, ``validator`` and ``config``
-        (read when needed: they change on reload and reset).
+        The node: its subscriptions, graph queries and logger, and its ``router``, ``validator`` and
+        ``config`` (read when needed: they change on reload and reset).
     types : dict of str to TopicType
         Topic -> type wanted (:func:`~gap_validation.ros.message_types.topic_types`); updated by the graph.
     services : NodeServices
-        The node's parameters (``qos_*``, ``raw_decoding``, ``stale_timeout``), log-once, clock, and the executor's
-        wait set (the subscriptions are kept out of it, :attr:`NodeServices.poll`).
+        The node's parameters (``qos_*``, ``raw_decoding``, ``stale_timeout``), log-once, clock, and the
+        executor's wait set (the subscriptions are kept out of it, :attr:`NodeServices.poll`).
 
     Attributes
     ----------
@@ -71,8 +71,8 @@ class Topics:
     last_arrival : dict of str to float
         Topic -> node time [s] of its last message (the transport's reception time: the age of the data).
     last_taken : dict of str to float
-        Topic -> node time [s] at which the node last took a message of it (late after a stall of the node: the
-        end of a run is silence the node heard, :meth:`ChannelTask.run_ended
+        Topic -> node time [s] at which the node last took a message of it (late after a stall of the node:
+        the end of a run is silence the node heard, :meth:`ChannelTask.run_ended
         <gap_validation.ros.status.ChannelTask.run_ended>`).
     gaps : dict of str to StampGaps
         Topic -> messages missing from its stamps.
@@ -96,7 +96,8 @@ class Topics:
 
     # ---------------------------------------------------------------- subscriptions
     def retype(self, types: dict[str, TopicType]) -> None:
-        """Take the types of a new config (reload), keeping what the graph taught (call :meth:`subscribe_all`).
+        """Take the types of a new config (reload), keeping what the graph taught
+        (call :meth:`subscribe_all`).
 
         Parameters
         ----------
@@ -109,7 +110,8 @@ class Topics:
         self.types = types
 
     def subscribe_all(self) -> None:
-        """Subscribe to every topic whose type is known (config or fields); drop topics no longer configured."""
+        """Subscribe to every topic whose type is known (config or fields); drop topics no longer
+        configured."""
         for topic in list(self.intakes):
             wanted = self.types.get(topic)
             intake = self.intakes[topic]
@@ -121,8 +123,12 @@ class Topics:
             if topic in self.intakes:
                 continue
             if wanted.name is None:
-                self.services.log_once(f"discover:{topic}", "info", f"topic {topic}: type neither in the config "
-                                       "nor implied by its fields, waiting for it on the graph")
+                self.services.log_once(
+                    f"discover:{topic}",
+                    "info",
+                    f"topic {topic}: type neither in the config "
+                    "nor implied by its fields, waiting for it on the graph",
+                )
                 continue
             self._subscribe(topic, wanted)
         self.graph_due = True
@@ -133,7 +139,8 @@ class Topics:
         return [topic for topic in self.types if topic not in self.intakes]
 
     def notes(self) -> dict[str, str]:
-        """Topic -> why its publishers cannot be matched (for the channels' statuses), for topics with a note."""
+        """Topic -> why its publishers cannot be matched (for the channels' statuses), for topics with a
+        note."""
         return {topic: intake.note for topic, intake in self.intakes.items() if intake.note}
 
     def _publishers_on(self, topic: str) -> list[tuple[str, str]]:
@@ -160,14 +167,21 @@ class Topics:
         # message of the subscription (the SingleThreadedExecutor spun at 82 % of a core); the graph check
         # (discovery_period) sees matches and incompatible publishers instead
         events = SubscriptionEventCallbacks(use_default_callbacks=False)
-        sub = node.create_subscription(message_class(type_name), topic, partial(self._on_executor_message, topic),
-                                       qos, event_callbacks=events, raw=raw)
+        sub = node.create_subscription(
+            message_class(type_name),
+            topic,
+            partial(self._on_executor_message, topic),
+            qos,
+            event_callbacks=events,
+            raw=raw,
+        )
         self.services.poll(sub)
         return sub
 
     def _subscribe(self, topic: str, wanted: TopicType) -> None:
-        """Subscribe now; with ``qos_reliability: auto`` and no publisher known yet, both reliable and best effort
-        (:class:`~gap_validation.ros.intake.Intake`: nothing missed from the first message, nothing twice)."""
+        """Subscribe now; with ``qos_reliability: auto`` and no publisher known yet, both reliable and best
+        effort (:class:`~gap_validation.ros.intake.Intake`: nothing missed from the first message, nothing
+        twice)."""
         mode = self.services.param("qos_reliability")
         offered = [r for t, r in self._publishers_on(topic) if t == wanted.name]
         reliability = choose_reliability(mode, offered) if offered or mode != "auto" else None
@@ -199,7 +213,8 @@ class Topics:
                                                         "deserialising instead")
 
     def check_graph(self) -> None:
-        """Graph check: discover pending types, follow the publishers' type and reliability, note mismatches."""
+        """Graph check: discover pending types, follow the publishers' type and reliability, note
+        mismatches."""
         self.graph_due = False
         mode = self.services.param("qos_reliability")
         for topic, wanted in self.types.items():
@@ -217,7 +232,8 @@ class Topics:
                     continue
             offered = [r for t, r in publishers if t == intake.type_name]
             want = choose_reliability(mode, offered) if offered or mode != "auto" else intake.reliability
-            if want is not None and want != intake.reliability:   # (two kinds only: a new one replaces a lone one)
+            # (two kinds only: a new one replaces a lone one)
+            if want is not None and want != intake.reliability:
                 self._settle(intake, want, len(offered))
             note = publisher_note(topic, mode, intake.reliability, intake.type_name, intake.type_source,
                                   publishers) if intake.reliability else None
@@ -226,7 +242,8 @@ class Topics:
             intake.note = note
 
     def _follow_type(self, topic: str, intake: Intake | None, publishers: list[tuple[str, str]]) -> None:
-        """Subscribe a pending topic with the publishers' type, or replace a type the fields implied wrongly."""
+        """Subscribe a pending topic with the publishers' type, or replace a type the fields implied
+        wrongly."""
         types = sorted({t for t, _ in publishers})
         if not types or (intake is not None and intake.type_name in types):
             return
@@ -236,9 +253,12 @@ class Topics:
                                    f"topic {topic}: several types on the graph ({', '.join(types)}), "
                                    f"using {type_name}")
         if not fields_fit(topic, type_name, self.node.config.topics()[topic]):
-            self.services.log_once(f"badtype:{topic}:{type_name}", "error",
-                                   f"topic {topic}: its publishers' type {type_name} is not installed or lacks a "
-                                   "configured field; not subscribed with it")
+            self.services.log_once(
+                f"badtype:{topic}:{type_name}",
+                "error",
+                f"topic {topic}: its publishers' type {type_name} is not installed or lacks a "
+                "configured field; not subscribed with it",
+            )
             return
         if intake is not None:   # the guessed type has no publisher: nothing arrives on it, replace it
             self._unsubscribe(topic)
@@ -246,8 +266,8 @@ class Topics:
         self._subscribe(topic, self.types[topic])
 
     def _settle(self, intake: Intake, reliability: str, publishers: int) -> None:
-        """Keep ``reliability``: its subscription (new, make before break, when the topic has none) is drained with
-        the others until it has matched the publishers (:meth:`Intake.settle`)."""
+        """Keep ``reliability``: its subscription (new, make before break, when the topic has none) is drained
+        with the others until it has matched the publishers (:meth:`Intake.settle`)."""
         new = None if reliability in intake.subscriptions else self._create(intake.topic, intake.type_name,
                                                                             reliability)
         intake.settle(reliability, publishers, time.monotonic() + self.CHANGE_TIMEOUT_S, subscription=new)
@@ -266,7 +286,9 @@ class Topics:
             try:
                 got = intake.drain(limit)
             except Exception as err:  # noqa: BLE001 - a subscription destroyed under us: next time
-                services.log_once(f"take:{topic}:{type(err).__name__}", "error", f"topic {topic}: {one_line(err)}")
+                services.log_once(
+                    f"take:{topic}:{type(err).__name__}", "error", f"topic {topic}: {one_line(err)}"
+                )
                 continue
             if retire:
                 for sub in intake.retired():
@@ -372,7 +394,9 @@ class Topics:
         except FieldError as err:  # the message type lacks a configured field: every message will fail
             for route in self.node.router.routes.get(topic, ()):
                 self.node.validator.count_bad(route.channel, route.stream, err.reason)
-            self.services.log_once(f"field:{topic}", "error", f"{one_line(err)} (check the config; counted as bad)")
+            self.services.log_once(
+                f"field:{topic}", "error", f"{one_line(err)} (check the config; counted as bad)"
+            )
         except Exception as err:  # noqa: BLE001 - a message must never stop the node
             self.services.log_once(f"msg:{topic}:{type(err).__name__}", "error",
                                    f"topic {topic}: message skipped ({one_line(err)})")

@@ -89,8 +89,8 @@ def take_frequencies(matrix: MatrixEstimate, index: slice | np.ndarray) -> Matri
 def _weights(h: np.ndarray, p_model: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Column norms of ``L = (I + H H*)^-1/2`` (per output row i: ``|L e_i|``) and row norms of
     ``R = (I + P* P)^-1/2`` (per input j: ``|e_j^T R|``), per frequency."""
-    left = metrics._inv_sqrt_gram(h, "left")
-    right = metrics._inv_sqrt_gram(p_model, "right")
+    left = metrics.inv_sqrt_gram(h, "left")
+    right = metrics.inv_sqrt_gram(p_model, "right")
     return np.linalg.norm(left, axis=-2), np.linalg.norm(right, axis=-1)
 
 

@@ -29,8 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from gap_validation.core import statespace
-from gap_validation.core.metrics import (_analysis_grid, _combined, _coprime, _feature_roots, _mirror, _on_axis,
-                                         _roots, _strip, _sup_with_ends, axis_turns)
+from gap_validation.core.metrics import (analysis_grid, axis_turns, combined, coprime, feature_roots, mirror,
+                                         on_axis, polynomial_roots, strip_leading_zeros, sup_with_ends)
 from gap_validation.core.models import LinearModel, MimoModel
 
 #: A model as the metrics take it.
@@ -142,18 +142,18 @@ def _siso(model: Model) -> LinearModel:
 
 
 def _value_at_infinity(num: np.ndarray, den: np.ndarray) -> float:
-    num, den = _strip(num), _strip(den)
+    num, den = strip_leading_zeros(num), strip_leading_zeros(den)
     return float(num[0] / den[0]) if len(num) == len(den) and np.any(num) else 0.0
 
 
 def _siso_margin(plant: LinearModel, controller: LinearModel) -> StabilityMargin:
-    n_p, d_p = _coprime(plant.num, plant.den)
-    n_c, d_c = _coprime(controller.num, controller.den)
+    n_p, d_p = coprime(plant.num, plant.den)
+    n_c, d_c = coprime(controller.num, controller.den)
     delay_s = plant.delay_s + controller.delay_s
     loop_den, loop_num = np.polymul(d_p, d_c), np.polymul(n_p, n_c)
     k_inf = _value_at_infinity(n_p, d_p) * _value_at_infinity(n_c, d_c)
     unstable = _siso_instability(loop_den, loop_num, k_inf, delay_s,
-                                 np.concatenate([_roots(p) for p in (d_p, d_c, n_p, n_c)]))
+                                 np.concatenate([polynomial_roots(p) for p in (d_p, d_c, n_p, n_c)]))
     if unstable is not None:
         return unstable
 
@@ -169,16 +169,16 @@ def _siso_margin(plant: LinearModel, controller: LinearModel) -> StabilityMargin
         closed = dp_ * dc_ + np_ * nc_ * np.exp(-s * delay_s)
         return np.abs(closed) / np.sqrt((np.abs(np_) ** 2 + np.abs(dp_) ** 2) * (np.abs(nc_) ** 2 + np.abs(dc_) ** 2))
 
-    nn, dd = np.polymul(loop_num, _mirror(loop_num)), np.polymul(loop_den, _mirror(loop_den))
-    roots = [_feature_roots(plant), _feature_roots(controller), _roots(_combined(nn, dd, -1.0)),
-             _roots(_combined(nn, dd))]
+    nn, dd = np.polymul(loop_num, mirror(loop_num)), np.polymul(loop_den, mirror(loop_den))
+    roots = [feature_roots(plant), feature_roots(controller), polynomial_roots(combined(nn, dd, -1.0)),
+             polynomial_roots(combined(nn, dd))]
     if delay_s == 0.0:
-        roots.append(_roots(_combined(loop_den, loop_num)))
-    w = _analysis_grid(np.concatenate(roots), delay_s)
+        roots.append(polynomial_roots(combined(loop_den, loop_num)))
+    w = analysis_grid(np.concatenate(roots), delay_s)
     kp, kc = _value_at_infinity(n_p, d_p), _value_at_infinity(n_c, d_c)
     norm = math.sqrt((1.0 + kp * kp) * (1.0 + kc * kc))
     at_infinity = (abs(1.0 - abs(kp * kc)) if delay_s and kp * kc else abs(1.0 + kp * kc)) / norm
-    value, where = _sup_with_ends(lambda x: -b_of(x), -float(b_of(np.array([0.0]))[0]), -at_infinity, w)
+    value, where = sup_with_ends(lambda x: -b_of(x), -float(b_of(np.array([0.0]))[0]), -at_infinity, w)
     return StabilityMargin(min(max(-value, 0.0), 1.0), where)
 
 
@@ -189,8 +189,8 @@ def _siso_instability(loop_den: np.ndarray, loop_num: np.ndarray, k_inf: float, 
         return StabilityMargin(0.0, math.inf, False, "1 + P C vanishes at infinity (P(inf) C(inf) = -1: the loop "
                                                      "is ill-posed)")
     if delay_s == 0.0:
-        roots = _roots(np.polyadd(loop_den, loop_num))
-        bad = (roots.real >= -_UNSTABLE_RTOL * np.abs(roots)) | _on_axis(roots)
+        roots = polynomial_roots(np.polyadd(loop_den, loop_num))
+        bad = (roots.real >= -_UNSTABLE_RTOL * np.abs(roots)) | on_axis(roots)
         if np.any(bad):
             worst = roots[bad][np.argmax(roots[bad].real)]
             return StabilityMargin(0.0, math.nan, False, f"the closed loop of model and controller is unstable "
@@ -199,8 +199,8 @@ def _siso_instability(loop_den: np.ndarray, loop_num: np.ndarray, k_inf: float, 
     if abs(k_inf) >= 1.0:
         return StabilityMargin(0.0, math.inf, False, "|P(inf) C(inf)| >= 1 with a delay in the loop: not "
                                                      "robustly stable")
-    degree = len(_strip(loop_den)) - 1
-    turns, where = axis_turns(loop_den, loop_num, -delay_s, k_inf, _roots(loop_den), hints)
+    degree = len(strip_leading_zeros(loop_den)) - 1
+    turns, where = axis_turns(loop_den, loop_num, -delay_s, k_inf, polynomial_roots(loop_den), hints)
     if turns is None:
         text = "" if math.isnan(where) else f" (1 + P C vanishes near w = {where:.6g} rad/s)"
         return StabilityMargin(0.0, where, False, f"the closed loop of model and controller is not stable{text}")
@@ -265,7 +265,7 @@ def _state_space_margin(plant: statespace.StateSpace, controller: statespace.Sta
     if loop is None:
         return StabilityMargin(0.0, math.inf, False, "I + D_C D_P is singular: the loop is ill-posed")
     poles = np.linalg.eigvals(loop[0]) if loop[0].size else np.zeros(0, dtype=complex)
-    bad = (poles.real >= -_UNSTABLE_RTOL * np.abs(poles)) | _on_axis(poles)
+    bad = (poles.real >= -_UNSTABLE_RTOL * np.abs(poles)) | on_axis(poles)
     if np.any(bad):
         worst = poles[bad][np.argmax(poles[bad].real)]
         return StabilityMargin(0.0, math.nan, False, f"the closed loop of model and controller is unstable (pole at "

@@ -30,7 +30,7 @@ import cmath
 import math
 import threading
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Callable
+from typing import Callable
 
 import numpy as np
 import scipy.linalg
@@ -38,9 +38,7 @@ from numpy.typing import ArrayLike
 
 from gap_validation.core import statespace
 from gap_validation.core.frd import paired_responses
-
-if TYPE_CHECKING:  # pragma: no cover
-    from gap_validation.core.models import LinearModel, MimoModel
+from gap_validation.core.models import LinearModel, MimoModel, strip_leading_zeros
 
 #: A real function of frequency [rad/s], vectorised (kappa(w) or epsilon(w) of two models).
 Response = Callable[[np.ndarray], np.ndarray]
@@ -215,27 +213,6 @@ def epsilon_frequency_data(w_rad_s: ArrayLike, p1: ArrayLike, p2: ArrayLike) -> 
 # ----------------------------------------------------------------------------------------------------------
 # polynomial helpers
 # ----------------------------------------------------------------------------------------------------------
-
-
-def strip_leading_zeros(poly: ArrayLike) -> np.ndarray:
-    """Coefficients without their leading zeros (descending powers; the zero polynomial is ``[0.0]``).
-
-    Parameters
-    ----------
-    poly : array_like of float
-        Polynomial coefficients, descending powers of s.
-
-    Returns
-    -------
-    ndarray of float
-    """
-    poly = np.asarray(poly, dtype=float)
-    if poly.ndim != 1:
-        poly = poly.ravel()
-    if poly.size and poly[0] != 0.0:
-        return poly
-    nonzero = np.flatnonzero(poly)
-    return poly[nonzero[0]:] if nonzero.size else np.array([0.0])
 
 
 def _polymul(a: ArrayLike, b: ArrayLike) -> np.ndarray:

@@ -183,15 +183,30 @@ def _selector(value: Any, count: int, where: str, what: str) -> np.ndarray:
     return weights
 
 
-def _strip(poly: ArrayLike) -> np.ndarray:
-    poly = np.atleast_1d(np.asarray(poly, dtype=float))
+def strip_leading_zeros(poly: ArrayLike) -> np.ndarray:
+    """Coefficients without their leading zeros (descending powers; the zero polynomial is ``[0.0]``).
+
+    Parameters
+    ----------
+    poly : array_like of float
+        Polynomial coefficients, descending powers of s.
+
+    Returns
+    -------
+    ndarray of float
+    """
+    poly = np.asarray(poly, dtype=float)
+    if poly.ndim != 1:
+        poly = poly.ravel()
+    if poly.size and poly[0] != 0.0:
+        return poly
     nonzero = np.flatnonzero(poly)
     return poly[nonzero[0]:] if nonzero.size else np.array([0.0])
 
 
 def _trim_leading(num: np.ndarray, den: np.ndarray) -> np.ndarray:
     """Drop leading numerator coefficients that are round-off relative to the model's frequency scale."""
-    num = _strip(num)
+    num = strip_leading_zeros(num)
     roots = np.roots(den) if len(den) > 1 else np.array([])
     w_c = max(1.0, float(np.max(np.abs(roots)))) if roots.size else 1.0
     powers = w_c ** np.arange(len(num) - 1, -1, -1, dtype=float)
@@ -308,8 +323,8 @@ class LinearModel:
 
     def __init__(self, num: ArrayLike, den: ArrayLike, delay_s: float = 0.0, effects: Sequence[dict] = (), *,
                  _airframe_spec: dict | None = None, _airframe_ss: StateSpace | None = None) -> None:
-        num = _strip(np.asarray(num, dtype=float))
-        den = _strip(np.asarray(den, dtype=float))
+        num = strip_leading_zeros(np.asarray(num, dtype=float))
+        den = strip_leading_zeros(np.asarray(den, dtype=float))
         if not (np.all(np.isfinite(num)) and np.all(np.isfinite(den))):
             raise ConfigError(f"model: expected finite coefficients, got numerator {num.tolist()}, "
                               f"denominator {den.tolist()}")
@@ -739,7 +754,7 @@ def _plain(value: Any) -> Any:
 
 
 def _check_proper(num: np.ndarray, den: np.ndarray, where: str) -> None:
-    num, den = _strip(num), _strip(den)
+    num, den = strip_leading_zeros(num), strip_leading_zeros(den)
     if len(num) > len(den) and np.any(num):
         raise ConfigError(f"{where}: improper model (numerator degree {len(num) - 1} > denominator degree "
                           f"{len(den) - 1}), got numerator {num.tolist()}")

@@ -30,8 +30,8 @@ import numpy as np
 
 from gap_validation.core import statespace
 from gap_validation.core.metrics import (analysis_grid, axis_turns, combined, coprime, feature_roots, mirror,
-                                         on_axis, polynomial_roots, strip_leading_zeros, sup_with_ends)
-from gap_validation.core.models import LinearModel, MimoModel
+                                         on_axis, polynomial_roots, sup_with_ends)
+from gap_validation.core.models import LinearModel, MimoModel, strip_leading_zeros
 
 #: A model as the metrics take it.
 Model = LinearModel | MimoModel

@@ -143,7 +143,9 @@ def compare(m1: LinearModel, m2: LinearModel, reference, new: tuple | None = Non
     old = old if old is not None else reference.nugap(m1, m2)
     eps_new, eps_old = metrics.epsilon(m1, m2), reference.epsilon(m1, m2)
     # relative difference, or the absolute one scaled so that 1e-15 counts as 1e-9 (values of 1e-16 are noise)
-    value = max(min(relative(a, b), abs(a - b) * 1e6) for a, b in ((new[0], old[0]), (eps_new[0], eps_old[0])))
+    value = max(
+        min(relative(a, b), abs(a - b) * 1e6) for a, b in ((new[0], old[0]), (eps_new[0], eps_old[0]))
+    )
     a, b = metrics.winding_condition(m1, m2), reference.winding_condition(m1, m2)
     same = (a.satisfied, a.reason, a.method) == (b.satisfied, b.reason, b.method) and \
         relative(a.frequency_rad_s, b.frequency_rad_s) == 0.0

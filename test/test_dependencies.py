@@ -132,7 +132,8 @@ NODE_MAX_STATEMENTS = 380
 
 
 def test_the_node_module_stays_thin():
-    """node.py at most NODE_MAX_STATEMENTS statements; its topics and files are components (ros.topics, ros.jobs)."""
+    """node.py at most NODE_MAX_STATEMENTS statements; its topics and files are components (ros.topics,
+    ros.jobs)."""
     tree = ast.parse((PACKAGE / "ros" / "node.py").read_text())
     statements = sum(isinstance(node, ast.stmt) for node in ast.walk(tree))
     assert statements <= NODE_MAX_STATEMENTS, (

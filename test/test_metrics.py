@@ -1,8 +1,8 @@
 """Metrics: chordal distance, exact nu-gap with the winding-number condition, epsilon, TIC; SISO and MIMO.
 
 Pinned numbers: the paper's example (eqs. 18-19: nu-gap 0.0852, epsilon 0.1404 at 14.9 rad/s), textbook
-nu-gaps (Vinnicombe: 100/(2s+1) vs 100/(2s-1) is 0.0200, vs 100/(s+1)^2 is 0.8988), the corner cases of issue 15
-against a 40-digit reference, and the rotated block-diagonal MIMO example of issue 14 (0.0852).
+nu-gaps (Vinnicombe: 100/(2s+1) vs 100/(2s-1) is 0.0200, vs 100/(s+1)^2 is 0.8988), the corner cases of issue
+15 against a 40-digit reference, and the rotated block-diagonal MIMO example of issue 14 (0.0852).
 """
 
 import math
@@ -13,9 +13,18 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from scipy.optimize import minimize_scalar
 
-from gap_validation.core.metrics import (_nugap_state_space, chordal_distance, epsilon, epsilon_frequency_data,
-                                         epsilon_per_frequency, nugap, nugap_frequency_data, tic, tic_input_augmented,
-                                         winding_condition)
+from gap_validation.core.metrics import (
+    _nugap_state_space,
+    chordal_distance,
+    epsilon,
+    epsilon_frequency_data,
+    epsilon_per_frequency,
+    nugap,
+    nugap_frequency_data,
+    tic,
+    tic_input_augmented,
+    winding_condition,
+)
 from gap_validation.core.models import LinearModel, MimoModel
 
 P1_PAPER = LinearModel.from_tf([18.75, 225.0], [1.0, 9.0, 225.0])  # eq. 18
@@ -57,14 +66,19 @@ def test_peak_is_located_to_1e_6_relative(metric, per_point):
     value, w_peak = metric(P1_PAPER, P2_PAPER)
     grid = np.linspace(13.0, 17.0, 400_001)  # 1e-5 rad/s spacing
     k = int(np.argmax(per_point(grid)))
-    result = minimize_scalar(lambda w: -per_point(np.array([w]))[0], bracket=(grid[k - 1], grid[k], grid[k + 1]),
-                             method="brent", tol=1e-12)
+    result = minimize_scalar(
+        lambda w: -per_point(np.array([w]))[0],
+        bracket=(grid[k - 1], grid[k], grid[k + 1]),
+        method="brent",
+        tol=1e-12,
+    )
     assert abs(w_peak - result.x) <= 1e-6 * result.x
     assert value == pytest.approx(-result.fun, rel=1e-12)
     assert value >= per_point(grid).max()
 
 
-# -- textbook values and the winding-number condition ---------------------------------------------------------
+# -- textbook values and the winding-number condition
+# ---------------------------------------------------------
 
 
 def test_textbook_nugaps():
@@ -72,7 +86,9 @@ def test_textbook_nugaps():
     assert nugap(stable, LinearModel.from_tf([100.0], [2.0, -1.0]))[0] == pytest.approx(0.0200, abs=1e-4)
     value, w_peak = nugap(stable, LinearModel.from_tf([100.0], [1.0, 2.0, 1.0]))
     assert value == pytest.approx(0.8988, abs=1e-4)
-    assert value == pytest.approx(dense_sup(stable, LinearModel.from_tf([100.0], [1.0, 2.0, 1.0]))[0], abs=1e-8)
+    assert value == pytest.approx(
+        dense_sup(stable, LinearModel.from_tf([100.0], [1.0, 2.0, 1.0]))[0], abs=1e-8
+    )
 
 
 def test_symmetric_in_its_arguments():
@@ -118,8 +134,11 @@ def test_poles_on_the_axis_and_unstable_models_are_finite_and_equal_the_dense_su
 
 
 def test_undamped_oscillator_against_the_analytic_chordal_distance():
-    # P1 = 1/(1 - w^2), P2 = 1/(1 - w^2 + 0.2 j w): kappa = 0.2 w / sqrt((1 + a^2)(1 + a^2 + 0.04 w^2)), a = 1 - w^2
-    value, w_peak = nugap(LinearModel.from_tf([1.0], [1.0, 0.0, 1.0]), LinearModel.from_tf([1.0], [1.0, 0.2, 1.0]))
+    # P1 = 1/(1 - w^2), P2 = 1/(1 - w^2 + 0.2 j w): kappa = 0.2 w / sqrt((1 + a^2)(1 + a^2 + 0.04 w^2)), a = 1
+    # - w^2
+    value, w_peak = nugap(
+        LinearModel.from_tf([1.0], [1.0, 0.0, 1.0]), LinearModel.from_tf([1.0], [1.0, 0.2, 1.0])
+    )
     w = np.linspace(0.5, 1.5, 1_000_001)
     a = 1 - w**2
     analytic = 0.2 * w / np.sqrt((1 + a**2) * (1 + a**2 + 0.04 * w**2))
@@ -134,18 +153,29 @@ def test_common_factors_are_cancelled_before_counting():
     assert nugap(p, with_cancelled_unstable_mode)[0] == pytest.approx(0.0, abs=1e-9)
 
 
-# -- corner cases (issue 15): peaks at gain crossovers far from every pole and zero, beside undamped poles ----
+# -- corner cases (issue 15): peaks at gain crossovers far from every pole and zero, beside undamped poles
+# ----
 
 W0 = 27.7200457464113
-CORNER_CASES = {  # (num1, den1, num2, den2), the sup of kappa and where (from the issue; the 40-digit reference)
+# (num1, den1, num2, den2), the sup of kappa and where (from the issue; the 40-digit reference)
+CORNER_CASES = {
     "gains 1e-6/s vs 2e-6/s": (([1e-6], [1.0, 0.0], [2e-6], [1.0, 0.0]), 1 / 3, math.sqrt(2) * 1e-6),
     "gains 1e8/(s+1) vs 1.1e8/(s+1)": (([1e8], [1.0, 1.0], [1.1e8], [1.0, 1.0]), 1 / 21, 1.0488088e8),
-    "-50.9/s vs -56.07/(s-0.002125)": (([-50.9], [1.0, 0.0], [-56.07], [1.0, -0.002125]), 0.0483313115, 53.4225),
+    "-50.9/s vs -56.07/(s-0.002125)": (
+        ([-50.9], [1.0, 0.0], [-56.07], [1.0, -0.002125]),
+        0.0483313115,
+        53.4225,
+    ),
     "two peaks beside a shared undamped pole": (
-        (np.polymul([-3.111686845952856], [1.0, 0.14255673341511005]).tolist(),
-         np.polymul([1.0, 0.0, W0**2], [1.0, 0.9590014583306136]).tolist(),
-         np.polymul([-2.898949107865159], [1.0, 0.14711222759321194]).tolist(),
-         np.polymul([1.0, 0.0, W0**2], [1.0, 0.9844060387689597]).tolist()), 0.0354112008, 27.666),
+        (
+            np.polymul([-3.111686845952856], [1.0, 0.14255673341511005]).tolist(),
+            np.polymul([1.0, 0.0, W0**2], [1.0, 0.9590014583306136]).tolist(),
+            np.polymul([-2.898949107865159], [1.0, 0.14711222759321194]).tolist(),
+            np.polymul([1.0, 0.0, W0**2], [1.0, 0.9844060387689597]).tolist(),
+        ),
+        0.0354112008,
+        27.666,
+    ),
 }
 
 
@@ -212,7 +242,8 @@ def test_epsilon_on_the_corner_cases_equals_the_reference(name):
     polys = CORNER_CASES[name][0]
     m1, m2 = LinearModel.from_tf(polys[0], polys[1]), LinearModel.from_tf(polys[2], polys[3])
     value, w_peak = epsilon(m1, m2)
-    if name == "-50.9/s vs -56.07/(s-0.002125)":  # an integrator against a finite DC gain: the limit at w = 0 is 1
+    # an integrator against a finite DC gain: the limit at w = 0 is 1
+    if name == "-50.9/s vs -56.07/(s-0.002125)":
         assert (value, w_peak) == (1.0, 0.0)
         return
     reference, _ = mp_sup(polys, overbound)
@@ -331,8 +362,9 @@ def test_epsilon_limits_at_zero_frequency_with_poles_or_zeros_at_the_origin():
     assert value == pytest.approx(5 / 7, rel=1e-12) and w_peak == 0.0
     assert value >= grid.max() - 1e-12
     # double and single integrator: epsilon -> 1 as w -> 0
-    assert epsilon(LinearModel.from_tf([1.0], [1.0, 0.0, 0.0]), LinearModel.from_tf([1.0], [1.0, 0.1, 0.0])) == \
-        (1.0, 0.0)
+    assert epsilon(
+        LinearModel.from_tf([1.0], [1.0, 0.0, 0.0]), LinearModel.from_tf([1.0], [1.0, 0.1, 0.0])
+    ) == (1.0, 0.0)
 
 
 # -- frequency data ------------------------------------------------------------------------------------------
@@ -403,9 +435,15 @@ def first_or_second_order(gain, pole, wn, zeta, sign, second):
     return LinearModel.from_tf([gain * abs(pole)], [1.0, sign * abs(pole)])
 
 
-any_models = st.builds(first_or_second_order, st.floats(-5.0, 5.0).filter(lambda g: abs(g) > 0.1),
-                       st.floats(0.1, 20.0), st.floats(0.5, 20.0), st.floats(0.1, 1.2), st.sampled_from([1.0, -1.0]),
-                       st.booleans())
+any_models = st.builds(
+    first_or_second_order,
+    st.floats(-5.0, 5.0).filter(lambda g: abs(g) > 0.1),
+    st.floats(0.1, 20.0),
+    st.floats(0.5, 20.0),
+    st.floats(0.1, 1.2),
+    st.sampled_from([1.0, -1.0]),
+    st.booleans(),
+)
 
 
 def vinnicombe_condition(m1, m2):
@@ -438,7 +476,12 @@ def block_diagonal(*models):
     """The MIMO model diag(models) from the SISO models' realizations."""
     systems = [m.state_space() for m in models]
     n = sum(a.shape[0] for a, _, _, _ in systems)
-    a, b, c, d = np.zeros((n, n)), np.zeros((n, len(models))), np.zeros((len(models), n)), np.zeros((len(models),) * 2)
+    a, b, c, d = (
+        np.zeros((n, n)),
+        np.zeros((n, len(models))),
+        np.zeros((len(models), n)),
+        np.zeros((len(models),) * 2),
+    )
     k = 0
     for i, (ai, bi, ci, di) in enumerate(systems):
         size = ai.shape[0]
@@ -482,7 +525,14 @@ siso_blocks = st.builds(first_or_second_order, st.floats(-5.0, 5.0).filter(lambd
 
 
 @settings(max_examples=30, deadline=None)
-@given(siso_blocks, siso_blocks, siso_blocks, siso_blocks, st.floats(-math.pi, math.pi), st.floats(-math.pi, math.pi))
+@given(
+    siso_blocks,
+    siso_blocks,
+    siso_blocks,
+    siso_blocks,
+    st.floats(-math.pi, math.pi),
+    st.floats(-math.pi, math.pi),
+)
 def test_block_diagonal_nugap_is_the_largest_block_whatever_the_rotations(a1, a2, b1, b2, angle_u, angle_v):
     u, v = rotation(angle_u), rotation(angle_v)
     value, _ = nugap(rotated(block_diagonal(a1, b1), u, v), rotated(block_diagonal(a2, b2), u, v))
@@ -525,7 +575,10 @@ def random_mimo(rng, states, outputs=2, inputs=2):
     while k < states:
         if states - k >= 2 and rng.random() < 0.5:
             wn, zeta = 10 ** rng.uniform(-0.7, 1.5), rng.uniform(0.1, 0.9)
-            a[k:k + 2, k:k + 2] = [[-zeta * wn, wn * math.sqrt(1 - zeta**2)], [-wn * math.sqrt(1 - zeta**2), -zeta * wn]]
+            a[k : k + 2, k : k + 2] = [
+                [-zeta * wn, wn * math.sqrt(1 - zeta**2)],
+                [-wn * math.sqrt(1 - zeta**2), -zeta * wn],
+            ]
             k += 2
         else:
             a[k, k] = -10 ** rng.uniform(-0.7, 1.3) * (1.0 if rng.random() < 0.85 else -0.3)
@@ -549,8 +602,12 @@ def dense_mimo_sup(m1, m2):
     k = int(np.argmax(values))
     best = values[k]
     if 0 < k < w.size - 1:
-        result = minimize_scalar(lambda x: -kappa(np.array([math.exp(x)]))[0], method="bounded",
-                                 bounds=(math.log(max(w[k - 1], 1e-5)), math.log(w[k + 1])), options={"xatol": 1e-12})
+        result = minimize_scalar(
+            lambda x: -kappa(np.array([math.exp(x)]))[0],
+            method="bounded",
+            bounds=(math.log(max(w[k - 1], 1e-5)), math.log(w[k + 1])),
+            options={"xatol": 1e-12},
+        )
         best = max(best, -result.fun)
     return best, kappa
 
@@ -591,7 +648,9 @@ def test_mimo_nugap_equals_a_dense_grid_reference_and_its_winding_check(seed, st
 @given(st.integers(0, 2**32 - 1), st.floats(-6.0, 12.0))
 def test_matrix_chordal_distance_properties(seed, log_scale):
     rng = np.random.default_rng(seed)
-    p1, p2 = ((rng.normal(size=(3, 2, 2)) + 1j * rng.normal(size=(3, 2, 2))) * 10.0**log_scale for _ in range(2))
+    p1, p2 = (
+        (rng.normal(size=(3, 2, 2)) + 1j * rng.normal(size=(3, 2, 2))) * 10.0**log_scale for _ in range(2)
+    )
     kappa = chordal_distance(p1, p2)
     assert kappa.shape == (3,) and np.all((kappa >= 0.0) & (kappa <= 1.0))
     np.testing.assert_allclose(kappa, chordal_distance(p2, p1), rtol=1e-9, atol=1e-12)
@@ -599,14 +658,18 @@ def test_matrix_chordal_distance_properties(seed, log_scale):
     u, v = rotation(0.3) * 1j, rotation(2.0)   # unitary changes of coordinates
     np.testing.assert_allclose(chordal_distance(u @ p1 @ v, u @ p2 @ v), kappa, rtol=1e-7, atol=1e-12)
     # 1 x 1 matrices: the SISO formula
-    np.testing.assert_allclose(chordal_distance(p1[:, :1, :1], p2[:, :1, :1]), chordal_distance(p1[:, 0, 0], p2[:, 0, 0]),
-                               rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(
+        chordal_distance(p1[:, :1, :1], p2[:, :1, :1]),
+        chordal_distance(p1[:, 0, 0], p2[:, 0, 0]),
+        rtol=1e-9,
+        atol=1e-15,
+    )
 
 
 def test_round_off_in_the_coefficients_changes_nothing():
     # 1/(s+1)^2 through a state-space round trip: its coefficients differ by round-off, so n2 d1 - n1 d2 has a
-    # leading coefficient of 1e-16 unless cancellations are recognised (a spurious root near 1e15 once moved the
-    # whole analysis grid there)
+    # leading coefficient of 1e-16 unless cancellations are recognised (a spurious root near 1e15 once moved
+    # the whole analysis grid there)
     m1, m2 = LinearModel.from_tf([1.0], [1.0, 2.0, 1.0]), LinearModel.from_tf([1.0], [1.0, 1.0, 1.0])
     round_trip = MimoModel.from_linear(m1).siso()
     assert nugap(round_trip, m2)[0] == pytest.approx(nugap(m1, m2)[0], rel=1e-9)
@@ -673,7 +736,8 @@ def test_nugap_and_epsilon_take_a_model_or_measured_data():
     # over dense points the data's nu-gap approaches the exact one from below
     exact = nugap(p1, p2)[0]
     assert expected_gap[0] <= exact + 1e-12 and expected_gap[0] > exact - 1e-3
-    # data against data on the same frequencies; different frequencies are an error, not a silent interpolation
+    # data against data on the same frequencies; different frequencies are an error, not a silent
+    # interpolation
     assert nugap((w, p1.freqresp(w)), (w, h)) == expected_gap
     with pytest.raises(ValueError, match="frequencies differ"):
         nugap((w, h), (w[:-1], h[:-1]))

@@ -1,5 +1,5 @@
-"""Tests of MIMO validation from flight data (issue 14): gap_validation.core.mimo, spectra.solve_matrix and the
-MIMO paths of the estimator, validator and simulator.
+"""Tests of MIMO validation from flight data (issue 14): gap_validation.core.mimo, spectra.solve_matrix and
+the MIMO paths of the estimator, validator and simulator.
 
 References: plain least squares over the DFT bins of the pooled records (numpy.linalg.lstsq), the Ultra Stick
 25e's lateral-directional state space of the paper's lab (../shared/reference/ultrastick25e.yaml) simulated by
@@ -32,9 +32,14 @@ A_LAT = [[-0.8726, 0.8968, -16.82, 9.791], [-2.757, -16.09, 3.368, 0.0], [1.708,
 B_LAT = [[-4.198e-10 - 7.984e-10, 5.302], [78.23 + 78.23, -4.972], [-5.752 - 5.752, -82.04], [0.0, 0.0]]
 C_LAT = [[0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]]
 LATERAL = {
-    "inputs": [{"topic": "/control_surfaces", "field": "position[aileron]"},
-               {"topic": "/control_surfaces", "field": "position[rudder]"}],
-    "outputs": [{"topic": "/imu", "field": "angular_velocity.x"}, {"topic": "/imu", "field": "angular_velocity.z"}],
+    "inputs": [
+        {"topic": "/control_surfaces", "field": "position[aileron]"},
+        {"topic": "/control_surfaces", "field": "position[rudder]"},
+    ],
+    "outputs": [
+        {"topic": "/imu", "field": "angular_velocity.x"},
+        {"topic": "/imu", "field": "angular_velocity.z"},
+    ],
     "frequencies": {"min_rad_s": 1.0, "max_rad_s": 80.0, "count": 40},
     "model": {"state_space": {"A": A_LAT, "B": B_LAT, "C": C_LAT}},
 }
@@ -128,7 +133,10 @@ def test_solve_matrix_is_least_squares_over_the_pooled_bins(monkeypatch):
             if status[k] != 0:
                 continue
             n = u.shape[1]
-            fu, fy = np.fft.rfft(u - _line(u), axis=1) / math.sqrt(n), np.fft.rfft(y - _line(y), axis=1) / math.sqrt(n)
+            fu, fy = (
+                np.fft.rfft(u - _line(u), axis=1) / math.sqrt(n),
+                np.fft.rfft(y - _line(y), axis=1) / math.sqrt(n),
+            )
             w_bins = 2 * np.pi * np.fft.rfftfreq(n, DT)
             power = np.sum(np.abs(fu) ** 2, axis=0)
             from gap_validation.core.spectra import band_bins
@@ -181,8 +189,8 @@ def test_kappa_of_a_perturbation_is_within_sigma_max_and_the_element_bound(h, dh
     dh = 0.1 * dh
     kappa = metrics.chordal_distance(h, h + dh)[0]
     assert kappa <= np.linalg.norm(dh[0], 2) + 1e-12
-    # kappa <= the sum of the element contributions (each element's mismatch alone), the largest of which names
-    # the element that dominates
+    # kappa <= the sum of the element contributions (each element's mismatch alone), the largest of which
+    # names the element that dominates
     assert kappa <= np.sum(element_kappa(h, h + dh)) + 1e-12
     assert np.max(element_kappa(h, h + dh)) <= np.linalg.norm(dh[0], 2) + 1e-12
 
@@ -222,7 +230,10 @@ def test_simulator_flies_each_input_in_turn_and_writes_the_full_state_space_outp
 def test_config_topics_name_the_mimo_streams():
     config = lateral_config()
     topics = config.topics()
-    assert [(c, s) for c, s, _ in topics["/control_surfaces"]] == [("lateral", "inputs[0]"), ("lateral", "inputs[1]")]
+    assert [(c, s) for c, s, _ in topics["/control_surfaces"]] == [
+        ("lateral", "inputs[0]"),
+        ("lateral", "inputs[1]"),
+    ]
     assert [(c, s) for c, s, _ in topics["/imu"]] == [("lateral", "outputs[0]"), ("lateral", "outputs[1]")]
 
 

@@ -13,8 +13,13 @@ from hypothesis import strategies as st
 
 from gap_validation.core.metrics import nugap
 from gap_validation.core.models import LinearModel, MimoModel
-from gap_validation.core.robust import (_state_space_margin, controller_check, margin_of, stability_margin,
-                                        stability_sentence)
+from gap_validation.core.robust import (
+    _state_space_margin,
+    controller_check,
+    margin_of,
+    stability_margin,
+    stability_sentence,
+)
 
 INTEGRATOR = LinearModel.from_tf([1.0], [1.0, 0.0])
 UNIT = LinearModel.from_tf([1.0], [1.0])
@@ -49,16 +54,25 @@ def test_integrator_with_unit_feedback_has_b_one_over_sqrt_2():
     # the state-space path (MIMO code) agrees
     assert stability_margin(MimoModel.from_linear(INTEGRATOR), MimoModel.from_linear(UNIT))[0] == \
         pytest.approx(b, rel=1e-10)
-    assert _state_space_margin(MimoModel.from_linear(INTEGRATOR).minimal_state_space(),
-                               MimoModel.from_linear(UNIT).minimal_state_space()).b == pytest.approx(b, rel=1e-10)
+    assert _state_space_margin(
+        MimoModel.from_linear(INTEGRATOR).minimal_state_space(),
+        MimoModel.from_linear(UNIT).minimal_state_space(),
+    ).b == pytest.approx(b, rel=1e-10)
 
 
 def test_sign_convention_is_negative_feedback():
     # u = -C y with C = -1 is u = +y: 1/s with positive feedback has its pole at s = +1
     margin = margin_of(INTEGRATOR, LinearModel.from_tf([-1.0], [1.0]))
-    assert margin.b == 0.0 and not margin.stable and "unstable" in margin.reason and "pole at 1" in margin.reason
-    assert stability_margin(MimoModel.from_linear(INTEGRATOR), MimoModel(np.zeros((0, 0)), np.zeros((0, 1)),
-                                                                         np.zeros((1, 0)), [[-1.0]]))[0] == 0.0
+    assert (
+        margin.b == 0.0 and not margin.stable and "unstable" in margin.reason and "pole at 1" in margin.reason
+    )
+    assert (
+        stability_margin(
+            MimoModel.from_linear(INTEGRATOR),
+            MimoModel(np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), [[-1.0]]),
+        )[0]
+        == 0.0
+    )
 
 
 @pytest.mark.parametrize("p2, guaranteed", [(LinearModel.from_tf([1.0], [1.0, 0.01]), True),
@@ -70,16 +84,24 @@ def test_guaranteed_stable_against_the_issue_examples(p2, guaranteed):
     assert check.guaranteed_stable is guaranteed
     if guaranteed:
         assert gap < 0.02
-        assert check.sentence == "the controller is guaranteed to stabilise the aircraft: b = 0.7071 > nu-gap 0.0100"
+        assert (
+            check.sentence
+            == "the controller is guaranteed to stabilise the aircraft: b = 0.7071 > nu-gap 0.0100"
+        )
     else:
         assert gap == 1.0 and check.sentence.startswith("no guarantee")
 
 
 def loop(gain, pole, zeta, wn, kp, ki, kd_pole, unstable):
     """A plant (first or second order, maybe unstable) and a PI or lead controller."""
-    plant = LinearModel.from_tf([gain * wn * wn], [1.0, (-1 if unstable else 1) * 2 * zeta * wn, wn * wn]) \
-        if pole is None else LinearModel.from_tf([gain * abs(pole)], [1.0, (-1 if unstable else 1) * abs(pole)])
-    controller = LinearModel.from_tf(np.polymul([kp, ki], [1.0, 1.0]), np.polymul([1.0, 1e-3], [1.0, kd_pole]))
+    plant = (
+        LinearModel.from_tf([gain * wn * wn], [1.0, (-1 if unstable else 1) * 2 * zeta * wn, wn * wn])
+        if pole is None
+        else LinearModel.from_tf([gain * abs(pole)], [1.0, (-1 if unstable else 1) * abs(pole)])
+    )
+    controller = LinearModel.from_tf(
+        np.polymul([kp, ki], [1.0, 1.0]), np.polymul([1.0, 1e-3], [1.0, kd_pole])
+    )
     return plant, controller
 
 
@@ -102,7 +124,9 @@ def test_siso_polynomial_path_equals_the_state_space_path_and_the_closed_loop_ma
         sigmas = [closed_loop_sigma(plant.freqresp(x), controller.freqresp(x)) for x in w]
         assert siso.b <= 1.0 / max(sigmas) * (1 + 1e-9)
         if math.isfinite(siso.frequency_rad_s):
-            at = closed_loop_sigma(plant.freqresp(siso.frequency_rad_s), controller.freqresp(siso.frequency_rad_s))
+            at = closed_loop_sigma(
+                plant.freqresp(siso.frequency_rad_s), controller.freqresp(siso.frequency_rad_s)
+            )
             assert 1.0 / at == pytest.approx(siso.b, rel=1e-8)
 
 
@@ -132,7 +156,9 @@ def test_delay_in_the_loop_agrees_with_a_pade_approximation_and_a_long_delay_des
     k = np.arange(order + 1)
     c = np.array([math.factorial(2 * order - j) * math.factorial(order)
                   / (math.factorial(2 * order) * math.factorial(j) * math.factorial(order - j)) for j in k])
-    pade = LinearModel.from_tf(np.polymul([2.0], (c * (-0.1) ** k)[::-1]), np.polymul([1.0, 1.0], (c * 0.1 ** k)[::-1]))
+    pade = LinearModel.from_tf(
+        np.polymul([2.0], (c * (-0.1) ** k)[::-1]), np.polymul([1.0, 1.0], (c * 0.1**k)[::-1])
+    )
     assert 0.0 < b == pytest.approx(stability_margin(pade, controller)[0], rel=1e-6)
     for x in (0.3, 3.0, 30.0):
         assert 1.0 / closed_loop_sigma(plant.freqresp(x), controller.freqresp(x)) >= b * (1 - 1e-9)
@@ -143,7 +169,12 @@ def test_delay_in_the_loop_agrees_with_a_pade_approximation_and_a_long_delay_des
 def diagonal(*models):
     systems = [MimoModel.from_linear(m).state_space() for m in models]
     n = sum(s[0].shape[0] for s in systems)
-    a, b, c, d = np.zeros((n, n)), np.zeros((n, len(models))), np.zeros((len(models), n)), np.zeros((len(models),) * 2)
+    a, b, c, d = (
+        np.zeros((n, n)),
+        np.zeros((n, len(models))),
+        np.zeros((len(models), n)),
+        np.zeros((len(models),) * 2),
+    )
     k = 0
     for i, (ai, bi, ci, di) in enumerate(systems):
         size = ai.shape[0]
@@ -167,7 +198,9 @@ def test_mimo_b_of_block_diagonal_loops_is_the_smallest_block_and_rotation_invar
     rotated_controller = MimoModel(ac, bc @ u.T, v.T @ ccc, v.T @ dc @ u.T)
     assert stability_margin(rotated_plant, rotated_controller)[0] == pytest.approx(b, rel=1e-8)
     with pytest.raises(ValueError, match="controller"):
-        stability_margin(plant, MimoModel(np.zeros((0, 0)), np.zeros((0, 3)), np.zeros((2, 0)), np.zeros((2, 3))))
+        stability_margin(
+            plant, MimoModel(np.zeros((0, 0)), np.zeros((0, 3)), np.zeros((2, 0)), np.zeros((2, 3)))
+        )
 
 
 def test_sentences_say_why_and_show_enough_digits():
@@ -177,8 +210,12 @@ def test_sentences_say_why_and_show_enough_digits():
         "the controller is guaranteed to stabilise the aircraft: b = 0.71 > nu-gap 0.09"
     assert "b = 0.0852 > nu-gap 0.0851" in stability_sentence(StabilityMargin(0.0852, 1.0), 0.0851)
     assert "no guarantee" in stability_sentence(StabilityMargin(0.05, 1.0), 0.09)
-    assert "winding-number condition assumed" in stability_sentence(StabilityMargin(0.5, 1.0), 0.1, measured=True)
-    assert "does not stabilise the model" in stability_sentence(StabilityMargin(0.0, math.nan, False, "x"), 0.1)
+    assert "winding-number condition assumed" in stability_sentence(
+        StabilityMargin(0.5, 1.0), 0.1, measured=True
+    )
+    assert "does not stabilise the model" in stability_sentence(
+        StabilityMargin(0.0, math.nan, False, "x"), 0.1
+    )
     assert "no nu-gap yet" in stability_sentence(StabilityMargin(0.5, 1.0), None)
     check = controller_check(INTEGRATOR, UNIT, None)
     assert check.guaranteed_stable is None and check.nu_gap is None

@@ -5,7 +5,8 @@ Paper: "Validating Aircraft Models in the Gap Metric" (eqs. 1, 3, 13, 14); nu-ga
 
 Each metric returns its value and the frequency where it peaks [rad/s]. For frequency-response *data* the sup
 is over the given points and the winding-number condition of the nu-gap is assumed (as the paper does). For
-two models the results are exact. SISO :class:`~gap_validation.core.models.LinearModel` pairs (delays allowed):
+two models the results are exact. SISO :class:`~gap_validation.core.models.LinearModel` pairs (delays
+allowed):
 
 * the winding-number condition is checked (algebraically from polynomial roots for rational models or equal
   delays, numerically along the frequency axis when the delays differ), and the nu-gap is 1 when it fails;
@@ -123,7 +124,8 @@ def inv_sqrt_gram(p: np.ndarray, side: str) -> np.ndarray:
 
 
 def _chordal_distance_matrices(p1: np.ndarray, p2: np.ndarray) -> np.ndarray:
-    """Vinnicombe's pointwise chordal distance of stacks of p x m matrices (nan where an entry is not finite)."""
+    """Vinnicombe's pointwise chordal distance of stacks of p x m matrices (nan where an entry is not
+    finite)."""
     shape = p1.shape[:-2]
     p1 = p1.reshape((-1,) + p1.shape[-2:])
     p2 = p2.reshape((-1,) + p2.shape[-2:])
@@ -289,7 +291,8 @@ def _even_roots(poly: np.ndarray) -> np.ndarray:
     if len(poly) <= 1:
         return np.array([], dtype=complex)
     even = poly[(len(poly) - 1) % 2::2]
-    if len(poly) % 2 == 0:  # odd degree: its leading coefficient is round-off, its roots near infinity spurious
+    # odd degree: its leading coefficient is round-off, its roots near infinity spurious
+    if len(poly) % 2 == 0:
         even = strip_leading_zeros(even)
     half = np.sqrt(polynomial_roots(even).astype(complex))
     return np.concatenate([half, -half])
@@ -605,8 +608,8 @@ def winding_condition(m1: LinearModel | MimoModel, m2: LinearModel | MimoModel) 
     and winds ``(deg d1 - deg d2) / 2`` times along it. This is equivalent to Vinnicombe's
     ``wno(1 + P2~ P1) + eta(P1) - eta(P2) - eta0(P2) = 0`` and needs no indentation around poles on the axis.
 
-    For equal delays rho is a polynomial: the condition is that rho has full degree (1 + P2(inf) P1(inf) != 0),
-    no root on the imaginary axis, exactly deg d1 roots in the open left and deg d2 in the open right half
+    For equal delays rho is a polynomial: the condition is that rho has full degree (1 + P2(inf) P1(inf) !=
+    0), no root on the imaginary axis, exactly deg d1 roots in the open left and deg d2 in the open right half
     plane. With different delays the phase of rho is unwrapped on an adaptive grid over (0, w_hi), the tail
     beyond w_hi (past every root and where |P1 P2| < 1) is added analytically, and conjugate symmetry gives
     the whole axis.
@@ -614,8 +617,8 @@ def winding_condition(m1: LinearModel | MimoModel, m2: LinearModel | MimoModel) 
     MIMO (method ``"state space"``): with minimal realizations and normalised right coprime factors G_i of
     order n_i (:func:`~gap_validation.core.statespace.right_ncf`), ``det(G2~ G1)`` has n1 stable and n2
     antistable poles; it must have no zero on the extended imaginary axis (``I + P2(inf)^T P1(inf)``
-    nonsingular) and exactly n2 zeros in the open right half plane (the zeros of ``det`` are the eigenvalues of
-    ``A - B D^-1 C`` of the product's realization). For 1 x 1 models this is the polynomial count above.
+    nonsingular) and exactly n2 zeros in the open right half plane (the zeros of ``det`` are the eigenvalues
+    of ``A - B D^-1 C`` of the product's realization). For 1 x 1 models this is the polynomial count above.
 
     Parameters
     ----------
@@ -702,8 +705,12 @@ def _winding_state_space(g1: statespace.StateSpace, g2: statespace.StateSpace, n
     right = int(np.sum(zeros.real > 0.0))
     if right == n2:
         return WindingCheck(True, method="state space")
-    return WindingCheck(False, math.nan, f"winding number {n2 - right} != 0 (unstable pole/zero counts do not "
-                                         f"match)", "state space")
+    return WindingCheck(
+        False,
+        math.nan,
+        f"winding number {n2 - right} != 0 (unstable pole/zero counts do not match)",
+        "state space",
+    )
 
 
 def _winding_numerical(n1: np.ndarray, d1: np.ndarray, n2: np.ndarray, d2: np.ndarray,
@@ -712,8 +719,12 @@ def _winding_numerical(n1: np.ndarray, d1: np.ndarray, n2: np.ndarray, d2: np.nd
     k1 = n1[0] / d1[0] if len(n1) == len(d1) else 0.0
     k2 = n2[0] / d2[0] if len(n2) == len(d2) else 0.0
     if abs(k1 * k2) >= 1.0:
-        return WindingCheck(False, math.inf, "|P1(inf) P2(inf)| >= 1 with different delays: the winding number "
-                                             "is not defined", "numerical")
+        return WindingCheck(
+            False,
+            math.inf,
+            "|P1(inf) P2(inf)| >= 1 with different delays: the winding number is not defined",
+            "numerical",
+        )
     # rho = d2(-s) d1(s) + n2(-s) n1(s) exp(s delta)
     turns, where = axis_turns(_polymul(mirror(d2), d1), _polymul(mirror(n2), n1), delta_s, k1 * k2,
                               np.concatenate([polynomial_roots(d1), -polynomial_roots(d2)]),
@@ -841,8 +852,9 @@ def _axis_points(roots: np.ndarray) -> np.ndarray:
     centres = np.unique(roots[(roots.imag > 0.0) & on_axis(roots)].imag)
     if centres.size == 0:
         return np.zeros(0)
-    return np.concatenate([centres[:, None] * (1.0 - _AXIS_OFFSETS), centres[:, None] * (1.0 + _AXIS_OFFSETS)],
-                          axis=1).ravel()
+    return np.concatenate(
+        [centres[:, None] * (1.0 - _AXIS_OFFSETS), centres[:, None] * (1.0 + _AXIS_OFFSETS)], axis=1
+    ).ravel()
 
 
 def combined(a: ArrayLike, b: ArrayLike, sign: float = 1.0) -> np.ndarray:
@@ -1089,7 +1101,8 @@ def sup_with_ends(fun: Response, at_zero: float, at_infinity: float, w: np.ndarr
 
     The grid's local maxima are refined by a bounded search in ln(w) (to about 1e-10). The sup is reported at
     w = 0 when that ties with the grid's peak (within 1e-9 relative), at infinity only when the limit there is
-    above both by more than that (a peak creeping up to its limit keeps its frequency, with the limit's value).
+    above both by more than that (a peak creeping up to its limit keeps its frequency, with the limit's
+    value).
 
     Parameters
     ----------
@@ -1149,8 +1162,8 @@ def nugap(m1: LinearModel | MimoModel, m2: LinearModel | MimoModel) -> tuple[flo
     on the determinant, so their winding numbers cancel).
 
     Either argument may be measured data instead (:mod:`~gap_validation.core.frd`: a ``(w_rad_s, response)``
-    pair, an estimate, a ``ChannelResult``, a python-control FRD): then the sup is over the data's frequencies,
-    the condition assumed (:func:`nugap_frequency_data`).
+    pair, an estimate, a ``ChannelResult``, a python-control FRD): then the sup is over the data's
+    frequencies, the condition assumed (:func:`nugap_frequency_data`).
 
     Parameters
     ----------
@@ -1202,7 +1215,9 @@ def nugap(m1: LinearModel | MimoModel, m2: LinearModel | MimoModel) -> tuple[flo
     return min(max(value, 0.0), 1.0), where
 
 
-def _nugap_state_space(s1: statespace.StateSpace, s2: statespace.StateSpace) -> tuple[float, float, WindingCheck]:
+def _nugap_state_space(
+    s1: statespace.StateSpace, s2: statespace.StateSpace
+) -> tuple[float, float, WindingCheck]:
     """nu-gap of two minimal realizations: the winding condition on det(G2~ G1), then ||Gt2 G1||_inf."""
     g1 = statespace.right_ncf(s1)
     check = _winding_state_space(g1, statespace.right_ncf(s2), s2[0].shape[0])
@@ -1239,7 +1254,9 @@ def epsilon(m1: LinearModel | MimoModel, m2: LinearModel | MimoModel) -> tuple[f
     pair = paired_responses(m1, m2)
     if pair is not None:
         if np.ndim(pair[1]) > 1 or np.ndim(pair[2]) > 1:
-            raise ValueError("epsilon (eq. 14) is defined for SISO responses; compare MIMO data by the nu-gap")
+            raise ValueError(
+                "epsilon (eq. 14) is defined for SISO responses; compare MIMO data by the nu-gap"
+            )
         return epsilon_frequency_data(*pair)
     if _shape(m1) != (1, 1) or _shape(m2) != (1, 1):
         raise ValueError("epsilon (eq. 14) is defined for SISO models; compare MIMO models by the nu-gap")

@@ -1,9 +1,10 @@
 """MIMO validation from flight data: the whole response matrix against a MIMO model (issue 14).
 
 Single-axis manoeuvres flown in turn (aileron sweeps, then rudder sweeps) each excite one input of a MIMO
-channel; the estimator pools their local polynomial sums, and :func:`~gap_validation.core.spectra.solve_matrix`
-solves them for the whole p x m matrix ``H = G_yu G_uu^-1`` with a variance per element (as CIFER does). This
-module compares that matrix with the channel's :class:`~gap_validation.core.models.MimoModel`:
+channel; the estimator pools their local polynomial sums,
+and :func:`~gap_validation.core.spectra.solve_matrix` solves them for the whole p x m matrix ``H = G_yu
+G_uu^-1`` with a variance per element (as CIFER does). This module compares that matrix with the
+channel's :class:`~gap_validation.core.models.MimoModel`:
 
 - **kappa(w)**: Vinnicombe's MIMO chordal distance ``sigma_max((I + H H*)^-1/2 (H - P) (I + P* P)^-1/2)``
   (:func:`~gap_validation.core.metrics.chordal_distance`); the **nu-gap** is its sup over the confident
@@ -11,7 +12,8 @@ module compares that matrix with the channel's :class:`~gap_validation.core.mode
 - **Confident frequencies**: every element estimated, at least one degree of freedom, and the *multiple
   coherence of every output* (the fraction of that output explained by all inputs together) at least the
   channel's threshold and beyond what noise alone gives (the SISO rule of
-  :func:`~gap_validation.core.diagnosis.confident_points` with ``m (order + 1)`` coefficients). The per-element
+  :func:`~gap_validation.core.diagnosis.confident_points` with ``m (order + 1)`` coefficients). The
+  per-element
   *partial coherence* (what input j explains of output i once the other inputs are accounted for) is reported
   for plots and words, not used to exclude points: a small cross-coupling element has a low partial coherence
   on perfectly good data.
@@ -26,8 +28,8 @@ module compares that matrix with the channel's :class:`~gap_validation.core.mode
   than :data:`~gap_validation.core.diagnosis.SIGMA_FACTOR` noise scales, else data-limited.
 - **Where it fails**: at the worst frequency, the kappa each element's mismatch alone would give
   (``|H_ij - P_ij| |L e_i| |e_j^T R|``), ranked; the largest names the element that dominates.
-- **Diagnosis per input column**: an actuator effect belongs to an input, so a ``gain`` and a ``time_delay`` are
-  fitted on each input column (the model's column j times the factor) and reported when they bring the
+- **Diagnosis per input column**: an actuator effect belongs to an input, so a ``gain`` and a ``time_delay``
+  are fitted on each input column (the model's column j times the factor) and reported when they bring the
   nu-gap down for real (:func:`diagnose_columns`).
 """
 from __future__ import annotations
@@ -111,10 +113,10 @@ def element_kappa(p_model: np.ndarray, h: np.ndarray) -> np.ndarray:
 
 def kappa_noise_scale(p_model: np.ndarray, h: np.ndarray, variance: np.ndarray,
                       bias_error: float = BIAS_ERROR) -> np.ndarray:
-    """Noise scale of kappa(w): ``sqrt(sum_ij sigma_ij^2 |L e_i|^2 |e_j^T R|^2)``, the rms of ``|| L dH R ||_F``
-    for independent element errors of standard deviation ``sigma_ij`` (the measured element's, with the
-    relative floor ``bias_error |H_ij|``); to first order in the error it bounds the rms of kappa(H, H + dH)
-    (Frobenius bounds sigma_max; see the module docstring), per frequency.
+    """Noise scale of kappa(w): ``sqrt(sum_ij sigma_ij^2 |L e_i|^2 |e_j^T R|^2)``, the rms of ``|| L dH
+    R ||_F`` for independent element errors of standard deviation ``sigma_ij`` (the measured element's, with
+    the relative floor ``bias_error |H_ij|``); to first order in the error it bounds the rms of kappa(H, H +
+    dH) (Frobenius bounds sigma_max; see the module docstring), per frequency.
 
     Parameters
     ----------
@@ -143,8 +145,8 @@ def _confident(matrix: MatrixEstimate, coherence_threshold: float, coefficients:
 
 def _bands(w: np.ndarray, kappa: np.ndarray, flags: list[str], k: np.ndarray, coherence: np.ndarray,
            dof: np.ndarray) -> list[Band]:
-    """Runs of adjacent frequencies flagged ``model`` or ``data``; a band's ``epsilon`` holds its peak kappa (of a
-    model-limited band: over its model-limited points)."""
+    """Runs of adjacent frequencies flagged ``model`` or ``data``; a band's ``epsilon`` holds its peak kappa
+    (of a model-limited band: over its model-limited points)."""
     bands, i = [], 0
     while i < len(flags):
         if flags[i] not in ("model", "data"):
@@ -155,16 +157,32 @@ def _bands(w: np.ndarray, kappa: np.ndarray, flags: list[str], k: np.ndarray, co
             j += 1
         idx = np.arange(i, j + 1)
         verdict = "model" if any(flags[t] == "model" for t in idx) else "data"
-        judged = idx[[flags[t] == verdict for t in idx]]       # a model-limited band peaks where it is model-limited
+        # a model-limited band peaks where it is model-limited
+        judged = idx[[flags[t] == verdict for t in idx]]
         peak = int(judged[np.nanargmax(kappa[judged])])
         if verdict == "model":
-            reason = (f"kappa {kappa[peak]:.2f} at {w[peak]:.3g} rad/s is {np.nanmax(k[idx]):.1f} noise scales "
-                      f"from the data (well outside the random error)")
+            reason = (
+                f"kappa {kappa[peak]:.2f} at {w[peak]:.3g} rad/s is {np.nanmax(k[idx]):.1f} noise scales "
+                f"from the data (well outside the random error)"
+            )
         else:
-            reason = (f"kappa {kappa[peak]:.2f} at {w[peak]:.3g} rad/s is within the random error (low coherence "
-                      f"or too few degrees of freedom): fly better sweeps there")
-        bands.append(Band(float(w[i]), float(w[j]), float(w[peak]), float(kappa[peak]), verdict, reason,
-                          float(np.nanmin(coherence[idx])), float(np.nanmax(k[idx])), float(np.min(dof[idx]))))
+            reason = (
+                f"kappa {kappa[peak]:.2f} at {w[peak]:.3g} rad/s is within the random error (low coherence "
+                f"or too few degrees of freedom): fly better sweeps there"
+            )
+        bands.append(
+            Band(
+                float(w[i]),
+                float(w[j]),
+                float(w[peak]),
+                float(kappa[peak]),
+                verdict,
+                reason,
+                float(np.nanmin(coherence[idx])),
+                float(np.nanmax(k[idx])),
+                float(np.min(dof[idx])),
+            )
+        )
         i = j + 1
     return bands
 
@@ -250,11 +268,25 @@ def analyse_mimo(model: MimoModel, matrix: MatrixEstimate, w_rad_s: np.ndarray, 
         detail.worst_elements = [{"output": outputs[i], "input": inputs[j], "output_index": int(i),
                                   "input_index": int(j), "kappa_alone": float(alone[i, j])}
                                  for i, j in (np.unravel_index(o, alone.shape) for o in order)]
-    analysis = MimoAnalysis(w, detail, kappa, coherence, np.asarray(matrix.dof, float), confident, flags, bands,
-                            limited_by, nu_gap, w_peak, "")
+    analysis = MimoAnalysis(
+        w,
+        detail,
+        kappa,
+        coherence,
+        np.asarray(matrix.dof, float),
+        confident,
+        flags,
+        bands,
+        limited_by,
+        nu_gap,
+        w_peak,
+        "",
+    )
     if diagnose and limited_by == "model":
         model_points = np.array([f == "model" for f in flags])
-        analysis.diagnosis = diagnose_columns(model, w, h, confident, inputs, noise, sigma_factor, model_points)
+        analysis.diagnosis = diagnose_columns(
+            model, w, h, confident, inputs, noise, sigma_factor, model_points
+        )
     analysis.message = _message(analysis, kappa_threshold)
     return analysis
 
@@ -299,13 +331,20 @@ def _with_column(p_model: np.ndarray, j: int, factor: np.ndarray) -> np.ndarray:
 _COLUMN_EFFECTS = {"gain": ("factor", (0.1, 10.0)), "time_delay": ("seconds", (0.0, 0.3))}
 
 
-def diagnose_columns(model: MimoModel, w: np.ndarray, h: np.ndarray, confident: np.ndarray, inputs: Sequence[str],
-                     noise: np.ndarray, sigma_factor: float = SIGMA_FACTOR,
-                     model_points: np.ndarray | None = None) -> list[Candidate]:
+def diagnose_columns(
+    model: MimoModel,
+    w: np.ndarray,
+    h: np.ndarray,
+    confident: np.ndarray,
+    inputs: Sequence[str],
+    noise: np.ndarray,
+    sigma_factor: float = SIGMA_FACTOR,
+    model_points: np.ndarray | None = None,
+) -> list[Candidate]:
     """Actuator effects per input column (an effect of a surface acts on its column of the matrix): a ``gain``
-    and a ``time_delay`` on each column, fitted to minimise the sum of kappa(w)^2 over the confident frequencies
-    (a grid of 61 values, then a bounded scalar search around the best), ranked by how much of kappa they remove
-    where the model is model-limited.
+    and a ``time_delay`` on each column, fitted to minimise the sum of kappa(w)^2 over the confident
+    frequencies (a grid of 61 values, then a bounded scalar search around the best), ranked by how much of
+    kappa they remove where the model is model-limited.
 
     A candidate is reported when, over the model-limited frequencies (``model_points``; default every
     confident one), it removes at least :data:`MIN_RELATIVE_IMPROVEMENT` of the sup of kappa and more than
@@ -354,8 +393,12 @@ def diagnose_columns(model: MimoModel, w: np.ndarray, h: np.ndarray, confident: 
         for kind, (param, (lo, hi)) in _COLUMN_EFFECTS.items():
             def cost(x: float) -> float:
                 value = math.exp(x) if kind == "gain" else x
-                return float(np.sum(metrics.chordal_distance(_with_column(pc, j, _column_factor(kind, value, wc)),
-                                                             hc) ** 2))
+                return float(
+                    np.sum(
+                        metrics.chordal_distance(_with_column(pc, j, _column_factor(kind, value, wc)), hc)
+                        ** 2
+                    )
+                )
 
             # a grid first (a delay's cost has local minima), then a bounded search between the best point's
             # neighbours
@@ -367,18 +410,31 @@ def diagnose_columns(model: MimoModel, w: np.ndarray, h: np.ndarray, confident: 
             kappa = metrics.chordal_distance(_with_column(pc, j, _column_factor(kind, value, wc)), hc)
             after = float(np.max(kappa[judged]))
             gained = before - after
-            if gained < MIN_RELATIVE_IMPROVEMENT * before or gained <= sigma_factor * float(noise[confident][at]):
+            if gained < MIN_RELATIVE_IMPROVEMENT * before or gained <= sigma_factor * float(
+                noise[confident][at]
+            ):
                 continue
             value = float(f"{value:.4g}")
             spec = {"type": kind, param: value}
             words = f"gain {value:.3g}" if kind == "gain" else f"time delay of {1000 * value:.0f} ms"
             nu_after = float(np.max(kappa))
-            out.append(Candidate(effect=kind, parameters={param: value, "input": name, "input_index": j},
-                                 effects=[spec], epsilon=None, nu_gap=nu_after,
-                                 sentence=(f"missing on input {name}: {words} (on its column of the model); "
-                                           f"kappa where the model fails falls from {before:.2f} to {after:.2f}, "
-                                           f"the MIMO nu-gap from {nu_before:.2f} to {nu_after:.2f}"),
-                                 improvement=gained, worst_frequency_rad_s=float(wc[int(np.argmax(kappa))]),
-                                 complexity=1, explains=bool(np.all(kappa <= sigma_factor * noise[confident])),
-                                 note=None))
+            out.append(
+                Candidate(
+                    effect=kind,
+                    parameters={param: value, "input": name, "input_index": j},
+                    effects=[spec],
+                    epsilon=None,
+                    nu_gap=nu_after,
+                    sentence=(
+                        f"missing on input {name}: {words} (on its column of the model); "
+                        f"kappa where the model fails falls from {before:.2f} to {after:.2f}, "
+                        f"the MIMO nu-gap from {nu_before:.2f} to {nu_after:.2f}"
+                    ),
+                    improvement=gained,
+                    worst_frequency_rad_s=float(wc[int(np.argmax(kappa))]),
+                    complexity=1,
+                    explains=bool(np.all(kappa <= sigma_factor * noise[confident])),
+                    note=None,
+                )
+            )
     return sorted(out, key=lambda c: (c.improvement is None, -(c.improvement or 0.0)))

@@ -1,4 +1,5 @@
-"""The controller check: Vinnicombe's generalised stability margin b(P, C) and the guarantee b(P1, C) > nu-gap.
+"""The controller check: Vinnicombe's generalised stability margin b(P, C) and the guarantee b(P1, C) >
+nu-gap.
 
 Sign convention: the config's ``controller`` closes a *negative* feedback loop, ``u = -C y`` (DESIGN.md; the
 convention of MATLAB's ``ncfmargin``). Vinnicombe (*Uncertainty and Feedback*, 2001) writes the loop with
@@ -29,14 +30,24 @@ from dataclasses import dataclass
 import numpy as np
 
 from gap_validation.core import statespace
-from gap_validation.core.metrics import (analysis_grid, axis_turns, combined, coprime, feature_roots, mirror,
-                                         on_axis, polynomial_roots, sup_with_ends)
+from gap_validation.core.metrics import (
+    analysis_grid,
+    axis_turns,
+    combined,
+    coprime,
+    feature_roots,
+    mirror,
+    on_axis,
+    polynomial_roots,
+    sup_with_ends,
+)
 from gap_validation.core.models import LinearModel, MimoModel, strip_leading_zeros
 
 #: A model as the metrics take it.
 Model = LinearModel | MimoModel
 
-_ILL_POSED_COND = 1e12  # I + D_C D_P (or 1 + P(inf) C(inf)) beyond this condition number: the loop is ill-posed
+# I + D_C D_P (or 1 + P(inf) C(inf)) beyond this condition number: the loop is ill-posed
+_ILL_POSED_COND = 1e12
 _UNSTABLE_RTOL = 1e-9  # closed-loop poles with Re >= -1e-9 |pole| (or on the axis) are not stable
 
 
@@ -167,7 +178,9 @@ def _siso_margin(plant: LinearModel, controller: LinearModel) -> StabilityMargin
             values += [n / scale, d / scale]
         np_, dp_, nc_, dc_ = values
         closed = dp_ * dc_ + np_ * nc_ * np.exp(-s * delay_s)
-        return np.abs(closed) / np.sqrt((np.abs(np_) ** 2 + np.abs(dp_) ** 2) * (np.abs(nc_) ** 2 + np.abs(dc_) ** 2))
+        return np.abs(closed) / np.sqrt(
+            (np.abs(np_) ** 2 + np.abs(dp_) ** 2) * (np.abs(nc_) ** 2 + np.abs(dc_) ** 2)
+        )
 
     nn, dd = np.polymul(loop_num, mirror(loop_num)), np.polymul(loop_den, mirror(loop_den))
     roots = [feature_roots(plant), feature_roots(controller), polynomial_roots(combined(nn, dd, -1.0)),
@@ -186,15 +199,20 @@ def _siso_instability(loop_den: np.ndarray, loop_num: np.ndarray, k_inf: float, 
                       hints: np.ndarray) -> StabilityMargin | None:
     """None when the loop is internally stable, else b = 0 with the reason."""
     if abs(1.0 + k_inf) <= 1.0 / _ILL_POSED_COND and not delay_s:
-        return StabilityMargin(0.0, math.inf, False, "1 + P C vanishes at infinity (P(inf) C(inf) = -1: the loop "
-                                                     "is ill-posed)")
+        return StabilityMargin(
+            0.0, math.inf, False, "1 + P C vanishes at infinity (P(inf) C(inf) = -1: the loop is ill-posed)"
+        )
     if delay_s == 0.0:
         roots = polynomial_roots(np.polyadd(loop_den, loop_num))
         bad = (roots.real >= -_UNSTABLE_RTOL * np.abs(roots)) | on_axis(roots)
         if np.any(bad):
             worst = roots[bad][np.argmax(roots[bad].real)]
-            return StabilityMargin(0.0, math.nan, False, f"the closed loop of model and controller is unstable "
-                                                         f"(pole at {_format_root(worst)})")
+            return StabilityMargin(
+                0.0,
+                math.nan,
+                False,
+                f"the closed loop of model and controller is unstable (pole at {_format_root(worst)})",
+            )
         return None
     if abs(k_inf) >= 1.0:
         return StabilityMargin(0.0, math.inf, False, "|P(inf) C(inf)| >= 1 with a delay in the loop: not "
@@ -203,12 +221,19 @@ def _siso_instability(loop_den: np.ndarray, loop_num: np.ndarray, k_inf: float, 
     turns, where = axis_turns(loop_den, loop_num, -delay_s, k_inf, polynomial_roots(loop_den), hints)
     if turns is None:
         text = "" if math.isnan(where) else f" (1 + P C vanishes near w = {where:.6g} rad/s)"
-        return StabilityMargin(0.0, where, False, f"the closed loop of model and controller is not stable{text}")
+        return StabilityMargin(
+            0.0, where, False, f"the closed loop of model and controller is not stable{text}"
+        )
     right = int(round(degree / 2.0 - turns))
     if abs(turns - degree / 2.0) < 0.25:
         return None
-    return StabilityMargin(0.0, math.nan, False, f"the closed loop of model and controller is unstable ({right} "
-                                                 f"pole{'s' * (right != 1)} in the right half plane)")
+    return StabilityMargin(
+        0.0,
+        math.nan,
+        False,
+        f"the closed loop of model and controller is unstable ({right} "
+        f"pole{'s' * (right != 1)} in the right half plane)",
+    )
 
 
 def _format_root(root: complex) -> str:
@@ -220,7 +245,9 @@ def _format_root(root: complex) -> str:
 # ----------------------------------------------------------------------------------------------------------
 
 
-def closed_loop(plant: statespace.StateSpace, controller: statespace.StateSpace) -> statespace.StateSpace | None:
+def closed_loop(
+    plant: statespace.StateSpace, controller: statespace.StateSpace
+) -> statespace.StateSpace | None:
     """Realization of ``[P; I] (I + C P)^-1 [C, I]``: inputs ``[v1; v2]``, outputs ``[y; u]``.
 
     The loop ``y = P u``, ``u = v2 + C (v1 - y)`` (negative feedback, v1 a reference or sensor noise at the
@@ -268,8 +295,12 @@ def _state_space_margin(plant: statespace.StateSpace, controller: statespace.Sta
     bad = (poles.real >= -_UNSTABLE_RTOL * np.abs(poles)) | on_axis(poles)
     if np.any(bad):
         worst = poles[bad][np.argmax(poles[bad].real)]
-        return StabilityMargin(0.0, math.nan, False, f"the closed loop of model and controller is unstable (pole at "
-                                                     f"{_format_root(worst)})")
+        return StabilityMargin(
+            0.0,
+            math.nan,
+            False,
+            f"the closed loop of model and controller is unstable (pole at {_format_root(worst)})",
+        )
     gamma, where = statespace.hinf_norm(loop)
     return StabilityMargin(min(1.0 / gamma, 1.0) if gamma > 0.0 else 1.0, where)
 
@@ -315,8 +346,10 @@ def stability_sentence(margin: StabilityMargin, nu_gap: float | None, measured: 
     if margin.b > nu_gap:
         text = f"the controller is guaranteed to stabilise the aircraft: b = {b_text} > nu-gap {gap_text}"
     else:
-        text = (f"no guarantee that the controller stabilises the aircraft: b = {b_text} <= nu-gap {gap_text} "
-                f"(the model is not close enough for this controller)")
+        text = (
+            f"no guarantee that the controller stabilises the aircraft: b = {b_text} <= nu-gap {gap_text} "
+            f"(the model is not close enough for this controller)"
+        )
     if measured:
         text += " (nu-gap over the measured band, winding-number condition assumed)"
     return text

@@ -293,8 +293,10 @@ def stabilising_riccati(a: np.ndarray, g: np.ndarray, q: np.ndarray) -> np.ndarr
     hamiltonian = np.block([[a, -g], [-q, -a.T]])
     _, u, stable = scipy.linalg.schur(hamiltonian, output="real", sort="lhp")
     if stable != n:
-        raise np.linalg.LinAlgError(f"Riccati equation: {stable} stable Hamiltonian eigenvalues, expected {n} "
-                                    "(a mode on the imaginary axis is uncontrollable or unobservable)")
+        raise np.linalg.LinAlgError(
+            f"Riccati equation: {stable} stable Hamiltonian eigenvalues, expected {n} "
+            "(a mode on the imaginary axis is uncontrollable or unobservable)"
+        )
     x = np.linalg.solve(u[:n, :n].T, u[n:, :n].T).T
     if not np.all(np.isfinite(x)):
         raise np.linalg.LinAlgError("Riccati equation: no finite stabilising solution")
@@ -302,7 +304,8 @@ def stabilising_riccati(a: np.ndarray, g: np.ndarray, q: np.ndarray) -> np.ndarr
 
 
 def _ncf_data(system: StateSpace) -> tuple[np.ndarray, ...]:
-    """``A - B R^-1 D^T C``, ``B R^-1 B^T``, ``C^T Rt^-1 C`` and the weights of both normalised factorisations."""
+    """``A - B R^-1 D^T C``, ``B R^-1 B^T``, ``C^T Rt^-1 C`` and the weights of both normalised
+    factorisations."""
     a, b, c, d = system
     r = np.eye(b.shape[1]) + d.T @ d
     rt = np.eye(c.shape[0]) + d @ d.T
@@ -407,7 +410,8 @@ def _level_set_pencil(system: StateSpace, gamma: float) -> tuple[np.ndarray, np.
 
 
 def _hamiltonian(system: StateSpace, gamma: float) -> np.ndarray:
-    """Bruinsma & Steinbuch's Hamiltonian: imaginary eigenvalues j w where gamma is a singular value of G(j w)."""
+    """Bruinsma & Steinbuch's Hamiltonian: imaginary eigenvalues j w where gamma is a singular value of G(j
+    w)."""
     a, b, c, d = system
     p, m = d.shape
     r = d.T @ d - gamma * gamma * np.eye(m)
@@ -535,7 +539,9 @@ def hinf_norm(system: StateSpace) -> tuple[float, float]:
     candidates = _initial_candidates(sigma.poles)
     values = sigma.many(candidates)
     k = int(np.argmax(values))
-    best, where = (float(values[k]), float(candidates[k])) if values[k] > at_infinity else (at_infinity, math.inf)
+    best, where = (
+        (float(values[k]), float(candidates[k])) if values[k] > at_infinity else (at_infinity, math.inf)
+    )
     if math.isfinite(where) and where > 0.0:  # a refined first bound: the level set then usually confirms it
         neighbours = (float(candidates[max(k - 1, 0)]), float(candidates[min(k + 1, candidates.size - 1)]))
         best, where = _refine_peak(sigma, best, where, neighbours)
@@ -572,7 +578,7 @@ def _refine_peak(sigma: _Sigma, best: float, where: float,
     lo = max(lo, where * 1e-3)
     if hi <= lo:
         return best, where
-    from scipy.optimize import minimize_scalar   # scipy.optimize costs 0.6 s at import: only when used
+    from scipy.optimize import minimize_scalar  # scipy.optimize costs 0.6 s at import: only when used
     result = minimize_scalar(lambda x: -evaluate(where * math.exp(x)),
                              bounds=(math.log(lo / where), math.log(hi / where)), method="bounded",
                              options={"xatol": _REFINE_XATOL, "maxiter": 200})

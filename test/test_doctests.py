@@ -10,6 +10,7 @@ import pytest
 
 #: Modules whose docstrings carry runnable examples, and how many examples each has at least.
 MODULES = {
+    "gap_validation.core.config": 1,
     "gap_validation.core.models": 1,
     "gap_validation.core.margins": 1,
     "gap_validation.core.metrics": 1,

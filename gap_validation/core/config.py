@@ -550,6 +550,22 @@ def parse_config(data: Any, source: str = "<config>") -> ValidationConfig:
     ------
     ConfigError
         One line naming ``source``, the key path and the value.
+
+    Examples
+    --------
+    One pitch channel: the elevator's joint in, the pitch rate out, a second-order model:
+
+    >>> cfg = parse_config({"channels": {"pitch": {
+    ...     "input": {"topic": "/servos", "field": "position[elevator]"},
+    ...     "output": {"topic": "/imu", "field": "angular_velocity.y"},
+    ...     "model": {"numerator": [40.0], "denominator": [1.0, 12.0, 40.0]}}}}, "example.yaml")
+    >>> cfg.channels["pitch"].model, sorted(cfg.topics())
+    (LinearModel(num=[40.], den=[ 1. 12. 40.]), ['/imu', '/servos'])
+    >>> parse_config({"channels": {"pitch": {"input": {"topic": "/servos", "field": "position[elevator]"}}}},
+    ...              "example.yaml")
+    Traceback (most recent call last):
+    ...
+    gap_validation.core.errors.ConfigError: example.yaml: channels.pitch.output: missing
     """
     top = _mapping(data, source, "<top level>", _TOP_KEYS)
     if "channels" not in top:

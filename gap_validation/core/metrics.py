@@ -1250,6 +1250,19 @@ def epsilon(m1: LinearModel | MimoModel, m2: LinearModel | MimoModel) -> tuple[f
     ------
     ValueError
         For MIMO models (no epsilon disk: compare them by the nu-gap); data on different frequencies.
+
+    Examples
+    --------
+    A 20 % gain error is an epsilon of 0.2 / 2.2 at every frequency; a 20 ms delay makes the model its own
+    negative at pi / 0.02 rad/s, where no disk contains it:
+
+    >>> from gap_validation.core.models import LinearModel
+    >>> p1 = LinearModel.from_tf([40.0], [1.0, 12.0, 40.0])
+    >>> round(epsilon(p1, LinearModel.from_tf([48.0], [1.0, 12.0, 40.0]))[0], 4)
+    0.0909
+    >>> value, w_peak = epsilon(p1, p1.with_effects([{"type": "time_delay", "seconds": 0.02}]))
+    >>> value, round(w_peak, 2)
+    (inf, 157.08)
     """
     pair = paired_responses(m1, m2)
     if pair is not None:

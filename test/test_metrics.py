@@ -592,7 +592,8 @@ def perturbed_mimo(rng, model, size):
 
 
 def dense_mimo_sup(m1, m2):
-    """Reference: kappa from matrix square roots on a dense grid, the best point refined in ln(w)."""
+    """Reference: kappa from matrix square roots on a dense grid, the best point refined in ln(w), and the
+    limit at infinity (the D matrices)."""
     w = np.concatenate([[0.0], np.geomspace(1e-4, 1e4, 8001)])
 
     def kappa(x):
@@ -609,6 +610,9 @@ def dense_mimo_sup(m1, m2):
             options={"xatol": 1e-12},
         )
         best = max(best, -result.fun)
+    # and the limit at infinity, beyond the grid: P(jw) -> D
+    d1, d2 = m1.state_space()[3], m2.state_space()[3]
+    best = max(best, float(chordal_distance(d1[None], d2[None])[0]))
     return best, kappa
 
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from gap_validation.core import diagnosis, metrics
+from gap_validation.core import diagnosis, evidence, metrics, ranking
 from gap_validation.core.diagnosis import analyse_channel
 from gap_validation.core.effects import FitRange, backlash_df, describe_effect, effect_response
 from gap_validation.core.estimator import SpectralEstimate
@@ -358,32 +358,32 @@ def test_full_fit_finds_the_servo_pair():
 
 def _fit(eps, chi2, k_max=10.0, worst=0):
     eps_w = np.full(W.size, eps)
-    return diagnosis._Fit(eps_w, eps, worst, k_max, chi2, np.full(W.size, k_max))
+    return evidence.Fit(eps_w, eps, worst, k_max, chi2, np.full(W.size, k_max))
 
 
 def _evidence(sigma=0.001):
     ones = np.ones(W.size, bool)
-    return diagnosis._Evidence(W, np.ones(W.size, complex), np.ones(W.size), np.full(W.size, 50.0), ones,
-                               np.full(W.size, sigma), diagnosis.SIGMA_FACTOR)
+    return evidence.Evidence(W, np.ones(W.size, complex), np.ones(W.size), np.full(W.size, 50.0), ones,
+                             np.full(W.size, sigma), evidence.SIGMA_FACTOR)
 
 
 def test_improvement_must_remove_half_the_excess_chi_square():
     # 40 confident points: chi-square 80 expected; a candidate fitting one noise spike removes little of a
     # broad excess (random error under-reported), a real effect removes most of it
     before = _fit(0.2, 80 + 400)
-    assert not diagnosis._chi2_improvement(before, _fit(0.05, 80 + 300), 4, W.size)
-    assert diagnosis._chi2_improvement(before, _fit(0.05, 80 + 150), 4, W.size)
-    assert not diagnosis._chi2_improvement(_fit(0.2, 100), _fit(0.05, 90), 1, W.size)   # < 10 + 3 p
+    assert not ranking.chi2_improvement(before, _fit(0.05, 80 + 300), 4, W.size)
+    assert ranking.chi2_improvement(before, _fit(0.05, 80 + 150), 4, W.size)
+    assert not ranking.chi2_improvement(_fit(0.2, 100), _fit(0.05, 90), 1, W.size)   # < 10 + 3 p
     ev = _evidence()
-    assert not diagnosis._real_improvement(ev, before, _fit(0.05, 80 + 300), 4, 0.25)
-    assert diagnosis._real_improvement(ev, before, _fit(0.05, 80 + 150), 4, 0.25)
+    assert not ranking.real_improvement(ev, before, _fit(0.05, 80 + 300), 4, 0.25)
+    assert ranking.real_improvement(ev, before, _fit(0.05, 80 + 150), 4, 0.25)
 
 
 def test_improvement_must_remove_a_quarter_of_epsilon():
     ev = _evidence(sigma=1e-4)
     before = _fit(0.20, 5000)
-    assert not diagnosis._real_improvement(ev, before, _fit(0.16, 80), 1, 0.25)       # 20 % lower only
-    assert diagnosis._real_improvement(ev, before, _fit(0.14, 80), 1, 0.25)
+    assert not ranking.real_improvement(ev, before, _fit(0.16, 80), 1, 0.25)       # 20 % lower only
+    assert ranking.real_improvement(ev, before, _fit(0.14, 80), 1, 0.25)
 
 
 def test_no_pair_when_a_single_effect_explains_it():

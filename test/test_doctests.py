@@ -14,6 +14,8 @@ MODULES = {
     "gap_validation.core.models": 1,
     "gap_validation.core.margins": 1,
     "gap_validation.core.metrics": 1,
+    "gap_validation.core.validator": 1,
+    "gap_validation.core.wording": 1,
 }
 
 

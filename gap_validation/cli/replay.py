@@ -18,6 +18,7 @@ from pathlib import Path
 from gap_validation.bag.replay import is_log_source, replay
 from gap_validation.core.config import dump_config, load_config
 from gap_validation.core.errors import ConfigError, DataError
+from gap_validation.core.wording import no_fix_reason
 from gap_validation.history import (
     append_history,
     default_history_path,
@@ -343,23 +344,14 @@ def _fix_for(ch, force: bool):
     Without ``force``: the first candidate that explains the mismatch of a model-limited channel. With it:
     that, else the top candidate, with a note saying what it does not do.
     """
-    if not ch.diagnosis:
-        if ch.limited_by == "model":
-            return None, "model-limited, but no candidate brings a real improvement (see the diagnosis)"
-        if ch.limited_by == "data":
-            return None, "data-limited: fly better sweeps rather than change the model"
-        if ch.epsilon is None:
-            return None, "nothing validated (no confident frequency)"
-        return None, f"the model fits (epsilon {ch.epsilon:.2f}): nothing to fix"
     explaining = next((c for c in ch.diagnosis if c.explains), None)
     if ch.limited_by == "model" and explaining is not None:
         return explaining, ""
-    top = ch.diagnosis[0]
-    if ch.limited_by != "model":
-        why = f"the channel is not model-limited (limited by {ch.limited_by})"
-    else:
-        left = f"; the best leaves epsilon {top.epsilon:.2f}" if top.epsilon is not None else ""
-        why = f"no candidate explains the mismatch (none leaves the data within their errors{left})"
+    top = ch.diagnosis[0] if ch.diagnosis else None
+    why = no_fix_reason(ch.limited_by, epsilon=ch.epsilon, candidates=top is not None,
+                        best_epsilon=None if top is None else top.epsilon)
+    if top is None:
+        return None, why
     if force:
         return top, why
     return None, why + "; --force writes the top candidate anyway"

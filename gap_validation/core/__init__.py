@@ -32,6 +32,7 @@ _PUBLIC = {
     "FrequencyResponseEstimator": "estimator",
     "SpectralEstimate": "estimator",
     "analyse_channel": "diagnosis",
+    "fit_effects": "fitting",
     "simulate_flight": "simulation",
     "FlightOptions": "simulation",
     "truth_models": "simulation",

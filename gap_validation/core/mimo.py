@@ -12,7 +12,7 @@ channel's :class:`~gap_validation.core.models.MimoModel`:
 - **Confident frequencies**: every element estimated, at least one degree of freedom, and the *multiple
   coherence of every output* (the fraction of that output explained by all inputs together) at least the
   channel's threshold and beyond what noise alone gives (the SISO rule of
-  :func:`~gap_validation.core.diagnosis.confident_points` with ``m (order + 1)`` coefficients). The
+  :func:`~gap_validation.core.evidence.confident_points` with ``m (order + 1)`` coefficients). The
   per-element
   *partial coherence* (what input j explains of output i once the other inputs are accounted for) is reported
   for plots and words, not used to exclude points: a small cross-coupling element has a low partial coherence
@@ -20,12 +20,12 @@ channel's :class:`~gap_validation.core.models.MimoModel`:
 - **Random error of kappa**: exactly ``kappa(H, H + dH) = sigma_max((I + (H+dH)(H+dH)*)^-1/2 dH
   (I + H* H)^-1/2) <= sigma_max(dH)``, so to first order the noise scale of kappa is the rms of the Frobenius
   norm of ``L dH R`` (weights ``L``, ``R`` of the measured and model matrices, independent element errors of
-  the estimated variances plus the 1 % systematic floor :data:`~gap_validation.core.diagnosis.BIAS_ERROR`):
+  the estimated variances plus the 1 % systematic floor :data:`~gap_validation.core.evidence.BIAS_ERROR`):
   :func:`kappa_noise_scale`; Frobenius bounds ``sigma_max``.
 - **Model- or data-limited**: where kappa passes ``kappa_threshold`` (0.15) a confident point is model-limited
   when the data differ from the model *seen through the estimator*
   (:func:`~gap_validation.core.spectra.expected_matrix`, which removes the estimator's smoothing bias) by more
-  than :data:`~gap_validation.core.diagnosis.SIGMA_FACTOR` noise scales, else data-limited.
+  than :data:`~gap_validation.core.evidence.SIGMA_FACTOR` noise scales, else data-limited.
 - **Where it fails**: at the worst frequency, the kappa each element's mismatch alone would give
   (``|H_ij - P_ij| |L e_i| |e_j^T R|``), ranked; the largest names the element that dominates.
 - **Diagnosis per input column**: an actuator effect belongs to an input, so a ``gain`` and a ``time_delay``
@@ -40,8 +40,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from gap_validation.core import metrics
-from gap_validation.core.diagnosis import BIAS_ERROR, SIGMA_FACTOR, confident_mask
+from gap_validation.core import metrics, wording
+from gap_validation.core.evidence import BIAS_ERROR, SIGMA_FACTOR, confident_mask
 from gap_validation.core.models import MimoModel
 from gap_validation.core.results import Band, Candidate, MimoDetail
 from gap_validation.core.spectra import MatrixEstimate
@@ -135,7 +135,7 @@ def kappa_noise_scale(p_model: np.ndarray, h: np.ndarray, variance: np.ndarray,
 def _confident(matrix: MatrixEstimate, coherence_threshold: float, coefficients: int) -> tuple[np.ndarray,
                                                                                                  np.ndarray]:
     """Confident frequencies (every output's multiple coherence passes, as
-    :func:`~gap_validation.core.diagnosis.confident_points` for SISO) and the worst output's coherence."""
+    :func:`~gap_validation.core.evidence.confident_points` for SISO) and the worst output's coherence."""
     finite = np.all(np.isfinite(matrix.response), axis=(1, 2))
     coherence = np.min(matrix.multiple_coherence, axis=1)
     size = np.where(finite, np.linalg.norm(np.where(np.isfinite(matrix.response), matrix.response, 0.0),
@@ -160,16 +160,8 @@ def _bands(w: np.ndarray, kappa: np.ndarray, flags: list[str], k: np.ndarray, co
         # a model-limited band peaks where it is model-limited
         judged = idx[[flags[t] == verdict for t in idx]]
         peak = int(judged[np.nanargmax(kappa[judged])])
-        if verdict == "model":
-            reason = (
-                f"kappa {kappa[peak]:.2f} at {w[peak]:.3g} rad/s is {np.nanmax(k[idx]):.1f} noise scales "
-                f"from the data (well outside the random error)"
-            )
-        else:
-            reason = (
-                f"kappa {kappa[peak]:.2f} at {w[peak]:.3g} rad/s is within the random error (low coherence "
-                f"or too few degrees of freedom): fly better sweeps there"
-            )
+        reason = wording.mimo_band_reason(verdict, float(kappa[peak]), float(w[peak]),
+                                          float(np.nanmax(k[idx])) if verdict == "model" else math.nan)
         bands.append(
             Band(
                 float(w[i]),
@@ -292,27 +284,16 @@ def analyse_mimo(model: MimoModel, matrix: MatrixEstimate, w_rad_s: np.ndarray, 
 
 
 def _message(a: MimoAnalysis, kappa_threshold: float) -> str:
-    """One line: the verdict, where, which element dominates and what the diagnosis says."""
-    if a.nu_gap is None:
-        return "no confident frequency (every output's multiple coherence must pass the threshold)"
-    lead = max((b for b in a.bands if b.limited_by == a.limited_by), key=lambda b: b.epsilon, default=None)
-    if a.limited_by == "none":
-        return f"MIMO nu-gap {a.nu_gap:.3f}: kappa(w) within {kappa_threshold} at every confident frequency"
-    where = f"{_range(lead.min_rad_s, lead.max_rad_s)} rad/s" if lead else ""
-    text = f"{a.limited_by}-limited at {where}: {lead.reason}" if lead else f"{a.limited_by}-limited"
-    if a.detail.worst_elements:
-        top = a.detail.worst_elements[0]
-        text += (f"; at {a.detail.worst_elements_frequency_rad_s:.3g} rad/s the element {top['input']} -> "
-                 f"{top['output']} "
-                 f"dominates (its mismatch alone would give kappa {top['kappa_alone']:.2f}; all together "
-                 f"{a.kappa[np.flatnonzero(a.w_rad_s == a.detail.worst_elements_frequency_rad_s)[0]]:.2f})")
-    if a.limited_by == "model":
-        text += "; " + (a.diagnosis[0].sentence if a.diagnosis else "no column effect explains it")
-    return text
-
-
-def _range(lo: float, hi: float) -> str:
-    return f"{lo:.3g}" if lo == hi else f"{lo:.3g}-{hi:.3g}"
+    """One line (:func:`~gap_validation.core.wording.mimo_message`)."""
+    element = element_rad_s = kappa_all = None
+    if a.nu_gap is not None and a.limited_by != "none" and a.detail.worst_elements:
+        element, element_rad_s = a.detail.worst_elements[0], a.detail.worst_elements_frequency_rad_s
+        kappa_all = float(a.kappa[np.flatnonzero(a.w_rad_s == element_rad_s)[0]])
+    return wording.mimo_message(
+        nu_gap=a.nu_gap, limited_by=a.limited_by, bands=a.bands, kappa_threshold=kappa_threshold,
+        element=element, element_rad_s=element_rad_s, kappa_all=kappa_all,
+        top_sentence=a.diagnosis[0].sentence if a.diagnosis else None,
+    )
 
 
 # ------------------------------------------------------------------------------------- diagnosis per column
@@ -416,7 +397,6 @@ def diagnose_columns(
                 continue
             value = float(f"{value:.4g}")
             spec = {"type": kind, param: value}
-            words = f"gain {value:.3g}" if kind == "gain" else f"time delay of {1000 * value:.0f} ms"
             nu_after = float(np.max(kappa))
             out.append(
                 Candidate(
@@ -425,10 +405,9 @@ def diagnose_columns(
                     effects=[spec],
                     epsilon=None,
                     nu_gap=nu_after,
-                    sentence=(
-                        f"missing on input {name}: {words} (on its column of the model); "
-                        f"kappa where the model fails falls from {before:.2f} to {after:.2f}, "
-                        f"the MIMO nu-gap from {nu_before:.2f} to {nu_after:.2f}"
+                    sentence=wording.mimo_column_sentence(
+                        name, kind, value, kappa_before=before, kappa_after=after, nu_gap_before=nu_before,
+                        nu_gap_after=nu_after,
                     ),
                     improvement=gained,
                     worst_frequency_rad_s=float(wc[int(np.argmax(kappa))]),

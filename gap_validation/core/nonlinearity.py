@@ -13,7 +13,7 @@ or saturation does. Two things here:
   frequency by frequency against their errors: ``z^2 = |H_lo - H_hi|^2 / (v_lo + v_hi + floor)``, each group
   the inverse-variance mean of its records, its variance scaled by the group's Birge ratio (scatter between
   its own records beyond their errors) and a systematic floor of
-  :data:`~gap_validation.core.diagnosis.BIAS_ERROR` on each. The variances are themselves estimated (the
+  :data:`~gap_validation.core.evidence.BIAS_ERROR` on each. The variances are themselves estimated (the
   records' degrees of freedom d, combined by Welch-Satterthwaite), so for a linear system z^2 is F(2, 2 d) at
   each frequency: its tail probability p gives the *surprise* ``-ln p``, Exp(1) for a linear response, and the
   summed surprise is Gamma(n, 1). Nonlinearity is called only when the sum is beyond it with probability below

@@ -18,7 +18,7 @@ polynomial (after each record's transient is projected out), summed over the rec
 what the flight's disturbances do (``q = sigma^2 / |H|^2``, the noise-to-signal ratio per unit of input power)
 from what the manoeuvre puts in (``Phi^H Phi``, which grows with the amplitude squared and with the time spent
 near ``w``). To first order it is Bendat and Piersol's ``e^2 = (1 - g^2) / (2 n_d g^2)``
-(:func:`~gap_validation.core.diagnosis.bendat_piersol_random_error`) times the variance inflation of the
+(:func:`~gap_validation.core.evidence.bendat_piersol_random_error`) times the variance inflation of the
 fitted polynomial at the band's centre (2.25 for a quadratic over evenly filled bins: the measured
 ``random_error`` is 1.5 times Bendat and Piersol's on the same coherence and degrees of freedom): the error
 falls as one over the square root of the degrees of freedom and grows as the coherence falls. Hence:
@@ -43,12 +43,12 @@ falls as one over the square root of the degrees of freedom and grows as the coh
    (:func:`predicted_random_error`) for ``n`` repeats at amplitude ``A``, ``q2`` the output's noise over
    ``|H|^2`` plus the input's trim motion; the predicted coherence ``1 - d q / (n A^2 |Phi2|^2_00 + D q)``
    (``D`` the bins less the transients, ``d = D - 3``) must pass the channel's threshold with the validator's
-   Beta law (:func:`~gap_validation.core.diagnosis.confident_points`).
+   Beta law (:func:`~gap_validation.core.evidence.confident_points`).
 3. The target (:func:`verdict_error`): the largest random error at which a mismatch at the channel's epsilon
    threshold (0.15) would be model-limited, i.e. ``normalised_mismatch(0.15, sigma, d) = 4`` with ``sigma =
-   hypot(e, 0.01) / 2`` (:func:`~gap_validation.core.diagnosis.normalised_mismatch`,
-   :data:`~gap_validation.core.diagnosis.SIGMA_FACTOR`,
-   :data:`~gap_validation.core.diagnosis.BIAS_ERROR`): about 0.067 on 20 degrees of freedom, 0.075 on many. At
+   hypot(e, 0.01) / 2`` (:func:`~gap_validation.core.evidence.normalised_mismatch`,
+   :data:`~gap_validation.core.evidence.SIGMA_FACTOR`,
+   :data:`~gap_validation.core.evidence.BIAS_ERROR`): about 0.067 on 20 degrees of freedom, 0.075 on many. At
    that error a correct model stays within the threshold (noise reaches it with probability exp(-8)) and a
    wrong one is called model-limited: either way a verdict. The plan aims :data:`PLAN_MARGIN` below it.
 4. The manoeuvre (:func:`plan_card`): for every swept band (the targets with margins, at least 5:1 so the
@@ -80,14 +80,10 @@ from scipy.special import digamma, polygamma
 from scipy.stats import norm
 
 from gap_validation.core.config import ChannelConfig, ValidationConfig
-from gap_validation.core.diagnosis import (
-    BIAS_ERROR,
-    SIGMA_FACTOR,
-    analyse_channel,
-    confident_points,
-)
+from gap_validation.core.diagnosis import analyse_channel
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.estimator import ESTIMATOR_DEFAULTS, LOOKBACK_S, RESOLVED_FRACTION
+from gap_validation.core.evidence import BIAS_ERROR, SIGMA_FACTOR, confident_points
 from gap_validation.core.numbers import NON_NEGATIVE, POSITIVE, Interval, check_number
 from gap_validation.core.simulation import FlightOptions
 from gap_validation.core.spectra import SPECTRA_DEFAULTS, BandSums, expected_estimate, record_bands
@@ -1192,7 +1188,7 @@ def no_verdict_reason(flag: str | None, reason: str | None) -> str | None:
     Parameters
     ----------
     flag : str or None
-        Its ``frequency_flags`` entry (:func:`~gap_validation.core.diagnosis.frequency_flags`).
+        Its ``frequency_flags`` entry (:func:`~gap_validation.core.evidence.frequency_flags`).
     reason : str or None
         Its ``frequency_reasons`` entry (None: a confident estimate).
     """
@@ -1259,7 +1255,7 @@ def _minimum_coherence(threshold: float, dof: np.ndarray, nh: int) -> np.ndarray
 
 @functools.lru_cache(maxsize=4096)
 def _least_confident(threshold: float, dof: float, nh: int) -> float:
-    """The smallest coherence :func:`~gap_validation.core.diagnosis.confident_points` calls confident on
+    """The smallest coherence :func:`~gap_validation.core.evidence.confident_points` calls confident on
     ``dof`` degrees of freedom (a stand-in estimate; bisection); 1 when none is."""
     lo, hi = threshold, 0.99999
     if not _confident(hi, dof, nh, threshold):

@@ -1176,7 +1176,7 @@ def sweep_points(sweep: Any, average_confident: np.ndarray, coherence_threshold:
     sweep : SpectralEstimate or LocalEstimate
         One sweep's (raw) estimate (its ``response`` and ``coherence`` are read).
     average_confident : ndarray of bool
-        Confident points of the averaged estimate (:func:`~gap_validation.core.diagnosis.confident_points`).
+        Confident points of the averaged estimate (:func:`~gap_validation.core.evidence.confident_points`).
     coherence_threshold : float
         The channel's coherence threshold.
     """

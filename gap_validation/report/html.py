@@ -25,6 +25,7 @@ from gap_validation.core.errors import DataError, one_line
 from gap_validation.core.margins import STANDARD_EPSILON, WARN_EPSILON, margins_from_epsilon
 from gap_validation.core.plan import TestCard
 from gap_validation.core.results import NUGAP_DATA_NOTE, ChannelResult, ValidationResult
+from gap_validation.core.wording import limited_sentence
 from gap_validation.report import card, figures
 from gap_validation.report.terminal import fmt
 
@@ -116,13 +117,8 @@ def verdict(ch: ChannelResult) -> tuple[str, str]:
                 ),
                 "warn",
             )
-    if ch.limited_by == "model" and ch.diagnosis:
-        top = ch.diagnosis[0]
-        text += f" Model-limited; the likeliest missing effect: {top.sentence or top.effect}."
-    elif ch.limited_by == "model":
-        text += " Model-limited: confident data disagree with the model."
-    elif ch.limited_by == "data":
-        text += " Data-limited: fly better sweeps where the coherence is low before changing the model."
+    top = ch.diagnosis[0] if ch.diagnosis else None
+    text += limited_sentence(ch.limited_by, None if top is None else top.sentence or top.effect)
     return text, cls
 
 
@@ -135,12 +131,10 @@ def _mimo_verdict(ch: ChannelResult) -> tuple[str, str]:
         f"{shape} MIMO nu-gap {nu:.3f} over the confident frequencies: a controller whose stability margin "
         f"b(P, C) exceeds it on the model is guaranteed to stabilise the aircraft (Vinnicombe)."
     )
+    text += limited_sentence(ch.limited_by, ch.diagnosis[0].sentence if ch.diagnosis else None,
+                             likeliest=False)
     if ch.limited_by == "model":
-        text += (f" Model-limited; {ch.diagnosis[0].sentence}." if ch.diagnosis else
-                 " Model-limited: confident data disagree with the model.")
         cls = "warn" if cls == "ok" else cls
-    elif ch.limited_by == "data":
-        text += " Data-limited: fly better sweeps where the coherence is low before changing the model."
     return text, cls
 
 

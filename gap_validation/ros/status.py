@@ -40,6 +40,7 @@ from typing import Any, Callable, Collection, Mapping, Sequence
 
 import numpy as np
 
+from gap_validation.core import wording
 from gap_validation.core.config import ChannelConfig
 from gap_validation.core.margins import STANDARD_EPSILON, WARN_EPSILON
 from gap_validation.core.plottable import frequency_response_table
@@ -76,40 +77,8 @@ def _value_text(value: Any) -> str:
     return json.dumps(value, sort_keys=True)
 
 
-def candidate_sentence(candidate: Candidate | None) -> str:
-    """One line about a diagnosis candidate: ``missing: time delay of 45 ms (epsilon would be 0.06)``."""
-    if not candidate:
-        return ""
-    sentence = candidate.sentence
-    if not sentence:
-        parts = []
-        try:
-            from gap_validation.core.effects import describe_effect
-
-            parts = [describe_effect(e) for e in candidate.effects]
-        except Exception:  # noqa: BLE001 - description is cosmetic; fall back to the effect name
-            parts = []
-        what = " + ".join(parts) or str(candidate.effect or "unknown effect").replace("_", " ")
-        sentence = f"missing: {what}"
-        if candidate.epsilon is not None:
-            sentence += f" (epsilon would be {candidate.epsilon:.2f})"
-    return " ".join(str(sentence).split())
-
-
-def _band_text(result: ChannelResult) -> str:
-    """``at 20-40 rad/s`` from the diagnosis band that holds the worst frequency, else ``at 14.9 rad/s``."""
-    worst = result.worst_frequency_rad_s
-    chosen = None
-    for band in result.bands:
-        if worst is not None and band.contains(worst):
-            chosen = band
-            break
-        if chosen is None and band.limited_by == result.limited_by:
-            chosen = band
-    if chosen is not None:
-        return f"at {chosen.min_rad_s:.3g}-{chosen.max_rad_s:.3g} rad/s"
-    return f"at {worst:.3g} rad/s" if worst is not None else ""
-
+#: A diagnosis candidate on one line (:func:`gap_validation.core.wording.candidate_line`).
+candidate_sentence = wording.candidate_line
 
 _ORDER = ("OK", "WARN", "ERROR")
 
@@ -118,22 +87,6 @@ def _level_for(epsilon: float, warn_epsilon: float, error_epsilon: float) -> str
     if epsilon >= error_epsilon:
         return "ERROR"
     return "WARN" if epsilon >= warn_epsilon else "OK"
-
-
-def _summary(result: ChannelResult, level: str, candidate_text: str) -> str:
-    """``epsilon 0.62 (was 0.71): ERROR, model-limited at 20-40 rad/s; missing: time delay of 45 ms``."""
-    text = f"epsilon {result.epsilon:.2f}"
-    if result.epsilon_previous is not None:
-        text += f" (was {result.epsilon_previous:.2f})"
-    text += f": {level}"
-    if result.limited_by in ("model", "data"):
-        band = _band_text(result)
-        text += f", {result.limited_by}-limited" + (f" {band}" if band else "")
-    elif result.worst_frequency_rad_s is not None:
-        text += f", worst at {result.worst_frequency_rad_s:.3g} rad/s"
-    if candidate_text:
-        text += f"; {candidate_text}"
-    return text
 
 
 @dataclass
@@ -215,22 +168,14 @@ def channel_status(result: ChannelResult, *, warn_epsilon: float = WARN_EPSILON,
 
     if result.epsilon is not None:
         level = _level_for(result.epsilon, warn_epsilon, error_epsilon)
-        summary = _summary(result, level, cand_text)
     elif result.mimo is not None and result.nu_gap is not None:
         # a MIMO channel: epsilon is a SISO notion; its level follows the MIMO nu-gap (kappa <= epsilon)
         level = _level_for(result.nu_gap, warn_epsilon, error_epsilon)
-        summary = f"MIMO nu-gap {result.nu_gap:.2f}: {level}"
-        if result.limited_by in ("model", "data"):
-            band = _band_text(result)
-            summary += f", {result.limited_by}-limited" + (f" {band}" if band else "")
-        if cand_text:
-            summary += f"; {cand_text}"
     elif result.sweeps > 0:
         level = "WARN"
-        summary = (result.message or "no frequency passes the coherence threshold") + \
-            ": WARN, data-limited (fly better sweeps)"
     else:
-        level, summary = "OK", "receiving data, waiting for a sweep (no estimate yet)"
+        level = "OK"
+    summary = wording.status_summary(result, level, cand_text)
     # a sign, units, the body frame or a clock (issue 23): WARN at once, the fix first
     if result.conventions:
         level = max(level, "WARN", key=_ORDER.index)

@@ -1,5 +1,6 @@
 """The verdicts in words live in one module (issue 27): :mod:`gap_validation.core.wording` says what the
-statistics, the fits and the ranking decided, from plain values, and no other module words a verdict."""
+statistics, the fits, the ranking, the convention and amplitude checks decided, from plain values, and no
+other module words a verdict."""
 
 from __future__ import annotations
 
@@ -30,6 +31,12 @@ VERDICT_PHRASES = (
     "may continue outside",
     "dominates (its mismatch alone",
     "epsilon would be",
+    "which no airframe",
+    "disagree beyond their errors at",
+    "agree within their errors (",
+    "is mounted reversed",
+    "is logged in",
+    "with the opposite sign:",
 )
 
 
@@ -82,7 +89,13 @@ def test_wording_reads_no_statistics_fit_or_estimate():
     imported |= {
         alias.name for node in ast.walk(tree) if isinstance(node, ast.Import) for alias in node.names
     }
-    assert imported <= {"__future__", "typing", "gap_validation.core.effects", "gap_validation.core.results"}
+    assert imported <= {
+        "__future__",
+        "math",
+        "typing",
+        "gap_validation.core.effects",
+        "gap_validation.core.results",
+    }
 
 
 def _band(limited_by, lo, hi, eps, reason="why"):

@@ -28,10 +28,13 @@ frame) and words the fix: the config change that makes the data the model's (:cl
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
+
+from gap_validation.core import wording
+from gap_validation.core.results import Convention
 
 __all__ = [
     "Convention",
@@ -115,63 +118,6 @@ def fit_clock(w_rad_s: np.ndarray, ratio: np.ndarray, weight: np.ndarray) -> flo
     return float(fine[int(np.argmin(cost))])
 
 
-@dataclass(frozen=True)
-class Convention:
-    """A convention error named on a channel (JSON ``conventions`` entries).
-
-    Attributes
-    ----------
-    kind : str
-        One of :data:`KINDS`.
-    factor : float or None
-        The data are the model times this (``sign``, ``units``, ``body_frame``).
-    seconds : float or None
-        ``clock_offset``: how far the output leads the input [s].
-    stream : str
-        The stream it most likely belongs to: ``input`` or ``output`` (and the topic, in the sentence).
-    fix : str
-        The config change, in words (``add frame: flu to channels.pitch.output and channels.yaw.output``).
-    sentence : str
-        What it is and the fix, one sentence.
-    changes : list of dict
-        The change as data, for ``--apply-diagnosis``: ``{"channel", "stream", "key", "value"}`` (the new
-        value of the stream's ``scale``, ``frame`` or ``time_offset_s``).
-    """
-
-    kind: str
-    factor: float | None = None
-    seconds: float | None = None
-    stream: str = ""
-    fix: str = ""
-    sentence: str = ""
-    changes: list = field(default_factory=list)
-
-    def to_json_dict(self) -> dict:
-        """The JSON object (``factor`` / ``seconds`` only where they apply)."""
-        out: dict = {"kind": self.kind}
-        if self.factor is not None:
-            out["factor"] = float(self.factor)
-        if self.seconds is not None:
-            out["seconds"] = float(self.seconds)
-        out.update(
-            stream=self.stream, fix=self.fix, sentence=self.sentence, changes=[dict(c) for c in self.changes]
-        )
-        return out
-
-    @classmethod
-    def from_json_dict(cls, data: dict) -> "Convention":
-        """Rebuild from :meth:`to_json_dict`.
-
-        Parameters
-        ----------
-        data : dict
-            A JSON ``conventions`` entry.
-        """
-        return cls(kind=data["kind"], factor=data.get("factor"), seconds=data.get("seconds"),
-                   stream=data.get("stream", ""), fix=data.get("fix", ""), sentence=data.get("sentence", ""),
-                   changes=[dict(c) for c in data.get("changes", [])])
-
-
 def _fmt(value: float) -> str:
     return f"{value:.6g}"
 
@@ -192,11 +138,7 @@ def _single(channel: str, fit: ConventionFit, spec_of: Callable[[str, str], obje
             seconds=fit.seconds,
             stream="input",
             fix=fix,
-            sentence=(
-                f"the rate leads the surface by {1000 * fit.seconds:.0f} ms, which no airframe "
-                f"does: the surface topic ({where}) is stamped late (or the IMU early, by another "
-                f"clock); {fix}"
-            ),
+            sentence=wording.clock_sentence(fit.seconds, f"the surface topic ({where})", fix),
             changes=[{"channel": channel, "stream": "input", "key": "time_offset_s", "value": new}],
         )
     if fit.kind == "sign":
@@ -208,10 +150,7 @@ def _single(channel: str, fit: ConventionFit, spec_of: Callable[[str, str], obje
             factor=-1.0,
             stream="input",
             fix=fix,
-            sentence=(
-                f"the data are the model with the opposite sign: the surface's positive direction "
-                f"is the other way round (or the model's sign is); {fix}"
-            ),
+            sentence=wording.sign_sentence(fix),
             changes=[{"channel": channel, "stream": "input", "key": "scale", "value": new}],
         )
     # units: data = model x factor; a factor below one is an input read too large (surfaces in degrees), above
@@ -226,17 +165,9 @@ def _single(channel: str, fit: ConventionFit, spec_of: Callable[[str, str], obje
         or math.isclose(abs(fit.factor), DEGREES, rel_tol=1e-6)
         else f"units {1.0 / abs(correction):g} times too small"
     )
-    what = (
-        f"the surface is logged in {unit} where the config says radians"
-        if stream == "input"
-        else f"the rate is logged in {unit if unit != 'degrees' else 'degrees per second'} where the config "
-             "says "
-        f"radians per second"
-    )
     fix = f"add scale: {_fmt(new)} to {_stream_words(channel, stream)}"
-    sign = " and the opposite sign" if fit.factor < 0 else ""
     return Convention("units", factor=fit.factor, stream=stream, fix=fix,
-                      sentence=f"the data are the model times {fit.factor:.6g}{sign}: {what}; {fix}",
+                      sentence=wording.units_sentence(fit.factor, wording.units_words(stream, unit), fix),
                       changes=[{"channel": channel, "stream": stream, "key": "scale", "value": new}])
 
 
@@ -284,10 +215,7 @@ def resolve(found: dict[str, ConventionFit], spec_of: Callable[[str, str], objec
                     factor=-1.0,
                     stream="output",
                     fix=fix,
-                    sentence=(
-                        f"the rate is reversed relative to the model on pitch and yaw, not on roll: "
-                        f"the IMU ({spec.topic}) is {imu}, the model {model}; {fix}"
-                    ),
+                    sentence=wording.body_frame_sentence(spec.topic, imu, model, fix),
                     changes=[
                         {"channel": c, "stream": "output", "key": "frame", "value": frame} for c in sorted(yz)
                     ],
@@ -304,10 +232,7 @@ def resolve(found: dict[str, ConventionFit], spec_of: Callable[[str, str], objec
                     factor=-1.0,
                     stream="output",
                     fix=fix,
-                    sentence=(
-                        f"roll, pitch and yaw rates are all reversed relative to the model: the IMU "
-                        f"({spec.topic}) is mounted reversed (or every surface is); {fix}"
-                    ),
+                    sentence=wording.reversed_imu_sentence(spec.topic, fix),
                     changes=[
                         {
                             "channel": c,
@@ -362,11 +287,7 @@ def _shared(found: dict[str, ConventionFit], out: dict[str, list[Convention]],
             fix = "add " + ", ".join(
                 f"time_offset_s: {_fmt(c['value'])} to {_stream_words(c['channel'], stream)}" for c in changes
             )
-            sentence = (
-                f"on {', '.join(members)} the rate leads the surface by {1000 * lead:.0f} ms, which no "
-                "airframe "
-                f"does: {topic} is stamped late (or the IMU early, by another clock); {fix}"
-            )
+            sentence = wording.clock_sentence(lead, str(topic), fix, members)
             conv = Convention(
                 "clock_offset", seconds=lead, stream=stream, fix=fix, sentence=sentence, changes=changes
             )
@@ -386,9 +307,7 @@ def _shared(found: dict[str, ConventionFit], out: dict[str, list[Convention]],
                                      for c in changes)
             single = _single(members[0], found[members[0]], spec_of)
             what = single.sentence.split(": ", 1)[1].rsplit("; add", 1)[0]
-            sentence = (
-                f"on {', '.join(members)} the data are the model times {factor:.6g}: {what} ({topic}); {fix}"
-            )
+            sentence = wording.units_sentence(factor, what, fix, members, str(topic))
             conv = Convention(
                 "units", factor=factor, stream=stream, fix=fix, sentence=sentence, changes=changes
             )

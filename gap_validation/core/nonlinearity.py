@@ -36,6 +36,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from gap_validation.core import wording
 from gap_validation.core.spectra import sweep_points
 
 __all__ = ["NONLINEARITY", "AMPLITUDE_RATIO", "FALSE_ALARM", "MIN_FREQUENCIES", "MIN_RELATIVE_DIFFERENCE",
@@ -89,15 +90,11 @@ class AmplitudeDependence:
 
     def sentence(self) -> str:
         """The evidence in words (for the message and JSON ``nonlinearity_evidence``)."""
-        amplitudes = f"sweeps at {self.low_amplitude:.3g} and {self.high_amplitude:.3g} amplitude"
-        if not self.detected:
-            return (
-                f"{amplitudes} agree within their errors ({self.frequencies} frequencies compared, chance "
-                f"{min(self.probability, 1.0):.2g} for a linear response)"
-            )
-        return (f"{amplitudes} disagree beyond their errors at {self.disagreeing} of {self.frequencies} "
-                f"frequencies (at {self.worst_rad_s:.3g} rad/s the larger one's response is "
-                f"x{self.gain_ratio:.2f}, {self.phase_deg:+.0f} deg)")
+        return wording.amplitude_sentence(
+            self.low_amplitude, self.high_amplitude, detected=self.detected, frequencies=self.frequencies,
+            probability=self.probability, disagreeing=self.disagreeing, worst_rad_s=self.worst_rad_s,
+            gain_ratio=self.gain_ratio, phase_deg=self.phase_deg,
+        )
 
 
 def flown_amplitude(w_rad_s: Sequence[float], sweeps: Sequence) -> np.ndarray | None:

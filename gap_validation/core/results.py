@@ -11,7 +11,6 @@ from typing import Any, Callable
 
 import numpy as np
 
-from gap_validation.core.conventions import Convention
 from gap_validation.core.manoeuvres import Manoeuvre
 from gap_validation.core.margins import Margins, margins_from_epsilon, margins_note
 
@@ -116,6 +115,64 @@ class _JsonView:
     def __contains__(self, key: object) -> bool:
         """Whether the JSON object has key ``key``."""
         return key in self.to_json_dict()
+
+
+@dataclass(frozen=True)
+class Convention:
+    """A convention error named on a channel (JSON ``conventions`` entries; found by
+    :func:`gap_validation.core.conventions.resolve`).
+
+    Attributes
+    ----------
+    kind : str
+        One of :data:`~gap_validation.core.conventions.KINDS`.
+    factor : float or None
+        The data are the model times this (``sign``, ``units``, ``body_frame``).
+    seconds : float or None
+        ``clock_offset``: how far the output leads the input [s].
+    stream : str
+        The stream it most likely belongs to: ``input`` or ``output`` (and the topic, in the sentence).
+    fix : str
+        The config change, in words (``add frame: flu to channels.pitch.output and channels.yaw.output``).
+    sentence : str
+        What it is and the fix, one sentence.
+    changes : list of dict
+        The change as data, for ``--apply-diagnosis``: ``{"channel", "stream", "key", "value"}`` (the new
+        value of the stream's ``scale``, ``frame`` or ``time_offset_s``).
+    """
+
+    kind: str
+    factor: float | None = None
+    seconds: float | None = None
+    stream: str = ""
+    fix: str = ""
+    sentence: str = ""
+    changes: list = field(default_factory=list)
+
+    def to_json_dict(self) -> dict:
+        """The JSON object (``factor`` / ``seconds`` only where they apply)."""
+        out: dict = {"kind": self.kind}
+        if self.factor is not None:
+            out["factor"] = float(self.factor)
+        if self.seconds is not None:
+            out["seconds"] = float(self.seconds)
+        out.update(
+            stream=self.stream, fix=self.fix, sentence=self.sentence, changes=[dict(c) for c in self.changes]
+        )
+        return out
+
+    @classmethod
+    def from_json_dict(cls, data: dict) -> "Convention":
+        """Rebuild from :meth:`to_json_dict`.
+
+        Parameters
+        ----------
+        data : dict
+            A JSON ``conventions`` entry.
+        """
+        return cls(kind=data["kind"], factor=data.get("factor"), seconds=data.get("seconds"),
+                   stream=data.get("stream", ""), fix=data.get("fix", ""), sentence=data.get("sentence", ""),
+                   changes=[dict(c) for c in data.get("changes", [])])
 
 
 @dataclass(frozen=True)

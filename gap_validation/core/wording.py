@@ -10,6 +10,7 @@ here too.
 """
 from __future__ import annotations
 
+import math
 from typing import Sequence
 
 from gap_validation.core.effects import describe_effect
@@ -36,6 +37,13 @@ __all__ = [
     "mimo_message",
     "candidate_line",
     "status_summary",
+    "amplitude_sentence",
+    "clock_sentence",
+    "sign_sentence",
+    "units_sentence",
+    "units_words",
+    "body_frame_sentence",
+    "reversed_imu_sentence",
     "REFIT_NOTE",
     "EDGE_CAVEAT",
     "WINDING_CAVEAT",
@@ -678,3 +686,165 @@ def status_summary(result: ChannelResult, level: str, candidate_text: str) -> st
         return (result.message or "no frequency passes the coherence threshold") + \
             ": WARN, data-limited (fly better sweeps)"
     return "receiving data, waiting for a sweep (no estimate yet)"
+
+
+def amplitude_sentence(low_amplitude: float, high_amplitude: float, *, detected: bool, frequencies: int,
+                       probability: float, disagreeing: int = 0, worst_rad_s: float = math.nan,
+                       gain_ratio: float = math.nan, phase_deg: float = math.nan) -> str:
+    """Sweeps flown at two amplitudes compared, in words (JSON ``nonlinearity_evidence``).
+
+    Parameters
+    ----------
+    low_amplitude, high_amplitude : float
+        The two groups' input amplitudes.
+    detected : bool
+        They disagree beyond their errors.
+    frequencies : int
+        Frequencies compared.
+    probability : float
+        Chance of so large a disagreement for a linear response.
+    disagreeing : int
+        Frequencies beyond the errors.
+    worst_rad_s, gain_ratio, phase_deg : float
+        Where they disagree most, and the larger amplitude's response there relative to the smaller's.
+
+    Returns
+    -------
+    str
+    """
+    amplitudes = f"sweeps at {low_amplitude:.3g} and {high_amplitude:.3g} amplitude"
+    if not detected:
+        return (
+            f"{amplitudes} agree within their errors ({frequencies} frequencies compared, chance "
+            f"{min(probability, 1.0):.2g} for a linear response)"
+        )
+    return (f"{amplitudes} disagree beyond their errors at {disagreeing} of {frequencies} "
+            f"frequencies (at {worst_rad_s:.3g} rad/s the larger one's response is "
+            f"x{gain_ratio:.2f}, {phase_deg:+.0f} deg)")
+
+
+def clock_sentence(lead_s: float, culprit: str, fix: str, channels: Sequence[str] = ()) -> str:
+    """A clock offset found (the rate ahead of the surface), with its fix.
+
+    Parameters
+    ----------
+    lead_s : float
+        How far the rate leads the surface [s].
+    culprit : str
+        ``"the surface topic (/servos)"``, or the topic shared by ``channels``.
+    fix : str
+        The config change.
+    channels : sequence of str
+        The channels that show it alike (empty: one channel).
+
+    Returns
+    -------
+    str
+    """
+    if channels:
+        return (f"on {', '.join(channels)} the rate leads the surface by {1000 * lead_s:.0f} ms, which no "
+                f"airframe does: {culprit} is stamped late (or the IMU early, by another clock); {fix}")
+    return (f"the rate leads the surface by {1000 * lead_s:.0f} ms, which no airframe "
+            f"does: {culprit} is stamped late (or the IMU early, by another "
+            f"clock); {fix}")
+
+
+def sign_sentence(fix: str) -> str:
+    """An opposite sign found on one channel, with its fix.
+
+    Parameters
+    ----------
+    fix : str
+        The config change.
+
+    Returns
+    -------
+    str
+    """
+    return (f"the data are the model with the opposite sign: the surface's positive direction "
+            f"is the other way round (or the model's sign is); {fix}")
+
+
+def units_sentence(factor: float, what: str, fix: str, channels: Sequence[str] = (), topic: str = "") -> str:
+    """Units found (the data are the model times a factor), with its fix.
+
+    Parameters
+    ----------
+    factor : float
+        The factor.
+    what : str
+        Which stream is logged in which units (:func:`units_words`).
+    fix : str
+        The config change.
+    channels : sequence of str
+        The channels that show it alike, from ``topic`` (empty: one channel).
+    topic : str
+        Their shared topic.
+
+    Returns
+    -------
+    str
+    """
+    if channels:
+        return f"on {', '.join(channels)} the data are the model times {factor:.6g}: {what} ({topic}); {fix}"
+    sign = " and the opposite sign" if factor < 0 else ""
+    return f"the data are the model times {factor:.6g}{sign}: {what}; {fix}"
+
+
+def units_words(stream: str, unit: str) -> str:
+    """Which stream is logged in which units where the config says SI.
+
+    Parameters
+    ----------
+    stream : str
+        ``"input"`` (the surface) or ``"output"`` (the rate).
+    unit : str
+        ``"degrees"``, or ``"units 10 times too small"``.
+
+    Returns
+    -------
+    str
+    """
+    if stream == "input":
+        return f"the surface is logged in {unit} where the config says radians"
+    return (f"the rate is logged in {unit if unit != 'degrees' else 'degrees per second'} where the config "
+            "says "
+            f"radians per second")
+
+
+def body_frame_sentence(topic: str, imu: str, model: str, fix: str) -> str:
+    """Pitch and yaw reversed, not roll: the IMU's frame is not the model's, with the fix.
+
+    Parameters
+    ----------
+    topic : str
+        The IMU's topic.
+    imu, model : str
+        The IMU's frame and the model's, in words.
+    fix : str
+        The config change.
+
+    Returns
+    -------
+    str
+    """
+    return (f"the rate is reversed relative to the model on pitch and yaw, not on roll: "
+            f"the IMU ({topic}) is {imu}, the model {model}; {fix}")
+
+
+def reversed_imu_sentence(topic: str, fix: str) -> str:
+    """Every rate reversed: the IMU is mounted reversed (or every surface is), with the fix.
+
+    Parameters
+    ----------
+    topic : str
+        The IMU's topic.
+    fix : str
+        The config change.
+
+    Returns
+    -------
+    str
+    """
+    return (f"roll, pitch and yaw rates are all reversed relative to the model: the IMU "
+            f"({topic}) is mounted reversed (or every surface is); {fix}")

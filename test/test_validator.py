@@ -210,3 +210,54 @@ def test_mismatch_peaking_at_the_band_edge_warns_and_its_margins_are_not_guarant
     assert (
         "(pitch): a controller with these gain/phase/disk margins on the model is guaranteed stable" in table
     )
+
+
+def _one_sweep():
+    from gap_validation.core.models import LinearModel
+
+    cfg = parse_config(
+        {
+            "channels": {
+                "pitch": {
+                    "input": {"topic": "/servos", "field": "position[elevator]"},
+                    "output": {"topic": "/imu", "field": "angular_velocity.y"},
+                    "model": {"numerator": [40.0], "denominator": [1.0, 12.0, 40.0]},
+                }
+            }
+        },
+        "example.yaml",
+    )
+    t = np.arange(0.0, 130.0, 0.01)
+    chirp = 0.05 * np.sin(np.cumsum(0.5 * 60.0 ** ((t - 20.0) / 90.0) * 0.01))
+    u = np.where((t > 20.0) & (t < 110.0), chirp, 0.0) + 1e-4 * np.random.default_rng(0).standard_normal(
+        t.size
+    )
+    return cfg, t, u, LinearModel([40.0], [1.0, 12.0, 40.0]).simulate(t, u)
+
+
+def test_streams_fed_one_after_the_other_are_said_not_called_trim():
+    # a library user's first try: the whole input, then the whole output. The estimator keeps at most
+    # max_lag_s (30 s) of one stream waiting for the other; the rest is dropped: not "never left trim".
+    cfg, t, u, y = _one_sweep()
+    validator = OnlineValidator(cfg)
+    validator.add_samples("pitch", "input", t, u)
+    validator.add_samples("pitch", "output", t, y)
+    validator.finish()
+    pitch = validator.results().channels["pitch"]
+    assert pitch.sweeps == 0
+    assert "never left trim" not in pitch.message
+    assert "ran more than 30 s ahead of another" in pitch.message and "add_time_histories" in pitch.message
+    assert any(w.startswith("samples dropped (9998 of the input") for w in pitch.warnings)
+    # interleaved in time (chunks), or whole arrays at once: nothing dropped, nothing said
+    for feed in ("chunks", "whole"):
+        validator = OnlineValidator(cfg)
+        if feed == "whole":
+            validator.add_time_histories("pitch", t, u, t, y)
+        else:
+            for a in range(0, t.size, 500):
+                validator.add_samples("pitch", "input", t[a : a + 500], u[a : a + 500])
+                validator.add_samples("pitch", "output", t[a : a + 500], y[a : a + 500])
+        validator.finish()
+        pitch = validator.results().channels["pitch"]
+        assert pitch.sweeps == 1 and pitch.epsilon < 0.02
+        assert not any("samples dropped" in w for w in pitch.warnings)

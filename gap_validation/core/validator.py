@@ -16,7 +16,7 @@ from typing import Any, Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-from gap_validation.core import metrics, robust
+from gap_validation.core import metrics, robust, wording
 from gap_validation.core.closed_loop import (
     CouplingMonitor,
     SurfaceHistory,
@@ -415,6 +415,7 @@ class OnlineValidator:
         result.excitation = est.excitation
         result.dynamic_pressure_ratio = est.dynamic_pressure_ratio
         result.warnings.extend(_condition_warnings(result.dynamic_pressure_ratio))
+        result.warnings.extend(_lag_warnings(est))
         result.manoeuvres_by_kind = est.counted_kinds
         result.manoeuvres_flown = dict(getattr(est, "flown_kinds", {}))
         lead = est.surface_led()
@@ -501,6 +502,7 @@ class OnlineValidator:
         result.excitation = est.excitation
         result.dynamic_pressure_ratio = est.dynamic_pressure_ratio
         result.warnings.extend(_condition_warnings(result.dynamic_pressure_ratio))
+        result.warnings.extend(_lag_warnings(est))
         result.manoeuvres_by_kind = est.counted_kinds
         result.manoeuvres_flown = dict(getattr(est, "flown_kinds", {}))
         avg, matrix = est.averaged(), est.averaged_matrix()
@@ -804,6 +806,14 @@ def _condition_warnings(ratio: dict | None) -> list[str]:
     ]
 
 
+def _lag_warnings(est: FrequencyResponseEstimator) -> list[str]:
+    """A warning when the estimator gave up grid values because one stream ran too far ahead of another (the
+    streams of a library call fed one after the other: the first one's older values are dropped)."""
+    dropped = {name: int(c.get("dropped_lag", 0)) for name, c in est.bad_sample_counts.items()
+               if isinstance(c, dict) and c.get("dropped_lag")}
+    return [wording.dropped_lag_warning(dropped, float(est.options["max_lag_s"]))] if dropped else []
+
+
 def _why_nothing(est: FrequencyResponseEstimator, channel: ChannelConfig) -> str:
     """One line: why a channel has no frequency response at all."""
     counts = est.bad_sample_counts
@@ -818,6 +828,8 @@ def _why_nothing(est: FrequencyResponseEstimator, channel: ChannelConfig) -> str
     where = (f"input {spec.topic} {spec.field!r}" if channel.input is not None else
              "inputs " + ", ".join(f"{s.topic} {s.field!r}" for s in channel.inputs))
     kinds = {k: v for k, v in est.kinds.items() if v}
+    if not kinds and _lag_warnings(est):
+        return "no manoeuvre in the samples kept: " + _lag_warnings(est)[0]
     if not kinds:
         return f"the {where} never left trim (no manoeuvre)"
     if set(kinds) == {"step"}:

@@ -44,6 +44,7 @@ __all__ = [
     "units_words",
     "body_frame_sentence",
     "reversed_imu_sentence",
+    "dropped_lag_warning",
     "REFIT_NOTE",
     "EDGE_CAVEAT",
     "WINDING_CAVEAT",
@@ -848,3 +849,22 @@ def reversed_imu_sentence(topic: str, fix: str) -> str:
     """
     return (f"roll, pitch and yaw rates are all reversed relative to the model: the IMU "
             f"({topic}) is mounted reversed (or every surface is); {fix}")
+
+
+def dropped_lag_warning(streams: dict[str, int], max_lag_s: float) -> str:
+    """Grid values given up because one stream of a channel ran too far ahead of another.
+
+    Parameters
+    ----------
+    streams : dict of str to int
+        Values dropped per stream (only those with some).
+    max_lag_s : float
+        How far one stream may run ahead of another [s].
+
+    Returns
+    -------
+    str
+    """
+    counts = ", ".join(f"{n} of the {name.replace('_', ' ')}" for name, n in streams.items())
+    return (f"samples dropped ({counts}): one stream ran more than {max_lag_s:g} s ahead of another; feed "
+            f"the streams interleaved in time (whole recorded arrays: add_time_histories)")

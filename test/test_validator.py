@@ -261,3 +261,16 @@ def test_streams_fed_one_after_the_other_are_said_not_called_trim():
         pitch = validator.results().channels["pitch"]
         assert pitch.sweeps == 1 and pitch.epsilon < 0.02
         assert not any("samples dropped" in w for w in pitch.warnings)
+
+
+def test_samples_the_estimator_refuses_in_a_library_call_are_counted():
+    # replay and the node drop NaN before the estimator and count it; a library call hands it over as is
+    cfg, t, u, y = _one_sweep()
+    y = y.copy()
+    y[::10] = np.nan
+    validator = OnlineValidator(cfg)
+    validator.add_time_histories("pitch", t, u, t, y)
+    validator.finish()
+    pitch = validator.results().channels["pitch"]
+    assert pitch.bad_samples == {"output: not finite": 1300}
+    assert pitch.sweeps == 1 and pitch.epsilon < 0.02

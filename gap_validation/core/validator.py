@@ -416,6 +416,7 @@ class OnlineValidator:
         result.dynamic_pressure_ratio = est.dynamic_pressure_ratio
         result.warnings.extend(_condition_warnings(result.dynamic_pressure_ratio))
         result.warnings.extend(_lag_warnings(est))
+        _count_estimator_rejects(est, result.bad_samples)
         result.manoeuvres_by_kind = est.counted_kinds
         result.manoeuvres_flown = dict(getattr(est, "flown_kinds", {}))
         lead = est.surface_led()
@@ -503,6 +504,7 @@ class OnlineValidator:
         result.dynamic_pressure_ratio = est.dynamic_pressure_ratio
         result.warnings.extend(_condition_warnings(result.dynamic_pressure_ratio))
         result.warnings.extend(_lag_warnings(est))
+        _count_estimator_rejects(est, result.bad_samples)
         result.manoeuvres_by_kind = est.counted_kinds
         result.manoeuvres_flown = dict(getattr(est, "flown_kinds", {}))
         avg, matrix = est.averaged(), est.averaged_matrix()
@@ -804,6 +806,23 @@ def _condition_warnings(ratio: dict | None) -> list[str]:
         "model's "
         f"flight condition: validate a model of the flown one"
     ]
+
+
+#: The estimator's own rejects, as the router names them (``bad_samples`` keys ``"<stream>: <reason>"``).
+_REJECTS = (("nonfinite", "not finite"), ("non_monotonic", "time not increasing"))
+
+
+def _count_estimator_rejects(est: FrequencyResponseEstimator, bad: dict) -> None:
+    """Add to ``bad`` the samples the estimator itself refused (library calls: replay's and the node's router
+    drops non-finite and out-of-order samples before, and counts them; values beyond ``1e100`` reach the
+    estimator and are counted here)."""
+    for stream, counts in est.bad_sample_counts.items():
+        if not isinstance(counts, dict):
+            continue
+        for key, reason in _REJECTS:
+            if counts.get(key):
+                name = f"{stream}: {reason}"
+                bad[name] = bad.get(name, 0) + int(counts[key])
 
 
 def _lag_warnings(est: FrequencyResponseEstimator) -> list[str]:

@@ -274,3 +274,14 @@ def test_samples_the_estimator_refuses_in_a_library_call_are_counted():
     pitch = validator.results().channels["pitch"]
     assert pitch.bad_samples == {"output: not finite": 1300}
     assert pitch.sweeps == 1 and pitch.epsilon < 0.02
+
+
+@pytest.mark.parametrize("unit", [1e3, 1e6])
+def test_times_not_in_seconds_are_said_not_called_trim(unit):
+    cfg, t, u, y = _one_sweep()
+    validator = OnlineValidator(cfg)
+    validator.add_time_histories("pitch", t * unit, u, t * unit, y)
+    validator.finish()
+    pitch = validator.results().channels["pitch"]
+    assert pitch.sweeps == 0 and "never left trim" not in pitch.message
+    assert "longer than max_gap_s (0.5 s)" in pitch.message and "are the times in seconds?" in pitch.message

@@ -825,6 +825,17 @@ def _count_estimator_rejects(est: FrequencyResponseEstimator, bad: dict) -> None
                 bad[name] = bad.get(name, 0) + int(counts[key])
 
 
+def _sparse_streams(est: FrequencyResponseEstimator) -> str:
+    """Why nothing was estimated when a stream's samples, several of them, are all further apart than
+    ``max_gap_s`` (every interval a gap: times in milliseconds, or a log decimated too far); empty
+    otherwise."""
+    counts = [(n, c) for n, c in est.bad_sample_counts.items() if isinstance(c, dict) and "dropped_lag" in c]
+    rates = np.asarray(est.stream_rates_hz, float)
+    sparse = [(name, int(c.get("accepted", 0))) for (name, c), rate in zip(counts, rates)
+              if not np.isfinite(rate) and c.get("accepted", 0) >= 3]
+    return wording.sparse_stream_sentence(sparse, float(est.options["max_gap_s"])) if sparse else ""
+
+
 def _lag_warnings(est: FrequencyResponseEstimator) -> list[str]:
     """A warning when the estimator gave up grid values because one stream ran too far ahead of another (the
     streams of a library call fed one after the other: the first one's older values are dropped)."""
@@ -847,6 +858,9 @@ def _why_nothing(est: FrequencyResponseEstimator, channel: ChannelConfig) -> str
     where = (f"input {spec.topic} {spec.field!r}" if channel.input is not None else
              "inputs " + ", ".join(f"{s.topic} {s.field!r}" for s in channel.inputs))
     kinds = {k: v for k, v in est.kinds.items() if v}
+    sparse = _sparse_streams(est)
+    if not kinds and sparse:
+        return sparse
     if not kinds and _lag_warnings(est):
         return "no manoeuvre in the samples kept: " + _lag_warnings(est)[0]
     if not kinds:

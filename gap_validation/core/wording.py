@@ -45,6 +45,7 @@ __all__ = [
     "body_frame_sentence",
     "reversed_imu_sentence",
     "dropped_lag_warning",
+    "sparse_stream_sentence",
     "REFIT_NOTE",
     "EDGE_CAVEAT",
     "WINDING_CAVEAT",
@@ -868,3 +869,22 @@ def dropped_lag_warning(streams: dict[str, int], max_lag_s: float) -> str:
     counts = ", ".join(f"{n} of the {name.replace('_', ' ')}" for name, n in streams.items())
     return (f"samples dropped ({counts}): one stream ran more than {max_lag_s:g} s ahead of another; feed "
             f"the streams interleaved in time (whole recorded arrays: add_time_histories)")
+
+
+def sparse_stream_sentence(streams: Sequence[tuple[str, int]], max_gap_s: float) -> str:
+    """Streams whose samples are all further apart than a gap: nothing between them is used.
+
+    Parameters
+    ----------
+    streams : sequence of (str, int)
+        Each stream and how many samples it has.
+    max_gap_s : float
+        A larger sample spacing breaks the data [s].
+
+    Returns
+    -------
+    str
+    """
+    what = " and ".join(f"the {name.replace('_', ' ')}'s {n}" for name, n in streams)
+    return (f"every interval between {what} samples is longer than max_gap_s ({max_gap_s:g} s), a gap, so "
+            f"nothing is estimated: are the times in seconds? (milliseconds or microseconds look like this)")

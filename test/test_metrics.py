@@ -747,6 +747,13 @@ def test_nugap_and_epsilon_take_a_model_or_measured_data():
         nugap((w, h), (w[:-1], h[:-1]))
     with pytest.raises(ValueError, match="300 frequencies but 299"):
         nugap(p1, (w, h[:-1]))
+    # a negative or non-finite frequency is refused, not evaluated (the model at -w is the conjugate: the
+    # sup would be taken over frequencies the data never had)
+    for bad, text in ((-w, "frequency -0.1 rad/s .index 0."), (np.where(w > 1, np.nan, w), "frequency nan")):
+        with pytest.raises(ValueError, match=text):
+            nugap(p1, (bad, h))
+        with pytest.raises(ValueError, match="finite and non-negative"):
+            epsilon((bad, h), p1)
 
 
 def test_nugap_of_mimo_data_and_epsilon_refuses_it():

@@ -58,7 +58,8 @@ def as_frequency_data(value: Any) -> FrequencyData | None:
     Raises
     ------
     ValueError
-        Data whose frequencies and response do not match in length.
+        Data whose frequencies and response do not match in length, or a frequency that is negative or not
+        finite.
     """
     if isinstance(value, FrequencyData):
         w, h = value.w_rad_s, value.response
@@ -80,6 +81,10 @@ def as_frequency_data(value: Any) -> FrequencyData | None:
     h = np.asarray(h, dtype=complex)
     if h.shape[0] != w.size:
         raise ValueError(f"measured data: {w.size} frequencies but {h.shape[0]} response values")
+    bad = np.flatnonzero(~np.isfinite(w) | (w < 0.0))
+    if bad.size:
+        raise ValueError(f"measured data: frequency {float(w[bad[0]]):g} rad/s (index {int(bad[0])}): "
+                         f"frequencies must be finite and non-negative")
     return FrequencyData(w, h)
 
 

@@ -4,7 +4,8 @@ worst 10 s window, and its memory (issue 26: at most 4 % of one core on average 
 at 50 Hz; at most 8 % at 1 kHz IMU + 100 Hz surfaces; RSS flat within 10 % after the first estimates).
 
 A child process republishes every record of the config's topics from the bag, at the pace of the bag's clock
-(the serialized messages as recorded, ``Publisher.publish`` of the raw bytes, RELIABLE, depth 1000), to the
+(the serialized messages as recorded, ``Publisher.publish`` of the raw bytes, with rclpy's sensor-data QoS as
+IMU drivers publish and as issue 26 measured, or ``--qos reliable``: RELIABLE, depth 1000), to the
 real console script (``python -m gap_validation.ros.main``, default parameters but the config and a state file
 in a temporary directory). Every 10 s of wall time the node's CPU (``/proc/<pid>/stat``: every thread of the
 process and of its children: DDS, the executor, the node, the diagnosis) and its resident memory (``VmRSS``)
@@ -45,13 +46,14 @@ SETTLED = 0.3
 _PUBLISHER = r"""
 import sys, time
 import rclpy
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from gap_validation.bag.reader import open_bag
 from gap_validation.ros.message_types import message_class
 bag_path, speed, topics = sys.argv[1], float(sys.argv[2]), sys.argv[3].split(",")
 rclpy.init()
 node = rclpy.create_node("bench_flight_stack")
-qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+qos = (QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+       if sys.argv[4] == "reliable" else qos_profile_sensor_data)
 with open_bag(bag_path) as bag:
     publishers = {t: node.create_publisher(message_class(bag.topics[t].msgtype), t, qos) for t in topics}
     while any(p.get_subscription_count() == 0 for p in publishers.values()):
@@ -87,6 +89,11 @@ def main(argv=None) -> int:
         "--goal-window", type=float, default=0.15, help="goal for the worst 10 s window (0.15)"
     )
     parser.add_argument("--csv", help="write the windows (t_s, cpu_fraction, rss_mb) here")
+    parser.add_argument(
+        "--qos", choices=("sensor_data", "reliable"), default="sensor_data",
+        help="the flight stack's publishers: rclpy's sensor-data profile (BEST_EFFORT, as IMU drivers and "
+        "PX4's bridge publish, and as issue 26 measured; the default) or RELIABLE, depth 1000",
+    )
     args = parser.parse_args(argv)
 
     from gap_validation.bag.reader import open_bag
@@ -120,7 +127,7 @@ def main(argv=None) -> int:
     try:
         time.sleep(3.0)  # imports and start-up are not the steady state
         publisher = subprocess.Popen(
-            [sys.executable, "-c", _PUBLISHER, args.bag, str(args.speed), ",".join(topics)],
+            [sys.executable, "-c", _PUBLISHER, args.bag, str(args.speed), ",".join(topics), args.qos],
             cwd=ROOT,
             env=env,
             stdout=subprocess.PIPE,

@@ -33,7 +33,7 @@ _PUBLIC = {
     "SpectralEstimate": "estimator",
     "analyse_channel": "diagnosis",
     "simulate_flight": "simulation",
-    "FlightOptions": "simulation",
+    "FlightOptions": "flight_options",
     "truth_models": "simulation",
     "FrequencyData": "frd",
     "GapValidationError": "errors",

@@ -14,8 +14,9 @@ from scipy import signal
 from gap_validation.cli.main import main
 from gap_validation.core.closed_loop import CouplingMonitor, SurfaceHistory, near_minus_inverse
 from gap_validation.core.errors import ConfigError
+from gap_validation.core.loop_flight import _discrete
 from gap_validation.core.models import LinearModel
-from gap_validation.core.simulation import _discrete, damper_gain, simulate_flight, with_options
+from gap_validation.core.simulation import damper_gain, simulate_flight, with_options
 from gap_validation.core.spectra import BandSums, partial_coherence, record_bands
 from gap_validation.core.validator import OnlineValidator
 

@@ -25,7 +25,8 @@ from gap_validation.core.fields import FieldPath
 from gap_validation.core.layouts import BOOL, FLOAT64, IMU, JOINT_ARRAYS, JOINT_STATE, STAMPED_TYPES
 
 if TYPE_CHECKING:  # pragma: no cover
-    from gap_validation.core.simulation import SimulatedFlight, TopicSeries
+    from gap_validation.core.logged_topics import TopicSeries
+    from gap_validation.core.simulation import SimulatedFlight
 
 __all__ = ["write_flight", "STORAGES"]
 

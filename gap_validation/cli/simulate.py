@@ -39,7 +39,8 @@ from gap_validation.cli.arguments import (
 from gap_validation.core.config import load_config
 from gap_validation.core.effects import describe_effect
 from gap_validation.core.errors import ConfigError
-from gap_validation.core.simulation import EXCITATIONS, FlightOptions, simulate_flight, with_options
+from gap_validation.core.flight_options import EXCITATIONS, FlightOptions, with_options
+from gap_validation.core.simulation import simulate_flight
 from gap_validation.logs.flight import (
     FORMATS,
     SURFACE_RATE_HZ,

@@ -34,7 +34,7 @@ _PUBLIC = {
     "analyse_channel": "diagnosis",
     "fit_effects": "fitting",
     "simulate_flight": "simulation",
-    "FlightOptions": "simulation",
+    "FlightOptions": "flight_options",
     "truth_models": "simulation",
     "FrequencyData": "frd",
     "GapValidationError": "errors",

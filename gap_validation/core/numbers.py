@@ -2,8 +2,8 @@
 
 The config schema (:mod:`gap_validation.core.config`), the effects (:mod:`gap_validation.core.effects`), the
 models (:mod:`gap_validation.core.models`), the estimator options (:mod:`gap_validation.core.estimator`,
-:mod:`gap_validation.core.sweeps`) and the simulation options (:mod:`gap_validation.core.simulation`) all read
-their numbers with :func:`check_number`. A number is a real number (int or float: booleans are refused,
+:mod:`gap_validation.core.sweeps`) and the simulation options (:mod:`gap_validation.core.flight_options`) all
+read their numbers with :func:`check_number`. A number is a real number (int or float: booleans are refused,
 ``true`` is no delay), finite, and inside the :class:`Interval` its key allows. Numeric strings (``"5e-2"``,
 which YAML 1.1 loads as a string) are accepted where the reader asks for them (``strings=True``: effects,
 models, estimator options); the schema's own keys refuse them. Errors are one line: ``<where>: expected

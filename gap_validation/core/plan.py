@@ -63,7 +63,7 @@ The chirp is ArduPilot's waveform (``AP_Math/chirp.cpp``: an exponential sweep, 
 within the record) without its dwell at the start frequency, which the estimator's sweep detector follows
 badly (ArduPilot's mode flies two cycles there first: :func:`ardupilot_parameters` adds them to
 ``SID_T_REC``). It is the simulator's
-:func:`~gap_validation.core.simulation.log_sweep` with 1 s fades, so a simulated flight flies the card
+:func:`~gap_validation.core.signals.log_sweep` with 1 s fades, so a simulated flight flies the card
 exactly.
 """
 from __future__ import annotations
@@ -84,8 +84,8 @@ from gap_validation.core.diagnosis import analyse_channel
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.estimator import ESTIMATOR_DEFAULTS, LOOKBACK_S, RESOLVED_FRACTION
 from gap_validation.core.evidence import BIAS_ERROR, SIGMA_FACTOR, confident_points
+from gap_validation.core.flight_options import FlightOptions
 from gap_validation.core.numbers import NON_NEGATIVE, POSITIVE, Interval, check_number
-from gap_validation.core.simulation import FlightOptions
 from gap_validation.core.spectra import SPECTRA_DEFAULTS, BandSums, expected_estimate, record_bands
 from gap_validation.core.sweeps import DETECTOR_DEFAULTS, detrended_std
 
@@ -246,7 +246,7 @@ class PlanOptions:
     noise_rms_rad_s, noise_corner_rad_s, gyro_noise_rad_s, gyro_rate_hz, surface_noise_rad : float
         From a config alone: the assumed output disturbance (a second-order low-pass of this rms and corner,
         as light turbulence), the gyro's white noise at its rate, and the surface sensor's noise (the
-        simulator's defaults, :class:`~gap_validation.core.simulation.FlightOptions`).
+        simulator's defaults, :class:`~gap_validation.core.flight_options.FlightOptions`).
     """
 
     target_error: float | None = None
@@ -570,7 +570,7 @@ def chirp(t_s: np.ndarray, duration_s: float, f_start_hz: float, f_stop_hz: floa
     then ``sin(w0 (T - t_c) / B (exp(B (t - t_c) / (T - t_c)) - 1))`` with ``B = ln(f_stop / f_start)``, every
     octave the same time; a half-cosine window rises over ``fade_in_s`` from 0 and falls over the last
     ``fade_out_s`` of ``duration_s``. With equal fades of at most a quarter of the record it is
-    :func:`~gap_validation.core.simulation.log_sweep` with the same ``dwell_cycles``. The card's manoeuvres
+    :func:`~gap_validation.core.signals.log_sweep` with the same ``dwell_cycles``. The card's manoeuvres
     dwell 0 cycles (the estimator's sweep detector follows a slow start badly); ArduPilot's mode flies its two
     cycles before the same sweep (:func:`ardupilot_parameters`).
 

@@ -4,7 +4,7 @@
   level (:func:`~gap_validation.jsbsim.linearize.trim`) and linearised by JSBSim's own ``FGLinearization``
   (:func:`~gap_validation.jsbsim.linearize.linearize`), written as a validation config
   (``gap-validate linearize --jsbsim``).
-- :mod:`gap_validation.jsbsim.flight`: the test card of :mod:`gap_validation.core.simulation` flown in the
+- :mod:`gap_validation.jsbsim.flight`: the test card of :mod:`gap_validation.core.testcard` flown in the
   nonlinear model (``gap-validate simulate --jsbsim``), a
   :class:`~gap_validation.core.simulation.SimulatedFlight`.
 

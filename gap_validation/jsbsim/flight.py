@@ -1,9 +1,9 @@
-"""The test card of :mod:`gap_validation.core.simulation` flown in JSBSim's nonlinear 6-DOF model
+"""The test card of :mod:`gap_validation.core.testcard` flown in JSBSim's nonlinear 6-DOF model
 (``gap-validate simulate --jsbsim AIRCRAFT --speed-kt V --altitude-ft H``).
 
 The aircraft is trimmed as :mod:`gap_validation.jsbsim.linearize` does (true airspeed, straight and level) and
 flown at JSBSim's own rate (``fdm.get_delta_t()``, 120 Hz by default) through the same card as the synthetic
-flight (:mod:`gap_validation.core.simulation`'s card: sweeps per axis then a doublet, rounds, gaps, pilot
+flight (:mod:`gap_validation.core.testcard`'s card: sweeps per axis then a doublet, rounds, gaps, pilot
 re-trims, topic rates, jitter, drops, surface and gyro noise and quantisation). What differs:
 
 - **Surfaces**: each channel's input field names a surface, the joint (``position[aileron]``) or a Float64
@@ -26,7 +26,7 @@ re-trims, topic rates, jitter, drops, surface and gyro noise and quantisation). 
 - **Rates** logged: the body rates p, q, r of JSBSim (``velocities/p-rad_sec`` ...) with the gyro noise and
   quantisation of :class:`FlightOptions`. No synthetic gusts (``gust_rms_rad_s``): the only disturbances are
   JSBSim's own turbulence (``--turbulence``, seeded through ``atmosphere/randomseed``) and the band noise.
-- **Pilot re-trims** (:func:`~gap_validation.core.simulation.pilot_trim`, without its random constant: the
+- **Pilot re-trims** (:func:`~gap_validation.core.testcard.pilot_trim`, without its random constant: the
   trim is JSBSim's) appear in the logged surface only, as in the synthetic flight: they stand for the trim
   changes that keep the aircraft at its condition, so the airframe does not see them. A **pilot**
   (:class:`Pilot`) holds the flight condition the model was linearised at: he flies wings level and the
@@ -53,20 +53,16 @@ from gap_validation.core.config import AIRSPEED_STREAM, FrequencyGrid, Validatio
 from gap_validation.core.effects import is_nonlinear, validate_effect
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.fields import FieldPath
+from gap_validation.core.flight_options import FlightOptions, with_options
+from gap_validation.core.logged_topics import plan_topics, sample_topics
 from gap_validation.core.models import LinearModel
-from gap_validation.core.simulation import (
+from gap_validation.core.simulation import SimulatedFlight, band_noises, truth_models
+from gap_validation.core.testcard import (
     SWEEP_SEGMENTS,
-    FlightOptions,
-    SimulatedFlight,
-    band_noises,
     card_segments,
     card_units,
     channel_deviation,
     pilot_trim,
-    plan_topics,
-    sample_topics,
-    truth_models,
-    with_options,
 )
 from gap_validation.jsbsim.linearize import (
     DEFAULT_GRID,

@@ -37,7 +37,8 @@ import numpy as np
 from gap_validation.core.config import EXCITATION_STREAM, SignalSpec, ValidationConfig
 from gap_validation.core.errors import ConfigError
 from gap_validation.core.fields import FieldPath
-from gap_validation.core.simulation import SimulatedFlight, with_logged_excitation
+from gap_validation.core.logged_topics import with_logged_excitation
+from gap_validation.core.simulation import SimulatedFlight
 from gap_validation.logs.base import WriteTopic
 
 __all__ = [

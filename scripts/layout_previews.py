@@ -1,10 +1,11 @@
 """Previews of the shipped plot layouts, drawn from the bundled flight (the pictures in docs/node.md).
 
-There is no Foxglove or PlotJuggler on the machines this project is built on, so these are not screenshots of
-the apps: each picture draws exactly the curves its layout selects (``gap_validation.report.layouts``:
-``foxglove_plots`` evaluates the Foxglove panels' message paths, ``plotjuggler_series`` the PlotJuggler
-script's indices) from the ``~/<channel>/frequency_response`` messages the node publishes at the end of the
-bundled flight (the tables of the replay's JSON results, ``scripts/run-example`` writes ``out/example.json``).
+Foxglove does not run on the machines this project is built on (PlotJuggler was built and opened once: the
+screenshot beside these in docs/node.md), so these are not screenshots of the apps: each picture draws exactly
+the curves its layout selects (``gap_validation.report.layouts``: ``foxglove_plots`` evaluates the Foxglove
+panels' message paths, ``plotjuggler_series`` the PlotJuggler script's indices) from the
+``~/<channel>/frequency_response`` messages the node publishes at the end of the bundled flight (the tables of
+the replay's JSON results, ``scripts/run-example`` writes ``out/example.json``).
 
 Usage: .venv/bin/python scripts/layout_previews.py [RESULTS.json] [--channel pitch] [--out docs]
 """

@@ -273,7 +273,8 @@ def live(seconds: float, imu_rate_hz: float, surface_rate_hz: float, executor: s
     env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(0, 101)))
     node = subprocess.Popen([sys.executable, "-m", "gap_validation.ros.main", "--ros-args", "-p",
                              f"config_file:={typed_config(tmp / 'cfg.yaml')}", "-p",
-                             f"state_file:={tmp / 'state.npz'}", "-p", f"executor:={executor}"],
+                             f"state_file:={tmp / 'state.npz'}", "-p", f"executor:={executor}",
+                             "-p", f"results_dir:={tmp}"],
                             cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         time.sleep(3.0)  # imports and start-up are not part of the steady state

@@ -117,6 +117,8 @@ def main(argv=None) -> int:
             f"config_file:={Path(args.config).resolve()}",
             "-p",
             f"state_file:={tmp / 'state.npz'}",
+            "-p",
+            f"results_dir:={tmp}",       # what the node saves at shutdown stays out of the checkout
         ],
         cwd=ROOT,
         env=env,

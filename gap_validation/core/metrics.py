@@ -55,6 +55,7 @@ _CANCEL_EPS = 64 * np.finfo(float).eps  # sums of coefficients this small relati
 _TIE_RTOL = 1e-9  # peaks equal to this (relative) are the same height: the lowest frequency is reported
 _HUGE_EPSILON = 1e10  # a refined epsilon peak above this is a crossing of P2 = -P1: reported as inf
 _AXIS_OFFSETS = np.geomspace(1e-9, 0.5, 180)  # relative offsets sampled on both sides of roots on the axis
+_AXIS_BELOW, _AXIS_ABOVE = 1.0 - _AXIS_OFFSETS, 1.0 + _AXIS_OFFSETS
 _RESONANCE_OFFSETS = np.linspace(-6.0, 6.0, 49)  # multiples of |Re| sampled around complex roots
 _SINGULAR_D_COND = 1e12  # det(G2~ G1) at infinity is taken as zero beyond this condition number
 
@@ -370,12 +371,19 @@ _SCRATCH = threading.local()
 
 
 def _scratch(rows: int) -> np.ndarray:
-    """This thread's scratch array of :class:`_PairResponse`, at least ``rows`` x 8192 (1.2 MB; kept:
+    """This thread's scratch array of :class:`_PairResponse`, at least ``rows`` x 8192 (1.6 MB; kept:
     fresh arrays of this size cost page faults on every call, more than the arithmetic)."""
     array = getattr(_SCRATCH, "array", None)
     if array is None or array.shape[0] < rows:
-        array = _SCRATCH.array = np.empty((max(rows, 16), _CHUNK))
+        array = _SCRATCH.array = np.empty((max(rows, 24), _CHUNK))
     return array
+
+
+def _horner(coefficients: list[float], u: float) -> float:
+    value = 0.0
+    for c in coefficients:
+        value = value * u + c
+    return value
 
 
 class _PairResponse:
@@ -386,18 +394,20 @@ class _PairResponse:
     (:func:`_even_odd`): on a grid as one matrix product with the powers of w^2, at one frequency by Horner's
     rule. Each model's numerator (delay included) and denominator are divided by the largest magnitude of
     their real and imaginary parts at every frequency: the products stay finite at high frequency, the ratios
-    are unchanged.
+    are unchanged. On the grid the eight real rows are laid out by part, then by model (n1 re, n2 re, n1 im,
+    n2 im, d1 re, d2 re, d1 im, d2 im): each step is one operation on both models.
     """
 
-    __slots__ = ("_epsilon", "_parts", "_matrix", "_delays")
+    __slots__ = ("_epsilon", "_parts", "_rows", "_matrix", "_delays")
 
     def __init__(self, m1: LinearModel, m2: LinearModel, epsilon_of: bool = False) -> None:
         self._epsilon = epsilon_of
         parts = [part for poly in (m1.num, m1.den, m2.num, m2.den) for part in _even_odd(poly)]
-        # rows n1 even, n1 odd, d1 even, d1 odd, n2 even, ..., d2 odd; columns descending powers of w^2
+        self._parts = tuple(parts)   # n1 even, n1 odd, d1 even, d1 odd, n2 even, ..., d2 odd
+        self._rows = tuple(parts[k] for k in (0, 4, 1, 5, 2, 6, 3, 7))   # the grid's row order
+        # columns: descending powers of w^2
         length = max(1, max(len(part) for part in parts))
-        self._matrix = np.array([[0.0] * (length - len(part)) + part for part in parts])
-        self._parts = tuple(parts)
+        self._matrix = np.array([[0.0] * (length - len(part)) + part for part in self._rows])
         self._delays = (m1.delay_s, m2.delay_s)
 
     def __call__(self, w: np.ndarray) -> np.ndarray:
@@ -410,70 +420,67 @@ class _PairResponse:
 
     def _evaluate(self, w: np.ndarray, out: np.ndarray) -> None:
         """The values at up to 8192 frequencies, into ``out``: in-place operations on rows of the scratch
-        array (numpy's in-place operations with a broadcast row are several times slower)."""
-        length = self._matrix.shape[1]
-        scratch = _scratch(length + 12)[:, :w.size]
-        parts, work, powers = scratch[:8], scratch[8:12], scratch[12:12 + length]
+        array, both models at once."""
+        length, size = self._matrix.shape[1], w.size
+        full = _scratch(length + 20)
+        parts = full[:8, :size]
+        by_part = full[:8].reshape(4, 2, _CHUNK)[:, :, :size]   # [n re, n im, d re, d im][model]
+        spare = full[8:16].reshape(4, 2, _CHUNK)[:, :, :size]
+        work, powers = full[16:20, :size], full[20:20 + length, :size]
         u = powers[-2] if length > 1 else work[0]
         np.multiply(w, w, out=u)
-        top = float(u.max()) if w.size else 0.0
+        top = float(u.max()) if size else 0.0
         if top <= 1.0 or (length - 1) * math.log10(top) < 300.0:
             for k in range(length - 3, -1, -1):   # rows u^(length - 1), ..., u^2, u, 1
                 np.multiply(powers[k + 1], u, out=powers[k])
             powers[-1].fill(1.0)
             np.matmul(self._matrix, powers, out=parts)
         else:   # powers of w^2 that overflow: Horner's rule, row by row
-            for part, coefficients in zip(parts, self._parts):
+            for part, coefficients in zip(parts, self._rows):
                 part.fill(0.0)
                 for c in coefficients:
                     part *= u
                     part += c
-        for part in parts[1::2]:
-            part *= w
+        by_part[1] *= w   # the odd parts: imaginary parts
+        by_part[3] *= w
         for k, delay_s in enumerate(self._delays):
             if delay_s:   # (re + j im) exp(-j w T)
-                real, imag = parts[4 * k], parts[4 * k + 1]
+                real, imag = parts[k], parts[2 + k]
                 cos, sin = np.cos(w * delay_s), np.sin(w * delay_s)
                 real[:], imag[:] = real * cos + imag * sin, imag * cos - real * sin
-        for k in range(2):   # each model's parts divided by their largest magnitude
-            block, scale = parts[4 * k:4 * k + 4], work[k]
-            np.abs(block[0], out=scale)
-            for row in block[1:]:
-                np.abs(row, out=work[3])
-                np.maximum(scale, work[3], out=scale)
-            np.copyto(scale, 1.0, where=scale == 0.0)
-            np.divide(1.0, scale, out=scale)
-            for row in block:
-                row *= scale
-        n1r, n1i, d1r, d1i, n2r, n2i, d2r, d2i = parts
+        scale = work[:2]   # each model's parts divided by their largest magnitude
+        np.abs(by_part, out=spare)
+        np.maximum.reduce(spare, axis=0, out=scale)
+        np.copyto(scale, 1.0, where=scale == 0.0)
+        np.divide(1.0, scale, out=scale)
+        by_part *= scale
         if self._epsilon:
+            n1r, n2r, n1i, n2i, d1r, d2r, d1i, d2i = parts
             p1 = _complex(n1r * d2r - n1i * d2i, n1r * d2i + n1i * d2r)
             p2 = _complex(n2r * d1r - n2i * d1i, n2r * d1i + n2i * d1r)
             out[:] = epsilon_per_frequency(p1, p2)
             return
-        real, imag, t = work[0], work[1], work[2]   # n2 d1 - n1 d2
-        np.multiply(n2r, d1r, out=real)
-        np.multiply(n2i, d1i, out=t)
-        real -= t
-        np.multiply(n1r, d2r, out=t)
-        real -= t
-        np.multiply(n1i, d2i, out=t)
-        real += t
-        np.multiply(n2r, d1i, out=imag)
-        np.multiply(n2i, d1r, out=t)
-        imag += t
-        np.multiply(n1r, d2i, out=t)
-        imag -= t
-        np.multiply(n1i, d2r, out=t)
-        imag -= t
-        real *= real
-        imag *= imag
+        # n2 d1 - n1 d2: the products [n1 x d2, n2 x d1] of each pair of parts
+        rr, ii, ri, ir = spare
+        np.multiply(parts[0:2], parts[5:3:-1], out=rr)
+        np.multiply(parts[2:4], parts[7:5:-1], out=ii)
+        np.multiply(parts[0:2], parts[7:5:-1], out=ri)
+        np.multiply(parts[2:4], parts[5:3:-1], out=ir)
+        cross = work[:2]
+        real, imag = cross
+        np.subtract(rr[1], ii[1], out=real)
+        real -= rr[0]
+        real += ii[0]
+        np.add(ri[1], ir[1], out=imag)
+        imag -= ri[0]
+        imag -= ir[0]
+        cross *= cross
         real += imag                              # |n2 d1 - n1 d2|^2
         parts *= parts
-        for k in range(2):                        # |n|^2 + |d|^2 of each model
-            np.add(parts[4 * k], parts[4 * k + 1], out=work[2 + k])
-            work[2 + k] += parts[4 * k + 2]
-            work[2 + k] += parts[4 * k + 3]
+        sizes = work[2:4]                         # |n|^2 + |d|^2 of each model
+        np.add(by_part[0], by_part[1], out=sizes)
+        sizes += by_part[2]
+        sizes += by_part[3]
         work[2] *= work[3]
         np.divide(real, work[2], out=out)
         np.sqrt(out, out=out)
@@ -495,9 +502,10 @@ class _PairResponse:
         try:
             u = w * w
             parts = []
+            coefficients = self._parts
             for k, delay_s in enumerate(self._delays):
-                n = _point_on_imaginary_axis(self._parts[4 * k:4 * k + 2], w, u)
-                d = _point_on_imaginary_axis(self._parts[4 * k + 2:4 * k + 4], w, u)
+                n = complex(_horner(coefficients[4 * k], u), _horner(coefficients[4 * k + 1], u) * w)
+                d = complex(_horner(coefficients[4 * k + 2], u), _horner(coefficients[4 * k + 3], u) * w)
                 if delay_s:
                     n *= cmath.exp(-1j * w * delay_s)
                 scale = max(abs(n.real), abs(n.imag), abs(d.real), abs(d.imag))
@@ -825,16 +833,19 @@ def _wrap(angle: ArrayLike) -> np.ndarray:
 
 
 def _resonance_points(roots: np.ndarray) -> np.ndarray:
-    """Frequencies around every complex root: |Im| +- a few multiples of |Re|."""
+    """Frequencies around every complex root: |Im| +- a few multiples of |Re|, and |root| (unsorted; some may
+    be negative: callers keep their range)."""
     roots = np.asarray(roots, dtype=complex)
-    roots = roots[(roots.imag > 0.0) | ((roots.imag == 0.0) & (roots.real != 0.0))]
+    imag = roots.imag
+    roots = roots[(imag > 0.0) | ((imag == 0.0) & (roots.real != 0.0))]
     if roots.size == 0:
         return np.zeros(0)
-    centre = np.where(roots.imag > 0.0, np.abs(roots.imag), np.abs(roots.real))
-    width = np.maximum(np.abs(roots.real), 1e-9 * np.maximum(centre, 1.0))
-    points = np.concatenate([centre[:, None] + width[:, None] * _RESONANCE_OFFSETS, np.abs(roots)[:, None]],
-                            axis=1).ravel()
-    return points[points > 0.0]
+    keys = np.unique(_complex(np.abs(roots.real), roots.imag))   # r and -conj(r) give the same points
+    real, imag = keys.real, keys.imag
+    centre = np.where(imag > 0.0, imag, real)
+    width = np.maximum(real, 1e-9 * np.maximum(centre, 1.0))
+    points = centre[:, None] + width[:, None] * _RESONANCE_OFFSETS
+    return np.concatenate([points.ravel(), np.abs(keys)])
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -842,19 +853,23 @@ def _resonance_points(roots: np.ndarray) -> np.ndarray:
 # ----------------------------------------------------------------------------------------------------------
 
 
-def _axis_points(roots: np.ndarray) -> np.ndarray:
-    """Frequencies on both sides of every root on the positive imaginary axis, geometrically closer.
+def _axis_points(roots: np.ndarray, magnitudes: np.ndarray) -> np.ndarray:
+    """Frequencies on both sides of every root on the positive imaginary axis (:func:`on_axis`), geometrically
+    closer; ``magnitudes`` are the roots' ``abs``.
 
     Two models sharing an undamped pole can have their largest chordal distance a hair to either side of it;
     the offsets run from 1e-9 to 0.5 of the root's frequency.
     """
-    roots = np.asarray(roots, dtype=complex)
-    centres = np.unique(roots[(roots.imag > 0.0) & on_axis(roots)].imag)
-    if centres.size == 0:
+    upper = roots.imag > 0.0
+    if not upper.any():
         return np.zeros(0)
-    return np.concatenate(
-        [centres[:, None] * (1.0 - _AXIS_OFFSETS), centres[:, None] * (1.0 + _AXIS_OFFSETS)], axis=1
-    ).ravel()
+    scale = max(1.0, float(magnitudes.max()))   # as on_axis(roots)
+    imag = roots.imag[upper]
+    axis = np.abs(roots.real[upper]) <= _AXIS_RTOL * np.maximum(magnitudes[upper], 1e-3 * scale)
+    if not axis.any():
+        return np.zeros(0)
+    centres = np.unique(imag[axis])
+    return np.concatenate([(centres[:, None] * _AXIS_BELOW).ravel(), (centres[:, None] * _AXIS_ABOVE).ravel()])
 
 
 def combined(a: ArrayLike, b: ArrayLike, sign: float = 1.0) -> np.ndarray:
@@ -946,9 +961,9 @@ def analysis_grid(roots: ArrayLike, delta_s: float = 0.0) -> np.ndarray:
     roots = np.asarray(roots, dtype=complex)
     roots = roots[np.isfinite(roots)]
     magnitudes = np.abs(roots)
-    magnitudes = magnitudes[magnitudes > 0.0]
-    w_min = float(magnitudes.min()) if magnitudes.size else 1.0
-    w_max = float(magnitudes.max()) if magnitudes.size else 1.0
+    nonzero = magnitudes[magnitudes > 0.0]
+    w_min = float(nonzero.min()) if nonzero.size else 1.0
+    w_max = float(nonzero.max()) if nonzero.size else 1.0
     delta_s = abs(delta_s)
     if delta_s > 0.0:
         w_min = min(w_min, 1.0 / delta_s)
@@ -957,7 +972,9 @@ def analysis_grid(roots: ArrayLike, delta_s: float = 0.0) -> np.ndarray:
     count = int(_GRID_PER_DECADE * math.log10(w_hi / w_lo)) + 2
     log_grid = np.exp(np.linspace(math.log(w_lo), math.log(w_hi), count))
     log_grid[0], log_grid[-1] = w_lo, w_hi
-    extra = [_resonance_points(roots), _axis_points(roots)]
+    extra = [_resonance_points(roots)]
+    if roots.size:
+        extra.append(_axis_points(roots, magnitudes))
     if delta_s > 0.0:
         step = math.pi / (8.0 * delta_s)
         extra.append(np.arange(1, min(int(w_hi / step), 100_000) + 1) * step)
@@ -966,7 +983,11 @@ def analysis_grid(roots: ArrayLike, delta_s: float = 0.0) -> np.ndarray:
     w = np.sort(np.concatenate([log_grid, extra]), kind="stable")   # merges the two sorted runs
     # equal points, or within round-off of each other (the same root from several polynomials), would tie as
     # false peaks: the first of each cluster is kept
-    return w[np.concatenate([[True], np.diff(w) > 1e-12 * w[1:]])] if w.size else w
+    keep = np.empty(w.size, dtype=bool)
+    if w.size:
+        keep[0] = True
+        np.greater(np.diff(w), 1e-12 * w[1:], out=keep[1:])
+    return w[keep]
 
 
 def _grid_peaks(fun: Response, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

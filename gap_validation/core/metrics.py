@@ -57,6 +57,7 @@ _HUGE_EPSILON = 1e10  # a refined epsilon peak above this is a crossing of P2 = 
 _AXIS_OFFSETS = np.geomspace(1e-9, 0.5, 180)  # relative offsets sampled on both sides of roots on the axis
 _AXIS_BELOW, _AXIS_ABOVE = 1.0 - _AXIS_OFFSETS, 1.0 + _AXIS_OFFSETS
 _RESONANCE_OFFSETS = np.linspace(-6.0, 6.0, 49)  # multiples of |Re| sampled around complex roots
+_J_SIGNS = np.array([1.0, 1.0, -1.0, -1.0] * 64)   # (-1)^(k // 2), k = 0 ... 255: the real sign of j^k
 _SINGULAR_D_COND = 1e12  # det(G2~ G1) at infinity is taken as zero beyond this condition number
 
 
@@ -267,11 +268,22 @@ def polynomial_roots(poly: ArrayLike) -> np.ndarray:
     elif degree == 1:
         roots = np.array([-poly[1] / poly[0]])
     else:
-        companion = np.eye(degree, k=-1)
-        companion[0] = -poly[1:degree + 1] / poly[0]
+        companion = _shift(degree)
+        np.divide(poly[1:degree + 1], -poly[0], out=companion[0])
         roots = _eigenvalues(companion)
     trailing = len(poly) - 1 - degree
     return np.concatenate([roots, np.zeros(trailing)]) if trailing else roots
+
+
+_SHIFTS: dict[int, np.ndarray] = {}
+
+
+def _shift(size: int) -> np.ndarray:
+    """A fresh copy of ``numpy.eye(size, k=-1)`` (the companion matrix's ones below the diagonal)."""
+    shift = _SHIFTS.get(size)
+    if shift is None:
+        shift = _SHIFTS[size] = np.eye(size, k=-1)
+    return shift.copy()
 
 
 def _eigenvalues(matrix: np.ndarray) -> np.ndarray:
@@ -345,9 +357,10 @@ def _even_odd(poly: ArrayLike) -> tuple[list[float], list[float]]:
 
     Half the operations of Horner's rule in s, and in real arithmetic.
     """
-    coefficients = [float(c) for c in np.ravel(poly)][::-1]   # ascending powers k
-    signed = [-c if k % 4 >= 2 else c for k, c in enumerate(coefficients)]   # j^k = (-1)^(k // 2) j^(k % 2)
-    return signed[0::2][::-1], signed[1::2][::-1]
+    coefficients = np.asarray(poly, dtype=float).ravel()[::-1]   # ascending powers k
+    size = coefficients.size   # j^k = (-1)^(k // 2) j^(k % 2)
+    signed = coefficients * (_J_SIGNS[:size] if size <= _J_SIGNS.size else np.resize(_J_SIGNS[:4], size))
+    return signed[0::2][::-1].tolist(), signed[1::2][::-1].tolist()
 
 
 def _point_on_imaginary_axis(even_odd: tuple[list[float], list[float]], w: float, u: float) -> complex:
@@ -379,13 +392,6 @@ def _scratch(rows: int) -> np.ndarray:
     return array
 
 
-def _horner(coefficients: list[float], u: float) -> float:
-    value = 0.0
-    for c in coefficients:
-        value = value * u + c
-    return value
-
-
 class _PairResponse:
     """kappa(w) (eq. 13) or epsilon(w) (eq. 14) of two SISO models: vectorised over a grid (``__call__``) and
     at single frequencies (:meth:`at`, for the refinement).
@@ -398,7 +404,7 @@ class _PairResponse:
     n2 im, d1 re, d2 re, d1 im, d2 im): each step is one operation on both models.
     """
 
-    __slots__ = ("_epsilon", "_parts", "_rows", "_matrix", "_delays")
+    __slots__ = ("_epsilon", "_parts", "_rows", "_matrix", "_delays", "_models")
 
     def __init__(self, m1: LinearModel, m2: LinearModel, epsilon_of: bool = False) -> None:
         self._epsilon = epsilon_of
@@ -409,6 +415,7 @@ class _PairResponse:
         length = max(1, max(len(part) for part in parts))
         self._matrix = np.array([[0.0] * (length - len(part)) + part for part in self._rows])
         self._delays = (m1.delay_s, m2.delay_s)
+        self._models = ((parts[:4], m1.delay_s), (parts[4:], m2.delay_s))   # for at()
 
     def __call__(self, w: np.ndarray) -> np.ndarray:
         w = np.asarray(w, dtype=float).ravel()
@@ -502,10 +509,15 @@ class _PairResponse:
         try:
             u = w * w
             parts = []
-            coefficients = self._parts
-            for k, delay_s in enumerate(self._delays):
-                n = complex(_horner(coefficients[4 * k], u), _horner(coefficients[4 * k + 1], u) * w)
-                d = complex(_horner(coefficients[4 * k + 2], u), _horner(coefficients[4 * k + 3], u) * w)
+            for coefficients, delay_s in self._models:
+                values = []   # n even, n odd, d even, d odd at u, by Horner's rule
+                for part in coefficients:
+                    value = 0.0
+                    for c in part:
+                        value = value * u + c
+                    values.append(value)
+                n = complex(values[0], values[1] * w)
+                d = complex(values[2], values[3] * w)
                 if delay_s:
                     n *= cmath.exp(-1j * w * delay_s)
                 scale = max(abs(n.real), abs(n.imag), abs(d.real), abs(d.imag))
@@ -664,7 +676,7 @@ def _winding_algebraic(n1: np.ndarray, d1: np.ndarray, n2: np.ndarray, d2: np.nd
     deg1, deg2 = len(d1) - 1, len(d2) - 1
     d_term = _polymul(mirror(d2), d1)
     n_term = _polymul(mirror(n2), n1)
-    rho = np.polyadd(d_term, n_term)
+    rho = np.add(*_aligned(d_term, n_term))
     lead_scale = abs(d_term[0]) + (abs(n_term[0]) if len(n_term) == len(d_term) else 0.0)
     if len(rho) < len(d_term) or abs(rho[-(deg1 + deg2 + 1)]) <= 1e-12 * lead_scale:
         return WindingCheck(False, math.inf, "1 + P2~ P1 vanishes at infinity (P1(inf) P2(inf) = -1)")
@@ -889,14 +901,33 @@ def combined(a: ArrayLike, b: ArrayLike, sign: float = 1.0) -> np.ndarray:
     -------
     ndarray of float
     """
+    return _combined_both(a, b, (sign,))[0]
+
+
+def _combined_both(a: ArrayLike, b: ArrayLike, signs: tuple[float, ...] = (1.0, -1.0)) -> list[np.ndarray]:
+    """:func:`combined` for each sign, sharing the alignment and the round-off threshold."""
     a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
     if a.size != b.size:
-        size = max(a.size, b.size)
+        a, b = _aligned(a, b)
+    threshold = np.abs(a)
+    threshold += np.abs(b)
+    threshold *= _CANCEL_EPS
+    out = []
+    for sign in signs:
+        total = a + sign * b
+        total[np.abs(total) <= threshold] = 0.0
+        out.append(total)
+    return out
+
+
+def _aligned(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two coefficient arrays padded with leading zeros to the same length."""
+    size = max(a.size, b.size)
+    if a.size < size:
         a = np.concatenate([np.zeros(size - a.size), a])
+    if b.size < size:
         b = np.concatenate([np.zeros(size - b.size), b])
-    total = a + sign * b
-    total[np.abs(total) <= _CANCEL_EPS * (np.abs(a) + np.abs(b))] = 0.0
-    return total
+    return a, b
 
 
 def feature_roots(model: LinearModel, poles_zeros: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
@@ -923,7 +954,8 @@ def feature_roots(model: LinearModel, poles_zeros: tuple[np.ndarray, np.ndarray]
     num, den = strip_leading_zeros(model.num), strip_leading_zeros(model.den)
     nn = _polymul(num, mirror(num))
     dd = _polymul(den, mirror(den))
-    return np.concatenate([poles, zeros, _even_roots(combined(nn, dd)), _even_roots(combined(nn, dd, -1.0))])
+    total, difference = _combined_both(nn, dd)
+    return np.concatenate([poles, zeros, _even_roots(total), _even_roots(difference)])
 
 
 def _pair_roots(m1: LinearModel, m2: LinearModel, roots1: tuple[np.ndarray, np.ndarray],
@@ -932,9 +964,8 @@ def _pair_roots(m1: LinearModel, m2: LinearModel, roots1: tuple[np.ndarray, np.n
     of ``P2 - P1`` and of ``P2 + P1`` (the numerator and denominator of epsilon, eq. 14)."""
     parts = [feature_roots(m1, roots1), feature_roots(m2, roots2)]
     if m1.delay_s == m2.delay_s:
-        cross1, cross2 = _polymul(m2.num, m1.den), _polymul(m1.num, m2.den)
-        parts += [polynomial_roots(combined(cross1, cross2, -1.0)),
-                  polynomial_roots(combined(cross1, cross2))]
+        difference, total = _combined_both(_polymul(m2.num, m1.den), _polymul(m1.num, m2.den), (-1.0, 1.0))
+        parts += [polynomial_roots(difference), polynomial_roots(total)]
     return np.concatenate(parts)
 
 

@@ -404,18 +404,17 @@ class _PairResponse:
     n2 im, d1 re, d2 re, d1 im, d2 im): each step is one operation on both models.
     """
 
-    __slots__ = ("_epsilon", "_parts", "_rows", "_matrix", "_delays", "_models")
+    __slots__ = ("_epsilon", "_rows", "_matrix", "_columns", "_delays")
 
     def __init__(self, m1: LinearModel, m2: LinearModel, epsilon_of: bool = False) -> None:
         self._epsilon = epsilon_of
         parts = [part for poly in (m1.num, m1.den, m2.num, m2.den) for part in _even_odd(poly)]
-        self._parts = tuple(parts)   # n1 even, n1 odd, d1 even, d1 odd, n2 even, ..., d2 odd
-        self._rows = tuple(parts[k] for k in (0, 4, 1, 5, 2, 6, 3, 7))   # the grid's row order
-        # columns: descending powers of w^2
-        length = max(1, max(len(part) for part in parts))
+        # n1 even, n2 even, n1 odd, n2 odd, d1 even, d2 even, d1 odd, d2 odd
+        self._rows = tuple(parts[k] for k in (0, 4, 1, 5, 2, 6, 3, 7))
+        length = max(1, max(len(part) for part in parts))   # columns: descending powers of w^2
         self._matrix = np.array([[0.0] * (length - len(part)) + part for part in self._rows])
+        self._columns = [tuple(column) for column in self._matrix.T.tolist()]
         self._delays = (m1.delay_s, m2.delay_s)
-        self._models = ((parts[:4], m1.delay_s), (parts[4:], m2.delay_s))   # for at()
 
     def __call__(self, w: np.ndarray) -> np.ndarray:
         w = np.asarray(w, dtype=float).ravel()
@@ -508,16 +507,14 @@ class _PairResponse:
         """
         try:
             u = w * w
+            # the eight parts at u by Horner's rule, together (leading zeros of the shorter ones keep them 0)
+            n1e = n2e = n1o = n2o = d1e = d2e = d1o = d2o = 0.0
+            for c0, c1, c2, c3, c4, c5, c6, c7 in self._columns:
+                n1e, n2e, n1o, n2o = n1e * u + c0, n2e * u + c1, n1o * u + c2, n2o * u + c3
+                d1e, d2e, d1o, d2o = d1e * u + c4, d2e * u + c5, d1o * u + c6, d2o * u + c7
             parts = []
-            for coefficients, delay_s in self._models:
-                values = []   # n even, n odd, d even, d odd at u, by Horner's rule
-                for part in coefficients:
-                    value = 0.0
-                    for c in part:
-                        value = value * u + c
-                    values.append(value)
-                n = complex(values[0], values[1] * w)
-                d = complex(values[2], values[3] * w)
+            for n, d, delay_s in ((complex(n1e, n1o * w), complex(d1e, d1o * w), self._delays[0]),
+                                  (complex(n2e, n2o * w), complex(d2e, d2o * w), self._delays[1])):
                 if delay_s:
                     n *= cmath.exp(-1j * w * delay_s)
                 scale = max(abs(n.real), abs(n.imag), abs(d.real), abs(d.imag))

@@ -428,11 +428,12 @@ class _PairResponse:
         """The values at up to 8192 frequencies, into ``out``: in-place operations on rows of the scratch
         array, both models at once."""
         length, size = self._matrix.shape[1], w.size
-        full = _scratch(length + 20)
+        full = _scratch(max(12 + length, 20))   # few rows: they stay in the cache
         parts = full[:8, :size]
         by_part = full[:8].reshape(4, 2, _CHUNK)[:, :, :size]   # [n re, n im, d re, d im][model]
-        spare = full[8:16].reshape(4, 2, _CHUNK)[:, :, :size]
-        work, powers = full[16:20, :size], full[20:20 + length, :size]
+        work = full[8:12, :size]
+        powers = full[12:12 + length, :size]   # the spare rows once the parts are evaluated
+        spare = full[12:20].reshape(4, 2, _CHUNK)[:, :, :size]
         u = powers[-2] if length > 1 else work[0]
         np.multiply(w, w, out=u)
         top = float(u.max()) if size else 0.0

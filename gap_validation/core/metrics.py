@@ -58,7 +58,10 @@ _AXIS_OFFSETS = np.geomspace(1e-9, 0.5, 180)  # relative offsets sampled on both
 _AXIS_BELOW, _AXIS_ABOVE = 1.0 - _AXIS_OFFSETS, 1.0 + _AXIS_OFFSETS
 _RESONANCE_OFFSETS = np.linspace(-6.0, 6.0, 49)  # multiples of |Re| sampled around complex roots
 _J_SIGNS = np.array([1.0, 1.0, -1.0, -1.0] * 64)   # (-1)^(k // 2), k = 0 ... 255: the real sign of j^k
-_SINGULAR_D_COND = 1e12  # det(G2~ G1) at infinity is taken as zero beyond this condition number
+_SINGULAR_D_COND = 1e12
+# |n|^2 + |d|^2 of both models within this range on a whole grid: kappa's products neither overflow nor lose
+# digits to underflow (|n2 d1 - n1 d2|^2 <= the product of the two), the parts need no scaling
+_SIZE_RANGE = (1e-75, 1e140)  # det(G2~ G1) at infinity is taken as zero beyond this condition number
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -455,6 +458,15 @@ class _PairResponse:
                 real, imag = parts[k], parts[2 + k]
                 cos, sin = np.cos(w * delay_s), np.sin(w * delay_s)
                 real[:], imag[:] = real * cos + imag * sin, imag * cos - real * sin
+        if not self._epsilon:
+            sizes = work[2:4]   # |n|^2 + |d|^2 of each model
+            np.multiply(by_part, by_part, out=spare)
+            np.add(spare[0], spare[1], out=sizes)
+            sizes += spare[2]
+            sizes += spare[3]
+            if size and _SIZE_RANGE[0] <= sizes.min() and sizes.max() <= _SIZE_RANGE[1]:
+                self._kappa(parts, spare, work, out)   # no overflow or underflow to fear: no scaling
+                return
         scale = work[:2]   # each model's parts divided by their largest magnitude
         np.abs(by_part, out=spare)
         np.maximum.reduce(spare, axis=0, out=scale)
@@ -467,8 +479,17 @@ class _PairResponse:
             p2 = _complex(n2r * d1r - n2i * d1i, n2r * d1i + n2i * d1r)
             out[:] = epsilon_per_frequency(p1, p2)
             return
-        # n2 d1 - n1 d2: the products [n1 x d2, n2 x d1] of each pair of parts
-        rr, ii, ri, ir = spare
+        sizes = work[2:4]
+        np.multiply(by_part, by_part, out=spare)
+        np.add(spare[0], spare[1], out=sizes)
+        sizes += spare[2]
+        sizes += spare[3]
+        self._kappa(parts, spare, work, out)
+
+    @staticmethod
+    def _kappa(parts: np.ndarray, spare: np.ndarray, work: np.ndarray, out: np.ndarray) -> None:
+        """kappa from the eight parts and each model's ``|n|^2 + |d|^2`` (``work[2:4]``), into ``out``."""
+        rr, ii, ri, ir = spare   # n2 d1 - n1 d2: the products [n1 x d2, n2 x d1] of each pair of parts
         np.multiply(parts[0:2], parts[5:3:-1], out=rr)
         np.multiply(parts[2:4], parts[7:5:-1], out=ii)
         np.multiply(parts[0:2], parts[7:5:-1], out=ri)
@@ -483,11 +504,6 @@ class _PairResponse:
         imag -= ir[0]
         cross *= cross
         real += imag                              # |n2 d1 - n1 d2|^2
-        parts *= parts
-        sizes = work[2:4]                         # |n|^2 + |d|^2 of each model
-        np.add(by_part[0], by_part[1], out=sizes)
-        sizes += by_part[2]
-        sizes += by_part[3]
         work[2] *= work[3]
         np.divide(real, work[2], out=out)
         np.sqrt(out, out=out)
@@ -1008,7 +1024,7 @@ def analysis_grid(roots: ArrayLike, delta_s: float = 0.0) -> np.ndarray:
         step = math.pi / (8.0 * delta_s)
         extra.append(np.arange(1, min(int(w_hi / step), 100_000) + 1) * step)
     extra = np.concatenate(extra)
-    extra = np.sort(extra[(extra >= w_lo) & (extra <= w_hi)])
+    extra = np.sort(extra[(extra >= w_lo) & (extra <= w_hi)], kind="stable")   # runs: each root's points
     w = np.sort(np.concatenate([log_grid, extra]), kind="stable")   # merges the two sorted runs
     # equal points, or within round-off of each other (the same root from several polynomials), would tie as
     # false peaks: the first of each cluster is kept
@@ -1022,11 +1038,18 @@ def analysis_grid(roots: ArrayLike, delta_s: float = 0.0) -> np.ndarray:
 def _grid_peaks(fun: Response, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Values of fun on the grid and the indices of its local maxima (NaN counts as -inf)."""
     values = np.asarray(fun(w), dtype=float)
-    values[np.isnan(values)] = -np.inf
-    above_left, above_right = np.ones(values.size, dtype=bool), np.ones(values.size, dtype=bool)
-    np.greater_equal(values[1:], values[:-1], out=above_left[1:])
-    np.greater_equal(values[:-1], values[1:], out=above_right[:-1])
-    is_peak = above_left & above_right & np.isfinite(values) | (values == np.inf)
+    if values.size == 0:
+        return values, np.zeros(0, dtype=np.intp)
+    finite = math.isfinite(values.max()) and math.isfinite(values.min())   # no nan, no infinity
+    if not finite:
+        values[np.isnan(values)] = -np.inf
+    is_peak = np.ones(values.size, dtype=bool)
+    if values.size > 1:
+        is_peak[1:] = values[1:] >= values[:-1]   # not below the left neighbour
+        is_peak[:-1] &= values[:-1] >= values[1:]   # nor the right one
+    if not finite:
+        is_peak &= np.isfinite(values)
+        is_peak |= values == np.inf
     return values, np.flatnonzero(is_peak)
 
 

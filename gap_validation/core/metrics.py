@@ -858,20 +858,28 @@ def _wrap(angle: ArrayLike) -> np.ndarray:
     return (np.asarray(angle) + math.pi) % (2.0 * math.pi) - math.pi
 
 
-def _resonance_points(roots: np.ndarray) -> np.ndarray:
+def _resonance_points(roots: np.ndarray, axis_scale: float | None = None) -> np.ndarray:
     """Frequencies around every complex root: |Im| +- a few multiples of |Re|, and |root| (unsorted; some may
-    be negative: callers keep their range)."""
+    be negative: callers keep their range). Roots r and -conj(r) give the same points, computed once.
+
+    With ``axis_scale`` (the largest root magnitude, at least 1: :func:`on_axis`'s scale) the points on both
+    sides of every root on the positive imaginary axis (:func:`_axis_points`) are included.
+    """
     roots = np.asarray(roots, dtype=complex)
     imag = roots.imag
     roots = roots[(imag > 0.0) | ((imag == 0.0) & (roots.real != 0.0))]
     if roots.size == 0:
         return np.zeros(0)
     keys = np.unique(_complex(np.abs(roots.real), roots.imag))   # r and -conj(r) give the same points
-    real, imag = keys.real, keys.imag
+    real, imag, magnitude = keys.real, keys.imag, np.abs(keys)
     centre = np.where(imag > 0.0, imag, real)
     width = np.maximum(real, 1e-9 * np.maximum(centre, 1.0))
-    points = centre[:, None] + width[:, None] * _RESONANCE_OFFSETS
-    return np.concatenate([points.ravel(), np.abs(keys)])
+    points = [(centre[:, None] + width[:, None] * _RESONANCE_OFFSETS).ravel(), magnitude]
+    if axis_scale is not None:
+        axis = (imag > 0.0) & (real <= _AXIS_RTOL * np.maximum(magnitude, 1e-3 * axis_scale))
+        if axis.any():
+            points.append(_axis_points(imag[axis]))
+    return np.concatenate(points)
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -879,23 +887,15 @@ def _resonance_points(roots: np.ndarray) -> np.ndarray:
 # ----------------------------------------------------------------------------------------------------------
 
 
-def _axis_points(roots: np.ndarray, magnitudes: np.ndarray) -> np.ndarray:
-    """Frequencies on both sides of every root on the positive imaginary axis (:func:`on_axis`), geometrically
-    closer; ``magnitudes`` are the roots' ``abs``.
+def _axis_points(centres: np.ndarray) -> np.ndarray:
+    """Frequencies on both sides of roots on the positive imaginary axis (``centres``: their frequencies),
+    geometrically closer.
 
     Two models sharing an undamped pole can have their largest chordal distance a hair to either side of it;
     the offsets run from 1e-9 to 0.5 of the root's frequency.
     """
-    upper = roots.imag > 0.0
-    if not upper.any():
-        return np.zeros(0)
-    scale = max(1.0, float(magnitudes.max()))   # as on_axis(roots)
-    imag = roots.imag[upper]
-    axis = np.abs(roots.real[upper]) <= _AXIS_RTOL * np.maximum(magnitudes[upper], 1e-3 * scale)
-    if not axis.any():
-        return np.zeros(0)
-    centres = np.unique(imag[axis])
-    return np.concatenate([(centres[:, None] * _AXIS_BELOW).ravel(), (centres[:, None] * _AXIS_ABOVE).ravel()])
+    centres = np.unique(centres)[:, None]
+    return np.concatenate([(centres * _AXIS_BELOW).ravel(), (centres * _AXIS_ABOVE).ravel()])
 
 
 def combined(a: ArrayLike, b: ArrayLike, sign: float = 1.0) -> np.ndarray:
@@ -1009,6 +1009,7 @@ def analysis_grid(roots: ArrayLike, delta_s: float = 0.0) -> np.ndarray:
     nonzero = magnitudes[magnitudes > 0.0]
     w_min = float(nonzero.min()) if nonzero.size else 1.0
     w_max = float(nonzero.max()) if nonzero.size else 1.0
+    axis_scale = max(1.0, w_max)   # on_axis's scale
     delta_s = abs(delta_s)
     if delta_s > 0.0:
         w_min = min(w_min, 1.0 / delta_s)
@@ -1017,9 +1018,7 @@ def analysis_grid(roots: ArrayLike, delta_s: float = 0.0) -> np.ndarray:
     count = int(_GRID_PER_DECADE * math.log10(w_hi / w_lo)) + 2
     log_grid = np.exp(np.linspace(math.log(w_lo), math.log(w_hi), count))
     log_grid[0], log_grid[-1] = w_lo, w_hi
-    extra = [_resonance_points(roots)]
-    if roots.size:
-        extra.append(_axis_points(roots, magnitudes))
+    extra = [_resonance_points(roots, axis_scale)]   # with the points beside the roots on the axis
     if delta_s > 0.0:
         step = math.pi / (8.0 * delta_s)
         extra.append(np.arange(1, min(int(w_hi / step), 100_000) + 1) * step)

@@ -331,12 +331,12 @@ def coprime(num: ArrayLike, den: ArrayLike, zeros: ArrayLike | None = None,
         Without the common factors; ``den`` monic.
     """
     num, den = strip_leading_zeros(num), strip_leading_zeros(den)
-    if not np.any(num):
+    if not num.any():
         return np.array([0.0]), np.array([1.0])
     zeros = polynomial_roots(num) if zeros is None else np.asarray(zeros)
     poles = polynomial_roots(den) if poles is None else np.asarray(poles)
-    if not zeros.size or not poles.size or not np.any(
-            np.abs(zeros[:, None] - poles[None, :]) <= _CANCEL_RTOL * np.maximum(1.0, np.abs(poles))):
+    if not zeros.size or not poles.size or not (
+            np.abs(zeros[:, None] - poles) <= _CANCEL_RTOL * np.maximum(np.abs(poles), 1.0)).any():
         return num, den / den[0]   # no zero close enough to any pole
     zeros, poles = list(zeros), list(poles)
     cancelled = False
@@ -355,7 +355,7 @@ def coprime(num: ArrayLike, den: ArrayLike, zeros: ArrayLike | None = None,
         np.real(np.poly(poles)) if poles else np.array([1.0])
 
 
-def _even_odd(poly: ArrayLike) -> tuple[list[float], list[float]]:
+def _even_odd(poly: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """E and O with ``p(j w) = E(w^2) + j w O(w^2)`` (descending powers of w^2), p in descending powers of s.
 
     Half the operations of Horner's rule in s, and in real arithmetic.
@@ -363,7 +363,7 @@ def _even_odd(poly: ArrayLike) -> tuple[list[float], list[float]]:
     coefficients = np.asarray(poly, dtype=float).ravel()[::-1]   # ascending powers k
     size = coefficients.size   # j^k = (-1)^(k // 2) j^(k % 2)
     signed = coefficients * (_J_SIGNS[:size] if size <= _J_SIGNS.size else np.resize(_J_SIGNS[:4], size))
-    return signed[0::2][::-1].tolist(), signed[1::2][::-1].tolist()
+    return signed[0::2][::-1], signed[1::2][::-1]
 
 
 def _point_on_imaginary_axis(even_odd: tuple[list[float], list[float]], w: float, u: float) -> complex:
@@ -407,15 +407,18 @@ class _PairResponse:
     n2 im, d1 re, d2 re, d1 im, d2 im): each step is one operation on both models.
     """
 
-    __slots__ = ("_epsilon", "_rows", "_matrix", "_columns", "_delays")
+    __slots__ = ("_epsilon", "_matrix", "_columns", "_delays")
 
     def __init__(self, m1: LinearModel, m2: LinearModel, epsilon_of: bool = False) -> None:
         self._epsilon = epsilon_of
-        parts = [part for poly in (m1.num, m1.den, m2.num, m2.den) for part in _even_odd(poly)]
-        # n1 even, n2 even, n1 odd, n2 odd, d1 even, d2 even, d1 odd, d2 odd
-        self._rows = tuple(parts[k] for k in (0, 4, 1, 5, 2, 6, 3, 7))
-        length = max(1, max(len(part) for part in parts))   # columns: descending powers of w^2
-        self._matrix = np.array([[0.0] * (length - len(part)) + part for part in self._rows])
+        # rows n1 even, n2 even, n1 odd, n2 odd, d1 even, d2 even, d1 odd, d2 odd (leading zeros keep the
+        # values of Horner's rule); columns descending powers of w^2
+        polys = [np.asarray(poly, dtype=float).ravel() for poly in (m1.num, m2.num, m1.den, m2.den)]
+        self._matrix = np.zeros((8, max(1, max((poly.size + 1) // 2 for poly in polys))))
+        for row, poly in zip((0, 1, 4, 5), polys):
+            for k, part in enumerate(_even_odd(poly)):
+                if part.size:
+                    self._matrix[row + 2 * k, -part.size:] = part
         self._columns = [tuple(column) for column in self._matrix.T.tolist()]
         self._delays = (m1.delay_s, m2.delay_s)
 
@@ -446,7 +449,7 @@ class _PairResponse:
             powers[-1].fill(1.0)
             np.matmul(self._matrix, powers, out=parts)
         else:   # powers of w^2 that overflow: Horner's rule, row by row
-            for part, coefficients in zip(parts, self._rows):
+            for part, coefficients in zip(parts, self._matrix):
                 part.fill(0.0)
                 for c in coefficients:
                     part *= u
@@ -696,10 +699,10 @@ def _winding_algebraic(n1: np.ndarray, d1: np.ndarray, n2: np.ndarray, d2: np.nd
         return WindingCheck(False, math.inf, "1 + P2~ P1 vanishes at infinity (P1(inf) P2(inf) = -1)")
     roots = polynomial_roots(rho)
     axis = on_axis(roots)
-    if np.any(axis):
+    if axis.any():
         w = float(np.min(np.abs(roots[axis].imag)))
         return WindingCheck(False, w, f"1 + P2~ P1 vanishes at w = {w:.6g} rad/s")
-    left = int(np.sum(roots.real < 0.0))
+    left = int(np.count_nonzero(roots.real < 0.0))
     right = roots.size - left
     if left == deg1 and right == deg2:
         return WindingCheck(True)
@@ -720,8 +723,9 @@ def on_axis(roots: np.ndarray) -> np.ndarray:
     ndarray of bool
         One flag per root: ``|Re| <= 1e-8 max(|root|, 1e-3 max(1, max |root|))``.
     """
-    scale = max(1.0, float(np.max(np.abs(roots)))) if roots.size else 1.0
-    return np.abs(roots.real) <= _AXIS_RTOL * np.maximum(np.abs(roots), 1e-3 * scale)
+    magnitudes = np.abs(roots)
+    scale = max(1.0, float(magnitudes.max())) if roots.size else 1.0
+    return np.abs(roots.real) <= _AXIS_RTOL * np.maximum(magnitudes, 1e-3 * scale)
 
 
 def _winding_state_space(g1: statespace.StateSpace, g2: statespace.StateSpace, n2: int) -> WindingCheck:

@@ -27,7 +27,6 @@ Conventions: ``P1`` is the model, ``P2`` the measurement (or the second model), 
 
 from __future__ import annotations
 
-import cmath
 import math
 import threading
 from dataclasses import dataclass
@@ -366,16 +365,6 @@ def _even_odd(poly: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     return signed[0::2][::-1], signed[1::2][::-1]
 
 
-def _point_on_imaginary_axis(even_odd: tuple[list[float], list[float]], w: float, u: float) -> complex:
-    """``p(j w)`` at one frequency (u = w^2): Horner's rule on the parts from :func:`_even_odd`."""
-    real = imag = 0.0
-    for c in even_odd[0]:
-        real = real * u + c
-    for c in even_odd[1]:
-        imag = imag * u + c
-    return complex(real, imag * w)
-
-
 def _complex(real: np.ndarray, imag: np.ndarray) -> np.ndarray:
     out = np.empty(real.shape, dtype=complex)
     out.real, out.imag = real, imag
@@ -528,25 +517,36 @@ class _PairResponse:
         try:
             u = w * w
             # the eight parts at u by Horner's rule, together (leading zeros of the shorter ones keep them 0)
-            n1e = n2e = n1o = n2o = d1e = d2e = d1o = d2o = 0.0
+            n1r = n2r = n1i = n2i = d1r = d2r = d1i = d2i = 0.0
             for c0, c1, c2, c3, c4, c5, c6, c7 in self._columns:
-                n1e, n2e, n1o, n2o = n1e * u + c0, n2e * u + c1, n1o * u + c2, n2o * u + c3
-                d1e, d2e, d1o, d2o = d1e * u + c4, d2e * u + c5, d1o * u + c6, d2o * u + c7
-            parts = []
-            for n, d, delay_s in ((complex(n1e, n1o * w), complex(d1e, d1o * w), self._delays[0]),
-                                  (complex(n2e, n2o * w), complex(d2e, d2o * w), self._delays[1])):
-                if delay_s:
-                    n *= cmath.exp(-1j * w * delay_s)
-                scale = max(abs(n.real), abs(n.imag), abs(d.real), abs(d.imag))
-                inverse = 1.0 / scale if scale > 0.0 else 1.0
-                parts += [n * inverse, d * inverse]
-            n1, d1, n2, d2 = parts
+                n1r, n2r, n1i, n2i = n1r * u + c0, n2r * u + c1, n1i * u + c2, n2i * u + c3
+                d1r, d2r, d1i, d2i = d1r * u + c4, d2r * u + c5, d1i * u + c6, d2i * u + c7
+            n1i, n2i, d1i, d2i = n1i * w, n2i * w, d1i * w, d2i * w   # the odd parts: imaginary parts
+            delay1, delay2 = self._delays
+            if delay1:   # (re + j im) exp(-j w T)
+                cos, sin = math.cos(w * delay1), math.sin(w * delay1)
+                n1r, n1i = n1r * cos + n1i * sin, n1i * cos - n1r * sin
+            if delay2:
+                cos, sin = math.cos(w * delay2), math.sin(w * delay2)
+                n2r, n2i = n2r * cos + n2i * sin, n2i * cos - n2r * sin
+            # each model's parts divided by their largest magnitude
+            scale = max(abs(n1r), abs(n1i), abs(d1r), abs(d1i))
+            if scale > 0.0:
+                n1r, n1i, d1r, d1i = n1r / scale, n1i / scale, d1r / scale, d1i / scale
+            scale = max(abs(n2r), abs(n2i), abs(d2r), abs(d2i))
+            if scale > 0.0:
+                n2r, n2i, d2r, d2i = n2r / scale, n2i / scale, d2r / scale, d2i / scale
+            # n2 d1 -+ n1 d2
+            a_r, a_i = n2r * d1r - n2i * d1i, n2r * d1i + n2i * d1r
+            b_r, b_i = n1r * d2r - n1i * d2i, n1r * d2i + n1i * d2r
+            cross_r, cross_i = a_r - b_r, a_i - b_i
             if self._epsilon:
-                diff, total = abs(n2 * d1 - n1 * d2), abs(n2 * d1 + n1 * d2)
+                diff = math.hypot(cross_r, cross_i)
+                total = math.hypot(a_r + b_r, a_i + b_i)
                 return 0.0 if diff == 0.0 else diff / total if total != 0.0 else math.inf
-            cross = n2 * d1 - n1 * d2
-            sizes = (abs(n1) ** 2 + abs(d1) ** 2) * (abs(n2) ** 2 + abs(d2) ** 2)
-            return min(math.sqrt((cross.real * cross.real + cross.imag * cross.imag) / sizes), 1.0)
+            sizes = (n1r * n1r + n1i * n1i + d1r * d1r + d1i * d1i) * \
+                (n2r * n2r + n2i * n2i + d2r * d2r + d2i * d2i)
+            return min(math.sqrt((cross_r * cross_r + cross_i * cross_i) / sizes), 1.0)
         except (OverflowError, ZeroDivisionError, ValueError):
             with np.errstate(all="ignore"):
                 return float(self(np.array([w]))[0])

@@ -1073,9 +1073,10 @@ def _bounded_maximum(fun: Callable[[float], float], a: float, b: float, xatol: f
         x = w = v = a + _GOLDEN * (b - a)
         fx = fw = fv = -fun(x)
         step = last = 0.0
+    sqrt_eps, third = _SQRT_EPS, xatol / 3.0
     for _ in range(max_steps):
         middle = 0.5 * (a + b)
-        tol = _SQRT_EPS * abs(x) + xatol / 3.0
+        tol = sqrt_eps * abs(x) + third
         if abs(x - middle) <= 2.0 * tol - 0.5 * (b - a):
             break
         golden = True
@@ -1154,8 +1155,11 @@ def _refined_sup(fun: Response, w: np.ndarray) -> tuple[float, float]:
     if np.isinf(top):
         return math.inf, float(w[peaks[values[peaks] == np.inf][0]])
     close = peaks[values[peaks] >= top - 0.3 * abs(top) - 1e-12]
-    highest = close[np.argsort(values[close])[::-1]][:_MAX_CANDIDATES]
-    keep = np.union1d(highest, close[:10])  # also the lowest-frequency ones (equal periodic peaks)
+    if close.size <= _MAX_CANDIDATES:
+        keep = close   # all of them (ascending, as the union below)
+    else:
+        highest = close[np.argsort(values[close])[::-1]][:_MAX_CANDIDATES]
+        keep = np.union1d(highest, close[:10])  # also the lowest-frequency ones (equal periodic peaks)
     results = [_refine(fun, w, values, k) for k in keep]
     best_value = max(value for value, _ in results)
     ties = [where for value, where in results if value >= best_value - _TIE_RTOL * max(1.0, abs(best_value))]

@@ -57,10 +57,10 @@ _AXIS_OFFSETS = np.geomspace(1e-9, 0.5, 180)  # relative offsets sampled on both
 _AXIS_BELOW, _AXIS_ABOVE = 1.0 - _AXIS_OFFSETS, 1.0 + _AXIS_OFFSETS
 _RESONANCE_OFFSETS = np.linspace(-6.0, 6.0, 49)  # multiples of |Re| sampled around complex roots
 _J_SIGNS = np.array([1.0, 1.0, -1.0, -1.0] * 64)   # (-1)^(k // 2), k = 0 ... 255: the real sign of j^k
-_SINGULAR_D_COND = 1e12
+_SINGULAR_D_COND = 1e12  # det(G2~ G1) at infinity is taken as zero beyond this condition number
 # |n|^2 + |d|^2 of both models within this range on a whole grid: kappa's products neither overflow nor lose
 # digits to underflow (|n2 d1 - n1 d2|^2 <= the product of the two), the parts need no scaling
-_SIZE_RANGE = (1e-75, 1e140)  # det(G2~ G1) at infinity is taken as zero beyond this condition number
+_SIZE_RANGE = (1e-75, 1e140)
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -392,8 +392,9 @@ class _PairResponse:
     (:func:`_even_odd`): on a grid as one matrix product with the powers of w^2, at one frequency by Horner's
     rule. Each model's numerator (delay included) and denominator are divided by the largest magnitude of
     their real and imaginary parts at every frequency: the products stay finite at high frequency, the ratios
-    are unchanged. On the grid the eight real rows are laid out by part, then by model (n1 re, n2 re, n1 im,
-    n2 im, d1 re, d2 re, d1 im, d2 im): each step is one operation on both models.
+    are unchanged (on a grid whose ``|n|^2 + |d|^2`` all lie within 1e-75 .. 1e140, kappa needs no such
+    scaling and is computed without it). On the grid the eight real rows are laid out by part, then by model
+    (n1 re, n2 re, n1 im, n2 im, d1 re, d2 re, d1 im, d2 im): each step is one operation on both models.
     """
 
     __slots__ = ("_epsilon", "_matrix", "_columns", "_delays")

@@ -27,7 +27,6 @@ Conventions: ``P1`` is the model, ``P2`` the measurement (or the second model), 
 
 from __future__ import annotations
 
-import cmath
 import math
 import threading
 from dataclasses import dataclass
@@ -55,8 +54,13 @@ _CANCEL_EPS = 64 * np.finfo(float).eps  # sums of coefficients this small relati
 _TIE_RTOL = 1e-9  # peaks equal to this (relative) are the same height: the lowest frequency is reported
 _HUGE_EPSILON = 1e10  # a refined epsilon peak above this is a crossing of P2 = -P1: reported as inf
 _AXIS_OFFSETS = np.geomspace(1e-9, 0.5, 180)  # relative offsets sampled on both sides of roots on the axis
+_AXIS_BELOW, _AXIS_ABOVE = 1.0 - _AXIS_OFFSETS, 1.0 + _AXIS_OFFSETS
 _RESONANCE_OFFSETS = np.linspace(-6.0, 6.0, 49)  # multiples of |Re| sampled around complex roots
+_J_SIGNS = np.array([1.0, 1.0, -1.0, -1.0] * 64)   # (-1)^(k // 2), k = 0 ... 255: the real sign of j^k
 _SINGULAR_D_COND = 1e12  # det(G2~ G1) at infinity is taken as zero beyond this condition number
+# |n|^2 + |d|^2 of both models within this range on a whole grid: kappa's products neither overflow nor lose
+# digits to underflow (|n2 d1 - n1 d2|^2 <= the product of the two), the parts need no scaling
+_SIZE_RANGE = (1e-75, 1e140)
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -266,11 +270,22 @@ def polynomial_roots(poly: ArrayLike) -> np.ndarray:
     elif degree == 1:
         roots = np.array([-poly[1] / poly[0]])
     else:
-        companion = np.eye(degree, k=-1)
-        companion[0] = -poly[1:degree + 1] / poly[0]
+        companion = _shift(degree)
+        np.divide(poly[1:degree + 1], -poly[0], out=companion[0])
         roots = _eigenvalues(companion)
     trailing = len(poly) - 1 - degree
     return np.concatenate([roots, np.zeros(trailing)]) if trailing else roots
+
+
+_SHIFTS: dict[int, np.ndarray] = {}
+
+
+def _shift(size: int) -> np.ndarray:
+    """A fresh copy of ``numpy.eye(size, k=-1)`` (the companion matrix's ones below the diagonal)."""
+    shift = _SHIFTS.get(size)
+    if shift is None:
+        shift = _SHIFTS[size] = np.eye(size, k=-1)
+    return shift.copy()
 
 
 def _eigenvalues(matrix: np.ndarray) -> np.ndarray:
@@ -315,12 +330,12 @@ def coprime(num: ArrayLike, den: ArrayLike, zeros: ArrayLike | None = None,
         Without the common factors; ``den`` monic.
     """
     num, den = strip_leading_zeros(num), strip_leading_zeros(den)
-    if not np.any(num):
+    if not num.any():
         return np.array([0.0]), np.array([1.0])
     zeros = polynomial_roots(num) if zeros is None else np.asarray(zeros)
     poles = polynomial_roots(den) if poles is None else np.asarray(poles)
-    if not zeros.size or not poles.size or not np.any(
-            np.abs(zeros[:, None] - poles[None, :]) <= _CANCEL_RTOL * np.maximum(1.0, np.abs(poles))):
+    if not zeros.size or not poles.size or not (
+            np.abs(zeros[:, None] - poles) <= _CANCEL_RTOL * np.maximum(np.abs(poles), 1.0)).any():
         return num, den / den[0]   # no zero close enough to any pole
     zeros, poles = list(zeros), list(poles)
     cancelled = False
@@ -339,24 +354,15 @@ def coprime(num: ArrayLike, den: ArrayLike, zeros: ArrayLike | None = None,
         np.real(np.poly(poles)) if poles else np.array([1.0])
 
 
-def _even_odd(poly: ArrayLike) -> tuple[list[float], list[float]]:
+def _even_odd(poly: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """E and O with ``p(j w) = E(w^2) + j w O(w^2)`` (descending powers of w^2), p in descending powers of s.
 
     Half the operations of Horner's rule in s, and in real arithmetic.
     """
-    coefficients = [float(c) for c in np.ravel(poly)][::-1]   # ascending powers k
-    signed = [-c if k % 4 >= 2 else c for k, c in enumerate(coefficients)]   # j^k = (-1)^(k // 2) j^(k % 2)
+    coefficients = np.asarray(poly, dtype=float).ravel()[::-1]   # ascending powers k
+    size = coefficients.size   # j^k = (-1)^(k // 2) j^(k % 2)
+    signed = coefficients * (_J_SIGNS[:size] if size <= _J_SIGNS.size else np.resize(_J_SIGNS[:4], size))
     return signed[0::2][::-1], signed[1::2][::-1]
-
-
-def _point_on_imaginary_axis(even_odd: tuple[list[float], list[float]], w: float, u: float) -> complex:
-    """``p(j w)`` at one frequency (u = w^2): Horner's rule on the parts from :func:`_even_odd`."""
-    real = imag = 0.0
-    for c in even_odd[0]:
-        real = real * u + c
-    for c in even_odd[1]:
-        imag = imag * u + c
-    return complex(real, imag * w)
 
 
 def _complex(real: np.ndarray, imag: np.ndarray) -> np.ndarray:
@@ -370,11 +376,11 @@ _SCRATCH = threading.local()
 
 
 def _scratch(rows: int) -> np.ndarray:
-    """This thread's scratch array of :class:`_PairResponse`, at least ``rows`` x 8192 (1.2 MB; kept:
+    """This thread's scratch array of :class:`_PairResponse`, at least ``rows`` x 8192 (1.6 MB; kept:
     fresh arrays of this size cost page faults on every call, more than the arithmetic)."""
     array = getattr(_SCRATCH, "array", None)
     if array is None or array.shape[0] < rows:
-        array = _SCRATCH.array = np.empty((max(rows, 16), _CHUNK))
+        array = _SCRATCH.array = np.empty((max(rows, 24), _CHUNK))
     return array
 
 
@@ -386,18 +392,24 @@ class _PairResponse:
     (:func:`_even_odd`): on a grid as one matrix product with the powers of w^2, at one frequency by Horner's
     rule. Each model's numerator (delay included) and denominator are divided by the largest magnitude of
     their real and imaginary parts at every frequency: the products stay finite at high frequency, the ratios
-    are unchanged.
+    are unchanged (on a grid whose ``|n|^2 + |d|^2`` all lie within 1e-75 .. 1e140, kappa needs no such
+    scaling and is computed without it). On the grid the eight real rows are laid out by part, then by model
+    (n1 re, n2 re, n1 im, n2 im, d1 re, d2 re, d1 im, d2 im): each step is one operation on both models.
     """
 
-    __slots__ = ("_epsilon", "_parts", "_matrix", "_delays")
+    __slots__ = ("_epsilon", "_matrix", "_columns", "_delays")
 
     def __init__(self, m1: LinearModel, m2: LinearModel, epsilon_of: bool = False) -> None:
         self._epsilon = epsilon_of
-        parts = [part for poly in (m1.num, m1.den, m2.num, m2.den) for part in _even_odd(poly)]
-        # rows n1 even, n1 odd, d1 even, d1 odd, n2 even, ..., d2 odd; columns descending powers of w^2
-        length = max(1, max(len(part) for part in parts))
-        self._matrix = np.array([[0.0] * (length - len(part)) + part for part in parts])
-        self._parts = tuple(parts)
+        # rows n1 even, n2 even, n1 odd, n2 odd, d1 even, d2 even, d1 odd, d2 odd (leading zeros keep the
+        # values of Horner's rule); columns descending powers of w^2
+        polys = [np.asarray(poly, dtype=float).ravel() for poly in (m1.num, m2.num, m1.den, m2.den)]
+        self._matrix = np.zeros((8, max(1, max((poly.size + 1) // 2 for poly in polys))))
+        for row, poly in zip((0, 1, 4, 5), polys):
+            for k, part in enumerate(_even_odd(poly)):
+                if part.size:
+                    self._matrix[row + 2 * k, -part.size:] = part
+        self._columns = [tuple(column) for column in self._matrix.T.tolist()]
         self._delays = (m1.delay_s, m2.delay_s)
 
     def __call__(self, w: np.ndarray) -> np.ndarray:
@@ -410,70 +422,81 @@ class _PairResponse:
 
     def _evaluate(self, w: np.ndarray, out: np.ndarray) -> None:
         """The values at up to 8192 frequencies, into ``out``: in-place operations on rows of the scratch
-        array (numpy's in-place operations with a broadcast row are several times slower)."""
-        length = self._matrix.shape[1]
-        scratch = _scratch(length + 12)[:, :w.size]
-        parts, work, powers = scratch[:8], scratch[8:12], scratch[12:12 + length]
+        array, both models at once."""
+        length, size = self._matrix.shape[1], w.size
+        full = _scratch(max(12 + length, 20))   # few rows: they stay in the cache
+        parts = full[:8, :size]
+        by_part = full[:8].reshape(4, 2, _CHUNK)[:, :, :size]   # [n re, n im, d re, d im][model]
+        work = full[8:12, :size]
+        powers = full[12:12 + length, :size]   # the spare rows once the parts are evaluated
+        spare = full[12:20].reshape(4, 2, _CHUNK)[:, :, :size]
         u = powers[-2] if length > 1 else work[0]
         np.multiply(w, w, out=u)
-        top = float(u.max()) if w.size else 0.0
+        top = float(u.max()) if size else 0.0
         if top <= 1.0 or (length - 1) * math.log10(top) < 300.0:
             for k in range(length - 3, -1, -1):   # rows u^(length - 1), ..., u^2, u, 1
                 np.multiply(powers[k + 1], u, out=powers[k])
             powers[-1].fill(1.0)
             np.matmul(self._matrix, powers, out=parts)
         else:   # powers of w^2 that overflow: Horner's rule, row by row
-            for part, coefficients in zip(parts, self._parts):
+            for part, coefficients in zip(parts, self._matrix):
                 part.fill(0.0)
                 for c in coefficients:
                     part *= u
                     part += c
-        for part in parts[1::2]:
-            part *= w
+        by_part[1] *= w   # the odd parts: imaginary parts
+        by_part[3] *= w
         for k, delay_s in enumerate(self._delays):
             if delay_s:   # (re + j im) exp(-j w T)
-                real, imag = parts[4 * k], parts[4 * k + 1]
+                real, imag = parts[k], parts[2 + k]
                 cos, sin = np.cos(w * delay_s), np.sin(w * delay_s)
                 real[:], imag[:] = real * cos + imag * sin, imag * cos - real * sin
-        for k in range(2):   # each model's parts divided by their largest magnitude
-            block, scale = parts[4 * k:4 * k + 4], work[k]
-            np.abs(block[0], out=scale)
-            for row in block[1:]:
-                np.abs(row, out=work[3])
-                np.maximum(scale, work[3], out=scale)
-            np.copyto(scale, 1.0, where=scale == 0.0)
-            np.divide(1.0, scale, out=scale)
-            for row in block:
-                row *= scale
-        n1r, n1i, d1r, d1i, n2r, n2i, d2r, d2i = parts
+        if not self._epsilon:
+            sizes = work[2:4]   # |n|^2 + |d|^2 of each model
+            np.multiply(by_part, by_part, out=spare)
+            np.add(spare[0], spare[1], out=sizes)
+            sizes += spare[2]
+            sizes += spare[3]
+            if size and _SIZE_RANGE[0] <= sizes.min() and sizes.max() <= _SIZE_RANGE[1]:
+                self._kappa(parts, spare, work, out)   # no overflow or underflow to fear: no scaling
+                return
+        scale = work[:2]   # each model's parts divided by their largest magnitude
+        np.abs(by_part, out=spare)
+        np.maximum.reduce(spare, axis=0, out=scale)
+        np.copyto(scale, 1.0, where=scale == 0.0)
+        np.divide(1.0, scale, out=scale)
+        by_part *= scale
         if self._epsilon:
+            n1r, n2r, n1i, n2i, d1r, d2r, d1i, d2i = parts
             p1 = _complex(n1r * d2r - n1i * d2i, n1r * d2i + n1i * d2r)
             p2 = _complex(n2r * d1r - n2i * d1i, n2r * d1i + n2i * d1r)
             out[:] = epsilon_per_frequency(p1, p2)
             return
-        real, imag, t = work[0], work[1], work[2]   # n2 d1 - n1 d2
-        np.multiply(n2r, d1r, out=real)
-        np.multiply(n2i, d1i, out=t)
-        real -= t
-        np.multiply(n1r, d2r, out=t)
-        real -= t
-        np.multiply(n1i, d2i, out=t)
-        real += t
-        np.multiply(n2r, d1i, out=imag)
-        np.multiply(n2i, d1r, out=t)
-        imag += t
-        np.multiply(n1r, d2i, out=t)
-        imag -= t
-        np.multiply(n1i, d2r, out=t)
-        imag -= t
-        real *= real
-        imag *= imag
+        sizes = work[2:4]
+        np.multiply(by_part, by_part, out=spare)
+        np.add(spare[0], spare[1], out=sizes)
+        sizes += spare[2]
+        sizes += spare[3]
+        self._kappa(parts, spare, work, out)
+
+    @staticmethod
+    def _kappa(parts: np.ndarray, spare: np.ndarray, work: np.ndarray, out: np.ndarray) -> None:
+        """kappa from the eight parts and each model's ``|n|^2 + |d|^2`` (``work[2:4]``), into ``out``."""
+        rr, ii, ri, ir = spare   # n2 d1 - n1 d2: the products [n1 x d2, n2 x d1] of each pair of parts
+        np.multiply(parts[0:2], parts[5:3:-1], out=rr)
+        np.multiply(parts[2:4], parts[7:5:-1], out=ii)
+        np.multiply(parts[0:2], parts[7:5:-1], out=ri)
+        np.multiply(parts[2:4], parts[5:3:-1], out=ir)
+        cross = work[:2]
+        real, imag = cross
+        np.subtract(rr[1], ii[1], out=real)
+        real -= rr[0]
+        real += ii[0]
+        np.add(ri[1], ir[1], out=imag)
+        imag -= ri[0]
+        imag -= ir[0]
+        cross *= cross
         real += imag                              # |n2 d1 - n1 d2|^2
-        parts *= parts
-        for k in range(2):                        # |n|^2 + |d|^2 of each model
-            np.add(parts[4 * k], parts[4 * k + 1], out=work[2 + k])
-            work[2 + k] += parts[4 * k + 2]
-            work[2 + k] += parts[4 * k + 3]
         work[2] *= work[3]
         np.divide(real, work[2], out=out)
         np.sqrt(out, out=out)
@@ -494,22 +517,37 @@ class _PairResponse:
         """
         try:
             u = w * w
-            parts = []
-            for k, delay_s in enumerate(self._delays):
-                n = _point_on_imaginary_axis(self._parts[4 * k:4 * k + 2], w, u)
-                d = _point_on_imaginary_axis(self._parts[4 * k + 2:4 * k + 4], w, u)
-                if delay_s:
-                    n *= cmath.exp(-1j * w * delay_s)
-                scale = max(abs(n.real), abs(n.imag), abs(d.real), abs(d.imag))
-                inverse = 1.0 / scale if scale > 0.0 else 1.0
-                parts += [n * inverse, d * inverse]
-            n1, d1, n2, d2 = parts
+            # the eight parts at u by Horner's rule, together (leading zeros of the shorter ones keep them 0)
+            n1r = n2r = n1i = n2i = d1r = d2r = d1i = d2i = 0.0
+            for c0, c1, c2, c3, c4, c5, c6, c7 in self._columns:
+                n1r, n2r, n1i, n2i = n1r * u + c0, n2r * u + c1, n1i * u + c2, n2i * u + c3
+                d1r, d2r, d1i, d2i = d1r * u + c4, d2r * u + c5, d1i * u + c6, d2i * u + c7
+            n1i, n2i, d1i, d2i = n1i * w, n2i * w, d1i * w, d2i * w   # the odd parts: imaginary parts
+            delay1, delay2 = self._delays
+            if delay1:   # (re + j im) exp(-j w T)
+                cos, sin = math.cos(w * delay1), math.sin(w * delay1)
+                n1r, n1i = n1r * cos + n1i * sin, n1i * cos - n1r * sin
+            if delay2:
+                cos, sin = math.cos(w * delay2), math.sin(w * delay2)
+                n2r, n2i = n2r * cos + n2i * sin, n2i * cos - n2r * sin
+            # each model's parts divided by their largest magnitude
+            scale = max(abs(n1r), abs(n1i), abs(d1r), abs(d1i))
+            if scale > 0.0:
+                n1r, n1i, d1r, d1i = n1r / scale, n1i / scale, d1r / scale, d1i / scale
+            scale = max(abs(n2r), abs(n2i), abs(d2r), abs(d2i))
+            if scale > 0.0:
+                n2r, n2i, d2r, d2i = n2r / scale, n2i / scale, d2r / scale, d2i / scale
+            # n2 d1 -+ n1 d2
+            a_r, a_i = n2r * d1r - n2i * d1i, n2r * d1i + n2i * d1r
+            b_r, b_i = n1r * d2r - n1i * d2i, n1r * d2i + n1i * d2r
+            cross_r, cross_i = a_r - b_r, a_i - b_i
             if self._epsilon:
-                diff, total = abs(n2 * d1 - n1 * d2), abs(n2 * d1 + n1 * d2)
+                diff = math.hypot(cross_r, cross_i)
+                total = math.hypot(a_r + b_r, a_i + b_i)
                 return 0.0 if diff == 0.0 else diff / total if total != 0.0 else math.inf
-            cross = n2 * d1 - n1 * d2
-            sizes = (abs(n1) ** 2 + abs(d1) ** 2) * (abs(n2) ** 2 + abs(d2) ** 2)
-            return min(math.sqrt((cross.real * cross.real + cross.imag * cross.imag) / sizes), 1.0)
+            sizes = (n1r * n1r + n1i * n1i + d1r * d1r + d1i * d1i) * \
+                (n2r * n2r + n2i * n2i + d2r * d2r + d2i * d2i)
+            return min(math.sqrt((cross_r * cross_r + cross_i * cross_i) / sizes), 1.0)
         except (OverflowError, ZeroDivisionError, ValueError):
             with np.errstate(all="ignore"):
                 return float(self(np.array([w]))[0])
@@ -656,16 +694,16 @@ def _winding_algebraic(n1: np.ndarray, d1: np.ndarray, n2: np.ndarray, d2: np.nd
     deg1, deg2 = len(d1) - 1, len(d2) - 1
     d_term = _polymul(mirror(d2), d1)
     n_term = _polymul(mirror(n2), n1)
-    rho = np.polyadd(d_term, n_term)
+    rho = np.add(*_aligned(d_term, n_term))
     lead_scale = abs(d_term[0]) + (abs(n_term[0]) if len(n_term) == len(d_term) else 0.0)
     if len(rho) < len(d_term) or abs(rho[-(deg1 + deg2 + 1)]) <= 1e-12 * lead_scale:
         return WindingCheck(False, math.inf, "1 + P2~ P1 vanishes at infinity (P1(inf) P2(inf) = -1)")
     roots = polynomial_roots(rho)
     axis = on_axis(roots)
-    if np.any(axis):
+    if axis.any():
         w = float(np.min(np.abs(roots[axis].imag)))
         return WindingCheck(False, w, f"1 + P2~ P1 vanishes at w = {w:.6g} rad/s")
-    left = int(np.sum(roots.real < 0.0))
+    left = int(np.count_nonzero(roots.real < 0.0))
     right = roots.size - left
     if left == deg1 and right == deg2:
         return WindingCheck(True)
@@ -686,8 +724,9 @@ def on_axis(roots: np.ndarray) -> np.ndarray:
     ndarray of bool
         One flag per root: ``|Re| <= 1e-8 max(|root|, 1e-3 max(1, max |root|))``.
     """
-    scale = max(1.0, float(np.max(np.abs(roots)))) if roots.size else 1.0
-    return np.abs(roots.real) <= _AXIS_RTOL * np.maximum(np.abs(roots), 1e-3 * scale)
+    magnitudes = np.abs(roots)
+    scale = max(1.0, float(magnitudes.max())) if roots.size else 1.0
+    return np.abs(roots.real) <= _AXIS_RTOL * np.maximum(magnitudes, 1e-3 * scale)
 
 
 def _winding_state_space(g1: statespace.StateSpace, g2: statespace.StateSpace, n2: int) -> WindingCheck:
@@ -824,17 +863,28 @@ def _wrap(angle: ArrayLike) -> np.ndarray:
     return (np.asarray(angle) + math.pi) % (2.0 * math.pi) - math.pi
 
 
-def _resonance_points(roots: np.ndarray) -> np.ndarray:
-    """Frequencies around every complex root: |Im| +- a few multiples of |Re|."""
+def _resonance_points(roots: np.ndarray, axis_scale: float | None = None) -> np.ndarray:
+    """Frequencies around every complex root: |Im| +- a few multiples of |Re|, and |root| (unsorted; some may
+    be negative: callers keep their range). Roots r and -conj(r) give the same points, computed once.
+
+    With ``axis_scale`` (the largest root magnitude, at least 1: :func:`on_axis`'s scale) the points on both
+    sides of every root on the positive imaginary axis (:func:`_axis_points`) are included.
+    """
     roots = np.asarray(roots, dtype=complex)
-    roots = roots[(roots.imag > 0.0) | ((roots.imag == 0.0) & (roots.real != 0.0))]
+    imag = roots.imag
+    roots = roots[(imag > 0.0) | ((imag == 0.0) & (roots.real != 0.0))]
     if roots.size == 0:
         return np.zeros(0)
-    centre = np.where(roots.imag > 0.0, np.abs(roots.imag), np.abs(roots.real))
-    width = np.maximum(np.abs(roots.real), 1e-9 * np.maximum(centre, 1.0))
-    points = np.concatenate([centre[:, None] + width[:, None] * _RESONANCE_OFFSETS, np.abs(roots)[:, None]],
-                            axis=1).ravel()
-    return points[points > 0.0]
+    keys = np.unique(_complex(np.abs(roots.real), roots.imag))   # r and -conj(r) give the same points
+    real, imag, magnitude = keys.real, keys.imag, np.abs(keys)
+    centre = np.where(imag > 0.0, imag, real)
+    width = np.maximum(real, 1e-9 * np.maximum(centre, 1.0))
+    points = [(centre[:, None] + width[:, None] * _RESONANCE_OFFSETS).ravel(), magnitude]
+    if axis_scale is not None:
+        axis = (imag > 0.0) & (real <= _AXIS_RTOL * np.maximum(magnitude, 1e-3 * axis_scale))
+        if axis.any():
+            points.append(_axis_points(imag[axis]))
+    return np.concatenate(points)
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -842,19 +892,15 @@ def _resonance_points(roots: np.ndarray) -> np.ndarray:
 # ----------------------------------------------------------------------------------------------------------
 
 
-def _axis_points(roots: np.ndarray) -> np.ndarray:
-    """Frequencies on both sides of every root on the positive imaginary axis, geometrically closer.
+def _axis_points(centres: np.ndarray) -> np.ndarray:
+    """Frequencies on both sides of roots on the positive imaginary axis (``centres``: their frequencies),
+    geometrically closer.
 
     Two models sharing an undamped pole can have their largest chordal distance a hair to either side of it;
     the offsets run from 1e-9 to 0.5 of the root's frequency.
     """
-    roots = np.asarray(roots, dtype=complex)
-    centres = np.unique(roots[(roots.imag > 0.0) & on_axis(roots)].imag)
-    if centres.size == 0:
-        return np.zeros(0)
-    return np.concatenate(
-        [centres[:, None] * (1.0 - _AXIS_OFFSETS), centres[:, None] * (1.0 + _AXIS_OFFSETS)], axis=1
-    ).ravel()
+    centres = np.unique(centres)[:, None]
+    return np.concatenate([(centres * _AXIS_BELOW).ravel(), (centres * _AXIS_ABOVE).ravel()])
 
 
 def combined(a: ArrayLike, b: ArrayLike, sign: float = 1.0) -> np.ndarray:
@@ -874,14 +920,33 @@ def combined(a: ArrayLike, b: ArrayLike, sign: float = 1.0) -> np.ndarray:
     -------
     ndarray of float
     """
+    return _combined_both(a, b, (sign,))[0]
+
+
+def _combined_both(a: ArrayLike, b: ArrayLike, signs: tuple[float, ...] = (1.0, -1.0)) -> list[np.ndarray]:
+    """:func:`combined` for each sign, sharing the alignment and the round-off threshold."""
     a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
     if a.size != b.size:
-        size = max(a.size, b.size)
+        a, b = _aligned(a, b)
+    threshold = np.abs(a)
+    threshold += np.abs(b)
+    threshold *= _CANCEL_EPS
+    out = []
+    for sign in signs:
+        total = a + sign * b
+        total[np.abs(total) <= threshold] = 0.0
+        out.append(total)
+    return out
+
+
+def _aligned(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two coefficient arrays padded with leading zeros to the same length."""
+    size = max(a.size, b.size)
+    if a.size < size:
         a = np.concatenate([np.zeros(size - a.size), a])
+    if b.size < size:
         b = np.concatenate([np.zeros(size - b.size), b])
-    total = a + sign * b
-    total[np.abs(total) <= _CANCEL_EPS * (np.abs(a) + np.abs(b))] = 0.0
-    return total
+    return a, b
 
 
 def feature_roots(model: LinearModel, poles_zeros: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
@@ -908,7 +973,8 @@ def feature_roots(model: LinearModel, poles_zeros: tuple[np.ndarray, np.ndarray]
     num, den = strip_leading_zeros(model.num), strip_leading_zeros(model.den)
     nn = _polymul(num, mirror(num))
     dd = _polymul(den, mirror(den))
-    return np.concatenate([poles, zeros, _even_roots(combined(nn, dd)), _even_roots(combined(nn, dd, -1.0))])
+    total, difference = _combined_both(nn, dd)
+    return np.concatenate([poles, zeros, _even_roots(total), _even_roots(difference)])
 
 
 def _pair_roots(m1: LinearModel, m2: LinearModel, roots1: tuple[np.ndarray, np.ndarray],
@@ -917,9 +983,8 @@ def _pair_roots(m1: LinearModel, m2: LinearModel, roots1: tuple[np.ndarray, np.n
     of ``P2 - P1`` and of ``P2 + P1`` (the numerator and denominator of epsilon, eq. 14)."""
     parts = [feature_roots(m1, roots1), feature_roots(m2, roots2)]
     if m1.delay_s == m2.delay_s:
-        cross1, cross2 = _polymul(m2.num, m1.den), _polymul(m1.num, m2.den)
-        parts += [polynomial_roots(combined(cross1, cross2, -1.0)),
-                  polynomial_roots(combined(cross1, cross2))]
+        difference, total = _combined_both(_polymul(m2.num, m1.den), _polymul(m1.num, m2.den), (-1.0, 1.0))
+        parts += [polynomial_roots(difference), polynomial_roots(total)]
     return np.concatenate(parts)
 
 
@@ -946,9 +1011,10 @@ def analysis_grid(roots: ArrayLike, delta_s: float = 0.0) -> np.ndarray:
     roots = np.asarray(roots, dtype=complex)
     roots = roots[np.isfinite(roots)]
     magnitudes = np.abs(roots)
-    magnitudes = magnitudes[magnitudes > 0.0]
-    w_min = float(magnitudes.min()) if magnitudes.size else 1.0
-    w_max = float(magnitudes.max()) if magnitudes.size else 1.0
+    nonzero = magnitudes[magnitudes > 0.0]
+    w_min = float(nonzero.min()) if nonzero.size else 1.0
+    w_max = float(nonzero.max()) if nonzero.size else 1.0
+    axis_scale = max(1.0, w_max)   # on_axis's scale
     delta_s = abs(delta_s)
     if delta_s > 0.0:
         w_min = min(w_min, 1.0 / delta_s)
@@ -957,26 +1023,37 @@ def analysis_grid(roots: ArrayLike, delta_s: float = 0.0) -> np.ndarray:
     count = int(_GRID_PER_DECADE * math.log10(w_hi / w_lo)) + 2
     log_grid = np.exp(np.linspace(math.log(w_lo), math.log(w_hi), count))
     log_grid[0], log_grid[-1] = w_lo, w_hi
-    extra = [_resonance_points(roots), _axis_points(roots)]
+    extra = [_resonance_points(roots, axis_scale)]   # with the points beside the roots on the axis
     if delta_s > 0.0:
         step = math.pi / (8.0 * delta_s)
         extra.append(np.arange(1, min(int(w_hi / step), 100_000) + 1) * step)
     extra = np.concatenate(extra)
-    extra = np.sort(extra[(extra >= w_lo) & (extra <= w_hi)])
+    extra = np.sort(extra[(extra >= w_lo) & (extra <= w_hi)], kind="stable")   # runs: each root's points
     w = np.sort(np.concatenate([log_grid, extra]), kind="stable")   # merges the two sorted runs
     # equal points, or within round-off of each other (the same root from several polynomials), would tie as
     # false peaks: the first of each cluster is kept
-    return w[np.concatenate([[True], np.diff(w) > 1e-12 * w[1:]])] if w.size else w
+    keep = np.empty(w.size, dtype=bool)
+    if w.size:
+        keep[0] = True
+        np.greater(np.diff(w), 1e-12 * w[1:], out=keep[1:])
+    return w[keep]
 
 
 def _grid_peaks(fun: Response, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Values of fun on the grid and the indices of its local maxima (NaN counts as -inf)."""
     values = np.asarray(fun(w), dtype=float)
-    values[np.isnan(values)] = -np.inf
-    above_left, above_right = np.ones(values.size, dtype=bool), np.ones(values.size, dtype=bool)
-    np.greater_equal(values[1:], values[:-1], out=above_left[1:])
-    np.greater_equal(values[:-1], values[1:], out=above_right[:-1])
-    is_peak = above_left & above_right & np.isfinite(values) | (values == np.inf)
+    if values.size == 0:
+        return values, np.zeros(0, dtype=np.intp)
+    finite = math.isfinite(values.max()) and math.isfinite(values.min())   # no nan, no infinity
+    if not finite:
+        values[np.isnan(values)] = -np.inf
+    is_peak = np.ones(values.size, dtype=bool)
+    if values.size > 1:
+        is_peak[1:] = values[1:] >= values[:-1]   # not below the left neighbour
+        is_peak[:-1] &= values[:-1] >= values[1:]   # nor the right one
+    if not finite:
+        is_peak &= np.isfinite(values)
+        is_peak |= values == np.inf
     return values, np.flatnonzero(is_peak)
 
 
@@ -997,9 +1074,10 @@ def _bounded_maximum(fun: Callable[[float], float], a: float, b: float, xatol: f
         x = w = v = a + _GOLDEN * (b - a)
         fx = fw = fv = -fun(x)
         step = last = 0.0
+    sqrt_eps, third = _SQRT_EPS, xatol / 3.0
     for _ in range(max_steps):
         middle = 0.5 * (a + b)
-        tol = _SQRT_EPS * abs(x) + xatol / 3.0
+        tol = sqrt_eps * abs(x) + third
         if abs(x - middle) <= 2.0 * tol - 0.5 * (b - a):
             break
         golden = True
@@ -1078,8 +1156,11 @@ def _refined_sup(fun: Response, w: np.ndarray) -> tuple[float, float]:
     if np.isinf(top):
         return math.inf, float(w[peaks[values[peaks] == np.inf][0]])
     close = peaks[values[peaks] >= top - 0.3 * abs(top) - 1e-12]
-    highest = close[np.argsort(values[close])[::-1]][:_MAX_CANDIDATES]
-    keep = np.union1d(highest, close[:10])  # also the lowest-frequency ones (equal periodic peaks)
+    if close.size <= _MAX_CANDIDATES:
+        keep = close   # all of them (ascending, as the union below)
+    else:
+        highest = close[np.argsort(values[close])[::-1]][:_MAX_CANDIDATES]
+        keep = np.union1d(highest, close[:10])  # also the lowest-frequency ones (equal periodic peaks)
     results = [_refine(fun, w, values, k) for k in keep]
     best_value = max(value for value, _ in results)
     ties = [where for value, where in results if value >= best_value - _TIE_RTOL * max(1.0, abs(best_value))]

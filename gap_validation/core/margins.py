@@ -9,7 +9,7 @@ and no number is ever printed for it.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 __all__ = ["Margins", "margins_from_epsilon", "margins_note", "STANDARD_EPSILON", "WARN_EPSILON",
            "STANDARD_MARGINS"]
@@ -63,8 +63,7 @@ class Margins:
     def to_json_dict(self) -> dict:
         """JSON keys of DESIGN.md: ``gain_margin_db``, ``phase_margin_deg``, ``disk_margin`` (None ->
         null)."""
-        data = asdict(self)
-        return {key: data[key] for key in ("gain_margin_db", "phase_margin_deg", "disk_margin")}
+        return {key: getattr(self, key) for key in ("gain_margin_db", "phase_margin_deg", "disk_margin")}
 
 
 def margins_note(eps: float | None) -> str | None:

@@ -10,6 +10,7 @@ and ``model``: the measured phase unwrapped next to the model's), so the curves 
 from __future__ import annotations
 
 import re
+from functools import lru_cache
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -54,7 +55,7 @@ def frequency_response_table(result: ChannelResult, channel: ChannelConfig) -> n
     """
     if getattr(channel, "is_mimo", False):
         return None
-    grid = np.asarray(channel.frequencies.values(), dtype=float)
+    grid = _grid(channel.frequencies)
     table = np.full((len(CURVES), grid.size), np.nan)
     table[0], table[1] = grid, np.log10(grid)
     w = result.frequency_rad_s
@@ -66,24 +67,31 @@ def frequency_response_table(result: ChannelResult, channel: ChannelConfig) -> n
     at = np.where(np.abs(grid[closer] - w) < np.abs(grid[at] - w), closer, at)
     if not np.allclose(grid[at], w, rtol=1e-9, atol=0.0):
         raise ValueError(f"channel {result.name}: its result's frequencies are not on its analysis grid")
-    data = result.to_json_dict(samples=False)
+    curves = result.curves()      # the JSON's curves, nulls as NaN (without building its lists)
     rows = {
-        "measured_magnitude_db": data["measured"]["magnitude_db"],
-        "measured_phase_deg": data["measured"]["phase_deg"],
-        "model_magnitude_db": data["model"]["magnitude_db"],
-        "model_phase_deg": data["model"]["phase_deg"],
-        "coherence": data["coherence"],
-        "epsilon": data["epsilon_per_frequency"],
-        "kappa": data["kappa"],
-        "random_error": data["random_error"],
-        "flag": [FLAG_CODES.get(f) for f in data["frequency_flags"]],
+        "measured_magnitude_db": curves["measured_magnitude_db"],
+        "measured_phase_deg": curves["measured_phase_deg"],
+        "model_magnitude_db": curves["model_magnitude_db"],
+        "model_phase_deg": curves["model_phase_deg"],
+        "coherence": curves["coherence"],
+        "epsilon": curves["epsilon_per_frequency"],
+        "kappa": curves["kappa"],
+        "random_error": curves["random_error"],
+        "flag": np.array([np.nan if code is None else code
+                          for code in (FLAG_CODES.get(f) for f in result.frequency_flags)], dtype=float),
     }
     for name, values in rows.items():
         if values is not None and len(values) == w.size:
-            table[CURVES.index(name), at] = np.array(
-                [np.nan if v is None else v for v in values], dtype=float
-            )
+            table[CURVES.index(name), at] = values
     return table
+
+
+@lru_cache(maxsize=64)
+def _grid(frequencies) -> np.ndarray:
+    """A grid's frequencies (read-only; a config's grid is fixed: computed once, not at every table)."""
+    grid = np.asarray(frequencies.values(), dtype=float)
+    grid.flags.writeable = False
+    return grid
 
 
 def read_table(data: Sequence[float], labels: Sequence[str]) -> dict[str, np.ndarray]:

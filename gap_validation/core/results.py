@@ -21,6 +21,10 @@ NUGAP_DATA_NOTE = (
 )
 
 
+#: The margins' keys of a channel's JSON object (:meth:`Margins.to_json_dict`).
+_MARGIN_KEYS = ("gain_margin_db", "phase_margin_deg", "disk_margin")
+
+
 def _num(value: Any) -> float | None:
     """A JSON-safe float: ``None`` for None, NaN and infinities."""
     if value is None:
@@ -30,7 +34,14 @@ def _num(value: Any) -> float | None:
 
 
 def _list(values: Any) -> list:
-    return [_num(v) for v in np.asarray(values, dtype=float).ravel()] if values is not None else []
+    """JSON-safe floats of an array, flattened (:func:`_num` of each: NaN and infinities become ``None``)."""
+    if values is None:
+        return []
+    array = np.asarray(values, dtype=float).ravel()
+    out = array.tolist()                 # Python floats, as float() of each entry gives
+    if not np.isfinite(array).all():
+        out = [v if math.isfinite(v) else None for v in out]
+    return out
 
 
 def phase_deg(response: np.ndarray, reference: np.ndarray | None = None) -> np.ndarray:
@@ -80,13 +91,33 @@ def _array(values: Any) -> np.ndarray | None:
     return np.array([np.nan if v is None else v for v in values], dtype=float)
 
 
-def _mag_phase(response: np.ndarray | None, reference: np.ndarray | None = None) -> dict:
+def _bode(response: np.ndarray | None, reference: np.ndarray | None = None
+          ) -> tuple[np.ndarray, np.ndarray] | None:
+    """Magnitude [dB] and phase [deg] (on the reference's branch) of a response; None for none or an empty
+    one."""
     if response is None or len(response) == 0:
-        return {"magnitude_db": [], "phase_deg": []}
+        return None
     response = np.asarray(response, dtype=complex)
     with np.errstate(divide="ignore"):
         mag = 20.0 * np.log10(np.abs(response))
-    return {"magnitude_db": _list(mag), "phase_deg": _list(phase_deg(response, reference))}
+    return mag, phase_deg(response, reference)
+
+
+def _mag_phase(response: np.ndarray | None, reference: np.ndarray | None = None) -> dict:
+    bode = _bode(response, reference)
+    if bode is None:
+        return {"magnitude_db": [], "phase_deg": []}
+    return {"magnitude_db": _list(bode[0]), "phase_deg": _list(bode[1])}
+
+
+def _curve(values: Any) -> np.ndarray | None:
+    """What :func:`_list` gives, as a flat float array with NaN for its nulls; None for an empty list."""
+    if values is None:
+        return None
+    array = np.asarray(values, dtype=float).ravel()
+    if not array.size:
+        return None
+    return array if np.isfinite(array).all() else np.where(np.isfinite(array), array, np.nan)
 
 
 class _JsonView:
@@ -631,14 +662,15 @@ class ChannelResult:
             ``False`` leaves out the bulky parts only figures need (each raw sweep's response, the doublets'
             samples): the node's 1 Hz diagnostics read a few numbers.
         """
+        head = self.headline_json_dict()
         out = {
-            "nu_gap": _num(self.nu_gap),
-            "epsilon": _num(self.epsilon),
-            "epsilon_raw": _num(self.epsilon_raw),
-            "worst_frequency_rad_s": _num(self.worst_frequency_rad_s),
-            **self.margins.to_json_dict(),
-            "sweeps": int(self.sweeps),
-            "limited_by": self.limited_by,
+            "nu_gap": head["nu_gap"],
+            "epsilon": head["epsilon"],
+            "epsilon_raw": head["epsilon_raw"],
+            "worst_frequency_rad_s": head["worst_frequency_rad_s"],
+            **{key: head[key] for key in _MARGIN_KEYS},
+            "sweeps": head["sweeps"],
+            "limited_by": head["limited_by"],
             "frequency_rad_s": _list(self.frequency_rad_s),
             "coherence": _list(self.coherence),
             "kappa": _list(self.kappa),
@@ -647,7 +679,7 @@ class ChannelResult:
             "model": _mag_phase(self.model),
             "diagnosis": [c.to_json_dict() for c in self.diagnosis],
             # extensions
-            "nu_gap_frequency_rad_s": _num(self.nu_gap_frequency_rad_s),
+            "nu_gap_frequency_rad_s": head["nu_gap_frequency_rad_s"],
             "epsilon_raw_frequency_rad_s": _num(self.epsilon_raw_frequency_rad_s),
             "margins_raw": self.margins_raw.to_json_dict(),
             # why the margins are null or not guaranteed (None: they are)
@@ -655,13 +687,13 @@ class ChannelResult:
             "margins_guaranteed": self.margins_guaranteed,
             "coherence_threshold": self.coherence_threshold,
             "points_used": self.points_used,
-            "points_excluded": int(self.points_excluded),
+            "points_excluded": head["points_excluded"],
             "random_error": _list(self.random_error),
             "frequency_flags": list(self.frequency_flags),
             "bands": [b.to_json_dict() for b in self.bands],
             "raw_sweeps": [s.to_json_dict() for s in self.sweep_results],
             "bad_samples": dict(self.bad_samples),
-            "epsilon_previous": _num(self.epsilon_previous),
+            "epsilon_previous": head["epsilon_previous"],
             "model_description": self.model_description,
             "message": self.message,
             "nu_gap_note": NUGAP_DATA_NOTE,
@@ -680,13 +712,10 @@ class ChannelResult:
             "nonlinearity_evidence": self.nonlinearity_evidence,
             "input_amplitudes": [_num(a) for a in self.input_amplitudes],
             "beyond_range": list(self.beyond_range),
-            "within_tolerance": None if self.within_tolerance is None else {
-                k: _num(v) for k, v in self.within_tolerance.to_json_dict().items()},
+            "within_tolerance": head["within_tolerance"],
             "conventions": [c.to_json_dict() for c in self.conventions],
-            "dynamic_pressure_ratio": None if self.dynamic_pressure_ratio is None else {
-                k: _num(v) if k != "clipped" else int(v) for k, v in self.dynamic_pressure_ratio.items()},
-            "rate_leads_surface": None if self.rate_leads_surface is None else {
-                k: int(v) if k == "rows" else _num(v) for k, v in self.rate_leads_surface.items()},
+            "dynamic_pressure_ratio": head["dynamic_pressure_ratio"],
+            "rate_leads_surface": head["rate_leads_surface"],
         }
         for entry, response in zip(out["raw_sweeps"], self.sweep_measured if samples else ()):
             entry["measured"] = _mag_phase(response, self.model)
@@ -701,6 +730,58 @@ class ChannelResult:
                         "stability_margin_frequency_rad_s": _num(self.stability_margin_frequency_rad_s),
                         "guaranteed_stable": self.guaranteed_stable, "stability_note": self.stability_note})
         return out
+
+    def headline_json_dict(self) -> dict:
+        """The few numbers of :meth:`to_json_dict` a status shows, the same values without building the
+        per-frequency lists (the node's diagnostics every second): ``nu_gap``, ``epsilon``, ``epsilon_raw``,
+        ``worst_frequency_rad_s``, the margins, ``sweeps``, ``limited_by``, ``points_excluded``,
+        ``epsilon_previous``, ``nu_gap_frequency_rad_s``, ``within_tolerance``, ``dynamic_pressure_ratio``
+        and ``rate_leads_surface``.
+
+        Returns
+        -------
+        dict
+        """
+        return {
+            "nu_gap": _num(self.nu_gap),
+            "epsilon": _num(self.epsilon),
+            "epsilon_raw": _num(self.epsilon_raw),
+            "worst_frequency_rad_s": _num(self.worst_frequency_rad_s),
+            **self.margins.to_json_dict(),
+            "sweeps": int(self.sweeps),
+            "limited_by": self.limited_by,
+            "points_excluded": int(self.points_excluded),
+            "epsilon_previous": _num(self.epsilon_previous),
+            "nu_gap_frequency_rad_s": _num(self.nu_gap_frequency_rad_s),
+            "within_tolerance": None if self.within_tolerance is None else {
+                k: _num(v) for k, v in self.within_tolerance.to_json_dict().items()},
+            "dynamic_pressure_ratio": None if self.dynamic_pressure_ratio is None else {
+                k: _num(v) if k != "clipped" else int(v) for k, v in self.dynamic_pressure_ratio.items()},
+            "rate_leads_surface": None if self.rate_leads_surface is None else {
+                k: int(v) if k == "rows" else _num(v) for k, v in self.rate_leads_surface.items()},
+        }
+
+    def curves(self) -> dict[str, np.ndarray | None]:
+        """The per-frequency curves of :meth:`to_json_dict` as flat float arrays, NaN where the JSON has null,
+        None where its list is empty (the node's plot table every second, without the lists):
+        ``measured_magnitude_db``, ``measured_phase_deg`` (on the model's branch), ``model_magnitude_db``,
+        ``model_phase_deg``, ``coherence``, ``epsilon_per_frequency``, ``kappa`` and ``random_error``.
+
+        Returns
+        -------
+        dict of str to ndarray or None
+        """
+        measured, model = _bode(self.measured, self.model), _bode(self.model)
+        return {
+            "measured_magnitude_db": None if measured is None else _curve(measured[0]),
+            "measured_phase_deg": None if measured is None else _curve(measured[1]),
+            "model_magnitude_db": None if model is None else _curve(model[0]),
+            "model_phase_deg": None if model is None else _curve(model[1]),
+            "coherence": _curve(self.coherence),
+            "epsilon_per_frequency": _curve(self.epsilon_per_frequency),
+            "kappa": _curve(self.kappa),
+            "random_error": _curve(self.random_error),
+        }
 
     def _checks(self) -> list[dict | None]:
         return list(self.time_domain) + [None] * (len(self.manoeuvres) - len(self.time_domain))

@@ -68,6 +68,7 @@ class StreamIntake:
         self.steps = np.zeros((n_streams, RATE_STEPS))
         self.spacing = np.zeros((n_streams, 2))                 # per stream: intervals kept, last t
         self.spacing[:, 1] = -np.inf
+        self._rates: tuple | None = None      # (streams and intervals counted, rates) of the last rates_hz
         self.t0 = float("nan")
         self.trigger_base = TimeBase()
         self.jump_tol_s = jump_back_s(max_gap_s)
@@ -104,12 +105,17 @@ class StreamIntake:
         ndarray
             The rates [Hz].
         """
+        # the intervals kept are only ever appended to (or loaded): the same counts give the same rates
+        key = (streams, tuple(int(n) for n in self.spacing[:streams, 0]))
+        if self._rates is not None and self._rates[0] == key:
+            return self._rates[1].copy()
         rates = []
         for s in range(streams):
             n = int(self.spacing[s, 0])
             step = float(np.median(self.steps[s, :n])) if n else 0.0
             rates.append(float(f"{1.0 / step:.3g}") if step > 0 else np.inf)
-        return np.array(rates)
+        self._rates = (key, np.array(rates))
+        return self._rates[1].copy()
 
     def bad_sample_counts(self, names: tuple[str, ...]) -> dict:
         """Samples used and not used, per stream (``names``) and for the trigger.
@@ -297,6 +303,7 @@ class StreamIntake:
         self.buf_n = [int(n) for n in st["buf_n"]]
         self.spacing[:] = st["spacing"]
         self.steps[:] = st["rate_steps"]
+        self._rates = None
         parts = {"align": self.aligner, "tbase": self.trigger_base}
         parts.update({f"s{i}": s for i, s in enumerate(self.resamplers)})
         for prefix, part in parts.items():

@@ -137,7 +137,7 @@ def channel_status(result: ChannelResult, *, warn_epsilon: float = WARN_EPSILON,
     """
     if isinstance(candidate, dict):
         candidate = Candidate.from_json_dict(candidate)
-    data = result.to_json_dict(samples=False)
+    data = result.headline_json_dict()      # the values below, without the per-frequency lists
     values = [(key, _value_text(data.get(key))) for key in _JSON_VALUES]
     bad = dict(result.bad_samples)
     values.append(("bad_samples", str(int(sum(bad.values())))))
@@ -236,6 +236,22 @@ class PlotChanges:
 
     def __init__(self) -> None:
         self._last: dict[str, tuple[Any, str | None]] = {}
+        self._inputs: dict[str, tuple] = {}      # channel -> what its last table was made of
+
+    @staticmethod
+    def _table_inputs(result: ChannelResult, channel: ChannelConfig) -> tuple:
+        """Everything :func:`frequency_response_table` reads, bit for bit (between two manoeuvres the pooled
+        estimate does not change, nor does the table: it is not made again)."""
+        def bits(values: Any) -> Any:
+            if values is None:
+                return None
+            array = np.asarray(values)
+            return array.dtype.str, array.shape, array.tobytes()
+
+        arrays = (result.frequency_rad_s, result.measured, result.model, result.coherence,
+                  result.epsilon_per_frequency, result.kappa, result.random_error)
+        return (getattr(channel, "is_mimo", False), channel.frequencies, result.name,
+                tuple(bits(a) for a in arrays), tuple(result.frequency_flags))
 
     def changed(
         self, result: ChannelResult, channel: ChannelConfig, status: ChannelStatus
@@ -251,7 +267,12 @@ class PlotChanges:
         status : ChannelStatus
             Its status (the verdict).
         """
-        table = frequency_response_table(result, channel)
+        inputs = self._table_inputs(result, channel)
+        # the same inputs make the same table as the last call's: that one was sent or equal to the last sent
+        table = None
+        if self._inputs.get(status.channel) != inputs:
+            table = frequency_response_table(result, channel)
+            self._inputs[status.channel] = inputs
         verdict = json.dumps(verdict_mapping(status), sort_keys=True)
         last_table, last_verdict = self._last.get(status.channel, (None, None))
         new_table = table if table is not None and (
@@ -263,6 +284,7 @@ class PlotChanges:
     def forget(self, channel: str) -> None:
         """The channel left the config."""
         self._last.pop(channel, None)
+        self._inputs.pop(channel, None)
 
 
 class ChannelTask:

@@ -5,11 +5,19 @@ it: the excitation floor (spectra.record_bands' ``background``), the feedback te
 Each judgement is a test with a stated null distribution; these tests check the statistic against an
 independent estimator (scipy's Welch estimates) and measure the false-positive rate on seeded draws under the
 null."""
+import json
+
 import numpy as np
 import pytest
 from scipy import signal
 
-from gap_validation.core.background import MIN_TRIM_AVERAGES, LeadTest, TrimResponse, TrimSpectrum
+from gap_validation.core.background import (
+    MIN_TRIM_AVERAGES,
+    LeadTest,
+    TrimResponse,
+    TrimSpectra,
+    TrimSpectrum,
+)
 from gap_validation.core.closed_loop import (
     FEEDBACK_FALSE_ALARM,
     LEAD_SHARE,
@@ -302,3 +310,55 @@ def test_an_error_wider_than_the_coherence_allows_is_not_called_random():
     assert all(
         "bias allowance" in b.reason and "random error explains" not in b.reason for b in allowed.bands
     )
+
+
+def _loop_flight(gain: float, seconds: float = 1200.0, seed: int = 5):
+    """Trim only: a first-order airframe ``y = P u + n`` (``P(z) = 0.5 z^-1 / (1 - 0.95 z^-1)``), gusts ``n``
+    (white noise through a low-pass, known spectrum), a pilot's open-loop corrections, and with ``gain`` > 0
+    a loop that moves the surface against the measured output (``u = pilot - gain y``): the surface then
+    follows the gusts."""
+    rng = np.random.default_rng(seed)
+    n_samples = int(seconds / DT)
+    bn, an = signal.butter(1, 0.02)
+    gust = 0.05 * signal.lfilter(bn, an, rng.standard_normal(n_samples))
+    pilot = 0.01 * signal.lfilter(*signal.butter(1, 0.05), rng.standard_normal(n_samples))
+    u, y = np.zeros(n_samples), np.zeros(n_samples)
+    state = 0.0
+    for k in range(n_samples):
+        y[k] = state + gust[k]
+        u[k] = pilot[k] - gain * y[k]
+        state = 0.95 * state + 0.5 * u[k]
+    model = signal.freqz([0.0, 0.5], [1.0, -0.95], worN=W * DT)[1]
+    noise = 0.05 ** 2 * np.abs(signal.freqz(bn, an, worN=W * DT)[1]) ** 2     # per bin, the records' units
+    return np.stack([u, y]), model, noise
+
+
+@pytest.mark.parametrize("gain", [0.0, 0.5])
+def test_the_trim_output_error_is_the_noise_whatever_moves_the_surface(gain):
+    """E |Y - P U|^2 between manoeuvres is the output's noise (its known spectrum, per bin in the records'
+    units) whether a pilot moves the surface open loop or a loop moves it against the gusts; the regression
+    residual S_yy (1 - coherence) is the noise only in open loop: in the loop it removes the gusts the surface
+    followed."""
+    x, model, noise = _loop_flight(gain)
+    trim = _trim(x).spectra(0, 1)
+    assert np.all(trim.averages >= MIN_TRIM_AVERAGES)
+    ratio = trim.output_error(model) / noise
+    assert np.median(ratio) == pytest.approx(1.0, abs=0.1)
+    assert np.all((ratio > 0.7) & (ratio < 1.4))
+    regression = trim.output_power - np.abs(trim.cross) ** 2 / trim.input_power
+    low = W < 5.0
+    if gain == 0.0:
+        assert np.median(regression[low] / noise[low]) == pytest.approx(1.0, abs=0.15)
+    else:
+        assert np.median(regression[low] / noise[low]) < 0.5
+
+
+def test_trim_spectra_read_back_from_json_and_take_frequencies():
+    x, model, _ = _loop_flight(0.0, seconds=120.0)
+    trim = _trim(x).spectra(0, 1)
+    back = TrimSpectra.from_json_dict(json.loads(json.dumps(trim.to_json_dict())))
+    for name in ("input_power", "output_power", "cross", "averages"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(trim, name))
+    np.testing.assert_array_equal(back.output_error(model), trim.output_error(model))
+    part = trim.take(np.arange(3, 7))
+    np.testing.assert_array_equal(part.output_error(model[3:7]), trim.output_error(model)[3:7])

@@ -108,3 +108,18 @@ def test_margins_caveat_reaches_the_json_the_table_the_report_and_the_diagnostic
     )
     fine = ChannelResult(name="roll", epsilon=0.1, margins=margins_from_epsilon(0.1)).to_json_dict()
     assert fine["margins_guaranteed"] is True and fine["margins_note"] is None
+
+
+def test_trim_spectra_round_trip_and_are_null_without_trim():
+    from gap_validation.core.background import TrimSpectra
+    from gap_validation.core.results import ValidationResult
+
+    trim = TrimSpectra(np.array([1e-4, np.nan]), np.array([2e-3, np.nan]), np.array([3e-4 - 1e-4j, np.nan]),
+                       np.array([24.0, 0.0]))
+    ch = ChannelResult(name="pitch", trim_spectra=trim)
+    data = ch.to_json_dict()
+    assert data["trim_spectra"]["cross_imag"] == [-1e-4, None]
+    back = ValidationResult.from_json_dict({"channels": {"pitch": data}}).channels["pitch"]
+    np.testing.assert_array_equal(back.trim_spectra.cross, trim.cross)
+    np.testing.assert_array_equal(back.trim_spectra.output_error(np.ones(2)), trim.output_error(np.ones(2)))
+    assert ChannelResult(name="pitch").to_json_dict()["trim_spectra"] is None

@@ -36,6 +36,7 @@ import numpy as np
 __all__ = [
     "TrimSpectrum",
     "TrimResponse",
+    "TrimSpectra",
     "LeadTest",
     "LeadResult",
     "LEAD_LAGS_S",
@@ -466,6 +467,20 @@ class TrimSpectrum:
             coherence = np.where(self.bins > 0, np.abs(syu) ** 2 / (suu * syy), 0.0)
         return h, np.nan_to_num(coherence), self.bins.copy()
 
+    def spectra(self, inp: int, out: int) -> "TrimSpectra":
+        """Stream ``inp``'s and stream ``out``'s spectra over every segment (Welch's means per bin) and their
+        averages (:class:`TrimSpectra`; NaN where no segment resolved the frequency).
+
+        Parameters
+        ----------
+        inp, out : int
+            Stream indices.
+        """
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean = self.sums / np.where(self.bins > 0, self.bins, np.nan)[:, None, None]
+        return TrimSpectra(mean[:, inp, inp].real, mean[:, out, out].real, mean[:, out, inp],
+                           self.bins / HANN_BINS_PER_AVERAGE, self.power([inp]))
+
     # ------------------------------------------------------------------ checkpoint
     def state_dict(self) -> dict:
         """State as numpy arrays and numbers (fixed size)."""
@@ -561,3 +576,89 @@ class TrimResponse:
         return (
             enough & (g2 >= TRIM_COHERENCE) & (chance <= TRIM_CHANCE / max(int(np.count_nonzero(enough)), 1))
         )
+
+
+@dataclass
+class TrimSpectra:
+    """The first input's and first output's spectra between the manoeuvres: Welch's sums over every trim
+    segment (not the medians of :meth:`TrimSpectrum.power`: the three must come from the same segments), mean
+    per bin in the records' units, each stream's interpolation gain restored as the records restore it.
+
+    What they are for: the noise a manoeuvre flown in the same air will meet. Between the manoeuvres the
+    output is ``y = P u + n``, whatever moves the surface (a pilot's corrections, a loop answering the gusts),
+    so ``E |Y - P U|^2`` (:meth:`output_error`) is the output's noise ``n`` plus the surface sensor's noise
+    seen through ``P``: the residual a manoeuvre's local fit is left with. The regression residual ``S_yy (1
+    - coherence)`` is not: where the surface follows the gusts (a pilot or a damper holding the trim) it
+    removes them with the surface's motion.
+
+    Attributes
+    ----------
+    input_power, output_power : ndarray, (F,)
+        ``S_uu`` and ``S_yy`` (NaN where no trim resolved the frequency).
+    cross : ndarray, (F,) complex
+        ``S_yu = E[Y conj(U)]``.
+    averages : ndarray, (F,)
+        Independent spectral averages behind them (:data:`HANN_BINS_PER_AVERAGE` bins each).
+    input_floor : ndarray, (F,), optional
+        The input's trim motion as the estimator's 20 dB test takes it (:meth:`TrimSpectrum.power`: the
+        median over the kept segments), what a manoeuvre's input must stand 100 times above.
+    """
+
+    input_power: np.ndarray
+    output_power: np.ndarray
+    cross: np.ndarray
+    averages: np.ndarray
+    input_floor: np.ndarray | None = None
+
+    def take(self, index: np.ndarray) -> "TrimSpectra":
+        """The spectra at the frequencies ``index`` only.
+
+        Parameters
+        ----------
+        index : ndarray
+            Indices (or a mask) of the frequencies kept.
+        """
+        return TrimSpectra(*(np.asarray(a)[index] for a in (self.input_power, self.output_power, self.cross,
+                                                             self.averages)),
+                           None if self.input_floor is None else np.asarray(self.input_floor)[index])
+
+    def output_error(self, response: np.ndarray) -> np.ndarray:
+        """``E |Y - H U|^2 = S_yy - 2 Re(conj(H) S_yu) + |H|^2 S_uu`` per bin for the response ``H`` (the
+        trim's motion that ``H`` does not explain; NaN where no trim, never below zero).
+
+        Parameters
+        ----------
+        response : ndarray, (F,) complex
+            ``H`` at the spectra's frequencies.
+        """
+        h = np.asarray(response, complex)
+        with np.errstate(invalid="ignore"):
+            e = self.output_power - 2.0 * np.real(np.conj(h) * self.cross) + np.abs(h) ** 2 * self.input_power
+        return np.where(np.isfinite(e), np.maximum(e, 0.0), np.nan)
+
+    def to_json_dict(self) -> dict:
+        """JSON ``trim_spectra`` (non-finite numbers are null)."""
+        def listed(a: np.ndarray) -> list:
+            return [float(v) if math.isfinite(v) else None for v in np.asarray(a, float)]
+
+        return {"input_power": listed(self.input_power), "output_power": listed(self.output_power),
+                "cross_real": listed(np.real(self.cross)),
+                "cross_imag": listed(np.where(np.isfinite(self.cross), np.imag(self.cross), np.nan)),
+                "averages": listed(self.averages),
+                "input_floor": None if self.input_floor is None else listed(self.input_floor)}
+
+    @classmethod
+    def from_json_dict(cls, data: dict) -> "TrimSpectra":
+        """Read JSON ``trim_spectra`` back (null is NaN).
+
+        Parameters
+        ----------
+        data : dict
+            What :meth:`to_json_dict` wrote.
+        """
+        def array(key: str) -> np.ndarray:
+            return np.array([math.nan if v is None else float(v) for v in data.get(key) or []], float)
+
+        cross = array("cross_real") + 1j * array("cross_imag")
+        floor = array("input_floor") if data.get("input_floor") is not None else None
+        return cls(array("input_power"), array("output_power"), cross, array("averages"), floor)

@@ -88,7 +88,13 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from gap_validation.core.accumulation import RecordAccumulator
-from gap_validation.core.background import HANN_BINS_PER_AVERAGE, LeadResult, TrimResponse, TrimSpectrum
+from gap_validation.core.background import (
+    HANN_BINS_PER_AVERAGE,
+    LeadResult,
+    TrimResponse,
+    TrimSpectra,
+    TrimSpectrum,
+)
 from gap_validation.core.condition import DYNAMIC_PRESSURE_RANGE, TRIM_FOLLOW_S, DynamicPressureScaling  # noqa: F401
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.estimates import NOT_ESTIMABLE_REASONS, SpectralEstimate, record_amplitude
@@ -735,6 +741,18 @@ class FrequencyResponseEstimator:
         gain = interpolation_gain(self._w, self.stream_rates_hz[0], self._opts["cubic_interpolation"])
         return TrimResponse(h, coherence, bins / HANN_BINS_PER_AVERAGE,
                             self._trim.power([0]) / np.maximum(gain, 1e-3) ** 2)
+
+    def trim_spectra(self) -> TrimSpectra:
+        """The first input's and first output's spectra between the manoeuvres, their averages and the 20 dB
+        test's floor, on the whole grid (:class:`~gap_validation.core.background.TrimSpectra`: the noise a
+        manoeuvre will meet); each stream's interpolation gain restored, as the records restore it."""
+        cubic = self._opts["cubic_interpolation"]
+        rates = self.stream_rates_hz
+        g_u = interpolation_gain(self._w, rates[0], cubic)
+        g_y = interpolation_gain(self._w, rates[self._m], cubic)
+        s = self._trim.spectra(0, self._m)
+        return TrimSpectra(s.input_power / g_u ** 2, s.output_power / g_y ** 2, s.cross / (g_u * g_y),
+                           s.averages, s.input_floor / np.maximum(g_u, 1e-3) ** 2)
 
     def surface_led(self) -> "LeadResult | None":
         """Whether the rate leads the surface between the manoeuvres (the first input and output;

@@ -79,6 +79,7 @@ import numpy as np
 from scipy.special import digamma, polygamma
 from scipy.stats import norm
 
+from gap_validation.core.background import MIN_TRIM_AVERAGES, TrimSpectra
 from gap_validation.core.config import ChannelConfig, ValidationConfig
 from gap_validation.core.diagnosis import analyse_channel
 from gap_validation.core.errors import ConfigError, DataError
@@ -850,6 +851,9 @@ class _Channel:
     quiet: float = 0.0                 # the sweep detector's trim level (detrended std over its window)
     input_noise: np.ndarray = None     # the input's trim motion per DFT bin, per grid frequency (mean)
     input_floor: np.ndarray = None     # ... its largest bin near each frequency (the 20 dB test's floor)
+    # the noise a manoeuvre meets per DFT bin, from the trim between the first flight's manoeuvres (its output
+    # error: :func:`_trim_output_error`); NaN where the trim does not tell it
+    trim_noise: np.ndarray = None
     cap: float = 0.0
     cap_reason: str = ""
     coherence_threshold: float = 0.6
@@ -1041,6 +1045,57 @@ def _output_trim_noise(c: _Channel, data: dict) -> np.ndarray:
     return np.where(count > 0, np.nansum(rows, axis=0) / np.maximum(count, 1), np.nan)
 
 
+def _trim_floor(c: _Channel, data: dict) -> None:
+    """The 20 dB test's floor where the results' ``trim_spectra`` measured it on tens of averages: the input's
+    trim motion between the manoeuvres as the estimator takes it (``input_floor``, the median over its
+    segments), in place of the few seconds of trim before the kept manoeuvres (:func:`_trim_levels`), whose
+    detrended periodogram does not see a pilot's slow corrections."""
+    raw = data.get("trim_spectra")
+    if not isinstance(raw, dict) or raw.get("input_floor") is None:
+        return
+    trim = TrimSpectra.from_json_dict(raw)
+    if trim.input_floor.size != c.w.size:
+        return
+    known = (trim.averages >= MIN_TRIM_AVERAGES) & np.isfinite(trim.input_floor) & (trim.input_floor > 0)
+    c.input_floor = np.where(known, trim.input_floor, c.input_floor)
+
+
+def _trim_output_error(c: _Channel, data: dict, measured_mag: np.ndarray) -> np.ndarray:
+    """The noise a manoeuvre will meet, per DFT bin of the estimator's grid: the output's motion between the
+    first flight's manoeuvres that the response does not explain, ``E |Y - H U|^2``
+    (:meth:`~gap_validation.core.background.TrimSpectra.output_error` of the results' ``trim_spectra``).
+
+    It holds whatever moves the surface between the manoeuvres (a pilot's corrections are explained by ``H
+    U``; a loop answering the gusts leaves the gusts in it), and the surface sensor's noise seen through the
+    response, as a manoeuvre's residual does; and it rests on minutes of trim (tens of averages) where the
+    first flight's manoeuvres leave a few degrees of freedom per frequency. ``H`` is the measured response
+    where the results call it confident, the model's elsewhere. Where a 20 s segment does not resolve the
+    frequency (fewer than :data:`~gap_validation.core.background.MIN_TRIM_AVERAGES` averages): the smooth
+    continuation of the rest, as the flight's own estimate is continued (:func:`_fill_noise`). NaN everywhere
+    when the results hold no trim spectra (results written before them, a MIMO channel)."""
+    nothing = np.full(c.w.shape, np.nan)
+    raw = data.get("trim_spectra")
+    if not isinstance(raw, dict):
+        return nothing
+    trim = TrimSpectra.from_json_dict(raw)
+    if trim.averages.size != c.w.size:
+        return nothing
+    h = np.asarray(c.model.freqresp(c.w), dtype=complex).ravel()
+    confident = np.array(data.get("confident") or [False] * c.w.size, dtype=bool)
+    phase = _array((data.get("measured") or {}).get("phase_deg"))
+    if confident.size == c.w.size and phase.size == c.w.size:
+        measured = measured_mag * np.exp(1j * np.radians(phase))
+        h = np.where(confident & np.isfinite(measured), measured, h)
+    e, n = trim.output_error(h), trim.averages
+    use = (n >= MIN_TRIM_AVERAGES) & np.isfinite(e) & (e > 0)
+    if not use.any():
+        return nothing
+    # each log corrected by its bias psi(n) - ln n
+    y = np.log(np.where(use, e, 1.0)) - (digamma(np.maximum(n, 1.0)) - np.log(np.maximum(n, 1.0)))
+    smooth = np.exp(_local_linear(np.log10(c.w), y, np.where(use, n, 0.0), NOISE_WIDTH, SLOPE_RANGE))
+    return np.where(use, e, smooth)
+
+
 def _fill_noise(
     c: _Channel,
     q: np.ndarray,
@@ -1086,7 +1141,8 @@ def _fill_noise(
     ok = use & np.isfinite(seen_mag) & (seen_mag > 0) & np.isfinite(error) & (error > 0)
     if ok.any():
         ratio = np.log(np.where(ok, measured_mag, 1.0) / np.where(ok, seen_mag, 1.0))
-        pooled, variance = _pool_response(lw, ratio, np.where(ok, error, np.inf), shared, RESPONSE_ERROR)
+        error = np.where(ok, _view_error(error, measured_mag, seen_mag), np.inf)
+        pooled, variance = _pool_response(lw, ratio, error, shared, RESPONSE_ERROR)
         c.mag_ratio, c.mag_ratio_error = np.exp(pooled), np.sqrt(variance)
 
 
@@ -1116,6 +1172,16 @@ def _local_linear(x: np.ndarray, y: np.ndarray, weight: np.ndarray, width: float
         value = my + slope * (at - mx)
         out[i] = value + float(np.clip(slope, *slopes)) * (xi - at)
     return out
+
+
+def _view_error(error: np.ndarray, measured_mag: np.ndarray, seen_mag: np.ndarray) -> np.ndarray:
+    """Each point's random error with the model's view in place of its own ``|H|``: ``e |H_meas| /
+    |H_seen|``. The validator's random error is the noise over the estimate's own magnitude, so weights
+    ``1 / e^2`` taken from it favour the points whose ``|H|`` came out high, and a pool of them is biased
+    upwards (on a short first flight's few degrees of freedom by tens of per cent); the noise itself does not
+    depend on which way the estimate fell."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.asarray(error, float) * np.asarray(measured_mag, float) / np.asarray(seen_mag, float)
 
 
 def _pool_response(x: np.ndarray, y: np.ndarray, error: np.ndarray, shared: np.ndarray | None,
@@ -1371,7 +1437,10 @@ def _candidate(c: _Channel, idx: list[int], w0: float, w1: float, length: float,
     if np.any(status != 0):
         return None
     seen = np.abs(expected_estimate(sums, w, float(c.spectra["band_fraction"]), _response(c.model))[0])
-    q = c.sigma2[idx] / np.maximum(seen * c.mag_ratio[idx], 1e-300) ** 2 + c.input_noise[idx]
+    view = np.maximum(seen * c.mag_ratio[idx], 1e-300) ** 2
+    q = c.sigma2[idx] / view + c.input_noise[idx]
+    if c.trim_noise is not None:             # the trim's output error, where it tells the noise
+        q = np.where(np.isfinite(c.trim_noise[idx]), c.trim_noise[idx] / view, q)
     if not np.all(np.isfinite(q)):
         return None
     return _Candidate(w0, w1, length, q, _inv00(sums.ff), np.array([f[0, 0].real for f in sums.ff]),
@@ -1708,6 +1777,8 @@ def _from_results(c: _Channel, data: dict, opts: PlanOptions) -> bool:
     core = (c.w >= float(band[0]) * EDGE_CORE) & (c.w <= float(band[1]) / EDGE_CORE)
     agrees = np.abs(dof_pred - dof) <= 0.25 * np.maximum(dof, 4.0)
     _fill_noise(c, q, dof, mag, seen_mag, core & agrees, _output_trim_noise(c, data), shared)
+    c.trim_noise = _trim_output_error(c, data, mag)
+    _trim_floor(c, data)
     _targets(c, data)
     _cap(c, data, opts)
     return bool(np.isfinite(c.sigma2).any())

@@ -11,6 +11,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from gap_validation.core.background import TrimSpectra
 from gap_validation.core.manoeuvres import Manoeuvre
 from gap_validation.core.margins import Margins, margins_from_epsilon, margins_note
 
@@ -631,6 +632,10 @@ class ChannelResult:
     # closed loop and coupled surfaces (issue 13): per frequency, only with the config keys
     excitation_coherence: dict | None = None      # {"r_to_u": array, "r_to_y": array} with an ``excitation``
     partial_coherence: np.ndarray | None = None   # with ``other_inputs``
+    # the first input's and output's spectra between the manoeuvres on the validated grid
+    # (core.background.TrimSpectra: the noise a manoeuvre will meet, read by the planner); None: no trim or
+    # MIMO
+    trim_spectra: Any = None
 
     def __post_init__(self) -> None:
         # bands and candidates given as their JSON objects (hand-written results, tests) are read as such
@@ -716,6 +721,7 @@ class ChannelResult:
             "conventions": [c.to_json_dict() for c in self.conventions],
             "dynamic_pressure_ratio": head["dynamic_pressure_ratio"],
             "rate_leads_surface": head["rate_leads_surface"],
+            "trim_spectra": None if self.trim_spectra is None else self.trim_spectra.to_json_dict(),
         }
         for entry, response in zip(out["raw_sweeps"], self.sweep_measured if samples else ()):
             entry["measured"] = _mag_phase(response, self.model)
@@ -852,6 +858,8 @@ class ChannelResult:
             ch.excitation_coherence = {k: _array(v) for k, v in data["excitation_coherence"].items()}
         if data.get("partial_coherence") is not None:
             ch.partial_coherence = _array(data.get("partial_coherence"))
+        if isinstance(data.get("trim_spectra"), dict):
+            ch.trim_spectra = TrimSpectra.from_json_dict(data["trim_spectra"])
         confident = data.get("confident")
         ch.confident = np.array(confident, dtype=bool) if confident else None
         raw = list(data.get("raw_sweeps") or [])

@@ -454,6 +454,7 @@ class OnlineValidator:
         result.frequency_rad_s, result.coherence = w, np.asarray(avg.coherence, dtype=float)
         result.random_error = np.asarray(avg.random_error, dtype=float)
         result.degrees_of_freedom = np.asarray(avg.n_averages, dtype=float)
+        result.trim_spectra = est.trim_spectra().take(_grid_index(est.w_rad_s, w))
         result.frequency_reasons = _frequency_reasons(avg, confident, channel.coherence_threshold)
         result.kappa, result.epsilon_per_frequency = kappa, eps_w
         _closed_loop_coherences(channel, avg, result)

@@ -285,3 +285,15 @@ def test_times_not_in_seconds_are_said_not_called_trim(unit):
     pitch = validator.results().channels["pitch"]
     assert pitch.sweeps == 0 and "never left trim" not in pitch.message
     assert "longer than max_gap_s (0.5 s)" in pitch.message and "are the times in seconds?" in pitch.message
+
+
+@pytest.mark.parametrize("stream, times, values", [
+    ("input", None, ["a", "b", "c"]),
+    ("output", None, [object(), 1.0, 2.0]),
+    ("input", ["0.0", "x", "0.2"], [0.0, 0.1, 0.2]),
+])
+def test_samples_that_are_not_numbers_are_one_line_naming_the_channel_and_stream(stream, times, values):
+    cfg, t, u, y = _one_sweep()
+    validator = OnlineValidator(cfg)
+    with pytest.raises(DataError, match=f"channel pitch: {stream} (values|times) are not numbers"):
+        validator.add_samples("pitch", stream, t[:3] if times is None else times, values)

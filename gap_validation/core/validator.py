@@ -166,17 +166,19 @@ class OnlineValidator:
         est = self._estimators.get(channel)
         if est is None:
             raise ConfigError(f"no channel {channel!r} in the config")
-        t_s = np.asarray(t_s, dtype=float)
+        t_s = _numbers(channel, stream, "times", t_s)
         if t_s.size == 0:
             return
         mimo = self._config.channels[channel].is_mimo
+        if stream != "trigger":
+            values = _numbers(channel, stream, "values", values)
         if mimo and stream != "trigger":
-            est.add_samples(stream, t_s, np.asarray(values, dtype=float))
+            est.add_samples(stream, t_s, values)
         elif stream == "input":
-            est.add_input(t_s, np.asarray(values, dtype=float))
+            est.add_input(t_s, values)
             self._feed_monitors(channel, {"input": (t_s, values)})
         elif stream == "output":
-            est.add_output(t_s, np.asarray(values, dtype=float))
+            est.add_output(t_s, values)
             self._feed_monitors(channel, {"output": (t_s, values)})
         elif stream == "trigger":
             values = np.asarray(values)
@@ -186,7 +188,7 @@ class OnlineValidator:
                 )
             est.add_trigger(t_s, values.astype(bool))
         elif stream in est.streams:                     # other_input<j>, excitation
-            est.add_samples(stream, t_s, np.asarray(values, dtype=float))
+            est.add_samples(stream, t_s, values)
         else:
             raise ConfigError(f"unknown stream {stream!r} (expected one of {', '.join(STREAMS)})")
         self._versions[channel] += 1
@@ -1085,6 +1087,15 @@ def _feedback_warnings(channel: ChannelConfig, est: FrequencyResponseEstimator, 
         f"dominate the surface's motion (those points are not validated); log the injected signal and add "
         f"channels.{channel.name}.excitation"
     ], biased
+
+
+def _numbers(channel: str, stream: str, what: str, data: ArrayLike) -> np.ndarray:
+    """``data`` as floats, or a one-line :class:`DataError` naming the channel and stream (strings,
+    objects)."""
+    try:
+        return np.asarray(data, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise DataError(f"channel {channel}: {stream} {what} are not numbers ({exc})") from None
 
 
 def _grid_index(w_all: np.ndarray, w: np.ndarray) -> np.ndarray:

@@ -1045,22 +1045,29 @@ def _output_trim_noise(c: _Channel, data: dict) -> np.ndarray:
     return np.where(count > 0, np.nansum(rows, axis=0) / np.maximum(count, 1), np.nan)
 
 
-def _trim_floor(c: _Channel, data: dict) -> None:
+def _trim_spectra(c: _Channel, data: dict) -> TrimSpectra | None:
+    """The results' ``trim_spectra`` on the channel's grid (None: none, results written before them or a MIMO
+    channel)."""
+    raw = data.get("trim_spectra")
+    if not isinstance(raw, dict):
+        return None
+    trim = TrimSpectra.from_json_dict(raw)
+    return trim if trim.averages.size == c.w.size else None
+
+
+def _trim_floor(c: _Channel, trim: TrimSpectra | None) -> None:
     """The 20 dB test's floor where the results' ``trim_spectra`` measured it on tens of averages: the input's
     trim motion between the manoeuvres as the estimator takes it (``input_floor``, the median over its
     segments), in place of the few seconds of trim before the kept manoeuvres (:func:`_trim_levels`), whose
     detrended periodogram does not see a pilot's slow corrections."""
-    raw = data.get("trim_spectra")
-    if not isinstance(raw, dict) or raw.get("input_floor") is None:
-        return
-    trim = TrimSpectra.from_json_dict(raw)
-    if trim.input_floor.size != c.w.size:
+    if trim is None or trim.input_floor is None or trim.input_floor.size != c.w.size:
         return
     known = (trim.averages >= MIN_TRIM_AVERAGES) & np.isfinite(trim.input_floor) & (trim.input_floor > 0)
     c.input_floor = np.where(known, trim.input_floor, c.input_floor)
 
 
-def _trim_output_error(c: _Channel, data: dict, measured_mag: np.ndarray) -> np.ndarray:
+def _trim_output_error(c: _Channel, data: dict, trim: TrimSpectra | None, measured_mag: np.ndarray
+                       ) -> np.ndarray:
     """The noise a manoeuvre will meet, per DFT bin of the estimator's grid: the output's motion between the
     first flight's manoeuvres that the response does not explain, ``E |Y - H U|^2``
     (:meth:`~gap_validation.core.background.TrimSpectra.output_error` of the results' ``trim_spectra``).
@@ -1074,11 +1081,7 @@ def _trim_output_error(c: _Channel, data: dict, measured_mag: np.ndarray) -> np.
     continuation of the rest, as the flight's own estimate is continued (:func:`_fill_noise`). NaN everywhere
     when the results hold no trim spectra (results written before them, a MIMO channel)."""
     nothing = np.full(c.w.shape, np.nan)
-    raw = data.get("trim_spectra")
-    if not isinstance(raw, dict):
-        return nothing
-    trim = TrimSpectra.from_json_dict(raw)
-    if trim.averages.size != c.w.size:
+    if trim is None:
         return nothing
     h = np.asarray(c.model.freqresp(c.w), dtype=complex).ravel()
     confident = np.array(data.get("confident") or [False] * c.w.size, dtype=bool)
@@ -1777,8 +1780,9 @@ def _from_results(c: _Channel, data: dict, opts: PlanOptions) -> bool:
     core = (c.w >= float(band[0]) * EDGE_CORE) & (c.w <= float(band[1]) / EDGE_CORE)
     agrees = np.abs(dof_pred - dof) <= 0.25 * np.maximum(dof, 4.0)
     _fill_noise(c, q, dof, mag, seen_mag, core & agrees, _output_trim_noise(c, data), shared)
-    c.trim_noise = _trim_output_error(c, data, mag)
-    _trim_floor(c, data)
+    trim = _trim_spectra(c, data)
+    c.trim_noise = _trim_output_error(c, data, trim, mag)
+    _trim_floor(c, trim)
     _targets(c, data)
     _cap(c, data, opts)
     return bool(np.isfinite(c.sigma2).any())

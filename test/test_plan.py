@@ -588,3 +588,24 @@ def test_the_pool_weighs_each_point_by_its_noise_not_by_its_own_magnitude():
             out.append(value[0])
     assert np.mean(reported) > 0.08                   # 0.11 on these draws (standard error 0.004)
     assert abs(np.mean(corrected)) < 0.02
+
+
+def test_results_written_before_the_trim_spectra_still_plan(first):
+    """Results without ``trim_spectra`` (written before the key) plan as before, from the first flight's
+    manoeuvres alone: the same open frequencies get manoeuvres, their noise not the trim's (which the same
+    results with the key do use: three minutes of trim)."""
+    config = first["config"]
+    opts = dataclasses.replace(first["opts"], trim_s=180.0)
+    results = _replay(config, simulate_flight(config, None, opts, seed=7))
+    old = copy.deepcopy(results)
+    for ch in old["channels"].values():
+        del ch["trim_spectra"]
+    noise = {}
+    for name, data in (("new", results), ("old", old)):
+        c = plan_module._channel_base("pitch", config.channels["pitch"])
+        assert plan_module._from_results(c, data["channels"]["pitch"], PlanOptions())
+        noise[name] = c.trim_noise
+    assert np.all(np.isfinite(noise["new"])) and np.all(np.isnan(noise["old"]))
+    planned = {name: sorted(w for m in plan_card(config, data, PlanOptions()).channels["pitch"].manoeuvres
+                            for w in m.frequencies_rad_s) for name, data in (("new", results), ("old", old))}
+    assert planned["new"] and planned["new"] == planned["old"]

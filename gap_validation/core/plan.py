@@ -87,6 +87,7 @@ from gap_validation.core.estimator import ESTIMATOR_DEFAULTS, LOOKBACK_S, RESOLV
 from gap_validation.core.evidence import BIAS_ERROR, SIGMA_FACTOR, confident_points
 from gap_validation.core.flight_options import FlightOptions
 from gap_validation.core.numbers import NON_NEGATIVE, POSITIVE, Interval, check_number
+from gap_validation.core.results import response_from_json
 from gap_validation.core.spectra import SPECTRA_DEFAULTS, BandSums, expected_estimate, record_bands
 from gap_validation.core.sweeps import DETECTOR_DEFAULTS, detrended_std
 
@@ -1066,8 +1067,7 @@ def _trim_floor(c: _Channel, trim: TrimSpectra | None) -> None:
     c.input_floor = np.where(known, trim.input_floor, c.input_floor)
 
 
-def _trim_output_error(c: _Channel, data: dict, trim: TrimSpectra | None, measured_mag: np.ndarray
-                       ) -> np.ndarray:
+def _trim_output_error(c: _Channel, data: dict, trim: TrimSpectra | None) -> np.ndarray:
     """The noise a manoeuvre will meet, per DFT bin of the estimator's grid: the output's motion between the
     first flight's manoeuvres that the response does not explain, ``E |Y - H U|^2``
     (:meth:`~gap_validation.core.background.TrimSpectra.output_error` of the results' ``trim_spectra``).
@@ -1085,9 +1085,8 @@ def _trim_output_error(c: _Channel, data: dict, trim: TrimSpectra | None, measur
         return nothing
     h = np.asarray(c.model.freqresp(c.w), dtype=complex).ravel()
     confident = np.array(data.get("confident") or [False] * c.w.size, dtype=bool)
-    phase = _array((data.get("measured") or {}).get("phase_deg"))
-    if confident.size == c.w.size and phase.size == c.w.size:
-        measured = measured_mag * np.exp(1j * np.radians(phase))
+    measured = response_from_json(data.get("measured"))
+    if measured is not None and confident.size == c.w.size and measured.size == c.w.size:
         h = np.where(confident & np.isfinite(measured), measured, h)
     e, n = trim.output_error(h), trim.averages
     use = (n >= MIN_TRIM_AVERAGES) & np.isfinite(e) & (e > 0)
@@ -1781,7 +1780,7 @@ def _from_results(c: _Channel, data: dict, opts: PlanOptions) -> bool:
     agrees = np.abs(dof_pred - dof) <= 0.25 * np.maximum(dof, 4.0)
     _fill_noise(c, q, dof, mag, seen_mag, core & agrees, _output_trim_noise(c, data), shared)
     trim = _trim_spectra(c, data)
-    c.trim_noise = _trim_output_error(c, data, trim, mag)
+    c.trim_noise = _trim_output_error(c, data, trim)
     _trim_floor(c, trim)
     _targets(c, data)
     _cap(c, data, opts)

@@ -76,8 +76,9 @@ def _unwrap_finite(angle_rad: np.ndarray) -> np.ndarray:
     return out
 
 
-def _complex(mag_phase: dict | None) -> np.ndarray | None:
-    """Inverse of :func:`_mag_phase` (null entries become NaN)."""
+def response_from_json(mag_phase: dict | None) -> np.ndarray | None:
+    """A complex response from its JSON ``{magnitude_db, phase_deg}`` (the inverse of :func:`_mag_phase`; null
+    entries become NaN); None for none."""
     if not mag_phase or not mag_phase.get("magnitude_db"):
         return None
     mag = _array(mag_phase["magnitude_db"])
@@ -540,8 +541,8 @@ class MimoDetail:
             return out
 
         detail = cls(inputs=list(data.get("inputs") or []), outputs=list(data.get("outputs") or []),
-                     measured=stack(lambda e: _complex(e.get("measured"))),
-                     model=stack(lambda e: _complex(e.get("model"))),
+                     measured=stack(lambda e: response_from_json(e.get("measured"))),
+                     model=stack(lambda e: response_from_json(e.get("model"))),
                      partial_coherence=stack(lambda e: _array(e.get("partial_coherence"))).real,
                      kappa_noise=_array(data.get("kappa_noise")),
                      worst_elements=[dict(e) for e in data.get("worst_elements") or []],
@@ -853,7 +854,8 @@ class ChannelResult:
         for key in ("frequency_rad_s", "coherence", "random_error", "kappa", "epsilon_per_frequency",
                     "degrees_of_freedom"):
             setattr(ch, key, _array(data.get(key)))
-        ch.measured, ch.model = _complex(data.get("measured")), _complex(data.get("model"))
+        ch.measured = response_from_json(data.get("measured"))
+        ch.model = response_from_json(data.get("model"))
         if isinstance(data.get("excitation_coherence"), dict):
             ch.excitation_coherence = {k: _array(v) for k, v in data["excitation_coherence"].items()}
         if data.get("partial_coherence") is not None:
@@ -864,7 +866,7 @@ class ChannelResult:
         ch.confident = np.array(confident, dtype=bool) if confident else None
         raw = list(data.get("raw_sweeps") or [])
         ch.sweep_results = [SweepResult.from_json_dict(r) for r in raw]
-        ch.sweep_measured = [m for m in (_complex(r.get("measured")) for r in raw) if m is not None]
+        ch.sweep_measured = [m for m in (response_from_json(r.get("measured")) for r in raw) if m is not None]
         if data.get("mimo"):
             ch.mimo = MimoDetail.from_json_dict(data["mimo"])
         entries = list(data.get("time_domain") or [])

@@ -78,7 +78,13 @@ def _unwrap_finite(angle_rad: np.ndarray) -> np.ndarray:
 
 def response_from_json(mag_phase: dict | None) -> np.ndarray | None:
     """A complex response from its JSON ``{magnitude_db, phase_deg}`` (the inverse of :func:`_mag_phase`; null
-    entries become NaN); None for none."""
+    entries become NaN); None for none.
+
+    Parameters
+    ----------
+    mag_phase : dict or None
+        A results JSON's ``measured`` or ``model`` object.
+    """
     if not mag_phase or not mag_phase.get("magnitude_db"):
         return None
     mag = _array(mag_phase["magnitude_db"])

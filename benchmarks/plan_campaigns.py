@@ -34,7 +34,10 @@ as the generator's card of its band, sweep length, repeats, amplitude and trim a
 (:data:`PLANNED_GENERATOR`; all three surfaces fly it, the generator's layout; only the manoeuvre's channel
 and band are scored); the generator's sweep has 0.5 s linear tapers and 2 s of trim before where the card has
 1 s half-cosine fades and 5 s, so the prediction is scored twice: the card's own, and the planner's noise
-estimate with the information of the sweep the generator flies (:func:`flown_prediction`). The repeated first
+estimate with the information of the sweep the generator flies (:func:`flown_prediction`). The generator also
+flies a doublet after each surface's sweeps, which the card does not ask for: the planned flights are scored
+with the estimator's ``min_sweep_s`` at 5 s (:data:`SCORED_MIN_SWEEP_S`), so that doublet gives no frequency
+response (pooled, it raised its neighbours' noise up to 20 times near the Dutch roll). The repeated first
 card and the verdicts are replays of all the flights together (as ``gap-validate replay first second
 ...``); the planned card's flight time is the card's own (``flight_time_s``, longer than the generator's
 channel time). The true noise comes from the generator's own parameters (:func:`second_true_noise`).
@@ -602,12 +605,24 @@ def _pause(generator: str, plan: dict) -> float:
     )
 
 
-def second_config(where: Path, grid: dict):
+#: A planned manoeuvre's flight is scored with the estimator's ``min_sweep_s`` at this [s]. The generator
+#: flies a doublet (1 s) after each surface's sweeps, which the card does not ask for (its sweeps last at
+#: least :data:`~gap_validation.core.plan.MIN_SWEEP_S`, 10 s). Pooled with the sweeps where its short record
+#: counts, the doublet lifted the neighbouring frequencies' noise through the estimator's neighbour floor
+#: (:func:`~gap_validation.core.spectra.neighbour_noise_floor`; 4-20 times near the Ultra Stick's Dutch roll,
+#: 5 rad/s): the measured error was the doublet's, not the card's. With the option (a config option a user
+#: has) the doublet gives no frequency response, only its time history.
+SCORED_MIN_SWEEP_S = 5.0
+
+
+def second_config(where: Path, grid: dict, min_sweep_s: float | None = None):
     """The flight's ``nominal.yaml`` (the airframe-only config a user starts from) with the airframe's
-    grid."""
+    grid (and the estimator's ``min_sweep_s``, when given)."""
     data = yaml.safe_load((where / "nominal.yaml").read_text())
     for ch in data["channels"].values():
         ch["frequencies"] = dict(grid)
+        if min_sweep_s is not None:
+            ch["estimator"] = {**(ch.get("estimator") or {}), "min_sweep_s": float(min_sweep_s)}
     return parse_config(data, str(where / "nominal.yaml"))
 
 
@@ -742,6 +757,7 @@ def run_second_campaign(job: tuple[dict, int, str, bool]) -> dict:
     seeds = np.random.SeedSequence(campaign["seed"]).generate_state(64)
     first = make_second_flight(out, generator, _second_case(campaign, campaign["first"], seeds[0]))
     config = second_config(first, SECOND_AIRFRAMES[campaign["airframe"]]["grid"])
+    scored_config = second_config(first, spec["grid"], SCORED_MIN_SWEEP_S)
     channels = tuple(config.channels)
     r1 = _replay_bags(config, [first])
     card = plan_card(config, r1, PlanOptions(log_rate_hz=slowest_hz if tell_log_rate else None))
@@ -751,7 +767,7 @@ def run_second_campaign(job: tuple[dict, int, str, bool]) -> dict:
         plan = _second_plan(m)
         where = make_second_flight(out, PLANNED_GENERATOR, _second_case(campaign, plan, seeds[1 + k % 30]))
         dirs.append(where)
-        alone = _replay_bags(config, [where], diagnose=False)
+        alone = _replay_bags(scored_config, [where], diagnose=False)
         flown = flown_prediction(config, PLANNED_GENERATOR, m)
         oracle = second_oracle(config, campaign, m)
         run["bands"].append(

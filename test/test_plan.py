@@ -609,3 +609,31 @@ def test_results_written_before_the_trim_spectra_still_plan(first):
     planned = {name: sorted(w for m in plan_card(config, data, PlanOptions()).channels["pitch"].manoeuvres
                             for w in m.frequencies_rad_s) for name, data in (("new", results), ("old", old))}
     assert planned["new"] and planned["new"] == planned["old"]
+
+
+def test_the_amplitude_clears_the_records_own_noise_where_the_trim_is_not_known_yet(first):
+    """A record judged before the flight's own trim is known (the first manoeuvres of a short flight, a break
+    in the data) meets its own noise at its ends as the 20 dB test's floor, taken as white. The planner reads
+    that noise from the trim before the first flight's kept manoeuvres (the detrended std over 0.5 s, as
+    :func:`~gap_validation.core.records.trim_noise`): here the simulator's surface sensor noise, white, within
+    20 % (a noisy sensor, 2 mrad). Where the trim between the manoeuvres is far quieter (its floor taken 1000
+    times lower here, as a pilot's slow corrections leave the high frequencies), every planned manoeuvre's
+    input power per bin near every target still clears 20 dB over the record's own noise, and that noise sets
+    the amplitude of some."""
+    config = first["config"]
+    opts = dataclasses.replace(first["opts"], surface_noise_rad=0.002, trim_s=180.0)   # a noisy sensor
+    results = _replay(config, simulate_flight(config, None, opts, seed=7))
+    trim = results["channels"]["pitch"]["trim_spectra"]
+    trim["input_floor"] = [None if v is None else 1e-3 * v for v in trim["input_floor"]]
+    c = plan_module._channel_base("pitch", config.channels["pitch"])
+    assert plan_module._from_results(c, results["channels"]["pitch"], PlanOptions())
+    sensor = math.hypot(opts.surface_noise_rad * opts.noise, opts.surface_lsb_rad / math.sqrt(12.0))
+    assert c.record_noise == pytest.approx(sensor, rel=0.2)
+    manoeuvres = plan_card(config, results, PlanOptions()).channels["pitch"].manoeuvres
+    assert manoeuvres
+    for m in manoeuvres:
+        idx = [int(np.argmin(np.abs(c.w - f))) for f in m.frequencies_rad_s]
+        cand = plan_module._candidate(c, idx, m.band_rad_s[0], m.band_rad_s[1], m.duration_s, PlanOptions())
+        assert cand is not None
+        assert np.all(cand.level * m.amplitude_rad ** 2 >= 100.0 * c.record_noise ** 2), m
+    assert "input noise" in {m.amplitude_set_by for m in manoeuvres}

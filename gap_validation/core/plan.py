@@ -55,7 +55,10 @@ falls as one over the square root of the degrees of freedom and grows as the coh
    estimator calls it a chirp), sweep length and number of repeats, the smallest amplitude that meets the
    target, the coherence, the sweep detector (:func:`~gap_validation.core.sweeps.detrended_std` of the sweep
    over its ``on_ratio`` and ``off_ratio`` thresholds) and the input's own noise (20 dB, as
-   :func:`~gap_validation.core.spectra.band_excited`); the one of least flight time whose amplitude stays
+   :func:`~gap_validation.core.spectra.band_excited`: over the trim motion between the manoeuvres, and over
+   the record's own noise at its ends taken as white, the floor a record meets when it is judged before the
+   flight's own trim is known, :data:`~gap_validation.core.tracking.TRIM_KNOWN_S`: the first manoeuvres of a
+   short flight, at a break in the data); the one of least flight time whose amplitude stays
    under the cap is flown. Bands that no such manoeuvre reaches say why (above what the logs resolve; the
    amplitude cap; too slow for the sweep detector).
 
@@ -87,6 +90,7 @@ from gap_validation.core.estimator import ESTIMATOR_DEFAULTS, LOOKBACK_S, RESOLV
 from gap_validation.core.evidence import BIAS_ERROR, SIGMA_FACTOR, confident_points
 from gap_validation.core.flight_options import FlightOptions
 from gap_validation.core.numbers import NON_NEGATIVE, POSITIVE, Interval, check_number
+from gap_validation.core.records import TRIM_LEVEL_S
 from gap_validation.core.results import response_from_json
 from gap_validation.core.spectra import SPECTRA_DEFAULTS, BandSums, expected_estimate, record_bands
 from gap_validation.core.sweeps import DETECTOR_DEFAULTS, detrended_std
@@ -850,6 +854,9 @@ class _Channel:
     targets: list = field(default_factory=list)      # (index, reason key)
     unreachable: list = field(default_factory=list)  # (index, reason sentence)
     quiet: float = 0.0                 # the sweep detector's trim level (detrended std over its window)
+    # ... over TRIM_LEVEL_S: a record's noise at its ends (records.trim_noise), the 20 dB test's floor (as
+    # white noise) where the flight's own trim is not known yet when the record is judged
+    record_noise: float = 0.0
     input_noise: np.ndarray = None     # the input's trim motion per DFT bin, per grid frequency (mean)
     input_floor: np.ndarray = None     # ... its largest bin near each frequency (the 20 dB test's floor)
     # the noise a manoeuvre meets per DFT bin, from the trim between the first flight's manoeuvres (its output
@@ -975,9 +982,11 @@ def _trim_levels(c: _Channel, data: dict | None, opts: PlanOptions) -> str:
     """The sweep detector's trim level and the input's trim motion per frequency (what a manoeuvre must stand
     20 dB above): from the trim before the manoeuvres kept in the results (their samples: the detector's
     energy over its window; a Hann periodogram normalised as the estimator's DFT, the largest within a factor
-    1.5 of each grid frequency), else the assumed surface noise. Returns the sentence saying which."""
+    1.5 of each grid frequency; and the median detrended std over
+    :data:`~gap_validation.core.records.TRIM_LEVEL_S`, what :func:`~gap_validation.core.records.trim_noise`
+    takes at a record's ends), else the assumed surface noise. Returns the sentence saying which."""
     window = float(c.detector["energy_window_s"])
-    levels, spectra = [], []
+    levels, spectra, ends = [], [], []
     for k in (data or {}).get("time_domain") or []:
         u = _array(k.get("input"), 0.0)
         dt = float(k.get("dt_s") or 0.0)
@@ -988,6 +997,7 @@ def _trim_levels(c: _Channel, data: dict | None, opts: PlanOptions) -> str:
         trim = u[:n0] - np.polyval(np.polyfit(x, u[:n0], 1), x)
         n = max(3, min(n0, int(round(window / dt))))
         levels.append(float(np.median(detrended_std(u[:n0], n))))
+        ends.append(float(np.median(detrended_std(u[:n0], max(3, min(n0, int(round(TRIM_LEVEL_S / dt))))))))
         hann = np.hanning(n0)
         power = np.abs(np.fft.rfft(trim * hann)) ** 2 / float(np.sum(hann ** 2))
         w_bins = 2.0 * math.pi * np.fft.rfftfreq(n0, dt)
@@ -996,6 +1006,7 @@ def _trim_levels(c: _Channel, data: dict | None, opts: PlanOptions) -> str:
         spectra.append([(float(np.max(p)), float(np.mean(p))) if p.size else (white, white) for p in near])
     if levels:
         c.quiet = float(np.max(levels))
+        c.record_noise = float(np.max(ends))
         spectra = np.array(spectra)                      # (manoeuvres, F, [largest, mean])
         c.input_floor, c.input_noise = np.max(spectra[:, :, 0], axis=0), np.mean(spectra[:, :, 1], axis=0)
         return (
@@ -1005,6 +1016,7 @@ def _trim_levels(c: _Channel, data: dict | None, opts: PlanOptions) -> str:
         )
     sigma = math.hypot(opts.surface_noise_rad, FlightOptions.surface_lsb_rad / math.sqrt(12.0))
     c.quiet, c.input_noise = sigma, np.full(c.w.shape, 2.0 * sigma ** 2)
+    c.record_noise = sigma
     c.input_floor = c.input_noise
     return (
         f"{c.name}: the surface's trim motion assumed {sigma:.2g} rad rms of white noise (its sensor's "
@@ -1473,7 +1485,8 @@ def _best_repeats(c: _Channel, idx: list[int], cand: _Candidate, opts: PlanOptio
                                               opts.margin),
             "sweep detection": cand.detect,
             "input noise": 0.0 if not c.detect_on_input else float(np.max(np.sqrt(
-                _EXCITATION_SNR * EXCITATION_MARGIN * c.input_floor[idx] / np.maximum(cand.level, 1e-300)))),
+                _EXCITATION_SNR * EXCITATION_MARGIN * np.maximum(c.input_floor[idx], c.record_noise ** 2)
+                / np.maximum(cand.level, 1e-300)))),
         }
         by = max(needs, key=needs.get)
         amplitude = needs[by]

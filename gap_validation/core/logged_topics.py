@@ -17,7 +17,7 @@ from gap_validation.core.fields import FieldPath
 from gap_validation.core.flight_options import FlightOptions
 from gap_validation.core.layouts import JOINT_STATE, LAYOUTS, infer_type
 
-__all__ = ["TopicSeries", "plan_topics", "sample_topics", "with_logged_excitation"]
+__all__ = ["TopicPlan", "TopicSeries", "plan_topics", "sample_topics", "with_logged_excitation"]
 
 
 @dataclass
@@ -50,7 +50,21 @@ class TopicSeries:
 
 
 @dataclass
-class _TopicPlan:
+class TopicPlan:
+    """How one topic of a synthetic flight is filled (:func:`plan_topics`).
+
+    Attributes
+    ----------
+    topic, msgtype : str
+        Topic name and ROS message type.
+    role : str
+        ``"imu"`` (it carries an output: published at the IMU's rate) or ``"surface"``.
+    entries : list of tuple
+        ``(channel, stream, SignalSpec, FieldPath)`` of every configured signal on the topic.
+    joint_names : tuple of str
+        JointState ``name`` list (empty for other types).
+    """
+
     topic: str
     msgtype: str
     role: str                                    # "imu" or "surface"
@@ -80,7 +94,7 @@ def _supported_text(msgtype: str) -> str:
     return ", ".join(sorted(".".join(a) for a in LAYOUTS[msgtype]))
 
 
-def plan_topics(config: ValidationConfig) -> dict[str, _TopicPlan]:
+def plan_topics(config: ValidationConfig) -> dict[str, TopicPlan]:
     """Topic -> message type, rate role and the fields to fill, from the config's signals.
 
     The type is the signal's ``type`` when given, else inferred from the field: ``angular_velocity.*`` and
@@ -97,7 +111,7 @@ def plan_topics(config: ValidationConfig) -> dict[str, _TopicPlan]:
     ConfigError
         A topic whose type cannot be inferred or is not supported, or whose signals disagree on the type.
     """
-    plans: dict[str, _TopicPlan] = {}
+    plans: dict[str, TopicPlan] = {}
     for topic, entries in config.topics().items():
         parsed = [(ch, stream, spec, FieldPath.parse(spec.field)) for ch, stream, spec in entries]
         types = {t for ch, stream, spec, path in parsed if (t := _infer_type(spec, path, stream)) is not None}
@@ -114,7 +128,7 @@ def plan_topics(config: ValidationConfig) -> dict[str, _TopicPlan]:
         for _, _, _, path in parsed:
             _check_field(topic, msgtype, path)
         role = "imu" if any(stream.startswith("output") for _, stream, _, _ in parsed) else "surface"
-        plans[topic] = _TopicPlan(topic, msgtype, role, parsed, _joint_names(parsed) if msgtype == JOINT_STATE
+        plans[topic] = TopicPlan(topic, msgtype, role, parsed, _joint_names(parsed) if msgtype == JOINT_STATE
                                   else ())
     return plans
 

@@ -120,7 +120,7 @@ def test_the_report_shows_the_data_limited_band_and_the_manoeuvre_that_closes_it
             f"{math.degrees(m['amplitude_rad']):.2f} ({m['amplitude_rad']:.3g})",
             f"{m['duration_s']:.0f}",
             str(m["repeats"]),
-            f"{max(m['predicted_error']):.3f}",
+            f"{m['expected_worst_error']:.3f}",
         ]
         for cell in expected:
             assert f"<td>{cell}</td>" in rows, (cell, rows)

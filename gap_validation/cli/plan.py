@@ -194,7 +194,7 @@ def render_table(card: TestCard) -> str:
                 str(m.repeats),
                 duration_text(m.flight_time_s),
                 f"{max(now):.3f}" if now else "-",
-                f"{m.worst_predicted_error:.3f}",
+                f"{m.expected_worst_error:.3f}",
                 f"{min(m.target_error):.3f}",
                 ", ".join(m.reasons),
             )

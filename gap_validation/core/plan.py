@@ -80,7 +80,7 @@ from typing import Any
 
 import numpy as np
 from scipy.special import digamma, polygamma
-from scipy.stats import norm
+from scipy.stats import chi2, norm
 
 from gap_validation.core.background import MIN_TRIM_AVERAGES, TrimSpectra
 from gap_validation.core.config import ChannelConfig, ValidationConfig
@@ -326,6 +326,7 @@ class PlannedManoeuvre:
     predicted_error, predicted_coherence, predicted_dof, target_error : tuple of float
         Per frequency: the random error, coherence and degrees of freedom this manoeuvre is expected to give
         when replayed on its own, and the error a verdict needs there.
+        (:attr:`expected_worst_error`: the band's worst error as the estimator will report it, from them.)
     kind : str
         ``chirp``: a log sweep without a dwell (:func:`chirp`).
     """
@@ -371,6 +372,12 @@ class PlannedManoeuvre:
         """The largest predicted random error over the frequencies it closes."""
         return float(max(self.predicted_error))
 
+    @property
+    def expected_worst_error(self) -> float:
+        """The worst random error the estimator is expected to report over the frequencies it closes
+        (:func:`expected_worst`: each frequency's error estimated on its predicted degrees of freedom)."""
+        return expected_worst(self.predicted_error, self.predicted_dof)
+
     def to_dict(self) -> dict:
         """The card's YAML mapping of the manoeuvre (docs/PLAN.md): the numbers that define the signal (band,
         amplitude, lengths) exactly as planned, the rest to 4 digits."""
@@ -390,6 +397,7 @@ class PlannedManoeuvre:
             "predicted_coherence": [_r(v) for v in self.predicted_coherence],
             "predicted_dof": [int(v) for v in self.predicted_dof],
             "target_error": [_r(v) for v in self.target_error],
+            "expected_worst_error": _r(self.expected_worst_error),
         }
 
     @classmethod
@@ -721,6 +729,40 @@ def verdict_error(epsilon_threshold: float = EPSILON_THRESHOLD, dof: float = mat
     ratio = sigma_factor if math.isinf(d) else math.sqrt(2.0 * d * math.expm1(sigma_factor ** 2 / (2.0 * d)))
     total = 2.0 * epsilon_threshold / ratio          # epsilon_noise_scale: sigma = e / 2
     return math.sqrt(total ** 2 - bias_error ** 2) if total > bias_error else 0.0
+
+
+def expected_worst(errors: Any, dof: Any, points: int = 2001) -> float:
+    """The expected largest of the random errors the estimator will report, given the true ones.
+
+    The estimator reports each frequency's error from its noise variance estimated on ``d`` (complex) degrees
+    of freedom: ``e_hat = e sqrt(X / 2 d)``, ``X ~ chi^2(2 d)``. A band's worst reported error is the largest
+    of them, whose mean exceeds the largest ``e`` (the more so the fewer the degrees of freedom and the more
+    frequencies): ``E max = int_0^inf (1 - prod_i P(e_hat_i <= t)) dt``, the frequencies taken as independent.
+
+    Parameters
+    ----------
+    errors : array_like
+        The true (predicted) random error per frequency.
+    dof : array_like
+        Degrees of freedom of each (at least 1 is used).
+    points : int
+        Integration points.
+
+    Returns
+    -------
+    float
+        NaN for no frequency; the largest error where one is not finite.
+    """
+    e = np.asarray(errors, float)
+    d = np.maximum(np.asarray(dof, float), 1.0)
+    if e.size == 0:
+        return math.nan
+    if not np.all(np.isfinite(e)) or e.size != d.size or np.any(e <= 0):
+        return float(np.max(e))
+    top = float(np.max(e * np.sqrt(chi2.ppf(1.0 - 1e-9, 2.0 * d) / (2.0 * d))))
+    t = np.linspace(0.0, top, int(points))
+    below = chi2.cdf(2.0 * d[:, None] * (t[None, :] / e[:, None]) ** 2, 2.0 * d[:, None])
+    return float(np.trapezoid(1.0 - np.prod(below, axis=0), t))
 
 
 def _inv00(ff: np.ndarray) -> np.ndarray:

@@ -293,7 +293,7 @@ def _manoeuvres_table(cp: ChannelPlan) -> str:
                     m.repeats,
                     duration_text(m.flight_time_s),
                     f"{max(now):.3f}" if now else "-",
-                    f"{m.worst_predicted_error:.3f}",
+                    f"{m.expected_worst_error:.3f}",
                     f"{min(m.target_error):.3f}" if m.target_error else "-",
                     ", ".join(m.reasons),
                 )

@@ -852,7 +852,7 @@ def second_notes(runs: list[dict], show: bool) -> str:
         lines.append(
             "  of which the measured error's own scatter allows (its noise estimate on the predicted "
             "degrees "
-            f"of freedom, chi-square, each frequency alone, the band's worst against the exact one): "
+            f"of freedom, chi-square, each frequency alone, the band's worst against its expected value): "
             f"{100 * ideal:.0f} % within x1.5"
         )
     misses = [b for b in bs if not _within(b["measured"] / b["predicted"])]

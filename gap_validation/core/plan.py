@@ -97,9 +97,9 @@ from gap_validation.core.sweeps import DETECTOR_DEFAULTS, detrended_std
 
 __all__ = [
     "PlanOptions", "PlannedManoeuvre", "Unreachable", "ChannelPlan", "TestCard", "ParameterBlock", "chirp",
-    "manoeuvre_signal", "card_signal", "verdict_error", "predicted_random_error", "noise_ratio", "plan_card",
-    "check_results", "ardupilot_parameters", "px4_parameters", "EPSILON_THRESHOLD", "PLAN_MARGIN",
-    "ARDUPILOT_RANGES", "PX4_RANGES", "DWELL_CYCLES",
+    "manoeuvre_signal", "card_signal", "verdict_error", "predicted_random_error", "expected_worst",
+    "noise_ratio", "plan_card", "check_results", "ardupilot_parameters", "px4_parameters",
+    "EPSILON_THRESHOLD", "PLAN_MARGIN", "ARDUPILOT_RANGES", "PX4_RANGES", "DWELL_CYCLES",
 ]
 
 #: The epsilon threshold the validator judges bands at:

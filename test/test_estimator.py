@@ -6,9 +6,11 @@ estimate itself is tested in ``test_spectra.py``, the splitting into manoeuvres 
 time alignment (time bases, jumps back, stray stamps) in ``test_alignment.py``.
 """
 import copy
+from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from _pitch_flights import (
     FINE_HZ,
     PITCH_DEN,
@@ -30,10 +32,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import signal
 
+from gap_validation.core.config import parse_config
 from gap_validation.core.errors import ConfigError, DataError
 from gap_validation.core.estimator import RETIRED_OPTIONS, FrequencyResponseEstimator, SpectralEstimate
-from gap_validation.core.simulation import multisine, multistep
+from gap_validation.core.simulation import FlightOptions, multisine, multistep, simulate_flight
 from gap_validation.core.spectra import interpolation_gain
+from gap_validation.core.validator import OnlineValidator
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 @settings(max_examples=10, deadline=None)
@@ -504,6 +510,29 @@ def test_a_full_record_buffer_keeps_the_manoeuvre_in_progress():
     est = estimate(*_grid_flight(u), max_record_s=100.0)
     assert [s.kind for s in est.sweeps] == ["chirp", "chirp"]
     assert est.sweeps[1].end_s - est.sweeps[1].start_s >= 58.0     # the 60 s sweep, tapered ends aside
+
+
+
+def test_a_record_cut_in_a_slow_sweeps_middle_is_not_split_at_its_peaks():
+    """Three 107 s sweeps of the rudder from 0.71 rad/s (a planned card's) with 6 s of trim between merge into
+    one record (the detector is still on when the next begins), which the buffer (300 s) cuts in the third
+    sweep's middle. That end is no trim: taken as the level "after", it lay near a peak of the sweep, where a
+    slow sweep dwells for more than the 1 s that separates manoeuvres every period, and the three sweeps came
+    apart into steps, pulses and one-period multisteps (no response at all)."""
+    data = yaml.safe_load((ROOT / "config" / "ultrastick25e.yaml").read_text())
+    data["channels"] = {"yaw": data["channels"]["yaw"]}
+    data["channels"]["yaw"]["frequencies"] = {"min_rad_s": 1.43, "max_rad_s": 3.57, "count": 10}
+    config = parse_config(data, "yaw.yaml")
+    opts = FlightOptions(excitation="chirp", sweeps_per_channel=3, sweep_duration_s=107.0,
+                         sweep_amplitude_rad=0.06, dwell_cycles=0.0, band_low_factor=0.5,
+                         band_high_factor=1.0, doublet_amplitude_rad=0.0, doublet_half_period_s=0.005,
+                         quiet_s=2.995, trim_s=5.0)
+    flight = simulate_flight(config, None, opts, seed=3)
+    assert flight.duration_s > 300.0
+    v = OnlineValidator(config)
+    v.add_histories("yaw", flight.histories(config.channels["yaw"]))
+    v.finish()
+    assert v.results(diagnose=False).to_json_dict()["channels"]["yaw"]["manoeuvres_by_kind"] == {"chirp": 3}
 
 
 # ------------------------------------------------------------------------------------- the flight condition

@@ -590,6 +590,39 @@ def test_the_pool_weighs_each_point_by_its_noise_not_by_its_own_magnitude():
     assert abs(np.mean(corrected)) < 0.02
 
 
+def test_the_pool_takes_each_points_error_from_the_noise_level_not_from_its_own_residual(first):
+    """A short first flight's random error at a frequency is its residual on 3 degrees of freedom, a third of
+    the truth or less one time in five (chi-square). Pooled with weights ``1 / e^2`` as reported, the pool
+    leans on those points and believes itself precise: seeded draws (independent points, each ln |H| off by
+    0.25, the model right) put the pooled ln |H| / |H_model| beyond 1.645 of its stated standard error in a
+    third of them. With each point's error from the noise level (the trim's output error; its own where that
+    is larger: :func:`_expected_error`) the stated error holds, about 10 % beyond as a normal law says."""
+    config = first["config"]
+    rng = np.random.default_rng(3)
+    base = plan_module._channel_base("pitch", config.channels["pitch"])
+    size, nh = base.w.size, int(base.spectra["order"]) + 1
+    information = np.broadcast_to(np.eye(nh, dtype=complex) * 50.0, (size, nh, nh)).copy()
+    noise, seen = 0.25, base.model_mag
+    trusted = (base.w >= 1.0) & (base.w <= 4.0)
+    at = int(np.argmin(np.abs(base.w - 2.0)))
+    beyond = {True: [], False: []}
+    for _ in range(200):
+        measured = seen * np.exp(noise * rng.standard_normal(size))
+        reported = noise * np.sqrt(rng.chisquare(3, size) / 3.0) * seen / measured  # over its own |H|
+        for level in (True, False):
+            c = copy.copy(base)
+            c.input_noise = np.zeros(size)
+            c.error_now = np.where(trusted, reported, np.nan)
+            plan_module._fill_noise(
+                c, noise_ratio(c.error_now, information), np.where(trusted, 3.0, 0.0), measured, seen,
+                trusted, None, None, information if level else None,
+                2.0 * 50.0 * noise ** 2 * seen ** 2 if level else None,   # the trim's noise: error 0.25
+            )
+            beyond[level].append(abs(math.log(c.mag_ratio[at])) > 1.645 * c.mag_ratio_error[at])
+    assert np.mean(beyond[False]) > 0.25               # 0.34 on these draws
+    assert np.mean(beyond[True]) < 0.14                # 0.09
+
+
 def test_results_written_before_the_trim_spectra_still_plan(first):
     """Results without ``trim_spectra`` (written before the key) plan as before, from the first flight's
     manoeuvres alone: the same open frequencies get manoeuvres, their noise not the trim's (which the same

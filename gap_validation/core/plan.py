@@ -1161,6 +1161,8 @@ def _fill_noise(
     trusted: np.ndarray,
     trim_noise: np.ndarray | None = None,
     shared: np.ndarray | None = None,
+    information: np.ndarray | None = None,
+    trim_error: np.ndarray | None = None,
 ) -> None:
     """``c.sigma2`` (the output's own noise per DFT bin) and ``c.mag_ratio`` on the whole grid.
 
@@ -1177,7 +1179,10 @@ def _fill_noise(
     resolves the frequency. The measured ``|H|`` over the model's as the first flight's records see it
     (``seen_mag``: a lightly damped zero is smoothed more by a short record), pooled over neighbouring
     frequencies until its random error is :data:`RESPONSE_ERROR` (:func:`_pool_response`, the bins they share
-    from ``shared``): a planned manoeuvre's ``|H|`` is its own view of the model times that ratio."""
+    from ``shared``): a planned manoeuvre's ``|H|`` is its own view of the model times that ratio. Each
+    point's error in that pool is the one the noise level gives it (:func:`_expected_error`, from
+    ``information``, the rebuilt ``Phi1^H Phi1``, and ``trim_error``, the trim's output error) or its own
+    where that is larger (:func:`_view_error`); without ``information``, its own."""
     measured = np.isfinite(measured_mag) & (measured_mag > 0)
     total = q * np.where(measured, measured_mag, np.nan) ** 2
     use = trusted & measured & np.isfinite(total) & (total > 0) & (dof >= 1)
@@ -1195,9 +1200,14 @@ def _fill_noise(
         c.sigma2[known] = trim_noise[known]
     error = np.asarray(c.error_now, dtype=float) if c.error_now is not None else np.full(c.w.shape, np.nan)
     ok = use & np.isfinite(seen_mag) & (seen_mag > 0) & np.isfinite(error) & (error > 0)
+    error = _view_error(error, measured_mag, seen_mag)
+    if information is not None:
+        expected = _expected_error(c, seen_mag, information, trim_error)
+        ok &= np.isfinite(expected) & (expected > 0)
+        error = np.fmax(error, expected)
     if ok.any():
         ratio = np.log(np.where(ok, measured_mag, 1.0) / np.where(ok, seen_mag, 1.0))
-        error = np.where(ok, _view_error(error, measured_mag, seen_mag), np.inf)
+        error = np.where(ok, error, np.inf)
         pooled, variance = _pool_response(lw, ratio, error, shared, RESPONSE_ERROR)
         c.mag_ratio, c.mag_ratio_error = np.exp(pooled), np.sqrt(variance)
 
@@ -1228,6 +1238,22 @@ def _local_linear(x: np.ndarray, y: np.ndarray, weight: np.ndarray, width: float
         value = my + slope * (at - mx)
         out[i] = value + float(np.clip(slope, *slopes)) * (xi - at)
     return out
+
+
+def _expected_error(c: _Channel, seen_mag: np.ndarray, information: np.ndarray,
+                    trim_error: np.ndarray | None) -> np.ndarray:
+    """Each first-flight point's random error as the smoothed noise says it should be, over the model's view
+    of ``|H|``: ``predicted_random_error(sigma^2 / |H_seen|^2 + input noise, Phi1^H Phi1)``, the noise the
+    trim's output error where it tells it (:func:`_trim_output_error`, tens of averages), else ``c.sigma2``
+    (the flight's own residuals smoothed over frequency). Not the point's own ``random_error``: that is its
+    residual on a short card's 3 degrees of freedom, a third of the truth or less one time in five
+    (chi-square), and a pool weighted by ``1 / e^2`` leans on exactly those points and believes itself
+    precise."""
+    view = np.maximum(np.asarray(seen_mag, float), 1e-300) ** 2
+    q = c.sigma2 / view + c.input_noise
+    if trim_error is not None:
+        q = np.where(np.isfinite(trim_error), trim_error / view, q)
+    return predicted_random_error(q, information)
 
 
 def _view_error(error: np.ndarray, measured_mag: np.ndarray, seen_mag: np.ndarray) -> np.ndarray:
@@ -1833,9 +1859,10 @@ def _from_results(c: _Channel, data: dict, opts: PlanOptions) -> bool:
     band = data.get("excited_band_rad_s") or [c.w.min(), c.w.max()]
     core = (c.w >= float(band[0]) * EDGE_CORE) & (c.w <= float(band[1]) / EDGE_CORE)
     agrees = np.abs(dof_pred - dof) <= 0.25 * np.maximum(dof, 4.0)
-    _fill_noise(c, q, dof, mag, seen_mag, core & agrees, _output_trim_noise(c, data), shared)
     trim = _trim_spectra(c, data)
     c.trim_noise = _trim_output_error(c, data, trim)
+    _fill_noise(c, q, dof, mag, seen_mag, core & agrees, _output_trim_noise(c, data), shared, sums1.ff,
+                c.trim_noise)
     _trim_floor(c, trim)
     _targets(c, data)
     _cap(c, data, opts)

@@ -199,7 +199,7 @@ def _restarts(dev: np.ndarray, tol: float, lo: int, hi: int) -> list[int]:
 
 
 def split_record(u: np.ndarray, dt: float, noise_std: float, pre_n: int, post_n: int,
-                 min_quiet_s: float = 1.0, trim_std: float = 0.0) -> list[Piece]:
+                 min_quiet_s: float = 1.0, trim_std: float = 0.0, open_end: bool = False) -> list[Piece]:
     """Split a buffered excited stretch into the manoeuvres flown (see the module docstring).
 
     Parameters
@@ -217,6 +217,12 @@ def split_record(u: np.ndarray, dt: float, noise_std: float, pre_n: int, post_n:
     trim_std : float
         Standard deviation of the trim motion between manoeuvres (0 when unknown): it widens the band about
         trim (:func:`trim_tolerance`); noise spikes are judged against ``noise_std`` alone.
+    open_end : bool
+        ``u`` was cut while a manoeuvre went on (a full record buffer): its last samples are no trim, and the
+        trim is the level before alone. Taken from a sweep's middle, the "trim after" lies near one of its
+        peaks, and a slow sweep dwells there for more than ``min_quiet_s`` every period: cut into pieces of
+        one period each (a 107 s sweep from 0.7 rad/s, flown six times with 6 s of trim between, came out as
+        two "multisteps").
 
     Returns
     -------
@@ -228,6 +234,8 @@ def split_record(u: np.ndarray, dt: float, noise_std: float, pre_n: int, post_n:
     if u.size < 3:
         return []
     before, after = _levels(u, dt, pre_n, post_n)
+    if open_end:
+        after = before
     dev = u - before
     excursion = float(np.percentile(np.abs(dev), 99))
     tol = trim_tolerance(excursion, noise_std, trim_std)

@@ -548,19 +548,23 @@ class ManoeuvreTracker:
             if self._pending:
                 self._judge_pending()
 
-    def _pieces(self, data: np.ndarray, src: int, act0: int, act1: int) -> list[Piece]:
+    def _pieces(self, data: np.ndarray, src: int, act0: int, act1: int,
+                open_end: bool = False) -> list[Piece]:
+        """The record's manoeuvres; ``open_end``: the record was cut while one went on (its tail is no
+        trim: :func:`~gap_validation.core.records.split_record`)."""
         n = data.shape[1]
         if src == _TRIGGER:
             return [Piece(0, n, min(act0, n), max(min(act1, n), min(act0, n)))]
         if len(self._det_streams) > 1:
-            return self._multi_pieces(data) if self._conditioned else self._pieces_per_stream(data)
-        return self._split(data[self._det_streams[0]], 0, n, self._det_streams[0])
+            return (self._multi_pieces(data, open_end) if self._conditioned
+                    else self._pieces_per_stream(data, open_end))
+        return self._split(data[self._det_streams[0]], 0, n, self._det_streams[0], open_end)
 
     def _motion(self, stream: int) -> float:
         """:func:`trim_motion` of a detection stream."""
         return trim_motion(self._trim, stream)
 
-    def _multi_pieces(self, data: np.ndarray) -> list[Piece]:
+    def _multi_pieces(self, data: np.ndarray, open_end: bool = False) -> list[Piece]:
         """Several inputs without an excitation signal (``other_inputs``): the manoeuvres of every input, each
         kept where its own input is the most excited (relative to its trim noise) over its excited span, so a
         surface that only follows another through an interconnect adds no manoeuvre of its own; in time order.
@@ -569,7 +573,7 @@ class ManoeuvreTracker:
         noise = {s: max(trim_noise(data[s], self._dt), 1e-12) for s in self._det_streams}
         for s in self._det_streams:
             for piece in split_record(data[s], self._dt, noise[s], self._rec.pre_n, self._rec.post_n,
-                                      self._min_quiet_s, self._motion(s)):
+                                      self._min_quiet_s, self._motion(s), open_end):
                 if piece.active_end <= piece.active_start:
                     continue
                 span = slice(piece.active_start, piece.active_end)
@@ -600,7 +604,7 @@ class ManoeuvreTracker:
         the trim motion are judged first (in time order)."""
         self._judge_pending(force=True)
         n = data.shape[1]
-        pieces = self._pieces(data, src, act0, n)
+        pieces = self._pieces(data, src, act0, n, open_end=True)
         going = [p for p in pieces if p.group == pieces[-1].group] if pieces and pieces[-1].end >= n else []
         if self._conditioned and src != _TRIGGER:      # other_inputs split separately: groups differ
             going = [p for p in pieces if p.end >= n]
@@ -645,7 +649,7 @@ class ManoeuvreTracker:
             if data.shape[1] >= 4:
                 self._estimate_pieces(k0, data, self._pieces(data, src, act0, act1), src == _TRIGGER)
 
-    def _pieces_per_stream(self, data: np.ndarray) -> list[Piece]:
+    def _pieces_per_stream(self, data: np.ndarray, open_end: bool = False) -> list[Piece]:
         """Several detection streams (a MIMO channel's inputs, flown one at a time): the record split by each
         stream on its own (a record may hold an aileron doublet and the rudder sweep after it). The manoeuvre
         that moves its stream most is kept first; a later one that overlaps kept ones keeps only what lies
@@ -655,7 +659,7 @@ class ManoeuvreTracker:
         found = []
         for n, s in enumerate(self._det_streams):
             det = data[s]
-            for piece in self._split(det, 0, det.size, s):
+            for piece in self._split(det, 0, det.size, s, open_end):
                 moved = float(np.var(det[piece.active_start:piece.active_end])) if piece.active_end > \
                     piece.active_start else 0.0
                 found.append((moved, n, Piece(piece.start, piece.end, piece.active_start, piece.active_end,
@@ -680,16 +684,18 @@ class ManoeuvreTracker:
                 end = piece.end if hi == piece.active_end else hi
                 kept += [Piece(p.start + lo, p.end + lo, p.active_start + lo, p.active_end + lo,
                                piece.group + 1000 * (part + 1) + p.group)
-                         for p in self._split(data[self._det_streams[n]], lo, end, self._det_streams[n])]
+                         for p in self._split(data[self._det_streams[n]], lo, end, self._det_streams[n],
+                                              open_end and end >= data.shape[1])]
         return sorted(kept, key=lambda p: (p.start, p.active_start))
 
-    def _split(self, det: np.ndarray, lo: int, hi: int, stream: int) -> list[Piece]:
+    def _split(self, det: np.ndarray, lo: int, hi: int, stream: int, open_end: bool = False) -> list[Piece]:
         """:func:`~gap_validation.core.records.split_record` of ``det[lo:hi]`` (indices relative to ``lo``;
         ``det``
         is stream ``stream``)."""
         seg = det[lo:hi]
         return split_record(seg, self._dt, trim_noise(seg, self._dt), self._rec.pre_n, self._rec.post_n,
-                            self._min_quiet_s, self._motion(stream)) if seg.size >= 3 else []
+                            self._min_quiet_s, self._motion(stream), open_end and hi >= det.size) \
+            if seg.size >= 3 else []
 
     def _detection_signal(self, data: np.ndarray, piece: Piece) -> int:
         """The stream a manoeuvre is classified by: the detection stream, or with several (a MIMO channel's

@@ -83,7 +83,8 @@ from gap_validation.core.plan import (  # noqa: E402
     PlanOptions,
     _channel_base,
     _response,
-    _unit_record,
+    chirp,
+    estimator_record,
     expected_worst,
     manoeuvre_signal,
     plan_card,
@@ -637,28 +638,30 @@ def _replay_bags(config, dirs: list[Path], diagnose: bool = True) -> dict:
 
 def flown_sums(config, generator: str, m):
     """One sweep of the manoeuvre at amplitude 1 as the generator flies it (its log chirp, 0.5 s linear
-    tapers), cut as the planner cuts its own (half the trim the estimator may keep: of the 2 s before the
-    first sweep and the trim after each), through :func:`~gap_validation.core.spectra.record_bands`: ``(sums,
-    status)``."""
+    tapers, its 2 s of trim before and the trim after), on the record the estimator cuts around it
+    (:func:`~gap_validation.core.plan.estimator_record`, as the planner computes its own), through
+    :func:`~gap_validation.core.spectra.record_bands`: ``(sums, status)``."""
     c = _channel_base(m.channel, config.channels[m.channel])
     plan = {**_second_plan(m), "sweeps": 1, "amplitude_rad": 1.0}
     u, rate = _flown(generator, plan)
     x = u[m.channel]
     start = int(np.flatnonzero(x)[0]) - 1             # the sweep starts at zero (sin, tapered)
     length = int(m.duration_s * rate)
-    pre = 0.5 * min(c.pre_s, SECOND_TRIM_BEFORE_S)
-    post = 0.5 * min(c.post_s, _pause(generator, plan))
     step = int(round(rate * c.dt))
-    record = x[start - int(round(pre * rate)): start + length + int(round(post * rate)): step]
+    around = x[max(start - int(round(SECOND_TRIM_BEFORE_S * rate)), 0):
+               start + length + int(round(_pause(generator, plan) * rate)): step]
+    record = estimator_record(around, c.dt, c.pre_s, c.post_s)
     return record_bands(record[None], record[None], c.dt, np.asarray(m.frequencies_rad_s), options=c.spectra)
 
 
 def card_sums(config, m):
-    """One sweep of the card's manoeuvre at amplitude 1 cut as the planner cuts it (its own ``_unit_record``):
-    ``(sums, status)``."""
+    """One sweep of the card's manoeuvre at amplitude 1 on the record the estimator cuts around it (as the
+    planner computes its information: :func:`~gap_validation.core.plan.estimator_record`): ``(sums,
+    status)``."""
     c = _channel_base(m.channel, config.channels[m.channel])
-    opts = PlanOptions(fade_s=m.fade_in_s, trim_before_s=m.trim_before_s, trim_between_s=m.trim_between_s)
-    u, _ = _unit_record(c, opts, m.duration_s, m.f_start_hz, m.f_stop_hz)
+    t = np.arange(-m.trim_before_s, m.duration_s + m.trim_between_s, c.dt)
+    u = estimator_record(chirp(t, m.duration_s, m.f_start_hz, m.f_stop_hz, m.fade_in_s, m.fade_out_s), c.dt,
+                         c.pre_s, c.post_s)
     return record_bands(u[None], u[None], c.dt, np.asarray(m.frequencies_rad_s), options=c.spectra)
 
 

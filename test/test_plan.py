@@ -31,6 +31,7 @@ from gap_validation.core.plan import (
     PlanOptions,
     TestCard,
     chirp,
+    estimator_record,
     manoeuvre_signal,
     noise_ratio,
     plan_card,
@@ -175,6 +176,14 @@ def test_data_limited_bands_get_a_manoeuvre_that_meets_the_target_and_flying_it_
     )
     flight = simulate_flight(parse_config(data, "manoeuvre"), None, opts, seed=11)
     after = _replay(first["config"], flight)["channels"]["pitch"]
+    # its information was computed on the record the estimator cut: pre_s and post_s (2 s, 4 s) around the
+    # span the sweep is out of trim, which the flight's raw sweeps give
+    t = np.arange(-m.trim_before_s, m.duration_s + m.trim_between_s, 0.01)
+    record = estimator_record(chirp(t, m.duration_s, m.f_start_hz, m.f_stop_hz, m.fade_in_s, m.fade_out_s),
+                              0.01, 2.0, 4.0)
+    spans = [s["end_s"] - s["start_s"] for s in after["raw_sweeps"]]
+    assert len(spans) == m.repeats
+    assert spans == pytest.approx([record.size * 0.01 - 6.0] * m.repeats, abs=0.1)
     w = np.asarray(after["frequency_rad_s"])
     measured = []
     for f, target in zip(m.frequencies_rad_s, m.target_error):

@@ -505,6 +505,20 @@ def test_the_card_yaml_reads_back(first, tmp_path, capsys):
     assert data["flight_time_s"] == pytest.approx(again.flight_time_s, rel=1e-3)
 
 
+
+def test_a_card_read_back_writes_the_same_numbers(card):
+    """The card's ``expected_worst_error`` is computed from the errors as written (4 digits), so a card read
+    back (the node's ``~/plan`` against ``gap-validate plan``) states the same number: computed from the
+    unrounded errors it came out 0.02867 written and 0.02866 read back (seeded draws of errors here)."""
+    rng = np.random.default_rng(4)
+    m = card.channels["pitch"].manoeuvres[0]
+    for _ in range(300):
+        errors = tuple(rng.uniform(0.01, 0.07, len(m.predicted_error)))
+        drawn = dataclasses.replace(m, predicted_error=errors)
+        written = drawn.to_dict()
+        assert type(m).from_dict("pitch", written).to_dict() == written
+
+
 # ------------------------------------------------------------------------------------------------ bad input
 def _one_line(capsys) -> str:
     err = capsys.readouterr().err.strip()

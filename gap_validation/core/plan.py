@@ -397,7 +397,10 @@ class PlannedManoeuvre:
             "predicted_coherence": [_r(v) for v in self.predicted_coherence],
             "predicted_dof": [int(v) for v in self.predicted_dof],
             "target_error": [_r(v) for v in self.target_error],
-            "expected_worst_error": _r(self.expected_worst_error),
+            # from the errors as written, so that a card read back states the same number
+            "expected_worst_error": _r(
+                expected_worst([_r(v) for v in self.predicted_error], self.predicted_dof)
+            ),
         }
 
     @classmethod

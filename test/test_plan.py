@@ -506,6 +506,27 @@ def test_the_card_yaml_reads_back(first, tmp_path, capsys):
 
 
 
+def test_the_plan_stays_below_what_the_logs_resolve():
+    """The results say what a channel's streams resolve (``resolved_rad_s``: a quarter of the slowest one's
+    rate, the estimator's own limit: 78.5 rad/s for the simulator's 50 Hz surface logs), and the planner
+    sweeps no higher, without ``--log-rate-hz`` too. Results without the key (written before it) say nothing
+    below the grid's top, and a first flight swept to 30 rad/s left 30-40 rad/s to a sweep to 108 rad/s (on
+    our simulator's roll such a sweep was called broadband and gave nothing)."""
+    data = _pitch_only()
+    config = parse_config(copy.deepcopy(data), "pitch.yaml")
+    opts = FlightOptions(sweeps_per_channel=1, sweep_duration_s=40.0, sweep_amplitude_rad=0.03, quiet_s=4.0,
+                         doublet_amplitude_rad=0.06, band_low_factor=0.2, band_high_factor=0.75)
+    results = _replay(config, simulate_flight(config, None, opts, seed=7))
+    resolved = results["channels"]["pitch"]["resolved_rad_s"]
+    assert resolved == pytest.approx(2 * math.pi * 0.25 * min(opts.surface_rate_hz, opts.imu_rate_hz))
+    tops = [m.band_rad_s[1] for m in plan_card(config, results).manoeuvres]
+    assert max(tops) > 40.0 and max(tops) <= resolved * (1 + 1e-4)   # to the card's 5 digits
+    del results["channels"]["pitch"]["resolved_rad_s"]
+    assert max(m.band_rad_s[1] for m in plan_card(config, results).manoeuvres) > resolved
+    told = plan_card(config, results, PlanOptions(log_rate_hz=50.0))
+    assert max(m.band_rad_s[1] for m in told.manoeuvres) <= resolved * (1 + 1e-4)   # to the card's 5 digits
+
+
 def test_a_card_read_back_writes_the_same_numbers(card):
     """The card's ``expected_worst_error`` is computed from the errors as written (4 digits), so a card read
     back (the node's ``~/plan`` against ``gap-validate plan``) states the same number: computed from the

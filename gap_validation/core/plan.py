@@ -233,7 +233,8 @@ class PlanOptions:
         simulator's sweep amplitude (0.06 rad).
     log_rate_hz : float, optional
         Rate of the slowest logged stream of the channels [Hz]: the estimator resolves up to a quarter of it.
-        None: known only where the results say ``above_resolution``.
+        None: from the results' ``resolved_rad_s`` (results written before that key: known only where they
+        say ``above_resolution``; a config alone: not known). Given with results, the lower of the two.
     fade_s : float
         Fade in and out of each chirp [s] (ArduPilot's ``SID_T_FADE_IN``/``SID_T_FADE_OUT``; the simulator's 1
         s).
@@ -1814,8 +1815,7 @@ def plan_card(config: ValidationConfig, results: dict | None = None, options: Pl
             continue
         data = None if results is None else results["channels"].get(name)
         c = _channel_base(name, ch)
-        if opts.log_rate_hz is not None:
-            c.resolved_rad_s = 2.0 * math.pi * RESOLVED_FRACTION * opts.log_rate_hz
+        _resolution(c, data, opts)
         if results is not None and data is None:
             c.notes.append(
                 f"{name}: not in the results (not flown?): planned as a first flight, from the model"
@@ -1823,8 +1823,7 @@ def plan_card(config: ValidationConfig, results: dict | None = None, options: Pl
         if data is None or not _from_results(c, data, opts):
             if data is not None:                 # nothing estimated: start afresh with the model's levels
                 c = _channel_base(name, ch)
-                if opts.log_rate_hz is not None:
-                    c.resolved_rad_s = 2.0 * math.pi * RESOLVED_FRACTION * opts.log_rate_hz
+                _resolution(c, data, opts)
                 c.notes.append(
                     f"{name}: nothing estimated in the results ({data.get('message') or 'no sweep'}): "
                     f"planned as a first flight, from the model"
@@ -1855,6 +1854,18 @@ def plan_card(config: ValidationConfig, results: dict | None = None, options: Pl
     )
     return TestCard(channels, "config" if results is None else "results", rule,
                     _assumptions(results is None, opts, first_flights > 0))
+
+
+def _resolution(c: _Channel, data: dict | None, opts: PlanOptions) -> None:
+    """What the logs resolve: a quarter of ``--log-rate-hz`` and the results' ``resolved_rad_s`` (the
+    estimator's own limit from the streams it read), the lower of the two. Without either a sweep may be
+    planned past it: a 36 rad/s target swept to 130 rad/s on 50 Hz surface logs (78.5 rad/s) was called
+    broadband, not a chirp, and gave nothing."""
+    if opts.log_rate_hz is not None:
+        c.resolved_rad_s = 2.0 * math.pi * RESOLVED_FRACTION * opts.log_rate_hz
+    resolved = (data or {}).get("resolved_rad_s")
+    if isinstance(resolved, (int, float)) and math.isfinite(resolved) and resolved > 0:
+        c.resolved_rad_s = min(c.resolved_rad_s, float(resolved))
 
 
 def _join_unreachable(items: list[Unreachable], w: np.ndarray) -> list[Unreachable]:
@@ -1996,8 +2007,9 @@ def _assumptions(first: bool, opts: PlanOptions, some_first: bool = False) -> li
         )
     if opts.log_rate_hz is None:
         out.append(
-            "log rates unknown (--log-rate-hz): only frequencies the results call above_resolution are "
-            "taken as beyond the logs"
+            "log rates not given (--log-rate-hz): what the logs resolve is the results' resolved_rad_s "
+            "(results written before it: only the frequencies they call above_resolution; a config alone: "
+            "not known)"
         )
     return out
 

@@ -599,6 +599,9 @@ class ChannelResult:
     time_domain: list[dict] = field(default_factory=list)            # per manoeuvre: tic, tic_input_augmented
     excitation: str | None = None                                    # kind flown (chirp, multisine, ...)
     excited_band_rad_s: tuple[float, float] | None = None            # where the flight excited the input
+    # the highest frequency the channel's streams resolve (a quarter of the slowest one's rate, or up to its
+    # Nyquist frequency where faster streams show its sampling): no band reaches above it; None before data
+    resolved_rad_s: float | None = None
     manoeuvres_by_kind: dict[str, int] = field(default_factory=dict)  # manoeuvres that gave a response
     # every manoeuvre seen, per kind, used or not
     manoeuvres_flown: dict[str, int] = field(default_factory=dict)
@@ -715,6 +718,7 @@ class ChannelResult:
             "excitation": self.excitation,
             "excited_band_rad_s": None if self.excited_band_rad_s is None else [_num(v) for v in
                                                                                  self.excited_band_rad_s],
+            "resolved_rad_s": None if self.resolved_rad_s is None else _num(self.resolved_rad_s),
             "manoeuvres_by_kind": dict(self.manoeuvres_by_kind),
             "manoeuvres_flown": dict(self.manoeuvres_flown),
             "degrees_of_freedom": _list(self.degrees_of_freedom),
@@ -853,6 +857,8 @@ class ChannelResult:
         )
         band = data.get("excited_band_rad_s")
         ch.excited_band_rad_s = (float(band[0]), float(band[1])) if band and None not in band else None
+        resolved = data.get("resolved_rad_s")
+        ch.resolved_rad_s = float(resolved) if isinstance(resolved, (int, float)) else None
         ch.margins = margins_from_epsilon(ch.epsilon if ch.epsilon is not None and not ch.conventions
                                           else float("nan"))
         if ch.epsilon_raw is not None:

@@ -9,6 +9,7 @@ Changing the model (:meth:`set_config`) keeps the spectra, so the error is recom
 from __future__ import annotations
 
 import logging
+import math
 from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any, Sequence
@@ -415,6 +416,8 @@ class OnlineValidator:
                                bad_samples=dict(self._bad[name]), epsilon_previous=self._previous.get(name),
                                model_description=_describe_model(channel), model_spec=channel.model_spec)
         result.excitation = est.excitation
+        resolved = est.resolved_rad_s
+        result.resolved_rad_s = resolved if math.isfinite(resolved) and resolved > 0 else None
         result.dynamic_pressure_ratio = est.dynamic_pressure_ratio
         result.warnings.extend(_condition_warnings(result.dynamic_pressure_ratio))
         result.warnings.extend(_lag_warnings(est))

@@ -567,6 +567,17 @@ def test_results_of_another_config_are_one_line(first, tmp_path, capsys):
     assert "not the grid of" in _one_line(capsys)
 
 
+@pytest.mark.parametrize("value", ["fast", True, -1.0, 0])
+def test_a_bad_resolved_rad_s_is_one_line(first, tmp_path, capsys, value):
+    bad = copy.deepcopy(first["results"])
+    bad["channels"]["pitch"]["resolved_rad_s"] = value
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps(bad))
+    assert main(["plan", str(path), "--config", str(first["config_path"])]) == 1
+    err = _one_line(capsys)
+    assert str(path) in err and "'pitch'" in err and f"resolved_rad_s {value!r}" in err
+
+
 @pytest.mark.parametrize("argv,needle", [
     (["--target-error", "-0.1"], "--target-error"),
     (["--max-amplitude-rad", "0"], "--max-amplitude-rad"),

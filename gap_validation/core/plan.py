@@ -848,6 +848,11 @@ def check_results(results: dict, config: ValidationConfig, source: str = "result
         if name not in config.channels:
             raise DataError(f"{source}: channel {name!r} is not in {config_name(config)} (channels: "
                             f"{', '.join(config.channels)}): results of another config?")
+        resolved = ch.get("resolved_rad_s") if isinstance(ch, dict) else None
+        if resolved is not None and (isinstance(resolved, bool) or not isinstance(resolved, (int, float))
+                                     or not math.isfinite(resolved) or resolved <= 0):
+            raise DataError(f"{source}: channel {name!r}: resolved_rad_s {resolved!r} is not a positive "
+                            f"number [rad/s] (null where not known)")
         w = ch.get("frequency_rad_s") if isinstance(ch, dict) else None
         if not w:
             continue
@@ -1863,8 +1868,8 @@ def _resolution(c: _Channel, data: dict | None, opts: PlanOptions) -> None:
     broadband, not a chirp, and gave nothing."""
     if opts.log_rate_hz is not None:
         c.resolved_rad_s = 2.0 * math.pi * RESOLVED_FRACTION * opts.log_rate_hz
-    resolved = (data or {}).get("resolved_rad_s")
-    if isinstance(resolved, (int, float)) and math.isfinite(resolved) and resolved > 0:
+    resolved = (data or {}).get("resolved_rad_s")           # a positive number or None (check_results)
+    if resolved is not None:
         c.resolved_rad_s = min(c.resolved_rad_s, float(resolved))
 
 

@@ -858,7 +858,8 @@ class ChannelResult:
         band = data.get("excited_band_rad_s")
         ch.excited_band_rad_s = (float(band[0]), float(band[1])) if band and None not in band else None
         resolved = data.get("resolved_rad_s")
-        ch.resolved_rad_s = float(resolved) if isinstance(resolved, (int, float)) else None
+        number = isinstance(resolved, (int, float)) and not isinstance(resolved, bool)
+        ch.resolved_rad_s = float(resolved) if number else None
         ch.margins = margins_from_epsilon(ch.epsilon if ch.epsilon is not None and not ch.conventions
                                           else float("nan"))
         if ch.epsilon_raw is not None:

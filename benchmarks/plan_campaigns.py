@@ -82,8 +82,8 @@ from gap_validation.core.plan import (  # noqa: E402
     PREDICTION_FACTOR,
     PlanOptions,
     _channel_base,
+    _information_record,
     _response,
-    chirp,
     estimator_record,
     expected_worst,
     manoeuvre_signal,
@@ -656,12 +656,10 @@ def flown_sums(config, generator: str, m):
 
 def card_sums(config, m):
     """One sweep of the card's manoeuvre at amplitude 1 on the record the estimator cuts around it (as the
-    planner computes its information: :func:`~gap_validation.core.plan.estimator_record`): ``(sums,
-    status)``."""
+    planner computes its information: ``_information_record``): ``(sums, status)``."""
     c = _channel_base(m.channel, config.channels[m.channel])
-    t = np.arange(-m.trim_before_s, m.duration_s + m.trim_between_s, c.dt)
-    u = estimator_record(chirp(t, m.duration_s, m.f_start_hz, m.f_stop_hz, m.fade_in_s, m.fade_out_s), c.dt,
-                         c.pre_s, c.post_s)
+    opts = PlanOptions(fade_s=m.fade_in_s, trim_before_s=m.trim_before_s, trim_between_s=m.trim_between_s)
+    u = _information_record(c, opts, m.duration_s, m.f_start_hz, m.f_stop_hz)
     return record_bands(u[None], u[None], c.dt, np.asarray(m.frequencies_rad_s), options=c.spectra)
 
 

@@ -668,10 +668,10 @@ def test_the_pool_takes_each_points_error_from_the_noise_level_not_from_its_own_
             c = copy.copy(base)
             c.input_noise = np.zeros(size)
             c.error_now = np.where(trusted, reported, np.nan)
+            c.trim_noise = 2.0 * 50.0 * noise ** 2 * seen ** 2          # the trim's noise: error 0.25
             plan_module._fill_noise(
                 c, noise_ratio(c.error_now, information), np.where(trusted, 3.0, 0.0), measured, seen,
                 trusted, None, None, information if level else None,
-                2.0 * 50.0 * noise ** 2 * seen ** 2 if level else None,   # the trim's noise: error 0.25
             )
             beyond[level].append(abs(math.log(c.mag_ratio[at])) > 1.645 * c.mag_ratio_error[at])
     assert np.mean(beyond[False]) > 0.25               # 0.34 on these draws

@@ -1171,7 +1171,6 @@ def _fill_noise(
     trim_noise: np.ndarray | None = None,
     shared: np.ndarray | None = None,
     information: np.ndarray | None = None,
-    trim_error: np.ndarray | None = None,
 ) -> None:
     """``c.sigma2`` (the output's own noise per DFT bin) and ``c.mag_ratio`` on the whole grid.
 
@@ -1190,7 +1189,7 @@ def _fill_noise(
     frequencies until its random error is :data:`RESPONSE_ERROR` (:func:`_pool_response`, the bins they share
     from ``shared``): a planned manoeuvre's ``|H|`` is its own view of the model times that ratio. Each
     point's error in that pool is the one the noise level gives it (:func:`_expected_error`, from
-    ``information``, the rebuilt ``Phi1^H Phi1``, and ``trim_error``, the trim's output error) or its own
+    ``information``, the rebuilt ``Phi1^H Phi1``, and ``c.trim_noise``, the trim's output error) or its own
     where that is larger (:func:`_view_error`); without ``information``, its own."""
     measured = np.isfinite(measured_mag) & (measured_mag > 0)
     total = q * np.where(measured, measured_mag, np.nan) ** 2
@@ -1211,7 +1210,7 @@ def _fill_noise(
     ok = use & np.isfinite(seen_mag) & (seen_mag > 0) & np.isfinite(error) & (error > 0)
     error = _view_error(error, measured_mag, seen_mag)
     if information is not None:
-        expected = _expected_error(c, seen_mag, information, trim_error)
+        expected = _expected_error(c, seen_mag, information)
         ok &= np.isfinite(expected) & (expected > 0)
         error = np.fmax(error, expected)
     if ok.any():
@@ -1249,19 +1248,19 @@ def _local_linear(x: np.ndarray, y: np.ndarray, weight: np.ndarray, width: float
     return out
 
 
-def _expected_error(c: _Channel, seen_mag: np.ndarray, information: np.ndarray,
-                    trim_error: np.ndarray | None) -> np.ndarray:
+def _expected_error(c: _Channel, seen_mag: np.ndarray, information: np.ndarray) -> np.ndarray:
     """Each first-flight point's random error as the smoothed noise says it should be, over the model's view
     of ``|H|``: ``predicted_random_error(sigma^2 / |H_seen|^2 + input noise, Phi1^H Phi1)``, the noise the
-    trim's output error where it tells it (:func:`_trim_output_error`, tens of averages), else ``c.sigma2``
+    trim's output error where it tells it (``c.trim_noise``: :func:`_trim_output_error`, tens of averages),
+    else ``c.sigma2``
     (the flight's own residuals smoothed over frequency). Not the point's own ``random_error``: that is its
     residual on a short card's 3 degrees of freedom, a third of the truth or less one time in five
     (chi-square), and a pool weighted by ``1 / e^2`` leans on exactly those points and believes itself
     precise."""
     view = np.maximum(np.asarray(seen_mag, float), 1e-300) ** 2
     q = c.sigma2 / view + c.input_noise
-    if trim_error is not None:
-        q = np.where(np.isfinite(trim_error), trim_error / view, q)
+    if c.trim_noise is not None:
+        q = np.where(np.isfinite(c.trim_noise), c.trim_noise / view, q)
     return predicted_random_error(q, information)
 
 
@@ -1425,6 +1424,14 @@ def estimator_record(u: np.ndarray, dt: float, pre_s: float, post_s: float) -> n
     return u[first:last]
 
 
+def _information_record(c: _Channel, opts: PlanOptions, duration_s: float, f0: float, f1: float
+                        ) -> np.ndarray:
+    """The sweep at amplitude 1 with the card's trim around it, on the record the estimator cuts
+    (:func:`estimator_record`): what a planned sweep's information is computed on."""
+    t = np.arange(-opts.trim_before_s, duration_s + opts.trim_between_s, c.dt)
+    return estimator_record(chirp(t, duration_s, f0, f1, opts.fade_s, opts.fade_s), c.dt, c.pre_s, c.post_s)
+
+
 def _unit_record(c: _Channel, opts: PlanOptions, duration_s: float, f0: float, f1: float
                  ) -> tuple[np.ndarray, float]:
     """The sweep at amplitude 1 as the estimator will cut it, conservatively: half the trim it may keep before
@@ -1567,8 +1574,7 @@ def _candidate(c: _Channel, idx: list[int], w0: float, w1: float, length: float,
     if not np.all(np.isfinite(q)):
         return None
     info = sums.ff
-    t = np.arange(-opts.trim_before_s, length + opts.trim_between_s, c.dt)
-    cut = estimator_record(chirp(t, length, f0, f1, opts.fade_s, opts.fade_s), c.dt, c.pre_s, c.post_s)
+    cut = _information_record(c, opts, length, f0, f1)
     record, record_status = record_bands(cut[None], cut[None], c.dt, w, options=c.spectra)
     if np.all(record_status == 0):
         info = record.ff
@@ -1918,8 +1924,7 @@ def _from_results(c: _Channel, data: dict, opts: PlanOptions) -> bool:
     agrees = np.abs(dof_pred - dof) <= 0.25 * np.maximum(dof, 4.0)
     trim = _trim_spectra(c, data)
     c.trim_noise = _trim_output_error(c, data, trim)
-    _fill_noise(c, q, dof, mag, seen_mag, core & agrees, _output_trim_noise(c, data), shared, sums1.ff,
-                c.trim_noise)
+    _fill_noise(c, q, dof, mag, seen_mag, core & agrees, _output_trim_noise(c, data), shared, sums1.ff)
     _trim_floor(c, trim)
     _targets(c, data)
     _cap(c, data, opts)
